@@ -1,0 +1,116 @@
+"""Readable definitions of the minimal parameters in physical terms.
+
+Planar trees: each parameter is the coefficient of one body-pair function (see
+:mod:`spaceid.regressor`), derived symbolically with SymPy from the barycentric form of the
+momentum: with ``s_i`` written as a sum of body-fixed vectors ``v`` (joint offsets and CoM
+offsets), and ``mu_v`` the mass of the bodies whose CoM position contains ``v``,
+
+    h = sum_b Izz_b w_b + sum_{v, w} (mu_vw - mu_v mu_w / M) (w_a + w_b) (R_a v . R_b w)
+
+over unordered pairs of vectors (``v`` fixed in body a, ``w`` in body b, each pair once, a
+vector with itself counted once with a half weight). Symbols: ``m_<body>`` mass, ``cx_<body>``,
+``cy_<body>`` CoM in the body frame, ``Izz_<body>`` inertia about the CoM, ``x_<joint>``,
+``y_<joint>`` the joint's position in its parent's frame, ``M`` the total mass. A test
+evaluates every definition and compares it with the numerical parameter values.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import sympy as sp
+
+from .model import Model, _inertia_matrix
+
+__all__ = ["planar_definitions", "planar_symbol_values", "column_definitions"]
+
+
+def _sym(name, present):
+    """A symbol, or exact zero where it is known to vanish (keeps definitions short)."""
+    return sp.Symbol(name, real=True) if present else sp.Integer(0)
+
+
+def planar_symbol_values(model: Model) -> dict:
+    """Numerical values of the symbols used in planar definitions."""
+    values = {"M": model.mass}
+    for b in model.bodies:
+        i_com = _inertia_matrix(b.inertial) - b.mass * (b.com @ b.com * np.eye(3) - np.outer(b.com, b.com))
+        values.update({f"m_{b.name}": b.mass, f"cx_{b.name}": b.com[0], f"cy_{b.name}": b.com[1], f"Izz_{b.name}": i_com[2, 2]})
+        if b.joint:
+            values.update({f"x_{b.joint}": b.translation[0], f"y_{b.joint}": b.translation[1]})
+    return values
+
+
+def _subtrees(model: Model):
+    sub = [{i} for i in range(len(model.bodies))]
+    for i in reversed(range(1, len(model.bodies))):
+        sub[model.bodies[i].parent] |= sub[i]
+    return sub
+
+
+def planar_definitions(model: Model, terms) -> list:
+    """Definitions (SymPy strings) of the coefficients of the planar body-pair ``terms``."""
+    bodies = model.bodies
+    mass = [sp.Symbol(f"m_{b.name}", positive=True) for b in bodies]
+    total = sum(mass)
+    sub = _subtrees(model)
+    vectors = [[] for _ in bodies]  # per body: (x, y, set of bodies whose CoM contains it)
+    for i, b in enumerate(bodies):
+        # CoM coordinates are unknowns unless declared zero; joint offsets are known geometry
+        cx, cy = _sym(f"cx_{b.name}", "mcx" not in b.known_zero), _sym(f"cy_{b.name}", "mcy" not in b.known_zero)
+        vectors[i].append((cx, cy, {i}))
+        if b.parent >= 0:
+            t = b.translation
+            vectors[b.parent].append((_sym(f"x_{b.joint}", abs(t[0]) > 0), _sym(f"y_{b.joint}", abs(t[1]) > 0), sub[i]))
+
+    def mu(s):
+        return sum((mass[i] for i in s), sp.Integer(0))
+
+    def weight(sv, sw):
+        return mu(sv & sw) - mu(sv) * mu(sw) / total
+
+    rot = _zero_pose_rotations(model)
+    out = []
+    for kind, a, b in terms:
+        if kind == "spin":
+            spin = sp.Symbol(f"Izz_{bodies[a].name}", positive=True)
+            expr = sp.Integer(0)
+            vs = vectors[a]
+            for p, (vx, vy, sv) in enumerate(vs):
+                expr += weight(sv, sv) * (vx**2 + vy**2)
+                for wx, wy, sw in vs[p + 1 :]:
+                    expr += 2 * weight(sv, sw) * (vx * wx + vy * wy)
+        else:
+            # R_a^T R_b = Rz(D) diag(1, f, f): f = -1 where the frames' z axes are opposite
+            rel = rot[a].T @ rot[b]
+            f = round(np.linalg.det(rel[:2, :2]))
+            expr = sp.Integer(0)
+            for vx, vy, sv in vectors[a]:
+                for wx, wy, sw in vectors[b]:
+                    dot = vx * wx + f * vy * wy if kind == "cos" else vy * wx - f * vx * wy
+                    expr += weight(sv, sw) * dot
+        expr = sp.factor(sp.together(expr)).subs(total, sp.Symbol("M", positive=True))
+        out.append(str(spin + expr if kind == "spin" else expr))
+    return out
+
+
+def _zero_pose_rotations(model: Model):
+    rot = [np.eye(3)]
+    for b in model.bodies[1:]:
+        rot.append(rot[b.parent] @ b.rotation)
+    return rot
+
+
+def column_definitions(names, projection, *, digits: int = 6) -> list:
+    """Definitions of column-basis parameters: a full parameter plus the dependent ones it absorbs."""
+    out = []
+    for row in projection:
+        terms = []
+        for coef, name in zip(row, names):
+            if coef == 0:
+                continue
+            if abs(coef - 1) < 1e-12:
+                terms.append(name)
+            else:
+                terms.append(f"{coef:.{digits}g}*{name}")
+        out.append(" + ".join(terms).replace("+ -", "- "))
+    return out

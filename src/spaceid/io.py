@@ -1,0 +1,426 @@
+"""Logs, joint trajectories and results on disk: CSV and JSON, validated on the way in.
+
+A log CSV has a header row and one row per sample; column order is free and columns that are
+not needed are ignored. Units are SI and angles are radians:
+
+- ``t`` [s], strictly increasing;
+- planar: ``base_yaw`` [rad] and ``base_wz`` [rad/s];
+- spatial: ``base_qw, base_qx, base_qy, base_qz``, the scalar-first unit quaternion of the
+  base-to-inertial rotation, and ``base_wx, base_wy, base_wz`` [rad/s] in base axes;
+- for every model joint ``J``: ``q_J`` [rad or m] and ``qd_J`` [rad/s or m/s].
+
+Readers turn every defect into a one-line :class:`~spaceid.SpaceidError` that names the file,
+the column and line where relevant, and the fix. Writers replace files atomically, so a failed
+write leaves the old file (or none) and never a partial one.
+
+Unit heuristics (a log in degrees is the commonest mistake, and silently wrong in radians):
+
+- an angle column (``base_yaw`` or ``q_J``) with a magnitude above ``20*pi`` (ten turns) is
+  taken to be in degrees and is an error; reaction wheels (``wheels=``) are exempt since their
+  angle grows without bound;
+- a rate above 100 rad/s (1000 rad/s for a reaction wheel, which may spin at ~300 rad/s) only
+  warns, as fast rates are unusual rather than impossible.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ._atomic import atomic_path, write_text_atomic
+from ._errors import SpaceidError
+from .timeseries import Log, yaw_to_quat
+
+__all__ = ["read_log", "write_log", "read_joint_trajectory", "write_json", "read_json"]
+
+_MAX_ANGLE = 20 * math.pi  # [rad]; ten turns over a run means the column is in degrees
+_MAX_RATE = 100.0  # [rad/s]; arm joints and the base; above it the column is likely deg/s
+_MAX_WHEEL_RATE = 1000.0  # [rad/s]; reaction wheels spin at a few hundred rad/s
+_QUAT_WARN = 1e-6  # |norm - 1| above which a quaternion is renormalised, with a warning
+_QUAT_FAIL = 1e-2  # |norm - 1| above which it is not a unit quaternion at all
+
+_PLANAR_BASE = (("base_yaw",), ("base_wz",))
+_SPATIAL_BASE = (("base_qw", "base_qx", "base_qy", "base_qz"), ("base_wx", "base_wy", "base_wz"))
+
+
+def read_log(path, *, joints, planar, require_rates=True, wheels=()) -> Log:
+    """Read and validate a log CSV.
+
+    Parameters
+    ----------
+    path : str or Path
+        The CSV file (layout in the module docstring). It is only read.
+    joints : sequence of str
+        Model joint names, in the order of the columns of ``q`` and ``qd``.
+    planar : bool
+        Read ``base_yaw, base_wz`` (True) or the base quaternion and 3 rates (False).
+    require_rates : bool, default True
+        When False, missing ``qd_J`` and base-rate columns are allowed; the missing arrays are
+        filled with NaN (for differentiation later) and ``meta["rates"]`` is ``"missing"``.
+    wheels : sequence of str, default ()
+        Reaction-wheel joints (``model.wheels``), exempt from the degrees check on angles.
+
+    Returns
+    -------
+    Log
+        ``t`` of shape (n_samples,) [s]; ``q``, ``qd`` of shape (n_samples, n_joints);
+        ``base_quat`` (n_samples, 4) scalar first; ``base_w`` (n_samples, 3) [rad/s] in base
+        axes (``[0, 0, wz]`` for a planar log, all NaN if the base rate is missing).
+        ``meta`` holds ``source`` (the path), ``columns`` (the header) and, when rates are
+        missing, ``rates = "missing"`` and ``missing_rates`` (the absent columns).
+
+    Raises
+    ------
+    SpaceidError
+        Missing or unreadable file; empty file or no data rows; missing required columns;
+        a ``q_X``/``qd_X`` column for a joint X the model lacks; non-numeric, NaN or infinite
+        cells; time stamps not strictly increasing; angles apparently in degrees; a base
+        quaternion whose norm departs from 1 by more than 1e-2.
+
+    Warns
+    -----
+    UserWarning
+        A base quaternion whose norm departs from 1 by more than 1e-6 (it is normalised), or
+        implausibly fast rates.
+    """
+    joints = tuple(joints)
+    table = _read_csv(path, what="log")
+    _check_joint_columns(table, joints)
+    base_angles, base_rates = _PLANAR_BASE if planar else _SPATIAL_BASE
+    angles = ("t", *base_angles, *(f"q_{j}" for j in joints))
+    rates = (*base_rates, *(f"qd_{j}" for j in joints))
+    _require(table, angles + rates if require_rates else angles, planar=planar)
+
+    values = {name: _column(table, name) for name in angles + rates if name in table.header}
+    _check_time(table, values["t"])
+    _check_angles(table, values, ("base_yaw", *(f"q_{j}" for j in joints if j not in wheels)))
+    _check_rates(table, values, base_rates, joints, wheels)
+
+    n = len(values["t"])
+    nan = np.full(n, np.nan)
+    meta = {"source": str(path), "columns": list(table.header)}
+    missing = [name for name in rates if name not in values]
+    if missing:
+        meta.update(rates="missing", missing_rates=missing)
+
+    if planar:
+        base_quat = yaw_to_quat(values["base_yaw"])
+        if "base_wz" in values:
+            base_w = np.zeros((n, 3))
+            base_w[:, 2] = values["base_wz"]
+        else:  # an unknown wz leaves the whole vector unknown, not half-filled with zeros
+            base_w = np.full((n, 3), np.nan)
+    else:
+        base_quat = _unit_quaternions(table, _stack(values, base_angles, n))
+        base_w = _stack(values, base_rates, n, fill=nan)
+    return Log(
+        t=values["t"],
+        joints=joints,
+        q=_stack(values, [f"q_{j}" for j in joints], n),
+        qd=_stack(values, [f"qd_{j}" for j in joints], n, fill=nan),
+        base_quat=base_quat,
+        base_w=base_w,
+        planar=bool(planar),
+        meta=meta,
+    )
+
+
+def write_log(path, log: Log) -> None:
+    """Write ``log`` as a CSV that :func:`read_log` reads back, atomically.
+
+    Columns: ``t``, then ``base_yaw, base_wz`` (planar; the yaw unwrapped, continuous) or
+    ``base_qw, base_qx, base_qy, base_qz, base_wx, base_wy, base_wz`` (spatial), then ``q_J``
+    and ``qd_J`` for every joint. Values are written with 17 significant digits, so every float
+    reads back bit for bit. Rate columns that are entirely NaN (rates not yet known) are left
+    out, so the file reads back with ``require_rates=False``.
+
+    Raises
+    ------
+    SpaceidError
+        The log holds NaN or infinite values elsewhere, or the file cannot be written.
+    """
+    if log.planar:
+        base = {"base_yaw": log.base_yaw, "base_wz": log.base_w[:, 2]}
+    else:
+        base = {f"base_q{c}": log.base_quat[:, i] for i, c in enumerate("wxyz")}
+        base |= {f"base_w{c}": log.base_w[:, i] for i, c in enumerate("xyz")}
+    columns = {"t": log.t, **base}
+    columns |= {f"q_{j}": log.q[:, k] for k, j in enumerate(log.joints)}
+    columns |= {f"qd_{j}": log.qd[:, k] for k, j in enumerate(log.joints)}
+    columns = {
+        name: np.asarray(x, dtype=float)
+        for name, x in columns.items()
+        if not (_is_rate(name) and np.isnan(x).all() and len(x))
+    }
+    bad = [name for name, x in columns.items() if not np.isfinite(x).all()]
+    if bad:
+        raise SpaceidError(
+            f"{path}: the log holds NaN or infinite values in {', '.join(bad)}: "
+            "a log CSV must be finite; fill or drop those samples before writing"
+        )
+    data = np.column_stack(list(columns.values()))
+    try:
+        with atomic_path(path) as tmp:
+            np.savetxt(tmp, data, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")
+    except OSError as err:
+        raise SpaceidError(f"{path}: cannot write the log ({err.strerror or err}): check the path is writable") from None
+
+
+def read_joint_trajectory(path, *, joints, wheels=()):
+    """Read a joint-trajectory CSV (columns ``t``, ``q_J``, ``qd_J``), e.g. for prediction.
+
+    Validation is that of :func:`read_log`; other columns are ignored.
+
+    Parameters
+    ----------
+    path : str or Path
+    joints : sequence of str
+        Model joint names, the column order of ``q`` and ``qd``.
+    wheels : sequence of str, default ()
+        Reaction-wheel joints, exempt from the degrees check on angles.
+
+    Returns
+    -------
+    t : ndarray of shape (n_samples,)
+        Time [s], strictly increasing.
+    q : ndarray of shape (n_samples, n_joints)
+        Joint positions [rad or m].
+    qd : ndarray of shape (n_samples, n_joints)
+        Joint rates [rad/s or m/s].
+    """
+    joints = tuple(joints)
+    table = _read_csv(path, what="joint trajectory")
+    _check_joint_columns(table, joints)
+    q_names = [f"q_{j}" for j in joints]
+    qd_names = [f"qd_{j}" for j in joints]
+    _require(table, ["t", *q_names, *qd_names], planar=None)
+    values = {name: _column(table, name) for name in ["t", *q_names, *qd_names]}
+    _check_time(table, values["t"])
+    _check_angles(table, values, [f"q_{j}" for j in joints if j not in wheels])
+    _check_rates(table, values, (), joints, wheels)
+    n = len(values["t"])
+    return values["t"], _stack(values, q_names, n), _stack(values, qd_names, n)
+
+
+def write_json(path, obj) -> None:
+    """Write ``obj`` as indented JSON, atomically.
+
+    NumPy arrays become (nested) lists, NumPy scalars Python numbers, paths strings, and NaN or
+    infinite floats ``null`` (JSON has no NaN).
+    """
+    try:
+        write_text_atomic(path, json.dumps(_plain(obj), indent=2, allow_nan=False) + "\n")
+    except OSError as err:
+        raise SpaceidError(f"{path}: cannot write ({err.strerror or err}): check the path is writable") from None
+
+
+def read_json(path, *, what="JSON file"):
+    """Read a JSON file; ``what`` names it in error messages (e.g. ``"result"``)."""
+    text = _read_text(path, what)
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as err:
+        raise SpaceidError(
+            f"{path}: not a valid {what} (line {err.lineno}, column {err.colno}: {err.msg}): "
+            "fix the JSON or write the file again"
+        ) from None
+
+
+# --- helpers ---------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Table:
+    """A rectangular CSV: header names, cells as strings (n_rows, n_cols), file line per row."""
+
+    path: str
+    header: list
+    cells: np.ndarray
+    lines: list
+
+
+def _read_text(path, what):
+    try:
+        # utf-8-sig: spreadsheet exports often start with a byte-order mark.
+        return Path(path).read_text(encoding="utf-8-sig")
+    except FileNotFoundError:
+        raise SpaceidError(f"{path}: no such file (expected a {what}): check the path") from None
+    except UnicodeDecodeError as err:
+        raise SpaceidError(
+            f"{path}: not a UTF-8 text file (byte {err.start} cannot be decoded): expected a {what}"
+        ) from None
+    except OSError as err:
+        raise SpaceidError(f"{path}: cannot read the {what} ({err.strerror or err}): check the path and permissions") from None
+
+
+def _read_csv(path, *, what):
+    text = _read_text(path, what)
+    reader = csv.reader(io.StringIO(text, newline=""))
+    rows, lines = [], []
+    try:
+        for row in reader:
+            if row:  # blank lines carry no sample
+                rows.append([cell.strip() for cell in row])
+                lines.append(reader.line_num)
+    except csv.Error as err:
+        raise SpaceidError(f"{path}: line {reader.line_num}: malformed CSV ({err}): fix the file") from None
+    if not rows:
+        raise SpaceidError(f"{path}: the {what} file is empty: expected a header row and data rows")
+    header = rows[0]
+    seen = set()
+    for name in header:
+        if name in seen:
+            raise SpaceidError(f"{path}: column '{name}' appears twice in the header: rename or drop one")
+        seen.add(name)
+    if len(rows) == 1:
+        raise SpaceidError(f"{path}: the {what} has a header but no data rows: give at least one sample")
+    for row, line in zip(rows[1:], lines[1:]):
+        if len(row) != len(header):
+            raise SpaceidError(
+                f"{path}: line {line} has {len(row)} fields but the header has {len(header)}: "
+                "give one value per column on every row"
+            )
+    return _Table(str(path), header, np.array(rows[1:], dtype=str), lines[1:])
+
+
+def _check_joint_columns(table, joints):
+    for name in table.header:
+        prefix = "q_" if name.startswith("q_") else "qd_" if name.startswith("qd_") else None
+        if prefix and name[len(prefix):] not in joints:
+            raise SpaceidError(
+                f"{table.path}: joint '{name[len(prefix):]}' in the log is not in the model "
+                f"(joints: {', '.join(joints) or 'none'}): rename the column or use the matching model"
+            )
+
+
+def _require(table, names, *, planar):
+    missing = [name for name in names if name not in table.header]
+    if not missing:
+        return
+    hint = ""
+    if all(_is_float(name) for name in table.header):
+        hint = "; the first line must be a header naming the columns"
+    elif planar is True and "base_qw" in table.header:
+        hint = "; the log looks spatial (base quaternion columns): use a spatial model"
+    elif planar is False and "base_yaw" in table.header:
+        hint = "; the log looks planar (base_yaw column): use a planar model"
+    elif all(_is_rate(name) for name in missing):
+        hint = "; give the rates or let spaceid differentiate the angles (require_rates=False)"
+    raise SpaceidError(
+        f"{table.path}: missing column(s) {', '.join(missing)} (header: {', '.join(table.header)}){hint}"
+    )
+
+
+def _column(table, name):
+    """The column ``name`` as finite floats, shape (n_rows,)."""
+    raw = table.cells[:, table.header.index(name)]
+    try:
+        x = raw.astype(float)
+    except ValueError:
+        i = next((i for i, cell in enumerate(raw) if not _is_float(cell)), 0)
+        raise SpaceidError(
+            f"{table.path}: line {table.lines[i]}, column '{name}': {str(raw[i])!r} is not a number: "
+            "give plain decimal numbers"
+        ) from None
+    bad = ~np.isfinite(x)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise SpaceidError(
+            f"{table.path}: column '{name}' holds {x[i]} (first at line {table.lines[i]}): "
+            "give finite numbers; fill or drop the gaps"
+        )
+    return x
+
+
+def _check_time(table, t):
+    step_bad = np.diff(t) <= 0
+    if step_bad.any():
+        i = int(np.argmax(step_bad)) + 1
+        raise SpaceidError(
+            f"{table.path}: time stamps must increase strictly, but t = {t[i]!r} at line "
+            f"{table.lines[i]} follows t = {t[i - 1]!r}: sort the log or remove duplicate rows"
+        )
+
+
+def _check_angles(table, values, names):
+    for name in names:
+        if name in values and np.abs(values[name]).max() > _MAX_ANGLE:
+            peak = np.abs(values[name]).max()
+            raise SpaceidError(
+                f"{table.path}: column '{name}' reaches {peak:.4g}, beyond {_MAX_ANGLE:.4g} rad "
+                "(ten turns): it seems to be in degrees; convert it to radians"
+            )
+
+
+def _check_rates(table, values, base_rates, joints, wheels):
+    limits = {name: _MAX_RATE for name in base_rates}
+    limits |= {f"qd_{j}": _MAX_WHEEL_RATE if j in wheels else _MAX_RATE for j in joints}
+    for name, limit in limits.items():
+        if name in values and np.abs(values[name]).max() > limit:
+            warnings.warn(
+                f"{table.path}: column '{name}' reaches {np.abs(values[name]).max():.4g} rad/s, "
+                f"above {limit:g} rad/s: check that it is in rad/s, not deg/s",
+                stacklevel=3,
+            )
+
+
+def _unit_quaternions(table, quat):
+    """``quat`` (n, 4) checked to be unit and renormalised if slightly off."""
+    norm = np.linalg.norm(quat, axis=1)
+    error = np.abs(norm - 1)
+    if error.max() > _QUAT_FAIL:
+        i = int(np.argmax(error > _QUAT_FAIL))
+        raise SpaceidError(
+            f"{table.path}: line {table.lines[i]}: base quaternion (base_qw, base_qx, base_qy, "
+            f"base_qz) has norm {norm[i]:.6g}, expected 1: give unit quaternions, scalar first"
+        )
+    if error.max() > _QUAT_WARN:
+        warnings.warn(
+            f"{table.path}: base quaternions depart from unit norm by up to {error.max():.2g}; "
+            "normalised them",
+            stacklevel=3,
+        )
+        return quat / norm[:, None]
+    return quat
+
+
+def _stack(values, names, n, fill=None):
+    """Columns ``names`` of ``values`` side by side, shape (n, len(names)); absent -> ``fill``."""
+    cols = [values[name] if name in values else fill for name in names]
+    return np.ascontiguousarray(np.array(cols, dtype=float).reshape(len(names), n).T)
+
+
+def _is_rate(name):
+    return name.startswith(("qd_", "base_w"))
+
+
+def _is_float(text):
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
+
+
+def _plain(obj):
+    """``obj`` with NumPy types, paths and non-finite floats turned into JSON values."""
+    if isinstance(obj, dict):
+        return {str(k): _plain(v) for k, v in obj.items()}
+    if isinstance(obj, np.ndarray):
+        return _plain(obj.tolist())
+    if isinstance(obj, (list, tuple)):
+        return [_plain(v) for v in obj]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj

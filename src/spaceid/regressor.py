@@ -1,0 +1,358 @@
+"""Momentum regressor ``h = Y(q, qd, w0) pi`` and its minimal parameter set, for any tree.
+
+The full regressor (MATH.md sec. 4) is linear in the standard inertial parameters ``theta``
+of every body and in the lumped products ``phi_ab = theta_a theta_b / M`` of the first-order
+ones (masses and first moments), once zero linear momentum has eliminated the base velocity:
+
+    h = sum_i [ I_i w_i + m_i s_i x u_i ] - (1/M) (sum_i m_i s_i) x (sum_j m_j u_j)
+
+The minimal set ``pi = P @ [theta, phi]`` is found numerically from the regressor stacked at
+seeded random states, with a recorded rank tolerance. Two bases are offered for it:
+
+* ``planar``: for planar trees of revolute joints, the coefficients of the body-pair functions
+  ``w_b``, ``cos(D_ab) (w_a + w_b)`` and ``sin(D_ab) (w_a + w_b)`` (``D_ab`` the angle of body b
+  relative to body a). For Cepheus these are exactly the paper's 8 parameters (Appendix B).
+* ``columns``: otherwise, the independent columns of the full regressor taken greedily in a
+  fixed order (a QR without pivoting on unit-norm columns), each absorbing the dependent ones.
+
+Both are the same engine: the planar basis is only a change of coordinates on the z row of the
+spatial regressor, fitted and checked at the random states.
+
+References
+----------
+.. [1] Papadopoulos et al., Eq. 2 and Eq. 9-10 (minimum parameter set), Appendix B.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import cached_property
+
+import numpy as np
+from scipy.linalg import qr
+
+from ._errors import SpaceidError
+from .kinematics import body_states, skew
+from .model import INERTIAL_NAMES, Model
+
+__all__ = ["Parameterization", "minimal_parameters", "full_regressor", "full_parameter_names", "full_values"]
+
+_FIRST = ("m", "mcx", "mcy", "mcz")  # first-order parameters, the factors of the lumped products
+RANK_TOL = 1e-9
+"""Default rank tolerance: a column (or basis row) is dependent when the part of it that the
+previous ones do not explain is below this fraction of its norm (unit-norm columns)."""
+
+
+def _free_first(model: Model):
+    """(body index, component) of every first-order parameter not declared zero."""
+    return [(i, k) for i, b in enumerate(model.bodies) for k, n in enumerate(_FIRST) if n not in b.known_zero]
+
+
+def full_parameter_names(model: Model) -> list:
+    """Names of the full parameter vector ``[theta, phi]`` (declared zeros left out).
+
+    ``theta`` entries read ``"mcx@link1"``, lumped products ``"m@base*mcx@link1/M"``.
+    """
+    names = [f"{n}@{b.name}" for b in model.bodies for n in INERTIAL_NAMES if n not in b.known_zero]
+    first = _free_first(model)
+    for a in range(len(first)):
+        for c in range(a, len(first)):
+            (i, k), (j, l) = first[a], first[c]
+            names.append(f"{_FIRST[k]}@{model.bodies[i].name}*{_FIRST[l]}@{model.bodies[j].name}/M")
+    return names
+
+
+def full_values(model: Model) -> np.ndarray:
+    """Values of the full parameter vector, shape ``(n_full,)``, order of ``full_parameter_names``."""
+    theta = [b.inertial[INERTIAL_NAMES.index(n)] for b in model.bodies for n in INERTIAL_NAMES if n not in b.known_zero]
+    first = [model.bodies[i].inertial[k] for i, k in _free_first(model)]
+    prods = [first[a] * first[c] / model.mass for a in range(len(first)) for c in range(a, len(first))]
+    return np.array(theta + prods)
+
+
+def full_regressor(model: Model, q, qd, w0, *, columns=None) -> np.ndarray:
+    """Full momentum regressor in base axes.
+
+    Parameters
+    ----------
+    model : Model
+    q, qd : array_like of shape (..., n_joints)
+    w0 : array_like of shape (..., 3)
+        Base angular velocity in base axes [rad/s].
+    columns : sequence of int, optional
+        Compute only these columns (indices into ``full_parameter_names``).
+
+    Returns
+    -------
+    ndarray of shape (..., 3, n_columns)
+        ``Y`` with ``Y @ full_values(model)`` the angular momentum about the system CM, base axes.
+    """
+    st = body_states(model, q, qd, w0)
+    names = full_parameter_names(model)
+    wanted = range(len(names)) if columns is None else columns
+    first = _free_first(model)
+    n_theta = len(names) - len(first) * (len(first) + 1) // 2
+    theta_index = [(i, k) for i, b in enumerate(model.bodies) for k, n in enumerate(INERTIAL_NAMES) if n not in b.known_zero]
+    pair_index = [(a, c) for a in range(len(first)) for c in range(a, len(first))]
+
+    cache = {}
+
+    def theta_block(i):
+        # momentum of body i about the base origin (relative velocities), per standard parameter
+        if i not in cache:
+            r, p, w, v = st.rotation[..., i, :, :], st.position[..., i, :], st.omega[..., i, :], st.velocity[..., i, :]
+            wb = np.einsum("...ji,...j->...i", r, w)  # body-axes angular velocity
+            zero = np.zeros(wb.shape[:-1])
+            wx, wy, wz = wb[..., 0], wb[..., 1], wb[..., 2]
+            lw = np.stack(  # I @ wb as a linear map of [Ixx, Ixy, Iyy, Ixz, Iyz, Izz]
+                [
+                    np.stack([wx, wy, zero, wz, zero, zero], -1),
+                    np.stack([zero, wx, wy, zero, wz, zero], -1),
+                    np.stack([zero, zero, zero, wx, wy, wz], -1),
+                ],
+                -2,
+            )
+            cache[i] = np.concatenate(
+                [np.cross(p, v)[..., None], (skew(p) @ skew(w) - skew(v)) @ r, r @ lw], -1
+            )
+        return cache[i]
+
+    def first_ab(a):
+        # columns of sum m s (A) and sum m u (B) for first-order parameter ``a``
+        i, k = first[a]
+        r, p, w, v = st.rotation[..., i, :, :], st.position[..., i, :], st.omega[..., i, :], st.velocity[..., i, :]
+        if k == 0:
+            return p, v
+        return r[..., :, k - 1], np.cross(w, r[..., :, k - 1])
+
+    out = []
+    for c in wanted:
+        if c < n_theta:
+            i, k = theta_index[c]
+            out.append(theta_block(i)[..., k])
+        else:
+            a, b = pair_index[c - n_theta]
+            (sa, ua), (sb, ub) = first_ab(a), first_ab(b)
+            col = np.cross(sa, ub) if a == b else np.cross(sa, ub) + np.cross(sb, ua)
+            out.append(-col)
+    return np.stack(out, -1)
+
+
+# ------------------------------------------------------------------ random states -------------
+
+
+def _random_states(model: Model, n: int, seed: int):
+    """Seeded random states covering the joint space, for rank decisions and fits."""
+    rng = np.random.default_rng(seed)
+    nj = model.n_joints
+    q = np.empty((n, nj))
+    for j, b in enumerate(model.bodies[1:]):
+        if b.joint_type == "revolute":
+            q[:, j] = rng.uniform(-np.pi, np.pi, n)
+        else:
+            lo, hi = b.limits.get("lower", -0.5), b.limits.get("upper", 0.5)
+            q[:, j] = rng.uniform(lo, hi, n)
+    qd = rng.standard_normal((n, nj))
+    w0 = rng.standard_normal((n, 3))
+    if model.planar:
+        w0[:, :2] = 0.0
+    return q, qd, w0
+
+
+def _independent(matrix: np.ndarray, tol: float) -> np.ndarray:
+    """Indices of the columns of ``matrix`` independent of the kept columns before them.
+
+    Greedy in the given (fixed) order, so the choice depends only on the linear relations
+    between columns, not on their magnitudes or on the sample states: each column is scaled
+    to unit norm and kept when its part orthogonal to the kept ones exceeds ``tol``. Columns
+    below ``tol`` times the largest column norm count as zero.
+    """
+    norms = np.linalg.norm(matrix, axis=0)
+    if matrix.shape[0] > matrix.shape[1]:
+        matrix = qr(matrix, mode="r")[0]  # same column geometry (Y = QR), fewer rows
+    basis = np.zeros((matrix.shape[0], min(matrix.shape)))
+    keep = []
+    for j in np.flatnonzero(norms > tol * norms.max()):
+        c = matrix[:, j] / norms[j]
+        for _ in range(2):  # Gram-Schmidt twice is enough for orthogonality to eps
+            c = c - basis[:, : len(keep)] @ (basis[:, : len(keep)].T @ c)
+        if np.linalg.norm(c) > tol:
+            basis[:, len(keep)] = c / np.linalg.norm(c)
+            keep.append(j)
+    return np.array(keep, dtype=int)
+
+
+# ------------------------------------------------------------------ planar basis --------------
+
+
+def _planar_pairs(n_bodies):
+    """Body-pair basis in the paper's order: base-link cos, base-link sin, base, link-link
+    cos and sin, links."""
+    base_pairs = [(0, b) for b in range(1, n_bodies)]
+    link_pairs = [(a, b) for a in range(1, n_bodies) for b in range(a + 1, n_bodies)]
+    return (
+        [("cos", a, b) for a, b in base_pairs]
+        + [("sin", a, b) for a, b in base_pairs]
+        + [("spin", 0, 0)]
+        + [(kind, a, b) for a, b in link_pairs for kind in ("cos", "sin")]
+        + [("spin", b, b) for b in range(1, n_bodies)]
+    )
+
+
+def _planar_functions(model: Model, terms, q, qd, w0):
+    """Body-pair functions at the states, shape ``(..., n_terms)``."""
+    st = body_states(model, q, qd, w0)
+    rot, wz = st.rotation, st.omega[..., 2]
+    cols = []
+    for kind, a, b in terms:
+        if kind == "spin":
+            cols.append(wz[..., a])
+            continue
+        rel = np.einsum("...ji,...jk->...ik", rot[..., a, :, :], rot[..., b, :, :])
+        trig = rel[..., 0, 0] if kind == "cos" else rel[..., 1, 0]
+        cols.append(trig * (wz[..., a] + wz[..., b]))
+    return np.stack(cols, -1)
+
+
+# ------------------------------------------------------------------ the minimal set -----------
+
+
+@dataclass(frozen=True)
+class Parameterization:
+    """The minimal (identifiable) parameter set of a model and its regressor.
+
+    Attributes
+    ----------
+    model : Model
+        The model the set was derived for (its geometry enters the regressor; its inertial
+        values only give the ``true_values``).
+    names : tuple of str
+        ``pi1 .. pik``.
+    definitions : tuple of str
+        Each parameter in physical terms (symbolic, SymPy syntax).
+    projection : ndarray of shape (k, n_full)
+        ``pi = projection @ [theta, phi]`` (see ``full_parameter_names``).
+    basis : {"planar", "columns"}
+    rank_tol : float
+        Rank tolerance used (see ``RANK_TOL``).
+    seed : int
+        Seed of the random states used for rank decisions and fits.
+    n_states : int
+    """
+
+    model: Model
+    names: tuple
+    definitions: tuple
+    projection: np.ndarray
+    basis: str
+    rank_tol: float
+    seed: int
+    n_states: int
+    _eval: tuple = field(repr=False, compare=False, default=())
+
+    @property
+    def n_params(self) -> int:
+        return len(self.names)
+
+    @property
+    def rows(self) -> int:
+        """Equations per sample: 1 (z) for planar systems, 3 for spatial ones."""
+        return 1 if self.model.planar else 3
+
+    @cached_property
+    def true_values(self) -> np.ndarray:
+        """``pi`` of the model's own inertial parameters, shape ``(k,)``."""
+        return self.projection @ full_values(self.model)
+
+    def regressor(self, q, qd, w0) -> np.ndarray:
+        """Minimal regressor in base axes, shape ``(..., rows, k)``.
+
+        ``regressor(q, qd, w0) @ pi`` is the angular momentum about the system CM in base axes
+        (its z component only, for planar systems).
+        """
+        kind, data, weights = self._eval
+        if kind == "planar":
+            return (_planar_functions(self.model, data, q, qd, w0) @ weights)[..., None, :]
+        y = full_regressor(self.model, q, qd, w0, columns=data) @ weights
+        return y[..., 2:3, :] if self.model.planar else y
+
+    def to_dict(self) -> dict:
+        return {
+            "basis": self.basis,
+            "rank_tol": self.rank_tol,
+            "seed": self.seed,
+            "n_states": self.n_states,
+            "parameters": [{"name": n, "definition": d} for n, d in zip(self.names, self.definitions)],
+        }
+
+
+def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) -> Parameterization:
+    """Derive the minimal parameter set of ``model`` and its regressor.
+
+    Parameters
+    ----------
+    model : Model
+    tol : float
+        Rank tolerance, relative (see ``RANK_TOL``); recorded in the result.
+    seed : int
+        Seed of the random states; the result does not depend on it (tested), it is recorded.
+
+    Returns
+    -------
+    Parameterization
+    """
+    names = full_parameter_names(model)
+    rows = slice(2, 3) if model.planar else slice(None)
+    n_states = max(64, 3 * len(names))
+    q, qd, w0 = _random_states(model, n_states, seed)
+    y_full = full_regressor(model, q, qd, w0)[:, rows, :].reshape(-1, len(names))
+    indep = _independent(y_full, tol)
+    rank = len(indep)
+    if rank == 0:
+        raise SpaceidError(f"{model.source or model.name}: the momentum does not depend on any parameter (no moving body?)")
+    if model.planar and all(b.joint_type == "revolute" for b in model.bodies[1:]):
+        terms = _planar_pairs(len(model.bodies))
+        f = _planar_functions(model, terms, q, qd, w0)
+        coef, *_ = np.linalg.lstsq(f, y_full, rcond=None)
+        scale = np.abs(y_full).max()
+        if np.abs(f @ coef - y_full).max() <= 1e-9 * scale:
+            # rows of coef that are independent (and not structurally zero), in the paper's order
+            sel = _independent(coef.T, tol)
+            if len(sel) != rank:
+                raise AssertionError(f"planar basis rank {len(sel)} != regressor rank {rank}")
+            proj = coef[sel]
+            weights = coef @ np.linalg.pinv(proj)  # coef = weights @ proj
+            used = [s for s in range(len(terms)) if np.abs(weights[s]).max() > 0]
+            from ._definitions import planar_definitions
+
+            return Parameterization(
+                model,
+                tuple(f"pi{i + 1}" for i in range(rank)),
+                tuple(planar_definitions(model, [terms[s] for s in sel])),
+                proj,
+                "planar",
+                tol,
+                seed,
+                n_states,
+                ("planar", [terms[s] for s in used], weights[used]),
+            )
+    # columns basis: pi_i = theta_i + sum_d beta_id theta_d over the dependent columns d
+    dep = np.setdiff1d(np.arange(len(names)), indep)
+    beta, *_ = np.linalg.lstsq(y_full[:, indep], y_full[:, dep], rcond=None)
+    beta[np.abs(beta) < tol * max(1.0, np.abs(beta).max())] = 0.0
+    proj = np.zeros((rank, len(names)))
+    proj[np.arange(rank), indep] = 1.0
+    proj[:, dep] = beta
+    from ._definitions import column_definitions
+
+    return Parameterization(
+        model,
+        tuple(f"pi{i + 1}" for i in range(rank)),
+        tuple(column_definitions(names, proj)),
+        proj,
+        "columns",
+        tol,
+        seed,
+        n_states,
+        ("columns", list(indep), np.eye(rank)),
+    )
