@@ -170,7 +170,9 @@ def write_log(path, log: Log) -> None:
         with atomic_path(path) as tmp:
             np.savetxt(tmp, data, fmt="%.17g", delimiter=",", header=",".join(columns), comments="")
     except OSError as err:
-        raise SpaceidError(f"{path}: cannot write the log ({err.strerror or err}): check the path is writable") from None
+        raise SpaceidError(
+            f"{path}: cannot write the log ({err.strerror or err}): check the path is writable"
+        ) from None
 
 
 def read_joint_trajectory(path, *, joints, wheels=()):
@@ -218,7 +220,9 @@ def write_json(path, obj) -> None:
     try:
         write_text_atomic(path, json.dumps(_plain(obj), indent=2, allow_nan=False) + "\n")
     except OSError as err:
-        raise SpaceidError(f"{path}: cannot write ({err.strerror or err}): check the path is writable") from None
+        raise SpaceidError(
+            f"{path}: cannot write ({err.strerror or err}): check the path is writable"
+        ) from None
 
 
 def read_json(path, *, what="JSON file"):
@@ -257,7 +261,9 @@ def _read_text(path, what):
             f"{path}: not a UTF-8 text file (byte {err.start} cannot be decoded): expected a {what}"
         ) from None
     except OSError as err:
-        raise SpaceidError(f"{path}: cannot read the {what} ({err.strerror or err}): check the path and permissions") from None
+        raise SpaceidError(
+            f"{path}: cannot read the {what} ({err.strerror or err}): check the path and permissions"
+        ) from None
 
 
 def _read_csv(path, *, what):
@@ -267,13 +273,13 @@ def _read_csv(path, *, what):
     try:
         for row in reader:
             if row:  # blank lines carry no sample
-                rows.append([cell.strip() for cell in row])
+                rows.append(row)
                 lines.append(reader.line_num)
     except csv.Error as err:
         raise SpaceidError(f"{path}: line {reader.line_num}: malformed CSV ({err}): fix the file") from None
     if not rows:
         raise SpaceidError(f"{path}: the {what} file is empty: expected a header row and data rows")
-    header = rows[0]
+    header = [name.strip() for name in rows[0]]  # cells keep theirs: float() ignores it
     seen = set()
     for name in header:
         if name in seen:
@@ -304,7 +310,7 @@ def _require(table, names, *, planar):
     missing = [name for name in names if name not in table.header]
     if not missing:
         return
-    hint = ""
+    hint = "; add them or correct the column names"
     if all(_is_float(name) for name in table.header):
         hint = "; the first line must be a header naming the columns"
     elif planar is True and "base_qw" in table.header:
@@ -326,7 +332,7 @@ def _column(table, name):
     except ValueError:
         i = next((i for i, cell in enumerate(raw) if not _is_float(cell)), 0)
         raise SpaceidError(
-            f"{table.path}: line {table.lines[i]}, column '{name}': {str(raw[i])!r} is not a number: "
+            f"{table.path}: line {table.lines[i]}, column '{name}': {str(raw[i]).strip()!r} is not a number: "
             "give plain decimal numbers"
         ) from None
     bad = ~np.isfinite(x)
@@ -344,15 +350,15 @@ def _check_time(table, t):
     if step_bad.any():
         i = int(np.argmax(step_bad)) + 1
         raise SpaceidError(
-            f"{table.path}: time stamps must increase strictly, but t = {t[i]!r} at line "
-            f"{table.lines[i]} follows t = {t[i - 1]!r}: sort the log or remove duplicate rows"
+            f"{table.path}: time stamps must increase strictly, but t = {float(t[i])!r} at line "
+            f"{table.lines[i]} follows t = {float(t[i - 1])!r}: sort the log or remove duplicate rows"
         )
 
 
 def _check_angles(table, values, names):
     for name in names:
-        if name in values and np.abs(values[name]).max() > _MAX_ANGLE:
-            peak = np.abs(values[name]).max()
+        peak = np.abs(values[name]).max() if name in values else 0.0
+        if peak > _MAX_ANGLE:
             raise SpaceidError(
                 f"{table.path}: column '{name}' reaches {peak:.4g}, beyond {_MAX_ANGLE:.4g} rad "
                 "(ten turns): it seems to be in degrees; convert it to radians"
@@ -363,9 +369,10 @@ def _check_rates(table, values, base_rates, joints, wheels):
     limits = {name: _MAX_RATE for name in base_rates}
     limits |= {f"qd_{j}": _MAX_WHEEL_RATE if j in wheels else _MAX_RATE for j in joints}
     for name, limit in limits.items():
-        if name in values and np.abs(values[name]).max() > limit:
+        peak = np.abs(values[name]).max() if name in values else 0.0
+        if peak > limit:
             warnings.warn(
-                f"{table.path}: column '{name}' reaches {np.abs(values[name]).max():.4g} rad/s, "
+                f"{table.path}: column '{name}' reaches {peak:.4g} rad/s, "
                 f"above {limit:g} rad/s: check that it is in rad/s, not deg/s",
                 stacklevel=3,
             )

@@ -1,0 +1,300 @@
+"""The ``spaceid`` command: thin commands, each one library call.
+
+Bad input raises :class:`spaceid.SpaceidError` in the library; here, and only here, it becomes
+a one-line ``error: ...`` on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import sys
+import warnings
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+from ._errors import SpaceidError
+
+app = typer.Typer(
+    add_completion=False,
+    pretty_exceptions_enable=False,
+    no_args_is_help=True,
+    help="Identify free-floating space manipulators from angular-momentum conservation.",
+)
+out = Console()
+err = Console(stderr=True)
+
+PLANAR = typer.Option(None, "--planar/--spatial", help="Force planar (x, y, yaw) or spatial mode; default: the model's.")
+MOMENTUM = typer.Option(..., "--momentum", help="Angular momentum [N m s]: h (planar) or hx,hy,hz (inertial axes).")
+SEED = typer.Option(0, "--seed", help="Seed of every random choice (recorded in the output).")
+
+
+@contextlib.contextmanager
+def _progress(label: str, enabled: bool = True):
+    """A rich progress bar fed through a ``progress(done, total)`` callback."""
+    if not enabled:
+        yield None
+        return
+    with Progress(TextColumn(label), BarColumn(), TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn(), console=err, transient=True) as bar:
+        task = bar.add_task(label, total=None)
+        yield lambda done, total: bar.update(task, completed=done, total=total)
+
+
+def _param(model_src, planar):
+    from .model import load_model
+    from .regressor import minimal_parameters
+
+    return minimal_parameters(load_model(model_src, planar=planar))
+
+
+def _momentum(value, planar):
+    from .estimate import parse_momentum
+
+    return parse_momentum(value, planar=planar)
+
+
+@app.command()
+def model(
+    model_src: str = typer.Argument(..., metavar="MODEL", help="Preset name or URDF/YAML path."),
+    planar: Optional[bool] = PLANAR,
+    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
+):
+    """Identifiability report: bodies, joints, standard and minimal parameters."""
+    from rich.table import Table
+
+    from .regressor import full_parameter_names
+
+    param = _param(model_src, planar)
+    m = param.model
+    info = {
+        "model": m.name,
+        "source": m.source,
+        "planar": m.planar,
+        "mass": m.mass,
+        "bodies": [{"name": b.name, "parent": m.bodies[b.parent].name if b.parent >= 0 else None, "joint": b.joint,
+                    "type": b.joint_type, "mass": b.mass} for b in m.bodies],
+        "n_standard_parameters": 10 * len(m.bodies),
+        "n_full_parameters": len(full_parameter_names(m)),
+        "n_minimal_parameters": param.n_params,
+        **param.to_dict(),
+    }
+    if as_json:
+        print(json.dumps(info, indent=2))
+        return
+    out.print(f"[bold]{m.name}[/]  ({m.source}), {'planar' if m.planar else 'spatial'}, total mass {m.mass:.6g} kg")
+    bodies = Table("body", "parent", "joint", "type", "mass [kg]", title="Bodies")
+    for b in info["bodies"]:
+        bodies.add_row(b["name"], b["parent"] or "-", b["joint"] or "(floating base)", b["type"], f"{b['mass']:.6g}")
+    out.print(bodies)
+    out.print(
+        f"standard parameters: {info['n_standard_parameters']} (10 per body); with lumped products: "
+        f"{info['n_full_parameters']}; minimal identifiable set: [bold]{param.n_params}[/] "
+        f"(basis '{param.basis}', rank tolerance {param.rank_tol:g}, seed {param.seed})"
+    )
+    table = Table("name", "value (model)", "definition", title="Minimal parameters")
+    for n, v, d in zip(param.names, param.true_values, param.definitions):
+        table.add_row(n, f"{v:.6g}", d)
+    out.print(table)
+
+
+@app.command()
+def design(
+    model_src: str = typer.Argument(..., metavar="MODEL"),
+    planar: Optional[bool] = PLANAR,
+    duration: float = typer.Option(..., "--duration", help="Trajectory duration tf [s]."),
+    harmonics: int = typer.Option(..., "--harmonics", help="Fourier harmonics Nf."),
+    samples: int = typer.Option(..., "--samples", help="Samples N, equally spaced over [0, tf]."),
+    momentum: str = MOMENTUM,
+    seed: int = SEED,
+    criterion: str = typer.Option("cond", "--criterion", help="cond (condition number) or logdet (D-optimal)."),
+    q_max: Optional[float] = typer.Option(None, "--q-max", help="|q| limit [rad] (default: model limits)."),
+    qd_max: Optional[float] = typer.Option(None, "--qd-max", help="|qd| limit [rad/s]."),
+    qdd_max: Optional[float] = typer.Option(None, "--qdd-max", help="|qdd| limit [rad/s^2]."),
+    time_budget: float = typer.Option(10.0, "--time-budget", help="Wall-time budget of the global search [s]."),
+    output: Path = typer.Option(..., "-o", "--output", help="Trajectory file to write (JSON)."),
+):
+    """Optimal exciting trajectory (Eq. 12) minimising the regressor's condition number."""
+    from .demo import design_for
+
+    param = _param(model_src, planar)
+    h = _momentum(momentum, param.model.planar)
+    with _progress("designing") as progress:
+        res = design_for(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
+                         progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
+                         time_budget=time_budget)
+    res.trajectory.save(output)
+    err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {output}")
+
+
+@app.command()
+def simulate(
+    model_src: str = typer.Argument(..., metavar="MODEL"),
+    planar: Optional[bool] = PLANAR,
+    trajectory: str = typer.Option(..., "--trajectory", help="File from 'design' or a named trajectory (paper-table2)."),
+    momentum: str = MOMENTUM,
+    samples: Optional[int] = typer.Option(None, "--samples", help="N samples equally spaced over [0, tf]."),
+    rate: Optional[float] = typer.Option(None, "--rate", help="Sample rate [Hz] (instead of --samples)."),
+    noise_angle: float = typer.Option(0.0, "--noise-angle", help="White noise on angles [rad]."),
+    noise_rate: float = typer.Option(0.0, "--noise-rate", help="White noise on rates [rad/s]."),
+    seed: int = SEED,
+    output: Path = typer.Option(..., "-o", "--output", help="Log CSV to write."),
+):
+    """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
+    from .io import write_log
+    from .simulate import add_noise, simulate as run
+    from .trajectory import load_trajectory, sample_times
+
+    param = _param(model_src, planar)
+    h = _momentum(momentum, param.model.planar)
+    traj = load_trajectory(trajectory, joints=param.model.joints)
+    if (samples is None) == (rate is None):
+        raise SpaceidError("simulate: give exactly one of --samples N or --rate HZ")
+    if samples is not None and samples < 2 or rate is not None and not rate > 0:
+        raise SpaceidError("simulate: --samples must be at least 2 and --rate positive")
+    times = sample_times(traj.duration, samples) if samples else np.arange(0, traj.duration + 1e-12, 1 / rate)
+    log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model)
+    log.meta.update(trajectory=trajectory, seed=seed)
+    if noise_angle or noise_rate:
+        log = add_noise(log, angle=noise_angle, rate=noise_rate, seed=seed)
+    write_log(output, log)
+    err.print(f"{log.n_samples} samples written to {output} (momentum error {log.meta['momentum_rel_error']:.1e} relative)")
+
+
+@app.command()
+def identify(
+    model_src: str = typer.Argument(..., metavar="MODEL"),
+    log_path: Path = typer.Argument(..., metavar="LOG.csv"),
+    planar: Optional[bool] = PLANAR,
+    momentum: str = MOMENTUM,
+    output: Path = typer.Option(..., "-o", "--output", help="Result JSON to write."),
+):
+    """Least-squares identification of the minimal parameters (Eq. 11)."""
+    from .estimate import identify as run
+    from .io import read_log, write_json
+    from .report import parameter_table
+
+    param = _param(model_src, planar)
+    h = _momentum(momentum, param.model.planar)
+    log = read_log(log_path, joints=param.model.joints, planar=param.model.planar, wheels=param.model.wheels)
+    ident = run(param, log, h, where=str(log_path))
+    write_json(output, ident.to_dict())
+    out.print(parameter_table(ident))
+    out.print(f"cond(Y) = {ident.condition_number:.4g}, residual RMS = {ident.residual_rms:.3g} N m s, "
+              f"{ident.n_samples} samples; result written to {output}")
+
+
+@app.command()
+def predict(
+    result: Path = typer.Argument(..., metavar="RESULT.json"),
+    traj_csv: Path = typer.Argument(..., metavar="TRAJ.csv"),
+    momentum: str = MOMENTUM,
+    initial_yaw: float = typer.Option(0.0, "--initial-yaw", help="Base yaw at t0 [rad] (planar)."),
+    output: Path = typer.Option(..., "-o", "--output", help="Predicted log CSV to write."),
+):
+    """Base motion of an identified model for a joint motion (t, q_J, qd_J)."""
+    from .io import read_joint_trajectory, write_log
+    from .timeseries import yaw_to_quat
+    from .validate import predict as run
+
+    ident = _read_result(result)
+    h = _momentum(momentum, ident.planar)
+    joints = _model_joints(ident)
+    t, q, qd = read_joint_trajectory(traj_csv, joints=joints)
+    log = run(ident, t, q, qd, momentum=h, initial_quat=yaw_to_quat(initial_yaw), where=str(result))
+    write_log(output, log)
+    err.print(f"{log.n_samples} predicted samples written to {output}")
+
+
+@app.command()
+def validate(
+    result: Path = typer.Argument(..., metavar="RESULT.json"),
+    log_path: Path = typer.Argument(..., metavar="LOG.csv"),
+    momentum: str = MOMENTUM,
+    output: Path = typer.Option(..., "-o", "--output", help="Folder for plots and metrics."),
+):
+    """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
+    from . import report
+    from .io import read_log, write_json, write_log
+    from .validate import validate as run
+
+    ident = _read_result(result)
+    h = _momentum(momentum, ident.planar)
+    log = read_log(log_path, joints=_model_joints(ident), planar=ident.planar)
+    predicted, metrics = run(ident, log, momentum=h, where=str(result))
+    output.mkdir(parents=True, exist_ok=True)
+    write_log(output / "predicted.csv", predicted)
+    write_json(output / "metrics.json", metrics)
+    report.plot_validation(log, predicted, output / "validation.png")
+    for key, value in metrics.items():
+        out.print(f"{key:>14s} = {value:.4g}")
+    err.print(f"plots and metrics written to {output}/")
+
+
+@app.command()
+def demo(
+    trajectory: str = typer.Option("designed", "--trajectory", help="designed, paper-table2 or a file from 'design'."),
+    noise_angle: float = typer.Option(0.0, "--noise-angle", help="White noise on angles [rad]."),
+    noise_rate: float = typer.Option(0.0, "--noise-rate", help="White noise on rates [rad/s]."),
+    seed: int = SEED,
+    folder: Path = typer.Option(Path("spaceid-report"), "--out", help="Report folder."),
+    as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of tables."),
+):
+    """The paper's simulation study on the built-in Cepheus model (Tables 1-3)."""
+    from .demo import PAPER_TABLE3, run_demo
+    from .report import parameter_table
+
+    with _progress("designing the exciting trajectory", enabled=not as_json and trajectory == "designed") as progress:
+        res = run_demo(trajectory=trajectory, noise_angle=noise_angle, noise_rate=noise_rate, seed=seed, out=folder, progress=progress)
+    if as_json:
+        print(json.dumps(res.to_dict(), indent=2))
+        return
+    out.print(parameter_table(res.ident, true=res.true, reference=PAPER_TABLE3["relative_error_percent"]))
+    out.print(
+        f"trajectory {res.trajectory.meta.get('name', trajectory)}: cond(Y) = {res.ident.condition_number:.4g} "
+        f"with N = {res.ident.n_samples}; validation base-rate RMS error {res.metrics['base_w_rms']:.3g} rad/s "
+        f"({100 * res.metrics['base_w_nrms']:.3g} %)"
+    )
+    out.print(f"report written to {folder}/report.md")
+
+
+def _read_result(path):
+    from .estimate import Identification
+    from .io import read_json
+
+    return Identification.from_dict(read_json(path, what="result file"), where=str(path))
+
+
+def _model_joints(ident):
+    from .model import load_model
+
+    return load_model(ident.model, planar=ident.planar).joints
+
+
+def main(argv=None) -> int:
+    """Entry point: run the app, turn library errors into one line and exit code 2."""
+    warnings.simplefilter("default")
+    warnings.showwarning = lambda msg, *a, **k: err.print(f"warning: {msg}", highlight=False)
+    try:
+        app(args=argv, standalone_mode=False)
+    except SpaceidError as exc:
+        err.print(f"error: {exc}", highlight=False, markup=False)
+        return 2
+    except Exception as exc:  # click usage errors and aborts
+        import click
+
+        if isinstance(exc, click.exceptions.ClickException):
+            exc.show()
+            return exc.exit_code
+        if isinstance(exc, click.exceptions.Abort):
+            return 1
+        raise
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,464 @@
+"""Figures, tables and a Markdown report of an identification; reads result objects only.
+
+Every figure is drawn on its own :class:`matplotlib.figure.Figure` with the Agg canvas (no
+pyplot state, no GUI), in one style, and written atomically as a 150 dpi PNG.
+
+References
+----------
+.. [1] Papadopoulos et al., Fig. 6 (validation), Table 2 (excitation), Table 3 (estimates).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+
+import matplotlib as mpl
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from rich.table import Table
+
+from ._atomic import atomic_path, write_text_atomic
+from ._errors import SpaceidError
+from .estimate import Identification
+from .timeseries import Log
+
+__all__ = [
+    "plot_validation",
+    "plot_parameters",
+    "plot_singular_values",
+    "plot_trajectory",
+    "parameter_table",
+    "write_markdown_report",
+]
+
+DPI = 150
+_STYLE = {
+    "font.size": 9,
+    "axes.titlesize": 9,
+    "axes.labelsize": 9,
+    "legend.fontsize": 8,
+    "xtick.labelsize": 8,
+    "ytick.labelsize": 8,
+    "axes.grid": True,
+    "axes.axisbelow": True,
+    "grid.alpha": 0.3,
+    "grid.linewidth": 0.5,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "lines.linewidth": 1.3,
+    "lines.markersize": 4,
+    "errorbar.capsize": 3,
+    "legend.frameon": False,
+}
+# one colour per role, the same in every figure
+_MEASURED, _MODEL, _TRUE, _REF, _LIMIT = "0.15", "tab:red", "tab:green", "0.55", "tab:orange"
+_RMS_BOX = {"boxstyle": "round,pad=0.25", "facecolor": "white", "edgecolor": "0.8", "alpha": 0.85}
+
+
+@contextlib.contextmanager
+def _figure(path, size):
+    """Yield a styled Agg figure of ``size`` [in]; on exit save it atomically as a PNG at ``path``."""
+    with mpl.rc_context(_STYLE):
+        fig = Figure(figsize=size, layout="constrained")
+        FigureCanvasAgg(fig)
+        yield fig
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=DPI)
+
+
+def _rms(x) -> float:
+    return float(np.sqrt(np.mean(np.square(x))))
+
+
+def _per_param(values, ident: Identification, name: str):
+    """``values`` as a float array of shape ``(k,)``, or None; a clear error on a wrong length."""
+    if values is None:
+        return None
+    arr = np.asarray(values, float).reshape(-1)
+    if arr.shape != (len(ident.names),):
+        raise SpaceidError(
+            f"{name}: expected one value per parameter ({len(ident.names)}: {', '.join(ident.names)}), "
+            f"got {arr.size}: pass them in the order of the identification's names"
+        )
+    return arr
+
+
+def _relative_errors(ident: Identification, true):
+    """``|estimate - true| / |true|`` and ``std / |true|`` as fractions; NaN where ``true`` is 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(true != 0, np.abs(true), np.nan)
+        return np.abs(ident.values - true) / scale, ident.std / scale
+
+
+# --- figures ----------------------------------------------------------------------------------
+
+
+def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
+    """Measured motion vs the identified model's prediction (the paper's Fig. 6).
+
+    One row per joint (angle [rad], rate [rad/s]) and a last row with the base angular
+    velocity in base axes (planar: ``w_z``; spatial: x, y, z). Every panel prints the RMS
+    of ``predicted - measured``.
+
+    Parameters
+    ----------
+    measured, predicted : Log
+        Same joints, planar flag and time stamps (``predicted`` is typically
+        ``spaceid.validate.predict`` on ``measured``'s joint motion).
+    path : path-like
+        Output PNG.
+    title : str, optional
+        Figure title.
+
+    Returns
+    -------
+    Path
+        ``path``.
+    """
+    if tuple(measured.joints) != tuple(predicted.joints) or measured.planar != predicted.planar:
+        raise SpaceidError(
+            f"plot_validation: the logs differ in joints ({list(measured.joints)} vs {list(predicted.joints)}) "
+            f"or planar flag ({measured.planar} vs {predicted.planar}): predict with the measured log's joint motion"
+        )
+    if measured.t.shape != predicted.t.shape or not np.allclose(measured.t, predicted.t, rtol=0, atol=1e-9):
+        raise SpaceidError(
+            f"plot_validation: the logs have different time stamps ({measured.n_samples} vs {predicted.n_samples} "
+            "samples): predict at the measured time stamps"
+        )
+    nj = len(measured.joints)
+    axes_w = [2] if measured.planar else [0, 1, 2]
+    # rows: (label, unit, measured, predicted, panel title); 6 mosaic columns fit 2 and 3 panels
+    panels = []
+    for j, name in enumerate(measured.joints):
+        panels.append([(f"$q_{{{j + 1}}}$", "rad", measured.q[:, j], predicted.q[:, j], f"{name}: angle"),
+                       (rf"$\dot q_{{{j + 1}}}$", "rad/s", measured.qd[:, j], predicted.qd[:, j], f"{name}: rate")])
+    panels.append([(rf"$\omega_{{0{'xyz'[i]}}}$", "rad/s", measured.base_w[:, i], predicted.base_w[:, i],
+                    f"base angular velocity, {'xyz'[i]}") for i in axes_w])
+    mosaic = [[f"{r}.{c}" for c in range(len(row)) for _ in range(6 // len(row))] for r, row in enumerate(panels)]
+    marker = {"marker": "o", "linestyle": "none", "markersize": 3} if measured.n_samples <= 120 else {}
+    with _figure(path, (7.2, 1.9 * (nj + 1) + 0.5)) as fig:
+        axes = fig.subplot_mosaic(mosaic, sharex=True)
+        for r, row in enumerate(panels):
+            for c, (label, unit, y_meas, y_pred, panel_title) in enumerate(row):
+                ax = axes[f"{r}.{c}"]
+                ax.plot(measured.t, y_meas, color=_MEASURED, label="measured", **marker)
+                ax.plot(predicted.t, y_pred, color=_MODEL, linestyle="--", label="identified model")
+                ax.set_title(panel_title, loc="left")
+                ax.set_ylabel(f"{label} [{unit}]")
+                ax.text(0.98, 0.95, f"RMS {_rms(y_pred - y_meas):.2e} {unit}", transform=ax.transAxes,
+                        ha="right", va="top", fontsize=7, bbox=_RMS_BOX)
+                if r == len(panels) - 1:
+                    ax.set_xlabel("time $t$ [s]")
+                else:
+                    ax.tick_params(labelbottom=False)
+        handles, labels = axes["0.0"].get_legend_handles_labels()
+        fig.legend(handles, labels, loc="outside lower center", ncols=2)
+        if title:
+            fig.suptitle(title)
+    return Path(path)
+
+
+def plot_parameters(ident: Identification, path, *, true=None, reference=None, reference_label="paper") -> Path:
+    """Estimates with 2-sigma error bars and, given the truth, their relative errors.
+
+    Parameters
+    ----------
+    ident : Identification
+    path : path-like
+        Output PNG.
+    true : array_like of shape (k,), optional
+        True parameter values: adds them to the estimates panel and adds a panel of relative
+        errors ``|estimate - true| / |true|`` [%] with error bars of ``std / |true|`` (1 sigma),
+        on a log scale when they span more than a decade.
+    reference : array_like of shape (k,), optional
+        Reference relative errors **in percent** (e.g. the paper's Table 3), drawn beside ours.
+    reference_label : str
+        Legend name of ``reference``.
+
+    Returns
+    -------
+    Path
+    """
+    true = _per_param(true, ident, "true")
+    reference = _per_param(reference, ident, "reference")
+    k = len(ident.names)
+    x = np.arange(k)
+    with_errors = true is not None or reference is not None
+    with _figure(path, (max(6.0, 0.55 * k + 2.5), 5.6 if with_errors else 3.2)) as fig:
+        axes = fig.subplots(2 if with_errors else 1, 1, sharex=True, squeeze=False)[:, 0]
+        ax = axes[0]
+        ax.errorbar(x, ident.values, yerr=2 * ident.std, fmt="o", color=_MEASURED, label=r"estimate $\pm 2\sigma$")
+        if true is not None:
+            ax.plot(x, true, "_", color=_TRUE, markersize=14, markeredgewidth=2, label="true")
+        shown = np.concatenate([ident.values, [] if true is None else true])
+        if np.all(shown > 0) and shown.max() / shown.min() > 20:
+            ax.set_yscale("log")  # magnitudes spanning decades: small parameters stay visible
+        ax.set_ylabel(r"parameter value $\pi_i$ [SI]")
+        ax.set_title(f"{ident.estimator.upper()} estimates, N = {ident.n_samples}, cond = {ident.condition_number:.4g}", loc="left")
+        ax.legend(loc="best")
+        if with_errors:
+            ax = axes[1]
+            shown = []
+            if true is not None:
+                rel, rel_std = (100 * e for e in _relative_errors(ident, true))
+                ax.errorbar(x - 0.12 * (reference is not None), rel, yerr=rel_std, fmt="o", color=_MEASURED,
+                            label=r"this run $\pm 1\sigma$")
+                shown += [rel, rel + rel_std]
+            if reference is not None:
+                ax.plot(x + 0.12 * (true is not None), reference, "D", color=_REF, label=reference_label)
+                shown.append(reference)
+            shown = np.concatenate(shown)
+            shown = shown[np.isfinite(shown) & (shown > 0)]
+            if shown.size and shown.max() / shown.min() > 10:
+                ax.set_yscale("log")
+                ax.set_ylim(shown.min() / 3, shown.max() * 3)  # bars reaching zero run off the bottom
+            else:
+                ax.set_ylim(bottom=0)
+            ax.set_ylabel("relative error [%]")
+            ax.legend(loc="best")
+        axes[-1].set_xticks(x, ident.names)
+        axes[-1].set_xlabel("parameter")
+    return Path(path)
+
+
+def plot_singular_values(ident: Identification, path) -> Path:
+    """Singular values of the stacked regressor on a log scale, condition number in the title.
+
+    Returns
+    -------
+    Path
+    """
+    s = np.asarray(ident.singular_values, float)
+    if s.size == 0:
+        raise SpaceidError("plot_singular_values: the result has no singular values: identify again (spaceid identify)")
+    with _figure(path, (5.0, 3.2)) as fig:
+        ax = fig.subplots()
+        ax.semilogy(np.arange(1, s.size + 1), s, "o-", color=_MEASURED)
+        ax.set_xticks(np.arange(1, s.size + 1))
+        ax.set_xlabel("index $i$")
+        ax.set_ylabel(r"singular value $\sigma_i$ of $\hat Y$")
+        ax.set_title(rf"Stacked regressor: cond$(\hat Y) = \sigma_1/\sigma_k$ = {ident.condition_number:.4g}")
+    return Path(path)
+
+
+def _limit_band(value, n_joints: int, key: str) -> np.ndarray:
+    """Limits of one kind as ``(n_joints, 2)`` (lower, upper): a magnitude (scalar or per joint) or pairs."""
+    arr = np.asarray(value, float)
+    if arr.ndim <= 1:
+        mag = np.broadcast_to(np.abs(arr), (n_joints,)) if arr.size in (1, n_joints) else None
+        if mag is not None:
+            return np.stack([-mag, mag], axis=1)
+    elif arr.shape == (n_joints, 2):
+        return arr
+    raise SpaceidError(
+        f"limits['{key}']: expected a magnitude, {n_joints} magnitudes or ({n_joints}, 2) lower/upper pairs, "
+        f"got shape {arr.shape}"
+    )
+
+
+def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None) -> Path:
+    """The exciting trajectory: position, rate and acceleration of each joint.
+
+    Parameters
+    ----------
+    t : array_like of shape (n,)
+        Fine time grid [s].
+    q, qd, qdd : array_like of shape (n, n_joints)
+        Joint positions [rad], rates [rad/s] and accelerations [rad/s^2] on ``t``.
+    joints : sequence of str
+        Joint names (columns).
+    path : path-like
+        Output PNG.
+    limits : dict, optional
+        ``{"q": ..., "qd": ..., "qdd": ...}`` (any subset), each a magnitude ``|x| <= limit``
+        (scalar or one per joint) or ``(n_joints, 2)`` lower/upper pairs; NaN means none.
+    samples : array_like of shape (N,), optional
+        Sample instants [s] used for identification, marked on every curve.
+
+    Returns
+    -------
+    Path
+    """
+    t = np.asarray(t, float)
+    rows = [("q", "position", "rad", q), ("qd", "rate", "rad/s", qd), ("qdd", "acceleration", "rad/s$^2$", qdd)]
+    rows = [(key, what, unit, np.asarray(y, float).reshape(t.size, -1)) for key, what, unit, y in rows]
+    nj = len(joints)
+    if any(y.shape[1] != nj for *_, y in rows):
+        raise SpaceidError(f"plot_trajectory: q, qd, qdd need one column per joint ({nj}: {', '.join(joints)})")
+    limits = dict(limits or {})
+    if set(limits) - {"q", "qd", "qdd"}:
+        raise SpaceidError(f"plot_trajectory: unknown limit kinds {sorted(set(limits) - {'q', 'qd', 'qdd'})}: use 'q', 'qd', 'qdd'")
+    symbols = {"q": "q", "qd": r"\dot q", "qdd": r"\ddot q"}
+    with _figure(path, (3.4 * nj + 0.6, 6.4)) as fig:
+        axes = fig.subplots(3, nj, sharex=True, squeeze=False)
+        for r, (key, what, unit, y) in enumerate(rows):
+            band = _limit_band(limits[key], nj, key) if limits.get(key) is not None else None
+            for j, name in enumerate(joints):
+                ax = axes[r, j]
+                ax.plot(t, y[:, j], color=_MEASURED, label="trajectory")
+                if band is not None:
+                    for bound in band[j][np.isfinite(band[j])]:
+                        ax.axhline(bound, color=_LIMIT, linestyle=":", linewidth=1.2, label="limit")
+                if samples is not None:
+                    ts = np.asarray(samples, float)
+                    ax.plot(ts, np.interp(ts, t, y[:, j]), "o", color=_MODEL, markersize=3,
+                            label=f"samples (N = {ts.size})")
+                ax.set_ylabel(rf"${symbols[key]}_{{{j + 1}}}$ [{unit}]")
+                if r == 0:
+                    ax.set_title(name)
+            axes[-1, 0].set_xlabel("time $t$ [s]")
+        for ax in axes[-1, 1:]:
+            ax.set_xlabel("time $t$ [s]")
+        handles = dict(zip(*reversed(axes[0, 0].get_legend_handles_labels())))  # one entry per label
+        fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncols=len(handles))
+    return Path(path)
+
+
+# --- tables and the Markdown report ------------------------------------------------------------
+
+
+def _columns(ident: Identification, true, reference, reference_label):
+    """Header and formatted rows shared by the rich and the Markdown tables."""
+    header = ["parameter", "definition", "estimate", "std"]
+    cols = [ident.names, ident.definitions, [f"{v:.6g}" for v in ident.values], [f"{s:.3g}" for s in ident.std]]
+    if true is not None:
+        rel, _ = _relative_errors(ident, true)
+        header += ["true", "|rel. error| [%]"]
+        cols += [[f"{v:.6g}" for v in true], [f"{100 * e:.3g}" if np.isfinite(e) else "-" for e in rel]]
+    if reference is not None:
+        header.append(f"{reference_label} rel. error [%]")
+        cols.append([f"{v:.4g}" for v in reference])
+    return header, list(zip(*cols))
+
+
+def parameter_table(ident: Identification, *, true=None, reference=None, reference_label="paper") -> Table:
+    """The estimates as a :class:`rich.table.Table` (definitions wrapped).
+
+    Parameters
+    ----------
+    ident : Identification
+    true : array_like of shape (k,), optional
+        True values: adds columns ``true`` and ``|rel. error| [%]``.
+    reference : array_like of shape (k,), optional
+        Reference relative errors in percent (e.g. the paper's Table 3).
+    reference_label : str
+        Name of the reference in its column header.
+    """
+    true = _per_param(true, ident, "true")
+    reference = _per_param(reference, ident, "reference")
+    header, rows = _columns(ident, true, reference, reference_label)
+    table = Table(title=f"{ident.estimator.upper()} estimates (cond {ident.condition_number:.4g}, N = {ident.n_samples})")
+    for i, name in enumerate(header):
+        if i == 1:
+            table.add_column(name, overflow="fold", ratio=1, min_width=24)
+        else:
+            table.add_column(name, justify="left" if i == 0 else "right", no_wrap=True)
+    for row in rows:
+        table.add_row(*row)
+    return table
+
+
+def _md(text) -> str:
+    """Plain text safe inside a Markdown table cell."""
+    text = str(text).replace("\\", "\\\\").replace("|", "\\|").replace("\n", " ")
+    return text.replace("*", "\\*").replace("_", "\\_")
+
+
+def _md_value(value) -> str:
+    if isinstance(value, (float, np.floating)):
+        return f"{value:.6g}"
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return ", ".join(_md_value(v) for v in np.asarray(value).reshape(-1).tolist())
+    return _md(value)
+
+
+def _md_table(header, rows) -> list:
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" if i < 2 else "---:" for i in range(len(header))) + "|"]
+    return lines + ["| " + " | ".join(row) + " |" for row in rows]
+
+
+# readable names for spaceid.validate.validation_metrics; other keys are shown as given
+_METRIC_LABELS = {
+    "base_w_rms": "base angular velocity, RMS error [rad/s]",
+    "base_w_nrms": "base angular velocity, RMS error / RMS value",
+    "base_w_max": "base angular velocity, largest error [rad/s]",
+    "base_yaw_rms": "base yaw, RMS error [rad]",
+    "base_yaw_max": "base yaw, largest error [rad]",
+}
+
+
+def write_markdown_report(
+    folder,
+    *,
+    title: str,
+    ident: Identification,
+    settings: dict,
+    figures: dict,
+    true=None,
+    reference=None,
+    metrics: dict | None = None,
+    reference_label: str = "paper",
+) -> Path:
+    """Write ``folder/report.md``: settings, parameter table, fit quality, validation, figures.
+
+    Parameters
+    ----------
+    folder : path-like
+        Report folder (created if needed).
+    title : str
+    ident : Identification
+    settings : dict
+        Run settings shown as given (model, trajectory, momentum, samples, noise, seed,
+        estimator, rank tolerance, ...), in insertion order.
+    figures : dict of str to path-like
+        Caption -> PNG, relative to ``folder`` (as linked from the report) or absolute.
+    true, reference, reference_label
+        As in :func:`parameter_table`.
+    metrics : dict, optional
+        Validation metrics, e.g. from ``spaceid.validate.validation_metrics``.
+
+    Returns
+    -------
+    Path
+        The written ``report.md``.
+    """
+    folder = Path(folder)
+    true = _per_param(true, ident, "true")
+    reference = _per_param(reference, ident, "reference")
+    links = []
+    for caption, fig_path in figures.items():
+        full = folder / fig_path  # an absolute fig_path stays as it is
+        if not full.is_file():
+            raise SpaceidError(
+                f"figures['{caption}']: '{fig_path}' not found (looked at {full}): give a PNG path relative to the "
+                "report folder or absolute, and draw the figure first"
+            )
+        links.append((caption, Path(os.path.relpath(full, folder)).as_posix().replace(" ", "%20")))
+
+    header, rows = _columns(ident, true, reference, reference_label)
+    rows = [(_md(r[0]), "`" + r[1].replace("|", "\\|").replace("`", "'") + "`", *r[2:]) for r in rows]
+    lines = [f"# {title}", "", "## Settings", ""]
+    lines += _md_table(["setting", "value"], [(_md(k), _md_value(v)) for k, v in settings.items()])
+    lines += ["", "## Identified parameters", ""]
+    lines += _md_table(header, rows)
+    lines += [
+        "",
+        f"Estimator: {_md(ident.estimator)}; {ident.n_samples} samples; momentum "
+        f"[{', '.join(f'{h:.6g}' for h in ident.momentum)}] N m s; std from the residual variance.",
+        "",
+        f"- Condition number of the stacked regressor: {ident.condition_number:.4g}",
+        f"- Residual RMS: {ident.residual_rms:.3g} N m s",
+    ]
+    if metrics:
+        lines += ["", "## Validation", ""]
+        lines += _md_table(["metric", "value"], [(_md(_METRIC_LABELS.get(k, k)), _md_value(v)) for k, v in metrics.items()])
+    if links:
+        lines += ["", "## Figures"]
+        for caption, link in links:
+            lines += ["", f"![{_md(caption)}]({link})", "", f"*{_md(caption)}*"]
+    out = folder / "report.md"
+    write_text_atomic(out, "\n".join(lines) + "\n")
+    return out

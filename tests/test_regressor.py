@@ -1,0 +1,143 @@
+"""Regressors against the direct rigid-body momentum and Pinocchio; the minimal set."""
+
+import numpy as np
+import pytest
+import sympy as sp
+from conftest import pinocchio_momentum, random_states, random_tree
+
+import spaceid
+from spaceid._definitions import planar_symbol_values
+from spaceid.momentum import angular_momentum
+from spaceid.model import to_pinocchio
+from spaceid.regressor import _random_states, full_regressor, full_values, minimal_parameters
+
+PLANAR_TREES = {
+    "1 link": [0],
+    "2 links": [0, 1],
+    "3 links": [0, 1, 2],
+    "two arms": [0, 1, 0, 3],
+    "branch on a link": [0, 1, 1],
+}
+
+
+def _rank(model, n=400, seed=7):
+    q, qd, w0 = random_states(np.random.default_rng(seed), model, n)
+    y = full_regressor(model, q, qd, w0)
+    y = y[:, 2:3] if model.planar else y
+    y = y.reshape(-1, y.shape[-1])
+    norms = np.linalg.norm(y, axis=0)
+    y = y[:, norms > 1e-12 * norms.max()]  # round-off columns are zero, not noise to normalise
+    s = np.linalg.svd(y / np.linalg.norm(y, axis=0), compute_uv=False)
+    return int(np.sum(s > 1e-8 * s[0]))
+
+
+@pytest.mark.parametrize("parents", PLANAR_TREES.values(), ids=PLANAR_TREES.keys())
+def test_planar_regressor_equals_direct_momentum(rng, parents):
+    model = random_tree(rng, parents)
+    param = minimal_parameters(model)
+    assert param.basis == "planar"
+    q, qd, w0 = random_states(rng, model, 200)
+    direct = angular_momentum(model, q, qd, w0)
+    scale = np.abs(direct).max()
+    assert np.abs(full_regressor(model, q, qd, w0) @ full_values(model) - direct).max() < 1e-12 * scale
+    # only h_z is conserved on a table (it reacts the tilting torques); the z row is the planar regressor
+    assert np.abs(param.regressor(q, qd, w0)[:, 0] @ param.true_values - direct[:, 2]).max() < 1e-12 * scale
+    assert np.abs(pinocchio_momentum(to_pinocchio(model), q, qd, w0) - direct).max() < 1e-12 * scale
+
+
+@pytest.mark.parametrize("parents", PLANAR_TREES.values(), ids=PLANAR_TREES.keys())
+def test_minimal_count_equals_rank(rng, parents):
+    model = random_tree(rng, parents)
+    n_bodies = len(parents) + 1
+    param = minimal_parameters(model)
+    # a generic planar tree: one spin term per body, a cos and a sin term per pair of bodies
+    assert param.n_params == _rank(model) == n_bodies + n_bodies * (n_bodies - 1)
+
+
+def test_spatial_regressor_equals_pinocchio(rng):
+    model = random_tree(rng, [0, 1, 0, 3, 1], planar=False)
+    param = minimal_parameters(model)
+    assert param.basis == "columns" and param.n_params == _rank(model)
+    q, qd, w0 = random_states(rng, model, 50)
+    ref = pinocchio_momentum(to_pinocchio(model), q, qd, w0)
+    scale = np.abs(ref).max()
+    assert np.abs(angular_momentum(model, q, qd, w0) - ref).max() < 1e-12 * scale
+    assert np.abs(param.regressor(q, qd, w0) @ param.true_values - ref).max() < 1e-11 * scale
+
+
+def test_prismatic_planar_tree_uses_column_basis(rng):
+    model = random_tree(rng, [0, 1], prismatic=(2,))
+    param = minimal_parameters(model)
+    assert param.basis == "columns" and param.n_params == _rank(model)
+    q, qd, w0 = random_states(rng, model, 50)
+    q[:, 1] = rng.uniform(-0.5, 0.5, 50)
+    direct = angular_momentum(model, q, qd, w0)[:, 2]
+    assert np.abs(param.regressor(q, qd, w0)[:, 0] @ param.true_values - direct).max() < 1e-11 * np.abs(direct).max()
+
+
+def test_minimal_set_independent_of_seed(rng):
+    model = random_tree(rng, [0, 1, 0])
+    a, b = minimal_parameters(model, seed=0), minimal_parameters(model, seed=99)
+    assert a.names == b.names and a.definitions == b.definitions
+    np.testing.assert_allclose(a.true_values, b.true_values, rtol=1e-10)
+    spatial = random_tree(rng, [0, 1], planar=False)
+    assert minimal_parameters(spatial, seed=1).n_params == minimal_parameters(spatial, seed=2).n_params
+
+
+def _math_md_pi(m0, I0, r0, m1, I1, l1, r1, m2, I2, l2):
+    """MATH.md sec. 2, written out independently of the package."""
+    M, L1 = m0 + m1 + m2, l1 + r1
+    r0x, r0y = r0
+    return np.array([
+        m0 * (m1 * l1 + m2 * L1) * r0x / M,
+        m0 * m2 * l2 * r0x / M,
+        m0 * (m1 * l1 + m2 * L1) * r0y / M,
+        m0 * m2 * l2 * r0y / M,
+        I0 + m0 * (m1 + m2) * (r0x**2 + r0y**2) / M,
+        m2 * l2 * (m0 * L1 + m1 * r1) / M,
+        I1 + (m0 * m1 * l1**2 + m0 * m2 * L1**2 + m1 * m2 * r1**2) / M,
+        I2 + (m0 + m1) * m2 * l2**2 / M,
+    ])
+
+
+def test_cepheus_yields_the_papers_eight_parameters():
+    param = minimal_parameters(spaceid.load_model("cepheus"))
+    expected = _math_md_pi(9.951, 0.1214, (0.17, 0.09), 0.083, 3.46e-4, 0.119, 0.062, 0.187, 7.17e-4, 0.146)
+    assert param.n_params == 8
+    np.testing.assert_allclose(param.true_values, expected, rtol=1e-9)
+    # MATH.md's rounded values
+    np.testing.assert_allclose(param.true_values, [0.007237, 0.004519, 0.003831, 0.002392, 0.131126, 0.004825, 0.007461, 0.004630], rtol=2e-4)
+    # the columns of MATH.md sec. 2: Y1 = c1 (2 w0 + qd1), ..., Y8 = w0 + qd1 + qd2
+    q, qd, w0 = _random_states(param.model, 20, 3)
+    c1, s1, c2 = np.cos(q[:, 0]), np.sin(q[:, 0]), np.cos(q[:, 1])
+    c12, s12 = np.cos(q.sum(1)), np.sin(q.sum(1))
+    w, d1, d2 = w0[:, 2], qd[:, 0], qd[:, 1]
+    cols = np.stack([c1 * (2 * w + d1), c12 * (2 * w + d1 + d2), s1 * (2 * w + d1), s12 * (2 * w + d1 + d2),
+                     w, c2 * (2 * w + 2 * d1 + d2), w + d1, w + d1 + d2], -1)
+    np.testing.assert_allclose(param.regressor(q, qd, w0)[:, 0], cols, atol=1e-13)
+
+
+def test_link_com_off_the_joint_line_adds_a_ninth_parameter():
+    model = spaceid.load_model("cepheus")
+    bodies = tuple(b.__class__(**{**b.__dict__, "known_zero": frozenset()}) for b in model.bodies)
+    free = model.__class__(model.name, bodies, True, (), "cepheus-free")
+    assert minimal_parameters(free).n_params == 9
+
+
+@pytest.mark.parametrize("name", ["cepheus", "cepheus-rw"])
+def test_definitions_evaluate_to_the_values(name):
+    param = minimal_parameters(spaceid.load_model(name))
+    values = planar_symbol_values(param.model)
+    for definition, value in zip(param.definitions, param.true_values):
+        expr = sp.sympify(definition)
+        got = float(expr.subs({s: values[s.name] for s in expr.free_symbols}))
+        assert got == pytest.approx(value, rel=1e-12)
+
+
+def test_definitions_of_random_tree(rng):
+    model = random_tree(rng, [0, 1, 0])
+    param = minimal_parameters(model)
+    values = planar_symbol_values(model)
+    for definition, value in zip(param.definitions, param.true_values):
+        expr = sp.sympify(definition)
+        assert float(expr.subs({s: values[s.name] for s in expr.free_symbols})) == pytest.approx(value, rel=1e-10, abs=1e-14)
