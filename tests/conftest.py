@@ -74,7 +74,9 @@ def pinocchio_momentum(pmodel, q, qd, w0):
     data = pmodel.createData()
     out = []
     for qi, qdi, wi in zip(q, qd, w0):
-        config = np.r_[np.zeros(3), 0, 0, 0, 1, qi]
+        config = pin.neutral(pmodel)
+        for joint, angle in zip(pmodel.joints[2:], qi):  # continuous joints store (cos, sin)
+            config[joint.idx_q : joint.idx_q + joint.nq] = [np.cos(angle), np.sin(angle)] if joint.nq == 2 else angle
         v = np.r_[np.zeros(3), wi, qdi]
         ag = pin.ccrba(pmodel, data, config, v)
         v[:3] = np.linalg.solve(ag[:3, :3], -ag[:3, 3:] @ v[3:])

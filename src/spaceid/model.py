@@ -403,15 +403,15 @@ def _model_from_urdf(text: str, where: str) -> Model:
     return _validate(from_pinocchio(pmodel, where))
 
 
-_PIN_AXES = {"X": (1.0, 0.0, 0.0), "Y": (0.0, 1.0, 0.0), "Z": (0.0, 0.0, 1.0)}
-
-
 def from_pinocchio(pmodel, source: str = "") -> Model:
     """Convert a Pinocchio model whose joint 1 is a free flyer into a :class:`Model`."""
     body_names = {}
     for frame in pmodel.frames:
         if str(frame.type) == "BODY" and frame.parentJoint not in body_names:
             body_names[frame.parentJoint] = frame.name
+    import pinocchio as pin
+
+    neutral = pin.neutral(pmodel)
     bodies = []
     for j in range(1, pmodel.njoints):
         jm = pmodel.joints[j]
@@ -423,13 +423,14 @@ def from_pinocchio(pmodel, source: str = "") -> Model:
                 raise SpaceidError(f"{source}: the root joint must be a free flyer, got {short}")
             bodies.append(Body(name, -1, None, "base", np.zeros(3), np.eye(3), np.zeros(3), inertial))
             continue
-        if short in ("JointModelFreeFlyer", "JointModelPlanar", "JointModelSpherical", "JointModelSphericalZYX"):
-            raise SpaceidError(f"{source}: joint '{pmodel.names[j]}' ({short}) is not supported below the base")
-        kind = "prismatic" if "Prismatic" in short or short.startswith("JointModelP") else "revolute"
-        if short[-1] in _PIN_AXES and "Unaligned" not in short:
-            axis = np.array(_PIN_AXES[short[-1]])
-        else:
-            axis = np.asarray(jm.extract().axis, float)
+        if jm.nv != 1:
+            raise SpaceidError(f"{source}: joint '{pmodel.names[j]}' ({short}) has {jm.nv} degrees of freedom: only 1-DOF joints are supported")
+        # the motion subspace gives the axis for every 1-DOF joint kind (aligned or not)
+        jdata = jm.createData()
+        jm.calc(jdata, neutral)
+        motion = np.asarray(jdata.S, float).ravel()
+        kind = "revolute" if np.linalg.norm(motion[3:]) > 0.5 else "prismatic"
+        axis = motion[3:] if kind == "revolute" else motion[:3]
         placement = pmodel.jointPlacements[j]
         iq, iv = jm.idx_q, jm.idx_v
         limits = {"velocity": float(pmodel.velocityLimit[iv]), "effort": float(pmodel.effortLimit[iv])}
