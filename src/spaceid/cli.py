@@ -278,11 +278,11 @@ def _model_joints(ident):
 def main(argv=None) -> int:
     """Entry point: run the app, turn library errors into one line and exit code 2."""
     warnings.simplefilter("default")
-    warnings.showwarning = lambda msg, *a, **k: err.print(f"warning: {msg}", highlight=False)
+    warnings.showwarning = lambda msg, *a, **k: print(f"warning: {msg}", file=sys.stderr)
     try:
         app(args=argv, standalone_mode=False)
     except SpaceidError as exc:
-        err.print(f"error: {exc}", highlight=False, markup=False)
+        print(f"error: {exc}", file=sys.stderr)  # one line, never wrapped
         return 2
     except Exception as exc:  # click usage errors and aborts
         import click

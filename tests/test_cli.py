@@ -1,0 +1,158 @@
+"""The command line end to end on a temporary directory, and its handling of bad input."""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from spaceid.cli import main
+
+DATA = Path(__file__).parent / "data"
+
+
+def run(*args):
+    return main([str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory):
+    """design -> simulate -> identify on Cepheus, shared by the tests below."""
+    d = tmp_path_factory.mktemp("cli")
+    assert run("design", "cepheus", "--duration", 5, "--harmonics", 3, "--samples", 35, "--momentum", 0.4934,
+               "--seed", 3, "--time-budget", 2, "-o", d / "traj.json") == 0
+    assert run("simulate", "cepheus", "--trajectory", d / "traj.json", "--momentum", 0.4934, "--samples", 35,
+               "-o", d / "log.csv") == 0
+    assert run("simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", 0.4934, "--rate", 100,
+               "--noise-angle", 1e-4, "--noise-rate", 1e-4, "--seed", 5, "-o", d / "noisy.csv") == 0
+    assert run("identify", "cepheus", d / "log.csv", "--momentum", 0.4934, "-o", d / "result.json") == 0
+    return d
+
+
+def test_identify_recovers_truth_through_files(workdir):
+    result = json.loads((workdir / "result.json").read_text())
+    from spaceid.regressor import minimal_parameters
+    import spaceid
+
+    truth = minimal_parameters(spaceid.load_model("cepheus")).true_values
+    values = np.array([p["value"] for p in result["parameters"]])
+    np.testing.assert_allclose(values, truth, rtol=1e-9)
+    assert {"name", "definition", "value", "std"} <= set(result["parameters"][0])
+    assert result["condition_number"] < 360  # better than the paper's trajectory
+
+
+def test_noisy_log_at_rate(workdir):
+    header = (workdir / "noisy.csv").read_text().splitlines()[0].split(",")
+    assert header[:3] == ["t", "base_yaw", "base_wz"] and "q_left_elbow" in header
+    assert len((workdir / "noisy.csv").read_text().splitlines()) == 1 + 501
+    assert run("identify", "cepheus", workdir / "noisy.csv", "--momentum", 0.4934, "-o", workdir / "noisy.json") == 0
+
+
+def test_predict_and_validate(workdir):
+    log = np.genfromtxt(workdir / "log.csv", delimiter=",", names=True)
+    traj = workdir / "joints.csv"
+    cols = ["t", "q_left_shoulder", "qd_left_shoulder", "q_left_elbow", "qd_left_elbow"]
+    np.savetxt(traj, np.column_stack([log[c] for c in cols]), delimiter=",", header=",".join(cols), comments="")
+    assert run("predict", workdir / "result.json", traj, "--momentum", 0.4934, "-o", workdir / "pred.csv") == 0
+    pred = np.genfromtxt(workdir / "pred.csv", delimiter=",", names=True)
+    np.testing.assert_allclose(pred["base_wz"], log["base_wz"], rtol=1e-9)
+    assert run("validate", workdir / "result.json", workdir / "log.csv", "--momentum", 0.4934, "-o", workdir / "val") == 0
+    metrics = json.loads((workdir / "val" / "metrics.json").read_text())
+    assert metrics["base_w_nrms"] < 1e-9
+    assert (workdir / "val" / "validation.png").stat().st_size > 10000
+
+
+def test_model_json(capsys):
+    assert run("model", "cepheus", "--json") == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["n_minimal_parameters"] == 8 and len(info["parameters"]) == 8
+
+
+def _log_with(workdir, tmp_path, edit):
+    lines = (workdir / "log.csv").read_text().splitlines()
+    path = tmp_path / "bad.csv"
+    path.write_text("\n".join(edit(lines)) + "\n")
+    return path
+
+
+def _swap_rows(lines):
+    lines[3], lines[4] = lines[4], lines[3]
+    return lines
+
+
+def _nan_cell(lines):
+    cells = lines[5].split(",")
+    cells[1] = "nan"
+    lines[5] = ",".join(cells)
+    return lines
+
+
+def _drop_column(lines):
+    header = lines[0].split(",")
+    k = header.index("qd_left_elbow")
+    return [",".join(c for i, c in enumerate(line.split(",")) if i != k) for line in lines]
+
+
+BAD_LOGS = {
+    "unsorted time": (_swap_rows, "increase strictly"),
+    "NaN": (_nan_cell, "holds nan"),
+    "missing joint column": (_drop_column, "qd_left_elbow"),
+    "too few samples": (lambda lines: lines[:6], "samples"),
+    "malformed": (lambda lines: [lines[0], "1,2"], "bad.csv"),
+}
+
+
+@pytest.mark.parametrize("case", BAD_LOGS)
+def test_bad_log_is_one_line_exit_2_and_no_output(workdir, tmp_path, capsys, case):
+    edit, message = BAD_LOGS[case]
+    path = _log_with(workdir, tmp_path, edit)
+    before = path.read_bytes()
+    out = tmp_path / "result.json"
+    assert run("identify", "cepheus", path, "--momentum", 0.4934, "-o", out) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error:") and message in err and "Traceback" not in err
+    assert not out.exists() and path.read_bytes() == before
+
+
+def test_rank_deficient_log_names_parameters(workdir, tmp_path, capsys):
+    def freeze_elbow(lines):
+        header = lines[0].split(",")
+        q, qd = header.index("q_left_elbow"), header.index("qd_left_elbow")
+        out = [lines[0]]
+        for line in lines[1:]:
+            cells = line.split(",")
+            cells[q], cells[qd] = "0.3", "0"
+            out.append(",".join(cells))
+        return out
+
+    path = _log_with(workdir, tmp_path, freeze_elbow)
+    assert run("identify", "cepheus", path, "--momentum", 0.4934, "-o", tmp_path / "r.json") == 2
+    err = capsys.readouterr().err
+    assert "rank-deficient" in err and "not excited: pi" in err
+
+
+def test_non_planar_joint_in_planar_mode(tmp_path, capsys):
+    path = tmp_path / "tilted.urdf"
+    text = (DATA / "planar_arm_fixed.urdf").read_text().replace('<axis xyz="0 0 -1"/>', '<axis xyz="0 1 0"/>')
+    path.write_text(text)
+    assert run("model", path, "--planar") == 2
+    assert "joint 'elbow'" in capsys.readouterr().err
+
+
+def test_missing_files_and_bad_momentum(workdir, tmp_path, capsys):
+    assert run("identify", "cepheus", tmp_path / "none.csv", "--momentum", 0.4934, "-o", tmp_path / "r.json") == 2
+    assert run("identify", "nothing.urdf", workdir / "log.csv", "--momentum", 0.4934, "-o", tmp_path / "r.json") == 2
+    assert run("identify", "cepheus", workdir / "log.csv", "--momentum", "abc", "-o", tmp_path / "r.json") == 2
+    assert run("identify", "cepheus", workdir / "log.csv", "--momentum", 0, "-o", tmp_path / "r.json") == 2
+    assert run("simulate", "cepheus", "--trajectory", tmp_path / "no.json", "--momentum", 0.4934, "--samples", 9, "-o", tmp_path / "l.csv") == 2
+    err = capsys.readouterr().err
+    assert err.count("error:") == 5 and "Traceback" not in err
+    assert not any(tmp_path.glob("*.json")) and not (tmp_path / "l.csv").exists()
+
+
+def test_console_script_exit_code(tmp_path):
+    proc = subprocess.run([sys.executable, "-m", "spaceid.cli", "identify", "cepheus", str(tmp_path / "x.csv"),
+                           "--momentum", "0.4934", "-o", str(tmp_path / "r.json")], capture_output=True, text=True)
+    assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
