@@ -303,7 +303,8 @@ def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) ->
     """
     names = full_parameter_names(model)
     rows = slice(2, 3) if model.planar else slice(None)
-    n_states = max(64, 3 * len(names))
+    n_rows = 1 if model.planar else 3
+    n_states = max(64, -(-2 * len(names) // n_rows))  # twice as many equations as unknowns
     q, qd, w0 = _random_states(model, n_states, seed)
     y_full = full_regressor(model, q, qd, w0)[:, rows, :].reshape(-1, len(names))
     indep = _independent(y_full, tol)
