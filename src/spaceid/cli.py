@@ -11,27 +11,39 @@ import json
 import sys
 import warnings
 from pathlib import Path
-from typing import Optional
-
+import click
 import numpy as np
-import typer
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ._errors import SpaceidError
 
-app = typer.Typer(
-    add_completion=False,
-    pretty_exceptions_enable=False,
-    no_args_is_help=True,
-    help="Identify free-floating space manipulators from angular-momentum conservation.",
-)
 out = Console()
 err = Console(stderr=True)
 
-PLANAR = typer.Option(None, "--planar/--spatial", help="Force planar (x, y, yaw) or spatial mode; default: the model's.")
-MOMENTUM = typer.Option(..., "--momentum", help="Angular momentum [N m s]: h (planar) or hx,hy,hz (inertial axes).")
-SEED = typer.Option(0, "--seed", help="Seed of every random choice (recorded in the output).")
+MODEL = click.argument("model_src", metavar="MODEL")
+PLANAR = click.option("--planar/--spatial", default=None, help="Force planar (x, y, yaw) or spatial mode; default: the model's.")
+MOMENTUM = click.option("--momentum", required=True, help="Angular momentum [N m s]: h (planar) or hx,hy,hz (inertial axes).")
+SEED = click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random choice (recorded in the output).")
+NOISE = [
+    click.option("--noise-angle", type=float, default=0.0, help="White noise on angles [rad]."),
+    click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
+]
+OUTPUT = click.option("-o", "--output", type=click.Path(path_type=Path), required=True)
+
+
+def _options(*decorators):
+    def apply(f):
+        for d in reversed(decorators):
+            f = d(f)
+        return f
+
+    return apply
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+def app():
+    """Identify free-floating space manipulators from angular-momentum conservation."""
 
 
 @contextlib.contextmanager
@@ -58,12 +70,11 @@ def _momentum(value, planar):
     return parse_momentum(value, planar=planar)
 
 
-@app.command()
-def model(
-    model_src: str = typer.Argument(..., metavar="MODEL", help="Preset name or URDF/YAML path."),
-    planar: Optional[bool] = PLANAR,
-    as_json: bool = typer.Option(False, "--json", help="Print JSON instead of tables."),
-):
+@app.command(short_help="Identifiability report: bodies, joints, standard and minimal parameters.")
+@MODEL
+@PLANAR
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
+def model(model_src, planar, as_json):
     """Identifiability report: bodies, joints, standard and minimal parameters."""
     from rich.table import Table
 
@@ -102,22 +113,22 @@ def model(
     out.print(table)
 
 
-@app.command()
-def design(
-    model_src: str = typer.Argument(..., metavar="MODEL"),
-    planar: Optional[bool] = PLANAR,
-    duration: float = typer.Option(..., "--duration", help="Trajectory duration tf [s]."),
-    harmonics: int = typer.Option(..., "--harmonics", help="Fourier harmonics Nf."),
-    samples: int = typer.Option(..., "--samples", help="Samples N, equally spaced over [0, tf]."),
-    momentum: str = MOMENTUM,
-    seed: int = SEED,
-    criterion: str = typer.Option("cond", "--criterion", help="cond (condition number) or logdet (D-optimal)."),
-    q_max: Optional[float] = typer.Option(None, "--q-max", help="|q| limit [rad] (default: model limits)."),
-    qd_max: Optional[float] = typer.Option(None, "--qd-max", help="|qd| limit [rad/s]."),
-    qdd_max: Optional[float] = typer.Option(None, "--qdd-max", help="|qdd| limit [rad/s^2]."),
-    time_budget: float = typer.Option(10.0, "--time-budget", help="Wall-time budget of the global search [s]."),
-    output: Path = typer.Option(..., "-o", "--output", help="Trajectory file to write (JSON)."),
-):
+@app.command(short_help="Optimal exciting trajectory minimising cond(Y) under joint limits.")
+@MODEL
+@PLANAR
+@click.option("--duration", type=float, required=True, help="Trajectory duration tf [s].")
+@click.option("--harmonics", type=int, required=True, help="Fourier harmonics Nf.")
+@click.option("--samples", type=int, required=True, help="Samples N, equally spaced over [0, tf].")
+@MOMENTUM
+@SEED
+@click.option("--criterion", type=click.Choice(["cond", "logdet"]), default="cond", show_default=True,
+              help="cond (condition number) or logdet (D-optimal).")
+@click.option("--q-max", type=float, help="|q| limit [rad] (default: model limits).")
+@click.option("--qd-max", type=float, help="|qd| limit [rad/s] (default: model limits).")
+@click.option("--qdd-max", type=float, help="|qdd| limit [rad/s^2] (default: model limits).")
+@click.option("--time-budget", type=float, default=10.0, show_default=True, help="Wall-time budget of the search [s].")
+@OUTPUT
+def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, q_max, qd_max, qdd_max, time_budget, output):
     """Optimal exciting trajectory (Eq. 12) minimising the regressor's condition number."""
     from .demo import design_for
 
@@ -131,19 +142,17 @@ def design(
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {output}")
 
 
-@app.command()
-def simulate(
-    model_src: str = typer.Argument(..., metavar="MODEL"),
-    planar: Optional[bool] = PLANAR,
-    trajectory: str = typer.Option(..., "--trajectory", help="File from 'design' or a named trajectory (paper-table2)."),
-    momentum: str = MOMENTUM,
-    samples: Optional[int] = typer.Option(None, "--samples", help="N samples equally spaced over [0, tf]."),
-    rate: Optional[float] = typer.Option(None, "--rate", help="Sample rate [Hz] (instead of --samples)."),
-    noise_angle: float = typer.Option(0.0, "--noise-angle", help="White noise on angles [rad]."),
-    noise_rate: float = typer.Option(0.0, "--noise-rate", help="White noise on rates [rad/s]."),
-    seed: int = SEED,
-    output: Path = typer.Option(..., "-o", "--output", help="Log CSV to write."),
-):
+@app.command(short_help="Free-floating motion for a prescribed joint motion, as a log CSV.")
+@MODEL
+@PLANAR
+@click.option("--trajectory", required=True, help="File from 'design' or a named trajectory (paper-table2).")
+@MOMENTUM
+@click.option("--samples", type=int, help="N samples equally spaced over [0, tf].")
+@click.option("--rate", type=float, help="Sample rate [Hz] (instead of --samples).")
+@_options(*NOISE)
+@SEED
+@OUTPUT
+def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
     from .io import write_log
     from .simulate import add_noise, simulate as run
@@ -165,14 +174,13 @@ def simulate(
     err.print(f"{log.n_samples} samples written to {output} (momentum error {log.meta['momentum_rel_error']:.1e} relative)")
 
 
-@app.command()
-def identify(
-    model_src: str = typer.Argument(..., metavar="MODEL"),
-    log_path: Path = typer.Argument(..., metavar="LOG.csv"),
-    planar: Optional[bool] = PLANAR,
-    momentum: str = MOMENTUM,
-    output: Path = typer.Option(..., "-o", "--output", help="Result JSON to write."),
-):
+@app.command(short_help="Least-squares estimate of the minimal parameters from a log.")
+@MODEL
+@click.argument("log_path", metavar="LOG.csv", type=click.Path(path_type=Path))
+@PLANAR
+@MOMENTUM
+@OUTPUT
+def identify(model_src, log_path, planar, momentum, output):
     """Least-squares identification of the minimal parameters (Eq. 11)."""
     from .estimate import identify as run
     from .io import read_log, write_json
@@ -188,14 +196,13 @@ def identify(
               f"{ident.n_samples} samples; result written to {output}")
 
 
-@app.command()
-def predict(
-    result: Path = typer.Argument(..., metavar="RESULT.json"),
-    traj_csv: Path = typer.Argument(..., metavar="TRAJ.csv"),
-    momentum: str = MOMENTUM,
-    initial_yaw: float = typer.Option(0.0, "--initial-yaw", help="Base yaw at t0 [rad] (planar)."),
-    output: Path = typer.Option(..., "-o", "--output", help="Predicted log CSV to write."),
-):
+@app.command(short_help="Base motion of an identified model for a joint motion.")
+@click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
+@click.argument("traj_csv", metavar="TRAJ.csv", type=click.Path(path_type=Path))
+@MOMENTUM
+@click.option("--initial-yaw", type=float, default=0.0, help="Base yaw at t0 [rad] (planar).")
+@OUTPUT
+def predict(result, traj_csv, momentum, initial_yaw, output):
     """Base motion of an identified model for a joint motion (t, q_J, qd_J)."""
     from .io import read_joint_trajectory, write_log
     from .timeseries import yaw_to_quat
@@ -210,13 +217,12 @@ def predict(
     err.print(f"{log.n_samples} predicted samples written to {output}")
 
 
-@app.command()
-def validate(
-    result: Path = typer.Argument(..., metavar="RESULT.json"),
-    log_path: Path = typer.Argument(..., metavar="LOG.csv"),
-    momentum: str = MOMENTUM,
-    output: Path = typer.Option(..., "-o", "--output", help="Folder for plots and metrics."),
-):
+@app.command(short_help="Re-simulate an identified model against a log: metrics and plots.")
+@click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="LOG.csv", type=click.Path(path_type=Path))
+@MOMENTUM
+@OUTPUT
+def validate(result, log_path, momentum, output):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     from . import report
     from .io import read_log, write_json, write_log
@@ -235,15 +241,13 @@ def validate(
     err.print(f"plots and metrics written to {output}/")
 
 
-@app.command()
-def demo(
-    trajectory: str = typer.Option("designed", "--trajectory", help="designed, paper-table2 or a file from 'design'."),
-    noise_angle: float = typer.Option(0.0, "--noise-angle", help="White noise on angles [rad]."),
-    noise_rate: float = typer.Option(0.0, "--noise-rate", help="White noise on rates [rad/s]."),
-    seed: int = SEED,
-    folder: Path = typer.Option(Path("spaceid-report"), "--out", help="Report folder."),
-    as_json: bool = typer.Option(False, "--json", help="Print one JSON object instead of tables."),
-):
+@app.command(short_help="The paper's simulation study on the built-in Cepheus model.")
+@click.option("--trajectory", default="designed", show_default=True, help="designed, paper-table2 or a file from 'design'.")
+@_options(*NOISE)
+@SEED
+@click.option("--out", "folder", type=click.Path(path_type=Path), default=Path("spaceid-report"), show_default=True, help="Report folder.")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of tables.")
+def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
     """The paper's simulation study on the built-in Cepheus model (Tables 1-3)."""
     from .demo import PAPER_TABLE3, run_demo
     from .report import parameter_table
@@ -280,19 +284,15 @@ def main(argv=None) -> int:
     warnings.simplefilter("default")
     warnings.showwarning = lambda msg, *a, **k: print(f"warning: {msg}", file=sys.stderr)
     try:
-        app(args=argv, standalone_mode=False)
+        app.main(args=argv, prog_name="spaceid", standalone_mode=False)
     except SpaceidError as exc:
         print(f"error: {exc}", file=sys.stderr)  # one line, never wrapped
         return 2
-    except Exception as exc:  # click usage errors and aborts
-        import click
-
-        if isinstance(exc, click.exceptions.ClickException):
-            exc.show()
-            return exc.exit_code
-        if isinstance(exc, click.exceptions.Abort):
-            return 1
-        raise
+    except click.ClickException as exc:  # usage errors: click's own message, exit code 2
+        exc.show()
+        return exc.exit_code
+    except click.Abort:
+        return 1
     return 0
 
 

@@ -106,7 +106,7 @@ def run_demo(
     seed: int = 0,
     out=None,
     progress=None,
-    design_budget: float = 10.0,
+    design_budget: float = 4.0,
 ) -> DemoResult:
     """Run the paper's simulation study on ``cepheus``.
 

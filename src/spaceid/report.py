@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import re
 from pathlib import Path
 
 import matplotlib as mpl
@@ -55,7 +56,6 @@ _STYLE = {
 }
 # one colour per role, the same in every figure
 _MEASURED, _MODEL, _TRUE, _REF, _LIMIT = "0.15", "tab:red", "tab:green", "0.55", "tab:orange"
-_RMS_BOX = {"boxstyle": "round,pad=0.25", "facecolor": "white", "edgecolor": "0.8", "alpha": 0.85}
 
 
 @contextlib.contextmanager
@@ -67,6 +67,12 @@ def _figure(path, size):
         yield fig
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png", dpi=DPI)
+
+
+def _tex_name(name: str) -> str:
+    """``pi12`` -> ``$\\pi_{12}$`` for axis ticks; other names unchanged."""
+    match = re.fullmatch(r"pi(\d+)", name)
+    return rf"$\pi_{{{match.group(1)}}}$" if match else name
 
 
 def _rms(x) -> float:
@@ -147,9 +153,8 @@ def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
                 ax.plot(measured.t, y_meas, color=_MEASURED, label="measured", **marker)
                 ax.plot(predicted.t, y_pred, color=_MODEL, linestyle="--", label="identified model")
                 ax.set_title(panel_title, loc="left")
+                ax.set_title(f"RMS error {_rms(y_pred - y_meas):.3g} {unit}", loc="right", fontsize=8, color="0.35")
                 ax.set_ylabel(f"{label} [{unit}]")
-                ax.text(0.98, 0.95, f"RMS {_rms(y_pred - y_meas):.2e} {unit}", transform=ax.transAxes,
-                        ha="right", va="top", fontsize=7, bbox=_RMS_BOX)
                 if r == len(panels) - 1:
                     ax.set_xlabel("time $t$ [s]")
                 else:
@@ -219,7 +224,7 @@ def plot_parameters(ident: Identification, path, *, true=None, reference=None, r
                 ax.set_ylim(bottom=0)
             ax.set_ylabel("relative error [%]")
             ax.legend(loc="best")
-        axes[-1].set_xticks(x, ident.names)
+        axes[-1].set_xticks(x, [_tex_name(n) for n in ident.names])
         axes[-1].set_xlabel("parameter")
     return Path(path)
 
@@ -326,7 +331,7 @@ def _columns(ident: Identification, true, reference, reference_label):
     cols = [ident.names, ident.definitions, [f"{v:.6g}" for v in ident.values], [f"{s:.3g}" for s in ident.std]]
     if true is not None:
         rel, _ = _relative_errors(ident, true)
-        header += ["true", "|rel. error| [%]"]
+        header += ["true", "rel. error [%]"]
         cols += [[f"{v:.6g}" for v in true], [f"{100 * e:.3g}" if np.isfinite(e) else "-" for e in rel]]
     if reference is not None:
         header.append(f"{reference_label} rel. error [%]")
@@ -443,11 +448,12 @@ def write_markdown_report(
     lines = [f"# {title}", "", "## Settings", ""]
     lines += _md_table(["setting", "value"], [(_md(k), _md_value(v)) for k, v in settings.items()])
     lines += ["", "## Identified parameters", ""]
-    lines += _md_table(header, rows)
+    lines += _md_table([_md(h) for h in header], rows)
     lines += [
         "",
-        f"Estimator: {_md(ident.estimator)}; {ident.n_samples} samples; momentum "
-        f"[{', '.join(f'{h:.6g}' for h in ident.momentum)}] N m s; std from the residual variance.",
+        f"Estimator {_md(ident.estimator)}, {ident.n_samples} samples, momentum "
+        f"[{', '.join(f'{h:.6g}' for h in ident.momentum)}] N m s; std: one standard deviation"
+        + ("; relative error: abs(estimate - true) / abs(true)." if true is not None else "."),
         "",
         f"- Condition number of the stacked regressor: {ident.condition_number:.4g}",
         f"- Residual RMS: {ident.residual_rms:.3g} N m s",

@@ -1,0 +1,673 @@
+"""Optimal excitation: choose the Fourier coefficients of Eq. 12 for a well-conditioned regressor.
+
+The free coefficients ``X = [a | b]`` of :class:`~spaceid.trajectory.FourierTrajectory` are
+searched in scaled variables ``z`` (``X = S * z``, with ``S`` such that ``|z_jk| = 1`` alone
+takes joint j to its tightest limit). q, qd and qdd are affine in ``z``, so the joint limits,
+imposed on a fine time grid, are linear inequalities.
+
+A criterion is the maximum of a few smooth *pieces* of the stacked regressor ``Y``; the local
+solver (SLSQP) minimises ``tau`` subject to ``piece(z) <= tau`` and the limits. This epigraph
+form keeps the condition number smooth where its extreme singular values coalesce, which they
+do at the optimum. Gradients come from the singular value decomposition,
+``d sigma_i = u_i^T dY v_i``, with ``dY`` by central differences from one batched regressor call.
+
+The global search runs local searches from seeded random feasible starts, in worker processes:
+each imposes the limits on a coarse grid, then on the fine-grid points near the peaks of the
+signals, and is finally scaled back into the limits on the whole fine grid. The best two results
+are polished with all fine-grid limits that can become active.
+
+References
+----------
+Papadopoulos et al., identification of free-floating space robots from angular momentum
+conservation, Eq. 12 (MATH.md section 3).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import pickle
+import time
+from collections.abc import Callable
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize
+from threadpoolctl import threadpool_limits
+
+from ._errors import SpaceidError
+from .trajectory import (
+    BOUNDARY_FIELDS,
+    FourierTrajectory,
+    boundary_quintic,
+    fourier_basis,
+    sample_times,
+)
+
+__all__ = ["Criterion", "CRITERIA", "DesignResult", "design_excitation"]
+
+
+# -- criteria ---------------------------------------------------------------------------------
+
+
+def _dlog_sigma(Y, dY):
+    """Log singular values of ``Y (r, k)`` and their derivatives along ``dY (p, r, k)``.
+
+    Returns ``log_s (k,)`` (descending) and ``dlog_s (p, k)``, from ``d s_i = u_i^T dY v_i``.
+    """
+    U, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    ds = np.sum((dY @ Vt.T) * U, axis=-2)
+    return np.log(s), ds / s
+
+
+def _cond_pieces(Y, dY=None):
+    """log cond(Y) as the max of ``log s_i - log s_j`` over the two largest i, two smallest j.
+
+    Each piece is smooth where the singular values are distinct; their maximum is the log
+    condition number, smooth in epigraph form even where s_1 = s_2 or s_k-1 = s_k.
+    """
+    if dY is None:
+        log_s = np.log(np.linalg.svd(Y, compute_uv=False))
+        return (log_s[..., :2, None] - log_s[..., None, -2:]).reshape(*Y.shape[:-2], -1)
+    log_s, dlog_s = _dlog_sigma(Y, dY)
+    pieces = (log_s[:2, None] - log_s[None, -2:]).ravel()
+    jac = (dlog_s[:, :2, None] - dlog_s[:, None, -2:]).reshape(len(dY), -1).T
+    return pieces, jac
+
+
+def _logdet_pieces(Y, dY=None):
+    """``-log det(Yn^T Yn)``, ``Yn`` = Y with unit-norm columns (D-optimality); one piece."""
+    norms = np.linalg.norm(Y, axis=-2, keepdims=True)
+    Yn = Y / norms
+    if dY is None:
+        return -2 * np.log(np.linalg.svd(Yn, compute_uv=False)).sum(-1, keepdims=True)
+    # d(y / |y|) = dy / |y| - y (y . dy) / |y|^3, column by column
+    dYn = dY / norms - Yn * (np.sum(Yn * dY, axis=-2, keepdims=True) / norms)
+    log_s, dlog_s = _dlog_sigma(Yn, dYn)
+    return np.array([-2 * log_s.sum()]), -2 * dlog_s.sum(-1)[None, :]
+
+
+@dataclass(frozen=True)
+class Criterion:
+    """An excitation criterion: the maximum of smooth pieces of the regressor, minimised.
+
+    Attributes
+    ----------
+    name : str
+    pieces : callable
+        ``pieces(Y)`` with ``Y`` of shape (..., n_rows, k) returns (..., n_pieces);
+        ``pieces(Y, dY)`` with ``Y`` (n_rows, k) and directions ``dY`` (p, n_rows, k) returns
+        the pieces (n_pieces,) and their derivatives (n_pieces, p).
+    report : callable
+        Maps the objective (the max of the pieces) to the reported value.
+    """
+
+    name: str
+    pieces: Callable
+    report: Callable
+
+
+CRITERIA = {
+    "cond": Criterion("cond", _cond_pieces, np.exp),  # condition number, lower is better
+    "logdet": Criterion("logdet", _logdet_pieces, np.negative),  # log det, higher is better
+}
+"""Criteria by name. Another one (e.g. the trace of a covariance) is one more entry."""
+
+
+# -- the problem in scaled variables ------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """What a local search needs; picklable, sent once to each worker process.
+
+    ``z`` (..., n) are scaled coefficients, ``X = S * z.reshape(..., n_joints, K)``, n = n_joints K.
+    q, qd, qdd on the fine grid are ``B @ X.T + P`` (3, n_grid, n_joints), limits ``L``.
+    """
+
+    regressor: Callable
+    criterion: str
+    S: np.ndarray  # (n_joints, K)
+    B_samples: np.ndarray  # (2, n_samples, K): q, qd basis at the samples
+    P_samples: np.ndarray  # (2, n_samples, n_joints)
+    dsamples: np.ndarray  # (2, n, n_samples, n_joints): q, qd responses to each z_p
+    B: np.ndarray  # (3, n_grid, K)
+    P: np.ndarray  # (3, n_grid, n_joints)
+    L: np.ndarray  # (3, n_joints)
+    coarse: np.ndarray  # fine-grid time indices constrained during the search
+    step: float = 1e-6  # central-difference step in z
+
+    @property
+    def n(self):
+        return self.S.size
+
+    def X(self, z):
+        return self.S * np.reshape(z, (*np.shape(z)[:-1], *self.S.shape))
+
+    def stacked(self, Z):
+        """Stacked regressors of scaled coefficients ``Z (batch, n)``: (batch, rows, k)."""
+        q, qd = np.einsum("dtk,bjk->dbtj", self.B_samples, self.X(Z)) + self.P_samples[:, None]
+        return self.regressor(q, qd)
+
+    def objective(self, Z):
+        """Objective of scaled coefficients ``Z (batch, n)``: (batch,), inf where singular."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            f = CRITERIA[self.criterion].pieces(self.stacked(Z)).max(-1)
+        return np.where(np.isnan(f), np.inf, f)
+
+    def linearize(self, z):
+        """Pieces at ``z`` and their gradients (n_pieces, n), one batched regressor call."""
+        q, qd = np.einsum("dtk,jk->dtj", self.B_samples, self.X(z)) + self.P_samples
+        dq, dqd = self.step * self.dsamples  # q, qd are affine in z: exact perturbations
+        Y = self.regressor(np.concatenate([q[None], q + dq, q - dq]),
+                           np.concatenate([qd[None], qd + dqd, qd - dqd]))  # fmt: skip
+        dY = (Y[1 : 1 + self.n] - Y[1 + self.n :]) / (2 * self.step)
+        return CRITERIA[self.criterion].pieces(Y[0], dY)
+
+    def signals(self, Z):
+        """q, qd, qdd on the fine grid over their limits, shape (..., 3, n_grid, n_joints)."""
+        return (np.einsum("dtk,...jk->...dtj", self.B, self.X(Z)) + self.P) / self.L[:, None]
+
+    def shrink(self, Z):
+        """``s Z`` with, per row, the largest ``s <= 1`` that keeps the limits on the fine grid.
+
+        ``z = 0`` (the boundary quintic alone) is feasible, so such an ``s >= 0`` exists.
+        """
+        p = self.P / self.L[:, None]
+        v = self.signals(Z) - p
+        with np.errstate(divide="ignore", invalid="ignore"):
+            s = np.where(v > 0, (1 - p) / v, np.where(v < 0, (-1 - p) / v, np.inf))
+        return Z * np.minimum(1.0, s.min(axis=(-3, -2, -1)))[..., None]
+
+    def limit_rows(self, mask, z=None):
+        """Limits of both signs where ``mask (3, n_grid, n_joints)`` is set, as ``A z <= b``.
+
+        Given ``z``, a limit is left out where the signal at ``z`` is beyond half the opposite
+        limit: it lies 1.5 limits away, further than a local refinement moves.
+        """
+        d, t, j = np.nonzero(mask)
+        K = self.S.shape[1]
+        A = np.zeros((len(d), self.n))
+        np.put_along_axis(A, j[:, None] * K + np.arange(K), self.B[d, t] * self.S[j], axis=1)
+        A /= self.L[d, j][:, None]
+        p = self.P[d, t, j] / self.L[d, j]
+        A, b = np.vstack([A, -A]), np.concatenate([1 - p, 1 + p])
+        if z is None:
+            return A, b
+        v = self.signals(z)[d, t, j]
+        keep = np.concatenate([v > -0.5, v < 0.5])
+        return A[keep], b[keep]
+
+    def coarse_mask(self):
+        mask = np.zeros(self.P.shape, dtype=bool)
+        mask[:, self.coarse] = True
+        return mask
+
+    def peaks(self, z, *, threshold, width=3):
+        """Fine-grid points within ``width`` of a local maximum of |signal| above ``threshold``."""
+        v = np.abs(self.signals(z))
+        edge = np.full_like(v[:, :1], -np.inf)
+        ahead, behind = np.concatenate([v[:, 1:], edge], 1), np.concatenate([edge, v[:, :-1]], 1)
+        mask = (v >= ahead) & (v >= behind) & (v >= threshold)
+        for shift in range(1, width + 1):
+            mask[:, shift:] |= mask[:, :-shift]
+            mask[:, :-shift] |= mask[:, shift:]
+        return mask
+
+    def local(self, z0, mask, *, ftol, near=False, maxiter=200):
+        """SLSQP in epigraph form from ``z0`` under the limits at the fine-grid points ``mask``
+        (only those on the side of the signal at ``z0`` where it is large, if ``near``)."""
+        A, b = self.limit_rows(mask, z0 if near else None)
+        A = np.hstack([A, np.zeros((len(A), 1))])  # variables w = (z, tau)
+        n, cache = self.n, {}
+
+        def lin(w):  # SLSQP asks for values and gradients separately: evaluate once
+            key = w[:n].tobytes()
+            if key not in cache:
+                cache.clear()
+                cache[key] = self.linearize(w[:n])
+            return cache[key]
+
+        def epigraph_jac(w):  # of tau - piece(z) >= 0
+            jac = lin(w)[1]
+            return np.hstack([-jac, np.ones((len(jac), 1))])
+
+        constraints = [
+            {"type": "ineq", "fun": lambda w: w[n] - lin(w)[0], "jac": epigraph_jac},
+            {"type": "ineq", "fun": lambda w: b - A @ w, "jac": lambda w: -A},
+        ]
+        e_tau = np.eye(n + 1)[n]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            res = minimize(
+                lambda w: (w[n], e_tau),
+                np.append(z0, lin(np.append(z0, 0.0))[0].max()),
+                jac=True,
+                method="SLSQP",
+                constraints=constraints,
+                options={"maxiter": maxiter, "ftol": ftol},
+            )
+        return res.x[:n] if np.all(np.isfinite(res.x)) else z0
+
+    def search(self, z0, *, ftol=1e-3):
+        """One local search: coarse grid, then the fine-grid peaks too, then scaled into the
+        limits. Returns ``(z, objective)``."""
+        z = self.local(z0, self.coarse_mask(), ftol=ftol)
+        mask = self.coarse_mask() | self.peaks(z, threshold=0.8)
+        z = self.shrink(self.local(z, mask, ftol=ftol, near=True))
+        return z, float(self.objective(z[None])[0])
+
+    def polish(self, z, *, rounds=4):
+        """Refine ``z`` under every fine-grid limit that can become active near it."""
+        mask = self.coarse_mask()  # keeps the refinement from running off to new peaks
+        for _ in range(rounds):
+            mask |= self.peaks(z, threshold=0.8)
+            z = self.local(z, mask, ftol=1e-8, near=True)
+            if np.abs(self.signals(z)).max() <= 1 + 1e-9:
+                break
+        z = self.shrink(z)
+        return z, float(self.objective(z[None])[0])
+
+    def starts(self, rng, m):
+        """``m`` random feasible starts (m, n): isotropic random directions, each scaled to a
+        random fraction (1/4 to 1) of the largest feasible step along it."""
+        return self.shrink(1e6 * rng.standard_normal((m, self.n))) * rng.uniform(0.25, 1, (m, 1))
+
+
+def _problem(regressor, criterion, *, duration, harmonics, samples, limits, boundary, n_grid):
+    """The design problem in scaled variables (see _Problem); limits (3, n_joints)."""
+    t = sample_times(duration, n_grid)
+    B = fourier_basis(t, duration=duration, harmonics=harmonics)
+    t_s = sample_times(duration, samples)
+    B_samples = fourier_basis(t_s, duration=duration, harmonics=harmonics)[:2]
+    S = 1.0 / np.max(np.abs(B)[:, :, None, :] / limits[:, None, :, None], axis=(0, 1))
+    nj, K = S.shape
+    dsamples = np.zeros((2, nj, K, samples, nj))
+    for j in range(nj):
+        dsamples[:, j, :, :, j] = np.moveaxis(B_samples * S[j], -1, 1)
+    n_coarse = 10 * harmonics + 1  # ten points a period of the top harmonic
+    return _Problem(
+        regressor=regressor,
+        criterion=criterion,
+        S=S,
+        B_samples=B_samples,
+        P_samples=boundary_quintic(t_s, duration=duration, boundary=boundary)[:2],
+        dsamples=dsamples.reshape(2, nj * K, samples, nj),
+        B=B,
+        P=boundary_quintic(t, duration=duration, boundary=boundary),
+        L=limits,
+        coarse=np.unique(np.linspace(0, n_grid - 1, n_coarse).round().astype(int)),
+    )
+
+
+# -- the global search --------------------------------------------------------------------------
+
+_N_POLISH = 2  # distinct best results refined on the fine grid
+
+_WORKER_PROBLEM = None
+
+
+def _init_worker(problem):
+    threadpool_limits(1)  # see design_excitation
+    global _WORKER_PROBLEM
+    _WORKER_PROBLEM = problem
+
+
+def _call(method, *args):
+    """``problem.method(*args)`` in a worker process, on the problem it received at start-up."""
+    return getattr(_WORKER_PROBLEM, method)(*args)
+
+
+def _imap(problem, pool, n_jobs, calls, *, stop):
+    """Run ``problem.method(*args)`` for ``calls``, an iterable of ``(key, method, args)``.
+
+    Yields ``(key, result)`` in completion order, from ``pool`` or from this process when
+    ``pool`` is None. No call starts once ``stop()`` is true; started calls finish.
+    """
+    calls = iter(calls)
+    if pool is None:
+        for key, method, args in calls:
+            if stop():
+                return
+            yield key, getattr(problem, method)(*args)
+        return
+    pending = {}
+    while True:
+        while len(pending) < n_jobs and not stop():
+            call = next(calls, None)
+            if call is None:
+                break
+            key, method, args = call
+            pending[pool.submit(_call, method, *args)] = key
+        if not pending:
+            return
+        done, _ = wait(pending, return_when=FIRST_COMPLETED)
+        for future in done:
+            yield pending.pop(future), future.result()
+
+
+def _picklable(obj):
+    try:
+        pickle.dumps(obj)
+    except (pickle.PicklingError, TypeError, AttributeError):
+        return False
+    return True
+
+
+def _distinct(found, m):
+    """The first ``m`` of the sorted results ``(f, i, z)`` whose z differ."""
+    out = []
+    for cand in found:
+        if all(np.linalg.norm(cand[2] - c[2]) > 1e-3 for c in out):
+            out.append(cand)
+        if len(out) == m:
+            break
+    return out
+
+
+@dataclass(frozen=True)
+class DesignResult:
+    """Outcome of :func:`design_excitation`.
+
+    Attributes
+    ----------
+    trajectory : FourierTrajectory
+        The best trajectory found; its ``meta`` records criterion, value, seed, number of
+        starts, samples, wall time and limits.
+    criterion : str
+        A key of :data:`CRITERIA`.
+    value : float
+        Criterion value of ``trajectory``: the condition number for ``cond``, log det for
+        ``logdet``.
+    seed : int
+        Seed of the start points.
+    n_starts : int
+        Local searches completed (fewer than asked for when the time budget ran out).
+    wall_time : float
+        Wall time of the design [s].
+    history : tuple of (float, float)
+        ``(wall time [s], best value so far)`` at each improvement.
+    """
+
+    trajectory: FourierTrajectory
+    criterion: str
+    value: float
+    seed: int
+    n_starts: int
+    wall_time: float
+    history: tuple = field(default=(), repr=False)
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary."""
+        return {
+            "trajectory": self.trajectory.to_dict(),
+            "criterion": self.criterion,
+            "value": self.value,
+            "seed": self.seed,
+            "n_starts": self.n_starts,
+            "wall_time": self.wall_time,
+            "history": [list(h) for h in self.history],
+        }
+
+
+def design_excitation(
+    regressor,
+    joints,
+    *,
+    duration,
+    harmonics,
+    samples,
+    q_max,
+    qd_max,
+    qdd_max,
+    criterion="cond",
+    seed=0,
+    n_starts=64,
+    n_jobs=None,
+    progress=None,
+    boundary=None,
+    time_budget=None,
+    initial=None,
+    n_grid=1001,
+):
+    """Design an exciting trajectory (paper Eq. 12) by a seeded multi-start search.
+
+    Parameters
+    ----------
+    regressor : callable
+        ``regressor(q, qd)`` with q [rad], qd [rad/s] of shape (..., samples, n_joints),
+        batched over leading dimensions, returning the stacked regressor (..., samples * m, k)
+        (m = 1 planar, 3 spatial). Worker processes need it picklable; otherwise the search
+        runs in this process.
+    joints : sequence of str
+        Joint names, the column order of q.
+    duration : float
+        Trajectory duration tf [s].
+    harmonics : int
+        Number of harmonics Nf.
+    samples : int
+        Number of equally spaced samples over ``[0, duration]`` (both ends included) at which
+        the regressor is stacked.
+    q_max, qd_max, qdd_max : float or array_like of shape (n_joints,)
+        Limits on |q| [rad], |qd| [rad/s], |qdd| [rad/s^2], held on ``n_grid`` times.
+    criterion : {"cond", "logdet"}
+        ``cond``: minimise the 2-norm condition number of the stacked regressor; ``logdet``:
+        maximise log det of ``Yn^T Yn``, ``Yn`` with unit-norm columns (D-optimality).
+    seed : int
+        Seed (an integer >= 0) of the random start points. The same seed gives the same
+        result, whatever ``n_jobs``, unless ``time_budget`` cuts the search short; a larger
+        ``n_starts`` adds starts to those of a smaller one.
+    n_starts : int
+        Number of local searches (an upper bound when ``time_budget`` is given).
+    n_jobs : int, optional
+        Worker processes; default: one per core. 1 runs in this process.
+    progress : callable, optional
+        ``progress(done, total)``, called as local searches complete (``total = n_starts``).
+    boundary : mapping, optional
+        Boundary values ``q0, qd0, qdd0, qf, qdf, qddf`` (keys), arrays (n_joints,) [rad,
+        rad/s, rad/s^2]; missing ones are zero. The quintic through them must keep the limits.
+    time_budget : float, optional
+        Wall time [s]. Local searches stop early enough, by an estimate from those done, to
+        finish and polish within it. The result then depends on the machine's speed.
+    initial : FourierTrajectory, optional
+        Warm start: used as the first start point, scaled down if it breaks a limit.
+    n_grid : int
+        Number of equally spaced times on which the limits hold.
+
+    Returns
+    -------
+    DesignResult
+
+    Raises
+    ------
+    SpaceidError
+        Invalid options, boundary values that break the limits, too few samples for the
+        regressor's columns, or a regressor rank deficient on every start.
+
+    References
+    ----------
+    Papadopoulos et al., identification of free-floating space robots from angular momentum
+    conservation, Eq. 12 (MATH.md section 3).
+    """
+    t_start = time.perf_counter()
+    joints = tuple(joints)
+    _check_options(criterion, duration, time_budget, harmonics=harmonics, samples=samples,
+                   n_starts=n_starts, n_grid=n_grid, seed=seed)  # fmt: skip
+    limits = _limits(joints, q_max, qd_max, qdd_max)
+    bc = _boundary(joints, boundary)
+    problem = _problem(regressor, criterion, duration=float(duration), harmonics=harmonics,
+                       samples=samples, limits=limits, boundary=bc, n_grid=n_grid)  # fmt: skip
+    if np.abs(problem.signals(np.zeros(problem.n))).max() > 1:
+        raise SpaceidError(
+            "boundary: the quintic through the boundary values alone breaks a joint limit; "
+            "bring the boundary values inside the limits or relax the limits"
+        )
+    z_initial = None
+    if initial is not None:
+        z_initial = problem.shrink(_initial_z(problem, initial, joints, duration, harmonics, bc))
+
+    def searches():
+        """One task per start; start i is drawn from (seed, i) alone, so it is the same
+        whatever n_starts and the order in which tasks run."""
+        for i in range(n_starts):
+            z0 = problem.starts(np.random.default_rng([seed, i]), 1)[0]
+            yield i, "search", (z_initial if i == 0 and z_initial is not None else z0,)
+
+    _check_regressor(problem, problem.starts(np.random.default_rng(seed), 8), len(joints), samples)
+    n_jobs = min(os.cpu_count() or 1, n_starts) if n_jobs is None else int(n_jobs)
+    report = CRITERIA[criterion].report
+    found, history = [], []
+    best = (np.inf, np.inf, None)  # (objective, start index, z): ties go to the lower index
+
+    def consider(f, i, z):
+        nonlocal best
+        if f < best[0] - 1e-9:  # smaller gains in the objective are not worth a record
+            history.append((time.perf_counter() - t_start, float(report(f))))
+        if (f, i) < best[:2]:
+            best = (f, i, z)
+
+    with contextlib.ExitStack() as stack:
+        # One BLAS thread per process: SLSQP's small LAPACK calls gain nothing from more, and
+        # OpenBLAS threads spinning on busy cores make it up to 30 times slower.
+        stack.enter_context(threadpool_limits(1))
+        pool = None
+        if n_jobs > 1 and _picklable(regressor):
+            pool = stack.enter_context(
+                ProcessPoolExecutor(n_jobs, initializer=_init_worker, initargs=(problem,))
+            )
+        workers, t_search = (n_jobs if pool else 1), time.perf_counter()
+
+        def out_of_time():
+            # Keep time to finish the running searches and to polish (a polish costs about
+            # one to five searches, whose mean wall time the searches so far tell)
+            if time_budget is None or not found:
+                return False
+            now = time.perf_counter()
+            per_search = (now - t_search) * workers / len(found)
+            reserve = per_search * (1 + 3 * -(-_N_POLISH // workers))
+            return now + reserve > t_start + time_budget
+
+        for i, (z, f) in _imap(problem, pool, n_jobs, searches(), stop=out_of_time):
+            found.append((f, i, z))
+            consider(f, i, z)
+            if progress is not None:
+                progress(len(found), n_starts)
+        found.sort(key=lambda c: c[:2])  # by value, then start index: independent of timing
+        polish = ((i, "polish", (z,)) for _, i, z in _distinct(found, _N_POLISH))
+        polished = _imap(problem, pool, n_jobs, polish, stop=lambda: False)
+        for i, (z, f) in sorted(polished, key=lambda r: r[0]):
+            consider(f, i, z)
+
+    f, _, z = best
+    if not np.isfinite(f):
+        raise SpaceidError(
+            "no local search found a trajectory with a full-rank regressor; check that its "
+            "columns are identifiable together and that the limits allow motion"
+        )
+    wall = time.perf_counter() - t_start
+    value = float(report(f))
+    X = problem.X(z)
+    meta = {
+        "source": "design_excitation",
+        "criterion": criterion,
+        "value": value,
+        "seed": seed,
+        "n_starts": len(found),
+        "samples": samples,
+        "wall_time": wall,
+        "limits": dict(zip(("q_max", "qd_max", "qdd_max"), limits.tolist())),
+    }
+    trajectory = FourierTrajectory(
+        joints, duration, X[:, :harmonics], X[:, harmonics:], **dict(zip(BOUNDARY_FIELDS, bc)),
+        meta=meta,
+    )  # fmt: skip
+    return DesignResult(trajectory, criterion, value, seed, len(found), wall, tuple(history))
+
+
+# -- input checks -------------------------------------------------------------------------------
+
+
+def _check_options(criterion, duration, time_budget, **integers):
+    if criterion not in CRITERIA:
+        raise SpaceidError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    low = {"harmonics": 1, "samples": 2, "n_starts": 1, "n_grid": 100, "seed": 0}
+    for name, value in integers.items():
+        if not isinstance(value, (int, np.integer)) or value < low[name]:
+            raise SpaceidError(f"{name} must be an integer >= {low[name]}, got {value!r}")
+    if not (np.isfinite(duration) and duration > 0):
+        raise SpaceidError(f"duration must be a positive number of seconds, got {duration!r}")
+    if time_budget is not None and not time_budget > 0:
+        raise SpaceidError(f"time_budget must be a positive number of seconds, got {time_budget!r}")
+
+
+def _limits(joints, q_max, qd_max, qdd_max):
+    """Limits as an array (3, n_joints): rows |q| [rad], |qd| [rad/s], |qdd| [rad/s^2]."""
+    rows = []
+    for name, value in (("q_max", q_max), ("qd_max", qd_max), ("qdd_max", qdd_max)):
+        arr = np.asarray(value, dtype=float)
+        if arr.ndim > 1 or arr.size not in (1, len(joints)):
+            raise SpaceidError(
+                f"{name} must be a number or one value per joint ({len(joints)}), got {value!r}"
+            )
+        if not np.all(np.isfinite(arr) & (arr > 0)):
+            raise SpaceidError(f"{name} must be positive and finite, got {value!r}")
+        rows.append(np.broadcast_to(arr, (len(joints),)))
+    return np.array(rows)
+
+
+def _boundary(joints, boundary):
+    """Boundary values as an array (6, n_joints), rows in BOUNDARY_FIELDS order."""
+    boundary = dict(boundary or {})
+    unknown = set(boundary) - set(BOUNDARY_FIELDS)
+    if unknown:
+        raise SpaceidError(
+            f"boundary: unknown key(s) {', '.join(sorted(unknown))}; "
+            f"expected some of {', '.join(BOUNDARY_FIELDS)}"
+        )
+    out = np.zeros((6, len(joints)))
+    for row, key in enumerate(BOUNDARY_FIELDS):
+        if key in boundary:
+            value = np.asarray(boundary[key], dtype=float)
+            if value.shape != (len(joints),) or not np.all(np.isfinite(value)):
+                raise SpaceidError(
+                    f"boundary['{key}'] must be {len(joints)} finite values, got {boundary[key]!r}"
+                )
+            out[row] = value
+    return out
+
+
+def _initial_z(problem, initial, joints, duration, harmonics, bc):
+    """Scaled coefficients of a warm-start trajectory, after checking that it fits."""
+    if not (
+        initial.joints == joints
+        and initial.duration == float(duration)
+        and initial.n_harmonics == harmonics
+        and np.array_equal(initial.boundary, bc)
+    ):
+        raise SpaceidError(
+            "initial: the warm-start trajectory must have the design's joints, duration, "
+            "number of harmonics and boundary values"
+        )
+    return (initial.coefficients / problem.S).ravel()
+
+
+def _check_regressor(problem, Z0, n_joints, samples):
+    """The regressor's output shape, and full rank at one of the starts ``Z0``."""
+    zeros = np.zeros((1, samples, n_joints))
+    shape = np.shape(problem.regressor(zeros, zeros))
+    if len(shape) != 3 or shape[0] != 1 or shape[1] % samples:
+        raise SpaceidError(
+            f"regressor must map (batch, {samples}, {n_joints}) joint arrays to "
+            f"(batch, {samples} * m, k); got shape {shape}"
+        )
+    if shape[1] < shape[2]:
+        raise SpaceidError(
+            f"samples={samples} give {shape[1]} equations for {shape[2]} parameters; "
+            f"use at least {-(-shape[2] * samples // shape[1])} samples"
+        )
+    s = np.linalg.svd(problem.stacked(Z0), compute_uv=False)
+    if np.all(s[:, -1] <= s[:, 0] * max(shape[1:]) * np.finfo(float).eps):  # numerical rank < k
+        raise SpaceidError(
+            "the regressor is rank deficient on random start trajectories: its columns are not "
+            "identifiable together; reduce them to a minimal parameter set"
+        )
