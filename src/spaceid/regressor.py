@@ -208,8 +208,9 @@ def _planar_functions(model: Model, terms, q, qd, w0):
         if kind == "spin":
             cols.append(wz[..., a])
             continue
-        rel = np.einsum("...ji,...jk->...ik", rot[..., a, :, :], rot[..., b, :, :])
-        trig = rel[..., 0, 0] if kind == "cos" else rel[..., 1, 0]
+        # entries (0, 0) and (1, 0) of R_a^T R_b: cos and sin of the angle of b relative to a
+        axis = 0 if kind == "cos" else 1
+        trig = (rot[..., a, :, axis] * rot[..., b, :, 0]).sum(-1)
         cols.append(trig * (wz[..., a] + wz[..., b]))
     return np.stack(cols, -1)
 

@@ -142,10 +142,10 @@ def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
         panels.append([(f"$q_{{{j + 1}}}$", "rad", measured.q[:, j], predicted.q[:, j], f"{name}: angle"),
                        (rf"$\dot q_{{{j + 1}}}$", "rad/s", measured.qd[:, j], predicted.qd[:, j], f"{name}: rate")])
     panels.append([(rf"$\omega_{{0{'xyz'[i]}}}$", "rad/s", measured.base_w[:, i], predicted.base_w[:, i],
-                    f"base angular velocity, {'xyz'[i]}") for i in axes_w])
+                    "base angular velocity" if measured.planar else f"base, {'xyz'[i]}") for i in axes_w])
     mosaic = [[f"{r}.{c}" for c in range(len(row)) for _ in range(6 // len(row))] for r, row in enumerate(panels)]
     marker = {"marker": "o", "linestyle": "none", "markersize": 3} if measured.n_samples <= 120 else {}
-    with _figure(path, (7.2, 1.9 * (nj + 1) + 0.5)) as fig:
+    with _figure(path, (7.2 if measured.planar else 8.4, 1.9 * (nj + 1) + 0.5)) as fig:
         axes = fig.subplot_mosaic(mosaic, sharex=True)
         for r, row in enumerate(panels):
             for c, (label, unit, y_meas, y_pred, panel_title) in enumerate(row):
@@ -153,7 +153,7 @@ def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
                 ax.plot(measured.t, y_meas, color=_MEASURED, label="measured", **marker)
                 ax.plot(predicted.t, y_pred, color=_MODEL, linestyle="--", label="identified model")
                 ax.set_title(panel_title, loc="left")
-                ax.set_title(f"RMS error {_rms(y_pred - y_meas):.3g} {unit}", loc="right", fontsize=8, color="0.35")
+                ax.set_title(f"RMS {_rms(y_pred - y_meas):.3g} {unit}", loc="right", fontsize=8, color="0.35")
                 ax.set_ylabel(f"{label} [{unit}]")
                 if r == len(panels) - 1:
                     ax.set_xlabel("time $t$ [s]")
@@ -288,37 +288,36 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None) -
     Path
     """
     t = np.asarray(t, float)
-    rows = [("q", "position", "rad", q), ("qd", "rate", "rad/s", qd), ("qdd", "acceleration", "rad/s$^2$", qdd)]
-    rows = [(key, what, unit, np.asarray(y, float).reshape(t.size, -1)) for key, what, unit, y in rows]
+    rows = [("q", "rad", q), ("qd", "rad/s", qd), ("qdd", "rad/s$^2$", qdd)]
+    rows = [(key, unit, np.asarray(y, float).reshape(t.size, -1)) for key, unit, y in rows]
     nj = len(joints)
     if any(y.shape[1] != nj for *_, y in rows):
         raise SpaceidError(f"plot_trajectory: q, qd, qdd need one column per joint ({nj}: {', '.join(joints)})")
     limits = dict(limits or {})
     if set(limits) - {"q", "qd", "qdd"}:
         raise SpaceidError(f"plot_trajectory: unknown limit kinds {sorted(set(limits) - {'q', 'qd', 'qdd'})}: use 'q', 'qd', 'qdd'")
+    bands = {key: _limit_band(value, nj, key) for key, value in limits.items() if value is not None}
+    ts = None if samples is None else np.asarray(samples, float)
     symbols = {"q": "q", "qd": r"\dot q", "qdd": r"\ddot q"}
     with _figure(path, (3.4 * nj + 0.6, 6.4)) as fig:
         axes = fig.subplots(3, nj, sharex=True, squeeze=False)
-        for r, (key, what, unit, y) in enumerate(rows):
-            band = _limit_band(limits[key], nj, key) if limits.get(key) is not None else None
+        for r, (key, unit, y) in enumerate(rows):
             for j, name in enumerate(joints):
                 ax = axes[r, j]
                 ax.plot(t, y[:, j], color=_MEASURED, label="trajectory")
-                if band is not None:
-                    for bound in band[j][np.isfinite(band[j])]:
+                if key in bands:
+                    for bound in bands[key][j][np.isfinite(bands[key][j])]:
                         ax.axhline(bound, color=_LIMIT, linestyle=":", linewidth=1.2, label="limit")
-                if samples is not None:
-                    ts = np.asarray(samples, float)
-                    ax.plot(ts, np.interp(ts, t, y[:, j]), "o", color=_MODEL, markersize=3,
-                            label=f"samples (N = {ts.size})")
+                if ts is not None:
+                    ax.plot(ts, np.interp(ts, t, y[:, j]), "o", color=_MODEL, markersize=3, label=f"samples (N = {ts.size})")
                 ax.set_ylabel(rf"${symbols[key]}_{{{j + 1}}}$ [{unit}]")
-                if r == 0:
-                    ax.set_title(name)
-            axes[-1, 0].set_xlabel("time $t$ [s]")
-        for ax in axes[-1, 1:]:
-            ax.set_xlabel("time $t$ [s]")
-        handles = dict(zip(*reversed(axes[0, 0].get_legend_handles_labels())))  # one entry per label
-        fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncols=len(handles))
+        for j, name in enumerate(joints):
+            axes[0, j].set_title(name)
+            axes[-1, j].set_xlabel("time $t$ [s]")
+        legend = {}  # one entry per label, from whichever panel has it
+        for ax in axes.flat:
+            legend.update(zip(*reversed(ax.get_legend_handles_labels())))
+        fig.legend(legend.values(), legend.keys(), loc="outside lower center", ncols=len(legend))
     return Path(path)
 
 

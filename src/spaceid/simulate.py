@@ -20,6 +20,28 @@ from .timeseries import Log, quat_to_matrix, yaw_to_quat
 __all__ = ["base_rate", "simulate", "hermite_motion", "add_noise", "excitation_regressor"]
 
 
+def _rate_pieces(param: Parameterization, q, qd):
+    """The regressor split by linearity in the base rate: ``Y(q, qd, w0) = free + sum_i w0_i
+    unit[i]``, with ``unit`` over z only for planar systems."""
+    q, qd = np.asarray(q, float), np.asarray(qd, float)
+    lead = q.shape[:-1]
+    free = param.regressor(q, qd, np.zeros(lead + (3,)))
+    axes = [2] if param.model.planar else [0, 1, 2]
+    unit = [param.regressor(q, np.zeros_like(qd), np.broadcast_to(np.eye(3)[i], lead + (3,))) for i in axes]
+    return free, unit, axes
+
+
+def _solve_rate(param, pi, free, unit, axes, h_base):
+    """Base rate from the regressor pieces, so that ``Y pi = h_base``; shape ``(..., 3)``."""
+    h_base = np.asarray(h_base, float)
+    rows = slice(2, 3) if param.model.planar else slice(None)
+    rhs = np.broadcast_to(h_base, free.shape[:-2] + (3,))[..., rows] - free @ pi
+    locked = np.stack([u @ pi for u in unit], -1)  # momentum per unit base rate: the locked inertia
+    w = np.zeros(free.shape[:-2] + (3,))
+    w[..., axes] = np.linalg.solve(locked, rhs[..., None])[..., 0]
+    return w
+
+
 def base_rate(param: Parameterization, pi, q, qd, h_base) -> np.ndarray:
     """Base angular velocity that gives momentum ``h_base``.
 
@@ -36,21 +58,7 @@ def base_rate(param: Parameterization, pi, q, qd, h_base) -> np.ndarray:
     ndarray of shape (..., 3)
         Base angular velocity in base axes [rad/s] (x, y zero for planar systems).
     """
-    q, qd = np.asarray(q, float), np.asarray(qd, float)
-    lead = q.shape[:-1]
-    pi = np.asarray(pi, float)
-    h_base = np.broadcast_to(np.asarray(h_base, float), lead + (3,))
-    free = param.regressor(q, qd, np.zeros(lead + (3,))) @ pi  # (..., rows)
-    if param.model.planar:
-        unit = np.zeros(lead + (3,))
-        unit[..., 2] = 1.0
-        inertia = param.regressor(q, np.zeros_like(qd), unit)[..., 0, :] @ pi
-        w = np.zeros(lead + (3,))
-        w[..., 2] = (h_base[..., 2] - free[..., 0]) / inertia
-        return w
-    # the locked inertia about the system CM: momentum per unit base rate, column by column
-    cols = [param.regressor(q, np.zeros_like(qd), np.broadcast_to(e, lead + (3,))) @ pi for e in np.eye(3)]
-    return np.linalg.solve(np.stack(cols, -1), (h_base - free)[..., None])[..., 0]
+    return _solve_rate(param, np.asarray(pi, float), *_rate_pieces(param, q, qd), h_base)
 
 
 class excitation_regressor:  # noqa: N801 - used like a function; a class so it pickles
@@ -66,8 +74,9 @@ class excitation_regressor:  # noqa: N801 - used like a function; a class so it 
         self.param, self.pi, self.momentum = param, np.asarray(pi, float), np.asarray(momentum, float)
 
     def __call__(self, q, qd):
-        w0 = base_rate(self.param, self.pi, q, qd, self.momentum)
-        y = self.param.regressor(q, qd, w0)
+        free, unit, axes = _rate_pieces(self.param, q, qd)
+        w0 = _solve_rate(self.param, self.pi, free, unit, axes, self.momentum)
+        y = free + sum(w0[..., i, None, None] * u for i, u in zip(axes, unit))
         return y.reshape(y.shape[:-3] + (-1, y.shape[-1]))
 
 
