@@ -302,7 +302,7 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None) -
     with _figure(path, (3.4 * nj + 0.6, 6.4)) as fig:
         axes = fig.subplots(3, nj, sharex=True, squeeze=False)
         for r, (key, unit, y) in enumerate(rows):
-            for j, name in enumerate(joints):
+            for j in range(nj):
                 ax = axes[r, j]
                 ax.plot(t, y[:, j], color=_MEASURED, label="trajectory")
                 if key in bands:
