@@ -143,12 +143,12 @@ def test_figures_leave_global_matplotlib_state_alone(tmp_path, ident):
 
 def test_rich_table_renders_every_column(ident):
     console = Console(record=True, width=160)
-    console.print(parameter_table(ident, true=TRUE, reference=REFERENCE))
+    console.print(parameter_table(ident, true=TRUE, reference=REFERENCE, reference_true=[0.0074, 0.1314, 0.0046]))
     text = console.export_text()
     for name in ident.names:
         assert name in text
     assert "Izz_link2" in text and "0.00726595" in text  # definition and .6g estimate
-    assert "rel. error [%]" in text and "paper rel. error [%]" in text
+    assert "err [%]" in text and "paper err [%]" in text and "0.1314" in text
     assert "0.7" in text  # pi8: |1.007 - 1| = 0.7 %
     assert "0.5162" in text
 

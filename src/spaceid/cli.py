@@ -257,9 +257,10 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
     if as_json:
         print(json.dumps(res.to_dict(), indent=2))
         return
-    out.print(parameter_table(res.ident, true=res.true, reference=PAPER_TABLE3["relative_error_percent"]))
+    out.print(parameter_table(res.ident, true=res.true, reference=PAPER_TABLE3["relative_error_percent"],
+                              reference_true=PAPER_TABLE3["true"]))
     out.print(
-        f"trajectory {res.trajectory.meta.get('name', trajectory)}: cond(Y) = {res.ident.condition_number:.4g} "
+        f"trajectory {res.ident.settings['trajectory']}: cond(Y) = {res.ident.condition_number:.4g} "
         f"with N = {res.ident.n_samples}; validation base-rate RMS error {res.metrics['base_w_rms']:.3g} rad/s "
         f"({100 * res.metrics['base_w_nrms']:.3g} %)"
     )

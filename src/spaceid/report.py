@@ -19,6 +19,7 @@ import matplotlib as mpl
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from rich.console import Group
 from rich.table import Table
 
 from ._atomic import atomic_path, write_text_atomic
@@ -324,45 +325,64 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None) -
 # --- tables and the Markdown report ------------------------------------------------------------
 
 
-def _columns(ident: Identification, true, reference, reference_label):
+def _columns(ident: Identification, true, reference, reference_label, reference_true=None):
     """Header and formatted rows shared by the rich and the Markdown tables."""
-    header = ["parameter", "definition", "estimate", "std"]
-    cols = [ident.names, ident.definitions, [f"{v:.6g}" for v in ident.values], [f"{s:.3g}" for s in ident.std]]
+    header = ["parameter", "definition"]
+    cols = [ident.names, ident.definitions]
+    if true is not None:
+        header.append("true")
+        cols.append([f"{v:.6g}" for v in true])
+    if reference_true is not None:
+        header.append(f"{reference_label} true")
+        cols.append([f"{v:.4g}" for v in reference_true])
+    header += ["estimate", "std"]
+    cols += [[f"{v:.6g}" for v in ident.values], [f"{s:.3g}" for s in ident.std]]
     if true is not None:
         rel, _ = _relative_errors(ident, true)
-        header += ["true", "rel. error [%]"]
-        cols += [[f"{v:.6g}" for v in true], [f"{100 * e:.3g}" if np.isfinite(e) else "-" for e in rel]]
+        header.append("rel. error [%]")
+        cols.append([f"{100 * e:.3g}" if np.isfinite(e) else "-" for e in rel])
     if reference is not None:
         header.append(f"{reference_label} rel. error [%]")
         cols.append([f"{v:.4g}" for v in reference])
     return header, list(zip(*cols))
 
 
-def parameter_table(ident: Identification, *, true=None, reference=None, reference_label="paper") -> Table:
-    """The estimates as a :class:`rich.table.Table` (definitions wrapped).
+def parameter_table(ident: Identification, *, true=None, reference=None, reference_true=None, reference_label="paper") -> Group:
+    """The estimates as a rich table, with the definitions listed below it.
+
+    The definitions (often long SymPy expressions) go under the table so that the numbers stay
+    readable in an 80-column terminal.
 
     Parameters
     ----------
     ident : Identification
     true : array_like of shape (k,), optional
-        True values: adds columns ``true`` and ``|rel. error| [%]``.
+        True values: adds columns ``true`` and ``rel. error [%]``.
     reference : array_like of shape (k,), optional
         Reference relative errors in percent (e.g. the paper's Table 3).
+    reference_true : array_like of shape (k,), optional
+        Reference true values (e.g. the paper's Table 3).
     reference_label : str
-        Name of the reference in its column header.
+        Name of the reference in its column headers.
     """
     true = _per_param(true, ident, "true")
     reference = _per_param(reference, ident, "reference")
-    header, rows = _columns(ident, true, reference, reference_label)
+    reference_true = _per_param(reference_true, ident, "reference_true")
+    header, rows = _columns(ident, true, reference, reference_label, reference_true)
     table = Table(title=f"{ident.estimator.upper()} estimates (cond {ident.condition_number:.4g}, N = {ident.n_samples})")
+    short = {"parameter": "", "rel. error [%]": "err [%]", f"{reference_label} true": reference_label,
+             f"{reference_label} rel. error [%]": f"{reference_label} err [%]"}  # fits 80 columns
     for i, name in enumerate(header):
-        if i == 1:
-            table.add_column(name, overflow="fold", ratio=1, min_width=24)
-        else:
-            table.add_column(name, justify="left" if i == 0 else "right", no_wrap=True)
+        if i != 1:
+            table.add_column(short.get(name, name), justify="left" if i == 0 else "right", no_wrap=True)
     for row in rows:
-        table.add_row(*row)
-    return table
+        table.add_row(row[0], *row[2:])
+    definitions = Table.grid(padding=(0, 1))
+    definitions.add_column(no_wrap=True)
+    definitions.add_column(overflow="fold")
+    for name, definition in zip(ident.names, ident.definitions):
+        definitions.add_row(f"{name} =", definition)
+    return Group(table, definitions)
 
 
 def _md(text) -> str:
@@ -404,6 +424,7 @@ def write_markdown_report(
     true=None,
     reference=None,
     metrics: dict | None = None,
+    reference_true=None,
     reference_label: str = "paper",
 ) -> Path:
     """Write ``folder/report.md``: settings, parameter table, fit quality, validation, figures.
@@ -419,7 +440,7 @@ def write_markdown_report(
         estimator, rank tolerance, ...), in insertion order.
     figures : dict of str to path-like
         Caption -> PNG, relative to ``folder`` (as linked from the report) or absolute.
-    true, reference, reference_label
+    true, reference, reference_true, reference_label
         As in :func:`parameter_table`.
     metrics : dict, optional
         Validation metrics, e.g. from ``spaceid.validate.validation_metrics``.
@@ -432,6 +453,7 @@ def write_markdown_report(
     folder = Path(folder)
     true = _per_param(true, ident, "true")
     reference = _per_param(reference, ident, "reference")
+    reference_true = _per_param(reference_true, ident, "reference_true")
     links = []
     for caption, fig_path in figures.items():
         full = folder / fig_path  # an absolute fig_path stays as it is
@@ -442,7 +464,7 @@ def write_markdown_report(
             )
         links.append((caption, Path(os.path.relpath(full, folder)).as_posix().replace(" ", "%20")))
 
-    header, rows = _columns(ident, true, reference, reference_label)
+    header, rows = _columns(ident, true, reference, reference_label, reference_true)
     rows = [(_md(r[0]), "`" + r[1].replace("|", "\\|").replace("`", "'") + "`", *r[2:]) for r in rows]
     lines = [f"# {title}", "", "## Settings", ""]
     lines += _md_table(["setting", "value"], [(_md(k), _md_value(v)) for k, v in settings.items()])
