@@ -22,7 +22,7 @@ def workdir(tmp_path_factory):
     """design -> simulate -> identify on Cepheus, shared by the tests below."""
     d = tmp_path_factory.mktemp("cli")
     assert run("design", "cepheus", "--duration", 5, "--harmonics", 3, "--samples", 35, "--momentum", 0.4934,
-               "--seed", 3, "--time-budget", 2, "-o", d / "traj.json") == 0
+               "--seed", 3, "--starts", 8, "-o", d / "traj.json") == 0
     assert run("simulate", "cepheus", "--trajectory", d / "traj.json", "--momentum", 0.4934, "--samples", 35,
                "-o", d / "log.csv") == 0
     assert run("simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", 0.4934, "--rate", 100,

@@ -126,9 +126,11 @@ def model(model_src, planar, as_json):
 @click.option("--q-max", type=float, help="|q| limit [rad] (default: model limits).")
 @click.option("--qd-max", type=float, help="|qd| limit [rad/s] (default: model limits).")
 @click.option("--qdd-max", type=float, help="|qdd| limit [rad/s^2] (default: model limits).")
-@click.option("--time-budget", type=float, default=10.0, show_default=True, help="Wall-time budget of the search [s].")
+@click.option("--starts", type=int, default=64, show_default=True, help="Local starts of the global search.")
+@click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
+              "depends on the machine's speed).")
 @OUTPUT
-def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, q_max, qd_max, qdd_max, time_budget, output):
+def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, q_max, qd_max, qdd_max, starts, time_budget, output):
     """Optimal exciting trajectory (Eq. 12) minimising the regressor's condition number."""
     from .demo import design_for
 
@@ -137,7 +139,7 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     with _progress("designing") as progress:
         res = design_for(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
-                         time_budget=time_budget)
+                         n_starts=starts, time_budget=time_budget)
     res.trajectory.save(output)
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {output}")
 
