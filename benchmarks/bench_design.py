@@ -1,11 +1,12 @@
 """Excitation design on the Cepheus case: condition number reached against wall time.
 
-Uses the closed-form Cepheus regressor of tests/cepheus_closed_form.py. Prints, for a few seeds,
+Uses spaceid's own regressor of the ``cepheus`` preset (or, with ``--regressor closed-form``,
+the closed form of MATH.md sec. 2 in tests/cepheus_closed_form.py). Prints, for a few seeds,
 the best condition number found by each wall time (the paper's Table 2 trajectory beside it),
 the median over seeds, the time to come within 5 % of the best known value (about 36), and
 the default run (64 starts, no budget). Prints only; never fails on timings.
 
-    python benchmarks/bench_design.py [--seeds 5] [--budget 10]
+    python benchmarks/bench_design.py [--seeds 5] [--budget 10] [--regressor spaceid|closed-form]
 """
 
 import argparse
@@ -18,7 +19,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from cepheus_closed_form import cepheus_regressor  # noqa: E402
 
+import spaceid  # noqa: E402
 from spaceid.design import design_excitation  # noqa: E402
+from spaceid.regressor import minimal_parameters  # noqa: E402
+from spaceid.simulate import excitation_regressor  # noqa: E402
 from spaceid.trajectory import load_trajectory, sample_times  # noqa: E402
 
 CEPHEUS = dict(duration=5.0, harmonics=3, samples=35, q_max=1.5, qd_max=1.5, qdd_max=3.0)
@@ -37,18 +41,24 @@ def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--budget", type=float, default=10.0, help="wall time per seed [s]")
+    parser.add_argument("--regressor", choices=("spaceid", "closed-form"), default="spaceid")
     args = parser.parse_args()
+    if args.regressor == "spaceid":
+        param = minimal_parameters(spaceid.load_model("cepheus"))
+        regressor = excitation_regressor(param, param.true_values, [0, 0, 0.4934])
+    else:
+        regressor = cepheus_regressor
 
     q, qd, _ = load_trajectory("paper-table2").evaluate(sample_times(5.0, 35))
     paper = np.linalg.cond(cepheus_regressor(q, qd))
     print(f"Cepheus: tf = 5 s, Nf = 3, N = 35, |q| <= 1.5, |qd| <= 1.5, |qdd| <= 3; "
-          f"{os.cpu_count()} cores")  # fmt: skip
+          f"{os.cpu_count()} cores; regressor: {args.regressor}")  # fmt: skip
     print(f"paper-table2: cond = {paper:.1f}; target <= {TARGET:.1f}\n")
 
     seeds = range(args.seeds)
     runs = [
         design_excitation(
-            cepheus_regressor,
+            regressor,
             JOINTS,
             **CEPHEUS,
             seed=seed,
@@ -74,7 +84,7 @@ def main():
 
     print("default run: 64 starts, no budget")
     defaults = [
-        design_excitation(cepheus_regressor, JOINTS, **CEPHEUS, seed=seed) for seed in seeds
+        design_excitation(regressor, JOINTS, **CEPHEUS, seed=seed) for seed in seeds
     ]
     print("cond     " + "".join(f"{r.value:9.2f}" for r in defaults)
           + f"{np.median([r.value for r in defaults]):9.2f}")  # fmt: skip
