@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 from functools import cached_property
 
 import numpy as np
-from scipy.linalg import qr
+from scipy.linalg import solve_triangular
 
 from ._errors import SpaceidError
 from .kinematics import body_states, skew
@@ -159,27 +159,46 @@ def _random_states(model: Model, n: int, seed: int):
     return q, qd, w0
 
 
-def _independent(matrix: np.ndarray, tol: float) -> np.ndarray:
-    """Indices of the columns of ``matrix`` independent of the kept columns before them.
+def _independent(matrix: np.ndarray, tol: float, *, block: int = 128):
+    """Columns of ``matrix`` independent of the kept columns before them, and their basis.
 
     Greedy in the given (fixed) order, so the choice depends only on the linear relations
     between columns, not on their magnitudes or on the sample states: each column is scaled
     to unit norm and kept when its part orthogonal to the kept ones exceeds ``tol``. Columns
-    below ``tol`` times the largest column norm count as zero.
+    below ``tol`` times the largest column norm count as zero. Block Gram-Schmidt applied
+    twice (BCGS2): blocks are projected with matrix products, columns within a block one by
+    one, which keeps the cost in BLAS-3 for regressors with thousands of columns.
+
+    Returns
+    -------
+    keep : ndarray of int
+        Indices of the independent columns, increasing.
+    basis : ndarray of shape (n_rows, len(keep))
+        Orthonormal basis of their span (``basis.T @ matrix[:, keep]`` is upper triangular).
     """
     norms = np.linalg.norm(matrix, axis=0)
-    if matrix.shape[0] > matrix.shape[1]:
-        matrix = qr(matrix, mode="r")[0]  # same column geometry (Y = QR), fewer rows
+    nonzero = norms > tol * norms.max()
     basis = np.zeros((matrix.shape[0], min(matrix.shape)))
     keep = []
-    for j in np.flatnonzero(norms > tol * norms.max()):
-        c = matrix[:, j] / norms[j]
-        for _ in range(2):  # Gram-Schmidt twice is enough for orthogonality to eps
-            c = c - basis[:, : len(keep)] @ (basis[:, : len(keep)].T @ c)
-        if np.linalg.norm(c) > tol:
-            basis[:, len(keep)] = c / np.linalg.norm(c)
-            keep.append(j)
-    return np.array(keep, dtype=int)
+    for start in range(0, matrix.shape[1], block):
+        cols = [j for j in range(start, min(start + block, matrix.shape[1])) if nonzero[j]]
+        if not cols:
+            continue
+        b = matrix[:, cols] / norms[cols]
+        for _ in range(2):  # project the block on the kept basis, twice for orthogonality
+            b -= basis[:, : len(keep)] @ (basis[:, : len(keep)].T @ b)
+        local = []  # kept columns of this block, orthonormal
+        for k, j in enumerate(cols):
+            c = b[:, k]
+            for _ in range(2):
+                for v in (basis[:, : len(keep)], np.column_stack(local) if local else None):
+                    if v is not None and v.size:
+                        c = c - v @ (v.T @ c)
+            if np.linalg.norm(c) > tol:
+                local.append(c / np.linalg.norm(c))
+                keep.append(j)
+                basis[:, len(keep) - 1] = local[-1]
+    return np.array(keep, dtype=int), basis[:, : len(keep)]
 
 
 # ------------------------------------------------------------------ planar basis --------------
@@ -308,7 +327,7 @@ def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) ->
     n_states = max(64, -(-2 * len(names) // n_rows))  # twice as many equations as unknowns
     q, qd, w0 = _random_states(model, n_states, seed)
     y_full = full_regressor(model, q, qd, w0)[:, rows, :].reshape(-1, len(names))
-    indep = _independent(y_full, tol)
+    indep, basis = _independent(y_full, tol)
     rank = len(indep)
     if rank == 0:
         raise SpaceidError(f"{model.source or model.name}: the momentum does not depend on any parameter (no moving body?)")
@@ -319,7 +338,7 @@ def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) ->
         scale = np.abs(y_full).max()
         if np.abs(f @ coef - y_full).max() <= 1e-9 * scale:
             # rows of coef that are independent (and not structurally zero), in the paper's order
-            sel = _independent(coef.T, tol)
+            sel, _ = _independent(coef.T, tol)
             if len(sel) != rank:
                 raise AssertionError(f"planar basis rank {len(sel)} != regressor rank {rank}")
             proj = coef[sel]
@@ -340,7 +359,9 @@ def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) ->
             )
     # columns basis: pi_i = theta_i + sum_d beta_id theta_d over the dependent columns d
     dep = np.setdiff1d(np.arange(len(names)), indep)
-    beta, *_ = np.linalg.lstsq(y_full[:, indep], y_full[:, dep], rcond=None)
+    # y_dep = y_indep @ beta, solved through the basis: y_indep = basis @ r with r triangular
+    r = basis.T @ y_full[:, indep]
+    beta = solve_triangular(r, basis.T @ y_full[:, dep])
     beta[np.abs(beta) < tol * max(1.0, np.abs(beta).max())] = 0.0
     proj = np.zeros((rank, len(names)))
     proj[np.arange(rank), indep] = 1.0
