@@ -101,16 +101,23 @@ def _zero_pose_rotations(model: Model):
 
 
 def column_definitions(names, projection, *, digits: int = 6) -> list:
-    """Definitions of column-basis parameters: a full parameter plus the dependent ones it absorbs."""
+    """Definitions of column-basis parameters: a full parameter plus the dependent ones it absorbs.
+
+    Terms with the same coefficient are grouped and their common factors pulled out with
+    SymPy (``0.5*MY_bus*(M_link1 + M_link2)/M``), so each definition is a valid SymPy
+    expression in the names of ``full_parameter_names`` (coefficients to ``digits`` digits).
+    """
+    symbols = [sp.sympify(n) for n in names]
     out = []
     for row in projection:
-        terms = []
-        for coef, name in zip(row, names):
-            if coef == 0:
-                continue
-            if abs(coef - 1) < 1e-12:
-                terms.append(name)
-            else:
-                terms.append(f"{coef:.{digits}g}*{name}")
-        out.append(" + ".join(terms).replace("+ -", "- "))
+        groups: dict = {}
+        for coef, sym in zip(row, symbols):
+            if coef != 0:
+                groups.setdefault(float(f"{coef:.{digits}g}"), []).append(sym)
+        expr = sp.Integer(0)
+        for coef, syms in groups.items():
+            c = sp.Integer(int(coef)) if coef == int(coef) else sp.Float(coef, digits)
+            group = sp.factor_terms(sp.Add(*syms))
+            expr += group if c == 1 else sp.Mul(c, group, evaluate=False)  # keep c outside the sum
+        out.append(str(expr))
     return out

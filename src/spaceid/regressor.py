@@ -25,6 +25,7 @@ References
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -35,39 +36,119 @@ from ._errors import SpaceidError
 from .kinematics import body_states, skew
 from .model import INERTIAL_NAMES, Model
 
-__all__ = ["Parameterization", "minimal_parameters", "full_regressor", "full_parameter_names", "full_values"]
+__all__ = [
+    "Parameterization",
+    "minimal_parameters",
+    "full_regressor",
+    "energy_regressor",
+    "full_parameter_names",
+    "full_values",
+    "identifiability",
+]
 
-_FIRST = ("m", "mcx", "mcy", "mcz")  # first-order parameters, the factors of the lumped products
 RANK_TOL = 1e-9
 """Default rank tolerance: a column (or basis row) is dependent when the part of it that the
 previous ones do not explain is below this fraction of its norm (unit-norm columns)."""
 
 
-def _free_first(model: Model):
-    """(body index, component) of every first-order parameter not declared zero."""
-    return [(i, k) for i, b in enumerate(model.bodies) for k, n in enumerate(_FIRST) if n not in b.known_zero]
+# Khalil's names of the standard parameters (about the body frame origin), as in the literature
+KHALIL = dict(zip(INERTIAL_NAMES, ("M", "MX", "MY", "MZ", "XX", "XY", "YY", "XZ", "YZ", "ZZ")))
+
+
+def _layout(model: Model):
+    """Index tables of the full parameter vector ``[theta, phi]`` (declared zeros left out).
+
+    Returns ``theta`` as (body, parameter index) pairs, ``first`` as (body, component) pairs of
+    the first-order parameters (mass and first moments), and ``pairs`` as index pairs into
+    ``first`` (a <= c), one lumped product ``first[a] * first[c] / M`` each.
+    """
+    theta = [(i, k) for i, b in enumerate(model.bodies) for k, n in enumerate(INERTIAL_NAMES) if n not in b.known_zero]
+    first = [(i, k) for i, k in theta if k < 4]
+    pairs = [(a, c) for a in range(len(first)) for c in range(a, len(first))]
+    return theta, first, pairs
 
 
 def full_parameter_names(model: Model) -> list:
-    """Names of the full parameter vector ``[theta, phi]`` (declared zeros left out).
+    """Names of the full parameter vector ``[theta, phi]``, valid SymPy expressions.
 
-    ``theta`` entries read ``"mcx@link1"``, lumped products ``"m@base*mcx@link1/M"``.
+    Standard parameters in Khalil's notation, ``M_link1``, ``MX_link1`` .. ``ZZ_link1`` (mass,
+    first moments, inertia about the body frame origin); lumped products ``M_base*MX_link1/M``
+    with ``M`` the total mass.
     """
-    names = [f"{n}@{b.name}" for b in model.bodies for n in INERTIAL_NAMES if n not in b.known_zero]
-    first = _free_first(model)
-    for a in range(len(first)):
-        for c in range(a, len(first)):
-            (i, k), (j, l) = first[a], first[c]
-            names.append(f"{_FIRST[k]}@{model.bodies[i].name}*{_FIRST[l]}@{model.bodies[j].name}/M")
-    return names
+    theta, first, pairs = _layout(model)
+    ident = [re.sub(r"\W", "_", b.name) for b in model.bodies]
+    names = [f"{KHALIL[INERTIAL_NAMES[k]]}_{ident[i]}" for i, k in theta]
+    return names + [f"{names[theta.index(first[a])]}*{names[theta.index(first[c])]}/M" for a, c in pairs]
 
 
 def full_values(model: Model) -> np.ndarray:
     """Values of the full parameter vector, shape ``(n_full,)``, order of ``full_parameter_names``."""
-    theta = [b.inertial[INERTIAL_NAMES.index(n)] for b in model.bodies for n in INERTIAL_NAMES if n not in b.known_zero]
-    first = [model.bodies[i].inertial[k] for i, k in _free_first(model)]
-    prods = [first[a] * first[c] / model.mass for a in range(len(first)) for c in range(a, len(first))]
-    return np.array(theta + prods)
+    theta, first, pairs = _layout(model)
+    values = [model.bodies[i].inertial[k] for i, k in theta]
+    f = [model.bodies[i].inertial[k] for i, k in first]
+    return np.array(values + [f[a] * f[c] / model.mass for a, c in pairs])
+
+
+def _body_angular(r, w):
+    """Body-axes angular velocity and the map ``I6 -> I @ w_body`` of the inertia entries."""
+    wb = np.einsum("...ji,...j->...i", r, w)
+    zero = np.zeros(wb.shape[:-1])
+    wx, wy, wz = wb[..., 0], wb[..., 1], wb[..., 2]
+    lw = np.stack(  # I @ wb as a linear map of [Ixx, Ixy, Iyy, Ixz, Iyz, Izz]
+        [
+            np.stack([wx, wy, zero, wz, zero, zero], -1),
+            np.stack([zero, wx, wy, zero, wz, zero], -1),
+            np.stack([zero, zero, zero, wx, wy, wz], -1),
+        ],
+        -2,
+    )
+    return wb, lw
+
+
+def _regressor(model: Model, q, qd, w0, columns, *, energy: bool):
+    """Momentum (``(..., 3, n)``) or kinetic-energy (``(..., n)``) regressor columns.
+
+    Per body, relative to the base origin (velocities without the base origin's motion):
+    momentum ``m p x v + (p x (w x R mc) + R mc x v) + R I w_b`` and energy
+    ``m |v|^2 / 2 + v . (w x R mc) + w_b . I w_b / 2``. Zero linear momentum subtracts
+    ``(sum m s) x (sum m u) / M`` and ``|sum m u|^2 / (2 M)`` respectively, whose factors are
+    linear in the first-order parameters: ``sum m s = sum A a``, ``sum m u = sum B a``.
+    """
+    st = body_states(model, q, qd, w0)
+    theta, first, pairs = _layout(model)
+    cache = {}
+
+    def theta_block(i):
+        if i not in cache:
+            r, p, w, v = st.rotation[..., i, :, :], st.position[..., i, :], st.omega[..., i, :], st.velocity[..., i, :]
+            wb, lw = _body_angular(r, w)
+            if energy:
+                cache[i] = np.concatenate(
+                    [0.5 * (v * v).sum(-1)[..., None], np.einsum("...j,...jk->...k", np.cross(v, w), r),
+                     0.5 * np.einsum("...j,...jk->...k", wb, lw)], -1
+                )
+            else:
+                cache[i] = np.concatenate([np.cross(p, v)[..., None], (skew(p) @ skew(w) - skew(v)) @ r, r @ lw], -1)
+        return cache[i]
+
+    def first_ab(a):
+        i, k = first[a]
+        r, p, w, v = st.rotation[..., i, :, :], st.position[..., i, :], st.omega[..., i, :], st.velocity[..., i, :]
+        return (p, v) if k == 0 else (r[..., :, k - 1], np.cross(w, r[..., :, k - 1]))
+
+    out = []
+    for c in range(len(theta) + len(pairs)) if columns is None else columns:
+        if c < len(theta):
+            i, k = theta[c]
+            out.append(theta_block(i)[..., k])
+            continue
+        a, b = pairs[c - len(theta)]
+        (sa, ua), (sb, ub) = first_ab(a), first_ab(b)
+        if energy:
+            out.append(-(ua * ub).sum(-1) * (0.5 if a == b else 1.0))
+        else:
+            out.append(-(np.cross(sa, ub) if a == b else np.cross(sa, ub) + np.cross(sb, ua)))
+    return np.stack(out, -1)
 
 
 def full_regressor(model: Model, q, qd, w0, *, columns=None) -> np.ndarray:
@@ -87,55 +168,16 @@ def full_regressor(model: Model, q, qd, w0, *, columns=None) -> np.ndarray:
     ndarray of shape (..., 3, n_columns)
         ``Y`` with ``Y @ full_values(model)`` the angular momentum about the system CM, base axes.
     """
-    st = body_states(model, q, qd, w0)
-    names = full_parameter_names(model)
-    wanted = range(len(names)) if columns is None else columns
-    first = _free_first(model)
-    n_theta = len(names) - len(first) * (len(first) + 1) // 2
-    theta_index = [(i, k) for i, b in enumerate(model.bodies) for k, n in enumerate(INERTIAL_NAMES) if n not in b.known_zero]
-    pair_index = [(a, c) for a in range(len(first)) for c in range(a, len(first))]
+    return _regressor(model, q, qd, w0, columns, energy=False)
 
-    cache = {}
 
-    def theta_block(i):
-        # momentum of body i about the base origin (relative velocities), per standard parameter
-        if i not in cache:
-            r, p, w, v = st.rotation[..., i, :, :], st.position[..., i, :], st.omega[..., i, :], st.velocity[..., i, :]
-            wb = np.einsum("...ji,...j->...i", r, w)  # body-axes angular velocity
-            zero = np.zeros(wb.shape[:-1])
-            wx, wy, wz = wb[..., 0], wb[..., 1], wb[..., 2]
-            lw = np.stack(  # I @ wb as a linear map of [Ixx, Ixy, Iyy, Ixz, Iyz, Izz]
-                [
-                    np.stack([wx, wy, zero, wz, zero, zero], -1),
-                    np.stack([zero, wx, wy, zero, wz, zero], -1),
-                    np.stack([zero, zero, zero, wx, wy, wz], -1),
-                ],
-                -2,
-            )
-            cache[i] = np.concatenate(
-                [np.cross(p, v)[..., None], (skew(p) @ skew(w) - skew(v)) @ r, r @ lw], -1
-            )
-        return cache[i]
+def energy_regressor(model: Model, q, qd, w0, *, columns=None) -> np.ndarray:
+    """Kinetic-energy regressor with zero linear momentum, shape ``(..., n_columns)``.
 
-    def first_ab(a):
-        # columns of sum m s (A) and sum m u (B) for first-order parameter ``a``
-        i, k = first[a]
-        r, p, w, v = st.rotation[..., i, :, :], st.position[..., i, :], st.omega[..., i, :], st.velocity[..., i, :]
-        if k == 0:
-            return p, v
-        return r[..., :, k - 1], np.cross(w, r[..., :, k - 1])
-
-    out = []
-    for c in wanted:
-        if c < n_theta:
-            i, k = theta_index[c]
-            out.append(theta_block(i)[..., k])
-        else:
-            a, b = pair_index[c - n_theta]
-            (sa, ua), (sb, ub) = first_ab(a), first_ab(b)
-            col = np.cross(sa, ub) if a == b else np.cross(sa, ub) + np.cross(sb, ua)
-            out.append(-col)
-    return np.stack(out, -1)
+    ``energy_regressor(...) @ full_values(model)`` is the kinetic energy [J] of the system
+    moving with zero linear momentum: the reduced dynamics that model-based control needs.
+    """
+    return _regressor(model, q, qd, w0, columns, energy=True)
 
 
 # ------------------------------------------------------------------ random states -------------
@@ -379,3 +421,53 @@ def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) ->
         n_states,
         ("columns", list(indep), np.eye(rank)),
     )
+
+
+def identifiability(param: Parameterization, *, tol: float | None = None) -> dict:
+    """What the minimal set says about the physical parameters and the dynamics.
+
+    Parameters
+    ----------
+    param : Parameterization
+    tol : float, optional
+        Relative tolerance of the subspace tests (default: the rank tolerance of ``param``).
+
+    Returns
+    -------
+    dict
+        ``no_effect``: standard parameters that do not enter the momentum at all;
+        ``individually_identifiable``: standard parameters fixed by ``pi`` on their own;
+        ``in_combinations``: the rest (identifiable only through the combinations ``pi``);
+        ``determines_dynamics``: whether ``pi`` fixes the kinetic energy with zero linear
+        momentum for every state (its regressor lies in the row space of the momentum
+        regressor, MATH.md sec. 4), hence the reduced inertia matrix that model-based control
+        and the Generalized Jacobian need; ``energy_residual``: the relative size of the part
+        of the energy regressor outside that row space.
+    """
+    tol = param.rank_tol if tol is None else tol
+    model = param.model
+    names = full_parameter_names(model)
+    n_theta = len(_layout(model)[0])
+    q, qd, w0 = _random_states(model, param.n_states, param.seed + 1)  # fresh states for the tests
+    y = full_regressor(model, q, qd, w0)[:, slice(2, 3) if model.planar else slice(None), :].reshape(-1, len(names))
+    energy = energy_regressor(model, q, qd, w0)
+    rowspace = np.linalg.svd(param.projection, full_matrices=False)[2]  # orthonormal rows, (k, n_full)
+    outside = energy - (energy @ rowspace.T) @ rowspace
+    energy_residual = float(np.linalg.norm(outside) / np.linalg.norm(energy))
+    # a standard parameter acts through its own column and through the lumped products with it
+    theta, first, pairs = _layout(model)
+    norms = np.linalg.norm(y, axis=0)
+    acts = norms[:n_theta] > tol * norms.max()
+    for c, (a, b) in enumerate(pairs):
+        if norms[n_theta + c] > tol * norms.max():
+            acts[theta.index(first[a])] = acts[theta.index(first[b])] = True
+            acts[[k == 0 for _, k in theta]] = True  # every mass acts through M = sum of masses
+    no_effect = [n for n, a in zip(names, acts) if not a]
+    alone = [n for j, n in enumerate(names[:n_theta]) if n not in no_effect and 1 - rowspace[:, j] @ rowspace[:, j] < tol]
+    return {
+        "no_effect": no_effect,
+        "individually_identifiable": alone,
+        "in_combinations": [n for n in names[:n_theta] if n not in no_effect and n not in alone],
+        "determines_dynamics": energy_residual < 1e3 * tol,
+        "energy_residual": energy_residual,
+    }
