@@ -78,10 +78,11 @@ def model(model_src, planar, as_json):
     """Identifiability report: bodies, joints, standard and minimal parameters."""
     from rich.table import Table
 
-    from .regressor import full_parameter_names
+    from .regressor import full_parameter_names, identifiability
 
     param = _param(model_src, planar)
     m = param.model
+    ident = identifiability(param)
     info = {
         "model": m.name,
         "source": m.source,
@@ -93,6 +94,7 @@ def model(model_src, planar, as_json):
         "n_full_parameters": len(full_parameter_names(m)),
         "n_minimal_parameters": param.n_params,
         **param.to_dict(),
+        "identifiability": ident,
     }
     if as_json:
         print(json.dumps(info, indent=2))
@@ -111,6 +113,13 @@ def model(model_src, planar, as_json):
     for n, v, d in zip(param.names, param.true_values, param.definitions):
         table.add_row(n, f"{v:.6g}", d)
     out.print(table)
+    verdict = "determines" if ident["determines_dynamics"] else "does NOT determine"
+    out.print(f"The identified set {verdict} the reduced dynamics (kinetic energy with zero linear momentum; "
+              f"residual {ident['energy_residual']:.1e}).")
+    for key, label in [("no_effect", "no effect on the momentum (not identifiable)"),
+                       ("individually_identifiable", "identifiable on their own"),
+                       ("in_combinations", "identifiable only in the combinations above")]:
+        out.print(f"{label}: {', '.join(ident[key]) or 'none'}", highlight=False)
 
 
 @app.command(short_help="Optimal exciting trajectory minimising cond(Y) under joint limits.")
