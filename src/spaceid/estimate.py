@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from scipy.linalg import cho_factor, cho_solve
+
 from ._errors import SpaceidError
 from .regressor import Parameterization
 from .timeseries import Log, quat_to_matrix
@@ -164,7 +166,8 @@ def identify(param: Parameterization, log: Log, momentum, *, where: str = "log",
     where : str
         Name of the data source, for error messages.
     cond_limit : float
-        Condition numbers above this mean some parameters are not excited: an error names them.
+        Condition numbers of the column-scaled regressor above this mean some parameters are
+        not excited: an error names them.
 
     Returns
     -------
@@ -183,19 +186,36 @@ def identify(param: Parameterization, log: Log, momentum, *, where: str = "log",
             "scale: give the nonzero momentum of the run (--momentum)"
         )
     y, h = stack(param, log, momentum)
-    s = np.linalg.svd(y, compute_uv=False)
-    cond = float(s[0] / s[-1]) if s[-1] > 0 else np.inf
-    if not cond < cond_limit:
+    # Columns scaled to unit norm: the scaled condition number decides excitation (it does
+    # not depend on units), and the semi-normal equations with one refinement step solve the
+    # least-squares problem to LSQR accuracy at the cost of one Gram matrix (fast for 10^4 samples).
+    scale = np.linalg.norm(y, axis=0)
+    scale[scale == 0] = 1.0
+    ys = y / scale
+    gram = ys.T @ ys
+    eig = np.linalg.eigvalsh(gram)
+    cond_scaled = float(np.sqrt(eig[-1] / eig[0])) if eig[0] > 0 else np.inf
+    if cond_scaled > 1e6:  # near the precision limit of the Gram matrix: decide on the SVD
+        sv = np.linalg.svd(ys, compute_uv=False)
+        cond_scaled = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
+    if not cond_scaled < cond_limit:
         bad = _unexcited(y, param.names, 1e-8)
         raise SpaceidError(
-            f"{where}: the regressor is rank-deficient (cond {cond:.3g}); not excited: {', '.join(bad) or 'unclear'}: "
-            "use an exciting trajectory (spaceid design) that moves every joint"
+            f"{where}: the regressor is rank-deficient (scaled cond {cond_scaled:.3g}); not excited: "
+            f"{', '.join(bad) or 'unclear'}: use an exciting trajectory (spaceid design) that moves every joint"
         )
-    values, *_ = np.linalg.lstsq(y, h, rcond=None)
+    factor = cho_factor(gram)
+    x = cho_solve(factor, ys.T @ h)
+    x += cho_solve(factor, ys.T @ (h - ys @ x))  # one refinement step
+    values = x / scale
     resid = y @ values - h
     dof = max(len(h) - k, 1)
     sigma2 = float(resid @ resid) / dof
-    cov = sigma2 * np.linalg.inv(y.T @ y)
+    cov = sigma2 * cho_solve(factor, np.eye(k)) / np.outer(scale, scale)
+    # singular values of the unscaled regressor (the paper's condition number), from its Gram
+    # matrix: accurate to eps * s_max, ample for the condition numbers of exciting motions
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(y.T @ y), 0, None))[::-1]
+    cond = float(s[0] / s[-1]) if s[-1] > 0 else np.inf
     return Identification(
         param.names,
         param.definitions,
@@ -210,5 +230,5 @@ def identify(param: Parameterization, log: Log, momentum, *, where: str = "log",
         momentum,
         param.model.source or param.model.name,
         param.model.planar,
-        {"parameterization": param.to_dict(), "log": dict(log.meta)},
+        {"parameterization": param.to_dict(), "log": dict(log.meta), "condition_number_scaled": cond_scaled},
     )

@@ -25,9 +25,9 @@ References
 
 from __future__ import annotations
 
+import functools
 import re
-from dataclasses import dataclass, field
-from functools import cached_property
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.linalg import solve_triangular
@@ -353,7 +353,7 @@ class Parameterization:
         """Equations per sample: 1 (z) for planar systems, 3 for spatial ones."""
         return 1 if self.model.planar else 3
 
-    @cached_property
+    @functools.cached_property
     def true_values(self) -> np.ndarray:
         """``pi`` of the model's own inertial parameters, shape ``(k,)``."""
         return self.projection @ full_values(self.model)
@@ -383,6 +383,10 @@ class Parameterization:
 def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) -> Parameterization:
     """Derive the minimal parameter set of ``model`` and its regressor.
 
+    The set depends on the geometry only (kinematic tree, joint placements and axes, declared
+    zeros, planar flag), not on the inertial values: it is cached by geometry, so a model whose
+    masses changed (fuel use, a captured payload on a fixed joint) reuses it at once.
+
     Parameters
     ----------
     model : Model
@@ -395,6 +399,29 @@ def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) ->
     -------
     Parameterization
     """
+    return replace(_minimal_cached(_Geometry(model), tol, seed), model=model)
+
+
+class _Geometry:
+    """Hashable view of what the minimal set depends on (everything but inertial values)."""
+
+    def __init__(self, model: Model):
+        self.model = model
+        self.key = (model.planar, tuple(
+            (b.parent, b.joint_type, b.joint, b.name, b.known_zero, b.axis.tobytes(), b.rotation.tobytes(), b.translation.tobytes())
+            for b in model.bodies
+        ))
+
+    def __hash__(self):
+        return hash(self.key)
+
+    def __eq__(self, other):
+        return self.key == other.key
+
+
+@functools.lru_cache(maxsize=16)
+def _minimal_cached(geometry: _Geometry, tol: float, seed: int) -> Parameterization:
+    model = geometry.model
     names = full_parameter_names(model)
     rows = slice(2, 3) if model.planar else slice(None)
     n_rows = 1 if model.planar else 3

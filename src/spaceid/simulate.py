@@ -171,10 +171,10 @@ def simulate(
         # w0 = A(t)^-1 (R0^T h - b(t)): the locked inertia A and free momentum b depend on the
         # joint motion only, so they are evaluated once on a dense grid (batched) and splined;
         # the output rates are then solved exactly at the samples, so momentum holds there.
-        grid = np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 40 * len(times) + 2001)]))
-        free, unit, axes = _rate_pieces(param, *motion(grid))
-        locked = CubicSpline(grid, np.stack([u @ pi for u in unit], -1))
-        offset = CubicSpline(grid, free @ pi)
+        grid = np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
+        pieces = [_rate_pieces(param, *motion(grid[i : i + 2048])) for i in range(0, len(grid), 2048)]
+        locked = CubicSpline(grid, np.concatenate([np.stack([u @ pi for u in unit], -1) for _, unit, _ in pieces]))
+        offset = CubicSpline(grid, np.concatenate([free @ pi for free, _, _ in pieces]))
 
         def rhs(t, quat):
             h_base = quat_to_matrix(quat / np.linalg.norm(quat)).T @ momentum
