@@ -278,6 +278,29 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
     out.print(f"report written to {folder}/report.md")
 
 
+@app.command(short_help="How the parameters changed between two identifications.")
+@click.argument("before", metavar="BEFORE.json", type=click.Path(path_type=Path))
+@click.argument("after", metavar="AFTER.json", type=click.Path(path_type=Path))
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+@click.option("--all", "show_all", is_flag=True, help="List every parameter, not only those that changed (|z| > 3).")
+def compare(before, after, as_json, show_all):
+    """Compare two identifications of the same structure, e.g. before and after a capture."""
+    from rich.table import Table
+
+    from .estimate import compare as run
+
+    res = run(_read_result(before), _read_result(after), where=f"{before}, {after}")
+    if as_json:
+        print(json.dumps(res, indent=2))
+        return
+    rows = [p for p in res["parameters"] if show_all or abs(p["z"]) > 3]
+    table = Table("", "before", "after", "change [%]", "z", title=f"{len(rows)} of {len(res['parameters'])} parameters "
+                  + ("" if show_all else "changed beyond 3 standard errors"))
+    for p in rows:
+        table.add_row(p["name"], f"{p['before']:.6g}", f"{p['after']:.6g}", f"{100 * p['relative_change']:.3g}", f"{p['z']:.3g}")
+    out.print(table)
+
+
 def _read_result(path):
     from .estimate import Identification
     from .io import read_json

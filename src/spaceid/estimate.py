@@ -17,7 +17,7 @@ from ._errors import SpaceidError
 from .regressor import Parameterization
 from .timeseries import Log, quat_to_matrix
 
-__all__ = ["Identification", "stack", "identify", "momentum_in_base", "parse_momentum"]
+__all__ = ["Identification", "stack", "identify", "compare", "momentum_in_base", "parse_momentum"]
 
 
 def parse_momentum(value, *, planar: bool) -> np.ndarray:
@@ -232,3 +232,35 @@ def identify(param: Parameterization, log: Log, momentum, *, where: str = "log",
         param.model.planar,
         {"parameterization": param.to_dict(), "log": dict(log.meta), "condition_number_scaled": cond_scaled},
     )
+
+
+def compare(before: Identification, after: Identification, *, where: str = "results") -> dict:
+    """How the parameters changed between two identifications of the same structure.
+
+    For the on-orbit servicing case: identify before and after a capture (or a fuel burn) and
+    see which combinations moved, with a z-score ``change / sqrt(std_before^2 + std_after^2)``
+    that says whether the change stands out from the estimation noise.
+
+    Returns
+    -------
+    dict
+        ``parameters``: per parameter ``name``, ``definition``, ``before``, ``after``,
+        ``change``, ``relative_change`` and ``z``.
+    """
+    if before.names != after.names or before.definitions != after.definitions:
+        raise SpaceidError(
+            f"{where}: the two results have different parameter sets ({len(before.names)} vs {len(after.names)}): "
+            "compare identifications of the same kinematic structure"
+        )
+    change = after.values - before.values
+    noise = np.hypot(before.std, after.std)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(before.values != 0, change / np.abs(before.values), np.inf)
+        z = np.where(noise > 0, change / noise, np.inf * np.sign(change))
+    return {
+        "parameters": [
+            {"name": n, "definition": d, "before": float(b), "after": float(a), "change": float(c),
+             "relative_change": float(r), "z": float(s)}
+            for n, d, b, a, c, r, s in zip(before.names, before.definitions, before.values, after.values, change, rel, z)
+        ]
+    }

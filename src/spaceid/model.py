@@ -509,6 +509,7 @@ def load_model(source, *, planar: bool | None = None) -> Model:
             model = _model_from_urdf(text, str(path))
         else:
             model = _model_from_yaml(text, str(path))
+        model = replace(model, source=str(path.resolve()))  # results name it from anywhere
     if planar is True:
         return model.as_planar()
     if planar is False:
