@@ -214,7 +214,7 @@ def identify(param: Parameterization, log: Log, momentum, *, where: str = "log",
     cov = sigma2 * cho_solve(factor, np.eye(k)) / np.outer(scale, scale)
     # singular values of the unscaled regressor (the paper's condition number), from its Gram
     # matrix: accurate to eps * s_max, ample for the condition numbers of exciting motions
-    s = np.sqrt(np.clip(np.linalg.eigvalsh(y.T @ y), 0, None))[::-1]
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(gram * np.outer(scale, scale)), 0, None))[::-1]
     cond = float(s[0] / s[-1]) if s[-1] > 0 else np.inf
     return Identification(
         param.names,

@@ -30,7 +30,8 @@ __all__ = [
 ]
 
 INERTIAL_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
-PRESETS = ("cepheus", "cepheus-rw")
+PRESETS = ("cepheus", "cepheus-rw", "satellite-7dof", "servicer-dual", "servicer-captured")
+"""Built-in models: the paper's emulator (YAML) and the worked spatial examples (URDF)."""
 _PLANAR_TOL = 1e-9
 
 
@@ -491,9 +492,12 @@ def load_model(source, *, planar: bool | None = None) -> Model:
     if isinstance(source, Model):
         model = source
     elif str(source) in PRESETS:
-        text = resources.files("spaceid.presets").joinpath(f"{source}.yaml").read_text()
-        model = _model_from_yaml(text, str(source))
-        model = replace(model, source=str(source))
+        files = resources.files("spaceid.presets")
+        if files.joinpath(f"{source}.yaml").is_file():
+            model = _model_from_yaml(files.joinpath(f"{source}.yaml").read_text(), str(source))
+        else:
+            model = _model_from_urdf(files.joinpath(f"{source}.urdf").read_text(), str(source))
+        model = replace(model, name=str(source), source=str(source))
     else:
         path = Path(source)
         if not path.is_file():
