@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ._errors import SpaceidError
 from .design import design_excitation
 from .estimate import Identification, identify
 from .io import write_json, write_log
@@ -49,8 +50,6 @@ def design_for(param: Parameterization, *, duration, harmonics, samples, momentu
     for key, value in list(limits.items()):
         if options.get(key) is not None:
             limits[key] = np.broadcast_to(np.asarray(options.pop(key), float), value.shape).copy()
-    from ._errors import SpaceidError
-
     for key, value in limits.items():
         if np.isnan(value).any():
             missing = [j for j, v in zip(model.joints, value) if np.isnan(v)]
