@@ -211,9 +211,10 @@ def identify(model_src, log_path, planar, momentum, output):
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
 @click.argument("traj_csv", metavar="TRAJ.csv", type=click.Path(path_type=Path))
 @MOMENTUM
-@click.option("--initial-yaw", type=float, default=0.0, help="Base yaw at t0 [rad] (planar).")
+@click.option("--initial-yaw", type=float, help="Base yaw at t0 [rad] (planar; default 0).")
+@click.option("--initial-quat", help="Base attitude at t0 as w,x,y,z (spatial; default 1,0,0,0).")
 @OUTPUT
-def predict(result, traj_csv, momentum, initial_yaw, output):
+def predict(result, traj_csv, momentum, initial_yaw, initial_quat, output):
     """Base motion of an identified model for a joint motion (t, q_J, qd_J)."""
     from .io import read_joint_trajectory, write_log
     from .timeseries import yaw_to_quat
@@ -223,7 +224,16 @@ def predict(result, traj_csv, momentum, initial_yaw, output):
     h = _momentum(momentum, ident.planar)
     joints = _model_joints(ident)
     t, q, qd = read_joint_trajectory(traj_csv, joints=joints)
-    log = run(ident, t, q, qd, momentum=h, initial_quat=yaw_to_quat(initial_yaw), where=str(result))
+    if initial_quat is not None:
+        try:
+            quat0 = np.array([float(v) for v in initial_quat.split(",")])
+        except ValueError:
+            quat0 = np.zeros(0)
+        if quat0.shape != (4,) or not abs(np.linalg.norm(quat0) - 1) < 1e-6:
+            raise SpaceidError(f"--initial-quat: expected a unit quaternion w,x,y,z, got '{initial_quat}'")
+    else:
+        quat0 = yaw_to_quat(initial_yaw or 0.0)
+    log = run(ident, t, q, qd, momentum=h, initial_quat=quat0, where=str(result))
     write_log(output, log)
     err.print(f"{log.n_samples} predicted samples written to {output}")
 
