@@ -181,3 +181,29 @@ def test_spatial_pipeline_through_files(tmp_path, capsys):
     rows = json.loads(capsys.readouterr().out)["parameters"]
     assert len(rows) == 153 and np.median(np.abs([r["z"] for r in rows])) < 3  # noise only: no real change
     assert run("identify", urdf, tmp_path / "log.csv", "--momentum", "1,-2", "-o", tmp_path / "x.json") == 2
+
+
+def test_angles_only_log_is_differentiated(tmp_path):
+    """Encoder and motion-capture angles only (rates differentiated), as on the real emulator."""
+    assert run("simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", 0.4934, "--rate", 100,
+               "--noise-angle", 1e-4, "--seed", 1, "-o", tmp_path / "full.csv") == 0
+    data = np.genfromtxt(tmp_path / "full.csv", delimiter=",", names=True)
+    cols = ["t", "base_yaw", "q_left_shoulder", "q_left_elbow"]
+    np.savetxt(tmp_path / "angles.csv", np.column_stack([data[c] for c in cols]), delimiter=",",
+               header=",".join(cols), comments="")
+    assert run("identify", "cepheus", tmp_path / "angles.csv", "--momentum", 0.4934, "-o", tmp_path / "r.json") == 0
+    result = json.loads((tmp_path / "r.json").read_text())
+    assert result["settings"]["log"]["differentiation"]["joints"]["method"]
+    import spaceid
+    from spaceid.regressor import minimal_parameters
+
+    truth = minimal_parameters(spaceid.load_model("cepheus")).true_values
+    values = np.array([p["value"] for p in result["parameters"]])
+    assert np.abs(values / truth - 1).max() < 0.05  # OLS on differentiated rates: percent level
+
+
+def test_partly_missing_rates_are_an_error(workdir, tmp_path, capsys):
+    path = _log_with(workdir, tmp_path, _drop_column)
+    assert run("identify", "cepheus", path, "--momentum", 0.4934, "--differentiate", "-o", tmp_path / "r.json") == 0
+    assert run("identify", "cepheus", path, "--momentum", 0.4934, "-o", tmp_path / "s.json") == 2
+    assert "--differentiate" in capsys.readouterr().err

@@ -190,8 +190,11 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.argument("log_path", metavar="LOG.csv", type=click.Path(path_type=Path))
 @PLANAR
 @MOMENTUM
+@click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
+              "also used when the log has no rate columns.")
+@click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
 @OUTPUT
-def identify(model_src, log_path, planar, momentum, output):
+def identify(model_src, log_path, planar, momentum, differentiate, quantum, output):
     """Least-squares identification of the minimal parameters (Eq. 11)."""
     from .estimate import identify as run
     from .io import read_log, write_json
@@ -199,7 +202,16 @@ def identify(model_src, log_path, planar, momentum, output):
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
-    log = read_log(log_path, joints=param.model.joints, planar=param.model.planar, wheels=param.model.wheels)
+    log = read_log(log_path, joints=param.model.joints, planar=param.model.planar, wheels=param.model.wheels,
+                   require_rates=False)
+    missing = log.meta.get("missing_rates", [])
+    if missing and not differentiate and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
+        raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
+                           "--differentiate to compute every rate from the angles")
+    if differentiate or missing:  # an angles-only log: rates from the angles
+        from .signals import differentiate_log
+
+        log = differentiate_log(log, quantum=quantum)
     ident = run(param, log, h, where=str(log_path))
     write_json(output, ident.to_dict())
     out.print(parameter_table(ident))

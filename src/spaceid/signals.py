@@ -48,7 +48,7 @@ from scipy.optimize import minimize_scalar
 from ._errors import SpaceidError
 from .timeseries import quat_to_yaw, yaw_to_quat
 
-__all__ = ["METHODS", "AUTO_METHOD", "estimate_noise", "differentiate", "differentiate_quaternion"]
+__all__ = ["METHODS", "AUTO_METHOD", "estimate_noise", "differentiate", "differentiate_quaternion", "differentiate_log"]
 
 METHODS = ("auto", "savgol", "spline")
 """Values accepted by ``method``."""
@@ -631,3 +631,30 @@ def _gcv_penalty(t, y, q_t, q, solve):
         options={"xatol": 1e-3},
     )
     return 10.0 ** (refined.x if refined.fun <= values[best] else grid[best])
+
+
+def differentiate_log(log, *, method: str = "auto", window=None, order=None, smoothing=None, quantum=None):
+    """A log whose joint rates and base angular velocity come from its angles and attitude.
+
+    Joint angles are differentiated channel by channel (``quantum`` [rad per count] for
+    encoders), the base attitude with :func:`differentiate_quaternion`; the angles are replaced
+    by their smoothed values. What was used is recorded in ``meta["differentiation"]``.
+
+    Parameters
+    ----------
+    log : spaceid.Log
+    method, window, order, smoothing, quantum
+        As in :func:`differentiate` (``quantum`` applies to the joints only).
+
+    Returns
+    -------
+    spaceid.Log
+    """
+    from dataclasses import replace
+
+    q, qd, info_q = differentiate(log.t, log.q, method=method, window=window, order=order, smoothing=smoothing,
+                                  quantum=quantum, name="joint angles")
+    quat, w, info_b = differentiate_quaternion(log.t, log.base_quat, method=method, window=window, order=order,
+                                               smoothing=smoothing)
+    meta = dict(log.meta, differentiation={"joints": info_q, "base": info_b})
+    return replace(log, q=q.reshape(log.q.shape), qd=qd.reshape(log.q.shape), base_quat=quat, base_w=w, meta=meta)
