@@ -1,14 +1,18 @@
 """Excitation design on the Cepheus case with the closed-form regressor: reproducibility, limits
-on a fine grid, improvement over the paper's Table 2, gradients, and errors. No wall-clock
-assertions: timings live in benchmarks/bench_design.py."""
+on a fine grid, improvement over the paper's Table 2, gradients, and errors; and the trust-region
+search on a small spatial tree. No wall-clock assertions: timings live in
+benchmarks/bench_design.py and benchmarks/bench_design_spatial.py."""
 
 import numpy as np
 import pytest
 from cepheus_closed_form import cepheus_regressor
+from conftest import random_tree
 
 from spaceid import SpaceidError
 from spaceid.design import CRITERIA, _problem, design_excitation
-from spaceid.trajectory import load_trajectory, sample_times
+from spaceid.regressor import minimal_parameters
+from spaceid.simulate import excitation_regressor
+from spaceid.trajectory import FourierTrajectory, load_trajectory, sample_times
 
 JOINTS = ("left_shoulder", "left_elbow")
 CEPHEUS = dict(duration=5.0, harmonics=3, samples=35, q_max=1.5, qd_max=1.5, qdd_max=3.0)
@@ -41,6 +45,7 @@ def test_short_run_beats_the_paper_by_a_large_factor(short_run):
     assert short_run.n_starts == 8 and short_run.seed == 3
     meta = short_run.trajectory.meta
     assert meta["criterion"] == "cond" and meta["seed"] == 3 and meta["value"] == short_run.value
+    assert meta["method"] == "slsqp" and meta["start_value"] > short_run.value  # auto: 8 columns
     times, values = np.array(short_run.history).T
     assert np.all(np.diff(times) >= 0) and np.all(np.diff(values) < 0)
     assert values[-1] == short_run.value
@@ -134,6 +139,8 @@ def test_unpicklable_regressor_runs_in_this_process():
         ({"boundary": {"q_start": [0.0, 0.0]}}, "q_start"),
         ({"time_budget": 0}, "time_budget"),
         ({"initial": load_trajectory("paper-table2"), "harmonics": 4}, "initial"),
+        ({"method": "newton"}, "method must be one of auto, slsqp, trust-region"),
+        ({"max_steps": 0}, "max_steps"),
     ],
 )
 def test_bad_options(options, match):
@@ -148,3 +155,97 @@ def test_rank_deficient_regressor():
 
     with pytest.raises(SpaceidError, match="rank deficient"):
         design_excitation(duplicated, JOINTS, **CEPHEUS, n_starts=2, n_jobs=1)
+
+
+# -- the trust-region search on a small spatial tree ---------------------------------------------
+
+SPATIAL = dict(duration=10.0, harmonics=3, samples=30, q_max=1.5, qd_max=0.8, qdd_max=1.0,
+               n_grid=501)
+SPATIAL_LIMITS = np.array([1.5, 0.8, 1.0])
+
+
+@pytest.fixture(scope="module")
+def chain():
+    """A random spatial 3-joint chain (45 minimal parameters) and its excitation regressor."""
+    model = random_tree(np.random.default_rng(2), [0, 1, 2], planar=False)
+    param = minimal_parameters(model)
+    return model.joints, excitation_regressor(param, param.true_values, [1.0, -2.0, 3.0])
+
+
+def spatial_design(chain, **options):
+    joints, regressor = chain
+    options = {"method": "trust-region", "seed": 0, "n_starts": 2, "max_steps": 8,
+               "n_screen": 16, "n_jobs": 1, **options}  # fmt: skip
+    return design_excitation(regressor, joints, **SPATIAL, **options)
+
+
+def spatial_peaks(traj, n):
+    """Largest |q|, |qd|, |qdd| over their limits on ``n`` times, per joint (n_joints, 3)."""
+    signals = np.stack(traj.evaluate(sample_times(traj.duration, n)))
+    return np.abs(signals).max(axis=1).T / SPATIAL_LIMITS
+
+
+def spatial_cond(regressor, traj):
+    q, qd, _ = traj.evaluate(sample_times(traj.duration, SPATIAL["samples"]))
+    return np.linalg.cond(regressor(q[None], qd[None])[0])
+
+
+@pytest.fixture(scope="module")
+def spatial_run(chain):
+    return spatial_design(chain)
+
+
+def test_trust_region_improves_on_random_feasible_starts(chain, spatial_run):
+    joints, regressor = chain
+    traj = spatial_run.trajectory
+    assert spatial_run.value == pytest.approx(spatial_cond(regressor, traj), rel=1e-9)
+    assert traj.meta["method"] == "trust-region" and spatial_run.n_starts == 2
+    assert spatial_run.value < traj.meta["start_value"] / 3  # about 5.5e3 from 1.8e4
+    # random feasible trajectories, each joint's Fourier part scaled onto its limits
+    rng, random, tf = np.random.default_rng(0), [], SPATIAL["duration"]
+    for _ in range(16):
+        a, b = rng.standard_normal((2, len(joints), SPATIAL["harmonics"]))
+        s = spatial_peaks(FourierTrajectory(joints, tf, a, b), 501).max(1)[:, None]
+        random.append(spatial_cond(regressor, FourierTrajectory(joints, tf, a / s, b / s)))
+    assert spatial_run.value < np.median(random) / 4  # median about 3.7e4
+
+
+def test_trust_region_keeps_the_limits_on_a_fine_grid(spatial_run):
+    traj = spatial_run.trajectory
+    assert spatial_peaks(traj, 501).max() <= 1 + 1e-9  # the design grid: exact
+    assert spatial_peaks(traj, 8001).max() <= 1 + 1e-3  # between its points: curvature only
+    assert np.all(spatial_peaks(traj, 501).max(1) > 0.95)  # every joint on (or near) its limits
+
+
+def test_trust_region_is_reproducible(chain, spatial_run):
+    again = spatial_design(chain, n_jobs=2)
+    assert again.trajectory == spatial_run.trajectory and again.value == spatial_run.value
+    assert spatial_design(chain, seed=1).trajectory != spatial_run.trajectory
+
+
+@pytest.mark.parametrize("criterion", CRITERIA)
+def test_trust_region_model_gradient_matches_finite_differences(chain, criterion):
+    joints, regressor = chain
+    limits = np.array([[1.5] * 3, [0.8] * 3, [1.0] * 3])
+    problem = _problem(regressor, criterion, duration=10.0, harmonics=3, samples=30,
+                       limits=limits, boundary=np.zeros((6, 3)), n_grid=501)  # fmt: skip
+    rng = np.random.default_rng(0)
+    z = problem.radial(problem.tr_starts(rng, 1)[0], problem.sharpness)[0]
+    assert problem.signals(z).max() <= 1  # the smooth gauge keeps the limits
+    Y0, Gt = problem.jet(z)
+    # at the linearisation point the model is the surrogate of the regressor itself
+    f0 = problem._model(z, z, Y0, Gt, 8.0)[0]
+    assert f0 == pytest.approx(problem.smooth_objective(z[None], 8.0)[0], rel=1e-12)
+    y, d, h = z + 0.01 * rng.standard_normal(z.size), rng.standard_normal(z.size), 1e-6
+    value, grad = problem._model(y, z, Y0, Gt, 8.0)
+    ahead, behind = (problem._model(y + s * h * d, z, Y0, Gt, 8.0)[0] for s in (1, -1))
+    fd = (ahead - behind) / (2 * h)
+    assert grad @ d == pytest.approx(fd, rel=1e-5, abs=1e-8)
+
+
+def test_trust_region_progress_and_time_budget(chain):
+    calls = []
+    result = spatial_design(chain, n_starts=3, time_budget=1e-3, progress=lambda *a: calls.append(a))
+    assert 1 <= result.n_starts < 3  # the budget stops it after the first search
+    assert calls[-1][1] == 3 + 2  # three starts, the best two continued
+    assert spatial_peaks(result.trajectory, 501).max() <= 1 + 1e-9
