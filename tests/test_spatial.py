@@ -92,12 +92,15 @@ def test_noise_free_identification_of_examples(examples, name):
     assert np.median(err / np.abs(param.true_values)) < 1e-8
 
 
-def test_capture_keeps_the_structure_and_changes_the_left_arm(examples):
+def test_capture_keeps_the_structure_and_changes_the_left_arm(examples, rng):
     (before, _), (after, _) = examples["servicer-dual"], examples["servicer-captured"]
     assert before.names == after.names and np.array_equal(before.projection, after.projection)
-    changed = np.abs(after.true_values - before.true_values) > 1e-12 * np.abs(before.true_values).max()
-    assert changed.any()
-    # the target merges into left_link7 and adds to the total mass M: nothing else may change
-    for definition, moved in zip(before.definitions, changed):
-        if "left_link7" not in definition and "/M" not in definition:
-            assert not moved, definition
+    assert (np.abs(after.true_values - before.true_values) > 1e-9 * np.abs(before.true_values).max()).any()
+    # the pre-capture regressor with the post-capture parameters is the captured system's momentum,
+    # computed independently by Pinocchio from the captured URDF
+    import pinocchio as pin
+
+    ref_model = pin.buildModelFromUrdf(str(PRESETS / "servicer-captured.urdf"), pin.JointModelFreeFlyer())
+    q, qd, w0 = random_states(rng, before.model, 20)
+    ref = pinocchio_momentum(ref_model, q, qd, w0)
+    assert np.abs(before.regressor(q, qd, w0) @ after.true_values - ref).max() < 1e-10 * np.abs(ref).max()
