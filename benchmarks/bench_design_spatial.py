@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 import spaceid
-from spaceid.demo import design_for
+from spaceid.design import design_for
 from spaceid.regressor import minimal_parameters
 from spaceid.simulate import excitation_regressor
 from spaceid.trajectory import FourierTrajectory, sample_times

@@ -141,7 +141,7 @@ def model(model_src, planar, as_json):
 @OUTPUT
 def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, q_max, qd_max, qdd_max, starts, time_budget, output):
     """Optimal exciting trajectory (Eq. 12) minimising the regressor's condition number."""
-    from .demo import design_for
+    from .design import design_for
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)

@@ -16,17 +16,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import SpaceidError
-from .design import design_excitation
+from .design import design_for
 from .estimate import Identification, identify
 from .io import write_json, write_log
 from .model import load_model
-from .regressor import Parameterization, minimal_parameters
-from .simulate import add_noise, excitation_regressor, simulate
+from .regressor import minimal_parameters
+from .simulate import add_noise, simulate
 from .trajectory import FourierTrajectory, load_trajectory, sample_times
 from .validate import validate
 
-__all__ = ["PAPER_TABLE3", "CEPHEUS_STUDY", "DemoResult", "run_demo", "design_for"]
+__all__ = ["PAPER_TABLE3", "CEPHEUS_STUDY", "DemoResult", "run_demo"]
 
 PAPER_TABLE3 = {
     # Table 3 of the paper as read in MATH.md sec. 2: 'true values' and relative errors [%]
@@ -34,41 +33,6 @@ PAPER_TABLE3 = {
     "relative_error_percent": np.array([0.5162, 0.4071, 0.3191, 1.2574, 0.0432, 0.7286, 1.3010, 0.6634]),
 }
 CEPHEUS_STUDY = {"duration": 5.0, "harmonics": 3, "samples": 35, "momentum": 0.4934}
-
-
-def design_for(param: Parameterization, *, duration, harmonics, samples, momentum, seed=0, progress=None, **options):
-    """Optimal exciting trajectory for ``param``'s model, joint limits from the model.
-
-    Limits missing from the model must be given as ``q_max``, ``qd_max``, ``qdd_max`` options.
-    """
-    model = param.model
-    limits = {
-        "q_max": np.fmin(np.abs(model.joint_limits("lower")), np.abs(model.joint_limits("upper"))),
-        "qd_max": model.joint_limits("velocity"),
-        "qdd_max": model.joint_limits("acceleration"),
-    }
-    for key, value in list(limits.items()):
-        if options.get(key) is not None:
-            limits[key] = np.broadcast_to(np.asarray(options.pop(key), float), value.shape).copy()
-    for key, value in limits.items():
-        if np.isnan(value).any():
-            missing = [j for j, v in zip(model.joints, value) if np.isnan(v)]
-            raise SpaceidError(
-                f"{model.source}: no {key.replace('_max', '')} limit for joint(s) {', '.join(missing)}: "
-                f"give --{key.replace('_', '-')} (rad, rad/s, rad/s^2)"
-            )
-    options = {k: v for k, v in options.items() if v is not None}
-    return design_excitation(
-        excitation_regressor(param, param.true_values, momentum),
-        model.joints,
-        duration=duration,
-        harmonics=harmonics,
-        samples=samples,
-        seed=seed,
-        progress=progress,
-        **limits,
-        **options,
-    )
 
 
 @dataclass(frozen=True)

@@ -62,7 +62,7 @@ from .trajectory import (
     sample_times,
 )
 
-__all__ = ["Criterion", "CRITERIA", "DesignResult", "design_excitation"]
+__all__ = ["Criterion", "CRITERIA", "DesignResult", "design_excitation", "design_for"]
 
 
 # -- criteria ---------------------------------------------------------------------------------
@@ -1063,3 +1063,41 @@ def _check_rank(problem, Z0):
             "identifiable together (reduce them to a minimal parameter set), or the motion is "
             "too poor to excite them all (more harmonics, samples or duration, wider limits)"
         )
+
+
+def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progress=None, **options):
+    """Optimal exciting trajectory for ``param``'s model (a ``Parameterization``), joint limits
+    from the model, the base rate from momentum ``momentum`` (3,) [N m s].
+
+    Limits missing from the model must be given as ``q_max``, ``qd_max``, ``qdd_max`` options.
+    """
+    model = param.model
+    limits = {
+        "q_max": np.fmin(np.abs(model.joint_limits("lower")), np.abs(model.joint_limits("upper"))),
+        "qd_max": model.joint_limits("velocity"),
+        "qdd_max": model.joint_limits("acceleration"),
+    }
+    for key, value in list(limits.items()):
+        if options.get(key) is not None:
+            limits[key] = np.broadcast_to(np.asarray(options.pop(key), float), value.shape).copy()
+    for key, value in limits.items():
+        if np.isnan(value).any():
+            missing = [j for j, v in zip(model.joints, value) if np.isnan(v)]
+            raise SpaceidError(
+                f"{model.source}: no {key.replace('_max', '')} limit for joint(s) {', '.join(missing)}: "
+                f"give --{key.replace('_', '-')} (rad, rad/s, rad/s^2)"
+            )
+    options = {k: v for k, v in options.items() if v is not None}
+    from .simulate import excitation_regressor
+
+    return design_excitation(
+        excitation_regressor(param, param.true_values, momentum),
+        model.joints,
+        duration=duration,
+        harmonics=harmonics,
+        samples=samples,
+        seed=seed,
+        progress=progress,
+        **limits,
+        **options,
+    )
