@@ -1,0 +1,71 @@
+"""Raw sensor streams as a lab records them, before alignment: the contract between the
+digital twin (:mod:`spaceid.twin`), ROS bags (:mod:`spaceid.bags`) and identification.
+
+A recording holds what ROS topics carry: joint states (encoders, the reaction wheel among them)
+and the motion-capture pose of the base, each stream on its own clock. Turning it into a
+:class:`~spaceid.timeseries.Log` (common time base, rates) is :func:`spaceid.bags.to_log`'s job.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["JointStates", "Poses", "Recording"]
+
+
+@dataclass(frozen=True)
+class JointStates:
+    """``sensor_msgs/JointState`` messages of one topic.
+
+    Attributes
+    ----------
+    t : ndarray of shape (n,)
+        Header stamps [s].
+    names : tuple of str
+        Joint names, the column order.
+    position : ndarray of shape (n, n_joints)
+        [rad or m].
+    velocity : ndarray of shape (n, n_joints) or None
+        [rad/s or m/s]; None when the messages carry no velocities.
+    effort : ndarray of shape (n, n_joints) or None
+        [N m or N].
+    """
+
+    t: np.ndarray
+    names: tuple
+    position: np.ndarray
+    velocity: np.ndarray | None = None
+    effort: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Poses:
+    """``geometry_msgs/PoseStamped`` messages of one topic (motion capture of the base).
+
+    Attributes
+    ----------
+    t : ndarray of shape (m,)
+        Header stamps [s].
+    position : ndarray of shape (m, 3)
+        [m], in ``frame``.
+    quat : ndarray of shape (m, 4)
+        Scalar-first unit quaternion ``[w, x, y, z]``, base to ``frame``.
+    frame : str
+        ``header.frame_id``.
+    """
+
+    t: np.ndarray
+    position: np.ndarray
+    quat: np.ndarray
+    frame: str = "world"
+
+
+@dataclass(frozen=True)
+class Recording:
+    """One run: joint states and base poses, with provenance in ``meta`` (seeds, settings)."""
+
+    joints: JointStates
+    base: Poses
+    meta: dict = field(default_factory=dict, compare=False)

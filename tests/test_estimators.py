@@ -1,0 +1,184 @@
+"""Estimators on data with known truth: noise-free recovery, spread vs predicted covariance,
+bias removal, the Cramer-Rao bound vs a brute-force Fisher information, scale anchors."""
+
+import warnings
+
+import numpy as np
+import pytest
+from conftest import random_tree
+
+import spaceid
+from spaceid import SpaceidError
+from spaceid.estimate import ESTIMATORS, cramer_rao, identify
+from spaceid.noise import Noise
+from spaceid.regressor import minimal_parameters
+from spaceid.simulate import add_noise, base_rate, simulate
+from spaceid.trajectory import load_trajectory
+
+H = np.array([0.0, 0.0, 0.4934])
+TRAJ = load_trajectory("paper-table2")
+
+
+def paper_motion(t):
+    return TRAJ.evaluate(t)[:2]
+
+
+@pytest.fixture(scope="module")
+def cepheus():
+    param = minimal_parameters(spaceid.load_model("cepheus"))
+    return param, lambda n: simulate(param, param.true_values, paper_motion, np.linspace(0, 5, n), H)
+
+
+@pytest.fixture(scope="module")
+def cepheus_rw():
+    """Cepheus with its reaction wheel spinning at 170 rad/s (plus a wobble): total momentum 0."""
+    param = minimal_parameters(spaceid.load_model("cepheus-rw"))
+
+    def motion(t):
+        q, qd = paper_motion(t)
+        wheel = 170 * t + 2 * np.sin(3 * t), 170 + 6 * np.cos(3 * t)
+        return np.column_stack([wheel[0], q]), np.column_stack([wheel[1], qd])
+
+    return param, simulate(param, param.true_values, motion, np.linspace(0, 5, 201), np.zeros(3))
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+def test_noise_free_recovery(cepheus, estimator):
+    param, make = cepheus
+    ident = identify(param, make(101), H, estimator=estimator)
+    assert np.abs(ident.values / param.true_values - 1).max() < 1e-8
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+def test_noise_free_recovery_spatial(rng, estimator):
+    model = random_tree(np.random.default_rng(7), [0, 1], planar=False)
+    param = minimal_parameters(model)
+    t = np.linspace(0, 5, 60)
+
+    def motion(t):
+        t = np.asarray(t)[:, None]
+        w = np.array([1.1, 1.7, 0.9, 1.3, 2.3, 0.7])[: len(model.joints)]
+        return np.sin(w * t + 0.3) + 0.3 * np.sin(2.9 * w * t), w * np.cos(w * t + 0.3) + 0.87 * w * np.cos(2.9 * w * t)
+
+    h = np.array([0.3, -0.2, 0.5])
+    log = simulate(param, param.true_values, motion, t, h, initial_quat=[0.8, 0.6, 0, 0])
+    ident = identify(param, log, h, estimator=estimator)
+    err = np.abs(ident.values - param.true_values) / np.abs(param.true_values).max()
+    assert err.max() < 1e-8
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+def test_spread_matches_predicted_covariance(cepheus, estimator):
+    """150 noise draws: the empirical std agrees with the predicted standard error (the std of
+    a 150-draw std estimate is ~6 %, so the band is about 4 sigma wide)."""
+    param, make = cepheus
+    log = make(101)
+    noise = Noise(1e-3, 1e-3, 1e-3)
+    runs = [identify(param, add_noise(log, angle=1e-3, rate=1e-3, seed=s), H, estimator=estimator, noise=noise)
+            for s in range(150)]  # fmt: skip
+    est = np.array([r.values for r in runs])
+    ratio = est.std(axis=0) / np.mean([r.std for r in runs], axis=0)
+    assert np.all((ratio > 0.78) & (ratio < 1.28)), ratio
+
+
+def test_ml_removes_the_bias_of_least_squares(cepheus):
+    """At 1 % noise OLS is biased by several standard deviations; ML is not, and reaches the CRB."""
+    param, make = cepheus
+    log = make(501)
+    noise = Noise(1e-2, 1e-2, 1e-2)
+    _, crb = cramer_rao(param, log, H, noise)
+    errors = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        for est in ("ols", "ml"):
+            errors[est] = np.array([identify(param, add_noise(log, angle=1e-2, rate=1e-2, seed=s), H, estimator=est,
+                                             noise=noise).values for s in range(40)]) - param.true_values  # fmt: skip
+    z = {k: e.mean(0) / (e.std(0) / np.sqrt(len(e))) for k, e in errors.items()}  # bias in standard errors of the mean
+    assert np.median(np.abs(z["ols"])) > 10
+    assert np.abs(z["ml"]).max() < 4.5
+    rmse = np.sqrt(np.mean(errors["ml"] ** 2, 0))
+    assert np.all(rmse / np.sqrt(np.diag(crb)) < 1.5)
+
+
+def test_crb_equals_brute_force_fisher(cepheus):
+    """The KCR bound equals the inverse Fisher information of the explicit model: unknowns pi and
+    the true joint signals, observations q, qd and the base rate that momentum conservation gives."""
+    param, make = cepheus
+    log = make(12)
+    noise = Noise(2e-4, 5e-4, 3e-4)
+    _, crb = cramer_rao(param, log, H, noise)
+    k, n, nj = param.n_params, log.n_samples, 2
+
+    def observe(z):
+        pi, q, qd = z[:k], z[k : k + n * nj].reshape(n, nj), z[k + n * nj :].reshape(n, nj)
+        w = base_rate(param, pi, q, qd, H)[:, 2]
+        return np.concatenate([q.ravel(), qd.ravel(), w])
+
+    z0 = np.concatenate([param.true_values, log.q.ravel(), log.qd.ravel()])
+    step = 1e-6 * np.maximum(np.abs(z0), 1e-3)
+    jac = np.column_stack([(observe(z0 + e) - observe(z0 - e)) / (2 * s) for e, s in zip(np.diag(step), step)])
+    weights = np.concatenate([np.full(n * nj, noise.angle), np.full(n * nj, noise.rate), np.full(n, noise.base_rate)]) ** -2
+    brute = np.linalg.inv(jac.T @ (weights[:, None] * jac))[:k, :k]
+    assert np.sqrt(np.diag(crb)) == pytest.approx(np.sqrt(np.diag(brute)), rel=1e-5)
+    assert crb == pytest.approx(brute, rel=1e-4, abs=1e-6 * np.abs(brute).max())
+
+
+@pytest.mark.parametrize("momentum", [np.zeros(3), None])
+def test_homogeneous_problem_needs_an_anchor(cepheus, momentum):
+    param, make = cepheus
+    with pytest.raises(SpaceidError, match="homogeneous.*--known NAME=VALUE"):
+        identify(param, make(51), momentum)
+
+
+def test_unknown_momentum_with_a_known_parameter(cepheus):
+    param, make = cepheus
+    ident = identify(param, make(101), None, known={"pi5": param.true_values[4]})
+    assert np.abs(ident.values / param.true_values - 1).max() < 1e-8
+    assert ident.momentum == pytest.approx(H, abs=1e-9)
+    assert ident.std[4] == 0 and ident.settings["momentum_estimated"]
+    assert ident.settings["anchors"][0]["source"] == "given"
+
+
+def test_reaction_wheel_spin_momentum_anchors_zero_momentum(cepheus_rw):
+    param, log = cepheus_rw
+    ident = identify(param, log, np.zeros(3))
+    assert np.abs(ident.values / param.true_values - 1).max() < 1e-8
+    (anchor,) = ident.settings["anchors"]
+    assert anchor["definition"] == "Izz_wheel" and "reaction wheel" in anchor["source"]
+    # the wheel inertia given by its physical name overrides the model's: the scale follows it
+    scaled = identify(param, log, np.zeros(3), known={"Izz_wheel": 2 * anchor["value"]})
+    assert scaled.values == pytest.approx(2 * param.true_values, rel=1e-8)
+
+
+def test_anchor_naming_an_unknown_parameter(cepheus_rw):
+    param, log = cepheus_rw
+    with pytest.raises(SpaceidError, match="--known m_base: not a minimal parameter.*Izz_wheel"):
+        identify(param, log, np.zeros(3), known={"m_base": 9.0})
+
+
+def test_tls_is_consistent_under_its_own_assumptions():
+    """Independent, equal (after scaling) errors in the regressor columns: TLS removes the
+    attenuation bias of OLS. (The momentum equations do not meet these assumptions.)"""
+    from spaceid import estimate
+
+    rng = np.random.default_rng(0)
+    a0 = rng.normal(size=(3000, 4))
+    theta = rng.normal(size=4)
+    d = np.array([0.3, 0.1, 0.5, 0.2])
+
+    class Stub:
+        def phi(self, x):
+            return np.concatenate([self.a[:, None, :], -(a0 @ theta)[:, None, None]], -1)
+
+    stub = Stub()
+    original = estimate._column_noise
+    estimate._column_noise = lambda *args: np.append(d, 0.0)
+    try:
+        errors = []
+        for _ in range(40):
+            stub.a = a0 + rng.normal(size=a0.shape) * d
+            errors.append(estimate._tls(stub, None, None, None, {})[0] - theta)
+    finally:
+        estimate._column_noise = original
+    errors = np.array(errors)
+    assert np.abs(errors.mean(0) / (errors.std(0) / np.sqrt(len(errors)))).max() < 4.5
