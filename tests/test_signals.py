@@ -95,7 +95,8 @@ def test_jittered_stamps_and_a_gap(method):
     assert np.abs(exact - qd)[inner].max() <= 1e-6 * np.abs(qd).max()  # fits use the actual times
     t = np.delete(t, np.arange(200, 220))  # and 20 dropped samples: a 0.2 s gap
     _, y, qd = noisy(seed=2, t=t)
-    error = rmse(differentiate(t, y, method=method)[1], qd)
+    with pytest.warns(UserWarning, match="a gap of 0.21 s .*bridged"):
+        error = rmse(differentiate(t, y, method=method)[1], qd)
     _, y_even, qd_even = noisy(seed=2)
     assert error <= 1.5 * rmse(differentiate(even, y_even, method=method)[1], qd_even)
 
@@ -269,3 +270,15 @@ def test_bad_input_is_a_one_line_error_saying_what_to_fix(t, x, options, message
 def test_bad_quaternions(quat, message):
     with pytest.raises(SpaceidError, match=message):
         differentiate_quaternion(T7, quat)
+
+
+def test_long_gap_and_sparse_samples_are_refused():
+    t, y, _ = noisy(seed=4)
+    t_gap = np.concatenate([t[:200], t[300:] + 2.0])  # a 3 s hole in a 100 Hz log
+    with pytest.raises(SpaceidError, match=r"a gap of 3.01 s after t = 1.99 .*split the log"):
+        differentiate(t_gap, np.concatenate([y[:200], y[300:]]), name="joint angles")
+    for hz in (1.0, 2.0):  # 7 samples a period, then 3.5 (aliased): not polynomial over 7 samples
+        sparse = np.linspace(0, DURATION, 35)
+        with pytest.raises(SpaceidError, match="sampled too sparsely to differentiate .*record faster or log the rates"):
+            differentiate(sparse, np.sin(2 * np.pi * hz * sparse), name="joint angles")
+    differentiate(sparse, exciting(sparse)[0])  # the slow Table 2 motion is fine at 7 Hz

@@ -41,6 +41,8 @@ References
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.linalg import cho_solve_banded, cholesky_banded
 from scipy.optimize import minimize_scalar
@@ -67,6 +69,9 @@ _CHUNK = 1 << 21  # local-fit elements (samples x window x coefficients) process
 _NOISE_DIFFERENCE = 6  # order of the divided differences that estimate the noise
 _MAD_TO_SIGMA = 1.482602218505602  # 1 / Phi^-1(3/4): median absolute deviation to std (Gaussian)
 _PROBES = 16  # random sign vectors estimating the spline's hat-matrix trace for GCV
+_WARN_GAP = 10.0  # steps longer than this many median steps are gaps (a warning) ...
+_MAX_GAP = 100.0  # ... and beyond this many, differentiation would extrapolate (an error)
+_MAX_DIFFERENCE = 1e-3  # signal-dominated sixth differences above this fraction of the range: too sparse
 _QUAT_TOLERANCE = 1e-2  # |norm - 1| above which a series is not unit quaternions
 
 
@@ -208,8 +213,9 @@ def differentiate(
     resolved, window, order = _check_tuning(t.size, method, window, order, smoothing, name)
     if wrap:
         x = np.unwrap(x, axis=0)
-
+    _check_gaps(t, name)
     sigma, source = _noise(t, x, quantum)
+    _check_resolution(t, x, sigma, name)
     x_smooth, xdot = np.empty_like(x), np.empty_like(x)
     windows, orders, lams = [], [], []
     for j in range(x.shape[1]):
@@ -433,6 +439,43 @@ def _require_samples(n, needed, name, what):
             f"{name}: {n} samples are too few for {what}, which needs at least {needed}: a sample "
             "rate too low for the chosen differentiator; record longer or faster, or give a "
             "smaller window or order"
+        )
+
+
+def _check_gaps(t, name):
+    """Gaps (dropped samples): local fits on the actual stamps bridge short ones (a warning);
+    one over ``_MAX_GAP`` median steps would be extrapolation (an error)."""
+    steps = np.diff(t)
+    i = int(np.argmax(steps))
+    median = float(np.median(steps))
+    if steps[i] <= _WARN_GAP * median:
+        return
+    text = (f"{name}: a gap of {steps[i]:.3g} s after t = {t[i]:.6g} ({steps[i] / median:.0f} times the median step "
+            f"{median:.3g} s)")
+    if steps[i] > _MAX_GAP * median:
+        raise SpaceidError(f"{text}: too long to differentiate across; split the log at the gap or log the rates")
+    warnings.warn(f"{text}: the rates near it are bridged by the local fits", stacklevel=3)
+
+
+def _check_resolution(t, x, sigma, name):
+    """Refuse samples too sparse for local polynomial fits.
+
+    For white noise the normalised sixth differences keep their size when every other sample is
+    dropped; when they measure the signal instead they grow ~2^6 times. Signal-dominated
+    differences above ``_MAX_DIFFERENCE`` of the channel's range mean the signal is not nearly
+    polynomial over seven samples: the rates would be wrong, not noisy.
+    """
+    if t.size < 4 * (_NOISE_DIFFERENCE + 1):
+        return
+    coarse, _ = _noise(t[::2], x[::2], None)
+    span = np.ptp(x, axis=0)
+    bad = (((coarse > 4 * sigma) & (sigma > _MAX_DIFFERENCE * span)) | (sigma > 0.1 * span)) & (span > 0)  # or aliased
+    if bad.any():
+        j = int(np.argmax(bad))
+        raise SpaceidError(
+            f"{name}: channel {j} is sampled too sparsely to differentiate ({1 / np.median(np.diff(t)):.3g} Hz: its "
+            f"sixth differences are signal, {sigma[j] / span[j]:.1%} of its range, not noise): record faster or log "
+            "the rates"
         )
 
 
