@@ -360,3 +360,10 @@ def test_json_errors_name_the_file(tmp_path):
     broken.write_text('{"a": 1,,}')
     with pytest.raises(SpaceidError, match=r"broken\.json: not a valid result \(line 1, column 9"):
         read_json(broken, what="result")
+
+
+def test_gap_in_a_log_warns(tmp_path):
+    rows = [f"{0.01 * i:.2f},0,0,0.1,0.2,0,0" for i in range(20)] + [f"{1.0 + 0.01 * i:.2f},0,0,0.1,0.2,0,0" for i in range(5)]
+    path = _write(tmp_path / "gap.csv", PLANAR_HEADER, rows)
+    with pytest.warns(UserWarning, match=r"gap.csv: a gap of 0.81 s before line 22 \(81 median steps\)"):
+        read_log(path, joints=JOINTS, planar=True)

@@ -585,8 +585,12 @@ def identify(
     # depend on units).
     scale = np.linalg.norm(A, axis=0)
     scale[scale == 0] = 1.0
-    sv_scaled = np.linalg.svd(A / scale, compute_uv=False)
-    cond_scaled = float(sv_scaled[0] / sv_scaled[-1]) if sv_scaled[-1] > 0 else np.inf
+    gram = (A / scale).T @ (A / scale)
+    eig = np.linalg.eigvalsh(gram)
+    cond_scaled = float(np.sqrt(eig[-1] / eig[0])) if eig[0] > 0 else np.inf
+    if cond_scaled > 1e6:  # near the precision limit of the Gram matrix: decide on the SVD
+        sv = np.linalg.svd(A / scale, compute_uv=False)
+        cond_scaled = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
     if not cond_scaled < cond_limit:
         bad = _unexcited(A, names, 1e-8)
         raise SpaceidError(
@@ -618,8 +622,9 @@ def identify(
     h_std = np.zeros(3)
     if eq.n_h:
         h_std[eq.axes] = np.sqrt(np.diag(cov_t)[len(eq.free) :])
-    # singular values of the unscaled regressor (the paper's condition number)
-    s = np.linalg.svd(A, compute_uv=False)
+    # singular values of the unscaled regressor (the paper's condition number), from its Gram
+    # matrix: accurate to eps * s_max, ample for the condition numbers of exciting motions
+    s = np.sqrt(np.clip(np.linalg.eigvalsh(gram * np.outer(scale, scale)), 0, None))[::-1]
     return Identification(
         param.names,
         param.definitions,

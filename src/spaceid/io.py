@@ -42,6 +42,7 @@ __all__ = ["read_log", "write_log", "read_joint_trajectory", "write_json", "read
 
 _MAX_ANGLE = 20 * math.pi  # [rad]; ten turns over a run means the column is in degrees
 _MAX_RATE = 100.0  # [rad/s]; arm joints and the base; above it the column is likely deg/s
+_GAP = 10.0  # a step this many times the median one is a gap (dropped samples), worth a warning
 _MAX_WHEEL_RATE = 1000.0  # [rad/s]; reaction wheels spin at a few hundred rad/s
 _QUAT_WARN = 1e-6  # |norm - 1| above which a quaternion is renormalised, with a warning
 _QUAT_FAIL = 1e-2  # |norm - 1| above which it is not a unit quaternion at all
@@ -50,8 +51,8 @@ _PLANAR_BASE = (("base_yaw",), ("base_wz",))
 _SPATIAL_BASE = (("base_qw", "base_qx", "base_qy", "base_qz"), ("base_wx", "base_wy", "base_wz"))
 
 
-def read_log(path, *, joints, planar, require_rates=True, wheels=()) -> Log:
-    """Read and validate a log CSV.
+def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options=None) -> Log:
+    """Read and validate a log CSV, or a ROS bag (``.bag``, ``.mcap``, a ROS 2 bag folder).
 
     Parameters
     ----------
@@ -66,6 +67,11 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=()) -> Log:
         filled with NaN (for differentiation later) and ``meta["rates"]`` is ``"missing"``.
     wheels : sequence of str, default ()
         Reaction-wheel joints (``model.wheels``), exempt from the degrees check on angles.
+    bag_options : dict, optional
+        For a bag (:func:`spaceid.bags.is_bag`), keywords of :func:`spaceid.bags.read_bag_log`
+        (``joint_topic``, ``pose_topic``, ``mapping``, alignment and differentiator settings;
+        None values are ignored): the bag is time-aligned and its rates computed there, so
+        ``require_rates`` does not apply. For a CSV, topics or a mapping are an error.
 
     Returns
     -------
@@ -90,6 +96,16 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=()) -> Log:
         A base quaternion whose norm departs from 1 by more than 1e-6 (it is normalised), or
         implausibly fast rates.
     """
+    from . import bags  # here: bags builds on this module
+
+    if bags.is_bag(path):
+        return bags.read_bag_log(path, joints=joints, planar=planar, wheels=wheels, **(bag_options or {}))
+    given = [k for k in ("joint_topic", "pose_topic", "mapping") if (bag_options or {}).get(k) is not None]
+    if given:
+        raise SpaceidError(
+            f"{path}: {', '.join(given)} apply to ROS bags, but this is a CSV log: drop them or give a bag "
+            "(.bag, .mcap or a ROS 2 bag folder)"
+        )
     joints = tuple(joints)
     table = _read_csv(path, what="log")
     _check_joint_columns(table, joints)
@@ -352,6 +368,15 @@ def _check_time(table, t):
         raise SpaceidError(
             f"{table.path}: time stamps must increase strictly, but t = {float(t[i])!r} at line "
             f"{table.lines[i]} follows t = {float(t[i - 1])!r}: sort the log or remove duplicate rows"
+        )
+    steps = np.diff(t)
+    if steps.size and steps.max() > _GAP * np.median(steps):
+        i = int(np.argmax(steps)) + 1
+        warnings.warn(
+            f"{table.path}: a gap of {steps[i - 1]:.3g} s before line {table.lines[i]} ({steps[i - 1] / np.median(steps):.0f} "
+            "median steps): identification uses the samples as they are, but rates cannot be differentiated and "
+            "validation re-simulates across it",
+            stacklevel=3,
         )
 
 

@@ -26,9 +26,10 @@ class JointStates:
     names : tuple of str
         Joint names, the column order.
     position : ndarray of shape (n, n_joints)
-        [rad or m].
+        [rad or m]. NaN where a joint is absent from every message at that stamp (arm and
+        wheel published separately on one topic).
     velocity : ndarray of shape (n, n_joints) or None
-        [rad/s or m/s]; None when the messages carry no velocities.
+        [rad/s or m/s]; None when the messages carry no velocities, NaN where not measured.
     effort : ndarray of shape (n, n_joints) or None
         [N m or N].
     """
@@ -51,7 +52,8 @@ class Poses:
     position : ndarray of shape (m, 3)
         [m], in ``frame``.
     quat : ndarray of shape (m, 4)
-        Scalar-first unit quaternion ``[w, x, y, z]``, base to ``frame``.
+        Scalar-first quaternion ``[w, x, y, z]``, base to ``frame``, as published (not
+        renormalised).
     frame : str
         ``header.frame_id``.
     """
