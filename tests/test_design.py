@@ -1,17 +1,24 @@
 """Excitation design on the Cepheus case with the closed-form regressor: reproducibility, limits
-on a fine grid, improvement over the paper's Table 2, gradients, and errors; and the trust-region
-search on a small spatial tree. No wall-clock assertions: timings live in
-benchmarks/bench_design.py and benchmarks/bench_design_spatial.py."""
+on a fine grid, improvement over the paper's Table 2, gradients, and errors; the trust-region
+search on a small spatial tree; and the noise-aware criteria (whitened regressor against a
+brute-force Fisher information, nested-difference gradients, crb against cond designs). No
+wall-clock assertions: timings live in benchmarks/bench_design.py,
+benchmarks/bench_design_spatial.py and benchmarks/bench_design_noise.py."""
+
+import json
 
 import numpy as np
 import pytest
 from cepheus_closed_form import cepheus_regressor
 from conftest import random_tree
 
+import spaceid
 from spaceid import SpaceidError
-from spaceid.design import CRITERIA, _problem, design_excitation
+from spaceid.cli import main
+from spaceid.design import CRITERIA, _problem, design_excitation, design_for, whitened_regressor
+from spaceid.noise import Noise, equation_covariance, signal_jacobian, signal_sigma
 from spaceid.regressor import minimal_parameters
-from spaceid.simulate import excitation_regressor
+from spaceid.simulate import base_rate, excitation_regressor
 from spaceid.trajectory import FourierTrajectory, load_trajectory, sample_times
 
 JOINTS = ("left_shoulder", "left_elbow")
@@ -249,3 +256,167 @@ def test_trust_region_progress_and_time_budget(chain):
     assert 1 <= result.n_starts < 3  # the budget stops it after the first search
     assert calls[-1][1] == 3 + 2  # three starts, the best two continued
     assert spatial_peaks(result.trajectory, 501).max() <= 1 + 1e-9
+
+
+# -- noise-aware criteria --------------------------------------------------------------------------
+
+NOISE = Noise(angle=1e-4, rate=1e-4, base_rate=1e-4)
+H = np.array([0.0, 0.0, 0.4934])  # [N m s]
+NOISY = dict(duration=5.0, harmonics=3, samples=35, momentum=H, seed=0, noise=NOISE, n_starts=4,
+             n_jobs=1)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def cepheus():
+    return minimal_parameters(spaceid.load_model("cepheus"))
+
+
+def test_whitened_gram_is_the_fisher_information(cepheus):
+    """Brute force on Cepheus: S_n from central differences of g = Y(q, qd, w0) pi in each of
+    the five signals (q1, q2, qd1, qd2, w0z), then sum_n Y_n^T Y_n / S_n."""
+    pi = cepheus.true_values
+    q, qd, _ = load_trajectory("paper-table2").evaluate(sample_times(5.0, 35))
+    w0 = base_rate(cepheus, pi, q, qd, H)
+    Y = cepheus.regressor(q, qd, w0)[:, 0]  # (35, 8): the z row
+
+    def g(x):
+        wz = np.pad(x[:, 4:], ((0, 0), (2, 0)))
+        return cepheus.regressor(x[:, :2], x[:, 2:4], wz)[:, 0] @ pi
+
+    x, h = np.concatenate([q, qd, w0[:, 2:]], 1), 1e-6
+    J = np.stack([(g(x + h * e) - g(x - h * e)) / (2 * h) for e in np.eye(5)], -1)
+    S = (J**2) @ np.full(5, 1e-4) ** 2
+    fisher = (Y / S[:, None]).T @ Y
+    Yw = whitened_regressor(cepheus, pi, H, NOISE, relative=False)(q, qd)
+    assert np.abs(Yw.T @ Yw - fisher).max() < 1e-7 * np.abs(fisher).max()
+    relative = whitened_regressor(cepheus, pi, H, NOISE)
+    np.testing.assert_allclose(relative(q, qd), Yw * np.abs(pi), rtol=1e-12)
+    crb = np.linalg.inv(fisher) / np.outer(pi, pi)
+    np.testing.assert_allclose(relative.crb(q, qd), crb, rtol=1e-6)
+
+
+def test_whitened_gram_on_a_spatial_tree(chain):
+    """Three equations a sample: the Cholesky whitening against ``sum Y_n^T S_n^-1 Y_n``, with
+    attitude noise (the momentum enters S_n through it) and a batch of two motions."""
+    joints, plain = chain
+    param, pi = plain.param, plain.pi
+    noise = Noise(angle=1e-3, rate=2e-3, base_rate=1e-3, attitude=3e-3)
+    rng = np.random.default_rng(1)
+    q, qd = rng.uniform(-1, 1, (2, 2, 30, len(joints)))
+    Yw = whitened_regressor(param, pi, plain.momentum, noise, relative=False)(q, qd)
+    assert Yw.shape == (2, 90, len(pi))
+    for b in range(2):
+        w0 = base_rate(param, pi, q[b], qd[b], plain.momentum)
+        Y = param.regressor(q[b], qd[b], w0)  # (30, 3, k)
+        jac = signal_jacobian(param, pi, q[b], qd[b], w0, np.broadcast_to(plain.momentum, (30, 3)))
+        S = equation_covariance(jac, signal_sigma(param, noise))
+        fisher = np.einsum("nri,nrs,nsj->ij", Y, np.linalg.inv(S), Y)
+        assert np.abs(Yw[b].T @ Yw[b] - fisher).max() < 1e-9 * np.abs(fisher).max()
+
+
+@pytest.mark.parametrize("criterion", CRITERIA)
+def test_directional_pieces_agree_with_the_adjoint(criterion):
+    rng = np.random.default_rng(0)
+    Y, dY = rng.standard_normal((40, 6)), rng.standard_normal((3, 40, 6))
+    crit = CRITERIA[criterion]
+    value, jac = crit.pieces(Y, dY)
+    pieces, W = crit.adjoint(Y)
+    np.testing.assert_allclose(value, pieces, rtol=1e-12)
+    np.testing.assert_allclose(jac, np.tensordot(W, dY, ((1, 2), (1, 2))), rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("criterion", ["dopt", "crb"])
+def test_nested_differences_give_accurate_gradients(cepheus, criterion):
+    """The whitened regressor holds central differences in q (noise.FD_STEP); the design
+    differentiates it again, at the step it asks for. Checked against 5-point differences of
+    step 1e-3 (their error is about 1e-8): the design's default step 1e-6 is 100 times off."""
+    regressor = whitened_regressor(cepheus, cepheus.true_values, H, NOISE)
+    limits = np.array([[1.5, 1.5], [1.5, 1.5], [3.0, 3.0]])
+    problem = _problem(regressor, criterion, duration=5.0, harmonics=3, samples=35,
+                       limits=limits, boundary=np.zeros((6, 2)), n_grid=201)  # fmt: skip
+    assert problem.step == regressor.fd_step == 1e-4
+    rng = np.random.default_rng(0)
+    z, d = problem.starts(rng, 1)[0], rng.standard_normal(problem.n)
+    Y, Gt = problem.jet(z)
+    q, qd = np.einsum("dtk,jk->dtj", problem.B_samples, problem.X(z)) + problem.P_samples
+    h, ref = 1e-3, []
+    for signal in range(2):
+        for j in range(2):
+            e = np.zeros_like(q)
+            e[:, j] = h
+
+            def f(s):
+                return regressor(q + s * e, qd) if signal == 0 else regressor(q, qd + s * e)
+
+            ref.append((f(-2) - 8 * f(-1) + 8 * f(1) - f(2)) / (12 * h))
+    ref = np.stack(ref, -1)  # (35, 8, 4): sample t's row along (q|qd)_j
+    assert np.abs(Gt - ref).max() < 1e-6 * np.abs(ref).max()
+
+    def piece(s):
+        return CRITERIA[criterion].pieces(problem.stacked((z + s * d)[None])[0])[0]
+
+    fd = (piece(-2 * h) - 8 * piece(-h) + 8 * piece(h) - piece(2 * h)) / (12 * h)
+    assert problem.linearize(z)[1][0] @ d == pytest.approx(fd, rel=1e-6)
+
+
+@pytest.fixture(scope="module")
+def noisy_designs(cepheus):
+    return {c: design_for(cepheus, criterion=c, **NOISY) for c in ("cond", "dopt", "crb")}
+
+
+def test_crb_design_predicts_a_smaller_error_than_the_cond_design(cepheus, noisy_designs):
+    bound = whitened_regressor(cepheus, cepheus.true_values, H, NOISE)
+
+    def crb(criterion):
+        q, qd, _ = noisy_designs[criterion].trajectory.evaluate(sample_times(5.0, 35))
+        return bound.crb(q, qd)
+
+    trace = {c: np.trace(crb(c)) for c in noisy_designs}
+    assert noisy_designs["crb"].value == pytest.approx(trace["crb"], rel=1e-9)
+    assert trace["crb"] < 0.9 * trace["cond"]  # 1.21e-5 against 1.43e-5 (seed 0, 4 starts)
+    logdet = {c: np.linalg.slogdet(np.linalg.inv(crb(c)))[1] for c in noisy_designs}
+    assert noisy_designs["dopt"].value == pytest.approx(logdet["dopt"], rel=1e-9)
+    assert logdet["dopt"] > logdet["cond"] + 1  # about 127.2 against 125.1
+
+
+def test_noise_and_predicted_bound_are_recorded(cepheus, noisy_designs):
+    pi = cepheus.true_values
+    for criterion, result in noisy_designs.items():
+        meta = result.trajectory.meta
+        assert result.noise == NOISE and result.to_dict()["noise"] == NOISE.to_dict()
+        assert meta["criterion"] == criterion and meta["value"] == result.value
+        assert meta["seed"] == 0 and meta["noise"] == NOISE.to_dict()
+        q, qd, _ = result.trajectory.evaluate(sample_times(5.0, 35))
+        rel = np.sqrt(np.diag(whitened_regressor(cepheus, pi, H, NOISE).crb(q, qd)))
+        np.testing.assert_allclose(list(meta["crb_relative_std"].values()), rel, rtol=1e-9)
+        np.testing.assert_allclose(list(meta["crb_std"].values()), rel * np.abs(pi), rtol=1e-9)
+    json.dumps(result.to_dict())  # JSON-ready
+
+
+@pytest.mark.parametrize("noise", [None, Noise()])
+def test_noise_aware_criteria_need_the_noise(cepheus, noise):
+    with pytest.raises(SpaceidError, match="give --noise-angle, --noise-rate, --noise-base-rate"):
+        design_for(cepheus, **{**NOISY, "criterion": "crb", "noise": noise})
+
+
+def test_whitened_regressor_errors(cepheus):
+    with pytest.raises(SpaceidError, match="every standard deviation is zero"):
+        whitened_regressor(cepheus, cepheus.true_values, H, Noise())
+    pi = cepheus.true_values.copy()
+    pi[1] = 0.0
+    with pytest.raises(SpaceidError, match="nominal value zero for pi2"):
+        whitened_regressor(cepheus, pi, H, NOISE)
+    whitened_regressor(cepheus, pi, H, NOISE, relative=False)  # absolute: fine
+
+
+def test_cli_design_with_noise(tmp_path, capsys):
+    args = ["design", "cepheus", "--duration", "5", "--harmonics", "3", "--samples", "35",
+            "--momentum", "0.4934", "--starts", "2", "--criterion", "crb"]  # fmt: skip
+    assert main([*args, "-o", str(tmp_path / "none.json")]) == 2
+    assert "give --noise-angle" in capsys.readouterr().err
+    assert not (tmp_path / "none.json").exists()
+    noise = ["--noise-angle", "1e-4", "--noise-rate", "1e-4", "--noise-base-rate", "1e-4"]
+    assert main([*args, *noise, "-o", str(tmp_path / "traj.json")]) == 0
+    assert "predicted CRB: worst relative std" in capsys.readouterr().err
+    meta = load_trajectory(tmp_path / "traj.json").meta
+    assert meta["criterion"] == "crb" and meta["noise"] == NOISE.to_dict()

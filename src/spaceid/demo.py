@@ -20,6 +20,7 @@ from .design import design_for
 from .estimate import Identification, identify
 from .io import write_json, write_log
 from .model import load_model
+from .noise import Noise
 from .regressor import minimal_parameters
 from .simulate import add_noise, simulate
 from .trajectory import FourierTrajectory, load_trajectory, sample_times
@@ -104,7 +105,9 @@ def run_demo(
     times = sample_times(traj.duration, study["samples"])
     clean = simulate(param, param.true_values, motion, times, momentum, model=model)
     log = add_noise(clean, angle=noise_angle, rate=noise_rate, seed=seed) if noise_angle or noise_rate else clean
-    ident = identify(param, log, momentum, where="demo")
+    # the noise levels are known here: the estimator weights by them (none: estimated, ~0)
+    noise = Noise(noise_angle, noise_rate, noise_rate, noise_angle, "given (simulated)") if noise_angle or noise_rate else None
+    ident = identify(param, log, momentum, noise=noise, where="demo")
     ident.settings.update(trajectory=traj.meta.get("name", str(trajectory)), seed=seed, noise_angle=noise_angle, noise_rate=noise_rate)
     # validation on a fine grid: the true system vs the identified model for the same joint motion
     fine = simulate(param, param.true_values, motion, np.linspace(0, traj.duration, 501), momentum, model=model)

@@ -5,6 +5,14 @@ searched in scaled variables ``z`` (``X = S * z``, with ``S`` such that ``|z_jk|
 takes joint j to its tightest limit). q, qd and qdd are affine in ``z``, so the joint limits,
 imposed on a fine time grid, are linear inequalities, and separate by joint.
 
+Criteria (:data:`CRITERIA`): the paper's cond(Y); log det of Y with unit-norm columns; and two
+that know the measurement noise, on the regressor whitened sample by sample by the covariance
+of its equation error and scaled by the nominal ``|pi|`` (:class:`whitened_regressor`), whose
+Gram matrix is the Fisher information of the errors-in-variables model (MATH.md section 6):
+``dopt`` maximises its log det, ``crb`` minimises the trace of its inverse, the sum of the
+parameters' relative Cramer-Rao variances. cond(Y) ignores which signals are noisy and how the
+noise reaches each equation; these weigh the samples by it.
+
 Gradients: the rows of sample t of the stacked regressor ``Y`` depend on q(t), qd(t) alone, so
 central differences of the joint signals (4 n_joints perturbed trajectories, one batched call)
 give ``dY/dq_j``, ``dY/dqd_j`` at every sample, and the chain rule through the fixed Fourier
@@ -45,7 +53,7 @@ import pickle
 import time
 from collections.abc import Callable
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 
 import numpy as np
@@ -54,6 +62,7 @@ from scipy.special import logsumexp, softmax
 from threadpoolctl import threadpool_limits
 
 from ._errors import SpaceidError
+from .noise import Noise, equation_covariance, signal_jacobian, signal_sigma
 from .trajectory import (
     BOUNDARY_FIELDS,
     FourierTrajectory,
@@ -62,7 +71,8 @@ from .trajectory import (
     sample_times,
 )
 
-__all__ = ["Criterion", "CRITERIA", "DesignResult", "design_excitation", "design_for"]
+__all__ = ["Criterion", "CRITERIA", "DesignResult", "design_excitation", "design_for",
+           "whitened_regressor"]
 
 
 # -- criteria ---------------------------------------------------------------------------------
@@ -107,16 +117,20 @@ def _cond_adjoint(Y):
     return pieces, (G[:t, None] - G[None, t:]).reshape(len(pieces), *Y.shape)
 
 
-def _logdet_adjoint(Y):
-    """The piece of :func:`_logdet_pieces` and its gradient ``W (1, n_rows, k)`` w.r.t. ``Y``.
+def _dopt_adjoint(Y):
+    """``-log det(Y^T Y)`` (one piece) and its gradient ``W (1, n_rows, k)`` w.r.t. ``Y``:
+    ``d log det(Y^T Y) = 2 <Y^+T, dY>``, ``Y^+T = U diag(1/s) V^T``."""
+    U, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    return np.array([-2 * np.log(s).sum()]), (-2 * (U / s) @ Vt)[None]
 
-    ``d log det(Yn^T Yn) = 2 <Yn^+T, dYn>``, pulled back through the column normalisation.
-    """
+
+def _logdet_adjoint(Y):
+    """The piece of :func:`_logdet_pieces` and its gradient ``W (1, n_rows, k)`` w.r.t. ``Y``:
+    :func:`_dopt_adjoint` of ``Yn``, pulled back through the column normalisation."""
     norms = np.linalg.norm(Y, axis=-2, keepdims=True)
     Yn = Y / norms
-    U, s, Vt = np.linalg.svd(Yn, full_matrices=False)
-    G = -2 * (U / s) @ Vt
-    return np.array([-2 * np.log(s).sum()]), ((G - Yn * np.sum(G * Yn, axis=-2)) / norms)[None]
+    pieces, G = _dopt_adjoint(Yn)
+    return pieces, (G - Yn * np.sum(G * Yn, axis=-2)) / norms
 
 
 def _cond_smooth(Y, p):
@@ -142,16 +156,48 @@ def _logdet_smooth(Y, p):
     return pieces[0], W[0]
 
 
+def _dopt_pieces(Y, dY=None):
+    """``-log det(Y^T Y)``, one piece: D-optimality for ``Y`` the whitened, pi-scaled
+    regressor (:class:`whitened_regressor`), whose ``Y^T Y`` is the Fisher information."""
+    if dY is None:
+        return -2 * np.log(np.linalg.svd(Y, compute_uv=False)).sum(-1, keepdims=True)
+    log_s, dlog_s = _dlog_sigma(Y, dY)
+    return np.array([-2 * log_s.sum()]), -2 * dlog_s.sum(-1)[None, :]
+
+
 def _logdet_pieces(Y, dY=None):
-    """``-log det(Yn^T Yn)``, ``Yn`` = Y with unit-norm columns (D-optimality); one piece."""
+    """``-log det(Yn^T Yn)``, ``Yn`` = Y with unit-norm columns; one piece. Scale-free: it
+    rewards independent columns, not their size (for that, ``dopt`` on the whitened Y)."""
     norms = np.linalg.norm(Y, axis=-2, keepdims=True)
     Yn = Y / norms
     if dY is None:
-        return -2 * np.log(np.linalg.svd(Yn, compute_uv=False)).sum(-1, keepdims=True)
+        return _dopt_pieces(Yn)
     # d(y / |y|) = dy / |y| - y (y . dy) / |y|^3, column by column
-    dYn = dY / norms - Yn * (np.sum(Yn * dY, axis=-2, keepdims=True) / norms)
-    log_s, dlog_s = _dlog_sigma(Yn, dYn)
-    return np.array([-2 * log_s.sum()]), -2 * dlog_s.sum(-1)[None, :]
+    return _dopt_pieces(Yn, dY / norms - Yn * (np.sum(Yn * dY, axis=-2, keepdims=True) / norms))
+
+
+def _crb_pieces(Y, dY=None):
+    """``log tr((Y^T Y)^-1)``, one piece: A-optimality for ``Y`` the whitened, pi-scaled
+    regressor, whose ``(Y^T Y)^-1`` is the relative Cramer-Rao bound. In log, as SLSQP's
+    tolerance is absolute and the trace spans decades with the noise level.
+
+    ``tr = sum s_i^-2``, so ``d log tr = -2 sum s_i^-2 d log s_i / tr``.
+    """
+    if dY is None:
+        s = np.linalg.svd(Y, compute_uv=False)
+        return np.log(np.sum(s**-2.0, -1, keepdims=True))
+    log_s, dlog_s = _dlog_sigma(Y, dY)
+    w = np.exp(-2 * log_s)
+    return np.array([np.log(w.sum())]), (-2 * dlog_s @ w / w.sum())[None, :]
+
+
+def _crb_adjoint(Y):
+    """The piece of :func:`_crb_pieces` and its gradient ``W (1, n_rows, k)`` w.r.t. ``Y``:
+    ``d tr(G^-1) = -tr(G^-1 dG G^-1) = <-2 Y G^-2, dY>`` for ``G = Y^T Y``, and
+    ``Y G^-2 = U diag(s^-3) V^T``; divided by the trace for the log."""
+    U, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    tr = np.sum(s**-2.0)
+    return np.array([np.log(tr)]), (-2 / tr * (U * s**-3.0) @ Vt)[None]
 
 
 @dataclass(frozen=True)
@@ -177,6 +223,10 @@ class Criterion:
         ``smooth(Y, p)`` returns a smooth surrogate of the objective (the max of the pieces)
         that tends to it as ``p`` grows, and its gradient ``W`` (n_rows, k) with respect to
         ``Y``; for the trust-region search. Default: the log-sum-exp of the pieces.
+    noise_aware : bool
+        The criterion is meant for the whitened, pi-scaled regressor
+        (:class:`whitened_regressor`), whose Gram matrix is the Fisher information:
+        :func:`design_for` then needs a noise model and builds that regressor.
     """
 
     name: str
@@ -184,6 +234,7 @@ class Criterion:
     report: Callable
     adjoint: Callable | None = None
     smooth: Callable | None = None
+    noise_aware: bool = False
 
     def smoothed(self, Y, p):
         """A smooth surrogate of the objective, sharper as ``p`` grows, and its gradient W
@@ -199,8 +250,106 @@ class Criterion:
 CRITERIA = {
     "cond": Criterion("cond", _cond_pieces, np.exp, _cond_adjoint, _cond_smooth),  # lower: better
     "logdet": Criterion("logdet", _logdet_pieces, np.negative, _logdet_adjoint, _logdet_smooth),
+    # on the whitened, pi-scaled regressor: log det of the relative Fisher information (higher:
+    # better) and the trace of the relative Cramer-Rao bound (sum of relative variances)
+    "dopt": Criterion("dopt", _dopt_pieces, np.negative, _dopt_adjoint, noise_aware=True),
+    "crb": Criterion("crb", _crb_pieces, np.exp, _crb_adjoint, noise_aware=True),
 }
-"""Criteria by name. Another one (e.g. the trace of a covariance) is one more entry."""
+"""Criteria by name. Another one is one more entry."""
+
+
+def _criterion(name):
+    """``CRITERIA[name]``, or an error that lists the choices."""
+    if name not in CRITERIA:
+        raise SpaceidError(f"criterion must be one of {', '.join(CRITERIA)}, got {name!r}")
+    return CRITERIA[name]
+
+
+# -- the noise-aware regressor ------------------------------------------------------------------
+
+
+class whitened_regressor:  # noqa: N801 - used like a function; a class so it pickles
+    """Stacked regressor of a joint motion, whitened by the covariance of its equation errors:
+    its Gram matrix is the Fisher information of the errors-in-variables model.
+
+    ``whitened_regressor(param, pi, momentum, noise)(q, qd)`` with ``q, qd`` of shape
+    ``(..., n_samples, n_joints)`` [rad, rad/s] returns ``Yw (..., n_samples * rows, k)``:
+    sample n's rows ``Y_n`` of :class:`~spaceid.simulate.excitation_regressor` (base rate
+    from momentum conservation) times ``L_n^-1``, where ``L_n L_n^T = S_n = J_n diag(sigma^2)
+    J_n^T`` is the first-order covariance of the equation error (:mod:`spaceid.noise`) at
+    ``pi`` and the motion's own base rate. So ``Yw^T Yw = sum_n Y_n^T S_n^-1 Y_n`` is the
+    Fisher information of ``pi`` and its inverse the Cramer-Rao (KCR) bound; with
+    ``relative``, column i is also scaled by ``|pi_i|``, which makes the bound that of
+    ``pi_i / |pi_i|``: relative variances.
+
+    Parameters
+    ----------
+    param : Parameterization
+    pi : array_like of shape (k,)
+        Nominal parameters: where ``S_n`` and the bound are evaluated, and the scale of
+        ``relative``.
+    momentum : array_like of shape (3,)
+        Angular momentum [N m s], taken in base axes at every sample (as excitation_regressor).
+    noise : Noise
+        Standard deviations of the measured signals; not all zero.
+    relative : bool
+        Scale column i by ``|pi_i|`` (then every ``pi_i`` must be nonzero).
+
+    Attributes
+    ----------
+    fd_step : float
+        Step [rad, rad/s] of the design's central differences of this callable (see
+        ``_Problem.jet``). ``S_n`` holds central differences in q of step
+        ``noise.FD_STEP``, whose round-off (about 1e-11 relative) the design's default step
+        of 1e-6 turns into errors of 4e-5 in ``dYw/dq`` and 2e-6 in the gradients of ``crb``
+        and ``dopt`` (cepheus, against 5-point differences of step 1e-3); a step of 1e-4
+        gives 3e-7 and 1e-7 (tests/test_design.py checks it).
+    """
+
+    fd_step = 1e-4
+
+    def __init__(self, param, pi, momentum, noise, *, relative=True):
+        from .simulate import excitation_regressor
+
+        if noise.is_zero:
+            raise SpaceidError(
+                "noise: every standard deviation is zero, so the Fisher information is "
+                "unbounded; give at least one of --noise-angle, --noise-rate, --noise-base-rate"
+            )
+        self.base = excitation_regressor(param, pi, momentum)
+        self.noise, self.sigma = noise, signal_sigma(param, noise)
+        pi = self.base.pi
+        self.scale = np.abs(pi) if relative else np.ones_like(pi)
+        if not np.all(self.scale > 0):
+            zero = ", ".join(n for n, v in zip(param.names, self.scale) if not v > 0)
+            raise SpaceidError(
+                f"relative Cramer-Rao bound: nominal value zero for {zero}; use an absolute "
+                "criterion (cond or logdet) for this model"
+            )
+
+    def __call__(self, q, qd):
+        q, qd = np.asarray(q, float), np.asarray(qd, float)
+        base = self.base
+        Y, w0 = base.with_rate(q, qd)  # (..., n_samples, rows, k), (..., n_samples, 3)
+        nj = q.shape[-1]
+        jac = signal_jacobian(base.param, base.pi, q.reshape(-1, nj), qd.reshape(-1, nj),
+                              w0.reshape(-1, 3), base.momentum)  # fmt: skip
+        S = equation_covariance(jac, self.sigma).reshape(*Y.shape[:-1], Y.shape[-2])
+        try:
+            L = np.linalg.cholesky(S)
+        except np.linalg.LinAlgError:
+            raise SpaceidError(
+                "noise: the equation-error covariance is singular at some sample (the noisy "
+                "signals do not reach every equation); give a nonzero --noise-base-rate"
+            ) from None
+        Yw = np.linalg.solve(L, Y) * self.scale
+        return Yw.reshape(*Yw.shape[:-3], -1, Yw.shape[-1])
+
+    def crb(self, q, qd):
+        """Cramer-Rao bound of ``pi`` (k, k) for the samples ``q, qd (n_samples, n_joints)``:
+        ``(Yw^T Yw)^-1``; of ``pi / |pi|`` (relative) if ``relative``."""
+        Yw = self(q, qd)
+        return np.linalg.inv(Yw.T @ Yw)
 
 
 # -- the problem in scaled variables ------------------------------------------------------------
@@ -223,7 +372,9 @@ class _Problem:
     P: np.ndarray  # (3, n_grid, n_joints)
     L: np.ndarray  # (3, n_joints)
     coarse: np.ndarray  # fine-grid time indices constrained during the search
-    step: float = 1e-6  # central-difference step in q [rad] and qd [rad/s]
+    # central-difference step in q [rad] and qd [rad/s]; a regressor may ask for another one
+    # by an ``fd_step`` attribute (see whitened_regressor)
+    step: float = 1e-6
     # Trust-region search. Surrogate sharpness by stage: p = 2 lifts the whole lower spectrum
     # and makes most of the gain; 8 and 32 close in on the criterion (within 2 log(k) / p).
     stages: tuple = (2.0, 8.0, 32.0)
@@ -575,6 +726,7 @@ def _problem(regressor, criterion, *, duration, harmonics, samples, limits, boun
         P=boundary_quintic(t, duration=duration, boundary=boundary),
         L=limits,
         coarse=np.unique(np.linspace(0, n_grid - 1, n_coarse).round().astype(int)),
+        **({"step": float(regressor.fd_step)} if hasattr(regressor, "fd_step") else {}),
     )
 
 
@@ -655,8 +807,10 @@ class DesignResult:
     criterion : str
         A key of :data:`CRITERIA`.
     value : float
-        Criterion value of ``trajectory``: the condition number for ``cond``, log det for
-        ``logdet``.
+        Criterion value of ``trajectory``: the condition number for ``cond``, log det of
+        ``Yn^T Yn`` for ``logdet``, log det of the relative Fisher information for ``dopt``,
+        the trace of the relative Cramer-Rao bound (sum of the parameters' relative
+        variances) for ``crb``.
     seed : int
         Seed of the start points.
     n_starts : int
@@ -665,6 +819,8 @@ class DesignResult:
         Wall time of the design [s].
     history : tuple of (float, float)
         ``(wall time [s], best value so far)`` at each improvement.
+    noise : Noise or None
+        The noise model of :func:`design_for`, if given.
     """
 
     trajectory: FourierTrajectory
@@ -674,6 +830,7 @@ class DesignResult:
     n_starts: int
     wall_time: float
     history: tuple = field(default=(), repr=False)
+    noise: Noise | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready dictionary."""
@@ -685,6 +842,7 @@ class DesignResult:
             "n_starts": self.n_starts,
             "wall_time": self.wall_time,
             "history": [list(h) for h in self.history],
+            "noise": None if self.noise is None else self.noise.to_dict(),
         }
 
 
@@ -735,9 +893,12 @@ def design_excitation(
         the regressor is stacked.
     q_max, qd_max, qdd_max : float or array_like of shape (n_joints,)
         Limits on |q| [rad], |qd| [rad/s], |qdd| [rad/s^2], held on ``n_grid`` times.
-    criterion : {"cond", "logdet"}
+    criterion : {"cond", "logdet", "dopt", "crb"}
         ``cond``: minimise the 2-norm condition number of the stacked regressor; ``logdet``:
-        maximise log det of ``Yn^T Yn``, ``Yn`` with unit-norm columns (D-optimality).
+        maximise log det of ``Yn^T Yn``, ``Yn`` with unit-norm columns. For a whitened,
+        pi-scaled regressor (:class:`whitened_regressor`; :func:`design_for` builds it):
+        ``dopt`` maximises log det of ``Y^T Y``, the Fisher information (D-optimality);
+        ``crb`` minimises the trace of ``(Y^T Y)^-1``, the Cramer-Rao bound (A-optimality).
     seed : int
         Seed (an integer >= 0) of the random start points. The same seed gives the same
         result, whatever ``n_jobs``, unless ``time_budget`` cuts the search short; a larger
@@ -972,8 +1133,7 @@ def _screened_starts(problem, pool, n_jobs, seed, n_starts, n_screen, z_initial)
 
 
 def _check_options(criterion, duration, time_budget, **integers):
-    if criterion not in CRITERIA:
-        raise SpaceidError(f"criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    _criterion(criterion)
     low = {"harmonics": 1, "samples": 2, "n_starts": 1, "n_grid": 100, "seed": 0, "max_steps": 1,
            "n_screen": 1}
     for name, value in integers.items():
@@ -1065,12 +1225,44 @@ def _check_rank(problem, Z0):
         )
 
 
-def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progress=None, **options):
-    """Optimal exciting trajectory for ``param``'s model (a ``Parameterization``), joint limits
-    from the model, the base rate from momentum ``momentum`` (3,) [N m s].
+def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progress=None,
+               criterion="cond", noise=None, **options):
+    """Optimal exciting trajectory for ``param``'s model, joint limits from the model, the base
+    rate from momentum conservation at the model's nominal parameters.
 
-    Limits missing from the model must be given as ``q_max``, ``qd_max``, ``qdd_max`` options.
+    Parameters
+    ----------
+    param : Parameterization
+    duration, harmonics, samples, seed, progress
+        As for :func:`design_excitation`.
+    momentum : array_like of shape (3,)
+        Angular momentum [N m s].
+    criterion : str
+        A key of :data:`CRITERIA`. ``dopt`` and ``crb`` are searched on the whitened,
+        pi-scaled regressor (:class:`whitened_regressor`) and need ``noise``.
+    noise : Noise, optional
+        Measurement noise. When given (not all zero), the trajectory's ``meta`` also records
+        it and the predicted Cramer-Rao standard deviation of every parameter, absolute
+        (``crb_std``) and relative to its nominal value (``crb_relative_std``, None where
+        that is zero), whatever the criterion.
+    **options
+        ``q_max``, ``qd_max``, ``qdd_max`` override the model's limits (and must be given
+        where it has none); the others go to :func:`design_excitation`.
+
+    Returns
+    -------
+    DesignResult
+        ``noise`` set to ``noise``.
     """
+    crit = _criterion(criterion)
+    if noise is not None and not isinstance(noise, Noise):
+        raise SpaceidError(f"noise must be a spaceid.noise.Noise, got {type(noise).__name__}")
+    if crit.noise_aware and (noise is None or noise.is_zero):
+        raise SpaceidError(
+            f"criterion {criterion!r} minimises the estimation error under measurement noise: "
+            "give --noise-angle, --noise-rate, --noise-base-rate (rad, rad/s; spatial also "
+            "--noise-attitude), or use --criterion cond"
+        )
     model = param.model
     limits = {
         "q_max": np.fmin(np.abs(model.joint_limits("lower")), np.abs(model.joint_limits("upper"))),
@@ -1090,14 +1282,34 @@ def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progres
     options = {k: v for k, v in options.items() if v is not None}
     from .simulate import excitation_regressor
 
-    return design_excitation(
-        excitation_regressor(param, param.true_values, momentum),
+    noisy = noise is not None and not noise.is_zero
+    if crit.noise_aware:
+        regressor = whitened_regressor(param, param.true_values, momentum, noise)
+    else:
+        regressor = excitation_regressor(param, param.true_values, momentum)
+    result = design_excitation(
+        regressor,
         model.joints,
         duration=duration,
         harmonics=harmonics,
         samples=samples,
         seed=seed,
         progress=progress,
+        criterion=criterion,
         **limits,
         **options,
     )
+    if not noisy:
+        return result
+    # the record: absolute bound (defined for zero nominal values too), then relative
+    q, qd, _ = result.trajectory.evaluate(sample_times(duration, samples))
+    bound = whitened_regressor(param, param.true_values, momentum, noise, relative=False)
+    std = np.sqrt(np.diag(bound.crb(q, qd)))
+    pi = np.abs(param.true_values)
+    meta = {
+        **result.trajectory.meta,
+        "noise": noise.to_dict(),
+        "crb_std": dict(zip(param.names, std.tolist())),
+        "crb_relative_std": {n: s / p if p > 0 else None for n, s, p in zip(param.names, std, pi)},
+    }
+    return replace(result, trajectory=replace(result.trajectory, meta=meta), noise=noise)

@@ -74,10 +74,16 @@ class excitation_regressor:  # noqa: N801 - used like a function; a class so it 
         self.param, self.pi, self.momentum = param, np.asarray(pi, float), np.asarray(momentum, float)
 
     def __call__(self, q, qd):
+        y = self.with_rate(q, qd)[0]
+        return y.reshape(y.shape[:-3] + (-1, y.shape[-1]))
+
+    def with_rate(self, q, qd):
+        """Per-sample regressor ``(..., n_samples, rows, k)`` and the base rate it holds,
+        ``w0 (..., n_samples, 3)`` in base axes [rad/s] (for the noise-aware design, which
+        needs the signals the equations are built from)."""
         free, unit, axes = _rate_pieces(self.param, q, qd)
         w0 = _solve_rate(self.param, self.pi, free, unit, axes, self.momentum)
-        y = free + sum(w0[..., i, None, None] * u for i, u in zip(axes, unit))
-        return y.reshape(y.shape[:-3] + (-1, y.shape[-1]))
+        return free + sum(w0[..., i, None, None] * u for i, u in zip(axes, unit)), w0
 
 
 def hermite_motion(t, q, qd):
