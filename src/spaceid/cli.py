@@ -7,6 +7,7 @@ a one-line ``error: ...`` on stderr and exit code 2.
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import sys
 import warnings
@@ -30,6 +31,31 @@ NOISE = [
     click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
 ]
 OUTPUT = click.option("-o", "--output", type=click.Path(path_type=Path), required=True)
+ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols")  # spaceid.estimate.ESTIMATORS, without importing NumPy here
+
+
+def noise_options(f):
+    """Options ``--noise-angle``, ``--noise-rate``, ``--noise-base-rate``, ``--noise-attitude``
+    (standard deviations of the measured signals), handed to the command as one ``noise``
+    argument: a :class:`spaceid.noise.Noise` (unset ones zero), or None when none is given."""
+    names = ("angle", "rate", "base_rate", "attitude")
+
+    @functools.wraps(f)
+    def command(*args, **kwargs):
+        values = {n: kwargs.pop(f"noise_{n}") for n in names}
+        noise = None
+        if any(v is not None for v in values.values()):
+            from .noise import Noise
+
+            noise = Noise(**{n: v or 0.0 for n, v in values.items()})
+        return f(*args, noise=noise, **kwargs)
+
+    return _options(
+        click.option("--noise-angle", type=float, help="Noise std of the joint angles [rad]."),
+        click.option("--noise-rate", type=float, help="Noise std of the joint rates [rad/s]."),
+        click.option("--noise-base-rate", type=float, help="Noise std of the base angular velocity, per axis [rad/s]."),
+        click.option("--noise-attitude", type=float, help="Noise std of the base attitude, per axis [rad] (spatial)."),
+    )(command)
 
 
 def _options(*decorators):
@@ -39,6 +65,24 @@ def _options(*decorators):
         return f
 
     return apply
+
+
+def bag_options(f):
+    """Options ``--joint-topic``, ``--pose-topic``, ``--mapping`` for a log that is a ROS bag,
+    handed to the command as one ``bag`` argument: the keywords of ``read_log(bag_options=...)``."""
+
+    @functools.wraps(f)
+    def command(*args, **kwargs):
+        return f(*args, bag={k: kwargs.pop(k) for k in ("joint_topic", "pose_topic", "mapping")}, **kwargs)
+
+    return _options(
+        click.option("--joint-topic", help="Bag logs (.bag, .mcap, ROS 2 bag folder): sensor_msgs/JointState topic "
+                     "[default: /joint_states]."),
+        click.option("--pose-topic", help="Bag logs: geometry_msgs/PoseStamped topic of the base "
+                     "[default: /vrpn_client_node/cepheus/pose]."),
+        click.option("--mapping", type=click.Path(path_type=Path), help="Bag logs: YAML file with joint_topic, "
+                     "pose_topic, joints {bag name: model name}, rate, pose_latency, max_gap, max_tilt."),
+    )(command)
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -64,10 +108,13 @@ def _param(model_src, planar):
     return minimal_parameters(load_model(model_src, planar=planar))
 
 
-def _momentum(value, planar):
+def _momentum(value, planar, *, allow_unknown=False):
     from .estimate import parse_momentum
 
-    return parse_momentum(value, planar=planar)
+    h = parse_momentum(value, planar=planar)
+    if h is None and not allow_unknown:
+        raise SpaceidError("--momentum unknown: only 'spaceid identify' estimates the momentum; give its value here")
+    return h
 
 
 @app.command(short_help="Identifiability report: bodies, joints, standard and minimal parameters.")
@@ -122,7 +169,7 @@ def model(model_src, planar, as_json):
         out.print(f"{label}: {', '.join(ident[key]) or 'none'}", highlight=False)
 
 
-@app.command(short_help="Optimal exciting trajectory minimising cond(Y) under joint limits.")
+@app.command(short_help="Optimal exciting trajectory (min cond(Y) or predicted error) under joint limits.")
 @MODEL
 @PLANAR
 @click.option("--duration", type=float, required=True, help="Trajectory duration tf [s].")
@@ -130,8 +177,10 @@ def model(model_src, planar, as_json):
 @click.option("--samples", type=int, required=True, help="Samples N, equally spaced over [0, tf].")
 @MOMENTUM
 @SEED
-@click.option("--criterion", type=click.Choice(["cond", "logdet"]), default="cond", show_default=True,
-              help="cond (condition number) or logdet (D-optimal).")
+@click.option("--criterion", type=click.Choice(["cond", "logdet", "dopt", "crb"]), default="cond", show_default=True,
+              help="cond (condition number), logdet (scaled columns), or with the --noise-* options: dopt (max "
+              "log det of the Fisher information), crb (min trace of the relative Cramer-Rao bound).")
+@noise_options
 @click.option("--q-max", type=float, help="|q| limit [rad] (default: model limits).")
 @click.option("--qd-max", type=float, help="|qd| limit [rad/s] (default: model limits).")
 @click.option("--qdd-max", type=float, help="|qdd| limit [rad/s^2] (default: model limits).")
@@ -139,8 +188,10 @@ def model(model_src, planar, as_json):
 @click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
               "depends on the machine's speed).")
 @OUTPUT
-def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, q_max, qd_max, qdd_max, starts, time_budget, output):
-    """Optimal exciting trajectory (Eq. 12) minimising the regressor's condition number."""
+def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max, starts, time_budget, output):
+    """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
+    the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
+    standard deviations are recorded in the trajectory."""
     from .design import design_for
 
     param = _param(model_src, planar)
@@ -148,9 +199,13 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     with _progress("designing") as progress:
         res = design_for(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
-                         n_starts=starts, time_budget=time_budget)
+                         noise=noise, n_starts=starts, time_budget=time_budget)
     res.trajectory.save(output)
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {output}")
+    rel = {k: v for k, v in res.trajectory.meta.get("crb_relative_std", {}).items() if v is not None}
+    if rel:
+        worst = max(rel, key=rel.get)
+        err.print(f"predicted CRB: worst relative std {100 * rel[worst]:.3g} % ({worst})", highlight=False)
 
 
 @app.command(short_help="Free-floating motion for a prescribed joint motion, as a log CSV.")
@@ -185,38 +240,78 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     err.print(f"{log.n_samples} samples written to {output} (momentum error {log.meta['momentum_rel_error']:.1e} relative)")
 
 
-@app.command(short_help="Least-squares estimate of the minimal parameters from a log.")
+@app.command(short_help="Estimate the minimal parameters from a log.")
 @MODEL
-@click.argument("log_path", metavar="LOG.csv", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @PLANAR
-@MOMENTUM
+@click.option("--momentum", required=True, help="Angular momentum of the whole system [N m s]: h (planar) or "
+              "hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to estimate it (both need an anchor).")
+@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True,
+              help="ml: maximum likelihood (errors in variables); wls, iv, tls, ols: see the documentation.")
+@click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
+              "parameter one equals alone, e.g. Izz_wheel=0.00197): anchors the scale; repeatable.")
+@click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (YAML from 'spaceid "
+              "design') for --estimator iv; default: measured joints with the predicted base rate.")
+@noise_options
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
 @click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
+@bag_options
 @OUTPUT
-def identify(model_src, log_path, planar, momentum, differentiate, quantum, output):
-    """Least-squares identification of the minimal parameters (Eq. 11)."""
+def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
+             output, bag):
+    """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
+
+    Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
+    inertia) move their spin momentum to the right-hand side.
+    """
     from .estimate import identify as run
+    from .estimate import parse_known
     from .io import read_log, write_json
     from .report import parameter_table
 
     param = _param(model_src, planar)
-    h = _momentum(momentum, param.model.planar)
+    h = _momentum(momentum, param.model.planar, allow_unknown=True)
     log = read_log(log_path, joints=param.model.joints, planar=param.model.planar, wheels=param.model.wheels,
-                   require_rates=False)
+                   require_rates=False, bag_options=dict(bag, quantum=quantum,
+                                                         joint_rates="differentiate" if differentiate else None))
     missing = log.meta.get("missing_rates", [])
     if missing and not differentiate and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
         raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
                            "--differentiate to compute every rate from the angles")
-    if differentiate or missing:  # an angles-only log: rates from the angles
+    if (differentiate or missing) and "differentiation" not in log.meta:  # angles only (bags come differentiated)
         from .signals import differentiate_log
 
         log = differentiate_log(log, quantum=quantum)
-    ident = run(param, log, h, where=str(log_path))
+    reference = None
+    if instruments is not None:
+        if estimator != "iv":
+            raise SpaceidError("--instruments is for --estimator iv")
+        from .trajectory import load_trajectory
+
+        traj = load_trajectory(instruments)
+        if tuple(traj.joints) != tuple(param.model.joints):
+            raise SpaceidError(f"{instruments}: joints {list(traj.joints)} differ from the model's "
+                               f"{list(param.model.joints)}: give the trajectory that was commanded on this model")
+        reference = traj.evaluate(log.t - log.t[0])[:2]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        ident = run(param, log, h, estimator=estimator, known=parse_known(known), noise=noise, instruments=reference,
+                    where=str(log_path))
+    for w in caught:
+        err.print(f"warning: {w.message}")
     write_json(output, ident.to_dict())
     out.print(parameter_table(ident))
-    out.print(f"cond(Y) = {ident.condition_number:.4g}, residual RMS = {ident.residual_rms:.3g} N m s, "
-              f"{ident.n_samples} samples; result written to {output}")
+    s = ident.settings
+    for a in s["anchors"]:
+        out.print(f"anchor: {a['name']} = {a['definition']} = {a['value']:.6g} ({a['source']})")
+    if s["momentum_estimated"]:
+        axes = [2] if ident.planar else [0, 1, 2]
+        out.print("momentum (estimated): " + ", ".join(
+            f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {s['momentum_std'][i]:.2g}" for i in axes) + " N m s")
+    out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
+              f"N m s; chi2/dof = {s['chi2_dof']:.3g} (noise {s['noise']['source']}); {ident.n_samples} samples; "
+              f"result written to {output}")
 
 
 @app.command(short_help="Base motion of an identified model for a joint motion.")
@@ -252,10 +347,11 @@ def predict(result, traj_csv, momentum, initial_yaw, initial_quat, output):
 
 @app.command(short_help="Re-simulate an identified model against a log: metrics and plots.")
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
-@click.argument("log_path", metavar="LOG.csv", type=click.Path(path_type=Path))
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @MOMENTUM
+@bag_options
 @OUTPUT
-def validate(result, log_path, momentum, output):
+def validate(result, log_path, momentum, output, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     from . import report
     from .io import read_log, write_json, write_log
@@ -263,7 +359,10 @@ def validate(result, log_path, momentum, output):
 
     ident = _read_result(result)
     h = _momentum(momentum, ident.planar)
-    log = read_log(log_path, joints=_model_joints(ident), planar=ident.planar)
+    from .model import load_model
+
+    model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
+    log = read_log(log_path, joints=model.joints, planar=ident.planar, wheels=model.wheels, bag_options=bag)
     predicted, metrics = run(ident, log, momentum=h, where=str(result))
     output.mkdir(parents=True, exist_ok=True)
     write_log(output / "predicted.csv", predicted)
@@ -321,6 +420,57 @@ def compare(before, after, as_json, show_all):
     for p in rows:
         table.add_row(p["name"], f"{p['before']:.6g}", f"{p['after']:.6g}", f"{100 * p['relative_change']:.3g}", f"{p['z']:.3g}")
     out.print(table)
+
+
+@app.command(short_help="Monte Carlo study of the estimators: bias, RMSE, RMSE / Cramer-Rao bound.")
+@MODEL
+@PLANAR
+@click.option("--trajectory", default="paper-table2", show_default=True, help="File from 'design', a named "
+              "trajectory (paper-table2), or 'designed' (designed now: --duration, --samples, --harmonics, "
+              "--criterion, --seed).")
+@click.option("--duration", type=float, help="Sampled span [s] (default: the trajectory's; required for 'designed').")
+@click.option("--samples", type=int, default=35, show_default=True, help="N samples equally spaced over the duration "
+              "(501 over 5 s is 100 Hz, e.g. for --angles-only).")
+@click.option("--harmonics", type=int, default=3, show_default=True,
+              help="Fourier harmonics of a 'designed' trajectory.")
+@click.option("--criterion", default="cond", show_default=True, help="Design criterion of a 'designed' trajectory "
+              "(cond, logdet, dopt, crb; see 'spaceid design').")
+@MOMENTUM
+@click.option("--runs", type=int, default=200, show_default=True, help="Noise draws.")
+@click.option("--estimator", "estimators", multiple=True, help="Estimator to study, repeatable: ml, wls, iv, tls, "
+              "ols [default: ml and ols].")
+@noise_options
+@click.option("--angles-only", is_flag=True, help="Noise on joint angles and base attitude only, rates differentiated "
+              "from them (Savitzky-Golay, automatic window).")
+@SEED
+@click.option("--jobs", type=int, help="Worker processes [default: all cores].")
+@click.option("--out", "folder", type=click.Path(path_type=Path), help="Folder for table.txt, montecarlo.json and "
+              "montecarlo.png.")
+def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
+               noise, angles_only, seed, jobs, folder):
+    """Monte Carlo study: simulate once, identify under fresh noise RUNS times, and report per
+    estimator and parameter the bias, RMSE, predicted vs actual spread and RMSE / CRB. Noise
+    levels default to 1e-4 (rad, rad/s) on every signal when no --noise-* option is given
+    (otherwise the ones not given are zero)."""
+    from .montecarlo import DEFAULT_NOISE, run_montecarlo, write_montecarlo
+    from .report import montecarlo_table
+
+    param = _param(model_src, planar)
+    h = _momentum(momentum, param.model.planar)
+    with _progress("designing, then runs" if trajectory == "designed" else "runs") as progress:
+        res = run_montecarlo(param, trajectory, momentum=h, noise=noise or DEFAULT_NOISE, duration=duration,
+                             samples=samples, runs=runs, estimators=estimators or ("ml", "ols"), seed=seed, jobs=jobs,
+                             progress=progress, angles_only=angles_only,
+                             design={"harmonics": harmonics, "criterion": criterion})
+    out.print(montecarlo_table(res))
+    for e in res.estimators:
+        w = res.summary(e)
+        out.print(f"{e.upper()}, worst over parameters: RMSE {100 * w['relative_rmse']:.3g} %, RMSE/CRB{'*' * angles_only} "
+                  f"{w['rmse_crb']:.2f}, |bias|/std {w['abs_bias_std']:.2f}; {w['runs_ok']}/{res.runs} runs",
+                  highlight=False)
+    if folder is not None:
+        write_montecarlo(res, folder)
+        err.print(f"table, JSON and figure written to {folder}/ ({res.settings['wall_time_s']:.1f} s)")
 
 
 def _read_result(path):

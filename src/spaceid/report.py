@@ -34,6 +34,8 @@ __all__ = [
     "plot_trajectory",
     "parameter_table",
     "write_markdown_report",
+    "plot_montecarlo",
+    "montecarlo_table",
 ]
 
 DPI = 150
@@ -322,6 +324,89 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None) -
     return Path(path)
 
 
+# one colour per estimator in the Monte Carlo figures (the ML estimate takes the model's colour)
+_ESTIMATOR_COLOURS = {"ml": _MODEL, "wls": "tab:blue", "iv": "tab:purple", "tls": "tab:brown", "ols": "0.45"}
+
+
+def plot_montecarlo(result, path, *, max_panels: int = 12) -> Path:
+    """Monte Carlo errors: per parameter the relative errors of each estimator (box plots) in
+    the Cramer-Rao band, and RMSE / CRB of every parameter and estimator (bars).
+
+    Parameters
+    ----------
+    result : spaceid.montecarlo.MonteCarloResult
+    path : path-like
+        Output PNG.
+    max_panels : int
+        Parameters with a box-plot panel at most; beyond, those with the largest relative RMSE
+        of the first estimator (the bars show all).
+
+    Returns
+    -------
+    Path
+    """
+    names, true, ests = result.names, np.asarray(result.true, float), result.estimators
+    k = len(names)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(true != 0, np.abs(true), np.nan) / 100  # errors in percent of |true|
+        band = 2 * result.crb_std / scale
+    shown = np.arange(k)
+    if k > max_panels:
+        worst = np.nan_to_num(result.stats[ests[0]]["relative_rmse"], nan=-1.0)
+        shown = np.sort(np.argsort(-worst, kind="stable")[:max_panels])
+    ncols = min(4, len(shown))
+    nrows = -(-len(shown) // ncols)
+    mosaic = [[f"p{r * ncols + c}" if r * ncols + c < len(shown) else "." for c in range(ncols)] for r in range(nrows)]
+    mosaic.append(["bars"] * ncols)
+    colours = [_ESTIMATOR_COLOURS.get(e, _MEASURED) for e in ests]
+    crb_label = "white-noise-equivalent CRB" if result.settings.get("angles_only") else "CRB"
+    with _figure(path, (max(2.1 * ncols + 0.6, 0.5 * k + 2.5), 1.9 * nrows + 2.9)) as fig:
+        axes = fig.subplot_mosaic(mosaic, height_ratios=[1] * nrows + [1.25])
+        for p, i in enumerate(shown):
+            ax = axes[f"p{p}"]
+            data = [(result.estimates[e][:, i] - true[i]) / scale[i] for e in ests]
+            data = [d[np.isfinite(d)] for d in data]
+            if np.isfinite(band[i]):
+                ax.axhspan(-band[i], band[i], color=_TRUE, alpha=0.15, linewidth=0, label=rf"{crb_label} $\pm 2\sigma$")
+            ax.axhline(0, color=_REF, linewidth=0.8)
+            boxes = ax.boxplot(data, widths=0.6, patch_artist=True, flierprops={"markersize": 2, "alpha": 0.5},
+                               medianprops={"color": "black", "linewidth": 1.0})
+            for patch, colour in zip(boxes["boxes"], colours):
+                patch.set(facecolor=colour, alpha=0.45, edgecolor=colour)
+            ax.set_xticks(np.arange(1, len(ests) + 1), [e.upper() for e in ests])
+            ax.set_title(_tex_name(names[i]), loc="left")
+            if p % ncols == 0:
+                ax.set_ylabel("rel. error [%]")
+        ax = axes["bars"]
+        x = np.arange(k)
+        width = 0.8 / len(ests)
+        ratios = []
+        for j, (e, colour) in enumerate(zip(ests, colours)):
+            ratio = result.stats[e]["rmse_crb"]
+            ax.bar(x + (j - (len(ests) - 1) / 2) * width, ratio, width, color=colour, alpha=0.8, label=e.upper())
+            ratios.append(ratio)
+        ax.axhline(1.0, color=_MEASURED, linewidth=0.8)
+        ax.axhline(1.2, color=_LIMIT, linestyle=":", linewidth=1.2, label="1.2 (target)")
+        ratios = np.concatenate(ratios)
+        ratios = ratios[np.isfinite(ratios) & (ratios > 0)]
+        if ratios.size and ratios.max() > 10:
+            ax.set_yscale("log")  # a badly biased estimator would flatten the others
+        else:
+            ax.set_ylim(0, 1.35 * max(1.2, ratios.max() if ratios.size else 1.2))  # room for the legend
+        ax.set_xticks(x, [_tex_name(n) for n in names])
+        ax.set_ylabel(f"RMSE / {crb_label}")
+        ax.legend(loc="upper left", ncols=len(ests) + 1)
+        handles, labels = axes["p0"].get_legend_handles_labels()
+        if handles:
+            fig.legend(handles, labels, loc="outside upper right")
+        s = result.settings
+        fig.suptitle(f"Monte Carlo: {s['runs']} runs, N = {s['n_samples']}, seed {s['seed']}"
+                     + (", angles only" if s.get("angles_only") else "")
+                     + (f" ({len(shown)} of {k} parameters in boxes)" if len(shown) < k else "")
+                     + "; boxes: quartiles, whiskers 1.5 IQR", x=0.02, ha="left")
+    return Path(path)
+
+
 # --- tables and the Markdown report ------------------------------------------------------------
 
 
@@ -383,6 +468,45 @@ def parameter_table(ident: Identification, *, true=None, reference=None, referen
     for name, definition in zip(ident.names, ident.definitions):
         definitions.add_row(f"{name} =", definition)
     return Group(table, definitions)
+
+
+def montecarlo_table(result) -> Table:
+    """Monte Carlo statistics as a rich table, one section per estimator.
+
+    Columns per parameter: bias / std, relative RMSE [%], the relative Cramer-Rao std [%],
+    mean predicted std / actual std (1: honest standard errors) and RMSE / CRB (1: efficient).
+
+    Parameters
+    ----------
+    result : spaceid.montecarlo.MonteCarloResult
+    """
+    s = result.settings
+    noise = s["noise"]
+    table = Table(
+        title=f"Monte Carlo: {s['runs']} runs, N = {s['n_samples']}, seed {s['seed']}"
+        + (", angles only (rates differentiated)" if s.get("angles_only") else ""),
+        caption=(f"noise: angle {noise['angle']:.3g} rad, attitude {noise['attitude']:.3g} rad; CRB*: white-noise "
+                 "equivalent of the differentiated rates, not a bound" if s.get("angles_only") else
+                 f"noise: angle {noise['angle']:.3g} rad, rate {noise['rate']:.3g} rad/s, base rate "
+                 f"{noise['base_rate']:.3g} rad/s"
+                 + ("" if s.get("planar") else f", attitude {noise['attitude']:.3g} rad"))
+        + (f"; {s['failures']['count']} failed identifications" if s["failures"]["count"] else ""),
+    )
+    crb = "CRB*" if s.get("angles_only") else "CRB"
+    for name in ("", "", "bias/std", "RMSE [%]", f"{crb} [%]", "pred/act std", f"RMSE/{crb}"):
+        table.add_column(name, justify="left" if not name else "right", no_wrap=True)
+    fmt = lambda v, spec: "-" if not np.isfinite(v) else format(v, spec)  # noqa: E731
+    for e in result.estimators:
+        st = result.stats[e]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel_crb = np.where(st["true"] != 0, st["crb_std"] / np.abs(st["true"]), np.nan)
+            honest = st["predicted_std"] / st["std"]
+        for i, name in enumerate(result.names):
+            table.add_row(e.upper() if i == 0 else "", name, fmt(st["bias_std"][i], "+.2f"),
+                          fmt(100 * st["relative_rmse"][i], ".3g"), fmt(100 * rel_crb[i], ".3g"),
+                          fmt(honest[i], ".2f"), fmt(st["rmse_crb"][i], ".2f"),
+                          end_section=i == len(result.names) - 1)  # fmt: skip
+    return table
 
 
 def _md(text) -> str:

@@ -1,0 +1,663 @@
+"""Monte Carlo studies of the estimators: bias, spread and efficiency against the Cramer-Rao bound.
+
+A study simulates the noise-free motion once (:func:`spaceid.simulate.simulate`), computes the
+Cramer-Rao bound of the errors-in-variables model for it (:func:`spaceid.estimate.cramer_rao`),
+then repeats runs: fresh measurement noise, identification with every requested estimator,
+estimates and predicted standard errors kept. Per estimator and parameter it reports the
+bias, standard deviation and RMSE over the runs, the mean predicted standard error, and RMSE /
+CRB: how far the estimator is from the best any unbiased one can do.
+
+Noise. Each run draws white Gaussian noise of the levels of a :class:`spaceid.noise.Noise`:
+``angle`` on the joint angles, ``rate`` on the joint rates, ``base_rate`` on the base angular
+velocity and ``attitude`` on the base attitude, by two :func:`spaceid.simulate.add_noise` draws
+(joint signals from the first, base signals from the second, so that the four levels are
+independent). The estimators get the true levels (``noise=``), as in a study where the sensors
+are characterised.
+
+Angles only (``angles_only=True``). Noise goes on the joint angles and the base attitude only;
+the rates are then differentiated from them (:func:`spaceid.signals.differentiate_log`,
+automatic bandwidth unless ``differentiate=`` fixes it), as on hardware with encoders and motion
+capture. The estimators then get the noise model of the differentiated signals
+(:func:`differentiated_noise`): the differentiator's own noise estimate of each channel,
+propagated through its filter weights (the RMS over samples of the white-noise equivalent of
+the smoothed angles and of the rates). This is the level of the per-sample errors, but they are
+correlated over the differentiator's window (and the windows trade noise for bias), which the
+estimators' white-noise model ignores: predicted standard errors are then optimistic. The
+"CRB" reported in that mode is the bound of that white-noise equivalent (levels RMS over the
+runs), a yardstick rather than a bound.
+
+Seeds. Run ``i`` draws its noise from ``np.random.SeedSequence(seed).spawn(runs)[i]``
+(two 32-bit states, one per :func:`~spaceid.simulate.add_noise` draw), so each run's noise
+depends on ``(seed, i)`` alone: the numbers do not depend on ``jobs`` or on the order in which
+runs finish. The root seed is recorded.
+
+Parallelism. Chunks of runs go to a :class:`concurrent.futures.ProcessPoolExecutor`, each
+worker limited to one BLAS thread (``threadpoolctl``; the small factorisations gain nothing
+from more, and threads spinning on busy cores slow every process down); ``jobs=1`` runs in the
+calling process, with the same single-thread limit, so that its numbers equal the parallel
+ones exactly.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+import warnings
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+from ._errors import SpaceidError
+from .estimate import ESTIMATORS, cramer_rao, identify
+from .noise import Noise
+from .regressor import Parameterization
+from .signals import _local_fits, differentiate, differentiate_log
+from .simulate import add_noise, simulate
+from .timeseries import Log
+from .trajectory import FourierTrajectory, load_trajectory, sample_times
+
+__all__ = [
+    "DEFAULT_NOISE", "STATISTICS", "MonteCarloResult", "run_montecarlo", "differentiated_noise",
+    "write_montecarlo",
+]  # fmt: skip
+
+DEFAULT_NOISE = Noise(1e-4, 1e-4, 1e-4, 1e-4, source="default: issue 4 targets (1e-4 rad, rad/s)")
+"""Noise of the issue's targets: 1e-4 rad on angles and attitude, 1e-4 rad/s on rates."""
+
+STATISTICS = (
+    "true", "mean", "bias", "std", "rmse", "relative_rmse", "predicted_std", "crb_std", "rmse_crb", "bias_std",
+)  # fmt: skip
+"""Per-parameter statistics of :attr:`MonteCarloResult.stats`, each an array of shape (k,):
+true value, mean estimate, bias = mean - true, sample std (ddof 1), RMSE about the truth,
+RMSE / |true|, mean predicted standard error, Cramer-Rao std, RMSE / CRB std, bias / std."""
+
+_MAX_CHUNK = 25  # runs per task at most: progress updates and load balance
+_GAIN_ROWS = 1 << 20  # filter-weight elements (rows x window x coefficients) built at a time
+_WHERE = "montecarlo"
+
+
+@dataclass(frozen=True)
+class MonteCarloResult:
+    """Outcome of :func:`run_montecarlo`.
+
+    Attributes
+    ----------
+    names, definitions : tuple of str
+        The k minimal parameters.
+    true : ndarray of shape (k,)
+        True values.
+    estimators : tuple of str
+    estimates : dict of str to ndarray of shape (runs, k)
+        Estimates of every run per estimator; NaN where the run failed.
+    predicted_std : dict of str to ndarray of shape (runs, k)
+        Standard errors each run's identification predicted; NaN where it failed.
+    crb_cov : ndarray of shape (k, k)
+        Cramer-Rao bound of the noise-free motion and the noise model.
+    crb_std : ndarray of shape (k,)
+    stats : dict of str to dict of str to ndarray of shape (k,)
+        ``stats[estimator][statistic]``, the statistics of :data:`STATISTICS` over the runs
+        that succeeded.
+    failures : tuple of dict
+        ``{"run", "estimator", "reason"}`` of every run that raised (a ``SpaceidError`` or a
+        singular linear system).
+    warnings : tuple of dict
+        ``{"run", "estimator", "warning"}`` (e.g. maximum likelihood did not converge).
+    settings : dict
+        Everything needed to reproduce the study: model, trajectory, times, momentum, noise
+        and the model given to the estimators, runs, root seed and how run seeds derive from
+        it, estimators, differentiation, wall time.
+    """
+
+    names: tuple
+    definitions: tuple
+    true: np.ndarray
+    estimators: tuple
+    estimates: dict
+    predicted_std: dict
+    crb_cov: np.ndarray
+    crb_std: np.ndarray
+    stats: dict
+    failures: tuple = ()
+    warnings: tuple = ()
+    settings: dict = field(default_factory=dict)
+
+    @property
+    def runs(self) -> int:
+        return int(self.settings["runs"])
+
+    def summary(self, estimator: str) -> dict:
+        """Worst cases over the parameters: ``relative_rmse``, ``rmse_crb``, ``abs_bias_std``
+        (max over parameters; NaN entries ignored) and ``runs_ok``."""
+        s = self.stats[estimator]
+        worst = lambda x: float(np.nanmax(x)) if np.any(np.isfinite(x)) else float("nan")  # noqa: E731
+        ok = int(np.all(np.isfinite(self.estimates[estimator]), axis=1).sum())
+        return {"relative_rmse": worst(s["relative_rmse"]), "rmse_crb": worst(s["rmse_crb"]),
+                "abs_bias_std": worst(np.abs(s["bias_std"])), "runs_ok": ok}  # fmt: skip
+
+    def to_dict(self) -> dict:
+        """JSON-ready: settings, parameters with their CRB, per estimator the statistics and
+        worst cases, failures, warnings, and the estimates and predicted standard errors of
+        every run."""
+        return {
+            "settings": self.settings,
+            "parameters": [
+                {"name": n, "definition": d, "true": float(t), "crb_std": float(c)}
+                for n, d, t, c in zip(self.names, self.definitions, self.true, self.crb_std)
+            ],
+            "crb_covariance": self.crb_cov.tolist(),
+            "estimators": {
+                e: {
+                    "worst": self.summary(e),
+                    "parameters": [
+                        {"name": n, **{s: float(self.stats[e][s][i]) for s in STATISTICS}}
+                        for i, n in enumerate(self.names)
+                    ],
+                }
+                for e in self.estimators
+            },
+            "failures": list(self.failures),
+            "warnings": list(self.warnings),
+            "runs": {e: {"estimates": self.estimates[e].tolist(), "predicted_std": self.predicted_std[e].tolist()}
+                     for e in self.estimators},  # fmt: skip
+        }
+
+
+# --- the noise model of differentiated signals ---------------------------------------------------
+
+
+_GAINS: dict = {}  # (stamps digest, method, setting) -> per-sample (smoothing, derivative) gains
+
+
+def _filter_gains(t, method: str, window, order, smoothing):
+    """Noise gains of one channel's differentiator at every sample: the norms of its smoothing
+    and derivative weights, ``|s_i|`` [-] and ``|d_i|`` [1/s], each of shape ``(n,)``.
+
+    Savitzky-Golay weights are the rows of the local fits' pseudo-inverses; the spline's (a
+    linear smoother for a fixed penalty) are its responses to unit impulses.
+    """
+    key = (hash(t.tobytes()), t.size, method, window, order, smoothing)
+    if key in _GAINS:
+        return _GAINS[key]
+    n = t.size
+    if method == "savgol":
+        smooth, rate = np.empty(n), np.empty(n)
+        step = max(1, _GAIN_ROWS // (window * (order + 1)))
+        for first in range(0, n, step):
+            rows = np.arange(first, min(first + step, n))
+            _, _, pinv, scale = _local_fits(t, rows, window, order)
+            smooth[rows] = np.linalg.norm(pinv[:, 0], axis=-1)
+            rate[rows] = np.linalg.norm(pinv[:, 1], axis=-1) / scale
+    else:
+        values, rates, _ = differentiate(t, np.eye(n), method="spline", smoothing=smoothing)
+        smooth, rate = np.linalg.norm(values, axis=1), np.linalg.norm(rates, axis=1)
+    if len(_GAINS) > 64:
+        _GAINS.clear()
+    _GAINS[key] = (smooth, rate)
+    return smooth, rate
+
+
+def _channel_levels(t, info, channels):
+    """White-noise equivalents ``(smoothed, derivative)`` of ``channels`` of a
+    :func:`spaceid.signals.differentiate` record: the channel's noise times the RMS over
+    samples of its gains, pooled over the channels by RMS."""
+    levels = []
+    for c in channels:
+        window = info["window"][c] if info["window"] else None
+        order = info["order"][c] if info["order"] else None
+        smoothing = info["smoothing"][c] if info["smoothing"] else None
+        smooth, rate = _filter_gains(t, info["method"], window, order, smoothing)
+        sigma = info["noise"][c]
+        levels.append((sigma * np.sqrt(np.mean(smooth**2)), sigma * np.sqrt(np.mean(rate**2))))
+    levels = np.asarray(levels)
+    return tuple(np.sqrt(np.mean(levels**2, axis=0)))
+
+
+def differentiated_noise(log: Log) -> Noise:
+    """Noise levels of a log whose rates were differentiated from its angles.
+
+    Each channel's noise, as the differentiator estimated it (``info["noise"]``), is propagated
+    through its filter: a linear smoother with weights ``s_i`` and derivative weights ``d_i``
+    at sample i turns white noise ``sigma`` into errors of std ``sigma |s_i|`` on the smoothed
+    angle and ``sigma |d_i|`` on the rate. The RMS over samples and channels gives the scalar
+    levels of :class:`~spaceid.noise.Noise`. Base: the yaw for planar logs; for spatial ones
+    the quaternion's vector part, whose noise is half the rotation's (so levels double).
+
+    These are per-sample levels: the errors are correlated over the window (and the
+    differentiator's bias is not counted), which a white-noise model cannot express.
+
+    Parameters
+    ----------
+    log : Log
+        Output of :func:`spaceid.signals.differentiate_log` (``meta["differentiation"]``).
+
+    Returns
+    -------
+    Noise
+        ``angle`` [rad], ``rate`` [rad/s], ``base_rate`` [rad/s], ``attitude`` [rad].
+
+    Raises
+    ------
+    SpaceidError
+        The log was not differentiated.
+    """
+    record = log.meta.get("differentiation")
+    if not record:
+        raise SpaceidError("differentiated_noise: the log's rates were not differentiated (no "
+                           "meta['differentiation']): use spaceid.signals.differentiate_log first")
+    t = np.asarray(log.t, float)
+    joints = record["joints"]
+    angle, rate = _channel_levels(t, joints, range(len(joints["noise"])))
+    base = record["base"]
+    planar = base.get("planar", log.planar)
+    att, base_rate = _channel_levels(t, base, [0] if planar else [1, 2, 3])
+    factor = 1.0 if planar else 2.0
+    return Noise(float(angle), float(rate), float(factor * base_rate), float(factor * att),
+                 source="differentiator: its noise estimate propagated through its filter weights (per-sample, "
+                        "white-noise equivalent)")  # fmt: skip
+
+
+# --- one chunk of runs --------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class _Study:
+    """What every run needs; sent once to each worker process."""
+
+    param: Parameterization
+    clean: Log
+    momentum: np.ndarray
+    noise: Noise
+    estimators: tuple
+    angles_only: bool
+    differentiate: dict
+
+    def measure(self, state) -> Log:
+        """The clean log with run noise: joint signals from the first state, base signals from
+        the second (rates none when angles only)."""
+        n = self.noise
+        rate, base_rate = (0.0, 0.0) if self.angles_only else (n.rate, n.base_rate)
+        joints = add_noise(self.clean, angle=n.angle, rate=rate, seed=int(state[0]))
+        base = add_noise(self.clean, angle=n.attitude, rate=base_rate, seed=int(state[1]))
+        meta = dict(joints.meta, noise_seed_base=int(state[1]), noise_attitude=n.attitude, noise_base_rate=base_rate)
+        return replace(joints, base_quat=base.base_quat, base_w=base.base_w, meta=meta)
+
+    def chunk(self, first: int, states) -> dict:
+        """Runs ``first, first + 1, ...`` with noise states ``states (m, 2)``."""
+        k, m = self.param.n_params, len(states)
+        out = {
+            "first": first,
+            "estimates": {e: np.full((m, k), np.nan) for e in self.estimators},
+            "std": {e: np.full((m, k), np.nan) for e in self.estimators},
+            "failures": [], "warnings": [], "noise": [], "differentiation": [],
+        }  # fmt: skip
+        instruments = (self.clean.q, self.clean.qd)
+        for j, state in enumerate(states):
+            run = first + j
+            log, noise = self.measure(state), self.noise
+            if self.angles_only:
+                try:
+                    log = differentiate_log(log, **self.differentiate)
+                except SpaceidError as exc:
+                    out["failures"] += [{"run": run, "estimator": e, "reason": f"differentiation: {exc}"}
+                                        for e in self.estimators]  # fmt: skip
+                    continue
+                noise = differentiated_noise(log)
+                out["noise"].append(noise)
+                record = log.meta["differentiation"]
+                keys = ("method", "window", "order", "smoothing")
+                out["differentiation"].append({part: {key: record[part][key] for key in keys if record[part][key] is not None}
+                                               for part in ("joints", "base")})  # fmt: skip
+            for e in self.estimators:
+                with warnings.catch_warnings(record=True) as caught:
+                    warnings.simplefilter("always")
+                    try:
+                        res = identify(self.param, log, self.momentum, estimator=e, noise=noise, where=_WHERE,
+                                       instruments=instruments if e == "iv" else None)  # fmt: skip
+                    except (SpaceidError, np.linalg.LinAlgError) as exc:
+                        out["failures"].append({"run": run, "estimator": e, "reason": f"{type(exc).__name__}: {exc}"})
+                        continue
+                out["estimates"][e][j], out["std"][e][j] = res.values, res.std
+                out["warnings"] += [{"run": run, "estimator": e, "warning": str(w.message)} for w in caught]
+        return out
+
+
+_WORKER_STUDY = None
+
+
+def _init_worker(study):
+    threadpool_limits(1)  # see the module docstring
+    global _WORKER_STUDY
+    _WORKER_STUDY = study
+
+
+def _run_chunk(first, states):
+    return _WORKER_STUDY.chunk(first, states)
+
+
+def _execute(study: _Study, states, jobs: int, progress) -> list:
+    """All runs, in chunks, in ``jobs`` processes (or in this one); chunk outputs by first run."""
+    runs = len(states)
+    size = max(1, min(_MAX_CHUNK, -(-runs // (4 * jobs))))
+    tasks = [(first, states[first : first + size]) for first in range(0, runs, size)]
+    done, outputs = 0, []
+
+    def completed(result):
+        nonlocal done
+        outputs.append(result)
+        done += len(result["estimates"][study.estimators[0]])
+        if progress is not None:
+            progress(done, runs)
+
+    if progress is not None:
+        progress(0, runs)
+    with threadpool_limits(1):
+        if jobs == 1:
+            for task in tasks:
+                completed(study.chunk(*task))
+        else:
+            with ProcessPoolExecutor(min(jobs, len(tasks)), initializer=_init_worker, initargs=(study,)) as pool:
+                for future in as_completed([pool.submit(_run_chunk, *task) for task in tasks]):
+                    completed(future.result())
+    return sorted(outputs, key=lambda r: r["first"])
+
+
+def _tally(chosen) -> list:
+    """Distinct differentiator choices of the runs, each with its number of runs."""
+    counts = Counter(repr(c) for c in chosen)
+    first = {}
+    for c in chosen:
+        first.setdefault(repr(c), c)
+    return [{**first[key], "runs": n} for key, n in counts.items()]
+
+
+# --- statistics ---------------------------------------------------------------------------------
+
+
+def _statistics(estimates, predicted, true, crb_std) -> dict:
+    """:data:`STATISTICS` over the finite rows of ``estimates (runs, k)``."""
+    ok = np.all(np.isfinite(estimates), axis=1)
+    x, s = estimates[ok], predicted[ok]
+    n = len(x)
+    nan = np.full(len(true), np.nan)
+    mean = x.mean(0) if n else nan
+    std = x.std(0, ddof=1) if n > 1 else nan
+    rmse = np.sqrt(np.mean((x - true) ** 2, axis=0)) if n else nan
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return {
+            "true": np.asarray(true, float),
+            "mean": mean,
+            "bias": mean - true,
+            "std": std,
+            "rmse": rmse,
+            "relative_rmse": np.where(true != 0, rmse / np.abs(true), np.nan),
+            "predicted_std": s.mean(0) if n else nan,
+            "crb_std": crb_std,
+            "rmse_crb": np.where(crb_std > 0, rmse / crb_std, np.nan),
+            "bias_std": np.where(std > 0, (mean - true) / std, np.nan),
+        }
+
+
+# --- the study ----------------------------------------------------------------------------------
+
+
+def _cores() -> int:
+    """Cores this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return max(1, len(os.sched_getaffinity(0)))
+    return os.cpu_count() or 1
+
+
+def _check_int(value, option, minimum, fix):
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise SpaceidError(f"{option}: {value!r} is not an integer >= {minimum}: {fix}")
+    return int(value)
+
+
+def _check_estimators(estimators) -> tuple:
+    names = (estimators,) if isinstance(estimators, str) else tuple(estimators or ())
+    if not names:
+        raise SpaceidError(f"--estimator: none given: name at least one of {', '.join(ESTIMATORS)}")
+    for e in names:
+        if e not in ESTIMATORS:
+            raise SpaceidError(f"--estimator: '{e}' is not one of {', '.join(ESTIMATORS)}")
+    return tuple(dict.fromkeys(names))
+
+
+def _trajectory(param, spec, *, duration, samples, momentum, noise, seed, design, progress):
+    """``spec`` as a FourierTrajectory or a motion callable, and its record for the settings."""
+    if isinstance(spec, FourierTrajectory):
+        return spec, {"name": spec.meta.get("name", spec.meta.get("source", "trajectory")), **spec.to_dict()}
+    if callable(spec):
+        return spec, {"name": getattr(spec, "__name__", type(spec).__name__), "callable": True}
+    if str(spec) == "designed":
+        from .design import design_for
+
+        if duration is None or samples is None:
+            raise SpaceidError("--trajectory designed: give --duration [s] and --samples N of the design")
+        options = {"harmonics": 3, **dict(design or {})}
+        traj = design_for(param, duration=duration, samples=samples, momentum=momentum, seed=seed, progress=progress,
+                          noise=noise, **options).trajectory  # fmt: skip
+        traj = replace(traj, meta={**traj.meta, "name": f"designed ({traj.meta.get('criterion')}, seed {seed})"})
+        return traj, {"name": traj.meta["name"], **traj.to_dict()}
+    traj = load_trajectory(spec, joints=param.model.joints)
+    return traj, {"name": str(spec), **traj.to_dict()}
+
+
+def run_montecarlo(
+    param: Parameterization,
+    trajectory,
+    *,
+    momentum,
+    noise: Noise,
+    duration: float | None = None,
+    samples: int | None = None,
+    times=None,
+    runs: int = 200,
+    estimators=("ml", "ols"),
+    seed: int = 0,
+    jobs: int | None = None,
+    progress=None,
+    angles_only: bool = False,
+    differentiate: dict | None = None,
+    design: dict | None = None,
+) -> MonteCarloResult:
+    """Repeat simulate-and-identify with fresh noise; statistics against the truth and the CRB.
+
+    Parameters
+    ----------
+    param : Parameterization
+        Minimal parameters of the model; ``param.true_values`` is the simulated truth.
+    trajectory : FourierTrajectory, callable, or str
+        The joint motion: a trajectory, a callable ``motion(t) -> (q, qd)`` with ``t`` of shape
+        (n,) and results (n, n_joints) [rad, rad/s], a named trajectory or file (see
+        :func:`spaceid.trajectory.load_trajectory`), or ``"designed"``: designed now by
+        :func:`spaceid.design.design_for` with ``duration``, ``samples``, ``seed``, ``noise``
+        and the options in ``design`` (default 3 harmonics, criterion ``cond``).
+    momentum : array_like of shape (3,)
+        Inertial angular momentum [N m s], nonzero (known to the estimators).
+    noise : Noise
+        Measurement noise levels [rad, rad/s]; not all zero.
+    duration : float, optional
+        Sampled span [0, duration] [s]; default the trajectory's (for a callable it is needed
+        unless ``times`` is given).
+    samples : int, optional
+        Equally spaced samples over [0, duration], at least 2 (give this or ``times``).
+    times : array_like of shape (N,), optional
+        Sample times [s], increasing.
+    runs : int
+        Noise draws, at least 2.
+    estimators : sequence of str
+        Keys of :data:`spaceid.estimate.ESTIMATORS`; ``iv`` gets the commanded joint motion as
+        instruments.
+    seed : int
+        Root seed (>= 0) of the noise (and of a ``"designed"`` trajectory); recorded.
+    jobs : int, optional
+        Worker processes; default all cores available; 1 runs in this process.
+    progress : callable, optional
+        ``progress(done, total)``: design starts, then runs.
+    angles_only : bool
+        Noise on joint angles (``noise.angle``) and base attitude (``noise.attitude``) only; the
+        rates differentiated from them (see the module docstring).
+    differentiate : dict, optional
+        Options of :func:`spaceid.signals.differentiate_log` (``method``, ``window``,
+        ``order``, ``smoothing``, ``quantum``) for ``angles_only``; default automatic.
+    design : dict, optional
+        Options of :func:`spaceid.design.design_for` for ``"designed"`` (``harmonics``,
+        ``criterion``, ``n_starts``, ...).
+
+    Returns
+    -------
+    MonteCarloResult
+
+    Raises
+    ------
+    SpaceidError
+        Bad options (named), a trajectory that does not excite every parameter, zero
+        momentum, or every run of every estimator failing.
+    """
+    t_start = time.perf_counter()
+    runs = _check_int(runs, "--runs", 2, "the spread needs at least 2 noise draws (200 or more for stable statistics)")
+    seed = _check_int(seed, "--seed", 0, "give a non-negative integer")
+    jobs = _cores() if jobs is None else _check_int(jobs, "--jobs", 1, "give 1 or more worker processes")
+    estimators = _check_estimators(estimators)
+    if not isinstance(noise, Noise):
+        raise SpaceidError(f"noise must be a spaceid.noise.Noise, got {type(noise).__name__}")
+    relevant = (noise.angle, noise.attitude) + (() if angles_only else (noise.rate, noise.base_rate))
+    if not any(relevant):
+        raise SpaceidError("--noise-angle, --noise-rate, --noise-base-rate, --noise-attitude: the noise is zero"
+                           + (" on the angles and attitude (--angles-only)" if angles_only else "")
+                           + ": a Monte Carlo study needs noise (e.g. --noise-angle 1e-4)")  # fmt: skip
+    if (samples is None) == (times is None):
+        raise SpaceidError("--samples: give exactly one of samples N (equally spaced) or sample times")
+    if samples is not None:
+        samples = _check_int(samples, "--samples", 2, "give the number of equally spaced samples, e.g. 35")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise SpaceidError(f"--duration: {duration!r} is not a positive number of seconds")
+    diff_options = dict(differentiate or {})
+    if diff_options and not angles_only:
+        raise SpaceidError("differentiate: options given without angles_only (--angles-only): the rates are measured")
+    momentum = np.asarray(momentum, float).reshape(3)
+    if not (np.all(np.isfinite(momentum)) and np.linalg.norm(momentum) > 0):
+        raise SpaceidError(f"--momentum: {momentum.tolist()} N m s: a Monte Carlo study needs the finite, nonzero "
+                           "momentum of the simulated motion (it fixes the parameters' scale)")  # fmt: skip
+
+    traj, traj_record = _trajectory(param, trajectory, duration=duration, samples=samples, momentum=momentum,
+                                    noise=noise, seed=seed, design=design, progress=progress)  # fmt: skip
+    if isinstance(traj, FourierTrajectory):
+        motion = lambda t: traj.evaluate(t)[:2]  # noqa: E731
+        if duration is None:
+            duration = traj.duration
+        elif duration > traj.duration + 1e-12:
+            raise SpaceidError(f"--duration: {duration:g} s is longer than the trajectory ({traj.duration:g} s): "
+                               "omit --duration or give at most the trajectory's")  # fmt: skip
+    else:
+        motion = traj
+    if times is None:
+        if duration is None:
+            raise SpaceidError("--duration: a motion callable needs the duration [s] (or sample times)")
+        times = sample_times(duration, samples)
+    times = np.asarray(times, float)
+    if times.ndim != 1 or times.size < 2 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise SpaceidError("times: expected at least 2 finite, strictly increasing sample times [s]")
+
+    with threadpool_limits(1):
+        clean = simulate(param, param.true_values, motion, times, momentum, model=param.model)
+        # a noise-free identification first: rank deficiency and a zero momentum fail here, once
+        identify(param, clean, momentum, estimator="ols", noise=noise, where=_WHERE)
+    study = _Study(param, clean, momentum, noise, estimators, bool(angles_only), diff_options)
+    states = np.array([s.generate_state(2) for s in np.random.SeedSequence(seed).spawn(runs)])
+    outputs = _execute(study, states, jobs, progress)
+
+    k = param.n_params
+    estimates = {e: np.concatenate([o["estimates"][e] for o in outputs]).reshape(runs, k) for e in estimators}
+    predicted = {e: np.concatenate([o["std"][e] for o in outputs]).reshape(runs, k) for e in estimators}
+    failures = tuple(f for o in outputs for f in o["failures"])
+    warned = tuple(w for o in outputs for w in o["warnings"])
+    if len(failures) == runs * len(estimators):
+        raise SpaceidError(f"every run failed, e.g. run {failures[0]['run']} ({failures[0]['estimator']}): "
+                           f"{failures[0]['reason']}")  # fmt: skip
+
+    model_noise, diff_record = noise, None
+    if angles_only:
+        levels = [o for out in outputs for o in out["noise"]]
+        fields = ("angle", "rate", "base_rate", "attitude")
+        rms = {f: float(np.sqrt(np.mean([getattr(n, f) ** 2 for n in levels]))) for f in fields}
+        model_noise = Noise(**rms, source="RMS over the runs of the differentiated signals' white-noise equivalent")
+        chosen = [d for out in outputs for d in out["differentiation"]]
+        diff_record = {
+            "options": diff_options,
+            "method": chosen[0]["joints"]["method"] if chosen else None,
+            "choices": _tally(chosen),
+            "noise_model": "per run: spaceid.montecarlo.differentiated_noise of the run's differentiated log",
+            "noise_equivalent_rms": model_noise.to_dict(),
+        }  # fmt: skip
+    with threadpool_limits(1):
+        _, crb_cov = cramer_rao(param, clean, momentum, model_noise)
+    crb_std = np.sqrt(np.diag(crb_cov))
+    true = np.asarray(param.true_values, float)
+    stats = {e: _statistics(estimates[e], predicted[e], true, crb_std) for e in estimators}
+
+    settings = {
+        "model": param.model.source or param.model.name,
+        "planar": param.model.planar,
+        "trajectory": traj_record,
+        "duration": float(times[-1] - times[0]),
+        "n_samples": int(times.size),
+        "times": {"first": float(times[0]), "last": float(times[-1]),
+                  "equally_spaced": bool(np.allclose(np.diff(times), times[1] - times[0]))},
+        "momentum": momentum.tolist(),
+        "noise": noise.to_dict(),
+        "angles_only": bool(angles_only),
+        "noise_given_to_estimators": "per run, from the differentiator (see differentiation)" if angles_only
+        else "the simulated levels (noise)",
+        "differentiation": diff_record,
+        "crb": "white-noise equivalent of the differentiated signals: a yardstick, not a bound" if angles_only
+        else "Cramer-Rao bound of the errors-in-variables model (spaceid.estimate.cramer_rao) at the noise-free motion",
+        "runs": runs,
+        "seed": seed,
+        "run_seeds": "np.random.SeedSequence(seed).spawn(runs)[i].generate_state(2): add_noise seeds of the joint "
+                     "and of the base signals",
+        "estimators": list(estimators),
+        "instruments_iv": "commanded joint motion (noise-free q, qd at the sample times)",
+        "failures": {"count": len(failures), "reasons": dict(Counter(f["reason"] for f in failures))},
+        "warnings": {"count": len(warned), "messages": dict(Counter(w["warning"] for w in warned))},
+        "jobs": jobs,
+        "wall_time_s": time.perf_counter() - t_start,
+    }  # fmt: skip
+    return MonteCarloResult(param.names, param.definitions, true, estimators, estimates, predicted, crb_cov, crb_std,
+                            stats, failures, warned, settings)  # fmt: skip
+
+
+def write_montecarlo(result: MonteCarloResult, folder) -> dict:
+    """Write ``montecarlo.json``, ``table.txt`` (the terminal table) and ``montecarlo.png`` into
+    ``folder`` (created if needed), each atomically.
+
+    Returns
+    -------
+    dict of str to Path
+        ``{"json", "table", "figure"}``.
+    """
+    from rich.console import Console
+
+    from . import report
+    from ._atomic import write_text_atomic
+    from .io import write_json
+
+    folder = Path(folder)
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise SpaceidError(f"--out: cannot create {folder} ({exc.strerror or exc}): give a writable folder") from None
+    paths = {"json": folder / "montecarlo.json", "table": folder / "table.txt", "figure": folder / "montecarlo.png"}
+    write_json(paths["json"], result.to_dict())
+    buffer = io.StringIO()
+    Console(file=buffer, width=100, color_system=None, force_terminal=False).print(report.montecarlo_table(result))
+    write_text_atomic(paths["table"], buffer.getvalue())
+    report.plot_montecarlo(result, paths["figure"])
+    return paths
+
