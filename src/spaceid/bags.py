@@ -825,14 +825,17 @@ def to_log(
                 f"{where}: {jtopic}: joint '{j}' lacks a velocity in some messages: use joint_rates='auto' "
                 "to differentiate its positions"
             )
+        has_rate = vj is not None and np.isfinite(vj).all()
+        if j in wheels and has_rate:  # a fast wheel turns more than pi a message: unwrap by its rate
+            qj = _unwrap_with_rate(tj, qj, vj)
         if measured:
-            if j in wheels:
-                qj = _unwrap_with_rate(tj, qj, vj)
             sources[j] = "velocity"
         else:
+            # without a rate, unwrap only angles that are wrapped (within +-pi) at all
+            wrap = j in wheels and not has_rate and np.abs(qj).max() <= np.pi + 1e-9
             with _prefix(f"{where}: {jtopic}"):
                 qj, vj, infos[j] = differentiate(tj, qj, method=method, window=window, order=order,
-                                                 smoothing=smoothing, quantum=quantum, wrap=j in wheels, name=f"q_{j}")
+                                                 smoothing=smoothing, quantum=quantum, wrap=wrap, name=f"q_{j}")
             sources[j] = "differentiated"
         at = np.searchsorted(tj, t).clip(max=tj.size - 1)
         if (tj[at] == t).all():

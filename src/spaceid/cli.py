@@ -399,6 +399,38 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
     out.print(f"report written to {folder}/report.md")
 
 
+@app.command(short_help="The paper's Cepheus experiment on the digital twin, through a ROS bag.")
+@click.argument("model_src", metavar="MODEL", default="cepheus")
+@click.option("--trajectory", default="designed", show_default=True, help="designed, paper-table2 or a file from 'design'.")
+@click.option("--wheel-speed", type=float, default=170.0, show_default=True, help="Wheel speed relative to the base [rad/s].")
+@click.option("--samples", type=int, default=29, show_default=True, help="N, the samples identification uses.")
+@click.option("--format", "bag_format", type=click.Choice(["ros1", "ros2", "mcap"]), default="ros1", show_default=True)
+@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True)
+@click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
+@SEED
+@click.option("--out", "folder", type=click.Path(path_type=Path), default=Path("spaceid-experiment"), show_default=True,
+              help="Report folder (bag, logs, results, figures, report.md).")
+def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, seed, folder):
+    """Rest, wheel spin-up, exciting trajectory on the Cepheus twin; identify from the recorded bag
+    (N samples and all), validate the identified model against the measurement (Fig. 6)."""
+    from .experiment import run_experiment
+    from .report import parameter_table
+    from .twin import TwinSettings
+
+    model = {"cepheus": "cepheus-rw"}.get(model_src, model_src)
+    settings = TwinSettings(model=model)
+    settings = settings.without_effects() if ideal else settings
+    with _progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress:
+        res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
+                             bag_format=bag_format, estimator=estimator, seed=seed, out=folder, progress=progress)
+    out.print(parameter_table(res.ident, true=res.true))
+    worst = float(np.max(np.abs(res.ident_all.values - res.true) / np.abs(res.true)))
+    out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g}; all {res.ident_all.n_samples} "
+              f"samples: worst relative error {100 * worst:.3g} %; validation base-rate RMS error "
+              f"{res.metrics['base_w_rms']:.3g} rad/s ({100 * res.metrics['base_w_nrms']:.3g} %)")
+    out.print(f"report written to {folder}/report.md")
+
+
 @app.command(short_help="How the parameters changed between two identifications.")
 @click.argument("before", metavar="BEFORE.json", type=click.Path(path_type=Path))
 @click.argument("after", metavar="AFTER.json", type=click.Path(path_type=Path))
