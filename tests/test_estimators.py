@@ -182,3 +182,20 @@ def test_tls_is_consistent_under_its_own_assumptions():
         estimate._column_noise = original
     errors = np.array(errors)
     assert np.abs(errors.mean(0) / (errors.std(0) / np.sqrt(len(errors)))).max() < 4.5
+
+
+def test_standard_errors_stay_honest_with_differentiated_rates(cepheus):
+    """Angles only at 100 Hz, rates from a Savitzky-Golay window: the errors are correlated over
+    the window and the white-noise covariance would understate them ~4 times; the Newey-West
+    covariance keeps the predicted standard errors near the actual spread (30 draws: the band
+    allows for the few effective samples per window)."""
+    from spaceid.signals import differentiate_log
+
+    param, _ = cepheus
+    log = simulate(param, param.true_values, paper_motion, np.arange(0, 5.0001, 0.01), H)
+    runs = [identify(param, differentiate_log(add_noise(log, angle=1e-4, seed=s), window=101, order=5), H)
+            for s in range(30)]  # fmt: skip
+    assert "Newey-West" in runs[0].settings["covariance"]
+    error = np.array([r.values for r in runs]) - param.true_values
+    ratio = np.mean([r.std for r in runs], axis=0) / np.sqrt(np.mean(error**2, axis=0))
+    assert np.all((ratio > 0.55) & (ratio < 1.6)), ratio

@@ -39,7 +39,10 @@ parameter the model gives (CAD) and whose columns therefore move to the right-ha
 Uncertainty. Every estimator's covariance is its first-order sandwich with the equation-error
 covariances of the noise model. Given noise levels are trusted and ``chi2_dof`` checks them
 against the residuals; levels estimated from the log fix only the relative weights, and the
-residuals fix the overall scale (the covariance is multiplied by ``chi2_dof``).
+residuals fix the overall scale (the covariance is multiplied by ``chi2_dof``). Rates that come
+from a differentiator have errors correlated over its window, which no white-noise model
+describes: the covariance is then the Newey-West (heteroscedasticity and autocorrelation
+consistent) estimate from the residuals, with the window as bandwidth.
 
 References
 ----------
@@ -387,30 +390,70 @@ def _ml(eq, x, sigma, theta, ctx, max_iter=50, tol=1e-6):
 _KERNELS = {"ols": _ols, "wls": _wls, "tls": _tls, "iv": _iv, "ml": _ml}
 
 
-def _covariance(eq, x, sigma, theta, estimator, info):
-    """First-order covariance of ``theta`` for ``estimator`` and the chi-square per degree of
-    freedom of the residuals under the noise model."""
+def _covariance(eq, x, sigma, theta, estimator, info, bandwidth=0):
+    """First-order covariance of ``theta`` for ``estimator``, the chi-square per degree of
+    freedom of the residuals under the noise model, and the RMS residual.
+
+    Every estimator is, to first order, ``theta - theta_0 = bread sum_n M_n^T e_n`` with ``e_n``
+    the equation errors: ``M_n = S_n^-1 A_n`` (wls, ml), ``Z_n`` (iv), ``A_n`` (ols, tls). With
+    independent samples the covariance is ``bread (sum_n M_n^T S_n M_n) bread^T``; with errors
+    correlated over ``bandwidth`` samples (rates from a differentiator's window) it is the
+    Newey-West estimate from the residuals' scores ``g_n = M_n^T r_n`` with Bartlett weights.
+    """
     xl = info.get("corrected", x)
     phi = eq.phi(xl)
     if "corrected" in info:  # ML: linearised at the corrected signals, evaluated at the measured
         phi = phi + eq.dphi(xl, x - xl)
-    J = eq.jacobian(xl, theta)
-    L = _whiten(equation_covariance(J, sigma))
-    Aw, _ = _split(_whitened(L, phi))
+    L = _whiten(equation_covariance(eq.jacobian(xl, theta), sigma))
     A = phi[..., :-1]
     if estimator in ("wls", "ml"):
-        _, cov = _solve(Aw, np.zeros(len(Aw)))
+        M = np.linalg.solve(np.swapaxes(L, -1, -2), _whitened(L, A))
+        bread = _solve(*_split(_whitened(L, phi)))[1]
     elif estimator == "iv":
-        Z = info.pop("Z").reshape(A.shape)
-        bread = np.linalg.inv(np.einsum("nrp,nrq->pq", Z, A))
-        cov = _sandwich(bread, Z, L)
+        M = info.pop("Z").reshape(A.shape)
+        bread = np.linalg.inv(np.einsum("nrp,nrq->pq", M, A))
     else:
-        _, ginv = _solve(A.reshape(-1, A.shape[-1]), np.zeros(A.shape[0] * A.shape[1]))
-        cov = _sandwich(ginv, A, L)
+        M = A
+        bread = _solve(A.reshape(-1, A.shape[-1]), np.zeros(A.shape[0] * A.shape[1]))[1]
     r = phi @ np.append(theta, 1.0)
+    if bandwidth > 0:
+        g = np.einsum("nrp,nr->np", M, r)
+        meat = g.T @ g
+        for lag in range(1, min(bandwidth, len(g) - 1) + 1):
+            c = g[lag:].T @ g[:-lag]
+            meat += (1 - lag / (bandwidth + 1)) * (c + c.T)
+        cov = bread @ meat @ bread.T * len(g) / max(len(g) - eq.p, 1)
+    else:
+        cov = _sandwich(bread, M, L)
     white = np.linalg.solve(L, r[..., None])[..., 0]
     dof = max(r.size - eq.p, 1)
     return cov, float(np.sum(white**2) / dof), float(np.sqrt(np.mean(r**2)))
+
+
+def _correlation_length(log: Log) -> int:
+    """Samples over which the errors of differentiated rates are correlated: the longest
+    differentiator window recorded in ``log.meta`` (0 when nothing was differentiated)."""
+    info = log.meta.get("differentiation")
+    if not info or log.n_samples < 2:
+        return 0
+    spans = []
+
+    def walk(node):
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if key == "window_s" and value is not None:
+                    spans.extend(np.ravel(value).tolist())
+                else:
+                    walk(value)
+        elif isinstance(node, list):
+            for value in node:
+                walk(value)
+
+    walk(info)
+    step = float(np.median(np.diff(log.t)))
+    if not spans:  # e.g. smoothing splines: the Newey-West rule of thumb
+        return int(np.floor(4 * (log.n_samples / 100) ** (2 / 9)))
+    return int(np.ceil(max(spans) / step))
 
 
 @dataclass(frozen=True)
@@ -611,9 +654,15 @@ def identify(
     theta, info = _KERNELS[estimator](eq, x, sigma, theta, ctx)
     if info.get("converged") is False:
         warnings.warn(f"{where}: maximum likelihood did not converge in {info['iterations']} iterations", stacklevel=2)
-    cov_t, chi2, rms = _covariance(eq, x, sigma, theta, estimator, info)
-    if estimated:  # levels from the log are rough (sparse logs mix signal into them): let the
+    bandwidth = _correlation_length(log)
+    cov_t, chi2, rms = _covariance(eq, x, sigma, theta, estimator, info, bandwidth)
+    if bandwidth:
+        how = f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (differentiated rates)"
+    elif estimated:  # levels from the log are rough (sparse logs mix signal into them): let the
         cov_t = cov_t * chi2  # residuals set the overall scale (a posteriori variance factor)
+        how = "noise model (levels estimated from the log) times the variance factor chi2_dof"
+    else:
+        how = "noise model (levels given)"
     info.pop("corrected", None)
     pi, h = eq.full(theta)
     k = param.n_params
@@ -648,7 +697,8 @@ def identify(
             "momentum_std": h_std.tolist(),
             "noise": noise.to_dict(),
             "chi2_dof": chi2,
-            "variance_factor": chi2 if estimated else 1.0,
+            "variance_factor": chi2 if estimated and not bandwidth else 1.0,
+            "covariance": how,
             "estimator_info": {k: v for k, v in info.items() if np.isscalar(v) or isinstance(v, (str, list))},
         },
     )
