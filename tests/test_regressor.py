@@ -201,3 +201,44 @@ def test_column_definitions_evaluate_to_the_values(rng):
         expr = sp.sympify(definition)
         got = float(expr.subs({s: values[s.name] for s in expr.free_symbols}))
         assert got == pytest.approx(value, rel=1e-4, abs=1e-9)  # coefficients printed to 6 digits
+
+
+def test_kinematics_equal_pinocchio(rng):
+    """Body frames and velocities against Pinocchio's forward kinematics (base at rest at the
+    origin, so absolute velocities are the velocities relative to the base origin)."""
+    import pinocchio as pin
+
+    from spaceid.kinematics import body_states
+
+    model = random_tree(rng, [0, 1, 0, 3], planar=False, prismatic=(2,))
+    q, qd, w0 = random_states(rng, model, 10)
+    q[:, 1] = rng.uniform(-0.5, 0.5, 10)
+    st = body_states(model, q, qd, w0)
+    pmodel = to_pinocchio(model)
+    data = pmodel.createData()
+    for n in range(len(q)):
+        pin.forwardKinematics(pmodel, data, np.r_[np.zeros(6), 1.0, q[n]], np.r_[np.zeros(3), w0[n], qd[n]])
+        for b in range(len(model.bodies)):
+            pose, twist = data.oMi[b + 1], data.v[b + 1]  # joint b + 1 carries body b
+            np.testing.assert_allclose(st.rotation[n, b], pose.rotation, atol=1e-14)
+            np.testing.assert_allclose(st.position[n, b], pose.translation, atol=1e-14)
+            np.testing.assert_allclose(st.omega[n, b], pose.rotation @ twist.angular, atol=1e-13)
+            np.testing.assert_allclose(st.velocity[n, b], pose.rotation @ twist.linear, atol=1e-13)
+
+
+def test_blocks_do_not_show(rng, monkeypatch):
+    """Samples are evaluated in padded blocks: small blocks, one sample at a time and the
+    default blocks give the same regressors."""
+    from spaceid import regressor
+    from spaceid.regressor import energy_regressor
+
+    model = random_tree(rng, [0, 1, 1], planar=False, prismatic=(3,))
+    param = minimal_parameters(model)
+    q, qd, w0 = random_states(rng, model, 29)
+    q[:, 2] = rng.uniform(-0.5, 0.5, 29)
+    whole, energy = param.regressor(q, qd, w0), energy_regressor(model, q, qd, w0)
+    one_by_one = np.stack([param.regressor(q[n], qd[n], w0[n]) for n in range(len(q))])
+    monkeypatch.setattr(regressor, "_BLOCK", 4)
+    monkeypatch.setattr(regressor, "_BLOCKS", 3)  # several kinematics calls, the last block padded
+    for got, ref in ((param.regressor(q, qd, w0), whole), (one_by_one, whole), (energy_regressor(model, q, qd, w0), energy)):
+        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14 * np.abs(ref).max())

@@ -309,8 +309,9 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         axes = [2] if ident.planar else [0, 1, 2]
         out.print("momentum (estimated): " + ", ".join(
             f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {s['momentum_std'][i]:.2g}" for i in axes) + " N m s")
+    chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
-              f"N m s; chi2/dof = {s['chi2_dof']:.3g} (noise {s['noise']['source']}); {ident.n_samples} samples; "
+              f"N m s; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
               f"result written to {output}")
 
 
