@@ -471,7 +471,7 @@ def test_mapping_file(tmp_path):
                           ("rate: -5\n", r"'rate' is -5: expected a sample rate \[Hz\] > 0"),
                           ("joints: [a, b]\n", r"'joints' is \['a', 'b'\]: expected a mapping"),
                           ("- a\n", r"expected a mapping of keys"),
-                          ("joints: {a: b\n", r"not valid YAML \(line")]:
+                          ("joints: {a: b\n", r"not valid YAML at line")]:
         (tmp_path / "bad.yaml").write_text(text)
         with pytest.raises(SpaceidError, match=message):
             read_mapping(tmp_path / "bad.yaml")

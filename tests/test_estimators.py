@@ -199,3 +199,9 @@ def test_standard_errors_stay_honest_with_differentiated_rates(cepheus):
     error = np.array([r.values for r in runs]) - param.true_values
     ratio = np.mean([r.std for r in runs], axis=0) / np.sqrt(np.mean(error**2, axis=0))
     assert np.all((ratio > 0.55) & (ratio < 1.6)), ratio
+
+
+def test_cli_offers_exactly_the_estimators():
+    from spaceid.cli import ESTIMATOR_CHOICES
+
+    assert set(ESTIMATOR_CHOICES) == set(ESTIMATORS)

@@ -46,6 +46,7 @@ from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from ._errors import SpaceidError
 from .io import _QUAT_FAIL, _check_angles, _check_rates, _read_text, _Table
+from .model import parse_yaml
 from .recording import JointStates, Poses, Recording
 from .signals import differentiate, differentiate_quaternion
 from .timeseries import Log, quat_to_yaw, yaw_to_quat
@@ -574,15 +575,7 @@ def _merge_joint_states(msgs, label):
 
     for name, samples in per_joint.items():
         stamps = np.array([s[0] for s in samples], dtype=np.int64)
-        bad = np.flatnonzero(np.diff(stamps) <= 0)
-        if bad.size:
-            i = bad[0] + 1
-            kind = "repeats" if stamps[i] == stamps[i - 1] else "goes back from"
-            raise SpaceidError(
-                f"{label}: joint '{name}': stamp {stamps[i] / 1e9:.9f} s in message {samples[i][1]} {kind} "
-                f"{stamps[i - 1] / 1e9:.9f} s in message {samples[i - 1][1]} ({bad.size} such step(s)): header stamps "
-                "must increase; re-stamp the messages or drop the repeated ones"
-            )
+        _check_stamps(stamps, [s[1] for s in samples], f"{label}: joint '{name}'")
     all_stamps = np.unique(np.concatenate([np.array([s[0] for s in v], np.int64) for v in per_joint.values()]))
     names = tuple(per_joint)
     arrays = np.full((3, all_stamps.size, len(names)), np.nan)
@@ -639,16 +632,21 @@ def _poses(msgs, label):
             f"{label}: message {k} (stamp {stamps[k] / 1e9:.9f} s): orientation has norm {norm[k]:.6g}, expected 1 "
             f"({bad.size} such message(s)): drop lost-tracking frames; the pose must be a unit quaternion"
         )
-    steps = np.flatnonzero(np.diff(stamps) <= 0)
-    if steps.size:
-        i = steps[0] + 1
+    _check_stamps(stamps, range(len(stamps)), label)
+    return stamps, position, quat, frames[0]
+
+
+def _check_stamps(stamps, messages, label):
+    """Header stamps [ns] must increase; the error names both messages (indices ``messages``)."""
+    bad = np.flatnonzero(np.diff(stamps) <= 0)
+    if bad.size:
+        i = bad[0] + 1
         kind = "repeats" if stamps[i] == stamps[i - 1] else "goes back from"
         raise SpaceidError(
-            f"{label}: stamp {stamps[i] / 1e9:.9f} s in message {i} {kind} {stamps[i - 1] / 1e9:.9f} s in message "
-            f"{i - 1} ({steps.size} such step(s)): header stamps must increase; re-stamp the messages or drop the "
-            "repeated ones"
+            f"{label}: stamp {stamps[i] / 1e9:.9f} s in message {messages[i]} {kind} {stamps[i - 1] / 1e9:.9f} s in "
+            f"message {messages[i - 1]} ({bad.size} such step(s)): header stamps must increase; re-stamp the messages "
+            "or drop the repeated ones"
         )
-    return stamps, position, quat, frames[0]
 
 
 def _rename(names, rename, label):
@@ -1022,12 +1020,7 @@ def read_mapping(path) -> dict:
         ones are listed) or a value of the wrong type.
     """
     text = _read_text(path, "bag mapping file")
-    try:
-        data = yaml.safe_load(text)
-    except yaml.YAMLError as err:
-        mark = getattr(err, "problem_mark", None)
-        at = f" (line {mark.line + 1})" if mark else ""
-        raise SpaceidError(f"{path}: not valid YAML{at}: fix the mapping file") from None
+    data = parse_yaml(text, str(path), "fix the mapping file")
     if data is None:
         data = {}
     if not isinstance(data, dict):

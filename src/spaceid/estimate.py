@@ -72,8 +72,7 @@ from .regressor import Parameterization
 from .timeseries import Log, quat_to_matrix
 
 __all__ = [
-    "ESTIMATORS", "Identification", "identify", "cramer_rao", "compare", "momentum_in_base",
-    "parse_momentum", "parse_known",
+    "ESTIMATORS", "Identification", "identify", "cramer_rao", "compare", "parse_momentum", "parse_known",
 ]  # fmt: skip
 
 ESTIMATORS = ("ml", "wls", "iv", "tls", "ols")
@@ -234,12 +233,6 @@ class _Equations:
         q, qd, w, rot = self.unpack(x)
         pi, h = self.full(theta)
         return signal_jacobian(self.param, pi, q, qd, w, np.einsum("nji,j->ni", rot, h))
-
-
-def momentum_in_base(log: Log, momentum) -> np.ndarray:
-    """The constant inertial momentum ``(3,)`` expressed in base axes at every sample ``(N, 3)``."""
-    rot = quat_to_matrix(log.base_quat)
-    return np.einsum("nji,j->ni", rot, np.asarray(momentum, float))
 
 
 def _unexcited(y: np.ndarray, names, tol: float) -> list:

@@ -29,7 +29,7 @@ from .model import load_model
 from .regressor import minimal_parameters
 from .timeseries import Log
 from .trajectory import FourierTrajectory, load_trajectory, sample_times
-from .twin import TwinSettings, join_runs, run_twin, spin_up
+from .twin import TwinSettings, drained_model, join_runs, run_twin, spin_up
 from .validate import validate
 
 __all__ = ["ExperimentResult", "run_experiment", "BAG_NAMES"]
@@ -191,9 +191,10 @@ def run_experiment(
     ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag))
     ident_all = identify(param, log, zero, estimator=estimator, where=str(bag))
     predicted, metrics = validate(ident, log, momentum=zero, where=str(bag))
-    true = param.true_values
-    if run.meta["base_mass_start"] != run.meta["base_mass_end"]:  # the tank drained: the twin's model changed
-        true = minimal_parameters(model).true_values
+    # the truth is the twin's model when the excitation starts: the CO2 tank may have drained
+    drained = settings.tank.enabled and a.state.co2_mass is not None
+    true = minimal_parameters(drained_model(model, settings.tank, a.state.co2_mass)).true_values if drained \
+        else param.true_values
     protocol = {
         "model": model.name,
         "trajectory": traj.meta.get("name", str(trajectory)),

@@ -314,13 +314,18 @@ def _yaml_body(where, spec, names):
     )
 
 
-def _model_from_yaml(text: str, where: str) -> Model:
+def parse_yaml(text: str, where: str, fix: str = "fix the syntax"):
+    """``yaml.safe_load`` of ``text``; a syntax error names ``where`` and its line."""
     try:
-        spec = yaml.safe_load(text)
+        return yaml.safe_load(text)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" at line {mark.line + 1}" if mark else ""
-        raise SpaceidError(f"{where}: not valid YAML{line}: fix the syntax") from None
+        raise SpaceidError(f"{where}: not valid YAML{line}: {fix}") from None
+
+
+def _model_from_yaml(text: str, where: str) -> Model:
+    spec = parse_yaml(text, where)
     if not isinstance(spec, dict) or not isinstance(spec.get("bodies"), list) or not spec["bodies"]:
         raise SpaceidError(f"{where}: a YAML model needs a 'bodies' list, the base first")
     names: dict = {}
