@@ -337,6 +337,7 @@ def test_json_round_trip_with_numpy_and_nan(tmp_path):
         "names": ("m", "mcx"),
         "inf": math.inf,
         "source": tmp_path / "x.csv",
+        "nested": [{"a": [], "b": {}}, [1, [2]]],
     }
     write_json(tmp_path / "r.json", obj)
     back = read_json(tmp_path / "r.json", what="result")
@@ -348,8 +349,11 @@ def test_json_round_trip_with_numpy_and_nan(tmp_path):
         "names": ["m", "mcx"],
         "inf": None,
         "source": str(tmp_path / "x.csv"),
+        "nested": [{"a": [], "b": {}}, [1, [2]]],
     }
-    assert "NaN" not in (tmp_path / "r.json").read_text()
+    text = (tmp_path / "r.json").read_text()
+    assert "NaN" not in text
+    assert '    [1.5, null],\n    [0.1, 0.6666666666666666]\n' in text  # a matrix one row a line
     json.loads((tmp_path / "r.json").read_text())  # strict JSON
 
 

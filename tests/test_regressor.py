@@ -42,6 +42,7 @@ def test_planar_regressor_equals_direct_momentum(rng, parents):
     assert np.abs(full_regressor(model, q, qd, w0) @ full_values(model) - direct).max() < 1e-12 * scale
     # only h_z is conserved on a table (it reacts the tilting torques); the z row is the planar regressor
     assert np.abs(param.regressor(q, qd, w0)[:, 0] @ param.true_values - direct[:, 2]).max() < 1e-12 * scale
+    assert np.abs(param.momentum(q, qd, w0, param.true_values)[:, 0] - direct[:, 2]).max() < 1e-12 * scale
     assert np.abs(pinocchio_momentum(to_pinocchio(model), q, qd, w0) - direct).max() < 1e-12 * scale
 
 
@@ -63,6 +64,7 @@ def test_spatial_regressor_equals_pinocchio(rng):
     scale = np.abs(ref).max()
     assert np.abs(angular_momentum(model, q, qd, w0) - ref).max() < 1e-12 * scale
     assert np.abs(param.regressor(q, qd, w0) @ param.true_values - ref).max() < 1e-11 * scale
+    assert np.abs(param.momentum(q, qd, w0, param.true_values) - ref).max() < 1e-11 * scale
 
 
 def test_prismatic_planar_tree_uses_column_basis(rng):
@@ -227,8 +229,9 @@ def test_kinematics_equal_pinocchio(rng):
 
 
 def test_blocks_do_not_show(rng, monkeypatch):
-    """Samples are evaluated in padded blocks: small blocks, one sample at a time and the
-    default blocks give the same regressors."""
+    """Samples are evaluated in padded blocks, groups of blocks on threads: small blocks on
+    two threads, one sample at a time and the default blocks give the same regressors (and
+    the momentum summed block by block, the same as the regressor times pi)."""
     from spaceid import regressor
     from spaceid.regressor import energy_regressor
 
@@ -240,5 +243,8 @@ def test_blocks_do_not_show(rng, monkeypatch):
     one_by_one = np.stack([param.regressor(q[n], qd[n], w0[n]) for n in range(len(q))])
     monkeypatch.setattr(regressor, "_BLOCK", 4)
     monkeypatch.setattr(regressor, "_BLOCKS", 3)  # several kinematics calls, the last block padded
-    for got, ref in ((param.regressor(q, qd, w0), whole), (one_by_one, whole), (energy_regressor(model, q, qd, w0), energy)):
+    monkeypatch.setattr(regressor, "_threads", lambda: 2)  # three groups on two threads
+    h = whole @ param.true_values
+    for got, ref in ((param.regressor(q, qd, w0), whole), (one_by_one, whole), (energy_regressor(model, q, qd, w0), energy),
+                     (param.momentum(q, qd, w0, param.true_values), h)):
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14 * np.abs(ref).max())

@@ -16,8 +16,11 @@ evaluates every definition and compares it with the numerical parameter values.
 
 from __future__ import annotations
 
+import functools
+import operator
+from collections import Counter
+
 import numpy as np
-import sympy as sp
 
 from .model import Model, _inertia_matrix
 
@@ -26,6 +29,8 @@ __all__ = ["planar_definitions", "planar_symbol_values", "column_definitions"]
 
 def _sym(name, present):
     """A symbol, or exact zero where it is known to vanish (keeps definitions short)."""
+    import sympy as sp
+
     return sp.Symbol(name, real=True) if present else sp.Integer(0)
 
 
@@ -49,6 +54,7 @@ def _subtrees(model: Model):
 
 def planar_definitions(model: Model, terms) -> list:
     """Definitions (SymPy strings) of the coefficients of the planar body-pair ``terms``."""
+    import sympy as sp  # here: importing it takes ~0.5 s, and spatial models do not need it
     bodies = model.bodies
     mass = [sp.Symbol(f"m_{b.name}", positive=True) for b in bodies]
     total = sum(mass)
@@ -103,21 +109,42 @@ def _zero_pose_rotations(model: Model):
 def column_definitions(names, projection, *, digits: int = 6) -> list:
     """Definitions of column-basis parameters: a full parameter plus the dependent ones it absorbs.
 
-    Terms with the same coefficient are grouped and their common factors pulled out with
-    SymPy (``0.5*MY_bus*(M_link1 + M_link2)/M``), so each definition is a valid SymPy
-    expression in the names of ``full_parameter_names`` (coefficients to ``digits`` digits).
+    Terms with the same coefficient are grouped and the factors common to a group written once
+    (``0.5*MY_bus*(M_link1 + M_link2)/M``), so each definition is a valid SymPy expression in
+    the names of ``full_parameter_names`` (``A`` or ``A*B/M``; coefficients to ``digits``
+    digits). Plain string work: SymPy's own factoring took seconds for the servicer's 496.
     """
-    symbols = [sp.sympify(n) for n in names]
+    terms = [(Counter(n.removesuffix("/M").split("*")), n.endswith("/M")) for n in names]
     out = []
     for row in projection:
         groups: dict = {}
-        for coef, sym in zip(row, symbols):
+        for coef, term in zip(row, terms):
             if coef != 0:
-                groups.setdefault(float(f"{coef:.{digits}g}"), []).append(sym)
-        expr = sp.Integer(0)
-        for coef, syms in groups.items():
-            c = sp.Integer(int(coef)) if coef == int(coef) else sp.Float(coef, digits)
-            group = sp.factor_terms(sp.Add(*syms))
-            expr += group if c == 1 else sp.Mul(c, group, evaluate=False)  # keep c outside the sum
-        out.append(str(expr))
+                groups.setdefault(float(f"{coef:.{digits}g}"), []).append(term)
+        expr = ""
+        for coef, group in groups.items():
+            text = _factored(group)
+            if abs(coef) != 1:
+                text = f"{abs(coef):.{digits}g}*{text}"
+            elif coef > 0 and text.startswith("(") and text.endswith(")"):  # a bare sum
+                text = text[1:-1]
+            expr += (" - " if coef < 0 else " + ") + text if expr else ("-" if coef < 0 else "") + text
+        out.append(expr or "0")
     return out
+
+
+def _factored(group) -> str:
+    """``sum(group)`` with the factors common to all terms (and ``/M``) pulled out; a term is
+    ``(Counter of factors, divided by M)``. A sum with nothing pulled out comes in
+    parentheses, so that a coefficient may multiply it."""
+    common = functools.reduce(operator.and_, (f for f, _ in group))
+    over_m = all(m for _, m in group)
+    rest = [_product(f - common) + ("/M" if m and not over_m else "") for f, m in group]
+    inner = rest[0] if len(rest) == 1 else "(" + " + ".join(rest) + ")"
+    if common:
+        inner = _product(common) + ("" if inner == "1" else f"*{inner}")
+    return inner + ("/M" if over_m else "")
+
+
+def _product(factors: Counter) -> str:
+    return "*".join(f if k == 1 else f"{f}**{k}" for f, k in sorted(factors.items())) or "1"

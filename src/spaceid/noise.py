@@ -119,7 +119,7 @@ def signal_jacobian(param: Parameterization, pi, q, qd, w0, h_base=None, *, chun
         qds = np.concatenate([np.broadcast_to(qdc, (2 * nj, m, nj)), np.broadcast_to(eye[:, None, :], (nj, m, nj)),
                               np.zeros((len(axes), m, nj))])  # fmt: skip
         ws = np.concatenate([np.broadcast_to(wc, (2 * nj, m, 3)), np.zeros((nj, m, 3)), np.broadcast_to(units_w, (len(axes), m, 3))])
-        g = param.regressor(qs, qds, ws) @ pi  # (3 nj + n_axes, m, rows)
+        g = param.momentum(qs, qds, ws, pi)  # (3 nj + n_axes, m, rows)
         dq = (g[:nj] - g[nj : 2 * nj]) / (2 * FD_STEP)
         out.append(np.moveaxis(np.concatenate([dq, g[2 * nj :]], 0), 0, -1))
     jac = np.concatenate(out, 0)

@@ -27,10 +27,12 @@ from __future__ import annotations
 
 import functools
 import re
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.linalg import solve_triangular
+from threadpoolctl import ThreadpoolController
 
 from ._errors import SpaceidError
 from .kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
@@ -169,20 +171,45 @@ _BLOCKS = 16
 """Blocks per kinematics call: amortises the per-joint Python cost of the tree recursion."""
 
 
-def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool):
+@functools.cache
+def _blas_controller():
+    return ThreadpoolController()
+
+
+def _threads() -> int:
+    """Threads the regressor may use: as many as BLAS may (so ``threadpoolctl.threadpool_limits(1)``,
+    as in the worker processes of design and Monte Carlo, keeps it serial)."""
+    return max([1] + [lib["num_threads"] for lib in _blas_controller().info() if lib["user_api"] == "blas"])
+
+
+def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=None):
     """Regressor columns over any leading shape: ``(..., 3, n_cols)`` or, for the energy,
-    ``(..., n_cols)``."""
+    ``(..., n_cols)``; with ``weights (n_cols,)`` their weighted sum, ``(..., 3)`` or ``(...)``,
+    formed block by block in cache (the columns are never stored).
+
+    Groups of ``_BLOCK * _BLOCKS`` samples go to threads (NumPy releases the GIL in the long
+    array operations); each group writes its own rows."""
     lead, flat = _flatten_states(q, qd, w0)
     n = len(flat[0])
-    out = np.empty((n,) + (() if energy else (3,)) + (plan.n_cols,))
+    out = np.empty((n,) + (() if energy else (3,)) + (() if weights is not None else (plan.n_cols,)))
     block = max(1, min(_BLOCK, n))
     evaluate = _energy_blocks if energy else _momentum_blocks
-    for start in range(0, n, block * _BLOCKS):
-        stop = min(start + block * _BLOCKS, n)
-        frames = frame_table(model, *(a[start:stop] for a in flat), block)
-        for i, y in enumerate(evaluate(frames, plan)):
-            rows = slice(start + i * block, min(start + (i + 1) * block, stop))
-            out[rows] = np.moveaxis(y, -1, 0)[: rows.stop - rows.start]
+
+    def run(starts):
+        for start in starts:
+            stop = min(start + block * _BLOCKS, n)
+            frames = frame_table(model, *(a[start:stop] for a in flat), block)
+            for i, y in enumerate(evaluate(frames, plan)):
+                rows = slice(start + i * block, min(start + (i + 1) * block, stop))
+                out[rows] = np.moveaxis(y if weights is None else weights @ y, -1, 0)[: rows.stop - rows.start]
+
+    starts = range(0, n, block * _BLOCKS)
+    threads = min(len(starts), _threads())
+    if threads > 1:  # a pool per call: no idle threads left behind for forked workers to inherit
+        with ThreadPoolExecutor(threads) as pool:
+            list(pool.map(run, [starts[i::threads] for i in range(threads)]))
+    else:
+        run(starts)
     return out.reshape(lead + out.shape[1:])
 
 
@@ -314,17 +341,16 @@ def _independent(matrix: np.ndarray, tol: float, *, block: int = 128):
         b = matrix[:, cols] / norms[cols]
         for _ in range(2):  # project the block on the kept basis, twice for orthogonality
             b -= basis[:, : len(keep)] @ (basis[:, : len(keep)].T @ b)
-        local = []  # kept columns of this block, orthonormal
+        first = len(keep)  # then each column on the columns kept from this block, twice
         for k, j in enumerate(cols):
             c = b[:, k]
             for _ in range(2):
-                for v in (basis[:, : len(keep)], np.column_stack(local) if local else None):
-                    if v is not None and v.size:
-                        c = c - v @ (v.T @ c)
-            if np.linalg.norm(c) > tol:
-                local.append(c / np.linalg.norm(c))
+                local = basis[:, first : len(keep)]
+                c = c - local @ (local.T @ c)
+            norm = np.linalg.norm(c)
+            if norm > tol:
+                basis[:, len(keep)] = c / norm
                 keep.append(j)
-                basis[:, len(keep) - 1] = local[-1]
     return np.array(keep, dtype=int), basis[:, : len(keep)]
 
 
@@ -422,6 +448,17 @@ class Parameterization:
             return (_planar_functions(self.model, data, q, qd, w0) @ weights)[..., None, :]
         y = _regressor(self.model, q, qd, w0, data, energy=False)  # the independent columns
         return y[..., 2:3, :] if self.model.planar else y
+
+    def momentum(self, q, qd, w0, pi) -> np.ndarray:
+        """``regressor(q, qd, w0) @ pi`` without storing the regressor: the angular momentum
+        about the system CM in base axes [N m s], shape ``(..., rows)``. Faster than the product
+        (the columns are summed block by block, in cache)."""
+        kind, data, weights = self._eval
+        pi = np.asarray(pi, float)
+        if kind == "planar":
+            return (_planar_functions(self.model, data, q, qd, w0) @ (weights @ pi))[..., None]
+        h = _regressor(self.model, q, qd, w0, data, energy=False, weights=pi)
+        return h[..., 2:3] if self.model.planar else h
 
     def to_dict(self) -> dict:
         return {

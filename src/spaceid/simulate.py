@@ -20,25 +20,26 @@ from .timeseries import Log, quat_to_matrix, yaw_to_quat
 __all__ = ["base_rate", "simulate", "hermite_motion", "add_noise", "excitation_regressor"]
 
 
-def _rate_pieces(param: Parameterization, q, qd):
-    """The regressor split by linearity in the base rate: ``Y(q, qd, w0) = free + sum_i w0_i
-    unit[i]``, with ``unit`` over z only for planar systems."""
+def _rate_pieces(param: Parameterization, q, qd, evaluate):
+    """``evaluate(q, qd, w0)`` (the regressor, or the momentum of some ``pi``) split by linearity
+    in the base rate: ``free + sum_i w0_i unit[i]``, ``unit`` over z only for planar systems."""
     q, qd = np.asarray(q, float), np.asarray(qd, float)
     lead = q.shape[:-1]
-    free = param.regressor(q, qd, np.zeros(lead + (3,)))
+    free = evaluate(q, qd, np.zeros(lead + (3,)))
     axes = [2] if param.model.planar else [0, 1, 2]
-    unit = [param.regressor(q, np.zeros_like(qd), np.broadcast_to(np.eye(3)[i], lead + (3,))) for i in axes]
+    unit = [evaluate(q, np.zeros_like(qd), np.broadcast_to(np.eye(3)[i], lead + (3,))) for i in axes]
     return free, unit, axes
 
 
-def _solve_rate(param, pi, free, unit, axes, h_base):
-    """Base rate from the regressor pieces, so that ``Y pi = h_base``; shape ``(..., 3)``."""
+def _solve_rate(param, free, unit, axes, h_base):
+    """Base rate from the momentum pieces ``free (..., rows)``, ``unit[i] (..., rows)`` (the
+    momentum per unit base rate: the locked inertia), so that the momentum is ``h_base``;
+    shape ``(..., 3)``."""
     h_base = np.asarray(h_base, float)
     rows = slice(2, 3) if param.model.planar else slice(None)
-    rhs = np.broadcast_to(h_base, free.shape[:-2] + (3,))[..., rows] - free @ pi
-    locked = np.stack([u @ pi for u in unit], -1)  # momentum per unit base rate: the locked inertia
-    w = np.zeros(free.shape[:-2] + (3,))
-    w[..., axes] = np.linalg.solve(locked, rhs[..., None])[..., 0]
+    rhs = np.broadcast_to(h_base, free.shape[:-1] + (3,))[..., rows] - free
+    w = np.zeros(free.shape[:-1] + (3,))
+    w[..., axes] = np.linalg.solve(np.stack(unit, -1), rhs[..., None])[..., 0]
     return w
 
 
@@ -58,7 +59,13 @@ def base_rate(param: Parameterization, pi, q, qd, h_base) -> np.ndarray:
     ndarray of shape (..., 3)
         Base angular velocity in base axes [rad/s] (x, y zero for planar systems).
     """
-    return _solve_rate(param, np.asarray(pi, float), *_rate_pieces(param, q, qd), h_base)
+    return _solve_rate(param, *_rate_pieces(param, q, qd, _momentum_of(param, pi)), h_base)
+
+
+def _momentum_of(param, pi):
+    """``(q, qd, w0) -> param.momentum(q, qd, w0, pi)``."""
+    pi = np.asarray(pi, float)
+    return lambda q, qd, w0: param.momentum(q, qd, w0, pi)
 
 
 class excitation_regressor:  # noqa: N801 - used like a function; a class so it pickles
@@ -81,8 +88,8 @@ class excitation_regressor:  # noqa: N801 - used like a function; a class so it 
         """Per-sample regressor ``(..., n_samples, rows, k)`` and the base rate it holds,
         ``w0 (..., n_samples, 3)`` in base axes [rad/s] (for the noise-aware design, which
         needs the signals the equations are built from)."""
-        free, unit, axes = _rate_pieces(self.param, q, qd)
-        w0 = _solve_rate(self.param, self.pi, free, unit, axes, self.momentum)
+        free, unit, axes = _rate_pieces(self.param, q, qd, self.param.regressor)
+        w0 = _solve_rate(self.param, free @ self.pi, [u @ self.pi for u in unit], axes, self.momentum)
         return free + sum(w0[..., i, None, None] * u for i, u in zip(axes, unit)), w0
 
 
@@ -178,9 +185,8 @@ def simulate(
         # joint motion only, so they are evaluated once on a dense grid (batched) and splined;
         # the output rates are then solved exactly at the samples, so momentum holds there.
         grid = np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
-        pieces = [_rate_pieces(param, *motion(grid[i : i + 2048])) for i in range(0, len(grid), 2048)]
-        locked = CubicSpline(grid, np.concatenate([np.stack([u @ pi for u in unit], -1) for _, unit, _ in pieces]))
-        offset = CubicSpline(grid, np.concatenate([free @ pi for free, _, _ in pieces]))
+        free, unit, _ = _rate_pieces(param, *motion(grid), _momentum_of(param, pi))
+        locked, offset = CubicSpline(grid, np.stack(unit, -1)), CubicSpline(grid, free)
 
         def rhs(t, quat):
             h_base = quat_to_matrix(quat / np.linalg.norm(quat)).T @ momentum
