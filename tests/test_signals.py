@@ -11,7 +11,7 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.signal import savgol_filter
 
 from spaceid import SpaceidError
-from spaceid.signals import differentiate, differentiate_quaternion, estimate_noise
+from spaceid.signals import differentiate, differentiate_quaternion, estimate_noise, noise_gains
 from spaceid.timeseries import yaw_to_quat
 
 STEP, DURATION, NOISE = 0.01, 5.0, 1e-4
@@ -282,3 +282,16 @@ def test_long_gap_and_sparse_samples_are_refused():
         with pytest.raises(SpaceidError, match="sampled too sparsely to differentiate .*record faster or log the rates"):
             differentiate(sparse, np.sin(2 * np.pi * hz * sparse), name="joint angles")
     differentiate(sparse, exciting(sparse)[0])  # the slow Table 2 motion is fine at 7 Hz
+
+
+@pytest.mark.parametrize("setting", [dict(method="savgol", window=9, order=3), dict(method="spline", smoothing=1e-6)])
+def test_noise_gains_are_the_norms_of_the_impulse_responses(rng, setting):
+    """The differentiator is linear: its responses to unit impulses on jittered stamps are its
+    weights, and their norms the noise gains (checked for Savitzky-Golay against the local-fit
+    pseudo-inverses that noise_gains uses)."""
+    t = np.cumsum(rng.uniform(0.008, 0.012, 60))
+    values, rates, _ = differentiate(t, np.eye(t.size), **setting)
+    smooth, rate = noise_gains(t, **setting)
+    np.testing.assert_allclose(smooth, np.linalg.norm(values, axis=1), rtol=1e-9)
+    np.testing.assert_allclose(rate, np.linalg.norm(rates, axis=1), rtol=1e-9)
+    assert 0 < smooth.max() <= 1 and rate.min() > 1.0  # smoothing shrinks noise; the derivative amplifies it

@@ -56,7 +56,7 @@ from ._errors import SpaceidError
 from .estimate import ESTIMATORS, cramer_rao, identify
 from .noise import Noise
 from .regressor import Parameterization
-from .signals import _local_fits, differentiate, differentiate_log
+from .signals import differentiate_log, noise_gains
 from .simulate import add_noise, simulate
 from .timeseries import Log
 from .trajectory import FourierTrajectory, load_trajectory, sample_times
@@ -77,7 +77,6 @@ true value, mean estimate, bias = mean - true, sample std (ddof 1), RMSE about t
 RMSE / |true|, mean predicted standard error, Cramer-Rao std, RMSE / CRB std, bias / std."""
 
 _MAX_CHUNK = 25  # runs per task at most: progress updates and load balance
-_GAIN_ROWS = 1 << 20  # filter-weight elements (rows x window x coefficients) built at a time
 _WHERE = "montecarlo"
 
 
@@ -170,37 +169,6 @@ class MonteCarloResult:
 # --- the noise model of differentiated signals ---------------------------------------------------
 
 
-_GAINS: dict = {}  # (stamps digest, method, setting) -> per-sample (smoothing, derivative) gains
-
-
-def _filter_gains(t, method: str, window, order, smoothing):
-    """Noise gains of one channel's differentiator at every sample: the norms of its smoothing
-    and derivative weights, ``|s_i|`` [-] and ``|d_i|`` [1/s], each of shape ``(n,)``.
-
-    Savitzky-Golay weights are the rows of the local fits' pseudo-inverses; the spline's (a
-    linear smoother for a fixed penalty) are its responses to unit impulses.
-    """
-    key = (hash(t.tobytes()), t.size, method, window, order, smoothing)
-    if key in _GAINS:
-        return _GAINS[key]
-    n = t.size
-    if method == "savgol":
-        smooth, rate = np.empty(n), np.empty(n)
-        step = max(1, _GAIN_ROWS // (window * (order + 1)))
-        for first in range(0, n, step):
-            rows = np.arange(first, min(first + step, n))
-            _, _, pinv, scale = _local_fits(t, rows, window, order)
-            smooth[rows] = np.linalg.norm(pinv[:, 0], axis=-1)
-            rate[rows] = np.linalg.norm(pinv[:, 1], axis=-1) / scale
-    else:
-        values, rates, _ = differentiate(t, np.eye(n), method="spline", smoothing=smoothing)
-        smooth, rate = np.linalg.norm(values, axis=1), np.linalg.norm(rates, axis=1)
-    if len(_GAINS) > 64:
-        _GAINS.clear()
-    _GAINS[key] = (smooth, rate)
-    return smooth, rate
-
-
 def _channel_levels(t, info, channels):
     """White-noise equivalents ``(smoothed, derivative)`` of ``channels`` of a
     :func:`spaceid.signals.differentiate` record: the channel's noise times the RMS over
@@ -210,7 +178,7 @@ def _channel_levels(t, info, channels):
         window = info["window"][c] if info["window"] else None
         order = info["order"][c] if info["order"] else None
         smoothing = info["smoothing"][c] if info["smoothing"] else None
-        smooth, rate = _filter_gains(t, info["method"], window, order, smoothing)
+        smooth, rate = noise_gains(t, info["method"], window=window, order=order, smoothing=smoothing)
         sigma = info["noise"][c]
         levels.append((sigma * np.sqrt(np.mean(smooth**2)), sigma * np.sqrt(np.mean(rate**2))))
     levels = np.asarray(levels)

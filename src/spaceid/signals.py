@@ -50,7 +50,8 @@ from scipy.optimize import minimize_scalar
 from ._errors import SpaceidError
 from .timeseries import quat_to_yaw, yaw_to_quat
 
-__all__ = ["METHODS", "AUTO_METHOD", "estimate_noise", "differentiate", "differentiate_quaternion", "differentiate_log"]
+__all__ = ["METHODS", "AUTO_METHOD", "estimate_noise", "differentiate", "differentiate_quaternion", "differentiate_log",
+           "noise_gains"]
 
 METHODS = ("auto", "savgol", "spline")
 """Values accepted by ``method``."""
@@ -492,6 +493,52 @@ def _noise(t, x, quantum):
     floor = 0.0 if quantum is None else quantum / np.sqrt(12.0)
     source = ["quantum" if s < floor else "differences" for s in sigma]
     return np.maximum(sigma, floor), source
+
+
+_GAINS: dict = {}  # (stamps, method, setting) -> per-sample (smoothing, derivative) gains
+
+
+def noise_gains(t, method: str, *, window=None, order=None, smoothing=None):
+    """Noise gains of a differentiator at every sample: how white noise of unit variance on a
+    channel reaches its smoothed values and its derivative.
+
+    Parameters
+    ----------
+    t : ndarray of shape (n,)
+        Time stamps [s].
+    method : {"savgol", "spline"}
+        With the setting :func:`differentiate` recorded for the channel: ``window`` and
+        ``order`` (Savitzky-Golay) or ``smoothing`` (spline).
+
+    Returns
+    -------
+    smooth, rate : ndarray of shape (n,)
+        Norms of the smoothing weights ``|s_i|`` [-] and of the derivative weights ``|d_i|``
+        [1/s]: the smoothed value's noise std is ``sigma |s_i|``, the rate's ``sigma |d_i|``.
+        Savitzky-Golay weights are the rows of the local fits' pseudo-inverses; the spline's (a
+        linear smoother for a fixed penalty) its responses to unit impulses. Cached by stamps
+        and setting (Monte Carlo studies ask for the same ones many times).
+    """
+    t = np.asarray(t, float)
+    key = (t.tobytes(), method, window, order, smoothing)
+    if key in _GAINS:
+        return _GAINS[key]
+    n = t.size
+    if method == "savgol":
+        smooth, rate = np.empty(n), np.empty(n)
+        step = max(1, _CHUNK // (window * (order + 1)))
+        for first in range(0, n, step):
+            rows = np.arange(first, min(first + step, n))
+            _, _, pinv, scale = _local_fits(t, rows, window, order)
+            smooth[rows] = np.linalg.norm(pinv[:, 0], axis=-1)
+            rate[rows] = np.linalg.norm(pinv[:, 1], axis=-1) / scale
+    else:
+        values, rates, _ = differentiate(t, np.eye(n), method="spline", smoothing=smoothing)
+        smooth, rate = np.linalg.norm(values, axis=1), np.linalg.norm(rates, axis=1)
+    if len(_GAINS) > 64:
+        _GAINS.clear()
+    _GAINS[key] = (smooth, rate)
+    return smooth, rate
 
 
 def _local_fits(t, rows, window, order):
