@@ -243,8 +243,19 @@ def test_blocks_do_not_show(rng, monkeypatch):
     one_by_one = np.stack([param.regressor(q[n], qd[n], w0[n]) for n in range(len(q))])
     monkeypatch.setattr(regressor, "_BLOCK", 4)
     monkeypatch.setattr(regressor, "_BLOCKS", 3)  # several kinematics calls, the last block padded
-    monkeypatch.setattr(regressor, "_threads", lambda: 2)  # three groups on two threads
+    monkeypatch.setattr(regressor, "blas_threads", lambda: 2)  # three groups on two threads
     h = whole @ param.true_values
     for got, ref in ((param.regressor(q, qd, w0), whole), (one_by_one, whole), (energy_regressor(model, q, qd, w0), energy),
                      (param.momentum(q, qd, w0, param.true_values), h)):
         np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14 * np.abs(ref).max())
+
+
+def test_blas_thread_limit_is_scoped():
+    """Small factorisations run on one BLAS thread, and the limit ends with its block (the
+    regressor's threads follow the BLAS limit, so a leaked limit would make it serial)."""
+    from spaceid._threads import blas_threads, one_blas_thread
+
+    before = blas_threads()
+    with one_blas_thread():
+        assert blas_threads() == 1
+    assert blas_threads() == before

@@ -66,6 +66,7 @@ from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import brentq
 
 from ._errors import SpaceidError
+from ._threads import one_blas_thread
 from .kinematics import skew
 from .noise import FD_STEP, Noise, equation_covariance, noise_from_log, signal_jacobian, signal_sigma
 from .regressor import Parameterization
@@ -287,18 +288,20 @@ def _solve(A, b, extra=None, gram=None):
     ``(A^T A)^{-1}``.
     """
     scale, gram_s = _scaled_gram(A, gram)
-    factor = cho_factor(gram_s)
     rhs = (A.T @ b + (0 if extra is None else extra)) / scale
-    x = cho_solve(factor, rhs)
-    x += cho_solve(factor, rhs - (A.T @ (A @ (x / scale))) / scale)
-    return x / scale, cho_solve(factor, np.eye(len(scale))) / np.outer(scale, scale)
+    with one_blas_thread():
+        factor = cho_factor(gram_s)
+        x = cho_solve(factor, rhs)
+        x += cho_solve(factor, rhs - (A.T @ (A @ (x / scale))) / scale)
+        return x / scale, cho_solve(factor, np.eye(len(scale))) / np.outer(scale, scale)
 
 
 def _sandwich(bread, Z, S_half):
     """``bread Z^T S Z bread^T`` with ``S = blockdiag(L L^T)``, ``Z (n, rows, p)``."""
     zl = (np.swapaxes(Z, -1, -2) @ S_half).transpose(1, 0, 2).reshape(Z.shape[-1], -1)  # Z_n^T L_n, side by side
     meat = zl @ zl.T
-    return bread @ meat @ bread.T
+    with one_blas_thread():
+        return bread @ meat @ bread.T
 
 
 def _ols(eq, x, sigma, theta, ctx):
@@ -428,7 +431,8 @@ def _covariance(eq, x, phi, sigma, theta, estimator, info, bandwidth=0):
         bread = _solve(*_split(_whitened(L, phi)))[1]
     elif estimator == "iv":
         M = info.pop("Z").reshape(A.shape)
-        bread = np.linalg.inv(np.einsum("nrp,nrq->pq", M, A))
+        with one_blas_thread():
+            bread = np.linalg.inv(np.einsum("nrp,nrq->pq", M, A))
     else:
         M = A
         bread = _solve(A.reshape(-1, A.shape[-1]), np.zeros(A.shape[0] * A.shape[1]))[1]
@@ -450,7 +454,8 @@ def _newey_west(bread, M, r, bandwidth, p):
     for lag in range(1, min(bandwidth, len(g) - 1) + 1):
         c = g[lag:].T @ g[:-lag]
         meat += (1 - lag / (bandwidth + 1)) * (c + c.T)
-    return bread @ meat @ bread.T * len(g) / max(len(g) - p, 1)
+    with one_blas_thread():
+        return bread @ meat @ bread.T * len(g) / max(len(g) - p, 1)
 
 
 def _correlation_length(log: Log) -> int:
@@ -652,7 +657,8 @@ def identify(
     # depend on units).
     gram = A.T @ A  # formed once: excitation check, singular values and the OLS solution
     scale, gram_s = _scaled_gram(A, gram)
-    eig = np.linalg.eigvalsh(gram_s)
+    with one_blas_thread():
+        eig = np.linalg.eigvalsh(gram_s)
     cond_scaled = float(np.sqrt(eig[-1] / eig[0])) if eig[0] > 0 else np.inf
     if cond_scaled > 1e6:  # near the precision limit of the Gram matrix: decide on the SVD
         sv = np.linalg.svd(A / scale, compute_uv=False)
@@ -698,7 +704,8 @@ def identify(
         h_std[eq.axes] = np.sqrt(np.diag(cov_t)[len(eq.free) :])
     # singular values of the unscaled regressor (the paper's condition number), from its Gram
     # matrix: accurate to eps * s_max, ample for the condition numbers of exciting motions
-    s = np.sqrt(np.clip(np.linalg.eigvalsh(gram), 0, None))[::-1]
+    with one_blas_thread():
+        s = np.sqrt(np.clip(np.linalg.eigvalsh(gram), 0, None))[::-1]
     return Identification(
         param.names,
         param.definitions,

@@ -32,9 +32,9 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from threadpoolctl import ThreadpoolController
 
 from ._errors import SpaceidError
+from ._threads import blas_threads
 from .kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
 from .model import INERTIAL_NAMES, Model
 
@@ -171,17 +171,6 @@ _BLOCKS = 16
 """Blocks per kinematics call: amortises the per-joint Python cost of the tree recursion."""
 
 
-@functools.cache
-def _blas_controller():
-    return ThreadpoolController()
-
-
-def _threads() -> int:
-    """Threads the regressor may use: as many as BLAS may (so ``threadpoolctl.threadpool_limits(1)``,
-    as in the worker processes of design and Monte Carlo, keeps it serial)."""
-    return max([1] + [lib["num_threads"] for lib in _blas_controller().info() if lib["user_api"] == "blas"])
-
-
 def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=None):
     """Regressor columns over any leading shape: ``(..., 3, n_cols)`` or, for the energy,
     ``(..., n_cols)``; with ``weights (n_cols,)`` their weighted sum, ``(..., 3)`` or ``(...)``,
@@ -204,7 +193,7 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
                 out[rows] = np.moveaxis(y if weights is None else weights @ y, -1, 0)[: rows.stop - rows.start]
 
     starts = range(0, n, block * _BLOCKS)
-    threads = min(len(starts), _threads())
+    threads = min(len(starts), blas_threads())
     if threads > 1:  # a pool per call: no idle threads left behind for forked workers to inherit
         with ThreadPoolExecutor(threads) as pool:
             list(pool.map(run, [starts[i::threads] for i in range(threads)]))
