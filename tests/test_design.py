@@ -19,7 +19,13 @@ from spaceid.design import CRITERIA, _problem, design_excitation, design_for, wh
 from spaceid.noise import Noise, equation_covariance, signal_jacobian, signal_sigma
 from spaceid.regressor import minimal_parameters
 from spaceid.simulate import base_rate, excitation_regressor
-from spaceid.trajectory import FourierTrajectory, load_trajectory, sample_times
+from spaceid.trajectory import (
+    FourierTrajectory,
+    boundary_quintic,
+    fourier_basis,
+    load_trajectory,
+    sample_times,
+)
 
 JOINTS = ("left_shoulder", "left_elbow")
 CEPHEUS = dict(duration=5.0, harmonics=3, samples=35, q_max=1.5, qd_max=1.5, qdd_max=3.0)
@@ -58,11 +64,31 @@ def test_short_run_beats_the_paper_by_a_large_factor(short_run):
     assert values[-1] == short_run.value
 
 
-def test_limits_hold_on_a_fine_grid(short_run):
+def test_limits_hold_at_all_times(short_run):
     traj = short_run.trajectory
-    assert peak_ratio(traj, 1001).max() <= 1 + 1e-9  # the design grid: exact
-    assert peak_ratio(traj, 8001).max() <= 1 + 1e-3  # between its points: curvature only
+    assert peak_ratio(traj, 1001).max() <= 1 + 1e-9  # the design grid
+    assert peak_ratio(traj, 20001).max() <= 1 + 1e-9  # between its points too (5e-5 over before)
     assert peak_ratio(traj, 1001).max() > 0.999  # the optimum presses on a limit
+
+
+def test_gauge_finds_the_peaks_between_grid_points():
+    """A coarse grid (101 times, 8 a period of the top harmonic): scaled onto the limits by
+    the gauge, each joint's largest room used is 1 on 200001 times, its grid values less."""
+    limits = np.array([[1.5, 1.5], [1.5, 1.5], [3.0, 3.0]])
+    boundary = np.zeros((6, 2))
+    boundary[0], boundary[3] = [0.3, -0.2], [-0.1, 0.4]  # q0, qf: rooms of both signs differ
+    problem = _problem(cepheus_regressor, "cond", duration=5.0, harmonics=12, samples=35,
+                       limits=limits, boundary=boundary, n_grid=101)  # fmt: skip
+    z = problem.to_limits(problem.starts(np.random.default_rng(0), 1)[0])
+    t = sample_times(5.0, 200001)
+    fourier = np.einsum("dtk,jk->dtj", fourier_basis(t, duration=5.0, harmonics=12), problem.X(z))
+    p = boundary_quintic(t, duration=5.0, boundary=boundary)
+    used = np.where(fourier > 0, fourier / (limits[:, None] - p), -fourier / (limits[:, None] + p))
+    assert np.all(np.abs(used.max(axis=(0, 1)) - 1) < 1e-7)  # 200001 times miss up to 2e-8
+    A, up, down = problem._rooms
+    v = np.einsum("rjk,jk->rj", A, z.reshape(problem.S.shape))
+    on_grid = np.where(v > 0, v * up, -v * down).max(0)
+    assert np.all(on_grid < 1 - 1e-4)  # the grid alone would miss the peaks
 
 
 def test_same_seed_same_result_in_one_or_two_processes(short_run):
@@ -82,7 +108,7 @@ def test_boundary_values_and_limits_are_kept():
     np.testing.assert_allclose(qd[0], boundary["qd0"], atol=1e-12)
     np.testing.assert_allclose(qdd[1], boundary["qddf"], atol=1e-12)
     np.testing.assert_allclose([qd[1], qdd[0]], 0, atol=1e-12)
-    assert peak_ratio(traj, 1001).max() <= 1 + 1e-9
+    assert peak_ratio(traj, 20001).max() <= 1 + 1e-9
     assert result.value == pytest.approx(cond(traj), rel=1e-9)
 
 
@@ -217,10 +243,10 @@ def test_trust_region_improves_on_random_feasible_starts(chain, spatial_run):
     assert spatial_run.value < np.median(random) / 4  # median about 3.7e4
 
 
-def test_trust_region_keeps_the_limits_on_a_fine_grid(spatial_run):
+def test_trust_region_keeps_the_limits_at_all_times(spatial_run):
     traj = spatial_run.trajectory
-    assert spatial_peaks(traj, 501).max() <= 1 + 1e-9  # the design grid: exact
-    assert spatial_peaks(traj, 8001).max() <= 1 + 1e-3  # between its points: curvature only
+    assert spatial_peaks(traj, 501).max() <= 1 + 1e-9  # the design grid
+    assert spatial_peaks(traj, 20001).max() <= 1 + 1e-9  # between its points too (8e-5 over before)
     assert np.all(spatial_peaks(traj, 501).max(1) > 0.95)  # every joint on (or near) its limits
 
 

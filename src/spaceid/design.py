@@ -3,7 +3,9 @@
 The free coefficients ``X = [a | b]`` of :class:`~spaceid.trajectory.FourierTrajectory` are
 searched in scaled variables ``z`` (``X = S * z``, with ``S`` such that ``|z_jk| = 1`` alone
 takes joint j to its tightest limit). q, qd and qdd are affine in ``z``, so the joint limits,
-imposed on a fine time grid, are linear inequalities, and separate by joint.
+imposed on a fine time grid, are linear inequalities, and separate by joint. Results are scaled
+into the limits at all times: the grid's peaks are refined between its points (a trigonometric
+sum, unimodal there), as the signals exceed their grid values by up to 3e-4 of a limit.
 
 Criteria (:data:`CRITERIA`): the paper's cond(Y); log det of Y with unit-norm columns; and two
 that know the measurement noise, on the regressor whitened sample by sample by the covariance
@@ -14,11 +16,11 @@ parameters' relative Cramer-Rao variances. cond(Y) ignores which signals are noi
 noise reaches each equation; these weigh the samples by it.
 
 Gradients: the rows of sample t of the stacked regressor ``Y`` depend on q(t), qd(t) alone, so
-central differences of the joint signals (4 n_joints perturbed trajectories, one batched call)
-give ``dY/dq_j``, ``dY/dqd_j`` at every sample, and the chain rule through the fixed Fourier
-basis gives the gradient in all n = 2 Nf n_joints coefficients. A criterion supplies its
-gradient in ``Y`` (``d sigma_i = u_i^T dY v_i`` for singular values), never ``dY`` along each
-coefficient.
+central differences of the joint signals (4 n_joints perturbed trajectories; the trust-region
+model takes 2 n_joints forward ones) give ``dY/dq_j``, ``dY/dqd_j`` at every sample, and the
+chain rule through the fixed Fourier basis gives the gradient in all n = 2 Nf n_joints
+coefficients. A criterion supplies its gradient in ``Y`` (``d sigma_i = u_i^T dY v_i`` for
+singular values), never ``dY`` along each coefficient.
 
 Two local searches (``method``):
 
@@ -26,16 +28,15 @@ Two local searches (``method``):
   *pieces* of ``Y``; SLSQP minimises ``tau`` subject to ``piece(z) <= tau`` and the limits. This
   epigraph form keeps the condition number smooth where its extreme singular values coalesce,
   which they do at the optimum. Each search imposes the limits on a coarse grid, then on the
-  fine-grid points near the peaks of the signals, and is scaled back into the limits on the
-  whole fine grid; the best two results are polished with all fine-grid limits that can become
-  active.
+  fine-grid points near the peaks of the signals, and is scaled back into the limits; the
+  best two results are polished with all fine-grid limits that can become active.
 * ``trust-region`` (spatial systems: a hundred or more columns, a spectrum that decays smoothly
   over decades, and a regressor costing tens of microseconds a sample). Each joint is kept on
   its limits by a radial map, so the search is unconstrained; the criterion is replaced by a
   smooth surrogate whose sharpness rises in stages; each step linearises ``Y`` in the joint
   signals and minimises the surrogate of that model (exact in the singular values, one SVD an
   evaluation, no regressor call) in a trust region. Many screened starts get a few steps, the
-  best few the rest (successive halving).
+  best few the rest (successive halving), each continuing where its first round ended.
 
 The global search runs the local searches from seeded random starts, in worker processes.
 
@@ -146,8 +147,20 @@ def _cond_smooth(Y, p):
     if not s[-1] > 0:
         return np.inf, np.zeros_like(Y)
     ls = np.log(s)
-    f = (logsumexp(p * ls) + logsumexp(-p * ls) - 2 * np.log(len(s))) / p
-    return f, (U * ((softmax(p * ls) - softmax(-p * ls)) / s)) @ Vt
+    return _power_mean_gap(ls, p), (U * ((softmax(p * ls) - softmax(-p * ls)) / s)) @ Vt
+
+
+def _cond_smooth_value(Y, p):
+    """The value of :func:`_cond_smooth` alone for ``Y`` (..., n_rows, k): (...), from the
+    singular values (a third of the cost of the SVD with vectors); inf where singular."""
+    s = np.linalg.svd(Y, compute_uv=False)
+    with np.errstate(divide="ignore"):
+        return np.where(s[..., -1] > 0, _power_mean_gap(np.log(s), p), np.inf)
+
+
+def _power_mean_gap(ls, p):
+    """``log M_p(s) - log M_-p(s)`` from ``ls = log s`` (..., k): (...)."""
+    return (logsumexp(p * ls, -1) + logsumexp(-p * ls, -1) - 2 * np.log(ls.shape[-1])) / p
 
 
 def _logdet_smooth(Y, p):
@@ -223,6 +236,10 @@ class Criterion:
         ``smooth(Y, p)`` returns a smooth surrogate of the objective (the max of the pieces)
         that tends to it as ``p`` grows, and its gradient ``W`` (n_rows, k) with respect to
         ``Y``; for the trust-region search. Default: the log-sum-exp of the pieces.
+    smooth_value : callable, optional
+        ``smooth_value(Y, p)`` with ``Y`` (..., n_rows, k): the value of ``smooth`` alone,
+        (...), cheaper than with its gradient. Default: ``smooth(Y, p)[0]`` matrix by matrix,
+        or the log-sum-exp of ``pieces(Y)``.
     noise_aware : bool
         The criterion is meant for the whitened, pi-scaled regressor
         (:class:`whitened_regressor`), whose Gram matrix is the Fisher information:
@@ -234,6 +251,7 @@ class Criterion:
     report: Callable
     adjoint: Callable | None = None
     smooth: Callable | None = None
+    smooth_value: Callable | None = None
     noise_aware: bool = False
 
     def smoothed(self, Y, p):
@@ -246,9 +264,20 @@ class Criterion:
             return np.inf, np.zeros_like(Y)
         return logsumexp(p * pieces) / p, np.tensordot(softmax(p * pieces), W, 1)
 
+    def smoothed_value(self, Y, p):
+        """The surrogate of :meth:`smoothed` alone, for ``Y`` (..., n_rows, k): (...)."""
+        if self.smooth_value is not None:
+            return self.smooth_value(Y, p)
+        if self.smooth is not None:
+            Ys = np.reshape(Y, (-1, *np.shape(Y)[-2:]))
+            return np.array([self.smooth(y, p)[0] for y in Ys]).reshape(np.shape(Y)[:-2])
+        pieces = self.pieces(Y)
+        return np.where(np.all(np.isfinite(pieces), -1), logsumexp(p * pieces, -1) / p, np.inf)
+
 
 CRITERIA = {
-    "cond": Criterion("cond", _cond_pieces, np.exp, _cond_adjoint, _cond_smooth),  # lower: better
+    "cond": Criterion("cond", _cond_pieces, np.exp, _cond_adjoint, _cond_smooth,  # lower: better
+                      _cond_smooth_value),
     "logdet": Criterion("logdet", _logdet_pieces, np.negative, _logdet_adjoint, _logdet_smooth),
     # on the whitened, pi-scaled regressor: log det of the relative Fisher information (higher:
     # better) and the trace of the relative Cramer-Rao bound (sum of relative variances)
@@ -354,6 +383,10 @@ class whitened_regressor:  # noqa: N801 - used like a function; a class so it pi
 
 # -- the problem in scaled variables ------------------------------------------------------------
 
+# Samples a regressor call of the search: larger calls run out of cache (3 to 4 times slower a
+# sample for 169 x 120 samples of a 7-joint arm)
+_CALL_SAMPLES = 512
+
 
 @dataclass(frozen=True)
 class _Problem:
@@ -372,7 +405,9 @@ class _Problem:
     P: np.ndarray  # (3, n_grid, n_joints)
     L: np.ndarray  # (3, n_joints)
     coarse: np.ndarray  # fine-grid time indices constrained during the search
-    # central-difference step in q [rad] and qd [rad/s]; a regressor may ask for another one
+    duration: float  # [s]; the fine grid spans [0, duration]
+    boundary: np.ndarray  # (6, n_joints), BOUNDARY_FIELDS order: P at any time
+    # finite-difference step in q [rad] and qd [rad/s]; a regressor may ask for another one
     # by an ``fd_step`` attribute (see whitened_regressor)
     step: float = 1e-6
     # Trust-region search. Surrogate sharpness by stage: p = 2 lifts the whole lower spectrum
@@ -380,8 +415,14 @@ class _Problem:
     stages: tuple = (2.0, 8.0, 32.0)
     # Gauge: a 64-norm over the fine grid exceeds the max by a few % (a few points near a peak)
     sharpness: float = 64.0
-    inner: int = 30  # L-BFGS-B iterations on the model a step: their SVDs cost about one jet
+    # L-BFGS-B iterations on the model a step, their SVDs about one jet. Servicer, one search:
+    # 30 took 2.5 times as long as 10 to reach cond 5e7; 20 led 10 from 2 minutes on (1e6
+    # against 1.8e6 at 200 s), 10 led before
+    inner: int = 15
     tr_tol: float = 1e-3  # two steps in a row gaining less (in log) end a stage
+    # First trust region: half-width tr_radius / K in z, so that a joint's signals move by at
+    # most tr_radius limits (a fixed 0.25 lost the first step of every servicer search, K = 24)
+    tr_radius: float = 1.5
 
     @property
     def n(self):
@@ -401,23 +442,30 @@ class _Problem:
             f = CRITERIA[self.criterion].pieces(self.stacked(Z)).max(-1)
         return np.where(np.isnan(f), np.inf, f)
 
-    def jet(self, z):
+    def jet(self, z, Y0=None, *, central=True):
         """Y at ``z`` (n_rows, k) and its derivatives along the joint signals at every sample,
         ``Gt`` (n_samples, m k, 2 n_joints): ``Gt[t, :, (d, j)]`` is d(rows of sample t) / d q_j
         (d = 0) or d qd_j (d = 1), flattened.
 
         Sample t's rows of Y depend on q(t), qd(t) alone, so perturbing joint j's signal at all
-        samples at once gives them all: 4 n_joints central differences in one batched call.
+        samples at once gives them all: 4 n_joints central differences, or 2 n_joints forward
+        ones (error O(step), for the trust-region model). ``Y0``, Y at ``z`` if known, saves
+        its evaluation.
         """
-        q, qd = np.einsum("dtk,jk->dtj", self.B_samples, self.X(z)) + self.P_samples
-        nj, n_s = self.S.shape[0], q.shape[0]
-        e = self.step * np.eye(nj)[:, None, :]  # (nj, 1, nj): joint j, every sample
-        same = np.broadcast_to(q, (nj, *q.shape)), np.broadcast_to(qd, (nj, *qd.shape))
-        Y = self._batched(np.concatenate([q[None], q + e, q - e, same[0], same[0]]),
-                          np.concatenate([qd[None], same[1], same[1], qd + e, qd - e]))  # fmt: skip
-        pm = Y[1:].reshape(2, 2, nj, n_s, -1)  # (q|qd, +|-, j, t, m k)
-        G = (pm[:, 0] - pm[:, 1]) / (2 * self.step)
-        return Y[0], np.ascontiguousarray(G.reshape(2 * nj, n_s, -1).transpose(1, 2, 0))
+        x = np.einsum("dtk,jk->dtj", self.B_samples, self.X(z)) + self.P_samples  # q, qd
+        nj, n_s = self.S.shape[0], x.shape[1]
+        if Y0 is None:
+            Y0 = self.regressor(x[0][None], x[1][None])[0]
+        Gt = np.empty((n_s, Y0.size // n_s, 2 * nj))
+        E = self.step * np.eye(2 * nj).reshape(2 * nj, 2, 1, nj)  # signal (d, j), every sample
+        signs = (1, -1) if central else (1,)
+        group = max(1, _CALL_SAMPLES // (len(signs) * n_s))
+        for c in range(0, 2 * nj, group):
+            X = np.concatenate([x + sign * E[c : c + group] for sign in signs])
+            Y = self.regressor(X[:, 0], X[:, 1]).reshape(len(signs), -1, *Y0.shape)
+            G = (Y[0] - Y[1]) / (2 * self.step) if central else (Y[0] - Y0) / self.step
+            Gt[:, :, c : c + group] = G.reshape(len(G), n_s, -1).transpose(1, 2, 0)
+        return Y0, Gt
 
     def pullback(self, W, Gt):
         """Gradient in ``z`` (n,) of a function of Y with gradient ``W`` (n_rows, k) in Y.
@@ -444,27 +492,18 @@ class _Problem:
         dY = np.einsum("tmkdj,dtl,jl->jltmk", G, self.B_samples, self.S)
         return crit.pieces(Y, dY.reshape(self.n, *Y.shape))
 
-    def _batched(self, q, qd):
-        """``regressor(q, qd)`` for a batch, in chunks of about 500 samples: larger calls run
-        out of cache (3 to 4 times slower a sample for 169 x 120 samples of a 7-joint arm)."""
-        chunk = max(1, 512 // q.shape[-2])
-        return np.concatenate([self.regressor(q[i : i + chunk], qd[i : i + chunk])
-                               for i in range(0, len(q), chunk)])  # fmt: skip
-
     def signals(self, Z):
         """q, qd, qdd on the fine grid over their limits, shape (..., 3, n_grid, n_joints)."""
         return (np.einsum("dtk,...jk->...dtj", self.B, self.X(Z)) + self.P) / self.L[:, None]
 
     def shrink(self, Z):
-        """``s Z`` with, per row, the largest ``s <= 1`` that keeps the limits on the fine grid.
+        """``s Z`` with, per row, the largest ``s <= 1`` that keeps the limits at all times
+        (:meth:`gauge`): all joints scaled together.
 
         ``z = 0`` (the boundary quintic alone) is feasible, so such an ``s >= 0`` exists.
         """
-        p = self.P / self.L[:, None]
-        v = self.signals(Z) - p
-        with np.errstate(divide="ignore", invalid="ignore"):
-            s = np.where(v > 0, (1 - p) / v, np.where(v < 0, (-1 - p) / v, np.inf))
-        return Z * np.minimum(1.0, s.min(axis=(-3, -2, -1)))[..., None]
+        with np.errstate(divide="ignore"):
+            return Z * np.minimum(1.0, 1 / self.gauge(Z).max(-1))[..., None]
 
     def limit_rows(self, mask, z=None):
         """Limits of both signs where ``mask (3, n_grid, n_joints)`` is set, as ``A z <= b``.
@@ -571,24 +610,26 @@ class _Problem:
         """Fine-grid signals over limits per unit z, ``A`` (n_rows, n_joints, K), and the
         factors ``1 / (1 -+ p)`` (n_rows, n_joints), p the quintic over the limit, that turn
         a signal of either sign into the fraction of the room it uses."""
-        nj = self.S.shape[0]
         A = self.B[:, :, None, :] * self.S / self.L[:, None, :, None]
-        p = (self.P / self.L[:, None]).reshape(-1, nj)
-        up, down = 1 / np.maximum(1 - p, 1e-12), 1 / np.maximum(1 + p, 1e-12)
-        return A.reshape(-1, *self.S.shape), up, down
+        p = (self.P / self.L[:, None]).reshape(-1, self.S.shape[0])
+        return A.reshape(-1, *self.S.shape), *_room_factors(p)
 
     def gauge(self, y, sharp=None):
-        """Per joint, how far ``y``'s signals exceed their room: the max over the fine grid
-        of ``r = v / (1 - p)`` (v > 0) or ``-v / (1 + p)`` (v < 0), for ``y`` (..., n).
+        """Per joint, how far ``y``'s signals exceed their room: the max over time of
+        ``r = v / (1 - p)`` (v > 0) or ``-v / (1 + p)`` (v < 0), for ``y`` (..., n);
+        (..., n_joints). The max over all times, not only the fine grid's (:meth:`_room_peak`),
+        so ``y_j / rho_j`` keeps the limits on the continuous trajectory.
 
-        With ``sharp``, for one ``y`` (n,): the ``sharp``-norm of r instead (smooth, and
-        >= the max, so ``y / rho`` keeps the limits) and its gradient (n_joints, K).
+        With ``sharp``, for one ``y`` (n,): the ``sharp``-norm of r over the fine grid
+        instead (smooth, and >= its max, so ``y / rho`` keeps the limits there) and its
+        gradient (n_joints, K).
         """
         A, up, down = self._rooms
         v = np.einsum("rjk,...jk->...rj", A, np.reshape(y, (*np.shape(y)[:-1], *self.S.shape)))
         r = np.where(v > 0, v * up, -v * down)
         if sharp is None:
-            return r.max(-2)
+            return self._room_peak(np.reshape(y, (-1, self.n)), r.reshape(-1, *r.shape[-2:])
+                               ).reshape(r.shape[:-2] + r.shape[-1:])  # fmt: skip
         top = r.max(0)
         top = np.where(top > 0, top, 1.0)  # y_j = 0: no motion, nothing to scale
         w = r / top
@@ -597,6 +638,42 @@ class _Problem:
         dr = wp * np.where(v > 0, up, -down)  # d(r^sharp) / dv, over sharp top^(sharp - 1)
         grad = np.einsum("rj,rjk->jk", dr, A) * norm[:, None] ** (1 - sharp)
         return top * norm, grad
+
+    def _room_peak(self, Y, r):
+        """Per joint, the max over all times of the room used, ``rho`` (batch, n_joints), for
+        ``Y`` (batch, n) whose fine-grid values are ``r`` (batch, 3 n_grid, n_joints).
+
+        Between grid points a signal can exceed its grid values (by 3e-4 of a limit for the
+        servicer's qdd on the default grid). Each grid local maximum above half the joint's
+        grid maximum (lower ones cannot overtake it unless the grid misses half a period of
+        the top harmonic) brackets a true local maximum between its neighbours, where the
+        trigonometric sum is unimodal; golden-section search finds it to round-off.
+        """
+        nj, n_grid = self.S.shape[0], self.B.shape[1]
+        r = r.reshape(len(r), 3, n_grid, nj)
+        rho = r.max(axis=(1, 2))
+        edge = np.full_like(r[:, :, :1], -np.inf)
+        ahead = np.concatenate([r[:, :, 1:], edge], 2)
+        behind = np.concatenate([edge, r[:, :, :-1]], 2)
+        top = (r >= ahead) & (r >= behind) & (r >= 0.5 * rho[:, None, None])
+        b, d, i, j = np.nonzero(top & (rho[:, None, None] > 0))
+        if not len(b):
+            return rho
+        L = self.L[d, j]
+        coef = self.X(Y)[b, j] / L[:, None]  # (n_peaks, K): the Fourier part over the limit
+        at = np.arange(len(b))
+        T, harmonics = self.duration, self.S.shape[1] // 2
+
+        def room_used(t):
+            v = np.sum(fourier_basis(t, duration=T, harmonics=harmonics)[d, at] * coef, -1)
+            p = boundary_quintic(t, duration=T, boundary=self.boundary)[d, at, j] / L
+            up, down = _room_factors(p)
+            return np.where(v > 0, v * up, -v * down)
+
+        dt = T / (n_grid - 1)
+        lo, hi = np.maximum(i - 1, 0) * dt, np.minimum(i + 1, n_grid - 1) * dt
+        np.maximum.at(rho, (b, j), _golden_max(room_used, lo, hi))
+        return rho
 
     def radial(self, y, sharp):
         """``z = y_j / rho_j`` joint by joint (:meth:`gauge`) and the map of a gradient in z
@@ -611,24 +688,27 @@ class _Problem:
 
         return z, pull
 
-    def to_limits(self, Z):
-        """``Z (..., n)`` with every joint scaled onto its limits on the fine grid."""
+    def to_limits(self, Z, *, inside=False):
+        """``Z (..., n)`` with every joint scaled onto its limits at all times (:meth:`gauge`),
+        or, if ``inside``, only those beyond them."""
         Z = np.asarray(Z, float)
         rho = self.gauge(Z)
-        X = np.reshape(Z, (*Z.shape[:-1], *self.S.shape)) / np.where(rho > 0, rho, 1)[..., None]
-        return X.reshape(Z.shape)
+        rho = np.maximum(rho, 1.0) if inside else np.where(rho > 0, rho, 1.0)
+        return (np.reshape(Z, (*Z.shape[:-1], *self.S.shape)) / rho[..., None]).reshape(Z.shape)
 
     def smooth_objective(self, Z, p):
         """The criterion's smooth surrogate of sharpness ``p`` at ``Z (batch, n)``: (batch,)."""
-        crit = CRITERIA[self.criterion]
         q, qd = np.einsum("dtk,bjk->dbtj", self.B_samples, self.X(Z)) + self.P_samples[:, None]
-        chunk = max(1, 512 // q.shape[-2])  # see _batched; and no (batch, rows, k) array at once
-        out = []
+        chunk = max(1, _CALL_SAMPLES // q.shape[-2])  # and no (batch, rows, k) array at once
+        Ys = (self.regressor(q[i : i + chunk], qd[i : i + chunk]) for i in range(0, len(q), chunk))
+        return np.concatenate([self._smooth_value(Y, p) for Y in Ys])
+
+    def _smooth_value(self, Y, p):
+        """The surrogate of the stacked regressors ``Y`` (..., n_rows, k): (...), inf where
+        singular."""
         with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-            for i in range(0, len(q), chunk):
-                Ys = self.regressor(q[i : i + chunk], qd[i : i + chunk])
-                out += [crit.smoothed(Y, p)[0] for Y in Ys]
-        return np.array(out)
+            f = CRITERIA[self.criterion].smoothed_value(Y, p)
+        return np.where(np.isnan(f), np.inf, f)
 
     def _model(self, y, z0, Y0, Gt, p):
         """Surrogate of sharpness p at ``z(y)`` for the regressor linearised in the joint
@@ -646,29 +726,31 @@ class _Problem:
             return 1e300, np.zeros_like(y)
         return f, pull(self.pullback(W, Gt))
 
-    def tr_search(self, z0, steps, deadline=None):
-        """One trust-region search from ``z0`` (n,): ``(z, objective)``, z on the limits.
+    def tr_search(self, z0, steps, deadline=None, resume=None):
+        """One trust-region search from ``z0`` (n,): ``(z, objective, state)``, z on the
+        limits; ``state`` continues the search when passed back as ``resume``.
 
-        Each outer step linearises Y in the joint signals (:meth:`jet`, 1 + 4 n_joints
-        trajectories) and minimises the surrogate of that model (:meth:`_model`, cheap) by
-        L-BFGS-B in a box of half-width ``delta`` about the current point; the step is taken
-        if the true surrogate (one more regressor call) decreases by at least a tenth of what
+        Each outer step linearises Y in the joint signals (:meth:`jet`) and minimises the
+        surrogate of that model (:meth:`_model`, cheap) by L-BFGS-B in a box of half-width
+        ``delta`` about the current point; the step is taken if the true surrogate (one more
+        regressor call, reused by the next linearisation) decreases by at least a tenth of what
         the model predicted, and ``delta`` follows the agreement. Sharpness p rises through
         ``self.stages``, each stage ending when a step gains less than ``self.tr_tol``. The
         search stops early, with its best point so far, at ``deadline`` (time.monotonic()).
+        ``state`` is the stage and ``delta`` it ended with.
         """
         z = self.radial(z0, self.sharpness)[0]
-        crit = CRITERIA[self.criterion]
-        delta, outer, at = 0.25, 0, None
-        for p in self.stages:
-            stalls = 0
-            while stalls < 2 and outer < steps:
-                if deadline is not None and time.monotonic() > deadline:
-                    return self._tr_result(z)
-                if at is not z:  # a new point: linearise (a new stage keeps the last one)
-                    (Y0, Gt), at, outer = self.jet(z), z, outer + 1
-                with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-                    f0 = crit.smoothed(Y0, p)[0]
+        stage0, delta = (0, self.tr_radius / self.S.shape[1]) if resume is None else resume
+        outer, Y0, Y_z = 0, None, None
+        for stage in range(stage0, len(self.stages)):
+            p, stalls, f0 = self.stages[stage], 0, None
+            while stalls < 2:
+                if outer == steps or (deadline is not None and time.monotonic() > deadline):
+                    return (*self._tr_result(z), (stage, delta))
+                if Y0 is None:  # a new point: linearise (a new stage keeps the last one)
+                    (Y0, Gt), outer = self.jet(z, Y_z, central=False), outer + 1
+                if f0 is None:
+                    f0 = float(self._smooth_value(Y0, p))
                 while True:  # on this linearisation, until a step is taken or delta is tiny
                     res = minimize(self._model, z, args=(z, Y0, Gt, p), jac=True,
                                    method="L-BFGS-B", bounds=Bounds(z - delta, z + delta),
@@ -679,7 +761,8 @@ class _Problem:
                         stalls, delta = 2, max(delta, 1e-3)
                         break
                     z_new = self.radial(res.x, self.sharpness)[0]
-                    f_new = float(self.smooth_objective(z_new[None], p)[0])
+                    Y_new = self.stacked(z_new[None])[0]
+                    f_new = float(self._smooth_value(Y_new, p))
                     ratio = (f0 - f_new) / predicted
                     if ratio < 0.25:
                         delta = step / 4
@@ -687,17 +770,18 @@ class _Problem:
                         delta = min(2 * delta, 1.0)
                     if ratio > 0.1:
                         stalls = stalls + 1 if f0 - f_new < self.tr_tol else 0
-                        z = z_new
+                        z, Y_z, f0, Y0 = z_new, Y_new, f_new, None
                         break
                     if delta < 1e-4:
                         stalls, delta = 2, 1e-3
                         break
-        return self._tr_result(z)
+        return (*self._tr_result(z), (len(self.stages), delta))
 
     def _tr_result(self, z):
-        """The better of ``z`` (inside the limits by the smooth gauge) and ``z`` scaled onto
-        them exactly, by the criterion itself: ``(z, objective)``."""
-        Z = np.stack([z, self.to_limits(z)])
+        """The better of ``z`` (inside the fine-grid limits by the smooth gauge; scaled into
+        them between grid points too) and ``z`` scaled onto them exactly, by the criterion
+        itself: ``(z, objective)``."""
+        Z = np.stack([self.to_limits(z, inside=True), self.to_limits(z)])
         f = self.objective(Z)
         return Z[np.argmin(f)], float(f.min())
 
@@ -706,6 +790,31 @@ class _Problem:
         onto its limits. Joint by joint rather than together: scaling by the tightest joint
         leaves the others at a fraction of their range (cond 10 times worse on a 7-joint arm)."""
         return self.to_limits(rng.standard_normal((m, self.n)))
+
+
+def _room_factors(p):
+    """``1 / (1 - p)``, ``1 / (1 + p)`` for the quintic over the limit ``p`` (any shape): they
+    turn a Fourier part over the limit of either sign into the fraction of its room it uses."""
+    return 1 / np.maximum(1 - p, 1e-12), 1 / np.maximum(1 + p, 1e-12)
+
+
+def _golden_max(f, lo, hi, iterations=40):
+    """Vectorised golden-section search: the max of ``f`` (elementwise, of times (m,) [s]) in
+    each bracket ``[lo, hi]`` (m,) [s] where it is unimodal, shape (m,). The bracket shrinks to
+    0.618^iterations of its width (4e-9 for 40), so near a smooth maximum the value is exact
+    to round-off."""
+    g = (np.sqrt(5) - 1) / 2
+    a, b = lo, hi
+    c, d = b - g * (b - a), a + g * (b - a)
+    fc, fd = f(c), f(d)
+    for _ in range(iterations):
+        left = fc >= fd  # the max lies in [a, d]: d becomes b, c becomes d
+        a, b = np.where(left, a, c), np.where(left, d, b)
+        new = np.where(left, b - g * (b - a), a + g * (b - a))
+        c, d = np.where(left, new, d), np.where(left, c, new)
+        f_new = f(new)
+        fc, fd = np.where(left, f_new, fd), np.where(left, fc, f_new)
+    return np.maximum(fc, fd)
 
 
 def _problem(regressor, criterion, *, duration, harmonics, samples, limits, boundary, n_grid):
@@ -726,6 +835,8 @@ def _problem(regressor, criterion, *, duration, harmonics, samples, limits, boun
         P=boundary_quintic(t, duration=duration, boundary=boundary),
         L=limits,
         coarse=np.unique(np.linspace(0, n_grid - 1, n_coarse).round().astype(int)),
+        duration=duration,
+        boundary=boundary,
         **({"step": float(regressor.fd_step)} if hasattr(regressor, "fd_step") else {}),
     )
 
@@ -892,7 +1003,8 @@ def design_excitation(
         Number of equally spaced samples over ``[0, duration]`` (both ends included) at which
         the regressor is stacked.
     q_max, qd_max, qdd_max : float or array_like of shape (n_joints,)
-        Limits on |q| [rad], |qd| [rad/s], |qdd| [rad/s^2], held on ``n_grid`` times.
+        Limits on |q| [rad], |qd| [rad/s], |qdd| [rad/s^2], held at all times (imposed on
+        ``n_grid`` times during the search, the result scaled into them between those).
     criterion : {"cond", "logdet", "dopt", "crb"}
         ``cond``: minimise the 2-norm condition number of the stacked regressor; ``logdet``:
         maximise log det of ``Yn^T Yn``, ``Yn`` with unit-norm columns. For a whitened,
@@ -922,7 +1034,7 @@ def design_excitation(
         Warm start: used as the first start point, scaled down if it breaks a limit (trust
         region: each joint scaled onto its limits).
     n_grid : int
-        Number of equally spaced times on which the limits hold.
+        Number of equally spaced times on which the search imposes the limits.
     method : {"auto", "slsqp", "trust-region"}
         Local search. ``slsqp``: the condition number itself in epigraph form under linear
         limits on a grid, from random starts; best for small regressors (planar arms), where
@@ -933,11 +1045,11 @@ def design_excitation(
         ``auto``: ``slsqp`` up to 64 regressor columns, else ``trust-region``.
     max_steps : int
         Trust region: most steps of a search, each one linearisation (a regressor evaluation
-        of 1 + 4 n_joints trajectories) and an L-BFGS-B solve of its model. Every start gets
+        of 1 + 2 n_joints trajectories) and an L-BFGS-B solve of its model. Every start gets
         a fifth of them, the best quarter of the starts (at least two) the rest, so a design
         makes about ``(n_starts + 4 max(2, n_starts / 4)) max_steps / 5`` steps, shared by the
-        workers; a step takes about 0.5 s on one core for a 7-joint arm (153 parameters,
-        N = 120) and 10 s for a 14-joint one (496 parameters, N = 400).
+        workers; a step takes about 0.2 s on one core for a 7-joint arm (153 parameters,
+        N = 120) and 3.5 s for a 14-joint one (496 parameters, N = 400).
     n_screen : int
         Trust region: random starts on the limits (start i drawn from ``(seed, i)``) whose
         surrogate is evaluated; the ``n_starts`` best are searched from (so a larger
@@ -1067,19 +1179,24 @@ def design_excitation(
                     if t_end is not None:
                         now, left = time.monotonic(), steps * (len(items) - n) + later
                         deadline = now + (t_end - now) * steps / max(left / workers, steps)
-                    yield i, "tr_search", (z0, steps, deadline)
+                    yield i, "tr_search", (z0, steps, deadline, state.get(i))
 
             def out_of_time():  # at least one search runs, however short the budget
                 return t_end is not None and bool(found) and time.monotonic() > t_end
 
+            def kept(results):  # each search's state, so that the second round continues it
+                for i, (z, f, state[i]) in results:
+                    yield i, (z, f)
+
             start_of.update(enumerate(starts))
+            state = {}
             round_one = searches(list(enumerate(starts)), first, keep * (max_steps - first))
-            completed(_imap(problem, pool, n_jobs, round_one, stop=out_of_time), total)
+            completed(kept(_imap(problem, pool, n_jobs, round_one, stop=out_of_time)), total)
             found.sort(key=lambda c: c[:2])
             chosen = [(i, z) for _, i, z in _distinct(found, keep)]
             round_two = _imap(problem, pool, n_jobs, searches(chosen, max_steps - first, 0),
                               stop=out_of_time)  # fmt: skip
-            for n, (i, (z, f)) in enumerate(round_two):
+            for n, (i, (z, f, _)) in enumerate(round_two):
                 consider(f, i, z)
                 if progress is not None:
                     progress(len(found) + n + 1, total)
