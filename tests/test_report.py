@@ -153,6 +153,22 @@ def test_rich_table_renders_every_column(ident):
     assert "0.5162" in text
 
 
+def test_large_systems_point_to_their_definitions(ident):
+    """Past DEFINITIONS_SHOWN parameters the terminal gets the numbers, not pages of formulas."""
+    from dataclasses import replace
+
+    from spaceid.report import DEFINITIONS_SHOWN
+
+    k = DEFINITIONS_SHOWN + 1
+    big = replace(ident, names=tuple(f"pi{i + 1}" for i in range(k)), definitions=("M_link1*MX_link2/M",) * k,
+                  values=np.ones(k), std=np.ones(k), cov=np.eye(k))
+    console = Console(record=True, width=100)
+    console.print(parameter_table(big))
+    text = console.export_text()
+    assert f"pi{k}" in text and "M_link1*MX_link2/M" not in text
+    assert f"{k} parameters: their definitions are in the result file and in 'spaceid model" in text
+
+
 def test_markdown_report(tmp_path, ident):
     plot_parameters(ident, tmp_path / "parameters.png", true=TRUE)
     (tmp_path / "figs").mkdir()

@@ -432,11 +432,17 @@ def _columns(ident: Identification, true, reference, reference_label, reference_
     return header, list(zip(*cols))
 
 
+DEFINITIONS_SHOWN = 30
+"""Up to this many parameters the table lists their definitions; larger systems (the servicer's
+496, many of them hundreds of characters long) point to ``spaceid model`` and the result file."""
+
+
 def parameter_table(ident: Identification, *, true=None, reference=None, reference_true=None, reference_label="paper") -> Group:
     """The estimates as a rich table, with the definitions listed below it.
 
     The definitions (often long SymPy expressions) go under the table so that the numbers stay
-    readable in an 80-column terminal.
+    readable in an 80-column terminal; beyond ``DEFINITIONS_SHOWN`` parameters a line says where
+    they are instead.
 
     Parameters
     ----------
@@ -462,6 +468,9 @@ def parameter_table(ident: Identification, *, true=None, reference=None, referen
             table.add_column(short.get(name, name), justify="left" if i == 0 else "right", no_wrap=True)
     for row in rows:
         table.add_row(row[0], *row[2:])
+    if len(ident.names) > DEFINITIONS_SHOWN:
+        return Group(table, f"{len(ident.names)} parameters: their definitions are in the result file and in "
+                            f"'spaceid model {ident.model}'")
     definitions = Table.grid(padding=(0, 1))
     definitions.add_column(no_wrap=True)
     definitions.add_column(overflow="fold")
