@@ -252,10 +252,14 @@ def test_blocks_do_not_show(rng, monkeypatch):
 
 def test_blas_thread_limit_is_scoped():
     """Small factorisations run on one BLAS thread, and the limit ends with its block (the
-    regressor's threads follow the BLAS limit, so a leaked limit would make it serial)."""
+    regressor's threads follow the BLAS limit, so a leaked limit would make it serial). Two
+    threads first, so that the check means something on a one-core machine too."""
+    from threadpoolctl import threadpool_limits
+
     from spaceid._threads import blas_threads, one_blas_thread
 
-    before = blas_threads()
-    with one_blas_thread():
-        assert blas_threads() == 1
-    assert blas_threads() == before
+    with threadpool_limits(2, user_api="blas"):
+        assert blas_threads() == 2
+        with one_blas_thread():
+            assert blas_threads() == 1
+        assert blas_threads() == 2

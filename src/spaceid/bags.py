@@ -49,7 +49,7 @@ from .io import _QUAT_FAIL, _check_angles, _check_rates, _read_text, _Table
 from .model import parse_yaml
 from .recording import JointStates, Poses, Recording
 from .signals import differentiate, differentiate_quaternion
-from .timeseries import Log, quat_to_yaw, yaw_to_quat
+from .timeseries import Log, first_unordered, quat_to_yaw, yaw_to_quat
 
 __all__ = [
     "DEFAULT_JOINT_TOPIC",
@@ -381,10 +381,11 @@ def _stamps_ns(t, origin, label):
             f"{label}: stamps from {ns[0] / 1e9:.9g} to {ns[-1] / 1e9:.9g} s after 1970 do not fit ROS time "
             "(0 to 2^31 s): shift them with time_origin_ns"
         )
-    if ns.size > 1 and (np.diff(ns) <= 0).any():
-        i = int(np.argmax(np.diff(ns) <= 0))
+    unordered = first_unordered(ns)
+    if unordered:
+        i = unordered[0]
         raise SpaceidError(
-            f"{label}: stamps {i} and {i + 1} are less than 1 ns apart: ROS time has 1 ns resolution; drop one"
+            f"{label}: stamps {i - 1} and {i} are less than 1 ns apart: ROS time has 1 ns resolution; drop one"
         )
     return ns
 
@@ -638,13 +639,12 @@ def _poses(msgs, label):
 
 def _check_stamps(stamps, messages, label):
     """Header stamps [ns] must increase; the error names both messages (indices ``messages``)."""
-    bad = np.flatnonzero(np.diff(stamps) <= 0)
-    if bad.size:
-        i = bad[0] + 1
-        kind = "repeats" if stamps[i] == stamps[i - 1] else "goes back from"
+    unordered = first_unordered(stamps)
+    if unordered:
+        i, count, kind = unordered
         raise SpaceidError(
             f"{label}: stamp {stamps[i] / 1e9:.9f} s in message {messages[i]} {kind} {stamps[i - 1] / 1e9:.9f} s in "
-            f"message {messages[i - 1]} ({bad.size} such step(s)): header stamps must increase; re-stamp the messages "
+            f"message {messages[i - 1]} ({count} such step(s)): header stamps must increase; re-stamp the messages "
             "or drop the repeated ones"
         )
 
@@ -960,9 +960,9 @@ def _check_recording(recording, where, *, writing):
         t = np.asarray(t)
         if t.ndim != 1 or t.size < (1 if writing else 2) or not np.isfinite(t).all():
             raise SpaceidError(f"{label}.{field}: expected finite stamps [s] of shape (n,), n >= {1 if writing else 2}")
-        bad = np.flatnonzero(np.diff(t) <= 0)
-        if bad.size:
-            i = bad[0] + 1
+        unordered = first_unordered(t)
+        if unordered:
+            i = unordered[0]
             raise SpaceidError(
                 f"{label}.{field}: stamp {i} ({t[i]!r} s) does not follow stamp {i - 1} ({t[i - 1]!r} s): "
                 "stamps must increase strictly"

@@ -48,7 +48,7 @@ from scipy.linalg import cho_solve_banded, cholesky_banded
 from scipy.optimize import minimize_scalar
 
 from ._errors import SpaceidError
-from .timeseries import quat_to_yaw, yaw_to_quat
+from .timeseries import first_unordered, quat_to_yaw, yaw_to_quat
 
 __all__ = ["METHODS", "AUTO_METHOD", "estimate_noise", "differentiate", "differentiate_quaternion", "differentiate_log",
            "noise_gains"]
@@ -345,13 +345,12 @@ def _check_series(t, x, name):
     bad = np.flatnonzero(~np.isfinite(t))
     if bad.size:
         raise SpaceidError(f"{name}: time stamp t[{bad[0]}] is {t[bad[0]]}: drop or repair that sample")
-    bad = np.flatnonzero(np.diff(t) <= 0)
-    if bad.size:
-        i = bad[0] + 1
-        kind = "repeats" if t[i] == t[i - 1] else "goes back from"
+    unordered = first_unordered(t)
+    if unordered:
+        i, count, kind = unordered
         raise SpaceidError(
             f"{name}: time stamp t[{i}] = {float(t[i])!r} {kind} t[{i - 1}] = {float(t[i - 1])!r} "
-            f"({bad.size} such step(s)): stamps must be strictly increasing; sort the log and "
+            f"({count} such step(s)): stamps must be strictly increasing; sort the log and "
             "drop repeated samples"
         )
     x2 = x.reshape(t.size, -1)

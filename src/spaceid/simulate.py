@@ -8,6 +8,8 @@ identified model (only ``pi`` is needed) for prediction and validation.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 from scipy.integrate import solve_ivp
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
@@ -59,13 +61,7 @@ def base_rate(param: Parameterization, pi, q, qd, h_base) -> np.ndarray:
     ndarray of shape (..., 3)
         Base angular velocity in base axes [rad/s] (x, y zero for planar systems).
     """
-    return _solve_rate(param, *_rate_pieces(param, q, qd, _momentum_of(param, pi)), h_base)
-
-
-def _momentum_of(param, pi):
-    """``(q, qd, w0) -> param.momentum(q, qd, w0, pi)``."""
-    pi = np.asarray(pi, float)
-    return lambda q, qd, w0: param.momentum(q, qd, w0, pi)
+    return _solve_rate(param, *_rate_pieces(param, q, qd, functools.partial(param.momentum, pi=pi)), h_base)
 
 
 class excitation_regressor:  # noqa: N801 - used like a function; a class so it pickles
@@ -185,7 +181,7 @@ def simulate(
         # joint motion only, so they are evaluated once on a dense grid (batched) and splined;
         # the output rates are then solved exactly at the samples, so momentum holds there.
         grid = np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
-        free, unit, _ = _rate_pieces(param, *motion(grid), _momentum_of(param, pi))
+        free, unit, _ = _rate_pieces(param, *motion(grid), functools.partial(param.momentum, pi=pi))
         locked, offset = CubicSpline(grid, np.stack(unit, -1)), CubicSpline(grid, free)
 
         def rhs(t, quat):

@@ -11,7 +11,19 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["Log", "yaw_to_quat", "quat_to_yaw", "quat_to_matrix"]
+__all__ = ["Log", "yaw_to_quat", "quat_to_yaw", "quat_to_matrix", "first_unordered"]
+
+
+def first_unordered(t):
+    """The first stamp of ``t (n,)`` that does not follow its predecessor: ``(i, count, kind)``
+    with ``count`` such steps in all and ``kind`` "repeats" or "goes back from"; None when the
+    stamps increase strictly. Callers word the error for their source (line, message, field)."""
+    t = np.asarray(t)
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if not bad.size:
+        return None
+    i = int(bad[0]) + 1
+    return i, bad.size, "repeats" if t[i] == t[i - 1] else "goes back from"
 
 
 def yaw_to_quat(yaw):

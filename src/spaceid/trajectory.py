@@ -25,14 +25,13 @@ from __future__ import annotations
 
 import json
 import math
-import reprlib
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from ._atomic import write_text_atomic
-from ._errors import SpaceidError
+from ._errors import SpaceidError, finite_array
 
 __all__ = [
     "FourierTrajectory",
@@ -139,27 +138,6 @@ def boundary_quintic(t, *, duration, boundary):
     return _hermite(t, duration) @ np.asarray(boundary, dtype=float)
 
 
-def _array(value, shape, name, source):
-    """``value`` as a finite, read-only float array, or a SpaceidError naming the field.
-
-    ``shape`` is the expected shape, or an int: the expected number of dimensions.
-    """
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError):
-        raise SpaceidError(
-            f"{source}: field '{name}' must be a rectangular array of numbers, "
-            f"got {reprlib.repr(value)}"
-        ) from None
-    if arr.shape != shape if isinstance(shape, tuple) else arr.ndim != shape:
-        expected = shape if isinstance(shape, tuple) else f"{shape} dimensions"
-        raise SpaceidError(f"{source}: field '{name}' must have shape {expected}, got {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise SpaceidError(f"{source}: field '{name}' contains NaN or infinite values")
-    arr.setflags(write=False)
-    return arr
-
-
 @dataclass(frozen=True, eq=False)
 class FourierTrajectory:
     """A Fourier-plus-quintic joint trajectory (paper Eq. 12).
@@ -204,7 +182,7 @@ class FourierTrajectory:
             duration = math.nan
         if not (math.isfinite(duration) and duration > 0):
             raise SpaceidError(f"{src}: field 'duration' must be a positive number of seconds")
-        a = _array(self.a, 2, "a", src)
+        a = finite_array(self.a, 2, "a", src)
         if a.shape[0] != len(joints) or a.shape[1] < 1:
             raise SpaceidError(
                 f"{src}: field 'a' must have shape (n_joints={len(joints)}, n_harmonics), "
@@ -214,11 +192,11 @@ class FourierTrajectory:
         set_(self, "joints", joints)
         set_(self, "duration", duration)
         set_(self, "a", a)
-        set_(self, "b", _array(self.b, a.shape, "b", src))
+        set_(self, "b", finite_array(self.b, a.shape, "b", src))
         for name in BOUNDARY_FIELDS:
             value = getattr(self, name)
             value = np.zeros(len(joints)) if value is None else value
-            set_(self, name, _array(value, (len(joints),), name, src))
+            set_(self, name, finite_array(value, (len(joints),), name, src))
 
     def __eq__(self, other):
         if not isinstance(other, FourierTrajectory):

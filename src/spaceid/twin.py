@@ -103,7 +103,7 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 
 import numpy as np
 
-from ._errors import SpaceidError
+from ._errors import SpaceidError, finite_array
 from .model import Model, inertial_vector, load_model, to_pinocchio
 from .recording import JointStates, Poses, Recording
 from .simulate import hermite_motion
@@ -719,14 +719,7 @@ class TwinState:
 
 
 def _vector(where, value, n):
-    try:
-        arr = np.array(value, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise SpaceidError(f"{where} must be {n} numbers, got {value!r}") from None
-    if arr.shape != (n,) or not np.all(np.isfinite(arr)):
-        raise SpaceidError(f"{where} must be {n} finite numbers, got {value!r}")
-    arr.setflags(write=False)
-    return arr
+    return finite_array(value, (n,), where, "twin")
 
 
 @dataclass(frozen=True, eq=False)
