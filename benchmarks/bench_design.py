@@ -20,10 +20,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from cepheus_closed_form import cepheus_regressor  # noqa: E402
 
 import spaceid  # noqa: E402
-from spaceid.design import design_excitation  # noqa: E402
-from spaceid.regressor import minimal_parameters  # noqa: E402
-from spaceid.simulate import excitation_regressor  # noqa: E402
-from spaceid.trajectory import load_trajectory, sample_times  # noqa: E402
+from spaceid.motion import design_excitation  # noqa: E402
+from spaceid.dynamics import minimal_parameters  # noqa: E402
+from spaceid.dynamics import excitation_regressor  # noqa: E402
+from spaceid.motion import load_trajectory, sample_times  # noqa: E402
 
 CEPHEUS = dict(duration=5.0, harmonics=3, samples=35, q_max=1.5, qd_max=1.5, qdd_max=3.0)
 JOINTS = ("left_shoulder", "left_elbow")

@@ -21,11 +21,11 @@ import os
 import numpy as np
 
 import spaceid
-from spaceid.design import design_for, whitened_regressor
-from spaceid.noise import Noise
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import excitation_regressor
-from spaceid.trajectory import load_trajectory, sample_times
+from spaceid.motion import design_for, whitened_regressor
+from spaceid.estimation import Noise
+from spaceid.dynamics import minimal_parameters
+from spaceid.dynamics import excitation_regressor
+from spaceid.motion import load_trajectory, sample_times
 
 SETTING = dict(duration=5.0, harmonics=3, samples=35)
 MOMENTUM = np.array([0.0, 0.0, 0.4934])  # [N m s], about the inertial z axis

@@ -25,12 +25,12 @@ from pathlib import Path
 import numpy as np
 
 import spaceid
-from spaceid.design import design_for
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import excitation_regressor
-from spaceid.trajectory import FourierTrajectory, sample_times
+from spaceid.motion import design_for
+from spaceid.dynamics import minimal_parameters
+from spaceid.dynamics import excitation_regressor
+from spaceid.motion import FourierTrajectory, sample_times
 
-PRESETS = Path(spaceid.__file__).parent / "presets"
+PRESETS = Path(spaceid.__file__).parent / "models" / "presets"
 MOMENTUM = np.array([1.0, -2.0, 3.0])
 QDD_MAX = 0.5
 SYSTEMS = {

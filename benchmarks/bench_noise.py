@@ -29,14 +29,14 @@ import time
 import numpy as np
 
 import spaceid
-from spaceid import design
-from spaceid.demo import CEPHEUS_STUDY
-from spaceid.estimate import ESTIMATORS, cramer_rao, identify
-from spaceid.montecarlo import DEFAULT_NOISE, run_montecarlo
-from spaceid.regressor import minimal_parameters
-from spaceid.signals import differentiate_log
-from spaceid.simulate import add_noise, simulate
-from spaceid.trajectory import load_trajectory, sample_times
+from spaceid.motion import _design as design
+from spaceid.studies import CEPHEUS_STUDY
+from spaceid.estimation import ESTIMATORS, cramer_rao, identify
+from spaceid.studies import DEFAULT_NOISE, run_montecarlo
+from spaceid.dynamics import minimal_parameters
+from spaceid.data import differentiate_log
+from spaceid.motion import add_noise, simulate
+from spaceid.motion import load_trajectory, sample_times
 
 MOMENTUM = np.array([0.0, 0.0, CEPHEUS_STUDY["momentum"]])  # [N m s]
 NOISE = DEFAULT_NOISE  # 1e-4 rad on angles and attitude, 1e-4 rad/s on joint and base rates

@@ -21,13 +21,13 @@ import numpy as np
 import pinocchio as pin
 
 import spaceid
-from spaceid.estimate import identify
-from spaceid.noise import Noise
-from spaceid.regressor import _random_states, minimal_parameters
-from spaceid.simulate import base_rate
-from spaceid.timeseries import Log
+from spaceid.estimation import identify
+from spaceid.estimation import Noise
+from spaceid.dynamics._regressor import _random_states, minimal_parameters
+from spaceid.dynamics import base_rate
+from spaceid.data import Log
 
-URDF = Path(spaceid.__file__).parent / "presets" / "servicer-dual.urdf"
+URDF = Path(spaceid.__file__).parent / "models" / "presets" / "servicer-dual.urdf"
 
 
 def median_time(fn, repeats):

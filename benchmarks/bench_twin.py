@@ -19,7 +19,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 from threadpoolctl import threadpool_limits  # noqa: E402
 
-from spaceid.trajectory import load_trajectory  # noqa: E402
+from spaceid.motion import load_trajectory  # noqa: E402
 from spaceid.twin import Controllers, Tank, Thrusters, TwinSettings, TwinState, run_twin  # noqa: E402
 
 

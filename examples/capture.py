@@ -16,10 +16,10 @@ from rich.console import Console
 from rich.table import Table
 
 import spaceid
-from spaceid.estimate import compare, identify
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import add_noise, simulate
-from spaceid.trajectory import FourierTrajectory
+from spaceid.estimation import compare, identify
+from spaceid.dynamics import minimal_parameters
+from spaceid.motion import add_noise, simulate
+from spaceid.motion import FourierTrajectory
 
 
 def main():

@@ -7,7 +7,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from spaceid.model import Body, Model, _validate, inertial_vector
+from spaceid.models._model import Body, Model, _validate, inertial_vector
 
 sys.path.insert(0, str(Path(__file__).parent))  # test helper modules
 

@@ -10,15 +10,15 @@ import json
 import numpy as np
 import pytest
 
-from spaceid import bags
+from spaceid.data import _bags as bags
 from spaceid._errors import SpaceidError
-from spaceid.bags import read_mapping, read_recording, to_log, write_bag
+from spaceid.data import read_mapping, read_recording, to_log, write_bag
 from spaceid.cli import main
-from spaceid.model import load_model
-from spaceid.recording import JointStates, Poses, Recording
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import simulate
-from spaceid.timeseries import yaw_to_quat
+from spaceid.models import load_model
+from spaceid.data import JointStates, Poses, Recording
+from spaceid.dynamics import minimal_parameters
+from spaceid.motion import simulate
+from spaceid.data import yaw_to_quat
 
 H = np.array([0.0, 0.0, 0.05])  # [N m s], total momentum of the simulated run
 LATENCY = 0.008  # [s], motion capture stamped on arrival
@@ -317,7 +317,7 @@ def test_identification_from_a_bag_through_the_cli(tmp_path, recording, rw):
 
 
 def test_read_log_dispatches_on_bags(tmp_path, recording, rw):
-    from spaceid.io import read_log
+    from spaceid.data import read_log
 
     model, _ = rw
     write_bag(tmp_path / "r.bag", recording)

@@ -33,7 +33,7 @@ def workdir(tmp_path_factory):
 
 def test_identify_recovers_truth_through_files(workdir):
     result = json.loads((workdir / "result.json").read_text())
-    from spaceid.regressor import minimal_parameters
+    from spaceid.dynamics import minimal_parameters
     import spaceid
 
     truth = minimal_parameters(spaceid.load_model("cepheus")).true_values
@@ -161,9 +161,9 @@ def test_console_script_exit_code(tmp_path):
 def test_spatial_pipeline_through_files(tmp_path, capsys):
     """A 7-DOF satellite: quaternion logs, identification, validation, and compare."""
     import spaceid
-    from spaceid.trajectory import FourierTrajectory
+    from spaceid.motion import FourierTrajectory
 
-    urdf = Path(spaceid.__file__).parent / "presets" / "satellite-7dof.urdf"
+    urdf = Path(spaceid.__file__).parent / "models" / "presets" / "satellite-7dof.urdf"
     model = spaceid.load_model(urdf)
     rng = np.random.default_rng(1)
     FourierTrajectory(model.joints, 30.0, rng.uniform(-0.2, 0.2, (7, 8)), rng.uniform(-0.2, 0.2, (7, 8))).save(tmp_path / "t.json")
@@ -195,7 +195,7 @@ def test_angles_only_log_is_differentiated(tmp_path):
     result = json.loads((tmp_path / "r.json").read_text())
     assert result["settings"]["log"]["differentiation"]["joints"]["method"]
     import spaceid
-    from spaceid.regressor import minimal_parameters
+    from spaceid.dynamics import minimal_parameters
 
     truth = minimal_parameters(spaceid.load_model("cepheus")).true_values
     values = np.array([p["value"] for p in result["parameters"]])

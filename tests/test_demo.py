@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from spaceid.cli import main
-from spaceid.demo import PAPER_TABLE3, run_demo
+from spaceid.studies import PAPER_TABLE3, run_demo
 
 
 def test_paper_trajectory_noise_free():

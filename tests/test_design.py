@@ -15,11 +15,11 @@ from conftest import random_tree
 import spaceid
 from spaceid import SpaceidError
 from spaceid.cli import main
-from spaceid.design import CRITERIA, _problem, design_excitation, design_for, whitened_regressor
-from spaceid.noise import Noise, equation_covariance, signal_jacobian, signal_sigma
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import base_rate, excitation_regressor
-from spaceid.trajectory import (
+from spaceid.motion._design import CRITERIA, _problem, design_excitation, design_for, whitened_regressor
+from spaceid.estimation import Noise, equation_covariance, signal_jacobian, signal_sigma
+from spaceid.dynamics import minimal_parameters
+from spaceid.dynamics import base_rate, excitation_regressor
+from spaceid.motion._trajectory import (
     FourierTrajectory,
     boundary_quintic,
     fourier_basis,

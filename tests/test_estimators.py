@@ -9,11 +9,12 @@ from conftest import random_tree
 
 import spaceid
 from spaceid import SpaceidError
-from spaceid.estimate import ESTIMATORS, cramer_rao, identify
-from spaceid.noise import Noise
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import add_noise, base_rate, simulate
-from spaceid.trajectory import load_trajectory
+from spaceid.estimation import ESTIMATORS, cramer_rao, identify
+from spaceid.estimation import Noise
+from spaceid.dynamics import minimal_parameters
+from spaceid.dynamics import base_rate
+from spaceid.motion import add_noise, simulate
+from spaceid.motion import load_trajectory
 
 H = np.array([0.0, 0.0, 0.4934])
 TRAJ = load_trajectory("paper-table2")
@@ -103,7 +104,7 @@ def test_ml_removes_the_bias_of_least_squares(cepheus):
 def test_ml_stops_close_to_its_fixed_point(cepheus, monkeypatch):
     """ML stops once a step moves no parameter by 1e-4 of its standard error; iterated on to
     1e-10 it moves by less than 1e-3 standard errors (at 1 % noise, where it iterates most)."""
-    from spaceid import estimate
+    from spaceid.estimation import _estimate as estimate
 
     param, make = cepheus
     log = add_noise(make(501), angle=1e-2, rate=1e-2, seed=3)
@@ -174,7 +175,7 @@ def test_anchor_naming_an_unknown_parameter(cepheus_rw):
 def test_tls_is_consistent_under_its_own_assumptions():
     """Independent, equal (after scaling) errors in the regressor columns: TLS removes the
     attenuation bias of OLS. (The momentum equations do not meet these assumptions.)"""
-    from spaceid import estimate
+    from spaceid.estimation import _estimate as estimate
 
     rng = np.random.default_rng(0)
     a0 = rng.normal(size=(3000, 4))
@@ -204,7 +205,7 @@ def test_standard_errors_stay_honest_with_differentiated_rates(cepheus):
     the window and the white-noise covariance would understate them ~4 times; the Newey-West
     covariance keeps the predicted standard errors near the actual spread (30 draws: the band
     allows for the few effective samples per window)."""
-    from spaceid.signals import differentiate_log
+    from spaceid.data import differentiate_log
 
     param, _ = cepheus
     log = simulate(param, param.true_values, paper_motion, np.arange(0, 5.0001, 0.01), H)

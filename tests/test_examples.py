@@ -9,9 +9,9 @@ import pinocchio as pin
 import pytest
 
 import spaceid
-from spaceid.presets import make_examples
+from spaceid.models.presets import make_examples
 
-PRESETS = Path(spaceid.__file__).parent / "presets"
+PRESETS = Path(spaceid.__file__).parent / "models" / "presets"
 
 ARM = 18.0 + 12.0 + 15.0 + 10.0 + 12.0 + 7.0 + 5.0  # nominal arm links (left / single arm)
 ARM_RIGHT = 18.4 + 11.7 + 15.3 + 9.8 + 12.2 + 6.9 + 5.1

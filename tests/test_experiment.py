@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from spaceid.cli import main
-from spaceid.experiment import run_experiment
+from spaceid.studies import run_experiment
 from spaceid.twin import TwinSettings
 
 

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from spaceid import SpaceidError
-from spaceid import io as sio
-from spaceid.io import read_joint_trajectory, read_json, read_log, write_json, write_log
-from spaceid.timeseries import Log, yaw_to_quat
+from spaceid.data import _files as sio
+from spaceid.data import read_joint_trajectory, read_json, read_log, write_json, write_log
+from spaceid.data import Log, yaw_to_quat
 
 JOINTS = ("left_shoulder", "left_elbow")
 PLANAR_HEADER = "t,base_yaw,base_wz,q_left_shoulder,q_left_elbow,qd_left_shoulder,qd_left_elbow"

@@ -8,8 +8,8 @@ import pytest
 from conftest import pinocchio_momentum, random_states
 
 import spaceid
-from spaceid.momentum import angular_momentum
-from spaceid.regressor import minimal_parameters
+from spaceid.dynamics import angular_momentum
+from spaceid.dynamics import minimal_parameters
 
 DATA = Path(__file__).parent / "data"
 

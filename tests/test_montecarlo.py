@@ -11,11 +11,11 @@ from scipy.stats import chi2, norm
 import spaceid
 from spaceid import SpaceidError
 from spaceid.cli import main
-from spaceid.montecarlo import DEFAULT_NOISE, differentiated_noise, run_montecarlo
-from spaceid.noise import Noise
-from spaceid.regressor import minimal_parameters
-from spaceid.signals import differentiate
-from spaceid.timeseries import Log, yaw_to_quat
+from spaceid.studies import DEFAULT_NOISE, differentiated_noise, run_montecarlo
+from spaceid.estimation import Noise
+from spaceid.dynamics import minimal_parameters
+from spaceid.data import differentiate
+from spaceid.data import Log, yaw_to_quat
 
 H = [0.0, 0.0, 0.4934]
 

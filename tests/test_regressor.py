@@ -6,10 +6,10 @@ import sympy as sp
 from conftest import pinocchio_momentum, random_states, random_tree
 
 import spaceid
-from spaceid._definitions import planar_symbol_values
-from spaceid.momentum import angular_momentum
-from spaceid.model import to_pinocchio
-from spaceid.regressor import _random_states, full_regressor, full_values, minimal_parameters
+from spaceid.dynamics._definitions import planar_symbol_values
+from spaceid.dynamics import angular_momentum
+from spaceid.models import to_pinocchio
+from spaceid.dynamics._regressor import _random_states, full_regressor, full_values, minimal_parameters
 
 PLANAR_TREES = {
     "1 link": [0],
@@ -164,7 +164,7 @@ def _pinocchio_energy(pmodel, q, qd, w0):
 
 @pytest.mark.parametrize("planar", [True, False])
 def test_energy_regressor_equals_pinocchio(rng, planar):
-    from spaceid.regressor import energy_regressor
+    from spaceid.dynamics import energy_regressor
 
     model = random_tree(rng, [0, 1, 0], planar=planar)
     q, qd, w0 = random_states(rng, model, 40)
@@ -173,7 +173,7 @@ def test_energy_regressor_equals_pinocchio(rng, planar):
 
 
 def test_identifiability_report():
-    from spaceid.regressor import identifiability
+    from spaceid.dynamics import identifiability
 
     rw = identifiability(minimal_parameters(spaceid.load_model("cepheus-rw")))
     assert rw["determines_dynamics"] and rw["individually_identifiable"] == ["ZZ_wheel"]
@@ -186,7 +186,7 @@ def test_dynamics_not_determined_when_energy_escapes():
     """A test that can fail: a projection that drops one parameter cannot fix the energy."""
     from dataclasses import replace
 
-    from spaceid.regressor import identifiability
+    from spaceid.dynamics import identifiability
 
     param = minimal_parameters(spaceid.load_model("cepheus"))
     report = identifiability(replace(param, projection=param.projection[:-1]))
@@ -194,7 +194,7 @@ def test_dynamics_not_determined_when_energy_escapes():
 
 
 def test_column_definitions_evaluate_to_the_values(rng):
-    from spaceid.regressor import full_parameter_names
+    from spaceid.dynamics import full_parameter_names
 
     model = random_tree(rng, [0, 1, 0], planar=False)
     param = minimal_parameters(model)
@@ -210,7 +210,7 @@ def test_kinematics_equal_pinocchio(rng):
     origin, so absolute velocities are the velocities relative to the base origin)."""
     import pinocchio as pin
 
-    from spaceid.kinematics import body_states
+    from spaceid.dynamics import body_states
 
     model = random_tree(rng, [0, 1, 0, 3], planar=False, prismatic=(2,))
     q, qd, w0 = random_states(rng, model, 10)
@@ -232,8 +232,8 @@ def test_blocks_do_not_show(rng, monkeypatch):
     """Samples are evaluated in padded blocks, groups of blocks on threads: small blocks on
     two threads, one sample at a time and the default blocks give the same regressors (and
     the momentum summed block by block, the same as the regressor times pi)."""
-    from spaceid import regressor
-    from spaceid.regressor import energy_regressor
+    from spaceid.dynamics import _regressor as regressor
+    from spaceid.dynamics import energy_regressor
 
     model = random_tree(rng, [0, 1, 1], planar=False, prismatic=(3,))
     param = minimal_parameters(model)

@@ -8,8 +8,8 @@ import pytest
 from rich.console import Console
 
 from spaceid import SpaceidError
-from spaceid.estimate import Identification
-from spaceid.report import (
+from spaceid.estimation import Identification
+from spaceid.studies._report import (
     parameter_table,
     plot_parameters,
     plot_singular_values,
@@ -17,7 +17,7 @@ from spaceid.report import (
     plot_validation,
     write_markdown_report,
 )
-from spaceid.timeseries import Log, yaw_to_quat
+from spaceid.data import Log, yaw_to_quat
 
 JOINTS = ("left_shoulder", "left_elbow")
 TRUE = np.array([0.007237, 0.131126, 0.004630])
@@ -157,7 +157,7 @@ def test_large_systems_point_to_their_definitions(ident):
     """Past DEFINITIONS_SHOWN parameters the terminal gets the numbers, not pages of formulas."""
     from dataclasses import replace
 
-    from spaceid.report import DEFINITIONS_SHOWN
+    from spaceid.studies._report import DEFINITIONS_SHOWN
 
     k = DEFINITIONS_SHOWN + 1
     big = replace(ident, names=tuple(f"pi{i + 1}" for i in range(k)), definitions=("M_link1*MX_link2/M",) * k,

@@ -11,8 +11,8 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.signal import savgol_filter
 
 from spaceid import SpaceidError
-from spaceid.signals import differentiate, differentiate_quaternion, estimate_noise, noise_gains
-from spaceid.timeseries import yaw_to_quat
+from spaceid.data import differentiate, differentiate_quaternion, estimate_noise, noise_gains
+from spaceid.data import yaw_to_quat
 
 STEP, DURATION, NOISE = 0.01, 5.0, 1e-4
 # Table 2 (MATH.md section 3): qd_i = sum_l a_il cos(wf l t) + b_il sin(wf l t), wf = 2 pi / 5 s

@@ -5,11 +5,12 @@ import pytest
 from conftest import random_tree
 
 import spaceid
-from spaceid.estimate import identify
-from spaceid.momentum import angular_momentum
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import add_noise, base_rate, simulate
-from spaceid.validate import validate
+from spaceid.estimation import identify
+from spaceid.dynamics import angular_momentum
+from spaceid.dynamics import minimal_parameters
+from spaceid.dynamics import base_rate
+from spaceid.motion import add_noise, simulate
+from spaceid.studies import validate
 
 H = np.array([0.0, 0.0, 0.4934])
 

@@ -10,13 +10,13 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 import spaceid
-from spaceid.estimate import identify
-from spaceid.model import to_pinocchio
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import simulate
-from spaceid.trajectory import FourierTrajectory
+from spaceid.estimation import identify
+from spaceid.models import to_pinocchio
+from spaceid.dynamics import minimal_parameters
+from spaceid.motion import simulate
+from spaceid.motion import FourierTrajectory
 
-PRESETS = Path(spaceid.__file__).parent / "presets"
+PRESETS = Path(spaceid.__file__).parent / "models" / "presets"
 H = np.array([1.0, -2.0, 3.0])
 
 

@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from spaceid import SpaceidError
-from spaceid.trajectory import (
+from spaceid.motion._trajectory import (
     BOUNDARY_FIELDS,
     FourierTrajectory,
     boundary_quintic,

@@ -9,13 +9,15 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from spaceid import SpaceidError, load_model
-from spaceid.momentum import angular_momentum
-from spaceid.regressor import minimal_parameters
-from spaceid.simulate import hermite_motion, simulate
-from spaceid.timeseries import quat_to_yaw, yaw_to_quat
-from spaceid.trajectory import load_trajectory
-from spaceid.twin import (
+from spaceid import SpaceidError
+
+from spaceid import load_model
+from spaceid.dynamics import angular_momentum
+from spaceid.dynamics import minimal_parameters
+from spaceid.motion import hermite_motion, simulate
+from spaceid.data import quat_to_yaw, yaw_to_quat
+from spaceid.motion import load_trajectory
+from spaceid.twin._twin import (
     G0,
     PID,
     BearingFriction,

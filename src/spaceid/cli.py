@@ -31,13 +31,13 @@ NOISE = [
     click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
 ]
 OUTPUT = click.option("-o", "--output", type=click.Path(path_type=Path), required=True)
-ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols")  # spaceid.estimate.ESTIMATORS, without importing NumPy here
+ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
 
 
 def noise_options(f):
     """Options ``--noise-angle``, ``--noise-rate``, ``--noise-base-rate``, ``--noise-attitude``
     (standard deviations of the measured signals), handed to the command as one ``noise``
-    argument: a :class:`spaceid.noise.Noise` (unset ones zero), or None when none is given."""
+    argument: a :class:`spaceid.estimation.Noise` (unset ones zero), or None when none is given."""
     names = ("angle", "rate", "base_rate", "attitude")
 
     @functools.wraps(f)
@@ -45,7 +45,7 @@ def noise_options(f):
         values = {n: kwargs.pop(f"noise_{n}") for n in names}
         noise = None
         if any(v is not None for v in values.values()):
-            from .noise import Noise
+            from .estimation import Noise
 
             noise = Noise(**{n: v or 0.0 for n, v in values.items()})
         return f(*args, noise=noise, **kwargs)
@@ -102,14 +102,14 @@ def _progress(label: str, enabled: bool = True):
 
 
 def _param(model_src, planar):
-    from .model import load_model
-    from .regressor import minimal_parameters
+    from .models import load_model
+    from .dynamics import minimal_parameters
 
     return minimal_parameters(load_model(model_src, planar=planar))
 
 
 def _momentum(value, planar, *, allow_unknown=False):
-    from .estimate import parse_momentum
+    from .estimation import parse_momentum
 
     h = parse_momentum(value, planar=planar)
     if h is None and not allow_unknown:
@@ -125,7 +125,7 @@ def model(model_src, planar, as_json):
     """Identifiability report: bodies, joints, standard and minimal parameters."""
     from rich.table import Table
 
-    from .regressor import full_parameter_names, identifiability
+    from .dynamics import full_parameter_names, identifiability
 
     param = _param(model_src, planar)
     m = param.model
@@ -192,7 +192,7 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
     standard deviations are recorded in the trajectory."""
-    from .design import design_for
+    from .motion import design_for
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
@@ -220,9 +220,9 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 @OUTPUT
 def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
-    from .io import write_log
-    from .simulate import add_noise, simulate as run
-    from .trajectory import load_trajectory, sample_times
+    from .data import write_log
+    from .motion import add_noise, simulate as run
+    from .motion import load_trajectory, sample_times
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
@@ -265,10 +265,10 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
     inertia) move their spin momentum to the right-hand side.
     """
-    from .estimate import identify as run
-    from .estimate import parse_known
-    from .io import read_log, write_json
-    from .report import parameter_table
+    from .estimation import identify as run
+    from .estimation import parse_known
+    from .data import read_log, write_json
+    from .studies import parameter_table
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
@@ -280,14 +280,14 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
                            "--differentiate to compute every rate from the angles")
     if (differentiate or missing) and "differentiation" not in log.meta:  # angles only (bags come differentiated)
-        from .signals import differentiate_log
+        from .data import differentiate_log
 
         log = differentiate_log(log, quantum=quantum)
     reference = None
     if instruments is not None:
         if estimator != "iv":
             raise SpaceidError("--instruments is for --estimator iv")
-        from .trajectory import load_trajectory
+        from .motion import load_trajectory
 
         traj = load_trajectory(instruments)
         if tuple(traj.joints) != tuple(param.model.joints):
@@ -324,9 +324,9 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
 @OUTPUT
 def predict(result, traj_csv, momentum, initial_yaw, initial_quat, output):
     """Base motion of an identified model for a joint motion (t, q_J, qd_J)."""
-    from .io import read_joint_trajectory, write_log
-    from .timeseries import yaw_to_quat
-    from .validate import predict as run
+    from .data import read_joint_trajectory, write_log
+    from .data import yaw_to_quat
+    from .studies import predict as run
 
     ident = _read_result(result)
     h = _momentum(momentum, ident.planar)
@@ -354,13 +354,13 @@ def predict(result, traj_csv, momentum, initial_yaw, initial_quat, output):
 @OUTPUT
 def validate(result, log_path, momentum, output, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
-    from . import report
-    from .io import read_log, write_json, write_log
-    from .validate import validate as run
+    from .studies import _report as report
+    from .data import read_log, write_json, write_log
+    from .studies import validate as run
 
     ident = _read_result(result)
     h = _momentum(momentum, ident.planar)
-    from .model import load_model
+    from .models import load_model
 
     model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
     log = read_log(log_path, joints=model.joints, planar=ident.planar, wheels=model.wheels, bag_options=bag)
@@ -382,8 +382,8 @@ def validate(result, log_path, momentum, output, bag):
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of tables.")
 def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
     """The paper's simulation study on the built-in Cepheus model (Tables 1-3)."""
-    from .demo import PAPER_TABLE3, run_demo
-    from .report import parameter_table
+    from .studies import PAPER_TABLE3, run_demo
+    from .studies import parameter_table
 
     with _progress("designing the exciting trajectory", enabled=not as_json and trajectory == "designed") as progress:
         res = run_demo(trajectory=trajectory, noise_angle=noise_angle, noise_rate=noise_rate, seed=seed, out=folder, progress=progress)
@@ -414,8 +414,8 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, seed, folder):
     """Rest, wheel spin-up, exciting trajectory on the Cepheus twin; identify from the recorded bag
     (N samples and all), validate the identified model against the measurement (Fig. 6)."""
-    from .experiment import run_experiment
-    from .report import parameter_table
+    from .studies import run_experiment
+    from .studies import parameter_table
     from .twin import TwinSettings
 
     model = {"cepheus": "cepheus-rw"}.get(model_src, model_src)
@@ -441,7 +441,7 @@ def compare(before, after, as_json, show_all):
     """Compare two identifications of the same structure, e.g. before and after a capture."""
     from rich.table import Table
 
-    from .estimate import compare as run
+    from .estimation import compare as run
 
     res = run(_read_result(before), _read_result(after), where=f"{before}, {after}")
     if as_json:
@@ -485,8 +485,8 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
     estimator and parameter the bias, RMSE, predicted vs actual spread and RMSE / CRB. Noise
     levels default to 1e-4 (rad, rad/s) on every signal when no --noise-* option is given
     (otherwise the ones not given are zero)."""
-    from .montecarlo import DEFAULT_NOISE, run_montecarlo, write_montecarlo
-    from .report import montecarlo_table
+    from .studies import DEFAULT_NOISE, run_montecarlo, write_montecarlo
+    from .studies import montecarlo_table
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
@@ -507,14 +507,14 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
 
 
 def _read_result(path):
-    from .estimate import Identification
-    from .io import read_json
+    from .estimation import Identification
+    from .data import read_json
 
     return Identification.from_dict(read_json(path, what="result file"), where=str(path))
 
 
 def _model_joints(ident):
-    from .model import load_model
+    from .models import load_model
 
     return load_model(ident.model, planar=ident.planar).joints
 

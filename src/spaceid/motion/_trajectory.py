@@ -30,8 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ._atomic import write_text_atomic
-from ._errors import SpaceidError, finite_array
+from .._atomic import write_text_atomic
+from .._errors import SpaceidError, finite_array
 
 __all__ = [
     "FourierTrajectory",
@@ -46,7 +46,7 @@ __all__ = [
 BOUNDARY_FIELDS = ("q0", "qd0", "qdd0", "qf", "qdf", "qddf")
 """Boundary values, in the order ``[q, qd, qdd](0)`` then ``[q, qd, qdd](tf)``."""
 
-_FORMAT = "spaceid.trajectory"
+_FORMAT = "spaceid.motion"
 _VERSION = 1
 
 # Quintic p(s) = sum_j d_j s^j on s = t / tf in [0, 1]: rows give p, p', p'' at s = 0 and s = 1,

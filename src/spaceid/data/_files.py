@@ -24,32 +24,19 @@ Unit heuristics (a log in degrees is the commonest mistake, and silently wrong i
 
 from __future__ import annotations
 
-import csv
-import io
 import json
 import math
-import warnings
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ._atomic import atomic_path, write_text_atomic
-from ._errors import SpaceidError
-from .timeseries import Log, first_unordered, yaw_to_quat
+from .._atomic import atomic_path, write_text_atomic
+from .._errors import SpaceidError
+from . import _bags as bags
+from ._tables import _read_text, _read_csv, _check_joint_columns, _require, _column, _check_time, _check_angles, _check_rates, _unit_quaternions, _stack, _is_rate, _PLANAR_BASE, _SPATIAL_BASE
+from ._timeseries import Log, yaw_to_quat
 
 __all__ = ["read_log", "write_log", "read_joint_trajectory", "write_json", "read_json"]
-
-_MAX_ANGLE = 20 * math.pi  # [rad]; ten turns over a run means the column is in degrees
-_MAX_RATE = 100.0  # [rad/s]; arm joints and the base; above it the column is likely deg/s
-_GAP = 10.0  # a step this many times the median one is a gap (dropped samples), worth a warning
-_MAX_WHEEL_RATE = 1000.0  # [rad/s]; reaction wheels spin at a few hundred rad/s
-_QUAT_WARN = 1e-6  # |norm - 1| above which a quaternion is renormalised, with a warning
-_QUAT_FAIL = 1e-2  # |norm - 1| above which it is not a unit quaternion at all
-
-_PLANAR_BASE = (("base_yaw",), ("base_wz",))
-_SPATIAL_BASE = (("base_qw", "base_qx", "base_qy", "base_qz"), ("base_wx", "base_wy", "base_wz"))
-
 
 def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options=None) -> Log:
     """Read and validate a log CSV, or a ROS bag (``.bag``, ``.mcap``, a ROS 2 bag folder).
@@ -68,7 +55,7 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
     wheels : sequence of str, default ()
         Reaction-wheel joints (``model.wheels``), exempt from the degrees check on angles.
     bag_options : dict, optional
-        For a bag (:func:`spaceid.bags.is_bag`), keywords of :func:`spaceid.bags.read_bag_log`
+        For a bag (:func:`spaceid.data.is_bag`), keywords of :func:`spaceid.data.read_bag_log`
         (``joint_topic``, ``pose_topic``, ``mapping``, alignment and differentiator settings;
         None values are ignored): the bag is time-aligned and its rates computed there, so
         ``require_rates`` does not apply. For a CSV, topics or a mapping are an error.
@@ -96,8 +83,6 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
         A base quaternion whose norm departs from 1 by more than 1e-6 (it is normalised), or
         implausibly fast rates.
     """
-    from . import bags  # here: bags builds on this module
-
     if bags.is_bag(path):
         return bags.read_bag_log(path, joints=joints, planar=planar, wheels=wheels, **(bag_options or {}))
     given = [k for k in ("joint_topic", "pose_topic", "mapping") if (bag_options or {}).get(k) is not None]
@@ -252,194 +237,6 @@ def read_json(path, *, what="JSON file"):
             f"{path}: not a valid {what} (line {err.lineno}, column {err.colno}: {err.msg}): "
             "fix the JSON or write the file again"
         ) from None
-
-
-# --- helpers ---------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Table:
-    """A rectangular CSV: header names, cells as strings (n_rows, n_cols), file line per row."""
-
-    path: str
-    header: list
-    cells: np.ndarray
-    lines: list
-
-
-def _read_text(path, what):
-    try:
-        # utf-8-sig: spreadsheet exports often start with a byte-order mark.
-        return Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise SpaceidError(f"{path}: no such file (expected a {what}): check the path") from None
-    except UnicodeDecodeError as err:
-        raise SpaceidError(
-            f"{path}: not a UTF-8 text file (byte {err.start} cannot be decoded): expected a {what}"
-        ) from None
-    except OSError as err:
-        raise SpaceidError(
-            f"{path}: cannot read the {what} ({err.strerror or err}): check the path and permissions"
-        ) from None
-
-
-def _read_csv(path, *, what):
-    text = _read_text(path, what)
-    reader = csv.reader(io.StringIO(text, newline=""))
-    rows, lines = [], []
-    try:
-        for row in reader:
-            if row:  # blank lines carry no sample
-                rows.append(row)
-                lines.append(reader.line_num)
-    except csv.Error as err:
-        raise SpaceidError(f"{path}: line {reader.line_num}: malformed CSV ({err}): fix the file") from None
-    if not rows:
-        raise SpaceidError(f"{path}: the {what} file is empty: expected a header row and data rows")
-    header = [name.strip() for name in rows[0]]  # cells keep theirs: float() ignores it
-    seen = set()
-    for name in header:
-        if name in seen:
-            raise SpaceidError(f"{path}: column '{name}' appears twice in the header: rename or drop one")
-        seen.add(name)
-    if len(rows) == 1:
-        raise SpaceidError(f"{path}: the {what} has a header but no data rows: give at least one sample")
-    for row, line in zip(rows[1:], lines[1:]):
-        if len(row) != len(header):
-            raise SpaceidError(
-                f"{path}: line {line} has {len(row)} fields but the header has {len(header)}: "
-                "give one value per column on every row"
-            )
-    return _Table(str(path), header, np.array(rows[1:], dtype=str), lines[1:])
-
-
-def _check_joint_columns(table, joints):
-    for name in table.header:
-        prefix = "q_" if name.startswith("q_") else "qd_" if name.startswith("qd_") else None
-        if prefix and name[len(prefix):] not in joints:
-            raise SpaceidError(
-                f"{table.path}: joint '{name[len(prefix):]}' in the log is not in the model "
-                f"(joints: {', '.join(joints) or 'none'}): rename the column or use the matching model"
-            )
-
-
-def _require(table, names, *, planar):
-    missing = [name for name in names if name not in table.header]
-    if not missing:
-        return
-    hint = "; add them or correct the column names"
-    if all(_is_float(name) for name in table.header):
-        hint = "; the first line must be a header naming the columns"
-    elif planar is True and "base_qw" in table.header:
-        hint = "; the log looks spatial (base quaternion columns): use a spatial model"
-    elif planar is False and "base_yaw" in table.header:
-        hint = "; the log looks planar (base_yaw column): use a planar model"
-    elif all(_is_rate(name) for name in missing):
-        hint = "; give the rates or let spaceid differentiate the angles (require_rates=False)"
-    raise SpaceidError(
-        f"{table.path}: missing column(s) {', '.join(missing)} (header: {', '.join(table.header)}){hint}"
-    )
-
-
-def _column(table, name):
-    """The column ``name`` as finite floats, shape (n_rows,)."""
-    raw = table.cells[:, table.header.index(name)]
-    try:
-        x = raw.astype(float)
-    except ValueError:
-        i = next((i for i, cell in enumerate(raw) if not _is_float(cell)), 0)
-        raise SpaceidError(
-            f"{table.path}: line {table.lines[i]}, column '{name}': {str(raw[i]).strip()!r} is not a number: "
-            "give plain decimal numbers"
-        ) from None
-    bad = ~np.isfinite(x)
-    if bad.any():
-        i = int(np.argmax(bad))
-        raise SpaceidError(
-            f"{table.path}: column '{name}' holds {x[i]} (first at line {table.lines[i]}): "
-            "give finite numbers; fill or drop the gaps"
-        )
-    return x
-
-
-def _check_time(table, t):
-    unordered = first_unordered(t)
-    if unordered:
-        i = unordered[0]
-        raise SpaceidError(
-            f"{table.path}: time stamps must increase strictly, but t = {float(t[i])!r} at line "
-            f"{table.lines[i]} follows t = {float(t[i - 1])!r}: sort the log or remove duplicate rows"
-        )
-    steps = np.diff(t)
-    if steps.size and steps.max() > _GAP * np.median(steps):
-        i = int(np.argmax(steps)) + 1
-        warnings.warn(
-            f"{table.path}: a gap of {steps[i - 1]:.3g} s before line {table.lines[i]} ({steps[i - 1] / np.median(steps):.0f} "
-            "median steps): identification uses the samples as they are, but rates cannot be differentiated and "
-            "validation re-simulates across it",
-            stacklevel=3,
-        )
-
-
-def _check_angles(table, values, names):
-    for name in names:
-        peak = np.abs(values[name]).max() if name in values else 0.0
-        if peak > _MAX_ANGLE:
-            raise SpaceidError(
-                f"{table.path}: column '{name}' reaches {peak:.4g}, beyond {_MAX_ANGLE:.4g} rad "
-                "(ten turns): it seems to be in degrees; convert it to radians"
-            )
-
-
-def _check_rates(table, values, base_rates, joints, wheels):
-    limits = {name: _MAX_RATE for name in base_rates}
-    limits |= {f"qd_{j}": _MAX_WHEEL_RATE if j in wheels else _MAX_RATE for j in joints}
-    for name, limit in limits.items():
-        peak = np.abs(values[name]).max() if name in values else 0.0
-        if peak > limit:
-            warnings.warn(
-                f"{table.path}: column '{name}' reaches {peak:.4g} rad/s, "
-                f"above {limit:g} rad/s: check that it is in rad/s, not deg/s",
-                stacklevel=3,
-            )
-
-
-def _unit_quaternions(table, quat):
-    """``quat`` (n, 4) checked to be unit and renormalised if slightly off."""
-    norm = np.linalg.norm(quat, axis=1)
-    error = np.abs(norm - 1)
-    if error.max() > _QUAT_FAIL:
-        i = int(np.argmax(error > _QUAT_FAIL))
-        raise SpaceidError(
-            f"{table.path}: line {table.lines[i]}: base quaternion (base_qw, base_qx, base_qy, "
-            f"base_qz) has norm {norm[i]:.6g}, expected 1: give unit quaternions, scalar first"
-        )
-    if error.max() > _QUAT_WARN:
-        warnings.warn(
-            f"{table.path}: base quaternions depart from unit norm by up to {error.max():.2g}; "
-            "normalised them",
-            stacklevel=3,
-        )
-        return quat / norm[:, None]
-    return quat
-
-
-def _stack(values, names, n, fill=None):
-    """Columns ``names`` of ``values`` side by side, shape (n, len(names)); absent -> ``fill``."""
-    cols = [values[name] if name in values else fill for name in names]
-    return np.ascontiguousarray(np.array(cols, dtype=float).reshape(len(names), n).T)
-
-
-def _is_rate(name):
-    return name.startswith(("qd_", "base_w"))
-
-
-def _is_float(text):
-    try:
-        float(text)
-    except ValueError:
-        return False
-    return True
 
 
 def _dumps(obj, level: int = 0) -> str:

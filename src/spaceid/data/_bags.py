@@ -21,12 +21,12 @@ version 8, the older of the two rosbags writes (9 changed the QoS serialisation)
 ROS 2 distribution's ``ros2 bag`` accepts them was not tested here (rosbag2 keeps backward, not
 forward, compatibility: Humble writes version 5; ``ros2 bag reindex`` rebuilds the metadata).
 
-Time. Header stamps are integer nanoseconds. :class:`~spaceid.recording.Recording` stamps are
+Time. Header stamps are integer nanoseconds. :class:`~spaceid.data.Recording` stamps are
 float seconds after a time origin (``time_origin_ns``): 0 when writing unless given, and when
 reading the whole second at or before the earliest stamp, so that wall-clock stamps (~1.7e9 s)
 keep their nanoseconds in float64. Stamps that are whole nanoseconds read back bit for bit.
 
-:func:`to_log` turns a recording into a :class:`~spaceid.timeseries.Log` (common time base,
+:func:`to_log` turns a recording into a :class:`~spaceid.data.Log` (common time base,
 rates); :func:`read_bag_log` does both steps from a bag, with an optional mapping file
 (:func:`read_mapping`) for topic and joint names.
 """
@@ -44,12 +44,12 @@ import numpy as np
 import yaml
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
-from ._errors import SpaceidError
-from .io import _QUAT_FAIL, _check_angles, _check_rates, _read_text, _Table
-from .model import parse_yaml
-from .recording import JointStates, Poses, Recording
-from .signals import differentiate, differentiate_quaternion
-from .timeseries import Log, first_unordered, quat_to_yaw, yaw_to_quat
+from .._errors import SpaceidError
+from ._tables import _QUAT_FAIL, _check_angles, _check_rates, _read_text, _Table
+from .._yaml import parse_yaml
+from ._recording import JointStates, Poses, Recording
+from ._signals import differentiate, differentiate_quaternion
+from ._timeseries import Log, first_unordered, quat_to_yaw, yaw_to_quat
 
 __all__ = [
     "DEFAULT_JOINT_TOPIC",
@@ -685,7 +685,7 @@ def to_log(
     smoothing=None,
     quantum=None,
 ) -> Log:
-    """A :class:`~spaceid.timeseries.Log` from a recording: common time base and rates.
+    """A :class:`~spaceid.data.Log` from a recording: common time base and rates.
 
     1. The pose stamps are shifted back by ``pose_latency``; the time span common to the pose
        and every selected joint is the overlap.
@@ -695,7 +695,7 @@ def to_log(
        overlap (an error); shorter gaps are bridged, as the differentiators work on the
        actual, uneven stamps. Dropped frames (steps above 1.5 median steps) are counted.
     4. Base: the attitude is smoothed and differentiated on the pose stamps with
-       :func:`~spaceid.signals.differentiate_quaternion` (body rate, base axes), then
+       :func:`~spaceid.data.differentiate_quaternion` (body rate, base axes), then
        interpolated to the time base: the attitude by cubic Hermite interpolation with the
        rate as slope (planar: of the unwrapped yaw; spatial: of the sign-continuous quaternion,
        slopes ``q (x) [0, w] / 2``, renormalised), the rate by a cubic spline. Both are
@@ -704,7 +704,7 @@ def to_log(
        pure-yaw quaternion) and rejects tilts above ``max_tilt``.
     5. Joints: rates are the JointState velocities when every message of that joint carries
        one (``joint_rates="auto"``), else the positions are smoothed and differentiated with
-       :func:`~spaceid.signals.differentiate` on that joint's stamps. Off the joint stamps
+       :func:`~spaceid.data.differentiate` on that joint's stamps. Off the joint stamps
        (``rate`` given, or joints published separately) positions are cubic Hermite
        interpolated (rates as slopes) and rates by a cubic spline. Reaction-wheel angles are
        unwrapped (velocity-aided when velocities are measured, so that a wheel turning more
@@ -735,7 +735,7 @@ def to_log(
         Joint rates from the messages' velocities when every sample has one ("auto"), always
         ("velocity": an error if some are missing) or never ("differentiate").
     method, window, order, smoothing
-        Differentiator settings, as in :func:`spaceid.signals.differentiate` (automatic by
+        Differentiator settings, as in :func:`spaceid.data.differentiate` (automatic by
         default), for the attitude and the differentiated joints.
     quantum : float, optional
         Encoder resolution [rad per count] of the differentiated joints.
@@ -1041,7 +1041,7 @@ def read_mapping(path) -> dict:
 
 
 def read_bag_log(path, *, joints, planar, wheels=(), mapping=None, joint_topic=None, pose_topic=None, **options) -> Log:
-    """Read a bag straight into a :class:`~spaceid.timeseries.Log`: :func:`read_recording` then
+    """Read a bag straight into a :class:`~spaceid.data.Log`: :func:`read_recording` then
     :func:`to_log`.
 
     Parameters

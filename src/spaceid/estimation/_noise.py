@@ -18,9 +18,9 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ._errors import SpaceidError
-from .kinematics import skew
-from .regressor import Parameterization
+from .._errors import SpaceidError
+from ..dynamics import skew
+from ..dynamics import Parameterization
 
 __all__ = ["Noise", "noise_from_log", "signal_sigma", "signal_jacobian", "equation_covariance", "FD_STEP"]
 
@@ -147,13 +147,13 @@ def equation_covariance(jac: np.ndarray, sigma: np.ndarray) -> np.ndarray:
 
 
 def noise_from_log(log) -> Noise:
-    """Noise levels estimated from a log's own samples (:func:`spaceid.signals.estimate_noise`).
+    """Noise levels estimated from a log's own samples (:func:`spaceid.data.estimate_noise`).
 
     Each category pools its channels by RMS. Rates that were computed by differentiating the
     angles are smooth, and their sample-to-sample noise is no longer white: the estimate then
     understates their error, which the result records (``source``).
     """
-    from .signals import estimate_noise
+    from ..data import estimate_noise
 
     def pooled(x):
         return float(np.sqrt(np.mean(estimate_noise(log.t, x)[0] ** 2))) if x.size else 0.0

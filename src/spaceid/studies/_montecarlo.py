@@ -1,21 +1,21 @@
 """Monte Carlo studies of the estimators: bias, spread and efficiency against the Cramer-Rao bound.
 
-A study simulates the noise-free motion once (:func:`spaceid.simulate.simulate`), computes the
-Cramer-Rao bound of the errors-in-variables model for it (:func:`spaceid.estimate.cramer_rao`),
+A study simulates the noise-free motion once (:func:`spaceid.motion.simulate`), computes the
+Cramer-Rao bound of the errors-in-variables model for it (:func:`spaceid.estimation.cramer_rao`),
 then repeats runs: fresh measurement noise, identification with every requested estimator,
 estimates and predicted standard errors kept. Per estimator and parameter it reports the
 bias, standard deviation and RMSE over the runs, the mean predicted standard error, and RMSE /
 CRB: how far the estimator is from the best any unbiased one can do.
 
-Noise. Each run draws white Gaussian noise of the levels of a :class:`spaceid.noise.Noise`:
+Noise. Each run draws white Gaussian noise of the levels of a :class:`spaceid.estimation.Noise`:
 ``angle`` on the joint angles, ``rate`` on the joint rates, ``base_rate`` on the base angular
-velocity and ``attitude`` on the base attitude, by two :func:`spaceid.simulate.add_noise` draws
+velocity and ``attitude`` on the base attitude, by two :func:`spaceid.motion.add_noise` draws
 (joint signals from the first, base signals from the second, so that the four levels are
 independent). The estimators get the true levels (``noise=``), as in a study where the sensors
 are characterised.
 
 Angles only (``angles_only=True``). Noise goes on the joint angles and the base attitude only;
-the rates are then differentiated from them (:func:`spaceid.signals.differentiate_log`,
+the rates are then differentiated from them (:func:`spaceid.data.differentiate_log`,
 automatic bandwidth unless ``differentiate=`` fixes it), as on hardware with encoders and motion
 capture. The estimators then get the noise model of the differentiated signals
 (:func:`differentiated_noise`): the differentiator's own noise estimate of each channel,
@@ -27,7 +27,7 @@ estimators' white-noise model ignores: predicted standard errors are then optimi
 runs), a yardstick rather than a bound.
 
 Seeds. Run ``i`` draws its noise from ``np.random.SeedSequence(seed).spawn(runs)[i]``
-(two 32-bit states, one per :func:`~spaceid.simulate.add_noise` draw), so each run's noise
+(two 32-bit states, one per :func:`~spaceid.motion.add_noise` draw), so each run's noise
 depends on ``(seed, i)`` alone: the numbers do not depend on ``jobs`` or on the order in which
 runs finish. The root seed is recorded.
 
@@ -52,14 +52,14 @@ from pathlib import Path
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from ._errors import SpaceidError
-from .estimate import ESTIMATORS, cramer_rao, identify
-from .noise import Noise
-from .regressor import Parameterization
-from .signals import differentiate_log, noise_gains
-from .simulate import add_noise, simulate
-from .timeseries import Log
-from .trajectory import FourierTrajectory, load_trajectory, sample_times
+from .._errors import SpaceidError
+from ..estimation import ESTIMATORS, cramer_rao, identify
+from ..estimation import Noise
+from ..dynamics import Parameterization
+from ..data import differentiate_log, noise_gains
+from ..motion import add_noise, simulate
+from ..data import Log
+from ..motion import FourierTrajectory, load_trajectory, sample_times
 
 __all__ = [
     "DEFAULT_NOISE", "STATISTICS", "MonteCarloResult", "run_montecarlo", "differentiated_noise",
@@ -171,7 +171,7 @@ class MonteCarloResult:
 
 def _channel_levels(t, info, channels):
     """White-noise equivalents ``(smoothed, derivative)`` of ``channels`` of a
-    :func:`spaceid.signals.differentiate` record: the channel's noise times the RMS over
+    :func:`spaceid.data.differentiate` record: the channel's noise times the RMS over
     samples of its gains, pooled over the channels by RMS."""
     levels = []
     for c in channels:
@@ -192,7 +192,7 @@ def differentiated_noise(log: Log) -> Noise:
     through its filter: a linear smoother with weights ``s_i`` and derivative weights ``d_i``
     at sample i turns white noise ``sigma`` into errors of std ``sigma |s_i|`` on the smoothed
     angle and ``sigma |d_i|`` on the rate. The RMS over samples and channels gives the scalar
-    levels of :class:`~spaceid.noise.Noise`. Base: the yaw for planar logs; for spatial ones
+    levels of :class:`~spaceid.estimation.Noise`. Base: the yaw for planar logs; for spatial ones
     the quaternion's vector part, whose noise is half the rotation's (so levels double).
 
     These are per-sample levels: the errors are correlated over the window (and the
@@ -201,7 +201,7 @@ def differentiated_noise(log: Log) -> Noise:
     Parameters
     ----------
     log : Log
-        Output of :func:`spaceid.signals.differentiate_log` (``meta["differentiation"]``).
+        Output of :func:`spaceid.data.differentiate_log` (``meta["differentiation"]``).
 
     Returns
     -------
@@ -216,7 +216,7 @@ def differentiated_noise(log: Log) -> Noise:
     record = log.meta.get("differentiation")
     if not record:
         raise SpaceidError("differentiated_noise: the log's rates were not differentiated (no "
-                           "meta['differentiation']): use spaceid.signals.differentiate_log first")
+                           "meta['differentiation']): use spaceid.data.differentiate_log first")
     t = np.asarray(log.t, float)
     joints = record["joints"]
     angle, rate = _channel_levels(t, joints, range(len(joints["noise"])))
@@ -403,7 +403,7 @@ def _trajectory(param, spec, *, duration, samples, momentum, noise, seed, design
     if callable(spec):
         return spec, {"name": getattr(spec, "__name__", type(spec).__name__), "callable": True}
     if str(spec) == "designed":
-        from .design import design_for
+        from ..motion import design_for
 
         if duration is None or samples is None:
             raise SpaceidError("--trajectory designed: give --duration [s] and --samples N of the design")
@@ -443,8 +443,8 @@ def run_montecarlo(
     trajectory : FourierTrajectory, callable, or str
         The joint motion: a trajectory, a callable ``motion(t) -> (q, qd)`` with ``t`` of shape
         (n,) and results (n, n_joints) [rad, rad/s], a named trajectory or file (see
-        :func:`spaceid.trajectory.load_trajectory`), or ``"designed"``: designed now by
-        :func:`spaceid.design.design_for` with ``duration``, ``samples``, ``seed``, ``noise``
+        :func:`spaceid.motion.load_trajectory`), or ``"designed"``: designed now by
+        :func:`spaceid.motion.design_for` with ``duration``, ``samples``, ``seed``, ``noise``
         and the options in ``design`` (default 3 harmonics, criterion ``cond``).
     momentum : array_like of shape (3,)
         Inertial angular momentum [N m s], nonzero (known to the estimators).
@@ -460,7 +460,7 @@ def run_montecarlo(
     runs : int
         Noise draws, at least 2.
     estimators : sequence of str
-        Keys of :data:`spaceid.estimate.ESTIMATORS`; ``iv`` gets the commanded joint motion as
+        Keys of :data:`spaceid.estimation.ESTIMATORS`; ``iv`` gets the commanded joint motion as
         instruments.
     seed : int
         Root seed (>= 0) of the noise (and of a ``"designed"`` trajectory); recorded.
@@ -472,10 +472,10 @@ def run_montecarlo(
         Noise on joint angles (``noise.angle``) and base attitude (``noise.attitude``) only; the
         rates differentiated from them (see the module docstring).
     differentiate : dict, optional
-        Options of :func:`spaceid.signals.differentiate_log` (``method``, ``window``,
+        Options of :func:`spaceid.data.differentiate_log` (``method``, ``window``,
         ``order``, ``smoothing``, ``quantum``) for ``angles_only``; default automatic.
     design : dict, optional
-        Options of :func:`spaceid.design.design_for` for ``"designed"`` (``harmonics``,
+        Options of :func:`spaceid.motion.design_for` for ``"designed"`` (``harmonics``,
         ``criterion``, ``n_starts``, ...).
 
     Returns
@@ -494,7 +494,7 @@ def run_montecarlo(
     jobs = _cores() if jobs is None else _check_int(jobs, "--jobs", 1, "give 1 or more worker processes")
     estimators = _check_estimators(estimators)
     if not isinstance(noise, Noise):
-        raise SpaceidError(f"noise must be a spaceid.noise.Noise, got {type(noise).__name__}")
+        raise SpaceidError(f"noise must be a spaceid.estimation.Noise, got {type(noise).__name__}")
     relevant = (noise.angle, noise.attitude) + (() if angles_only else (noise.rate, noise.base_rate))
     if not any(relevant):
         raise SpaceidError("--noise-angle, --noise-rate, --noise-base-rate, --noise-attitude: the noise is zero"
@@ -561,7 +561,7 @@ def run_montecarlo(
             "options": diff_options,
             "method": chosen[0]["joints"]["method"] if chosen else None,
             "choices": _tally(chosen),
-            "noise_model": "per run: spaceid.montecarlo.differentiated_noise of the run's differentiated log",
+            "noise_model": "per run: spaceid.studies.differentiated_noise of the run's differentiated log",
             "noise_equivalent_rms": model_noise.to_dict(),
         }  # fmt: skip
     with threadpool_limits(1):
@@ -585,7 +585,7 @@ def run_montecarlo(
         else "the simulated levels (noise)",
         "differentiation": diff_record,
         "crb": "white-noise equivalent of the differentiated signals: a yardstick, not a bound" if angles_only
-        else "Cramer-Rao bound of the errors-in-variables model (spaceid.estimate.cramer_rao) at the noise-free motion",
+        else "Cramer-Rao bound of the errors-in-variables model (spaceid.estimation.cramer_rao) at the noise-free motion",
         "runs": runs,
         "seed": seed,
         "run_seeds": "np.random.SeedSequence(seed).spawn(runs)[i].generate_state(2): add_noise seeds of the joint "
@@ -612,9 +612,9 @@ def write_montecarlo(result: MonteCarloResult, folder) -> dict:
     """
     from rich.console import Console
 
-    from . import report
-    from ._atomic import write_text_atomic
-    from .io import write_json
+    from . import _report as report
+    from .._atomic import write_text_atomic
+    from ..data import write_json
 
     folder = Path(folder)
     try:

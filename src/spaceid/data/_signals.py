@@ -47,8 +47,8 @@ import numpy as np
 from scipy.linalg import cho_solve_banded, cholesky_banded
 from scipy.optimize import minimize_scalar
 
-from ._errors import SpaceidError
-from .timeseries import first_unordered, quat_to_yaw, yaw_to_quat
+from .._errors import SpaceidError
+from ._timeseries import first_unordered, quat_to_yaw, yaw_to_quat
 
 __all__ = ["METHODS", "AUTO_METHOD", "estimate_noise", "differentiate", "differentiate_quaternion", "differentiate_log",
            "noise_gains"]

@@ -1,7 +1,7 @@
 """Readable definitions of the minimal parameters in physical terms.
 
 Planar trees: each parameter is the coefficient of one body-pair function (see
-:mod:`spaceid.regressor`), derived symbolically with SymPy from the barycentric form of the
+:mod:`spaceid.dynamics`), derived symbolically with SymPy from the barycentric form of the
 momentum: with ``s_i`` written as a sum of body-fixed vectors ``v`` (joint offsets and CoM
 offsets), and ``mu_v`` the mass of the bodies whose CoM position contains ``v``,
 
@@ -22,7 +22,7 @@ from collections import Counter
 
 import numpy as np
 
-from .model import Model, _inertia_matrix
+from ..models._model import Model, _inertia_matrix
 
 __all__ = ["planar_definitions", "planar_symbol_values", "column_definitions"]
 

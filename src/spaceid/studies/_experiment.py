@@ -21,16 +21,16 @@ from pathlib import Path
 
 import numpy as np
 
-from ._errors import SpaceidError
-from .bags import read_bag_log, write_bag
-from .estimate import Identification, _anchors, identify
-from .io import write_json, write_log
-from .model import load_model
-from .regressor import minimal_parameters
-from .timeseries import Log
-from .trajectory import FourierTrajectory, load_trajectory, sample_times
-from .twin import TwinSettings, drained_model, join_runs, run_twin, spin_up
-from .validate import validate
+from .._errors import SpaceidError
+from ..data import read_bag_log, write_bag
+from ..estimation._estimate import Identification, _anchors, identify
+from ..data import write_json, write_log
+from ..models import load_model
+from ..dynamics import minimal_parameters
+from ..data import Log
+from ..motion import FourierTrajectory, load_trajectory, sample_times
+from ..twin import TwinSettings, drained_model, join_runs, run_twin, spin_up
+from ._validate import validate
 
 __all__ = ["ExperimentResult", "run_experiment", "BAG_NAMES"]
 
@@ -53,7 +53,7 @@ class ExperimentResult:
     predicted : Log
         The identified model (N samples) re-simulated with the measured joint motion.
     metrics : dict
-        Validation metrics (:func:`spaceid.validate.validation_metrics`).
+        Validation metrics (:func:`spaceid.studies.validation_metrics`).
     trajectory : FourierTrajectory
     settings : dict
         Protocol, twin settings, seeds, bag.
@@ -88,7 +88,7 @@ def _trajectory(trajectory, *, momentum, samples, seed, progress):
         return trajectory
     if str(trajectory) != "designed":
         return load_trajectory(trajectory, joints=ARM_JOINTS)
-    from .design import design_for
+    from ..motion import design_for
 
     arm = minimal_parameters(load_model("cepheus"))  # the arm with the wheel locked: what is excited
     return design_for(arm, duration=5.0, harmonics=3, samples=samples, momentum=[0.0, 0.0, momentum], seed=seed,
@@ -130,7 +130,7 @@ def run_experiment(
         The twin (default: every effect on, as on the real table).
     bag_format : {"ros1", "ros2", "mcap"}
     estimator : str
-        See :func:`spaceid.estimate.identify`.
+        See :func:`spaceid.estimation.identify`.
     joint_rates : {"differentiate", "velocity"}
         Joint rates from the encoder angles (Savitzky-Golay on the 50 Hz joint states), or the
         published velocities (one-tick encoder differences: a count per millisecond is
@@ -219,7 +219,7 @@ def run_experiment(
 
 
 def _write_report(result: ExperimentResult, run) -> None:
-    from . import report
+    from . import _report as report
 
     folder = result.folder
     result.trajectory.save(folder / "trajectory.json")

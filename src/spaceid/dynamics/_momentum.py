@@ -1,7 +1,7 @@
 """Angular momentum of a free-floating system computed directly from rigid-body definitions.
 
 This is the independent reference for every regressor: it uses each body's mass, CoM and
-inertia as they are, never the lumped parameter combinations of :mod:`spaceid.regressor`.
+inertia as they are, never the lumped parameter combinations of :mod:`spaceid.dynamics`.
 
 References
 ----------
@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .kinematics import body_states
-from .model import Model, _inertia_matrix
-from .timeseries import quat_to_matrix
+from ._kinematics import body_states
+from ..models._model import Model, _inertia_matrix
+from ..data import quat_to_matrix
 
 __all__ = ["angular_momentum"]
 

@@ -12,7 +12,7 @@ Five estimators (``ESTIMATORS``) solve them:
     in about a second).
 ``wls``
     Weighted least squares, each sample weighted by the inverse first-order covariance of its
-    equation error, ``S_n = J_n Sigma J_n^T`` (:mod:`spaceid.noise`), iterated twice. Efficient
+    equation error, ``S_n = J_n Sigma J_n^T`` (:mod:`spaceid.estimation`), iterated twice. Efficient
     to first order; keeps an O(sigma^2) bias.
 ``tls``
     Total least squares on the column-scaled system (errors in every column, of the size the
@@ -65,12 +65,12 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 from scipy.optimize import brentq
 
-from ._errors import SpaceidError
-from ._threads import one_blas_thread
-from .kinematics import skew
-from .noise import FD_STEP, Noise, equation_covariance, noise_from_log, signal_jacobian, signal_sigma
-from .regressor import Parameterization
-from .timeseries import Log, quat_to_matrix
+from .._errors import SpaceidError
+from .._threads import one_blas_thread
+from ..dynamics import skew
+from ._noise import FD_STEP, Noise, equation_covariance, noise_from_log, signal_jacobian, signal_sigma
+from ..dynamics import Parameterization
+from ..data import Log, quat_to_matrix
 
 __all__ = [
     "ESTIMATORS", "Identification", "identify", "cramer_rao", "compare", "parse_momentum", "parse_known",
@@ -238,7 +238,7 @@ class _Equations:
         return (self.phi(x + step * v) - self.phi(x - step * v)) / (2 * step[..., None])
 
     def jacobian(self, x, theta) -> np.ndarray:
-        """``d(Phi theta_bar)/dx``: ``(n, rows, n_x)`` (see :func:`spaceid.noise.signal_jacobian`)."""
+        """``d(Phi theta_bar)/dx``: ``(n, rows, n_x)`` (see :func:`spaceid.estimation.signal_jacobian`)."""
         q, qd, w, rot = self.unpack(x)
         pi, h = self.full(theta)
         return signal_jacobian(self.param, pi, q, qd, w, np.einsum("nji,j->ni", rot, h))
@@ -347,7 +347,7 @@ def _tls(eq, x, sigma, theta, ctx):
 
 
 def _iv(eq, x, sigma, theta, ctx, iterations=2):
-    from .simulate import base_rate
+    from ..dynamics import base_rate
 
     A, b = _split(ctx["phi"])
     ref = ctx["reference"]  # (q, qd) the instruments are built from

@@ -1,6 +1,6 @@
 """Optimal excitation: choose the Fourier coefficients of Eq. 12 for a well-conditioned regressor.
 
-The free coefficients ``X = [a | b]`` of :class:`~spaceid.trajectory.FourierTrajectory` are
+The free coefficients ``X = [a | b]`` of :class:`~spaceid.motion.FourierTrajectory` are
 searched in scaled variables ``z`` (``X = S * z``, with ``S`` such that ``|z_jk| = 1`` alone
 takes joint j to its tightest limit). q, qd and qdd are affine in ``z``, so the joint limits,
 imposed on a fine time grid, are linear inequalities, and separate by joint. Results are scaled
@@ -62,9 +62,9 @@ from scipy.optimize import Bounds, minimize
 from scipy.special import logsumexp, softmax
 from threadpoolctl import threadpool_limits
 
-from ._errors import SpaceidError
-from .noise import Noise, equation_covariance, signal_jacobian, signal_sigma
-from .trajectory import (
+from .._errors import SpaceidError
+from ..estimation import Noise, equation_covariance, signal_jacobian, signal_sigma
+from ._trajectory import (
     BOUNDARY_FIELDS,
     FourierTrajectory,
     boundary_quintic,
@@ -303,9 +303,9 @@ class whitened_regressor:  # noqa: N801 - used like a function; a class so it pi
 
     ``whitened_regressor(param, pi, momentum, noise)(q, qd)`` with ``q, qd`` of shape
     ``(..., n_samples, n_joints)`` [rad, rad/s] returns ``Yw (..., n_samples * rows, k)``:
-    sample n's rows ``Y_n`` of :class:`~spaceid.simulate.excitation_regressor` (base rate
+    sample n's rows ``Y_n`` of :class:`~spaceid.dynamics.excitation_regressor` (base rate
     from momentum conservation) times ``L_n^-1``, where ``L_n L_n^T = S_n = J_n diag(sigma^2)
-    J_n^T`` is the first-order covariance of the equation error (:mod:`spaceid.noise`) at
+    J_n^T`` is the first-order covariance of the equation error (:mod:`spaceid.estimation`) at
     ``pi`` and the motion's own base rate. So ``Yw^T Yw = sum_n Y_n^T S_n^-1 Y_n`` is the
     Fisher information of ``pi`` and its inverse the Cramer-Rao (KCR) bound; with
     ``relative``, column i is also scaled by ``|pi_i|``, which makes the bound that of
@@ -338,7 +338,7 @@ class whitened_regressor:  # noqa: N801 - used like a function; a class so it pi
     fd_step = 1e-4
 
     def __init__(self, param, pi, momentum, noise, *, relative=True):
-        from .simulate import excitation_regressor
+        from ..dynamics import excitation_regressor
 
         if noise.is_zero:
             raise SpaceidError(
@@ -1378,7 +1378,7 @@ def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progres
     """
     crit = _criterion(criterion)
     if noise is not None and not isinstance(noise, Noise):
-        raise SpaceidError(f"noise must be a spaceid.noise.Noise, got {type(noise).__name__}")
+        raise SpaceidError(f"noise must be a spaceid.estimation.Noise, got {type(noise).__name__}")
     if crit.noise_aware and (noise is None or noise.is_zero):
         raise SpaceidError(
             f"criterion {criterion!r} minimises the estimation error under measurement noise: "
@@ -1402,7 +1402,7 @@ def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progres
                 f"give --{key.replace('_', '-')} (rad, rad/s, rad/s^2)"
             )
     options = {k: v for k, v in options.items() if v is not None}
-    from .simulate import excitation_regressor
+    from ..dynamics import excitation_regressor
 
     noisy = noise is not None and not noise.is_zero
     if crit.noise_aware:

@@ -3,7 +3,7 @@
 Writes ``satellite-7dof.urdf``, ``servicer-dual.urdf`` and ``servicer-captured.urdf``
 next to this script (or into the folder given as the first argument)::
 
-    python src/spaceid/presets/make_examples.py
+    python src/spaceid/models/presets/make_examples.py
 
 The URDF files are committed; this script is their provenance. The free and the captured
 servicer come from the same definitions below, so they cannot drift apart: the captured

@@ -1,9 +1,9 @@
 """Raw sensor streams as a lab records them, before alignment: the contract between the
-digital twin (:mod:`spaceid.twin`), ROS bags (:mod:`spaceid.bags`) and identification.
+digital twin (:mod:`spaceid.twin`), ROS bags (:mod:`spaceid.data`) and identification.
 
 A recording holds what ROS topics carry: joint states (encoders, the reaction wheel among them)
 and the motion-capture pose of the base, each stream on its own clock. Turning it into a
-:class:`~spaceid.timeseries.Log` (common time base, rates) is :func:`spaceid.bags.to_log`'s job.
+:class:`~spaceid.data.Log` (common time base, rates) is :func:`spaceid.data.to_log`'s job.
 """
 
 from __future__ import annotations

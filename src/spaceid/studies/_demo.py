@@ -16,15 +16,15 @@ from pathlib import Path
 
 import numpy as np
 
-from .design import design_for
-from .estimate import Identification, identify
-from .io import write_json, write_log
-from .model import load_model
-from .noise import Noise
-from .regressor import minimal_parameters
-from .simulate import add_noise, simulate
-from .trajectory import FourierTrajectory, load_trajectory, sample_times
-from .validate import validate
+from ..motion import design_for
+from ..estimation import Identification, identify
+from ..data import write_json, write_log
+from ..models import load_model
+from ..estimation import Noise
+from ..dynamics import minimal_parameters
+from ..motion import add_noise, simulate
+from ..motion import FourierTrajectory, load_trajectory, sample_times
+from ._validate import validate
 
 __all__ = ["PAPER_TABLE3", "CEPHEUS_STUDY", "DemoResult", "run_demo"]
 
@@ -119,7 +119,7 @@ def run_demo(
 
 
 def _write_report(result: DemoResult, log, fine, predicted) -> None:
-    from . import report
+    from . import _report as report
 
     folder = result.folder
     folder.mkdir(parents=True, exist_ok=True)

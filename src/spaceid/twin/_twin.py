@@ -14,14 +14,14 @@ Everything is a free function or a frozen dataclass::
     b = run_twin(load_trajectory("paper-table2"), duration=6.0, state=a.state,
                  settings=settings, seed=2)         # exciting trajectory (tf = 5 s), then hold
     run = join_runs(a, b)                           # one continuous recording
-    run.recording      # spaceid.recording.Recording: /joint_states (50 Hz) and mocap poses
-    run.truth          # spaceid.timeseries.Log at the control rate (planar, true q, qd, yaw, rate)
+    run.recording      # spaceid.data.Recording: /joint_states (50 Hz) and mocap poses
+    run.truth          # spaceid.data.Log at the control rate (planar, true q, qd, yaw, rate)
     run.base_position, run.base_velocity, run.effort, run.co2_mass   # more true histories
     run.state          # TwinState at the end: the start of the next phase
 
 * :func:`run_twin` ``(reference=None, *, duration, wheel_speed=None, settings, state, seed)``
   runs one phase from ``state`` (default: at rest at the origin, full tank). ``reference``
-  drives the position-controlled joints: a :class:`~spaceid.trajectory.FourierTrajectory`
+  drives the position-controlled joints: a :class:`~spaceid.motion.FourierTrajectory`
   (joints matched by name, held at its end value after ``tf``), a callable
   ``reference(t) -> (q_ref, qd_ref[, qdd_ref])`` with ``t`` of shape (n,) [s] since the start of
   the phase and arrays of shape (n, n_position_joints) in model joint order, or None to hold
@@ -30,7 +30,7 @@ Everything is a free function or a frozen dataclass::
 * :func:`spin_up` ramps the wheel set point to ``speed`` and lets it settle, arm holding.
 * :func:`join_runs` concatenates consecutive phases into one run.
 * :func:`planar_pinocchio` builds the Pinocchio model (root PX, PY, RZ) and
-  :func:`drained_model` the :class:`~spaceid.model.Model` with a partly empty CO2 tank.
+  :func:`drained_model` the :class:`~spaceid.models.Model` with a partly empty CO2 tank.
 
 Dynamics
 --------
@@ -103,12 +103,12 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 
 import numpy as np
 
-from ._errors import SpaceidError, finite_array
-from .model import Model, inertial_vector, load_model, to_pinocchio
-from .recording import JointStates, Poses, Recording
-from .simulate import hermite_motion
-from .timeseries import Log, yaw_to_quat
-from .trajectory import FourierTrajectory
+from .._errors import SpaceidError, finite_array
+from ..models import Model, inertial_vector, load_model, to_pinocchio
+from ..data import JointStates, Poses, Recording
+from ..motion import hermite_motion
+from ..data import Log, yaw_to_quat
+from ..motion import FourierTrajectory
 
 __all__ = [
     "PID",
@@ -765,7 +765,7 @@ def planar_pinocchio(model: Model):
     The root is three joints ``base_x`` (prismatic x), ``base_y`` (prismatic y), ``base_yaw``
     (revolute z) carrying the base body, so ``q_pin = [x, y, yaw, joints...]`` and ``v_pin =
     dq_pin/dt``; the joints, their placements and the body inertias are those of
-    :func:`spaceid.model.to_pinocchio` (same order). Gravity is zero (level table).
+    :func:`spaceid.models.to_pinocchio` (same order). Gravity is zero (level table).
 
     Parameters
     ----------

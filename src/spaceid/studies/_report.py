@@ -22,10 +22,10 @@ from matplotlib.figure import Figure
 from rich.console import Group
 from rich.table import Table
 
-from ._atomic import atomic_path, write_text_atomic
-from ._errors import SpaceidError
-from .estimate import Identification
-from .timeseries import Log
+from .._atomic import atomic_path, write_text_atomic
+from .._errors import SpaceidError
+from ..estimation import Identification
+from ..data import Log
 
 __all__ = [
     "plot_validation",
@@ -116,7 +116,7 @@ def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
     ----------
     measured, predicted : Log
         Same joints, planar flag and time stamps (``predicted`` is typically
-        ``spaceid.validate.predict`` on ``measured``'s joint motion).
+        ``spaceid.studies.predict`` on ``measured``'s joint motion).
     path : path-like
         Output PNG.
     title : str, optional
@@ -334,7 +334,7 @@ def plot_montecarlo(result, path, *, max_panels: int = 12) -> Path:
 
     Parameters
     ----------
-    result : spaceid.montecarlo.MonteCarloResult
+    result : spaceid.studies.MonteCarloResult
     path : path-like
         Output PNG.
     max_panels : int
@@ -487,7 +487,7 @@ def montecarlo_table(result) -> Table:
 
     Parameters
     ----------
-    result : spaceid.montecarlo.MonteCarloResult
+    result : spaceid.studies.MonteCarloResult
     """
     s = result.settings
     noise = s["noise"]
@@ -537,7 +537,7 @@ def _md_table(header, rows) -> list:
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
 
 
-# readable names for spaceid.validate.validation_metrics; other keys are shown as given
+# readable names for spaceid.studies.validation_metrics; other keys are shown as given
 _METRIC_LABELS = {
     "base_w_rms": "base angular velocity, RMS error [rad/s]",
     "base_w_nrms": "base angular velocity, RMS error / RMS value",
@@ -576,7 +576,7 @@ def write_markdown_report(
     true, reference, reference_true, reference_label
         As in :func:`parameter_table`.
     metrics : dict, optional
-        Validation metrics, e.g. from ``spaceid.validate.validation_metrics``.
+        Validation metrics, e.g. from ``spaceid.studies.validation_metrics``.
 
     Returns
     -------

@@ -15,9 +15,9 @@ from importlib import resources
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from ._errors import SpaceidError
+from .._errors import SpaceidError
+from .._yaml import parse_yaml
 
 __all__ = [
     "INERTIAL_NAMES",
@@ -314,16 +314,6 @@ def _yaml_body(where, spec, names):
     )
 
 
-def parse_yaml(text: str, where: str, fix: str = "fix the syntax"):
-    """``yaml.safe_load`` of ``text``; a syntax error names ``where`` and its line."""
-    try:
-        return yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        line = f" at line {mark.line + 1}" if mark else ""
-        raise SpaceidError(f"{where}: not valid YAML{line}: {fix}") from None
-
-
 def _model_from_yaml(text: str, where: str) -> Model:
     spec = parse_yaml(text, where)
     if not isinstance(spec, dict) or not isinstance(spec.get("bodies"), list) or not spec["bodies"]:
@@ -497,7 +487,7 @@ def load_model(source, *, planar: bool | None = None) -> Model:
     if isinstance(source, Model):
         model = source
     elif str(source) in PRESETS:
-        files = resources.files("spaceid.presets")
+        files = resources.files("spaceid.models.presets")
         if files.joinpath(f"{source}.yaml").is_file():
             model = _model_from_yaml(files.joinpath(f"{source}.yaml").read_text(), str(source))
         else:

@@ -33,10 +33,10 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.linalg import solve_triangular
 
-from ._errors import SpaceidError
-from ._threads import blas_threads
-from .kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
-from .model import INERTIAL_NAMES, Model
+from .._errors import SpaceidError
+from .._threads import blas_threads
+from ._kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
+from ..models import INERTIAL_NAMES, Model
 
 __all__ = [
     "Parameterization",

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import Model
+from ..models import Model
 
 __all__ = ["BodyStates", "FrameTable", "body_states", "frame_table", "skew"]
 

@@ -8,12 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._errors import SpaceidError
-from .estimate import Identification
-from .model import load_model
-from .regressor import Parameterization, minimal_parameters
-from .simulate import hermite_motion, simulate
-from .timeseries import Log
+from .._errors import SpaceidError
+from ..estimation import Identification
+from ..models import load_model
+from ..dynamics import Parameterization, minimal_parameters
+from ..motion import hermite_motion, simulate
+from ..data import Log
 
 __all__ = ["parameterization_of", "predict", "validate", "validation_metrics"]
 

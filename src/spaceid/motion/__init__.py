@@ -1,0 +1,10 @@
+"""Joint motions: Fourier-plus-quintic trajectories, optimal excitation design, free-floating
+simulation of a prescribed joint motion.
+"""
+
+from . import _trajectory, _simulate, _design
+from ._trajectory import *  # noqa: F403
+from ._simulate import *  # noqa: F403
+from ._design import *  # noqa: F403
+
+__all__ = _trajectory.__all__ + _simulate.__all__ + _design.__all__

@@ -1,0 +1,12 @@
+"""End-to-end studies built on the pipeline: validation and prediction, the paper's demo, the twin
+experiment, Monte Carlo, figures and reports.
+"""
+
+from . import _validate, _report, _demo, _experiment, _montecarlo
+from ._validate import *  # noqa: F403
+from ._report import *  # noqa: F403
+from ._demo import *  # noqa: F403
+from ._experiment import *  # noqa: F403
+from ._montecarlo import *  # noqa: F403
+
+__all__ = _validate.__all__ + _report.__all__ + _demo.__all__ + _experiment.__all__ + _montecarlo.__all__
