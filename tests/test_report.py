@@ -9,7 +9,7 @@ from rich.console import Console
 
 from spaceid import SpaceidError
 from spaceid.estimation import Identification
-from spaceid.studies._report import (
+from spaceid.studies import (
     parameter_table,
     plot_parameters,
     plot_singular_values,
@@ -157,7 +157,7 @@ def test_large_systems_point_to_their_definitions(ident):
     """Past DEFINITIONS_SHOWN parameters the terminal gets the numbers, not pages of formulas."""
     from dataclasses import replace
 
-    from spaceid.studies._report import DEFINITIONS_SHOWN
+    from spaceid.studies._tables import DEFINITIONS_SHOWN
 
     k = DEFINITIONS_SHOWN + 1
     big = replace(ident, names=tuple(f"pi{i + 1}" for i in range(k)), definitions=("M_link1*MX_link2/M",) * k,

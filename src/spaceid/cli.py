@@ -354,7 +354,7 @@ def predict(result, traj_csv, momentum, initial_yaw, initial_quat, output):
 @OUTPUT
 def validate(result, log_path, momentum, output, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
-    from .studies import _report as report
+    from .studies._figures import plot_validation
     from .data import read_log, write_json, write_log
     from .studies import validate as run
 
@@ -368,7 +368,7 @@ def validate(result, log_path, momentum, output, bag):
     output.mkdir(parents=True, exist_ok=True)
     write_log(output / "predicted.csv", predicted)
     write_json(output / "metrics.json", metrics)
-    report.plot_validation(log, predicted, output / "validation.png")
+    plot_validation(log, predicted, output / "validation.png")
     for key, value in metrics.items():
         out.print(f"{key:>14s} = {value:.4g}")
     err.print(f"plots and metrics written to {output}/")

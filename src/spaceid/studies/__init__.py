@@ -2,11 +2,13 @@
 experiment, Monte Carlo, figures and reports.
 """
 
-from . import _validate, _report, _demo, _experiment, _montecarlo
+from . import _validate, _figures, _tables, _report, _demo, _experiment, _montecarlo
 from ._validate import *  # noqa: F403
+from ._figures import *  # noqa: F403
+from ._tables import *  # noqa: F403
 from ._report import *  # noqa: F403
 from ._demo import *  # noqa: F403
 from ._experiment import *  # noqa: F403
 from ._montecarlo import *  # noqa: F403
 
-__all__ = _validate.__all__ + _report.__all__ + _demo.__all__ + _experiment.__all__ + _montecarlo.__all__
+__all__ = _validate.__all__ + _figures.__all__ + _tables.__all__ + _report.__all__ + _demo.__all__ + _experiment.__all__ + _montecarlo.__all__

@@ -119,7 +119,8 @@ def run_demo(
 
 
 def _write_report(result: DemoResult, log, fine, predicted) -> None:
-    from . import _report as report
+    from ._figures import plot_parameters, plot_singular_values, plot_trajectory, plot_validation
+    from ._report import write_markdown_report
 
     folder = result.folder
     folder.mkdir(parents=True, exist_ok=True)
@@ -138,10 +139,10 @@ def _write_report(result: DemoResult, log, fine, predicted) -> None:
         "Parameter estimates": "parameters.png",
         "Singular values of the regressor": "singular_values.png",
     }
-    report.plot_trajectory(grid, q, qd, qdd, traj.joints, folder / figures["Exciting trajectory"], limits=limits, samples=log.t)
-    report.plot_validation(fine, predicted, folder / figures["Validation: measured vs identified model"])
-    report.plot_parameters(result.ident, folder / figures["Parameter estimates"], true=result.true, reference=PAPER_TABLE3["relative_error_percent"])
-    report.plot_singular_values(result.ident, folder / figures["Singular values of the regressor"])
+    plot_trajectory(grid, q, qd, qdd, traj.joints, folder / figures["Exciting trajectory"], limits=limits, samples=log.t)
+    plot_validation(fine, predicted, folder / figures["Validation: measured vs identified model"])
+    plot_parameters(result.ident, folder / figures["Parameter estimates"], true=result.true, reference=PAPER_TABLE3["relative_error_percent"])
+    plot_singular_values(result.ident, folder / figures["Singular values of the regressor"])
     settings = {
         "model": "cepheus (paper Table 1)",
         "trajectory": result.ident.settings["trajectory"],
@@ -155,7 +156,7 @@ def _write_report(result: DemoResult, log, fine, predicted) -> None:
         "estimator": result.ident.estimator,
         "rank tolerance": result.ident.settings["parameterization"]["rank_tol"],
     }
-    report.write_markdown_report(
+    write_markdown_report(
         folder, title="spaceid: identification of Cepheus (paper simulation study)", ident=result.ident,
         settings=settings, figures=figures, true=result.true, reference=PAPER_TABLE3["relative_error_percent"],
         reference_true=PAPER_TABLE3["true"], metrics=result.metrics,

@@ -219,7 +219,8 @@ def run_experiment(
 
 
 def _write_report(result: ExperimentResult, run) -> None:
-    from . import _report as report
+    from ._figures import plot_parameters, plot_singular_values, plot_validation
+    from ._report import write_markdown_report
 
     folder = result.folder
     result.trajectory.save(folder / "trajectory.json")
@@ -233,15 +234,15 @@ def _write_report(result: ExperimentResult, run) -> None:
         "Parameter estimates (N samples)": "parameters.png",
         "Singular values of the regressor (N samples)": "singular_values.png",
     }
-    report.plot_validation(result.log, result.predicted, folder / figures[next(iter(figures))])
-    report.plot_parameters(result.ident, folder / "parameters.png", true=result.true)
-    report.plot_singular_values(result.ident, folder / "singular_values.png")
+    plot_validation(result.log, result.predicted, folder / figures[next(iter(figures))])
+    plot_parameters(result.ident, folder / "parameters.png", true=result.true)
+    plot_singular_values(result.ident, folder / "singular_values.png")
     worst_all = float(np.max(np.abs(result.ident_all.values - result.true) / np.abs(result.true))) * 100
     settings = {k: v for k, v in result.settings.items() if k != "twin"}
     settings["worst relative error, all samples [%]"] = round(worst_all, 4)
     effects = {k: v.get("enabled") for k, v in result.settings["twin"].items() if isinstance(v, dict) and "enabled" in v}
     settings["twin effects"] = ", ".join(f"{k} {'on' if on else 'off'}" for k, on in effects.items())
-    report.write_markdown_report(
+    write_markdown_report(
         folder, title="spaceid: the Cepheus experiment on the digital twin", ident=result.ident, settings=settings,
         figures=figures, true=result.true, metrics=result.metrics,
     )

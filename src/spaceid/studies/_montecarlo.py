@@ -612,7 +612,9 @@ def write_montecarlo(result: MonteCarloResult, folder) -> dict:
     """
     from rich.console import Console
 
-    from . import _report as report
+    from ._figures import plot_montecarlo
+
+    from ._tables import montecarlo_table
     from .._atomic import write_text_atomic
     from ..data import write_json
 
@@ -624,8 +626,8 @@ def write_montecarlo(result: MonteCarloResult, folder) -> dict:
     paths = {"json": folder / "montecarlo.json", "table": folder / "table.txt", "figure": folder / "montecarlo.png"}
     write_json(paths["json"], result.to_dict())
     buffer = io.StringIO()
-    Console(file=buffer, width=100, color_system=None, force_terminal=False).print(report.montecarlo_table(result))
+    Console(file=buffer, width=100, color_system=None, force_terminal=False).print(montecarlo_table(result))
     write_text_atomic(paths["table"], buffer.getvalue())
-    report.plot_montecarlo(result, paths["figure"])
+    plot_montecarlo(result, paths["figure"])
     return paths
 

@@ -1,0 +1,148 @@
+"""Terminal tables (rich) of an identification and of a Monte Carlo study."""
+
+from __future__ import annotations
+
+
+import numpy as np
+from rich.console import Group
+from rich.table import Table
+
+from .._errors import SpaceidError
+from ..estimation import Identification
+
+
+__all__ = ["parameter_table", "montecarlo_table"]
+
+
+def _per_param(values, ident: Identification, name: str):
+    """``values`` as a float array of shape ``(k,)``, or None; a clear error on a wrong length."""
+    if values is None:
+        return None
+    arr = np.asarray(values, float).reshape(-1)
+    if arr.shape != (len(ident.names),):
+        raise SpaceidError(
+            f"{name}: expected one value per parameter ({len(ident.names)}: {', '.join(ident.names)}), "
+            f"got {arr.size}: pass them in the order of the identification's names"
+        )
+    return arr
+
+
+def _relative_errors(ident: Identification, true):
+    """``|estimate - true| / |true|`` and ``std / |true|`` as fractions; NaN where ``true`` is 0."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(true != 0, np.abs(true), np.nan)
+        return np.abs(ident.values - true) / scale, ident.std / scale
+
+
+# --- figures ----------------------------------------------------------------------------------
+
+
+
+def _columns(ident: Identification, true, reference, reference_label, reference_true=None):
+    """Header and formatted rows shared by the rich and the Markdown tables."""
+    header = ["parameter", "definition"]
+    cols = [ident.names, ident.definitions]
+    if true is not None:
+        header.append("true")
+        cols.append([f"{v:.6g}" for v in true])
+    if reference_true is not None:
+        header.append(f"{reference_label} true")
+        cols.append([f"{v:.4g}" for v in reference_true])
+    header += ["estimate", "std"]
+    cols += [[f"{v:.6g}" for v in ident.values], [f"{s:.3g}" for s in ident.std]]
+    if true is not None:
+        rel, _ = _relative_errors(ident, true)
+        header.append("rel. error [%]")
+        cols.append([f"{100 * e:.3g}" if np.isfinite(e) else "-" for e in rel])
+    if reference is not None:
+        header.append(f"{reference_label} rel. error [%]")
+        cols.append([f"{v:.4g}" for v in reference])
+    return header, list(zip(*cols))
+
+
+DEFINITIONS_SHOWN = 30
+"""Up to this many parameters the table lists their definitions; larger systems (the servicer's
+496, many of them hundreds of characters long) point to ``spaceid model`` and the result file."""
+
+
+def parameter_table(ident: Identification, *, true=None, reference=None, reference_true=None, reference_label="paper") -> Group:
+    """The estimates as a rich table, with the definitions listed below it.
+
+    The definitions (often long SymPy expressions) go under the table so that the numbers stay
+    readable in an 80-column terminal; beyond ``DEFINITIONS_SHOWN`` parameters a line says where
+    they are instead.
+
+    Parameters
+    ----------
+    ident : Identification
+    true : array_like of shape (k,), optional
+        True values: adds columns ``true`` and ``rel. error [%]``.
+    reference : array_like of shape (k,), optional
+        Reference relative errors in percent (e.g. the paper's Table 3).
+    reference_true : array_like of shape (k,), optional
+        Reference true values (e.g. the paper's Table 3).
+    reference_label : str
+        Name of the reference in its column headers.
+    """
+    true = _per_param(true, ident, "true")
+    reference = _per_param(reference, ident, "reference")
+    reference_true = _per_param(reference_true, ident, "reference_true")
+    header, rows = _columns(ident, true, reference, reference_label, reference_true)
+    table = Table(title=f"{ident.estimator.upper()} estimates (cond {ident.condition_number:.4g}, N = {ident.n_samples})")
+    short = {"parameter": "", "rel. error [%]": "err [%]", f"{reference_label} true": reference_label,
+             f"{reference_label} rel. error [%]": f"{reference_label} err [%]"}  # fits 80 columns
+    for i, name in enumerate(header):
+        if i != 1:
+            table.add_column(short.get(name, name), justify="left" if i == 0 else "right", no_wrap=True)
+    for row in rows:
+        table.add_row(row[0], *row[2:])
+    if len(ident.names) > DEFINITIONS_SHOWN:
+        return Group(table, f"{len(ident.names)} parameters: their definitions are in the result file and in "
+                            f"'spaceid model {ident.model}'")
+    definitions = Table.grid(padding=(0, 1))
+    definitions.add_column(no_wrap=True)
+    definitions.add_column(overflow="fold")
+    for name, definition in zip(ident.names, ident.definitions):
+        definitions.add_row(f"{name} =", definition)
+    return Group(table, definitions)
+
+
+def montecarlo_table(result) -> Table:
+    """Monte Carlo statistics as a rich table, one section per estimator.
+
+    Columns per parameter: bias / std, relative RMSE [%], the relative Cramer-Rao std [%],
+    mean predicted std / actual std (1: honest standard errors) and RMSE / CRB (1: efficient).
+
+    Parameters
+    ----------
+    result : spaceid.studies.MonteCarloResult
+    """
+    s = result.settings
+    noise = s["noise"]
+    table = Table(
+        title=f"Monte Carlo: {s['runs']} runs, N = {s['n_samples']}, seed {s['seed']}"
+        + (", angles only (rates differentiated)" if s.get("angles_only") else ""),
+        caption=(f"noise: angle {noise['angle']:.3g} rad, attitude {noise['attitude']:.3g} rad; CRB*: white-noise "
+                 "equivalent of the differentiated rates, not a bound" if s.get("angles_only") else
+                 f"noise: angle {noise['angle']:.3g} rad, rate {noise['rate']:.3g} rad/s, base rate "
+                 f"{noise['base_rate']:.3g} rad/s"
+                 + ("" if s.get("planar") else f", attitude {noise['attitude']:.3g} rad"))
+        + (f"; {s['failures']['count']} failed identifications" if s["failures"]["count"] else ""),
+    )
+    crb = "CRB*" if s.get("angles_only") else "CRB"
+    for name in ("", "", "bias/std", "RMSE [%]", f"{crb} [%]", "pred/act std", f"RMSE/{crb}"):
+        table.add_column(name, justify="left" if not name else "right", no_wrap=True)
+    fmt = lambda v, spec: "-" if not np.isfinite(v) else format(v, spec)  # noqa: E731
+    for e in result.estimators:
+        st = result.stats[e]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel_crb = np.where(st["true"] != 0, st["crb_std"] / np.abs(st["true"]), np.nan)
+            honest = st["predicted_std"] / st["std"]
+        for i, name in enumerate(result.names):
+            table.add_row(e.upper() if i == 0 else "", name, fmt(st["bias_std"][i], "+.2f"),
+                          fmt(100 * st["relative_rmse"][i], ".3g"), fmt(100 * rel_crb[i], ".3g"),
+                          fmt(honest[i], ".2f"), fmt(st["rmse_crb"][i], ".2f"),
+                          end_section=i == len(result.names) - 1)  # fmt: skip
+    return table
+
+
