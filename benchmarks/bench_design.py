@@ -20,7 +20,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from cepheus_closed_form import cepheus_regressor  # noqa: E402
 
 import spaceid  # noqa: E402
-from spaceid.motion import design_excitation  # noqa: E402
+from spaceid.motion import optimize_excitation  # noqa: E402
 from spaceid.dynamics import minimal_parameters  # noqa: E402
 from spaceid.dynamics import excitation_regressor  # noqa: E402
 from spaceid.motion import load_trajectory, sample_times  # noqa: E402
@@ -57,7 +57,7 @@ def main():
 
     seeds = range(args.seeds)
     runs = [
-        design_excitation(
+        optimize_excitation(
             regressor,
             JOINTS,
             **CEPHEUS,
@@ -84,7 +84,7 @@ def main():
 
     print("default run: 64 starts, no budget")
     defaults = [
-        design_excitation(regressor, JOINTS, **CEPHEUS, seed=seed) for seed in seeds
+        optimize_excitation(regressor, JOINTS, **CEPHEUS, seed=seed) for seed in seeds
     ]
     print("cond     " + "".join(f"{r.value:9.2f}" for r in defaults)
           + f"{np.median([r.value for r in defaults]):9.2f}")  # fmt: skip

@@ -21,7 +21,7 @@ import os
 import numpy as np
 
 import spaceid
-from spaceid.motion import design_for, whitened_regressor
+from spaceid.motion import design_excitation, whitened_regressor
 from spaceid.estimation import Noise
 from spaceid.dynamics import minimal_parameters
 from spaceid.dynamics import excitation_regressor
@@ -66,7 +66,7 @@ def main():
     summary = {c: [] for c in CRITERIA}
     for seed in args.seeds:
         for criterion in CRITERIA:
-            res = design_for(param, **SETTING, momentum=MOMENTUM, seed=seed, criterion=criterion,
+            res = design_excitation(param, **SETTING, momentum=MOMENTUM, seed=seed, criterion=criterion,
                              noise=NOISE, n_starts=args.starts, n_jobs=args.jobs)  # fmt: skip
             label = f"{criterion} s{seed}"
             summary[criterion].append(row(label, param, res.trajectory, res.wall_time))

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 import spaceid
-from spaceid.motion import design_for
+from spaceid.motion import design_excitation
 from spaceid.dynamics import minimal_parameters
 from spaceid.dynamics import excitation_regressor
 from spaceid.motion import FourierTrajectory, sample_times
@@ -41,7 +41,7 @@ CHECKPOINTS = (5, 10, 20, 30, 45, 60, 90, 120, 180, 240)
 
 
 def limits_of(model):
-    """(3, n_joints) limits as design_for takes them from the model, |qdd| <= QDD_MAX."""
+    """(3, n_joints) limits as design_excitation takes them from the model, |qdd| <= QDD_MAX."""
     q = np.fmin(np.abs(model.joint_limits("lower")), np.abs(model.joint_limits("upper")))
     return np.array([q, model.joint_limits("velocity"), np.full(model.n_joints, QDD_MAX)])
 
@@ -81,7 +81,7 @@ def run(name, seeds, options):
     for seed in seeds:
         per_joint, together = random_starts(model, regressor, settings, limits, seed)
         t0 = time.perf_counter()
-        r = design_for(param, momentum=MOMENTUM, seed=seed, qdd_max=QDD_MAX, **settings, **options)
+        r = design_excitation(param, momentum=MOMENTUM, seed=seed, qdd_max=QDD_MAX, **settings, **options)
         wall = time.perf_counter() - t0
         q, qd, qdd = r.trajectory.evaluate(sample_times(settings["duration"], 20001))
         peak = max((np.abs(s).max(0) / lim).max() for s, lim in zip((q, qd, qdd), limits))
@@ -110,7 +110,7 @@ def main():
     budget = {} if args.budget is None else {"time_budget": args.budget}
     run("satellite-7dof", args.seeds, dict(n_starts=args.starts, max_steps=args.steps, **budget))
     print()
-    print("the issue's script (design_for with n_starts=4, default max_steps):")
+    print("the issue's script (design_excitation with n_starts=4, default max_steps):")
     run("satellite-7dof", args.seeds, dict(n_starts=4, **budget))
     if not args.no_servicer:
         print()

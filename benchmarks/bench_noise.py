@@ -6,7 +6,7 @@ attitude), 1e-4 rad/s on the joint rates and the base rate, 500 runs per study
 
 (a) the paper's Table 2 trajectory at the demo's sampling (N = 35): per parameter RMSE / CRB
     (target <= 1.2 with the default estimator, ml) and |bias| / std (target < 0.2);
-(b) spaceid's designed trajectory, N = 35, ``design_for`` with the demo's settings (3
+(b) spaceid's designed trajectory, N = 35, ``design_excitation`` with the demo's settings (3
     harmonics, seed 0, 32 starts), criterion ``cond`` and, when ``design.CRITERIA`` has it,
     the noise-aware ``crb``: worst relative RMSE over the parameters (target <= 0.25 %; the
     paper's worst Table 3 error is 1.30 %);
@@ -86,7 +86,7 @@ def verdict(text, value, ok):
 
 def designed(param, criterion):
     t0 = time.perf_counter()
-    res = design.design_for(param, duration=CEPHEUS_STUDY["duration"], harmonics=CEPHEUS_STUDY["harmonics"],
+    res = design.design_excitation(param, duration=CEPHEUS_STUDY["duration"], harmonics=CEPHEUS_STUDY["harmonics"],
                             samples=CEPHEUS_STUDY["samples"], momentum=MOMENTUM, seed=0, criterion=criterion,
                             noise=NOISE, n_starts=32)  # fmt: skip
     wall = time.perf_counter() - t0

@@ -15,7 +15,7 @@ from conftest import random_tree
 import spaceid
 from spaceid import SpaceidError
 from spaceid.cli import main
-from spaceid.motion._design import CRITERIA, _problem, design_excitation, design_for, whitened_regressor
+from spaceid.motion._design import CRITERIA, _problem, optimize_excitation, design_excitation, whitened_regressor
 from spaceid.estimation import Noise, equation_covariance, signal_jacobian, signal_sigma
 from spaceid.dynamics import minimal_parameters
 from spaceid.dynamics import base_rate, excitation_regressor
@@ -33,7 +33,7 @@ LIMITS = np.array([1.5, 1.5, 3.0])
 
 
 def design(**options):
-    return design_excitation(cepheus_regressor, JOINTS, **{**CEPHEUS, "n_jobs": 1, **options})
+    return optimize_excitation(cepheus_regressor, JOINTS, **{**CEPHEUS, "n_jobs": 1, **options})
 
 
 def cond(traj, samples=35):
@@ -155,7 +155,7 @@ def test_progress_and_time_budget():
 
 
 def test_unpicklable_regressor_runs_in_this_process():
-    result = design_excitation(lambda q, qd: cepheus_regressor(q, qd), JOINTS, **CEPHEUS,
+    result = optimize_excitation(lambda q, qd: cepheus_regressor(q, qd), JOINTS, **CEPHEUS,
                                n_starts=4, n_jobs=2)  # fmt: skip
     assert result.value < 100
 
@@ -187,7 +187,7 @@ def test_rank_deficient_regressor():
         return np.concatenate([Y, Y[..., :1]], axis=-1)
 
     with pytest.raises(SpaceidError, match="rank deficient"):
-        design_excitation(duplicated, JOINTS, **CEPHEUS, n_starts=2, n_jobs=1)
+        optimize_excitation(duplicated, JOINTS, **CEPHEUS, n_starts=2, n_jobs=1)
 
 
 # -- the trust-region search on a small spatial tree ---------------------------------------------
@@ -209,7 +209,7 @@ def spatial_design(chain, **options):
     joints, regressor = chain
     options = {"method": "trust-region", "seed": 0, "n_starts": 2, "max_steps": 8,
                "n_screen": 16, "n_jobs": 1, **options}  # fmt: skip
-    return design_excitation(regressor, joints, **SPATIAL, **options)
+    return optimize_excitation(regressor, joints, **SPATIAL, **options)
 
 
 def spatial_peaks(traj, n):
@@ -387,7 +387,7 @@ def test_nested_differences_give_accurate_gradients(cepheus, criterion):
 
 @pytest.fixture(scope="module")
 def noisy_designs(cepheus):
-    return {c: design_for(cepheus, criterion=c, **NOISY) for c in ("cond", "dopt", "crb")}
+    return {c: design_excitation(cepheus, criterion=c, **NOISY) for c in ("cond", "dopt", "crb")}
 
 
 def test_crb_design_predicts_a_smaller_error_than_the_cond_design(cepheus, noisy_designs):
@@ -422,7 +422,7 @@ def test_noise_and_predicted_bound_are_recorded(cepheus, noisy_designs):
 @pytest.mark.parametrize("noise", [None, Noise()])
 def test_noise_aware_criteria_need_the_noise(cepheus, noise):
     with pytest.raises(SpaceidError, match="give --noise-angle, --noise-rate, --noise-base-rate"):
-        design_for(cepheus, **{**NOISY, "criterion": "crb", "noise": noise})
+        design_excitation(cepheus, **{**NOISY, "criterion": "crb", "noise": noise})
 
 
 def test_whitened_regressor_errors(cepheus):

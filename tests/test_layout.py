@@ -61,3 +61,12 @@ def test_public_names_exist_and_are_documented(package):
         obj = getattr(module, name)
         if callable(obj):
             assert obj.__doc__, f"spaceid.{package}.{name} has no docstring"
+
+
+def test_top_level_api_resolves_to_the_subpackages():
+    for name in spaceid.__all__:
+        obj = getattr(spaceid, name)
+        assert obj.__doc__, f"spaceid.{name} has no docstring"
+    assert set(dir(spaceid)) >= set(spaceid.__all__)
+    with pytest.raises(AttributeError, match="no attribute 'identfy'"):
+        spaceid.identfy  # noqa: B018

@@ -1,8 +1,63 @@
-"""spaceid: identify free-floating space manipulators from angular-momentum conservation."""
+"""spaceid: identify free-floating space manipulators from angular-momentum conservation.
+
+The pipeline, one function a stage::
+
+    model = spaceid.load_model("cepheus")                 # robot description
+    param = spaceid.minimal_parameters(model)             # identifiable set and its regressor
+    design = spaceid.design_excitation(param, ...)        # exciting joint motion
+    log = spaceid.simulate(param, pi, design.trajectory, ...)  # or spaceid.read_log(path, ...)
+    result = spaceid.identify(param, log, momentum)       # estimate, standard errors
+    spaceid.validate(result, log)                         # re-simulation against the log
+
+The subpackages hold the rest, stage by stage: :mod:`spaceid.models`, :mod:`spaceid.data`,
+:mod:`spaceid.dynamics`, :mod:`spaceid.estimation`, :mod:`spaceid.motion`, :mod:`spaceid.twin`
+and :mod:`spaceid.studies`. Names are loaded on first use, so ``import spaceid`` stays fast.
+"""
+
+import importlib
 
 from ._errors import SpaceidError
-from .data import Log
-from .models import Model, load_model
 
-__all__ = ["SpaceidError", "Model", "load_model", "Log"]
 __version__ = "0.1.0"
+
+# public name -> subpackage that defines it
+_HOME = {
+    "Model": "models",
+    "load_model": "models",
+    "Log": "data",
+    "read_log": "data",
+    "write_log": "data",
+    "minimal_parameters": "dynamics",
+    "Parameterization": "dynamics",
+    "Noise": "estimation",
+    "Identification": "estimation",
+    "identify": "estimation",
+    "cramer_rao": "estimation",
+    "load_result": "estimation",
+    "load_trajectory": "motion",
+    "sample_times": "motion",
+    "design_excitation": "motion",
+    "simulate": "motion",
+    "add_noise": "motion",
+    "run_twin": "twin",
+    "TwinSettings": "twin",
+    "predict": "studies",
+    "validate": "studies",
+    "run_demo": "studies",
+    "run_experiment": "studies",
+    "run_montecarlo": "studies",
+}
+
+__all__ = ["SpaceidError", *_HOME]
+
+
+def __getattr__(name):
+    if name in _HOME:
+        value = getattr(importlib.import_module(f".{_HOME[name]}", __name__), name)
+        globals()[name] = value  # later look-ups skip this function
+        return value
+    raise AttributeError(f"module 'spaceid' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(__all__))

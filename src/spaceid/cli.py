@@ -192,12 +192,12 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
     standard deviations are recorded in the trajectory."""
-    from .motion import design_for
+    from .motion import design_excitation
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
     with _progress("designing") as progress:
-        res = design_for(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
+        res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
                          noise=noise, n_starts=starts, time_budget=time_budget)
     res.trajectory.save(output)
@@ -507,10 +507,9 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
 
 
 def _read_result(path):
-    from .estimation import Identification
-    from .data import read_json
+    from .estimation import load_result
 
-    return Identification.from_dict(read_json(path, what="result file"), where=str(path))
+    return load_result(path)
 
 
 def _model_joints(ident):

@@ -70,48 +70,14 @@ from .._threads import one_blas_thread
 from ..dynamics import skew
 from ._noise import FD_STEP, Noise, equation_covariance, noise_from_log, signal_jacobian, signal_sigma
 from ..dynamics import Parameterization
-from ..data import Log, quat_to_matrix
+from ..data import read_json, Log, quat_to_matrix
 
 __all__ = [
-    "ESTIMATORS", "Identification", "identify", "cramer_rao", "compare", "parse_momentum", "parse_known",
+    "ESTIMATORS", "Identification", "identify", "cramer_rao", "compare", "load_result",
 ]  # fmt: skip
 
 ESTIMATORS = ("ml", "wls", "iv", "tls", "ols")
 Z95 = 1.959963984540054  # two-sided 95 % normal quantile, for confidence intervals
-
-
-def parse_momentum(value, *, planar: bool):
-    """Inertial angular momentum as a 3-vector [N m s] from a number or ``"hx,hy,hz"``.
-
-    A planar system takes a scalar ``h`` (about the inertial z axis). ``"unknown"`` (or None)
-    gives None: a constant momentum estimated with the parameters.
-    """
-    if value is None or str(value).strip().lower() == "unknown":
-        return None
-    try:
-        parts = [float(v) for v in str(value).split(",")] if not np.ndim(value) else [float(v) for v in value]
-    except ValueError:
-        raise SpaceidError(f"--momentum: '{value}' is not a number or a list hx,hy,hz [N m s]") from None
-    if len(parts) == 1 and planar:
-        parts = [0.0, 0.0, parts[0]]
-    if len(parts) != 3 or not np.all(np.isfinite(parts)):
-        raise SpaceidError(f"--momentum: expected {'h or ' if planar else ''}hx,hy,hz (finite, N m s), got '{value}'")
-    return np.array(parts)
-
-
-def parse_known(items) -> dict:
-    """``NAME=VALUE`` strings (``--known``) as ``{name: value}``."""
-    known = {}
-    for item in items or ():
-        name, sep, value = str(item).partition("=")
-        try:
-            number = float(value)
-        except ValueError:
-            number = np.nan
-        if not sep or not name.strip() or not np.isfinite(number):
-            raise SpaceidError(f"--known: '{item}' is not NAME=VALUE with a finite number (e.g. Izz_wheel=0.00197)")
-        known[name.strip()] = number
-    return known
 
 
 def _symbols(definition: str) -> set:
@@ -568,6 +534,23 @@ class Identification:
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): use a file written by 'spaceid identify'") from None
+
+
+def load_result(path) -> Identification:
+    """An identification saved as RESULT.json (by ``spaceid identify`` or
+    :meth:`Identification.to_dict`), back as an :class:`Identification`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The JSON file.
+
+    Raises
+    ------
+    SpaceidError
+        The file is missing, not JSON, or not a result; the message names the file and field.
+    """
+    return Identification.from_dict(read_json(path, what="result file"), where=str(path))
 
 
 def _equations(param, log, momentum, known, where) -> tuple:

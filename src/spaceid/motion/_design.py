@@ -72,7 +72,7 @@ from ._trajectory import (
     sample_times,
 )
 
-__all__ = ["Criterion", "CRITERIA", "DesignResult", "design_excitation", "design_for",
+__all__ = ["Criterion", "CRITERIA", "DesignResult", "optimize_excitation", "design_excitation",
            "whitened_regressor"]
 
 
@@ -243,7 +243,7 @@ class Criterion:
     noise_aware : bool
         The criterion is meant for the whitened, pi-scaled regressor
         (:class:`whitened_regressor`), whose Gram matrix is the Fisher information:
-        :func:`design_for` then needs a noise model and builds that regressor.
+        :func:`design_excitation` then needs a noise model and builds that regressor.
     """
 
     name: str
@@ -854,7 +854,7 @@ _WORKER_PROBLEM = None
 
 
 def _init_worker(problem):
-    threadpool_limits(1)  # see design_excitation
+    threadpool_limits(1)  # see optimize_excitation
     global _WORKER_PROBLEM
     _WORKER_PROBLEM = problem
 
@@ -913,7 +913,7 @@ def _distinct(found, m):
 
 @dataclass(frozen=True)
 class DesignResult:
-    """Outcome of :func:`design_excitation`.
+    """Outcome of :func:`optimize_excitation`.
 
     Attributes
     ----------
@@ -936,7 +936,7 @@ class DesignResult:
     history : tuple of (float, float)
         ``(wall time [s], best value so far)`` at each improvement.
     noise : Noise or None
-        The noise model of :func:`design_for`, if given.
+        The noise model of :func:`design_excitation`, if given.
     """
 
     trajectory: FourierTrajectory
@@ -966,7 +966,7 @@ _METHODS = ("auto", "slsqp", "trust-region")
 _SLSQP_MAX_COLUMNS = 64  # "auto": SLSQP up to this many regressor columns, trust region above
 
 
-def design_excitation(
+def optimize_excitation(
     regressor,
     joints,
     *,
@@ -1013,7 +1013,7 @@ def design_excitation(
     criterion : {"cond", "logdet", "dopt", "crb"}
         ``cond``: minimise the 2-norm condition number of the stacked regressor; ``logdet``:
         maximise log det of ``Yn^T Yn``, ``Yn`` with unit-norm columns. For a whitened,
-        pi-scaled regressor (:class:`whitened_regressor`; :func:`design_for` builds it):
+        pi-scaled regressor (:class:`whitened_regressor`; :func:`design_excitation` builds it):
         ``dopt`` maximises log det of ``Y^T Y``, the Fisher information (D-optimality);
         ``crb`` minimises the trace of ``(Y^T Y)^-1``, the Cramer-Rao bound (A-optimality).
     seed : int
@@ -1216,7 +1216,7 @@ def design_excitation(
     value = float(report(f))
     X = problem.X(z)
     meta = {
-        "source": "design_excitation",
+        "source": "optimize_excitation",
         "criterion": criterion,
         "value": value,
         "seed": seed,
@@ -1347,7 +1347,7 @@ def _check_rank(problem, Z0):
         )
 
 
-def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progress=None,
+def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, progress=None,
                criterion="cond", noise=None, **options):
     """Optimal exciting trajectory for ``param``'s model, joint limits from the model, the base
     rate from momentum conservation at the model's nominal parameters.
@@ -1356,7 +1356,7 @@ def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progres
     ----------
     param : Parameterization
     duration, harmonics, samples, seed, progress
-        As for :func:`design_excitation`.
+        As for :func:`optimize_excitation`.
     momentum : array_like of shape (3,)
         Angular momentum [N m s].
     criterion : str
@@ -1369,7 +1369,7 @@ def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progres
         that is zero), whatever the criterion.
     **options
         ``q_max``, ``qd_max``, ``qdd_max`` override the model's limits (and must be given
-        where it has none); the others go to :func:`design_excitation`.
+        where it has none); the others go to :func:`optimize_excitation`.
 
     Returns
     -------
@@ -1409,7 +1409,7 @@ def design_for(param, *, duration, harmonics, samples, momentum, seed=0, progres
         regressor = whitened_regressor(param, param.true_values, momentum, noise)
     else:
         regressor = excitation_regressor(param, param.true_values, momentum)
-    result = design_excitation(
+    result = optimize_excitation(
         regressor,
         model.joints,
         duration=duration,

@@ -60,6 +60,11 @@ def _quat_rate(quat, w):
     )
 
 
+def _angles_and_rates(trajectory, t):
+    q, qd, _ = trajectory.evaluate(t)
+    return q, qd
+
+
 def simulate(
     param: Parameterization,
     pi,
@@ -79,8 +84,9 @@ def simulate(
     param : Parameterization
     pi : array_like of shape (k,)
         Parameters of the simulated system (true or identified).
-    motion : callable
-        ``motion(t) -> (q, qd)`` with ``t`` of shape (n,) and results (n, n_joints).
+    motion : callable or FourierTrajectory
+        ``motion(t) -> (q, qd)`` with ``t`` of shape (n,) and results (n, n_joints) [rad,
+        rad/s], or a trajectory (anything with ``evaluate(t) -> (q, qd, qdd)``).
     times : array_like of shape (n_samples,)
         Output time stamps [s], increasing.
     momentum : array_like of shape (3,)
@@ -102,6 +108,8 @@ def simulate(
     Log
         Noise-free joint and base motion at ``times``.
     """
+    if hasattr(motion, "evaluate"):
+        motion = functools.partial(_angles_and_rates, motion)
     times = np.asarray(times, float)
     momentum = np.asarray(momentum, float)
     quat0 = np.array([1.0, 0, 0, 0]) if initial_quat is None else np.asarray(initial_quat, float)

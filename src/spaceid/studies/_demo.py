@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..motion import design_for
+from ..motion import design_excitation
 from ..estimation import Identification, identify
 from ..data import write_json, write_log
 from ..models import load_model
@@ -95,7 +95,7 @@ def run_demo(
     study = CEPHEUS_STUDY
     momentum = np.array([0.0, 0.0, study["momentum"]])
     if trajectory == "designed":
-        traj = design_for(
+        traj = design_excitation(
             param, duration=study["duration"], harmonics=study["harmonics"], samples=study["samples"],
             momentum=momentum, seed=seed, progress=progress, n_starts=design_starts,
         ).trajectory

@@ -88,10 +88,10 @@ def _trajectory(trajectory, *, momentum, samples, seed, progress):
         return trajectory
     if str(trajectory) != "designed":
         return load_trajectory(trajectory, joints=ARM_JOINTS)
-    from ..motion import design_for
+    from ..motion import design_excitation
 
     arm = minimal_parameters(load_model("cepheus"))  # the arm with the wheel locked: what is excited
-    return design_for(arm, duration=5.0, harmonics=3, samples=samples, momentum=[0.0, 0.0, momentum], seed=seed,
+    return design_excitation(arm, duration=5.0, harmonics=3, samples=samples, momentum=[0.0, 0.0, momentum], seed=seed,
                       progress=progress).trajectory  # fmt: skip
 
 

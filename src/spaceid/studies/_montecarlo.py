@@ -403,12 +403,12 @@ def _trajectory(param, spec, *, duration, samples, momentum, noise, seed, design
     if callable(spec):
         return spec, {"name": getattr(spec, "__name__", type(spec).__name__), "callable": True}
     if str(spec) == "designed":
-        from ..motion import design_for
+        from ..motion import design_excitation
 
         if duration is None or samples is None:
             raise SpaceidError("--trajectory designed: give --duration [s] and --samples N of the design")
         options = {"harmonics": 3, **dict(design or {})}
-        traj = design_for(param, duration=duration, samples=samples, momentum=momentum, seed=seed, progress=progress,
+        traj = design_excitation(param, duration=duration, samples=samples, momentum=momentum, seed=seed, progress=progress,
                           noise=noise, **options).trajectory  # fmt: skip
         traj = replace(traj, meta={**traj.meta, "name": f"designed ({traj.meta.get('criterion')}, seed {seed})"})
         return traj, {"name": traj.meta["name"], **traj.to_dict()}
@@ -444,7 +444,7 @@ def run_montecarlo(
         The joint motion: a trajectory, a callable ``motion(t) -> (q, qd)`` with ``t`` of shape
         (n,) and results (n, n_joints) [rad, rad/s], a named trajectory or file (see
         :func:`spaceid.motion.load_trajectory`), or ``"designed"``: designed now by
-        :func:`spaceid.motion.design_for` with ``duration``, ``samples``, ``seed``, ``noise``
+        :func:`spaceid.motion.design_excitation` with ``duration``, ``samples``, ``seed``, ``noise``
         and the options in ``design`` (default 3 harmonics, criterion ``cond``).
     momentum : array_like of shape (3,)
         Inertial angular momentum [N m s], nonzero (known to the estimators).
@@ -475,7 +475,7 @@ def run_montecarlo(
         Options of :func:`spaceid.data.differentiate_log` (``method``, ``window``,
         ``order``, ``smoothing``, ``quantum``) for ``angles_only``; default automatic.
     design : dict, optional
-        Options of :func:`spaceid.motion.design_for` for ``"designed"`` (``harmonics``,
+        Options of :func:`spaceid.motion.design_excitation` for ``"designed"`` (``harmonics``,
         ``criterion``, ``n_starts``, ...).
 
     Returns
