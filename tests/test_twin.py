@@ -17,8 +17,8 @@ from spaceid.dynamics import minimal_parameters
 from spaceid.motion import hermite_motion, simulate
 from spaceid.data import quat_to_yaw, yaw_to_quat
 from spaceid.motion import load_trajectory
-from spaceid.twin._twin import (
-    G0,
+from spaceid.twin._settings import G0
+from spaceid.twin import (
     PID,
     BearingFriction,
     Controllers,

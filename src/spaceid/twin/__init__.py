@@ -1,8 +1,68 @@
-"""Digital twin of the Cepheus air-bearing emulator: torque-driven plant, controllers, sensors and
+"""Torque-driven digital twin of the Cepheus air-bearing emulator: plant, controllers, sensors and
 effects.
+
+The twin integrates the rigid-body dynamics of a planar model (default the ``cepheus-rw``
+preset: base, reaction-wheel rotor, two-link arm) whose base floats on the granite table in x,
+y and yaw, under the torques of ros_control-like effort controllers, and records what the
+robot's sensors would publish: encoder joint states and the motion-capture pose of the base.
+
+API
+---
+Everything is a free function or a frozen dataclass::
+
+    settings = TwinSettings()                       # the realistic twin; every value overridable
+    a = spin_up(170.0, settings=settings, seed=1)   # rest -> wheel at 170 rad/s relative to the base
+    b = run_twin(load_trajectory("paper-table2"), duration=6.0, state=a.state,
+                 settings=settings, seed=2)         # exciting trajectory (tf = 5 s), then hold
+    run = join_runs(a, b)                           # one continuous recording
+    run.recording      # spaceid.data.Recording: /joint_states (50 Hz) and mocap poses
+    run.truth          # spaceid.data.Log at the control rate (planar, true q, qd, yaw, rate)
+    run.base_position, run.base_velocity, run.effort, run.co2_mass   # more true histories
+    run.state          # TwinState at the end: the start of the next phase
+
+* :func:`run_twin` ``(reference=None, *, duration, wheel_speed=None, settings, state, seed)``
+  runs one phase from ``state`` (default: at rest at the origin, full tank); ``reference``
+  drives the position-controlled joints, ``wheel_speed`` [rad/s] the velocity-controlled ones.
+* :func:`spin_up` ramps the wheel set point to ``speed`` and lets it settle, arm holding.
+* :func:`join_runs` concatenates consecutive phases into one run.
+* :func:`planar_pinocchio` builds the Pinocchio model (root PX, PY, RZ) and
+  :func:`drained_model` the :class:`~spaceid.models.Model` with a partly empty CO2 tank.
+
+Structure
+---------
+One private module per part, each building on the ones before it: the plant, the controllers,
+sensors and effects that act on it, and the run that ties them together in the hardware loop;
+the settings parametrise them all.
+
+* ``_settings``: :class:`TwinSettings` and its parts; their docstrings carry every assumed value
+  (units, defaults and where they come from).
+* ``_plant``: the planar Pinocchio model, the base inertia as the tank drains, the RK4 step of
+  the articulated-body algorithm; the coordinates and integration accuracy.
+* ``_controllers``: set points from the reference and wheel speed, the PD/PI effort controllers
+  and the optional inverse-dynamics feed-forward.
+* ``_sensors``: encoder quantisation and ``/joint_states``, motion capture with noise, latency
+  and dropped frames; time stamps.
+* ``_effects``: joint and air-bearing friction, torque limits, thrusters and the CO2 tank, table
+  tilt.
+* ``_run``: :class:`TwinState`, :class:`TwinRun`, the hardware loop (one tick: encoders,
+  controllers, saturation, friction and thrust, RK4 step, tank), :func:`run_twin`,
+  :func:`spin_up`, :func:`join_runs`; phases.
+
+References
+----------
+Papadopoulos et al., identification of free-floating space robots from angular momentum
+conservation, sections "The NTUA CSL emulator" and "Experiment results" (seed paper): three air
+bearings fed with CO2 from an on-board tank (1.5 kg full, 60 bar) that also feeds three pairs of
+opposed thrusters at 120 deg; a reaction wheel with I_rw = 0.00197372 kg m^2 spun to 170 rad/s;
+arm joints under ros_control ``effort_controllers/JointPositionController`` (PD) and the wheel
+under ``effort_controllers/JointVelocityController`` (PI); tf = 5 s. ``../shared/design/MATH.md``
+section 5 (reaction wheel momentum).
 """
 
-from . import _twin
-from ._twin import *  # noqa: F403
+from . import _settings, _plant, _effects, _run
+from ._settings import *  # noqa: F403
+from ._plant import *  # noqa: F403
+from ._effects import *  # noqa: F403
+from ._run import *  # noqa: F403
 
-__all__ = _twin.__all__
+__all__ = _settings.__all__ + _plant.__all__ + _effects.__all__ + _run.__all__

@@ -1,0 +1,223 @@
+"""The controllers of the Cepheus twin: ros_control-like effort controllers and their set points.
+
+Position-controlled joints (the arm) run ``effort_controllers/JointPositionController`` (PD on the
+encoder reading, optional integral term), velocity-controlled joints (the reaction wheel)
+``effort_controllers/JointVelocityController`` (PI on the finite-difference rate); the gains are
+:class:`~spaceid.twin.Controllers`. Both follow ``control_toolbox::Pid``: the integral term is
+updated first, clamped, then the effort formed. Set points come per control tick from a
+reference (a :class:`~spaceid.motion.FourierTrajectory` or a callable of the phase time) and a
+wheel speed, or hold the last command. The optional feed-forward adds the free-floating inverse
+dynamics of the reference; it reads the true base velocity (on the robot it would come from the
+motion capture).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._errors import SpaceidError
+from ..motion import FourierTrajectory
+from ._plant import _symmetric
+from ._settings import PID, Controllers, _number
+
+__all__: list = []
+
+
+@dataclass(frozen=True)
+class _Gains:
+    """The controller of every joint, arrays of shape (n_joints,) in model joint order."""
+
+    pos_mask: np.ndarray  # position-controlled
+    vel_mask: np.ndarray  # velocity-controlled (neither: unactuated)
+    kp: np.ndarray
+    ki: np.ndarray
+    kd: np.ndarray
+    i_clamp: np.ndarray
+
+
+def _controller_gains(controllers: Controllers, joints) -> _Gains:
+    """The :class:`_Gains` of ``controllers`` for the model's ``joints`` (zero gains where none)."""
+    gains = {**controllers.position, **controllers.velocity}
+    pid = [gains.get(j, PID()) for j in joints]
+    return _Gains(
+        pos_mask=np.array([j in controllers.position for j in joints]),
+        vel_mask=np.array([j in controllers.velocity for j in joints]),
+        kp=np.array([g.p for g in pid]),
+        ki=np.array([g.i for g in pid]),
+        kd=np.array([g.d for g in pid]),
+        i_clamp=np.array([g.i_clamp for g in pid]),
+    )
+
+
+# ------------------------------------------------------------------ set points ----------------
+
+
+def _setpoints(gains: _Gains, joints, reference, wheel_speed, tau, command0):
+    """Set points at the phase times ``tau`` (n_t,) [s].
+
+    Parameters
+    ----------
+    gains : _Gains
+        Which joints are position- and velocity-controlled.
+    joints : sequence of str
+        The model joints.
+    reference, wheel_speed
+        As :func:`~spaceid.twin.run_twin`; None holds ``command0``.
+    tau : ndarray of shape (n_t,)
+        Time since the start of the phase [s].
+    command0 : ndarray of shape (n,)
+        The last commands before the phase.
+
+    Returns
+    -------
+    command, rate, accel : ndarray of shape (n_t, n)
+        Commands (position joints [rad], velocity joints [rad/s]), and the reference rate
+        [rad/s] and acceleration [rad/s^2] of the position joints (zero elsewhere).
+    """
+    n_t, n = len(tau), len(joints)
+    command = np.tile(command0, (n_t, 1))
+    rate = np.zeros((n_t, n))
+    accel = np.zeros((n_t, n))
+    pos = np.flatnonzero(gains.pos_mask)
+    if reference is not None:
+        wanted = [joints[i] for i in pos]
+        if isinstance(reference, FourierTrajectory):
+            q_ref, qd_ref, qdd_ref = _trajectory_setpoints(reference, wanted, tau)
+        elif callable(reference):
+            q_ref, qd_ref, qdd_ref = _callable_setpoints(reference, wanted, tau)
+        else:
+            raise SpaceidError(
+                "reference must be a FourierTrajectory, a callable t -> (q_ref, qd_ref) or None, "
+                f"got {type(reference).__name__}"
+            )
+        if not (np.all(np.isfinite(q_ref)) and np.all(np.isfinite(qd_ref)) and np.all(np.isfinite(qdd_ref))):
+            raise SpaceidError("reference: the set points contain NaN or infinite values")
+        command[:, pos], rate[:, pos], accel[:, pos] = q_ref, qd_ref, qdd_ref
+    vel = np.flatnonzero(gains.vel_mask)
+    if wheel_speed is not None and len(vel):
+        command[:, vel] = _velocity_setpoints(wheel_speed, tau, len(vel))
+    return command, rate, accel
+
+
+def _trajectory_setpoints(trajectory: FourierTrajectory, wanted, tau):
+    """``q, qd, qdd`` (n_t, len(wanted)) of ``trajectory`` for the joints ``wanted`` (matched by
+    name), held at the end value after its duration."""
+    if set(trajectory.joints) != set(wanted):
+        raise SpaceidError(
+            f"reference drives joints ({', '.join(trajectory.joints)}) but the position-controlled "
+            f"joints are ({', '.join(wanted)}): give a trajectory for these joints or change "
+            "controllers.position"
+        )
+    order = [trajectory.joints.index(j) for j in wanted]
+    q_ref, qd_ref, qdd_ref = (x[:, order] for x in trajectory.evaluate(np.minimum(tau, trajectory.duration)))
+    after = tau > trajectory.duration
+    qd_ref[after], qdd_ref[after] = 0.0, 0.0
+    return q_ref, qd_ref, qdd_ref
+
+
+def _callable_setpoints(reference, wanted, tau):
+    """``q, qd, qdd`` (n_t, len(wanted)) from ``reference(tau) -> (q, qd[, qdd])``; without
+    ``qdd`` the acceleration is the numerical derivative of ``qd``."""
+    n_t = len(tau)
+    out = reference(tau)
+    if not isinstance(out, tuple) or len(out) not in (2, 3):
+        raise SpaceidError("reference(t) must return (q_ref, qd_ref) or (q_ref, qd_ref, qdd_ref)")
+    try:
+        q_ref, qd_ref = (np.asarray(x, float).reshape(n_t, -1) for x in out[:2])
+        qdd_ref = (
+            np.asarray(out[2], float).reshape(n_t, -1)
+            if len(out) == 3
+            else (np.gradient(qd_ref, tau, axis=0) if n_t > 1 else np.zeros_like(qd_ref))
+        )
+    except (TypeError, ValueError):
+        raise SpaceidError(
+            f"reference(t) must return arrays of shape (len(t), n_position_joints) = ({n_t}, {len(wanted)})"
+        ) from None
+    if q_ref.shape[1] != len(wanted) or qd_ref.shape[1] != len(wanted):
+        raise SpaceidError(
+            f"reference(t) returned {q_ref.shape[1]} columns; expected one per position-controlled "
+            f"joint ({', '.join(wanted)})"
+        )
+    return q_ref, qd_ref, qdd_ref
+
+
+def _velocity_setpoints(wheel_speed, tau, n_vel):
+    """Velocity commands (n_t, n_vel) [rad/s] from a number or a callable of the phase time."""
+    n_t = len(tau)
+    if callable(wheel_speed):
+        w = np.asarray(wheel_speed(tau), float)
+        w = np.broadcast_to(w.reshape(n_t, -1) if w.ndim else w, (n_t, n_vel))
+    else:
+        w = np.full((n_t, n_vel), _number("wheel_speed [rad/s]", wheel_speed))
+    if not np.all(np.isfinite(w)):
+        raise SpaceidError("wheel_speed: the set points contain NaN or infinite values")
+    return w
+
+
+# ------------------------------------------------------------------ control laws --------------
+
+
+def _pid_law(gains: _Gains, dt):
+    """The effort controllers as a function ``(qm, prev, command, rate, i_term) -> efforts``.
+
+    ``qm`` and ``prev`` are this tick's and the previous tick's encoder readings [rad], ``command``
+    and ``rate`` the set points of the tick, all lists of n Python floats; ``i_term`` (list of n,
+    [N m]) is updated in place. Rates are the finite difference ``(qm - prev) / dt`` of the
+    readings, as the hardware interface forms them. Unactuated joints get zero effort.
+    """
+    kind = [1 if p else (2 if w else 0) for p, w in zip(gains.pos_mask, gains.vel_mask)]
+    kp, kd = gains.kp.tolist(), gains.kd.tolist()
+    kidt = (gains.ki * dt).tolist()
+    clamp = gains.i_clamp.tolist()
+    inv_dt = 1.0 / dt
+    joints_idx = range(len(kind))
+
+    def efforts(qm, prev, cmd, rt, i_term):
+        effort = [0.0] * len(kind)
+        for j in joints_idx:
+            kj = kind[j]
+            if not kj:
+                continue
+            qdh = (qm[j] - prev[j]) * inv_dt
+            # control_toolbox::Pid: integral term updated first, clamped, then the command
+            e = cmd[j] - (qm[j] if kj == 1 else qdh)
+            it = i_term[j] + kidt[j] * e
+            it = -clamp[j] if it < -clamp[j] else (clamp[j] if it > clamp[j] else it)
+            i_term[j] = it
+            u = kp[j] * e + it
+            if kj == 1:
+                u += kd[j] * (rt[j] - qdh)
+            effort[j] = u
+        return effort
+
+    return efforts
+
+
+def _feedforward_law(pmodel, pos_mask):
+    """The inverse-dynamics feed-forward as a function ``(q_pin, v_pin, command, rate, accel) ->
+    efforts`` (list of n [N m], zero on joints that are not position-controlled).
+
+    ``q_pin``, ``v_pin`` (nq,) are the true state, ``command``, ``rate``, ``accel`` (n,) the set
+    points: ``pin.crba`` and ``pin.rnea`` at the reference joint state with the current base
+    velocity, the base accelerations solved so that the base receives no actuation.
+    """
+    import pinocchio as pin
+
+    data = pmodel.createData()
+    pos_idx = 3 + np.flatnonzero(pos_mask)
+    posf = pos_mask.astype(float)
+    nq = pmodel.nq
+
+    def efforts(q, v, cmd, rt, acc):
+        qf, vf = q.copy(), v.copy()
+        qf[pos_idx], vf[pos_idx] = cmd[pos_idx - 3], rt[pos_idx - 3]
+        af = np.zeros(nq)
+        af[pos_idx] = acc[pos_idx - 3]
+        M = _symmetric(pin.crba(pmodel, data, qf))
+        t_ff = pin.rnea(pmodel, data, qf, vf, af)
+        a_base = -np.linalg.solve(M[:3, :3], t_ff[:3])
+        return ((t_ff[3:] + M[3:, :3] @ a_base) * posf).tolist()
+
+    return efforts

@@ -1,0 +1,572 @@
+"""Settings of the Cepheus twin: one frozen dataclass per part, each value with its unit, its
+default and where the default comes from (published, measured, or assumed and why).
+
+:class:`TwinSettings` gathers :class:`Controllers` (with :class:`PID` gains), :class:`Encoders`,
+:class:`MotionCapture` and the optional effects :class:`BearingFriction`, :class:`JointFriction`,
+:class:`TorqueLimits`, :class:`Thrusters` and :class:`Tank`, each with an ``enabled`` switch.
+Every value is checked on construction (a :class:`~spaceid.SpaceidError` names the setting);
+joint names are checked against the model when a run starts.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field, fields, is_dataclass, replace
+
+import numpy as np
+
+from .._errors import SpaceidError
+from ..models import Model, inertial_vector
+
+__all__ = [
+    "PID",
+    "Controllers",
+    "Encoders",
+    "MotionCapture",
+    "BearingFriction",
+    "JointFriction",
+    "TorqueLimits",
+    "Thrusters",
+    "Tank",
+    "TwinSettings",
+]
+
+G0 = 9.80665
+"""Standard gravity [m/s^2] (specific impulse and table tilt)."""
+
+
+# ------------------------------------------------------------------ validation helpers -------
+
+
+def _number(where, value, *, low=None, strict=False, allow_inf=False):
+    """``value`` as a float (at least, or with ``strict`` above, ``low``), or a SpaceidError naming ``where``."""
+    try:
+        x = float(value)
+    except (TypeError, ValueError):
+        raise SpaceidError(f"{where} must be a number, got {value!r}") from None
+    if math.isnan(x) or (math.isinf(x) and not allow_inf):
+        raise SpaceidError(f"{where} must be a finite number, got {value!r}")
+    if low is not None and (x <= low if strict else x < low):
+        bound = f"greater than {low:g}" if strict else f"at least {low:g}"
+        raise SpaceidError(f"{where} must be {bound}, got {x:g}")
+    return x
+
+
+def _per_joint(where, mapping, *, low=0.0, strict=False, allow_none=False):
+    """A ``{joint: value}`` mapping with checked values (names are checked against a model later)."""
+    if not isinstance(mapping, Mapping):
+        raise SpaceidError(f"{where} must be a mapping from joint name to value, got {mapping!r}")
+    out = {}
+    for name, value in mapping.items():
+        if value is None and allow_none:
+            out[str(name)] = None
+        else:
+            out[str(name)] = _number(f"{where}['{name}']", value, low=low, strict=strict)
+    return out
+
+
+def _finite_tuple(value, n):
+    """``value`` as a tuple of ``n`` finite floats, or None if it is not one."""
+    try:
+        out = tuple(float(x) for x in value)
+    except (TypeError, ValueError):
+        return None
+    return out if len(out) == n and all(math.isfinite(x) for x in out) else None
+
+
+def _set(obj, name, value):
+    """Set ``name`` of a frozen dataclass in its ``__post_init__`` (to the checked value)."""
+    object.__setattr__(obj, name, value)
+
+
+# ------------------------------------------------------------------ settings ------------------
+
+
+@dataclass(frozen=True)
+class PID:
+    """Gains of one ros_control ``control_toolbox::Pid`` (effort output).
+
+    Attributes
+    ----------
+    p : float
+        Proportional gain: N m/rad for a position loop, N m s/rad for a velocity loop.
+    i : float
+        Integral gain: N m/(rad s) for a position loop, N m/rad for a velocity loop.
+    d : float
+        Derivative gain on the rate error, N m s/rad (position loops only).
+    i_clamp : float
+        Bound on the integral term ``|i_term| <= i_clamp`` [N m] (anti-windup, as ``i_clamp``).
+    """
+
+    p: float = 0.0
+    i: float = 0.0
+    d: float = 0.0
+    i_clamp: float = math.inf
+
+    def __post_init__(self):
+        for name in ("p", "i", "d"):
+            _set(self, name, _number(f"PID.{name}", getattr(self, name), low=0.0))
+        _set(self, "i_clamp", _number("PID.i_clamp", self.i_clamp, low=0.0, allow_inf=True))
+
+
+def _default_position_gains():
+    # the robot's published controller configuration (shoulder and elbow PD)
+    return {"left_shoulder": PID(p=0.1, d=0.04), "left_elbow": PID(p=0.1, d=0.02)}
+
+
+def _default_velocity_gains():
+    # PI on the wheel rate relative to the base: with I ~ 1.94e-3 kg m^2 (the rotor against the
+    # rest of the system) I s^2 + p s + i has roots -4.3 and -6.1 rad/s (zeta ~ 1): a 100 rad/s^2
+    # set-point ramp to 170 rad/s needs ~0.2 N m (limit 0.5), ends with a ~6 rad/s overshoot and
+    # is within 0.5 rad/s ~1.1 s after the ramp; i_clamp = the effort limit.
+    return {"reaction_wheel_joint": PID(p=0.02, i=0.05, i_clamp=0.5)}
+
+
+@dataclass(frozen=True)
+class Controllers:
+    """ros_control effort controllers, run at ``rate`` by the hardware loop.
+
+    Attributes
+    ----------
+    rate : float
+        Control (hardware loop) rate [Hz]; also the integration rate. Default 1000.
+    position : dict of str to PID
+        ``effort_controllers/JointPositionController`` per joint: ``effort = p e + d (qd_ref -
+        qd_hw) + i_term``, ``e = q_ref - q_enc`` (the controller's form when the command carries a
+        velocity; with position-only commands ros_control differentiates ``e`` instead, the same
+        for a smooth reference up to quantisation noise). Default: the robot's published gains,
+        shoulder p = 0.1 N m/rad, d = 0.04 N m s/rad; elbow p = 0.1, d = 0.02. These track the
+        paper's trajectory with ~0.14 rad RMS error (see ``feedforward``).
+    velocity : dict of str to PID
+        ``effort_controllers/JointVelocityController`` per joint: ``effort = p e + i_term``,
+        ``e = qd_ref - qd_hw``. Default: reaction wheel p = 0.02 N m s/rad, i = 0.05 N m/rad,
+        i_clamp = 0.5 N m (critically damped at ~5 rad/s, chosen for this twin; the robot's
+        wheel gains are not published). Joints in neither mapping are unactuated.
+    feedforward : bool
+        Add the free-floating inverse dynamics of the reference to the position loops
+        (``pin.crba`` and ``pin.rnea`` at the reference joint state with the current base
+        velocity, base accelerations solved so the base receives no actuation). Default False
+        (the robot's controllers have none); on the paper's trajectory it brings the tracking
+        error from ~0.14 to ~0.02 rad RMS with all effects on.
+    """
+
+    rate: float = 1000.0
+    position: dict = field(default_factory=_default_position_gains)
+    velocity: dict = field(default_factory=_default_velocity_gains)
+    feedforward: bool = False
+
+    def __post_init__(self):
+        _set(self, "rate", _number("controllers.rate [Hz]", self.rate, low=0.0, strict=True))
+        for kind in ("position", "velocity"):
+            gains = getattr(self, kind)
+            if not isinstance(gains, Mapping) or not all(isinstance(g, PID) for g in gains.values()):
+                raise SpaceidError(f"controllers.{kind} must map joint names to PID(...) gains, got {gains!r}")
+            _set(self, kind, {str(k): v for k, v in gains.items()})
+        both = set(self.position) & set(self.velocity)
+        if both:
+            raise SpaceidError(
+                f"controllers: joint '{sorted(both)[0]}' has both a position and a velocity "
+                "controller: keep one of them"
+            )
+        for name, pid in self.velocity.items():
+            if pid.d:
+                raise SpaceidError(
+                    f"controllers.velocity['{name}'].d = {pid.d:g}: derivative action on a velocity "
+                    "loop is not modelled; set d=0"
+                )
+
+
+def _default_counts():
+    # Assumed resolutions (not published): arm joints 20000 counts per joint revolution (a
+    # 500-line encoder, x4 decoding, 10:1 reduction); wheel 4096 (1024 lines, x4, direct drive).
+    return {"reaction_wheel_joint": 4096, "left_shoulder": 20000, "left_elbow": 20000}
+
+
+@dataclass(frozen=True)
+class Encoders:
+    """Incremental joint encoders and the ``/joint_states`` publisher.
+
+    Attributes
+    ----------
+    counts_per_rev : dict of str to int or None
+        Counts per joint revolution after decoding; the reading is ``round(q / r) r`` with
+        ``r = 2 pi / counts`` [rad] (None: no quantisation). Joints not listed read exactly.
+        Default: arm joints 20000, wheel 4096 (assumed, not published).
+    rate : float
+        ``joint_state_controller`` publish rate [Hz]. Default 50 (the robot's configuration).
+    velocity : {"difference", None}
+        ``"difference"``: published velocities are the hardware interface's finite difference of
+        successive encoder readings over one control period (noisy: one count per period is
+        ``2 pi / counts * rate``); None: messages carry no velocities. The controllers always use
+        the finite difference.
+    """
+
+    counts_per_rev: dict = field(default_factory=_default_counts)
+    rate: float = 50.0
+    velocity: str | None = "difference"
+
+    def __post_init__(self):
+        counts = _per_joint("encoders.counts_per_rev", self.counts_per_rev, low=1.0, allow_none=True)
+        _set(self, "counts_per_rev", counts)
+        _set(self, "rate", _number("encoders.rate [Hz]", self.rate, low=0.0, strict=True))
+        if self.velocity not in ("difference", None):
+            raise SpaceidError(f"encoders.velocity must be 'difference' or None, got {self.velocity!r}")
+
+
+@dataclass(frozen=True)
+class MotionCapture:
+    """Motion capture of the base pose (PhaseSpace on the real table).
+
+    Attributes
+    ----------
+    rate : float
+        Frame rate [Hz]. Default 100.
+    position_noise : float
+        Standard deviation of the x and y position noise [m]. Default 5e-4.
+    attitude_noise : float
+        Standard deviation of the yaw noise [rad]. Default 1e-3.
+    latency : float
+        Delay between capture and stamp [s]: a pose stamped ``t`` was captured at ``t -
+        latency``. Default 0.005.
+    drop_probability : float
+        Probability that a frame is lost (independently per frame), in [0, 1). Default 0.01.
+    frame : str
+        ``header.frame_id``. Default ``"world"``.
+    """
+
+    rate: float = 100.0
+    position_noise: float = 5e-4
+    attitude_noise: float = 1e-3
+    latency: float = 0.005
+    drop_probability: float = 0.01
+    frame: str = "world"
+
+    def __post_init__(self):
+        _set(self, "rate", _number("mocap.rate [Hz]", self.rate, low=0.0, strict=True))
+        for name in ("position_noise", "attitude_noise", "latency"):
+            _set(self, name, _number(f"mocap.{name}", getattr(self, name), low=0.0))
+        p = _number("mocap.drop_probability", self.drop_probability, low=0.0)
+        if p >= 1:
+            raise SpaceidError(f"mocap.drop_probability must be in [0, 1), got {p:g}")
+        _set(self, "drop_probability", p)
+
+
+@dataclass(frozen=True)
+class BearingFriction:
+    """Residual friction of the air bearings on the base.
+
+    Force on the base origin ``F = -(c v + F_c tanh(|v| / v_s) v / |v|)`` (v the base origin
+    velocity), yaw torque ``M = -(c_r w + M_c tanh(w / w_s))``. The viscous terms are the shear
+    of the ~10 um CO2 film under the three 25 mm pads (mu ~ 1.5e-5 Pa s: c ~ mu A / h ~ 2.2e-3
+    N s/m; pads at ~0.15 m from the centre: c_r ~ c 0.15^2 ~ 5e-5 N m s/rad); the Coulomb terms
+    are an assumed residual (pad contact, surface defects), smoothed by tanh.
+
+    Attributes
+    ----------
+    enabled : bool
+        Default True.
+    viscous_force : float
+        c [N s/m]. Default 2.2e-3.
+    coulomb_force : float
+        F_c [N]. Default 1e-3.
+    viscous_torque : float
+        c_r [N m s/rad]. Default 5e-5.
+    coulomb_torque : float
+        M_c [N m]. Default 1e-4.
+    speed_scale : float
+        v_s [m/s] of the tanh. Default 1e-3.
+    rate_scale : float
+        w_s [rad/s] of the tanh. Default 1e-2.
+    """
+
+    enabled: bool = True
+    viscous_force: float = 2.2e-3
+    coulomb_force: float = 1e-3
+    viscous_torque: float = 5e-5
+    coulomb_torque: float = 1e-4
+    speed_scale: float = 1e-3
+    rate_scale: float = 1e-2
+
+    def __post_init__(self):
+        for name in ("viscous_force", "coulomb_force", "viscous_torque", "coulomb_torque"):
+            _set(self, name, _number(f"bearing_friction.{name}", getattr(self, name), low=0.0))
+        for name in ("speed_scale", "rate_scale"):
+            _set(self, name, _number(f"bearing_friction.{name}", getattr(self, name), low=0.0, strict=True))
+
+
+def _default_viscous():
+    return {"reaction_wheel_joint": 1e-5, "left_shoulder": 5e-4, "left_elbow": 5e-4}
+
+
+def _default_coulomb():
+    return {"reaction_wheel_joint": 1e-3, "left_shoulder": 2e-3, "left_elbow": 2e-3}
+
+
+@dataclass(frozen=True)
+class JointFriction:
+    """Friction in the joints (bearings, belts, motor): ``tau_f = -(c qd + tau_c tanh(qd / s))``.
+
+    Internal torques: they act between parent and child and do not change the momentum.
+
+    Attributes
+    ----------
+    enabled : bool
+        Default True.
+    viscous : dict of str to float
+        c per joint [N m s/rad]. Default wheel 1e-5 (1.7 mN m at 170 rad/s), arm joints 5e-4.
+    coulomb : dict of str to float
+        tau_c per joint [N m]. Default wheel 1e-3, arm joints 2e-3 (assumed).
+    rate_scale : float
+        s [rad/s] of the tanh. Default 1e-2.
+    """
+
+    enabled: bool = True
+    viscous: dict = field(default_factory=_default_viscous)
+    coulomb: dict = field(default_factory=_default_coulomb)
+    rate_scale: float = 1e-2
+
+    def __post_init__(self):
+        _set(self, "viscous", _per_joint("joint_friction.viscous", self.viscous))
+        _set(self, "coulomb", _per_joint("joint_friction.coulomb", self.coulomb))
+        _set(self, "rate_scale", _number("joint_friction.rate_scale", self.rate_scale, low=0.0, strict=True))
+
+
+@dataclass(frozen=True)
+class TorqueLimits:
+    """Actuator saturation: ``|effort| <= limit`` per joint.
+
+    Attributes
+    ----------
+    enabled : bool
+        Default True.
+    effort : dict of str to float or None
+        Limits [N m]; None (default) takes the model joints' ``effort`` limits (cepheus-rw:
+        wheel 0.5, arm joints 1.0). Joints without a limit are not saturated.
+    """
+
+    enabled: bool = True
+    effort: dict | None = None
+
+    def __post_init__(self):
+        if self.effort is not None:
+            _set(self, "effort", _per_joint("torque_limits.effort", self.effort, strict=True))
+
+
+@dataclass(frozen=True)
+class Thrusters:
+    """The three pairs of opposed cold-gas thrusters, on/off valves on the base rim.
+
+    Pair ``k`` sits at ``radius (cos a_k, sin a_k)`` in the base frame, ``a_k = angles[k]``; its
+    ``+1`` thruster pushes along the counter-clockwise tangent ``(-sin a_k, cos a_k)`` (positive
+    yaw torque ``force * radius``), its ``-1`` thruster the opposite way. Firing ``+1`` (or ``-1``)
+    of all three pairs is a pure couple; one thruster gives a force and a torque. Layout and
+    force are assumed (the paper gives 3 pairs at 120 deg, mid-height, on the rim).
+
+    Attributes
+    ----------
+    enabled : bool
+        Default True (with an empty schedule nothing fires).
+    force : float
+        Thrust of one open valve [N]. Default 0.2.
+    radius : float
+        Distance of the thrusters from the base origin [m]. Default 0.2.
+    angles : tuple of 3 floats
+        a_k [rad]. Default (pi, 5 pi / 3, pi / 3): pair 0 at the back, away from the arm.
+    schedule : tuple of (t_on, t_off, pair, sign)
+        Valve openings: thruster ``(pair, sign)`` open for the control ticks ``t_on <= t <
+        t_off`` [s, absolute time], each valve state held for one control period; ``pair`` in
+        {0, 1, 2}, ``sign`` in {+1, -1}. Default ().
+    """
+
+    enabled: bool = True
+    force: float = 0.2
+    radius: float = 0.2
+    angles: tuple = (math.pi, 5 * math.pi / 3, math.pi / 3)
+    schedule: tuple = ()
+
+    def __post_init__(self):
+        _set(self, "force", _number("thrusters.force [N]", self.force, low=0.0))
+        _set(self, "radius", _number("thrusters.radius [m]", self.radius, low=0.0))
+        angles = _finite_tuple(self.angles, 3)
+        if angles is None:
+            raise SpaceidError(f"thrusters.angles must be 3 finite angles [rad], got {self.angles!r}")
+        _set(self, "angles", angles)
+        openings = (_valve_opening(f"thrusters.schedule[{i}]", e) for i, e in enumerate(self.schedule))
+        _set(self, "schedule", tuple(openings))
+
+
+def _valve_opening(where, entry):
+    """One checked ``(t_on, t_off, pair, sign)`` entry of :attr:`Thrusters.schedule`."""
+    try:
+        t_on, t_off, pair, sign = entry
+    except (TypeError, ValueError):
+        raise SpaceidError(f"{where} must be (t_on, t_off, pair, sign), got {entry!r}") from None
+    t_on, t_off = _number(f"{where}.t_on", t_on), _number(f"{where}.t_off", t_off)
+    if t_off <= t_on:
+        raise SpaceidError(f"{where}: t_off = {t_off:g} s must be after t_on = {t_on:g} s")
+    if pair not in (0, 1, 2):
+        raise SpaceidError(f"{where}: pair must be 0, 1 or 2, got {pair!r}")
+    if sign not in (1, -1):
+        raise SpaceidError(f"{where}: sign must be +1 or -1, got {sign!r}")
+    return (t_on, t_off, int(pair), int(sign))
+
+
+@dataclass(frozen=True)
+class Tank:
+    """The on-board CO2 tank: its contents drain with thruster (and bearing) use.
+
+    The model's base inertia is the base with ``co2_mass`` of CO2 in the tank (a full tank). The
+    CO2 is a solid cylinder (vertical axis) at ``position`` in the base frame; with ``m`` left,
+    the base inertial parameters are ``base - (co2_mass - m) * unit`` (``unit`` those of 1 kg of
+    that cylinder), so the base mass, CoM and inertia drift as gas is used: the reason an
+    identified model must be refreshed. Mass flow ``n_open * force / (isp * g0) + bearing_flow``;
+    the gas leaves with the local base velocity (velocities are continuous, the thrust accounts
+    for the exhaust). With the tank empty the thrusters give no force.
+
+    Attributes
+    ----------
+    enabled : bool
+        Default True; False keeps the mass constant (thrusters still push).
+    co2_mass : float
+        CO2 in the full tank [kg]. Default 0.5 (assumed: the tank weighs 1.5 kg full).
+    position : tuple of 2 floats
+        CO2 centre in the base frame [m]. Default (-0.05, 0.0): near the base CoM.
+    radius, length : float
+        Cylinder of the CO2 [m]. Default 0.03 and 0.25.
+    isp : float
+        Specific impulse of the thrusters [s]. Default 60 (CO2 cold gas).
+    bearing_flow : float
+        Constant CO2 consumption of the air bearings [kg/s]. Default 0.
+    """
+
+    enabled: bool = True
+    co2_mass: float = 0.5
+    position: tuple = (-0.05, 0.0)
+    radius: float = 0.03
+    length: float = 0.25
+    isp: float = 60.0
+    bearing_flow: float = 0.0
+
+    def __post_init__(self):
+        _set(self, "co2_mass", _number("tank.co2_mass [kg]", self.co2_mass, low=0.0))
+        pos = _finite_tuple(self.position, 2)
+        if pos is None:
+            raise SpaceidError(f"tank.position must be 2 finite numbers (x, y) [m], got {self.position!r}")
+        _set(self, "position", pos)
+        for name in ("radius", "length", "bearing_flow"):
+            _set(self, name, _number(f"tank.{name}", getattr(self, name), low=0.0))
+        _set(self, "isp", _number("tank.isp [s]", self.isp, low=0.0, strict=True))
+
+    def unit_inertial(self) -> np.ndarray:
+        """Inertial parameters of 1 kg of CO2 about the base origin, shape (10,)."""
+        r2, l2 = self.radius**2, self.length**2
+        i_com = np.diag([(3 * r2 + l2) / 12, (3 * r2 + l2) / 12, r2 / 2])
+        return inertial_vector(1.0, [*self.position, 0.0], i_com)
+
+
+@dataclass(frozen=True)
+class TwinSettings:
+    """Everything the twin needs, with units; ``to_dict()`` for provenance.
+
+    Attributes
+    ----------
+    model : str or Model
+        Planar model (preset name or path, or a Model). Default ``"cepheus-rw"``.
+    controllers, encoders, mocap : Controllers, Encoders, MotionCapture
+    bearing_friction, joint_friction, torque_limits, thrusters, tank :
+        The optional effects, each with an ``enabled`` switch.
+    table_tilt : float
+        Inclination of the table [rad] (gravity component ``g0 sin(tilt)`` in the plane, towards
+        azimuth ``tilt_azimuth`` [rad] in the world frame). Default 0 (level; the real table is
+        within 0.01 deg = 1.7e-4 rad).
+    tilt_azimuth : float
+        Default 0.
+    """
+
+    model: str | Model = "cepheus-rw"
+    controllers: Controllers = field(default_factory=Controllers)
+    encoders: Encoders = field(default_factory=Encoders)
+    mocap: MotionCapture = field(default_factory=MotionCapture)
+    bearing_friction: BearingFriction = field(default_factory=BearingFriction)
+    joint_friction: JointFriction = field(default_factory=JointFriction)
+    torque_limits: TorqueLimits = field(default_factory=TorqueLimits)
+    thrusters: Thrusters = field(default_factory=Thrusters)
+    tank: Tank = field(default_factory=Tank)
+    table_tilt: float = 0.0
+    tilt_azimuth: float = 0.0
+
+    def __post_init__(self):
+        for f in fields(self):
+            expected = {
+                "controllers": Controllers, "encoders": Encoders, "mocap": MotionCapture,
+                "bearing_friction": BearingFriction, "joint_friction": JointFriction,
+                "torque_limits": TorqueLimits, "thrusters": Thrusters, "tank": Tank,
+            }.get(f.name)
+            if expected and not isinstance(getattr(self, f.name), expected):
+                raise SpaceidError(
+                    f"settings.{f.name} must be a {expected.__name__}(...), got {getattr(self, f.name)!r}"
+                )
+        _set(self, "table_tilt", _number("settings.table_tilt [rad]", self.table_tilt, low=0.0))
+        if self.table_tilt >= math.pi / 2:
+            raise SpaceidError(f"settings.table_tilt must be below pi/2 rad, got {self.table_tilt:g}")
+        _set(self, "tilt_azimuth", _number("settings.tilt_azimuth [rad]", self.tilt_azimuth))
+
+    def without_effects(self) -> "TwinSettings":
+        """The same settings with friction, torque limits, thrusters, tank drain and tilt off."""
+        return replace(
+            self,
+            bearing_friction=replace(self.bearing_friction, enabled=False),
+            joint_friction=replace(self.joint_friction, enabled=False),
+            torque_limits=replace(self.torque_limits, enabled=False),
+            thrusters=replace(self.thrusters, enabled=False),
+            tank=replace(self.tank, enabled=False),
+            table_tilt=0.0,
+        )
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary of every value (the model by name or source)."""
+        out = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name == "model":
+                out["model"] = value.source or value.name if isinstance(value, Model) else str(value)
+            else:
+                out[f.name] = _plain(value)
+        return out
+
+
+def _plain(value):
+    """Dataclasses, tuples, dicts and numpy values as plain JSON types (inf as a string)."""
+    if is_dataclass(value):
+        return {f.name: _plain(getattr(value, f.name)) for f in fields(value)}
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    return value
+
+
+def _check_joint_names(settings: TwinSettings, model: Model):
+    """Every joint a per-joint setting names is in ``model``, or a SpaceidError naming the setting."""
+    c, jf = settings.controllers, settings.joint_friction
+    named = [
+        ("controllers.position", c.position),
+        ("controllers.velocity", c.velocity),
+        ("encoders.counts_per_rev", settings.encoders.counts_per_rev),
+        ("joint_friction.viscous", jf.viscous),
+        ("joint_friction.coulomb", jf.coulomb),
+    ]
+    if settings.torque_limits.effort is not None:
+        named.append(("torque_limits.effort", settings.torque_limits.effort))
+    for where, names in named:
+        unknown = [n for n in names if n not in model.joints]
+        if unknown:
+            raise SpaceidError(
+                f"{where} names joint '{unknown[0]}', which is not in model {model.name} "
+                f"(joints: {', '.join(model.joints)}): use one of these names"
+            )
