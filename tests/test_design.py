@@ -15,7 +15,9 @@ from conftest import random_tree
 import spaceid
 from spaceid import SpaceidError
 from spaceid.cli import main
-from spaceid.motion._design import CRITERIA, _problem, optimize_excitation, design_excitation, whitened_regressor
+from spaceid.motion._design import CRITERIA, optimize_excitation, design_excitation, whitened_regressor
+from spaceid.motion._design_problem import _set_up_problem
+from spaceid.motion._design_search import _linearized_surrogate
 from spaceid.estimation import Noise, equation_covariance, signal_jacobian, signal_sigma
 from spaceid.dynamics import minimal_parameters
 from spaceid.dynamics import base_rate, excitation_regressor
@@ -71,21 +73,21 @@ def test_limits_hold_at_all_times(short_run):
     assert peak_ratio(traj, 1001).max() > 0.999  # the optimum presses on a limit
 
 
-def test_gauge_finds_the_peaks_between_grid_points():
+def test_room_used_finds_the_peaks_between_grid_points():
     """A coarse grid (101 times, 8 a period of the top harmonic): scaled onto the limits by
     the gauge, each joint's largest room used is 1 on 200001 times, its grid values less."""
     limits = np.array([[1.5, 1.5], [1.5, 1.5], [3.0, 3.0]])
     boundary = np.zeros((6, 2))
     boundary[0], boundary[3] = [0.3, -0.2], [-0.1, 0.4]  # q0, qf: rooms of both signs differ
-    problem = _problem(cepheus_regressor, "cond", duration=5.0, harmonics=12, samples=35,
-                       limits=limits, boundary=boundary, n_grid=101)  # fmt: skip
-    z = problem.to_limits(problem.starts(np.random.default_rng(0), 1)[0])
+    problem = _set_up_problem(cepheus_regressor, "cond", duration=5.0, harmonics=12, samples=35,
+                              limits=limits, boundary=boundary, n_grid=101)  # fmt: skip
+    z = problem.scale_onto_limits(problem.random_inside_limits(np.random.default_rng(0), 1)[0])
     t = sample_times(5.0, 200001)
-    fourier = np.einsum("dtk,jk->dtj", fourier_basis(t, duration=5.0, harmonics=12), problem.X(z))
+    fourier = np.einsum("dtk,jk->dtj", fourier_basis(t, duration=5.0, harmonics=12), problem.coefficients(z))
     p = boundary_quintic(t, duration=5.0, boundary=boundary)
     used = np.where(fourier > 0, fourier / (limits[:, None] - p), -fourier / (limits[:, None] + p))
     assert np.all(np.abs(used.max(axis=(0, 1)) - 1) < 1e-7)  # 200001 times miss up to 2e-8
-    A, up, down = problem._rooms
+    A, up, down = problem.grid_room_terms
     v = np.einsum("rjk,jk->rj", A, z.reshape(problem.S.shape))
     on_grid = np.where(v > 0, v * up, -v * down).max(0)
     assert np.all(on_grid < 1 - 1e-4)  # the grid alone would miss the peaks
@@ -133,14 +135,14 @@ def test_logdet_criterion_beats_the_paper():
 @pytest.mark.parametrize("criterion", CRITERIA)
 def test_gradients_match_finite_differences(criterion):
     limits = np.array([[1.5, 1.5], [1.5, 1.5], [3.0, 3.0]])
-    problem = _problem(cepheus_regressor, criterion, duration=5.0, harmonics=3, samples=35,
-                       limits=limits, boundary=np.zeros((6, 2)), n_grid=201)  # fmt: skip
+    problem = _set_up_problem(cepheus_regressor, criterion, duration=5.0, harmonics=3, samples=35,
+                              limits=limits, boundary=np.zeros((6, 2)), n_grid=201)  # fmt: skip
     rng = np.random.default_rng(0)
-    z, d, h = problem.starts(rng, 1)[0], rng.standard_normal(problem.n), 1e-5
-    value, jac = problem.linearize(z)
+    z, d, h = problem.random_inside_limits(rng, 1)[0], rng.standard_normal(problem.n), 1e-5
+    value, jac = problem.linearize_criterion(z)
 
     def pieces(s):  # the criterion's pieces along z + s d
-        return CRITERIA[criterion].pieces(problem.stacked((z + s * d)[None])[0])
+        return CRITERIA[criterion].pieces(problem.stacked_regressor((z + s * d)[None])[0])
 
     np.testing.assert_allclose(value, pieces(0.0), rtol=1e-12)
     np.testing.assert_allclose(jac @ d, (pieces(h) - pieces(-h)) / (2 * h), rtol=1e-5, atol=1e-8)
@@ -260,18 +262,18 @@ def test_trust_region_is_reproducible(chain, spatial_run):
 def test_trust_region_model_gradient_matches_finite_differences(chain, criterion):
     joints, regressor = chain
     limits = np.array([[1.5] * 3, [0.8] * 3, [1.0] * 3])
-    problem = _problem(regressor, criterion, duration=10.0, harmonics=3, samples=30,
-                       limits=limits, boundary=np.zeros((6, 3)), n_grid=501)  # fmt: skip
+    problem = _set_up_problem(regressor, criterion, duration=10.0, harmonics=3, samples=30,
+                              limits=limits, boundary=np.zeros((6, 3)), n_grid=501)  # fmt: skip
     rng = np.random.default_rng(0)
-    z = problem.radial(problem.tr_starts(rng, 1)[0], problem.sharpness)[0]
-    assert problem.signals(z).max() <= 1  # the smooth gauge keeps the limits
-    Y0, Gt = problem.jet(z)
+    z = problem.map_onto_limits(problem.random_on_limits(rng, 1)[0])[0]
+    assert problem.signals_over_limits(z).max() <= 1  # the smooth gauge keeps the limits
+    Y0, Gt = problem.linearize_regressor(z)
     # at the linearisation point the model is the surrogate of the regressor itself
-    f0 = problem._model(z, z, Y0, Gt, 8.0)[0]
+    f0 = _linearized_surrogate(problem, z, z, Y0, Gt, 8.0)[0]
     assert f0 == pytest.approx(problem.smooth_objective(z[None], 8.0)[0], rel=1e-12)
     y, d, h = z + 0.01 * rng.standard_normal(z.size), rng.standard_normal(z.size), 1e-6
-    value, grad = problem._model(y, z, Y0, Gt, 8.0)
-    ahead, behind = (problem._model(y + s * h * d, z, Y0, Gt, 8.0)[0] for s in (1, -1))
+    value, grad = _linearized_surrogate(problem, y, z, Y0, Gt, 8.0)
+    ahead, behind = (_linearized_surrogate(problem, y + s * h * d, z, Y0, Gt, 8.0)[0] for s in (1, -1))
     fd = (ahead - behind) / (2 * h)
     assert grad @ d == pytest.approx(fd, rel=1e-5, abs=1e-8)
 
@@ -358,13 +360,13 @@ def test_nested_differences_give_accurate_gradients(cepheus, criterion):
     step 1e-3 (their error is about 1e-8): the design's default step 1e-6 is 100 times off."""
     regressor = whitened_regressor(cepheus, cepheus.true_values, H, NOISE)
     limits = np.array([[1.5, 1.5], [1.5, 1.5], [3.0, 3.0]])
-    problem = _problem(regressor, criterion, duration=5.0, harmonics=3, samples=35,
-                       limits=limits, boundary=np.zeros((6, 2)), n_grid=201)  # fmt: skip
+    problem = _set_up_problem(regressor, criterion, duration=5.0, harmonics=3, samples=35,
+                              limits=limits, boundary=np.zeros((6, 2)), n_grid=201)  # fmt: skip
     assert problem.step == regressor.fd_step == 1e-4
     rng = np.random.default_rng(0)
-    z, d = problem.starts(rng, 1)[0], rng.standard_normal(problem.n)
-    Y, Gt = problem.jet(z)
-    q, qd = np.einsum("dtk,jk->dtj", problem.B_samples, problem.X(z)) + problem.P_samples
+    z, d = problem.random_inside_limits(rng, 1)[0], rng.standard_normal(problem.n)
+    Y, Gt = problem.linearize_regressor(z)
+    q, qd = np.einsum("dtk,jk->dtj", problem.B_samples, problem.coefficients(z)) + problem.P_samples
     h, ref = 1e-3, []
     for signal in range(2):
         for j in range(2):
@@ -379,10 +381,10 @@ def test_nested_differences_give_accurate_gradients(cepheus, criterion):
     assert np.abs(Gt - ref).max() < 1e-6 * np.abs(ref).max()
 
     def piece(s):
-        return CRITERIA[criterion].pieces(problem.stacked((z + s * d)[None])[0])[0]
+        return CRITERIA[criterion].pieces(problem.stacked_regressor((z + s * d)[None])[0])[0]
 
     fd = (piece(-2 * h) - 8 * piece(-h) + 8 * piece(h) - piece(2 * h)) / (12 * h)
-    assert problem.linearize(z)[1][0] @ d == pytest.approx(fd, rel=1e-6)
+    assert problem.linearize_criterion(z)[1][0] @ d == pytest.approx(fd, rel=1e-6)
 
 
 @pytest.fixture(scope="module")

@@ -2,9 +2,10 @@
 simulation of a prescribed joint motion.
 """
 
-from . import _trajectory, _simulate, _design
+from . import _trajectory, _simulate, _criteria, _design
 from ._trajectory import *  # noqa: F403
 from ._simulate import *  # noqa: F403
+from ._criteria import *  # noqa: F403
 from ._design import *  # noqa: F403
 
-__all__ = _trajectory.__all__ + _simulate.__all__ + _design.__all__
+__all__ = _trajectory.__all__ + _simulate.__all__ + _criteria.__all__ + _design.__all__
