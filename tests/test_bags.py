@@ -10,7 +10,7 @@ import json
 import numpy as np
 import pytest
 
-from spaceid.data import _bags as bags
+from spaceid.data import _bag_format as bags
 from spaceid._errors import SpaceidError
 from spaceid.data import read_mapping, read_recording, to_log, write_bag
 from spaceid.cli import main
