@@ -1,27 +1,41 @@
 """Figures, tables and the Markdown report: valid PNGs, complete tables, clear errors, no leaks."""
 
+import re
 import struct
+from dataclasses import replace
 
 import matplotlib as mpl
 import numpy as np
 import pytest
+from matplotlib.container import ErrorbarContainer
 from rich.console import Console
 
-from spaceid import SpaceidError
-from spaceid.estimation import Identification
+from spaceid import SpaceidError, load_model
+from spaceid.data import Log, yaw_to_quat
+from spaceid.dynamics import minimal_parameters
+from spaceid.estimation import Identification, Noise
 from spaceid.studies import (
     parameter_table,
+    plot_montecarlo,
     plot_parameters,
     plot_singular_values,
     plot_trajectory,
     plot_validation,
+    run_montecarlo,
     write_markdown_report,
 )
-from spaceid.data import Log, yaw_to_quat
+from spaceid.studies._figures import (
+    _draw_montecarlo,
+    _draw_parameters,
+    _draw_singular_values,
+    _draw_trajectory,
+    _draw_validation,
+)
 
 JOINTS = ("left_shoulder", "left_elbow")
 TRUE = np.array([0.007237, 0.131126, 0.004630])
 REFERENCE = np.array([0.5162, 0.0432, 0.6634])  # percent, as the paper prints them
+OPTIONS = [{}, {"true": TRUE}, {"true": TRUE, "reference": REFERENCE}, {"reference": REFERENCE}]
 
 
 def _png_size(path):
@@ -63,8 +77,8 @@ def ident():
         names=("pi1", "pi5", "pi8"),
         definitions=(
             "-m_base*(cx_base - x_left_shoulder)*(cx_link1*m_link1 + m_link2*x_left_elbow)/M",
-            "Izz_base + m_base*(m_link1 + m_link2)*(cx_base**2 - 2*cx_base*x_left_shoulder + cy_base**2 "
-            "- 2*cy_base*y_left_shoulder + x_left_shoulder**2 + y_left_shoulder**2)/M",
+            ("Izz_base + m_base*(m_link1 + m_link2)*(cx_base**2 - 2*cx_base*x_left_shoulder + cy_base**2 "
+             "- 2*cy_base*y_left_shoulder + x_left_shoulder**2 + y_left_shoulder**2)/M"),
             "Izz_link2 + cx_link2**2*m_link2*(m_base + m_link1)/M",
         ),
         values=values,
@@ -85,11 +99,51 @@ def ident():
 # --- figures ----------------------------------------------------------------------------------
 
 
+def _errorbars(ax, label):
+    """``(x, centre, half)`` of the one error-bar series of ``ax`` whose label contains ``label``."""
+    (bars,) = [c for c in ax.containers if isinstance(c, ErrorbarContainer) and label in (c.get_label() or "")]
+    seg = np.array(bars.lines[2][0].get_segments())  # (n, 2 ends, (x, y))
+    return seg[:, 0, 0], seg[:, :, 1].mean(1), np.diff(seg[:, :, 1], axis=1)[:, 0] / 2
+
+
+def _line(ax, label):
+    (line,) = [ln for ln in ax.get_lines() if label in ln.get_label()]
+    return line
+
+
+def _legend_labels(fig):
+    return [t.get_text() for legend in fig.legends for t in legend.get_texts()]
+
+
+def _assert_titled_and_labelled(fig):
+    """A figure title, a unit in brackets on every axis label (parameter names and indices are
+    categories), and at least one labelled x and y axis."""
+    assert fig.get_suptitle() or all(ax.get_title(loc="left") or ax.get_title() for ax in fig.axes)
+    ylabels = [ax.get_ylabel() for ax in fig.axes if ax.get_ylabel()]
+    xlabels = [ax.get_xlabel() for ax in fig.axes if ax.get_xlabel()]
+    assert ylabels and xlabels
+    assert all(re.search(r"\[.+\]", y) for y in ylabels), ylabels
+    assert all(re.search(r"\[.+\]|parameter|index", x) for x in xlabels), xlabels
+
+
 @pytest.mark.parametrize("planar", [True, False])
 def test_validation_figure_is_a_png(tmp_path, planar):
     out = plot_validation(_log(planar), _log(planar, bias=1e-3), tmp_path / "validation.png", title="Validation")
     assert out == tmp_path / "validation.png"
     _assert_png(out, min_width=900)
+
+
+@pytest.mark.parametrize("planar", [True, False])
+def test_validation_figure_is_titled_and_labelled(planar):
+    fig = _draw_validation(_log(planar), _log(planar, bias=1e-3))
+    _assert_titled_and_labelled(fig)
+    assert "identified model" in fig.get_suptitle()  # a default title: 'spaceid validate' gives none
+    assert _legend_labels(fig) == ["measured", "identified model"]
+    assert {ax.get_ylabel().split("[")[1] for ax in fig.axes} == {"rad]", "rad/s]"}
+    assert [ax.get_xlabel() for ax in fig.axes if ax.get_xlabel()] == ["time $t$ [s]"] * (1 if planar else 3)
+    # no offset text ('+1.7e2' of a spinning wheel's rate) to collide with the panel titles
+    assert not any(ax.yaxis.get_major_formatter().get_useOffset() for ax in fig.axes)
+    assert _draw_validation(_log(planar), _log(planar), title="Fig. 6").get_suptitle() == "Fig. 6"
 
 
 def test_validation_needs_matching_logs(tmp_path):
@@ -101,9 +155,68 @@ def test_validation_needs_matching_logs(tmp_path):
     assert not list(tmp_path.iterdir())
 
 
-@pytest.mark.parametrize("options", [{}, {"true": TRUE}, {"true": TRUE, "reference": REFERENCE}, {"reference": REFERENCE}])
+@pytest.mark.parametrize("options", OPTIONS)
 def test_parameter_figure_is_a_png(tmp_path, ident, options):
     _assert_png(plot_parameters(ident, tmp_path / "parameters.png", **options))
+
+
+@pytest.mark.parametrize("options", OPTIONS)
+def test_parameter_figure_is_one_linear_relative_axis(ident, options):
+    fig = _draw_parameters(ident, **options)
+    (ax,) = fig.axes
+    _assert_titled_and_labelled(fig)
+    assert ax.get_yscale() == "linear" and "[%]" in ax.get_ylabel() and "SI" not in ax.get_ylabel()
+    assert "estimate $\\pm 2\\sigma$" in _legend_labels(fig)[-1]
+    x, centre, half = _errorbars(ax, "estimate")
+    np.testing.assert_allclose(x, np.arange(3) - 0.15 * ("reference" in options))  # beside the reference
+    if "true" in options:  # signed error and 2 sigma, in percent of |true|
+        np.testing.assert_allclose(centre, [0.4, -0.05, 0.7], rtol=1e-9)
+        np.testing.assert_allclose(half, 200 * ident.std / TRUE, rtol=1e-9)
+        assert ax.get_title(loc="left").endswith("cond = 372.3, max |error| 0.7 %")
+    else:  # a real recording: 2 sigma in percent of |estimate|
+        np.testing.assert_allclose(centre, 0, atol=1e-12)
+        np.testing.assert_allclose(half, 200 * ident.std / ident.values, rtol=1e-9)
+    low, high = ax.get_ylim()
+    assert low == pytest.approx(-high)  # over- and underestimates on an equal footing
+    if "reference" in options:  # magnitudes, drawn at both signs beside ours
+        ref = _line(ax, "paper")
+        np.testing.assert_allclose(ref.get_xdata(), np.repeat(np.arange(3) + 0.15, 2))
+        np.testing.assert_allclose(np.sort(ref.get_ydata()), np.sort(np.concatenate([REFERENCE, -REFERENCE])))
+        assert high > REFERENCE.max()
+
+
+def test_anchored_parameters_are_marked_apart(ident):
+    anchors = [{"name": "pi5", "definition": ident.definitions[1], "value": TRUE[1], "source": "given"}]
+    std = ident.std * np.array([1.0, 0.0, 1.0])
+    fixed = replace(ident, values=np.where(std > 0, ident.values, TRUE), std=std, cov=np.diag(std**2),
+                    settings={**ident.settings, "anchors": anchors})  # fmt: skip
+    for options in ({"true": TRUE}, {}):
+        fig = _draw_parameters(fixed, **options)
+        (ax,) = fig.axes
+        x, _, _ = _errorbars(ax, "estimate")
+        np.testing.assert_array_equal(x, [0, 2])  # not among the estimates ...
+        marker = _line(ax, "anchored")  # ... but a marker of its own, explained in the legend
+        np.testing.assert_array_equal(marker.get_xdata(), [1])
+        np.testing.assert_allclose(marker.get_ydata(), [0.0], atol=1e-12)
+        assert any("anchored" in label for label in _legend_labels(fig))
+        colours = [tick.get_color() for tick in ax.get_xticklabels()]
+        assert colours[1] != colours[0] == colours[2]
+    assert not any("anchored" in label for label in _legend_labels(_draw_parameters(ident, true=TRUE)))
+
+
+def test_parameter_units_label_the_ticks(ident):
+    """Results that carry their parameters' units (``ident.units``) get them under the names, or
+    once on the axis when they are all the same."""
+    ax = _draw_parameters(replace(ident, units=("kg m^2", "kg m^2", "kg m")), true=TRUE).axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["$\\pi_{1}$\n[kg m$^{2}$]", "$\\pi_{5}$\n[kg m$^{2}$]",
+                                                            "$\\pi_{8}$\n[kg m]"]  # fmt: skip
+    assert ax.get_xlabel() == "minimal parameter [unit]"
+    ax = _draw_parameters(replace(ident, units=("kg m^2",) * 3), true=TRUE).axes[0]
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["$\\pi_{1}$", "$\\pi_{5}$", "$\\pi_{8}$"]
+    assert ax.get_xlabel() == "minimal parameter (all in kg m$^{2}$)"
+    assert _draw_parameters(ident).axes[0].get_xlabel() == "minimal parameter"  # a result without units
+    with pytest.raises(SpaceidError, match="2 units for 3 parameters"):
+        _draw_parameters(replace(ident, units=("kg m^2",) * 2))
 
 
 def test_parameter_figure_checks_lengths(tmp_path, ident):
@@ -113,6 +226,12 @@ def test_parameter_figure_checks_lengths(tmp_path, ident):
 
 def test_singular_value_figure(tmp_path, ident):
     _assert_png(plot_singular_values(ident, tmp_path / "sv.png"))
+    fig = _draw_singular_values(ident)
+    _assert_titled_and_labelled(fig)
+    (ax,) = fig.axes
+    assert "372.3" in ax.get_title() and ax.get_yscale() == "log"
+    # relative to the largest: the columns' units differ, the ratios do not
+    np.testing.assert_allclose(ax.get_lines()[0].get_ydata(), ident.singular_values / 57.1)
     empty = Identification(**{**ident.__dict__, "singular_values": np.array([])})
     with pytest.raises(SpaceidError, match="no singular values"):
         plot_singular_values(empty, tmp_path / "sv2.png")
@@ -124,17 +243,66 @@ def test_trajectory_figure(tmp_path):
     qd = np.stack([0.6 * np.cos(t), 2 * np.cos(2 * t)], axis=1)
     qdd = np.stack([-0.6 * np.sin(t), -4 * np.sin(2 * t)], axis=1)
     limits = {"q": [0.66, 1.36], "qd": np.array([[-1.0, 1.0], [-2.5, np.nan]]), "qdd": 5.0}
-    out = plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "trajectory.png", limits=limits, samples=np.linspace(0, 5, 35))
-    _assert_png(out, min_width=900)
+    samples = np.linspace(0, 5, 35)
+    _assert_png(plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "trajectory.png", limits=limits, samples=samples),
+                min_width=900)  # fmt: skip
+    fig = _draw_trajectory(t, q, qd, qdd, JOINTS, limits=limits, samples=samples)
+    _assert_titled_and_labelled(fig)
+    assert "5 s" in fig.get_suptitle()
+    assert _legend_labels(fig) == ["trajectory", "limit", "sample instants (N = 35)"]
+    limits_drawn = [sorted(ln.get_ydata()[0] for ln in ax.get_lines() if ln.get_label() == "limit") for ax in fig.axes]
+    assert limits_drawn[2:4] == [[-1.0, 1.0], [-2.5]]  # the rates' pairs; NaN: no upper limit
     with pytest.raises(SpaceidError, match="unknown limit kinds"):
         plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "t2.png", limits={"velocity": 1.0})
     with pytest.raises(SpaceidError, match=r"limits\['q'\]"):
         plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "t2.png", limits={"q": [1.0, 2.0, 3.0]})
 
 
+@pytest.fixture(scope="module")
+def montecarlo():
+    """A small study, then one OLS run marked failed: 4 runs for ML, 3 for OLS."""
+    param = minimal_parameters(load_model("cepheus"))
+    noise = Noise(2e-4, 1e-4, 1e-4, 1e-4, source="test")
+    res = run_montecarlo(param, "paper-table2", samples=35, momentum=[0.0, 0.0, 0.4934], noise=noise, runs=4,
+                         estimators=("ml", "ols"), seed=5, jobs=1)  # fmt: skip
+    ols = res.estimates["ols"].copy()
+    ols[2] = np.nan
+    return replace(res, estimates={**res.estimates, "ols": ols})
+
+
+def test_montecarlo_figure(tmp_path, montecarlo):
+    _assert_png(plot_montecarlo(montecarlo, tmp_path / "montecarlo.png"), min_width=900)
+    fig = _draw_montecarlo(montecarlo)
+    _assert_titled_and_labelled(fig)
+    title = fig.get_suptitle()
+    assert "4 runs" in title and "N = 35" in title
+    assert "angle 2e-4 rad, rate 1e-4 rad/s, base rate 1e-4 rad/s, attitude 1e-4 rad" in title
+    (bars,) = [ax for ax in fig.axes if ax.get_xlabel() == "minimal parameter"]
+    assert bars.get_ylabel() == "RMSE / CRB [-]"
+    # no internal target: no line or label of one, nothing at 1.2
+    lines = [ln for ax in fig.axes for ln in ax.get_lines()]
+    assert not any("target" in text.lower() for text in _legend_labels(fig) + [ln.get_label() for ln in lines])
+    assert not any(np.allclose(ln.get_ydata(), 1.2) for ln in bars.get_lines())
+    labelled = [ln.get_label() for ln in bars.get_lines() if not ln.get_label().startswith("_")]
+    assert labelled == ["RMSE = CRB (efficient)"]
+    # the Monte Carlo uncertainty of every ratio: +-2 relative standard errors 1 / sqrt(2 R), R the runs that succeeded
+    x, centre, half = _errorbars(bars, "s.e.")
+    k = len(montecarlo.names)
+    assert x.size == 2 * k
+    for j, (e, runs_ok) in enumerate([("ml", 4), ("ols", 3)]):
+        ratio = montecarlo.stats[e]["rmse_crb"]
+        np.testing.assert_allclose(centre[j * k : (j + 1) * k], ratio, rtol=1e-9)
+        np.testing.assert_allclose(half[j * k : (j + 1) * k], 2 * ratio / np.sqrt(2 * runs_ok), rtol=1e-9)
+    labels = _legend_labels(fig)
+    assert any("s.e." in label and "sqrt{2R}" in label for label in labels)
+    assert {"ML (R = 4 runs)", "OLS (R = 3 runs)", "CRB $\\pm 2\\sigma$"} <= set(labels)
+    assert bars.get_ylim()[1] >= np.nanmax(centre + half)
+
+
 def test_figures_leave_global_matplotlib_state_alone(tmp_path, ident):
     before = dict(mpl.rcParams)
     plot_singular_values(ident, tmp_path / "sv.png")
+    plot_parameters(ident, tmp_path / "p.png", true=TRUE)
     assert dict(mpl.rcParams) == before
 
 
@@ -155,8 +323,6 @@ def test_rich_table_renders_every_column(ident):
 
 def test_large_systems_point_to_their_definitions(ident):
     """Past DEFINITIONS_SHOWN parameters the terminal gets the numbers, not pages of formulas."""
-    from dataclasses import replace
-
     from spaceid.studies._tables import DEFINITIONS_SHOWN
 
     k = DEFINITIONS_SHOWN + 1

@@ -2,12 +2,13 @@
 
 Every figure is drawn on its own :class:`matplotlib.figure.Figure` with the Agg canvas (no
 pyplot state, no GUI), in one style, and written atomically as a 150 dpi PNG. Figures read
-result objects only.
+result objects only. Each public ``plot_*`` writes the Figure its private ``_draw_*`` returns
+(the tests inspect those).
 """
 
 from __future__ import annotations
 
-import contextlib
+import functools
 import re
 from pathlib import Path
 
@@ -18,22 +19,24 @@ from matplotlib.figure import Figure
 
 from .._atomic import atomic_path
 from .._errors import SpaceidError
-from ..estimation import Identification
 from ..data import Log
-
+from ..estimation import Identification
 from ._tables import _per_param, _relative_errors
-__all__ = ["plot_validation", "plot_parameters", "plot_singular_values", "plot_trajectory", "plot_montecarlo"]
+
+__all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_trajectory", "plot_validation"]
 
 DPI = 150
 _STYLE = {
     "font.size": 9,
     "axes.titlesize": 9,
+    "figure.titlesize": 10,
     "axes.labelsize": 9,
     "legend.fontsize": 8,
     "xtick.labelsize": 8,
     "ytick.labelsize": 8,
     "axes.grid": True,
     "axes.axisbelow": True,
+    "axes.formatter.useoffset": False,  # an offset ("+1.7e2") lands on the panel title
     "grid.alpha": 0.3,
     "grid.linewidth": 0.5,
     "axes.spines.top": False,
@@ -44,18 +47,52 @@ _STYLE = {
     "legend.frameon": False,
 }
 # one colour per role, the same in every figure
-_MEASURED, _MODEL, _TRUE, _REF, _LIMIT = "0.15", "tab:red", "tab:green", "0.55", "tab:orange"
+_MEASURED, _MODEL, _TRUE, _REF, _LIMIT, _ANCHOR = "0.15", "tab:red", "tab:green", "0.55", "tab:orange", "tab:blue"
 
 
-@contextlib.contextmanager
-def _figure(path, size):
-    """Yield a styled Agg figure of ``size`` [in]; on exit save it atomically as a PNG at ``path``."""
-    with mpl.rc_context(_STYLE):
-        fig = Figure(figsize=size, layout="constrained")
-        FigureCanvasAgg(fig)
-        yield fig
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png", dpi=DPI)
+def _styled(draw):
+    """Run a ``_draw_*`` function under the house style (artists take their style when created)."""
+
+    @functools.wraps(draw)
+    def wrapper(*args, **kwargs) -> Figure:
+        with mpl.rc_context(_STYLE):
+            return draw(*args, **kwargs)
+
+    return wrapper
+
+
+def _new_figure(size) -> Figure:
+    """An empty constrained-layout figure of ``size`` [in] on an Agg canvas."""
+    fig = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def _save(fig: Figure, path) -> Path:
+    """Write ``fig`` atomically as a PNG at ``path``; the style again, as ticks are made when drawn."""
+    with mpl.rc_context(_STYLE), atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=DPI)
+    return Path(path)
+
+
+def _legend_columns(labels, width: float) -> int:
+    """Most legend columns (filled column by column) whose estimated widths fit ``width`` [in]."""
+    plain = [re.sub(r"\\[A-Za-z]+|[${}^_]", "", label) for label in labels]  # mathtext renders shorter
+    size = [0.55 + 0.058 * len(text) for text in plain]  # handle and gaps + 8 pt characters [in]
+    for ncols in range(len(labels), 1, -1):
+        rows = -(-len(labels) // ncols)
+        if sum(max(size[c * rows : (c + 1) * rows]) for c in range(-(-len(labels) // rows))) <= width - 0.3:
+            return ncols
+    return 1
+
+
+def _figure_legend(fig: Figure, axes) -> None:
+    """One figure legend below the panels, one entry per label from whichever panel has it."""
+    entries = {}
+    for ax in axes:
+        entries.update(zip(*reversed(ax.get_legend_handles_labels())))
+    ncols = _legend_columns(list(entries), fig.get_figwidth())
+    fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncols=ncols)
 
 
 def _tex_name(name: str) -> str:
@@ -64,8 +101,67 @@ def _tex_name(name: str) -> str:
     return rf"$\pi_{{{match.group(1)}}}$" if match else name
 
 
+def _tex_unit(unit: str) -> str:
+    """``kg m^2`` -> ``kg m$^{2}$``: exponents raised, the rest as written."""
+    return re.sub(r"\^\{?(-?\d+)\}?", r"$^{\1}$", unit)
+
+
 def _rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
+
+
+# --- validation (the paper's Fig. 6) -----------------------------------------------------------
+
+_VALIDATION_TITLE = "Validation: measured motion vs re-simulation of the identified model (same joint motion)"
+
+
+def _check_same_motion(measured: Log, predicted: Log) -> None:
+    """Raise unless the logs have the same joints, planar flag and time stamps."""
+    if tuple(measured.joints) != tuple(predicted.joints) or measured.planar != predicted.planar:
+        raise SpaceidError(
+            f"plot_validation: the logs differ in joints ({list(measured.joints)} vs {list(predicted.joints)}) "
+            f"or planar flag ({measured.planar} vs {predicted.planar}): predict with the measured log's joint motion"
+        )
+    if measured.t.shape != predicted.t.shape or not np.allclose(measured.t, predicted.t, rtol=0, atol=1e-9):
+        raise SpaceidError(
+            f"plot_validation: the logs have different time stamps ({measured.n_samples} vs {predicted.n_samples} "
+            "samples): predict at the measured time stamps"
+        )
+
+
+@_styled
+def _draw_validation(measured: Log, predicted: Log, title: str | None = None) -> Figure:
+    """The figure of :func:`plot_validation`."""
+    _check_same_motion(measured, predicted)
+    nj = len(measured.joints)
+    axes_w = [2] if measured.planar else [0, 1, 2]
+    # rows: (label, unit, measured, predicted, panel title); 6 mosaic columns fit 2 and 3 panels
+    panels = []
+    for j, name in enumerate(measured.joints):
+        panels.append([(f"$q_{{{j + 1}}}$", "rad", measured.q[:, j], predicted.q[:, j], f"{name}: angle"),
+                       (rf"$\dot q_{{{j + 1}}}$", "rad/s", measured.qd[:, j], predicted.qd[:, j], f"{name}: rate")])
+    panels.append([(rf"$\omega_{{0{'xyz'[i]}}}$", "rad/s", measured.base_w[:, i], predicted.base_w[:, i],
+                    "base angular velocity" if measured.planar else f"base, {'xyz'[i]}")
+                   for i in axes_w])  # fmt: skip
+    mosaic = [[f"{r}.{c}" for c in range(len(row)) for _ in range(6 // len(row))] for r, row in enumerate(panels)]
+    marker = {"marker": "o", "linestyle": "none", "markersize": 3} if measured.n_samples <= 120 else {}
+    fig = _new_figure((7.2 if measured.planar else 8.4, 1.9 * (nj + 1) + 0.8))
+    axes = fig.subplot_mosaic(mosaic, sharex=True)
+    for r, row in enumerate(panels):
+        for c, (label, unit, y_meas, y_pred, panel_title) in enumerate(row):
+            ax = axes[f"{r}.{c}"]
+            ax.plot(measured.t, y_meas, color=_MEASURED, label="measured", **marker)
+            ax.plot(predicted.t, y_pred, color=_MODEL, linestyle="--", label="identified model")
+            ax.set_title(panel_title, loc="left")
+            ax.set_title(f"RMS error {_rms(y_pred - y_meas):.2g} {unit}", loc="right", fontsize=8, color="0.35")
+            ax.set_ylabel(f"{label} [{unit}]")
+            if r == len(panels) - 1:
+                ax.set_xlabel("time $t$ [s]")
+            else:
+                ax.tick_params(labelbottom=False)
+    _figure_legend(fig, [axes["0.0"]])
+    fig.suptitle(title or _VALIDATION_TITLE)
+    return fig
 
 
 def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
@@ -83,57 +179,101 @@ def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
     path : path-like
         Output PNG.
     title : str, optional
-        Figure title.
+        Figure title; default names what is compared.
 
     Returns
     -------
     Path
         ``path``.
     """
-    if tuple(measured.joints) != tuple(predicted.joints) or measured.planar != predicted.planar:
-        raise SpaceidError(
-            f"plot_validation: the logs differ in joints ({list(measured.joints)} vs {list(predicted.joints)}) "
-            f"or planar flag ({measured.planar} vs {predicted.planar}): predict with the measured log's joint motion"
-        )
-    if measured.t.shape != predicted.t.shape or not np.allclose(measured.t, predicted.t, rtol=0, atol=1e-9):
-        raise SpaceidError(
-            f"plot_validation: the logs have different time stamps ({measured.n_samples} vs {predicted.n_samples} "
-            "samples): predict at the measured time stamps"
-        )
-    nj = len(measured.joints)
-    axes_w = [2] if measured.planar else [0, 1, 2]
-    # rows: (label, unit, measured, predicted, panel title); 6 mosaic columns fit 2 and 3 panels
-    panels = []
-    for j, name in enumerate(measured.joints):
-        panels.append([(f"$q_{{{j + 1}}}$", "rad", measured.q[:, j], predicted.q[:, j], f"{name}: angle"),
-                       (rf"$\dot q_{{{j + 1}}}$", "rad/s", measured.qd[:, j], predicted.qd[:, j], f"{name}: rate")])
-    panels.append([(rf"$\omega_{{0{'xyz'[i]}}}$", "rad/s", measured.base_w[:, i], predicted.base_w[:, i],
-                    "base angular velocity" if measured.planar else f"base, {'xyz'[i]}") for i in axes_w])
-    mosaic = [[f"{r}.{c}" for c in range(len(row)) for _ in range(6 // len(row))] for r, row in enumerate(panels)]
-    marker = {"marker": "o", "linestyle": "none", "markersize": 3} if measured.n_samples <= 120 else {}
-    with _figure(path, (7.2 if measured.planar else 8.4, 1.9 * (nj + 1) + 0.5)) as fig:
-        axes = fig.subplot_mosaic(mosaic, sharex=True)
-        for r, row in enumerate(panels):
-            for c, (label, unit, y_meas, y_pred, panel_title) in enumerate(row):
-                ax = axes[f"{r}.{c}"]
-                ax.plot(measured.t, y_meas, color=_MEASURED, label="measured", **marker)
-                ax.plot(predicted.t, y_pred, color=_MODEL, linestyle="--", label="identified model")
-                ax.set_title(panel_title, loc="left")
-                ax.set_title(f"RMS {_rms(y_pred - y_meas):.3g} {unit}", loc="right", fontsize=8, color="0.35")
-                ax.set_ylabel(f"{label} [{unit}]")
-                if r == len(panels) - 1:
-                    ax.set_xlabel("time $t$ [s]")
-                else:
-                    ax.tick_params(labelbottom=False)
-        handles, labels = axes["0.0"].get_legend_handles_labels()
-        fig.legend(handles, labels, loc="outside lower center", ncols=2)
-        if title:
-            fig.suptitle(title)
-    return Path(path)
+    return _save(_draw_validation(measured, predicted, title), path)
+
+
+# --- parameters ---------------------------------------------------------------------------------
+
+
+def _units(ident: Identification) -> tuple | None:
+    """The parameters' units (``ident.units``, e.g. ``"kg m^2"``); None for results written without them."""
+    units = tuple(ident.units or ())
+    if units and len(units) != len(ident.names):
+        raise SpaceidError(f"plot_parameters: the result has {len(units)} units for {len(ident.names)} parameters: "
+                           "identify again to rebuild it")  # fmt: skip
+    return units or None
+
+
+def _anchored(ident: Identification) -> np.ndarray:
+    """Mask of the parameters the identification fixed (``settings["anchors"]``) instead of estimating."""
+    names = {a["name"] for a in ident.settings.get("anchors", ())}
+    return np.array([n in names for n in ident.names], bool)
+
+
+def _percent_errors(ident: Identification, true):
+    """``(y, half, label)``: the signed error ``(estimate - true) / |true|`` and ``2 std / |true|`` [%];
+    without the truth, 0 and ``2 std / |estimate|`` [%] (the truth's interval about the estimate)."""
+    if true is None:
+        with np.errstate(divide="ignore", invalid="ignore"):
+            half = 200 * ident.std / np.where(ident.values != 0, np.abs(ident.values), np.nan)
+        return np.zeros(len(ident.names)), half, r"about the estimate, $(\pi_i - \hat\pi_i)\,/\,|\hat\pi_i|$ [%]"
+    rel, rel_std = _relative_errors(ident, true)
+    signed = 100 * np.sign(ident.values - true) * rel
+    return signed, 200 * rel_std, r"signed error $(\hat\pi_i - \pi_i)\,/\,|\pi_i|$ [%]"
+
+
+@_styled
+def _draw_parameters(ident: Identification, true=None, reference=None, reference_label="paper") -> Figure:
+    """The figure of :func:`plot_parameters`."""
+    true = _per_param(true, ident, "true")
+    reference = _per_param(reference, ident, "reference")
+    units = _units(ident)
+    per_tick = units is not None and len(set(units)) > 1  # else one unit for the axis label
+    anchored = _anchored(ident)
+    y, half, ylabel = _percent_errors(ident, true)
+    k = len(ident.names)
+    x = np.arange(k)
+    dx = 0.15 if reference is not None else 0.0
+    fig = _new_figure((max(6.0, 0.6 * k + 2.5), 3.9 if per_tick else 3.6))
+    ax = fig.subplots()
+    ax.axhline(0, color=_TRUE if true is not None else _REF, linewidth=1.0,
+               label="true value (zero error)" if true is not None else None)  # fmt: skip
+    free = ~anchored
+    ax.errorbar(x[free] - dx, y[free], yerr=half[free], fmt="o", color=_MEASURED,
+                label=r"estimate $\pm 2\sigma$" + ("" if true is not None else " (truth unknown)"))  # fmt: skip
+    if anchored.any():
+        ax.plot(x[anchored] - dx, y[anchored], "s", markersize=7, markerfacecolor="none", markeredgecolor=_ANCHOR,
+                markeredgewidth=1.5, label="anchored: known, not estimated")  # fmt: skip
+    if reference is not None:  # magnitudes: both signs, beside ours
+        ax.plot(np.repeat(x + dx, 2), np.stack([reference, -reference], axis=1).ravel(), "D", markersize=4,
+                markerfacecolor="none", color=_REF, label=rf"{reference_label}: $\pm$|error|")  # fmt: skip
+    reach = np.concatenate([np.abs(y) + np.nan_to_num(half), [] if reference is None else np.abs(reference)])
+    reach = reach[np.isfinite(reach)]
+    if reach.size and reach.max() > 0:
+        ax.set_ylim(-1.15 * reach.max(), 1.15 * reach.max())  # symmetric: over- and underestimates alike
+    ax.set_ylabel(ylabel)
+    labels = [_tex_name(n) for n in ident.names]
+    if per_tick:
+        labels = [f"{name}\n[{_tex_unit(u)}]" for name, u in zip(labels, units)]
+    ax.set_xticks(x, labels)
+    common = f" (all in {_tex_unit(units[0])})" if units else ""
+    ax.set_xlabel("minimal parameter" + (" [unit]" if per_tick else common))
+    for tick, fixed in zip(ax.get_xticklabels(), anchored):
+        if fixed:
+            tick.set_color(_ANCHOR)
+    worst = f", max |error| {np.nanmax(np.abs(y[free])):.2g} %" if true is not None and free.any() else ""
+    ax.set_title(f"{ident.estimator.upper()} estimates of the {k} minimal parameters\n"
+                 f"N = {ident.n_samples} samples, cond = {ident.condition_number:.4g}{worst}", loc="left")  # fmt: skip
+    _figure_legend(fig, [ax])
+    return fig
 
 
 def plot_parameters(ident: Identification, path, *, true=None, reference=None, reference_label="paper") -> Path:
-    """Estimates with 2-sigma error bars and, given the truth, their relative errors.
+    """Estimates with 2-sigma error bars on one relative axis (parameters of different units).
+
+    With the truth, the signed relative error ``(estimate - true) / |true|`` [%] with bars
+    ``2 std / |true|``; without it (a real recording), the bars ``2 std / |estimate|`` [%] about
+    the estimate. Parameters the identification fixed (``settings["anchors"]``, e.g. a
+    reaction wheel's rotor inertia) are marked apart; ``ident.units``, when the result has them,
+    label the ticks (or the axis, when they are all the same). Linear axis, symmetric about
+    zero; a zero true value gives no point.
 
     Parameters
     ----------
@@ -141,11 +281,10 @@ def plot_parameters(ident: Identification, path, *, true=None, reference=None, r
     path : path-like
         Output PNG.
     true : array_like of shape (k,), optional
-        True parameter values: adds them to the estimates panel and adds a panel of relative
-        errors ``|estimate - true| / |true|`` [%] with error bars of ``std / |true|`` (1 sigma),
-        on a log scale when they span more than a decade.
+        True parameter values.
     reference : array_like of shape (k,), optional
-        Reference relative errors **in percent** (e.g. the paper's Table 3), drawn beside ours.
+        Reference relative errors **in percent**, magnitudes (e.g. the paper's Table 3): drawn
+        at plus and minus beside ours.
     reference_label : str
         Legend name of ``reference``.
 
@@ -153,66 +292,44 @@ def plot_parameters(ident: Identification, path, *, true=None, reference=None, r
     -------
     Path
     """
-    true = _per_param(true, ident, "true")
-    reference = _per_param(reference, ident, "reference")
-    k = len(ident.names)
-    x = np.arange(k)
-    with_errors = true is not None or reference is not None
-    with _figure(path, (max(6.0, 0.55 * k + 2.5), 5.6 if with_errors else 3.2)) as fig:
-        axes = fig.subplots(2 if with_errors else 1, 1, sharex=True, squeeze=False)[:, 0]
-        ax = axes[0]
-        ax.errorbar(x, ident.values, yerr=2 * ident.std, fmt="o", color=_MEASURED, label=r"estimate $\pm 2\sigma$")
-        if true is not None:
-            ax.plot(x, true, "_", color=_TRUE, markersize=14, markeredgewidth=2, label="true")
-        shown = np.concatenate([ident.values, [] if true is None else true])
-        if np.all(shown > 0) and shown.max() / shown.min() > 20:
-            ax.set_yscale("log")  # magnitudes spanning decades: small parameters stay visible
-        ax.set_ylabel(r"parameter value $\pi_i$ [SI]")
-        ax.set_title(f"{ident.estimator.upper()} estimates, N = {ident.n_samples}, cond = {ident.condition_number:.4g}", loc="left")
-        ax.legend(loc="best")
-        if with_errors:
-            ax = axes[1]
-            shown = []
-            if true is not None:
-                rel, rel_std = (100 * e for e in _relative_errors(ident, true))
-                ax.errorbar(x - 0.12 * (reference is not None), rel, yerr=rel_std, fmt="o", color=_MEASURED,
-                            label=r"this run $\pm 1\sigma$")
-                shown += [rel, rel + rel_std]
-            if reference is not None:
-                ax.plot(x + 0.12 * (true is not None), reference, "D", color=_REF, label=reference_label)
-                shown.append(reference)
-            shown = np.concatenate(shown)
-            shown = shown[np.isfinite(shown) & (shown > 0)]
-            if shown.size and shown.max() / shown.min() > 10:
-                ax.set_yscale("log")
-                ax.set_ylim(shown.min() / 3, shown.max() * 3)  # bars reaching zero run off the bottom
-            else:
-                ax.set_ylim(bottom=0)
-            ax.set_ylabel("relative error [%]")
-            ax.legend(loc="best")
-        axes[-1].set_xticks(x, [_tex_name(n) for n in ident.names])
-        axes[-1].set_xlabel("parameter")
-    return Path(path)
+    return _save(_draw_parameters(ident, true, reference, reference_label), path)
+
+
+# --- singular values ----------------------------------------------------------------------------
+
+
+@_styled
+def _draw_singular_values(ident: Identification) -> Figure:
+    """The figure of :func:`plot_singular_values`."""
+    s = np.asarray(ident.singular_values, float)
+    if s.size == 0:
+        raise SpaceidError("plot_singular_values: the result has no singular values: identify again (spaceid identify)")
+    i = np.arange(1, s.size + 1)
+    fig = _new_figure((5.0, 3.2))
+    ax = fig.subplots()
+    ax.semilogy(i, s / s[0], "o-", color=_MEASURED)
+    ax.set_xticks(i)
+    ax.set_xlabel("index $i$ (decreasing order)")
+    ax.set_ylabel(r"$\sigma_i / \sigma_1$ of $\hat Y$ [-]")
+    ax.set_title(rf"Singular values of the stacked regressor $\hat Y$ (N = {ident.n_samples}):" "\n"
+                 rf"cond$(\hat Y) = \sigma_1/\sigma_k$ = {ident.condition_number:.4g}")  # fmt: skip
+    return fig
 
 
 def plot_singular_values(ident: Identification, path) -> Path:
-    """Singular values of the stacked regressor on a log scale, condition number in the title.
+    """Singular values of the stacked regressor relative to the largest, on a log scale.
+
+    Relative, as the regressor's columns carry the units of momentum over those of their
+    parameters; the smallest is ``1 / cond``, the condition number in the title.
 
     Returns
     -------
     Path
     """
-    s = np.asarray(ident.singular_values, float)
-    if s.size == 0:
-        raise SpaceidError("plot_singular_values: the result has no singular values: identify again (spaceid identify)")
-    with _figure(path, (5.0, 3.2)) as fig:
-        ax = fig.subplots()
-        ax.semilogy(np.arange(1, s.size + 1), s, "o-", color=_MEASURED)
-        ax.set_xticks(np.arange(1, s.size + 1))
-        ax.set_xlabel("index $i$")
-        ax.set_ylabel(r"singular value $\sigma_i$ of $\hat Y$")
-        ax.set_title(rf"Stacked regressor: cond$(\hat Y) = \sigma_1/\sigma_k$ = {ident.condition_number:.4g}")
-    return Path(path)
+    return _save(_draw_singular_values(ident), path)
+
+
+# --- trajectory ---------------------------------------------------------------------------------
 
 
 def _limit_band(value, n_joints: int, key: str) -> np.ndarray:
@@ -230,7 +347,46 @@ def _limit_band(value, n_joints: int, key: str) -> np.ndarray:
     )
 
 
-def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None) -> Path:
+@_styled
+def _draw_trajectory(t, q, qd, qdd, joints, limits=None, samples=None, title=None) -> Figure:
+    """The figure of :func:`plot_trajectory`."""
+    t = np.asarray(t, float)
+    rows = [("q", "rad", q), ("qd", "rad/s", qd), ("qdd", "rad/s$^2$", qdd)]
+    rows = [(key, unit, np.asarray(y, float).reshape(t.size, -1)) for key, unit, y in rows]
+    nj = len(joints)
+    if any(y.shape[1] != nj for *_, y in rows):
+        raise SpaceidError(f"plot_trajectory: q, qd, qdd need one column per joint ({nj}: {', '.join(joints)})")
+    limits = dict(limits or {})
+    if set(limits) - {"q", "qd", "qdd"}:
+        raise SpaceidError(f"plot_trajectory: unknown limit kinds {sorted(set(limits) - {'q', 'qd', 'qdd'})}: "
+                           "use 'q', 'qd', 'qdd'")  # fmt: skip
+    bands = {key: _limit_band(value, nj, key) for key, value in limits.items() if value is not None}
+    ts = None if samples is None else np.asarray(samples, float)
+    symbols = {"q": "q", "qd": r"\dot q", "qdd": r"\ddot q"}
+    fig = _new_figure((3.4 * nj + 0.6, 6.7))
+    axes = fig.subplots(3, nj, sharex=True, squeeze=False)
+    for r, (key, unit, y) in enumerate(rows):
+        for j in range(nj):
+            ax = axes[r, j]
+            ax.plot(t, y[:, j], color=_MEASURED, label="trajectory")
+            if key in bands:
+                for bound in bands[key][j][np.isfinite(bands[key][j])]:
+                    ax.axhline(bound, color=_LIMIT, linestyle=":", linewidth=1.2, label="limit")
+            if ts is not None:
+                ax.plot(ts, np.interp(ts, t, y[:, j]), "o", color=_MODEL, markersize=3,
+                        label=f"sample instants (N = {ts.size})")  # fmt: skip
+            ax.set_ylabel(rf"${symbols[key]}_{{{j + 1}}}$ [{unit}]")
+    for j, name in enumerate(joints):
+        axes[0, j].set_title(name)
+        axes[-1, j].set_xlabel("time $t$ [s]")
+    _figure_legend(fig, axes.flat)
+    default = (f"Exciting trajectory over {t[-1] - t[0]:.3g} s" + (": " if nj > 1 else ":\n")  # narrow: two lines
+               + "angle, rate and acceleration of each joint")
+    fig.suptitle(title or default)
+    return fig
+
+
+def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None, title=None) -> Path:
     """The exciting trajectory: position, rate and acceleration of each joint.
 
     Parameters
@@ -248,66 +404,70 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None) -
         (scalar or one per joint) or ``(n_joints, 2)`` lower/upper pairs; NaN means none.
     samples : array_like of shape (N,), optional
         Sample instants [s] used for identification, marked on every curve.
+    title : str, optional
+        Figure title; default names the duration and the rows.
 
     Returns
     -------
     Path
     """
-    t = np.asarray(t, float)
-    rows = [("q", "rad", q), ("qd", "rad/s", qd), ("qdd", "rad/s$^2$", qdd)]
-    rows = [(key, unit, np.asarray(y, float).reshape(t.size, -1)) for key, unit, y in rows]
-    nj = len(joints)
-    if any(y.shape[1] != nj for *_, y in rows):
-        raise SpaceidError(f"plot_trajectory: q, qd, qdd need one column per joint ({nj}: {', '.join(joints)})")
-    limits = dict(limits or {})
-    if set(limits) - {"q", "qd", "qdd"}:
-        raise SpaceidError(f"plot_trajectory: unknown limit kinds {sorted(set(limits) - {'q', 'qd', 'qdd'})}: use 'q', 'qd', 'qdd'")
-    bands = {key: _limit_band(value, nj, key) for key, value in limits.items() if value is not None}
-    ts = None if samples is None else np.asarray(samples, float)
-    symbols = {"q": "q", "qd": r"\dot q", "qdd": r"\ddot q"}
-    with _figure(path, (3.4 * nj + 0.6, 6.4)) as fig:
-        axes = fig.subplots(3, nj, sharex=True, squeeze=False)
-        for r, (key, unit, y) in enumerate(rows):
-            for j in range(nj):
-                ax = axes[r, j]
-                ax.plot(t, y[:, j], color=_MEASURED, label="trajectory")
-                if key in bands:
-                    for bound in bands[key][j][np.isfinite(bands[key][j])]:
-                        ax.axhline(bound, color=_LIMIT, linestyle=":", linewidth=1.2, label="limit")
-                if ts is not None:
-                    ax.plot(ts, np.interp(ts, t, y[:, j]), "o", color=_MODEL, markersize=3, label=f"samples (N = {ts.size})")
-                ax.set_ylabel(rf"${symbols[key]}_{{{j + 1}}}$ [{unit}]")
-        for j, name in enumerate(joints):
-            axes[0, j].set_title(name)
-            axes[-1, j].set_xlabel("time $t$ [s]")
-        legend = {}  # one entry per label, from whichever panel has it
-        for ax in axes.flat:
-            legend.update(zip(*reversed(ax.get_legend_handles_labels())))
-        fig.legend(legend.values(), legend.keys(), loc="outside lower center", ncols=len(legend))
-    return Path(path)
+    return _save(_draw_trajectory(t, q, qd, qdd, joints, limits, samples, title), path)
 
+
+# --- Monte Carlo --------------------------------------------------------------------------------
 
 # one colour per estimator in the Monte Carlo figures (the ML estimate takes the model's colour)
 _ESTIMATOR_COLOURS = {"ml": _MODEL, "wls": "tab:blue", "iv": "tab:purple", "tls": "tab:brown", "ols": "0.45"}
 
 
-def plot_montecarlo(result, path, *, max_panels: int = 12) -> Path:
-    """Monte Carlo errors: per parameter the relative errors of each estimator (box plots) in
-    the Cramer-Rao band, and RMSE / CRB of every parameter and estimator (bars).
+def _number(v: float) -> str:
+    """``1e-4`` rather than ``0.0001``: compact for a title."""
+    if v == 0 or 0.01 <= abs(v) < 1000:
+        return f"{v:.3g}"
+    return np.format_float_scientific(v, precision=2, trim="-", exp_digits=1)
 
-    Parameters
-    ----------
-    result : spaceid.studies.MonteCarloResult
-    path : path-like
-        Output PNG.
-    max_panels : int
-        Parameters with a box-plot panel at most; beyond, those with the largest relative RMSE
-        of the first estimator (the bars show all).
 
-    Returns
-    -------
-    Path
-    """
+def _noise_text(settings: dict) -> str:
+    """The simulated noise levels of a Monte Carlo study (std of white Gaussian noise), with units."""
+    n = {key: _number(value) for key, value in settings["noise"].items() if key != "source"}
+    if settings.get("angles_only"):
+        return f"noise std: angle {n['angle']} rad, attitude {n['attitude']} rad; rates differentiated from them"
+    return (f"noise std: angle {n['angle']} rad, rate {n['rate']} rad/s, base rate {n['base_rate']} rad/s, "
+            f"attitude {n['attitude']} rad")  # fmt: skip
+
+
+def _rmse_crb_bars(ax, result, colours, crb_label) -> None:
+    """RMSE / CRB of every parameter and estimator, with the Monte Carlo uncertainty of each ratio:
+    over R runs an RMSE has a relative standard error of about ``1 / sqrt(2 R)``; bars +-2 of it."""
+    ests, k = result.estimators, len(result.names)
+    x = np.arange(k)
+    width = 0.8 / len(ests)
+    xs, ratios, errors = [], [], []
+    for j, (e, colour) in enumerate(zip(ests, colours)):
+        ratio = result.stats[e]["rmse_crb"]
+        runs_ok = result.summary(e)["runs_ok"]
+        xs.append(x + (j - (len(ests) - 1) / 2) * width)
+        ratios.append(ratio)
+        errors.append(2 * ratio / np.sqrt(2 * max(runs_ok, 1)))
+        ax.bar(xs[-1], ratio, width, color=colour, alpha=0.8, label=f"{e.upper()} (R = {runs_ok} runs)")
+    xs, ratios, errors = (np.concatenate(a) for a in (xs, ratios, errors))
+    ax.errorbar(xs, ratios, yerr=errors, fmt="none", ecolor="black", elinewidth=0.9, capsize=2,
+                label=r"$\pm 2$ s.e. of a Monte Carlo RMSE, $\approx 2/\sqrt{2R}$ relative")  # fmt: skip
+    ax.axhline(1.0, color=_MEASURED, linewidth=0.9, label=f"RMSE = {crb_label} (efficient)")
+    top = np.nanmax(np.append(ratios + errors, 1.0))
+    if top > 10:
+        ax.set_yscale("log")  # a badly biased estimator would flatten the others
+    else:
+        ax.set_ylim(0, 1.08 * top)
+    ax.set_xticks(x, [_tex_name(n) for n in result.names])
+    ax.set_xlabel("minimal parameter")
+    ax.set_ylabel(f"RMSE / {crb_label} [-]")
+    ax.set_title(f"Efficiency: RMSE over the runs / {crb_label} std of each parameter", loc="left")
+
+
+@_styled
+def _draw_montecarlo(result, max_panels: int = 12) -> Figure:
+    """The figure of :func:`plot_montecarlo`."""
     names, true, ests = result.names, np.asarray(result.true, float), result.estimators
     k = len(names)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -323,53 +483,49 @@ def plot_montecarlo(result, path, *, max_panels: int = 12) -> Path:
     mosaic.append(["bars"] * ncols)
     colours = [_ESTIMATOR_COLOURS.get(e, _MEASURED) for e in ests]
     crb_label = "white-noise-equivalent CRB" if result.settings.get("angles_only") else "CRB"
-    with _figure(path, (max(2.1 * ncols + 0.6, 0.5 * k + 2.5), 1.9 * nrows + 2.9)) as fig:
-        axes = fig.subplot_mosaic(mosaic, height_ratios=[1] * nrows + [1.25])
-        for p, i in enumerate(shown):
-            ax = axes[f"p{p}"]
-            data = [(result.estimates[e][:, i] - true[i]) / scale[i] for e in ests]
-            data = [d[np.isfinite(d)] for d in data]
-            if np.isfinite(band[i]):
-                ax.axhspan(-band[i], band[i], color=_TRUE, alpha=0.15, linewidth=0, label=rf"{crb_label} $\pm 2\sigma$")
-            ax.axhline(0, color=_REF, linewidth=0.8)
-            boxes = ax.boxplot(data, widths=0.6, patch_artist=True, flierprops={"markersize": 2, "alpha": 0.5},
-                               medianprops={"color": "black", "linewidth": 1.0})
-            for patch, colour in zip(boxes["boxes"], colours):
-                patch.set(facecolor=colour, alpha=0.45, edgecolor=colour)
-            ax.set_xticks(np.arange(1, len(ests) + 1), [e.upper() for e in ests])
-            ax.set_title(_tex_name(names[i]), loc="left")
-            if p % ncols == 0:
-                ax.set_ylabel("rel. error [%]")
-        ax = axes["bars"]
-        x = np.arange(k)
-        width = 0.8 / len(ests)
-        ratios = []
-        for j, (e, colour) in enumerate(zip(ests, colours)):
-            ratio = result.stats[e]["rmse_crb"]
-            ax.bar(x + (j - (len(ests) - 1) / 2) * width, ratio, width, color=colour, alpha=0.8, label=e.upper())
-            ratios.append(ratio)
-        ax.axhline(1.0, color=_MEASURED, linewidth=0.8)
-        ax.axhline(1.2, color=_LIMIT, linestyle=":", linewidth=1.2, label="1.2 (target)")
-        ratios = np.concatenate(ratios)
-        ratios = ratios[np.isfinite(ratios) & (ratios > 0)]
-        if ratios.size and ratios.max() > 10:
-            ax.set_yscale("log")  # a badly biased estimator would flatten the others
-        else:
-            ax.set_ylim(0, 1.35 * max(1.2, ratios.max() if ratios.size else 1.2))  # room for the legend
-        ax.set_xticks(x, [_tex_name(n) for n in names])
-        ax.set_ylabel(f"RMSE / {crb_label}")
-        ax.legend(loc="upper left", ncols=len(ests) + 1)
-        handles, labels = axes["p0"].get_legend_handles_labels()
-        if handles:
-            fig.legend(handles, labels, loc="outside upper right")
-        s = result.settings
-        fig.suptitle(f"Monte Carlo: {s['runs']} runs, N = {s['n_samples']}, seed {s['seed']}"
-                     + (", angles only" if s.get("angles_only") else "")
-                     + (f" ({len(shown)} of {k} parameters in boxes)" if len(shown) < k else "")
-                     + "; boxes: quartiles, whiskers 1.5 IQR", x=0.02, ha="left")
-    return Path(path)
+    fig = _new_figure((max(7.0, 2.1 * ncols + 0.6, 0.5 * k + 2.5), 1.9 * nrows + 3.9))  # 7 in: the title
+    axes = fig.subplot_mosaic(mosaic, height_ratios=[1] * nrows + [1.35])
+    for p, i in enumerate(shown):
+        ax = axes[f"p{p}"]
+        data = [(result.estimates[e][:, i] - true[i]) / scale[i] for e in ests]
+        data = [d[np.isfinite(d)] for d in data]
+        if np.isfinite(band[i]):
+            ax.axhspan(-band[i], band[i], color=_TRUE, alpha=0.15, linewidth=0, label=rf"{crb_label} $\pm 2\sigma$")
+        ax.axhline(0, color=_REF, linewidth=0.8)
+        boxes = ax.boxplot(data, widths=0.6, patch_artist=True, flierprops={"markersize": 2, "alpha": 0.5},
+                           medianprops={"color": "black", "linewidth": 1.0})  # fmt: skip
+        for patch, colour in zip(boxes["boxes"], colours):
+            patch.set(facecolor=colour, alpha=0.45, edgecolor=colour)
+        ax.set_xticks(np.arange(1, len(ests) + 1), [e.upper() for e in ests])
+        ax.set_title(_tex_name(names[i]), loc="left")
+        if p % ncols == 0:
+            ax.set_ylabel("signed rel. error [%]")
+    _rmse_crb_bars(axes["bars"], result, colours, crb_label)
+    _figure_legend(fig, [axes["p0"], axes["bars"]])
+    s = result.settings
+    fig.suptitle(f"Monte Carlo study: {s['runs']} runs, N = {s['n_samples']} samples, seed {s['seed']}\n"
+                 f"{_noise_text(s)}\nboxes: errors in % of |true| (quartiles, whiskers 1.5 IQR)"
+                 + (f", {len(shown)} of {k} parameters" if len(shown) < k else ""), x=0.02, ha="left")  # fmt: skip
+    return fig
 
 
-# --- tables and the Markdown report ------------------------------------------------------------
+def plot_montecarlo(result, path, *, max_panels: int = 12) -> Path:
+    """Monte Carlo errors: per parameter the relative errors of each estimator (box plots) in
+    the Cramer-Rao band, and RMSE / CRB of every parameter and estimator (bars, with their Monte
+    Carlo uncertainty, about ``1 / sqrt(2 R)`` relative over R successful runs); the noise
+    levels in the title.
 
+    Parameters
+    ----------
+    result : spaceid.studies.MonteCarloResult
+    path : path-like
+        Output PNG.
+    max_panels : int
+        Parameters with a box-plot panel at most; beyond, those with the largest relative RMSE
+        of the first estimator (the bars show all).
 
+    Returns
+    -------
+    Path
+    """
+    return _save(_draw_montecarlo(result, max_panels), path)
