@@ -104,7 +104,7 @@ def test_ml_removes_the_bias_of_least_squares(cepheus):
 def test_ml_stops_close_to_its_fixed_point(cepheus, monkeypatch):
     """ML stops once a step moves no parameter by 1e-4 of its standard error; iterated on to
     1e-10 it moves by less than 1e-3 standard errors (at 1 % noise, where it iterates most)."""
-    from spaceid.estimation import _estimate as estimate
+    from spaceid.estimation import _estimators as estimate
 
     param, make = cepheus
     log = add_noise(make(501), angle=1e-2, rate=1e-2, seed=3)
@@ -160,22 +160,22 @@ def test_reaction_wheel_spin_momentum_anchors_zero_momentum(cepheus_rw):
     ident = identify(param, log, np.zeros(3))
     assert np.abs(ident.values / param.true_values - 1).max() < 1e-8
     (anchor,) = ident.settings["anchors"]
-    assert anchor["definition"] == "Izz_wheel" and "reaction wheel" in anchor["source"]
+    assert anchor["definition"] == "Iczz_wheel" and "reaction wheel" in anchor["source"]
     # the wheel inertia given by its physical name overrides the model's: the scale follows it
-    scaled = identify(param, log, np.zeros(3), known={"Izz_wheel": 2 * anchor["value"]})
+    scaled = identify(param, log, np.zeros(3), known={"Iczz_wheel": 2 * anchor["value"]})
     assert scaled.values == pytest.approx(2 * param.true_values, rel=1e-8)
 
 
 def test_anchor_naming_an_unknown_parameter(cepheus_rw):
     param, log = cepheus_rw
-    with pytest.raises(SpaceidError, match="--known m_base: not a minimal parameter.*Izz_wheel"):
+    with pytest.raises(SpaceidError, match="--known m_base: not a minimal parameter.*Iczz_wheel"):
         identify(param, log, np.zeros(3), known={"m_base": 9.0})
 
 
 def test_tls_is_consistent_under_its_own_assumptions():
     """Independent, equal (after scaling) errors in the regressor columns: TLS removes the
     attenuation bias of OLS. (The momentum equations do not meet these assumptions.)"""
-    from spaceid.estimation import _estimate as estimate
+    from spaceid.estimation import _estimators as estimate
 
     rng = np.random.default_rng(0)
     a0 = rng.normal(size=(3000, 4))

@@ -1,4 +1,4 @@
-"""The errors-in-variables noise model of the momentum equations (MATH.md section 6).
+"""The errors-in-variables noise model of the momentum equations (docs/theory/noise.md).
 
 The regressor is built from measured signals ``x = [q, qd, w0, dtheta]`` (joint angles, joint
 rates, base rate, and for spatial systems a small rotation of the measured attitude), each

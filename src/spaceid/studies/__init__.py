@@ -2,7 +2,8 @@
 experiment, Monte Carlo, figures and reports.
 """
 
-from . import _validate, _figures, _tables, _report, _demo, _experiment, _montecarlo
+from . import _validate, _figures, _tables, _report, _demo, _experiment
+from . import _montecarlo, _montecarlo_runs, _montecarlo_stats
 from ._validate import *  # noqa: F403
 from ._figures import *  # noqa: F403
 from ._tables import *  # noqa: F403
@@ -10,5 +11,10 @@ from ._report import *  # noqa: F403
 from ._demo import *  # noqa: F403
 from ._experiment import *  # noqa: F403
 from ._montecarlo import *  # noqa: F403
+from ._montecarlo_runs import *  # noqa: F403
+from ._montecarlo_stats import *  # noqa: F403
 
-__all__ = _validate.__all__ + _figures.__all__ + _tables.__all__ + _report.__all__ + _demo.__all__ + _experiment.__all__ + _montecarlo.__all__
+__all__ = (
+    _validate.__all__ + _figures.__all__ + _tables.__all__ + _report.__all__ + _demo.__all__ + _experiment.__all__
+    + _montecarlo.__all__ + _montecarlo_runs.__all__ + _montecarlo_stats.__all__
+)  # fmt: skip

@@ -18,12 +18,12 @@ Angles only (``angles_only=True``). Noise goes on the joint angles and the base 
 the rates are then differentiated from them (:func:`spaceid.data.differentiate_log`,
 automatic bandwidth unless ``differentiate=`` fixes it), as on hardware with encoders and motion
 capture. The estimators then get the noise model of the differentiated signals
-(:func:`differentiated_noise`): the differentiator's own noise estimate of each channel,
-propagated through its filter weights (the RMS over samples of the white-noise equivalent of
-the smoothed angles and of the rates). This is the level of the per-sample errors, but they are
-correlated over the differentiator's window (and the windows trade noise for bias), which the
-estimators' white-noise model ignores: predicted standard errors are then optimistic. The
-"CRB" reported in that mode is the bound of that white-noise equivalent (levels RMS over the
+(:func:`spaceid.studies.differentiated_noise`): the differentiator's own noise estimate of each
+channel, propagated through its filter weights (the RMS over samples of the white-noise
+equivalent of the smoothed angles and of the rates). This is the level of the per-sample errors,
+but they are correlated over the differentiator's window (and the windows trade noise for bias),
+which the estimators' white-noise model ignores: predicted standard errors are then optimistic.
+The "CRB" reported in that mode is the bound of that white-noise equivalent (levels RMS over the
 runs), a yardstick rather than a bound.
 
 Seeds. Run ``i`` draws its noise from ``np.random.SeedSequence(seed).spawn(runs)[i]``
@@ -43,7 +43,6 @@ from __future__ import annotations
 import io
 import os
 import time
-import warnings
 from collections import Counter
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
@@ -53,31 +52,18 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .._errors import SpaceidError
-from ..estimation import ESTIMATORS, cramer_rao, identify
-from ..estimation import Noise
 from ..dynamics import Parameterization
-from ..data import differentiate_log, noise_gains
-from ..motion import add_noise, simulate
-from ..data import Log
-from ..motion import FourierTrajectory, load_trajectory, sample_times
+from ..estimation import ESTIMATORS, Noise, cramer_rao, identify
+from ..motion import FourierTrajectory, load_trajectory, sample_times, simulate
+from ._montecarlo_runs import _WHERE, _differentiation_summary, _merge_chunks, _Study
+from ._montecarlo_stats import STATISTICS, _statistics
 
-__all__ = [
-    "DEFAULT_NOISE", "STATISTICS", "MonteCarloResult", "run_montecarlo", "differentiated_noise",
-    "write_montecarlo",
-]  # fmt: skip
+__all__ = ["DEFAULT_NOISE", "MonteCarloResult", "run_montecarlo", "write_montecarlo"]
 
 DEFAULT_NOISE = Noise(1e-4, 1e-4, 1e-4, 1e-4, source="default: issue 4 targets (1e-4 rad, rad/s)")
 """Noise of the issue's targets: 1e-4 rad on angles and attitude, 1e-4 rad/s on rates."""
 
-STATISTICS = (
-    "true", "mean", "bias", "std", "rmse", "relative_rmse", "predicted_std", "crb_std", "rmse_crb", "bias_std",
-)  # fmt: skip
-"""Per-parameter statistics of :attr:`MonteCarloResult.stats`, each an array of shape (k,):
-true value, mean estimate, bias = mean - true, sample std (ddof 1), RMSE about the truth,
-RMSE / |true|, mean predicted standard error, Cramer-Rao std, RMSE / CRB std, bias / std."""
-
 _MAX_CHUNK = 25  # runs per task at most: progress updates and load balance
-_WHERE = "montecarlo"
 
 
 @dataclass(frozen=True)
@@ -166,132 +152,7 @@ class MonteCarloResult:
         }
 
 
-# --- the noise model of differentiated signals ---------------------------------------------------
-
-
-def _channel_levels(t, info, channels):
-    """White-noise equivalents ``(smoothed, derivative)`` of ``channels`` of a
-    :func:`spaceid.data.differentiate` record: the channel's noise times the RMS over
-    samples of its gains, pooled over the channels by RMS."""
-    levels = []
-    for c in channels:
-        window = info["window"][c] if info["window"] else None
-        order = info["order"][c] if info["order"] else None
-        smoothing = info["smoothing"][c] if info["smoothing"] else None
-        smooth, rate = noise_gains(t, info["method"], window=window, order=order, smoothing=smoothing)
-        sigma = info["noise"][c]
-        levels.append((sigma * np.sqrt(np.mean(smooth**2)), sigma * np.sqrt(np.mean(rate**2))))
-    levels = np.asarray(levels)
-    return tuple(np.sqrt(np.mean(levels**2, axis=0)))
-
-
-def differentiated_noise(log: Log) -> Noise:
-    """Noise levels of a log whose rates were differentiated from its angles.
-
-    Each channel's noise, as the differentiator estimated it (``info["noise"]``), is propagated
-    through its filter: a linear smoother with weights ``s_i`` and derivative weights ``d_i``
-    at sample i turns white noise ``sigma`` into errors of std ``sigma |s_i|`` on the smoothed
-    angle and ``sigma |d_i|`` on the rate. The RMS over samples and channels gives the scalar
-    levels of :class:`~spaceid.estimation.Noise`. Base: the yaw for planar logs; for spatial ones
-    the quaternion's vector part, whose noise is half the rotation's (so levels double).
-
-    These are per-sample levels: the errors are correlated over the window (and the
-    differentiator's bias is not counted), which a white-noise model cannot express.
-
-    Parameters
-    ----------
-    log : Log
-        Output of :func:`spaceid.data.differentiate_log` (``meta["differentiation"]``).
-
-    Returns
-    -------
-    Noise
-        ``angle`` [rad], ``rate`` [rad/s], ``base_rate`` [rad/s], ``attitude`` [rad].
-
-    Raises
-    ------
-    SpaceidError
-        The log was not differentiated.
-    """
-    record = log.meta.get("differentiation")
-    if not record:
-        raise SpaceidError("differentiated_noise: the log's rates were not differentiated (no "
-                           "meta['differentiation']): use spaceid.data.differentiate_log first")
-    t = np.asarray(log.t, float)
-    joints = record["joints"]
-    angle, rate = _channel_levels(t, joints, range(len(joints["noise"])))
-    base = record["base"]
-    planar = base.get("planar", log.planar)
-    att, base_rate = _channel_levels(t, base, [0] if planar else [1, 2, 3])
-    factor = 1.0 if planar else 2.0
-    return Noise(float(angle), float(rate), float(factor * base_rate), float(factor * att),
-                 source="differentiator: its noise estimate propagated through its filter weights (per-sample, "
-                        "white-noise equivalent)")  # fmt: skip
-
-
-# --- one chunk of runs --------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Study:
-    """What every run needs; sent once to each worker process."""
-
-    param: Parameterization
-    clean: Log
-    momentum: np.ndarray
-    noise: Noise
-    estimators: tuple
-    angles_only: bool
-    differentiate: dict
-
-    def measure(self, state) -> Log:
-        """The clean log with run noise: joint signals from the first state, base signals from
-        the second (rates none when angles only)."""
-        n = self.noise
-        rate, base_rate = (0.0, 0.0) if self.angles_only else (n.rate, n.base_rate)
-        joints = add_noise(self.clean, angle=n.angle, rate=rate, seed=int(state[0]))
-        base = add_noise(self.clean, angle=n.attitude, rate=base_rate, seed=int(state[1]))
-        meta = dict(joints.meta, noise_seed_base=int(state[1]), noise_attitude=n.attitude, noise_base_rate=base_rate)
-        return replace(joints, base_quat=base.base_quat, base_w=base.base_w, meta=meta)
-
-    def chunk(self, first: int, states) -> dict:
-        """Runs ``first, first + 1, ...`` with noise states ``states (m, 2)``."""
-        k, m = self.param.n_params, len(states)
-        out = {
-            "first": first,
-            "estimates": {e: np.full((m, k), np.nan) for e in self.estimators},
-            "std": {e: np.full((m, k), np.nan) for e in self.estimators},
-            "failures": [], "warnings": [], "noise": [], "differentiation": [],
-        }  # fmt: skip
-        instruments = (self.clean.q, self.clean.qd)
-        for j, state in enumerate(states):
-            run = first + j
-            log, noise = self.measure(state), self.noise
-            if self.angles_only:
-                try:
-                    log = differentiate_log(log, **self.differentiate)
-                except SpaceidError as exc:
-                    out["failures"] += [{"run": run, "estimator": e, "reason": f"differentiation: {exc}"}
-                                        for e in self.estimators]  # fmt: skip
-                    continue
-                noise = differentiated_noise(log)
-                out["noise"].append(noise)
-                record = log.meta["differentiation"]
-                keys = ("method", "window", "order", "smoothing")
-                out["differentiation"].append({part: {key: record[part][key] for key in keys if record[part][key] is not None}
-                                               for part in ("joints", "base")})  # fmt: skip
-            for e in self.estimators:
-                with warnings.catch_warnings(record=True) as caught:
-                    warnings.simplefilter("always")
-                    try:
-                        res = identify(self.param, log, self.momentum, estimator=e, noise=noise, where=_WHERE,
-                                       instruments=instruments if e == "iv" else None)  # fmt: skip
-                    except (SpaceidError, np.linalg.LinAlgError) as exc:
-                        out["failures"].append({"run": run, "estimator": e, "reason": f"{type(exc).__name__}: {exc}"})
-                        continue
-                out["estimates"][e][j], out["std"][e][j] = res.values, res.std
-                out["warnings"] += [{"run": run, "estimator": e, "warning": str(w.message)} for w in caught]
-        return out
+# --- the runs in worker processes ---------------------------------------------------------------
 
 
 _WORKER_STUDY = None
@@ -307,11 +168,23 @@ def _run_chunk(first, states):
     return _WORKER_STUDY.chunk(first, states)
 
 
+def _noise_states(seed: int, runs: int) -> np.ndarray:
+    """The two 32-bit ``add_noise`` seeds ``(runs, 2)`` of every run: run i's from the i-th
+    child of the root seed alone (see the module docstring)."""
+    return np.array([s.generate_state(2) for s in np.random.SeedSequence(seed).spawn(runs)])
+
+
+def _plan_chunks(states, jobs: int) -> list:
+    """Tasks ``(first run, states)``: about four chunks per worker, at most ``_MAX_CHUNK`` runs each."""
+    runs = len(states)
+    size = max(1, min(_MAX_CHUNK, -(-runs // (4 * jobs))))
+    return [(first, states[first : first + size]) for first in range(0, runs, size)]
+
+
 def _execute(study: _Study, states, jobs: int, progress) -> list:
     """All runs, in chunks, in ``jobs`` processes (or in this one); chunk outputs by first run."""
     runs = len(states)
-    size = max(1, min(_MAX_CHUNK, -(-runs // (4 * jobs))))
-    tasks = [(first, states[first : first + size]) for first in range(0, runs, size)]
+    tasks = _plan_chunks(states, jobs)
     done, outputs = 0, []
 
     def completed(result):
@@ -334,43 +207,7 @@ def _execute(study: _Study, states, jobs: int, progress) -> list:
     return sorted(outputs, key=lambda r: r["first"])
 
 
-def _tally(chosen) -> list:
-    """Distinct differentiator choices of the runs, each with its number of runs."""
-    counts = Counter(repr(c) for c in chosen)
-    first = {}
-    for c in chosen:
-        first.setdefault(repr(c), c)
-    return [{**first[key], "runs": n} for key, n in counts.items()]
-
-
-# --- statistics ---------------------------------------------------------------------------------
-
-
-def _statistics(estimates, predicted, true, crb_std) -> dict:
-    """:data:`STATISTICS` over the finite rows of ``estimates (runs, k)``."""
-    ok = np.all(np.isfinite(estimates), axis=1)
-    x, s = estimates[ok], predicted[ok]
-    n = len(x)
-    nan = np.full(len(true), np.nan)
-    mean = x.mean(0) if n else nan
-    std = x.std(0, ddof=1) if n > 1 else nan
-    rmse = np.sqrt(np.mean((x - true) ** 2, axis=0)) if n else nan
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return {
-            "true": np.asarray(true, float),
-            "mean": mean,
-            "bias": mean - true,
-            "std": std,
-            "rmse": rmse,
-            "relative_rmse": np.where(true != 0, rmse / np.abs(true), np.nan),
-            "predicted_std": s.mean(0) if n else nan,
-            "crb_std": crb_std,
-            "rmse_crb": np.where(crb_std > 0, rmse / crb_std, np.nan),
-            "bias_std": np.where(std > 0, (mean - true) / std, np.nan),
-        }
-
-
-# --- the study ----------------------------------------------------------------------------------
+# --- the options --------------------------------------------------------------------------------
 
 
 def _cores() -> int:
@@ -396,6 +233,38 @@ def _check_estimators(estimators) -> tuple:
     return tuple(dict.fromkeys(names))
 
 
+def _check_noise(noise, angles_only: bool) -> None:
+    """Raise unless ``noise`` is a :class:`~spaceid.estimation.Noise` with a nonzero level on
+    the signals that get noise."""
+    if not isinstance(noise, Noise):
+        raise SpaceidError(f"noise must be a spaceid.estimation.Noise, got {type(noise).__name__}")
+    relevant = (noise.angle, noise.attitude) + (() if angles_only else (noise.rate, noise.base_rate))
+    if not any(relevant):
+        raise SpaceidError("--noise-angle, --noise-rate, --noise-base-rate, --noise-attitude: the noise is zero"
+                           + (" on the angles and attitude (--angles-only)" if angles_only else "")
+                           + ": a Monte Carlo study needs noise (e.g. --noise-angle 1e-4)")  # fmt: skip
+
+
+def _check_sampling(samples, times, duration):
+    """``samples`` as an int (or None when ``times`` are given); raises on a bad combination."""
+    if (samples is None) == (times is None):
+        raise SpaceidError("--samples: give exactly one of samples N (equally spaced) or sample times")
+    if samples is not None:
+        samples = _check_int(samples, "--samples", 2, "give the number of equally spaced samples, e.g. 35")
+    if duration is not None and not (np.isfinite(duration) and duration > 0):
+        raise SpaceidError(f"--duration: {duration!r} is not a positive number of seconds")
+    return samples
+
+
+def _check_momentum(momentum) -> np.ndarray:
+    """``momentum`` as a finite, nonzero 3-vector [N m s]."""
+    momentum = np.asarray(momentum, float).reshape(3)
+    if not (np.all(np.isfinite(momentum)) and np.linalg.norm(momentum) > 0):
+        raise SpaceidError(f"--momentum: {momentum.tolist()} N m s: a Monte Carlo study needs the finite, nonzero "
+                           "momentum of the simulated motion (it fixes the parameters' scale)")  # fmt: skip
+    return momentum
+
+
 def _trajectory(param, spec, *, duration, samples, momentum, noise, seed, design, progress):
     """``spec`` as a FourierTrajectory or a motion callable, and its record for the settings."""
     if isinstance(spec, FourierTrajectory):
@@ -408,12 +277,72 @@ def _trajectory(param, spec, *, duration, samples, momentum, noise, seed, design
         if duration is None or samples is None:
             raise SpaceidError("--trajectory designed: give --duration [s] and --samples N of the design")
         options = {"harmonics": 3, **dict(design or {})}
-        traj = design_excitation(param, duration=duration, samples=samples, momentum=momentum, seed=seed, progress=progress,
-                          noise=noise, **options).trajectory  # fmt: skip
+        traj = design_excitation(param, duration=duration, samples=samples, momentum=momentum, seed=seed,
+                                 progress=progress, noise=noise, **options).trajectory  # fmt: skip
         traj = replace(traj, meta={**traj.meta, "name": f"designed ({traj.meta.get('criterion')}, seed {seed})"})
         return traj, {"name": traj.meta["name"], **traj.to_dict()}
     traj = load_trajectory(spec, joints=param.model.joints)
     return traj, {"name": str(spec), **traj.to_dict()}
+
+
+def _motion_and_times(traj, duration, samples, times) -> tuple:
+    """The motion callable ``motion(t) -> (q, qd)`` of ``traj`` and the sample times ``(N,)`` [s]:
+    ``times`` if given, else ``samples`` equally spaced over the duration (default the
+    trajectory's)."""
+    if isinstance(traj, FourierTrajectory):
+        motion = lambda t: traj.evaluate(t)[:2]  # noqa: E731
+        if duration is None:
+            duration = traj.duration
+        elif duration > traj.duration + 1e-12:
+            raise SpaceidError(f"--duration: {duration:g} s is longer than the trajectory ({traj.duration:g} s): "
+                               "omit --duration or give at most the trajectory's")  # fmt: skip
+    else:
+        motion = traj
+    if times is None:
+        if duration is None:
+            raise SpaceidError("--duration: a motion callable needs the duration [s] (or sample times)")
+        times = sample_times(duration, samples)
+    times = np.asarray(times, float)
+    if times.ndim != 1 or times.size < 2 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
+        raise SpaceidError("times: expected at least 2 finite, strictly increasing sample times [s]")
+    return motion, times
+
+
+# --- the study ----------------------------------------------------------------------------------
+
+
+def _settings(study: _Study, trajectory: dict, times, differentiation, *, runs, seed, failures, warned, jobs,
+              wall_time) -> dict:
+    """Everything needed to reproduce the study (:attr:`MonteCarloResult.settings`)."""
+    param, angles_only = study.param, study.angles_only
+    return {
+        "model": param.model.source or param.model.name,
+        "planar": param.model.planar,
+        "trajectory": trajectory,
+        "duration": float(times[-1] - times[0]),
+        "n_samples": int(times.size),
+        "times": {"first": float(times[0]), "last": float(times[-1]),
+                  "equally_spaced": bool(np.allclose(np.diff(times), times[1] - times[0]))},
+        "momentum": study.momentum.tolist(),
+        "noise": study.noise.to_dict(),
+        "angles_only": angles_only,
+        "noise_given_to_estimators": "per run, from the differentiator (see differentiation)" if angles_only
+        else "the simulated levels (noise)",
+        "differentiation": differentiation,
+        "crb": "white-noise equivalent of the differentiated signals: a yardstick, not a bound" if angles_only
+        else "Cramer-Rao bound of the errors-in-variables model (spaceid.estimation.cramer_rao) at the noise-free "
+             "motion",
+        "runs": runs,
+        "seed": seed,
+        "run_seeds": "np.random.SeedSequence(seed).spawn(runs)[i].generate_state(2): add_noise seeds of the joint "
+                     "and of the base signals",
+        "estimators": list(study.estimators),
+        "instruments_iv": "commanded joint motion (noise-free q, qd at the sample times)",
+        "failures": {"count": len(failures), "reasons": dict(Counter(f["reason"] for f in failures))},
+        "warnings": {"count": len(warned), "messages": dict(Counter(w["warning"] for w in warned))},
+        "jobs": jobs,
+        "wall_time_s": wall_time,
+    }  # fmt: skip
 
 
 def run_montecarlo(
@@ -493,110 +422,32 @@ def run_montecarlo(
     seed = _check_int(seed, "--seed", 0, "give a non-negative integer")
     jobs = _cores() if jobs is None else _check_int(jobs, "--jobs", 1, "give 1 or more worker processes")
     estimators = _check_estimators(estimators)
-    if not isinstance(noise, Noise):
-        raise SpaceidError(f"noise must be a spaceid.estimation.Noise, got {type(noise).__name__}")
-    relevant = (noise.angle, noise.attitude) + (() if angles_only else (noise.rate, noise.base_rate))
-    if not any(relevant):
-        raise SpaceidError("--noise-angle, --noise-rate, --noise-base-rate, --noise-attitude: the noise is zero"
-                           + (" on the angles and attitude (--angles-only)" if angles_only else "")
-                           + ": a Monte Carlo study needs noise (e.g. --noise-angle 1e-4)")  # fmt: skip
-    if (samples is None) == (times is None):
-        raise SpaceidError("--samples: give exactly one of samples N (equally spaced) or sample times")
-    if samples is not None:
-        samples = _check_int(samples, "--samples", 2, "give the number of equally spaced samples, e.g. 35")
-    if duration is not None and not (np.isfinite(duration) and duration > 0):
-        raise SpaceidError(f"--duration: {duration!r} is not a positive number of seconds")
+    _check_noise(noise, angles_only)
+    samples = _check_sampling(samples, times, duration)
     diff_options = dict(differentiate or {})
     if diff_options and not angles_only:
         raise SpaceidError("differentiate: options given without angles_only (--angles-only): the rates are measured")
-    momentum = np.asarray(momentum, float).reshape(3)
-    if not (np.all(np.isfinite(momentum)) and np.linalg.norm(momentum) > 0):
-        raise SpaceidError(f"--momentum: {momentum.tolist()} N m s: a Monte Carlo study needs the finite, nonzero "
-                           "momentum of the simulated motion (it fixes the parameters' scale)")  # fmt: skip
-
+    momentum = _check_momentum(momentum)
     traj, traj_record = _trajectory(param, trajectory, duration=duration, samples=samples, momentum=momentum,
                                     noise=noise, seed=seed, design=design, progress=progress)  # fmt: skip
-    if isinstance(traj, FourierTrajectory):
-        motion = lambda t: traj.evaluate(t)[:2]  # noqa: E731
-        if duration is None:
-            duration = traj.duration
-        elif duration > traj.duration + 1e-12:
-            raise SpaceidError(f"--duration: {duration:g} s is longer than the trajectory ({traj.duration:g} s): "
-                               "omit --duration or give at most the trajectory's")  # fmt: skip
-    else:
-        motion = traj
-    if times is None:
-        if duration is None:
-            raise SpaceidError("--duration: a motion callable needs the duration [s] (or sample times)")
-        times = sample_times(duration, samples)
-    times = np.asarray(times, float)
-    if times.ndim != 1 or times.size < 2 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
-        raise SpaceidError("times: expected at least 2 finite, strictly increasing sample times [s]")
+    motion, times = _motion_and_times(traj, duration, samples, times)
 
     with threadpool_limits(1):
         clean = simulate(param, param.true_values, motion, times, momentum, model=param.model)
         # a noise-free identification first: rank deficiency and a zero momentum fail here, once
         identify(param, clean, momentum, estimator="ols", noise=noise, where=_WHERE)
     study = _Study(param, clean, momentum, noise, estimators, bool(angles_only), diff_options)
-    states = np.array([s.generate_state(2) for s in np.random.SeedSequence(seed).spawn(runs)])
-    outputs = _execute(study, states, jobs, progress)
+    outputs = _execute(study, _noise_states(seed, runs), jobs, progress)
+    estimates, predicted, failures, warned = _merge_chunks(outputs, estimators, runs, param.n_params)
 
-    k = param.n_params
-    estimates = {e: np.concatenate([o["estimates"][e] for o in outputs]).reshape(runs, k) for e in estimators}
-    predicted = {e: np.concatenate([o["std"][e] for o in outputs]).reshape(runs, k) for e in estimators}
-    failures = tuple(f for o in outputs for f in o["failures"])
-    warned = tuple(w for o in outputs for w in o["warnings"])
-    if len(failures) == runs * len(estimators):
-        raise SpaceidError(f"every run failed, e.g. run {failures[0]['run']} ({failures[0]['estimator']}): "
-                           f"{failures[0]['reason']}")  # fmt: skip
-
-    model_noise, diff_record = noise, None
-    if angles_only:
-        levels = [o for out in outputs for o in out["noise"]]
-        fields = ("angle", "rate", "base_rate", "attitude")
-        rms = {f: float(np.sqrt(np.mean([getattr(n, f) ** 2 for n in levels]))) for f in fields}
-        model_noise = Noise(**rms, source="RMS over the runs of the differentiated signals' white-noise equivalent")
-        chosen = [d for out in outputs for d in out["differentiation"]]
-        diff_record = {
-            "options": diff_options,
-            "method": chosen[0]["joints"]["method"] if chosen else None,
-            "choices": _tally(chosen),
-            "noise_model": "per run: spaceid.studies.differentiated_noise of the run's differentiated log",
-            "noise_equivalent_rms": model_noise.to_dict(),
-        }  # fmt: skip
+    model_noise, diff_record = _differentiation_summary(outputs, diff_options) if angles_only else (noise, None)
     with threadpool_limits(1):
         _, crb_cov = cramer_rao(param, clean, momentum, model_noise)
     crb_std = np.sqrt(np.diag(crb_cov))
     true = np.asarray(param.true_values, float)
     stats = {e: _statistics(estimates[e], predicted[e], true, crb_std) for e in estimators}
-
-    settings = {
-        "model": param.model.source or param.model.name,
-        "planar": param.model.planar,
-        "trajectory": traj_record,
-        "duration": float(times[-1] - times[0]),
-        "n_samples": int(times.size),
-        "times": {"first": float(times[0]), "last": float(times[-1]),
-                  "equally_spaced": bool(np.allclose(np.diff(times), times[1] - times[0]))},
-        "momentum": momentum.tolist(),
-        "noise": noise.to_dict(),
-        "angles_only": bool(angles_only),
-        "noise_given_to_estimators": "per run, from the differentiator (see differentiation)" if angles_only
-        else "the simulated levels (noise)",
-        "differentiation": diff_record,
-        "crb": "white-noise equivalent of the differentiated signals: a yardstick, not a bound" if angles_only
-        else "Cramer-Rao bound of the errors-in-variables model (spaceid.estimation.cramer_rao) at the noise-free motion",
-        "runs": runs,
-        "seed": seed,
-        "run_seeds": "np.random.SeedSequence(seed).spawn(runs)[i].generate_state(2): add_noise seeds of the joint "
-                     "and of the base signals",
-        "estimators": list(estimators),
-        "instruments_iv": "commanded joint motion (noise-free q, qd at the sample times)",
-        "failures": {"count": len(failures), "reasons": dict(Counter(f["reason"] for f in failures))},
-        "warnings": {"count": len(warned), "messages": dict(Counter(w["warning"] for w in warned))},
-        "jobs": jobs,
-        "wall_time_s": time.perf_counter() - t_start,
-    }  # fmt: skip
+    settings = _settings(study, traj_record, times, diff_record, runs=runs, seed=seed, failures=failures,
+                         warned=warned, jobs=jobs, wall_time=time.perf_counter() - t_start)  # fmt: skip
     return MonteCarloResult(param.names, param.definitions, true, estimators, estimates, predicted, crb_cov, crb_std,
                             stats, failures, warned, settings)  # fmt: skip
 
@@ -630,4 +481,3 @@ def write_montecarlo(result: MonteCarloResult, folder) -> dict:
     write_text_atomic(paths["table"], buffer.getvalue())
     plot_montecarlo(result, paths["figure"])
     return paths
-

@@ -1,0 +1,205 @@
+"""The stacked momentum equations of a log (the paper's Eq. 4) and the anchors of their scale.
+
+The momentum equations of sample n, ``Y(x_n) pi = R0(x_n)^T h``, are built from measured
+signals ``x_n = [q, qd, w0, attitude]``: an errors-in-variables problem (MATH.md section 6).
+
+Scale. A known nonzero momentum fixes pi absolutely. With zero or unknown momentum (its inertial
+components then estimated with pi) the equations are homogeneous and need an anchor: known
+parameter values (``known=``), or the spin momentum of reaction wheels, whose rotor-inertia
+parameter the model gives (CAD) and whose columns therefore move to the right-hand side
+(:func:`resolve_anchors`).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._errors import SpaceidError
+from ..data import Log, quat_to_matrix
+from ..dynamics import Parameterization, skew
+from ._noise import FD_STEP, signal_jacobian
+
+__all__ = ["resolve_anchors"]
+
+
+def _symbols(definition: str) -> set:
+    return set(re.findall(r"[A-Za-z_][A-Za-z_0-9]*", definition))
+
+
+def resolve_anchors(param: Parameterization, known: dict, where: str) -> dict:
+    """The known minimal parameters that anchor the scale of the momentum equations.
+
+    Reaction-wheel rotor inertias come from the model (CAD) first; the ``known`` values then add
+    to them or override them, each named by its minimal-parameter name or by the physical
+    parameter that a minimal parameter equals alone (e.g. ``Iczz_wheel``).
+
+    Parameters
+    ----------
+    param : Parameterization
+        Minimal parameter set of the model; its ``true_values`` give the rotor inertias.
+    known : dict of str to float
+        Known values ``{name: value}``, in the SI units of each parameter.
+    where : str
+        Name of the data source, for error messages.
+
+    Returns
+    -------
+    dict of int to tuple of (float, str)
+        ``{index: (value, source)}``: index into ``param.names``, source ``"given"`` or
+        ``"reaction wheel JOINT (model)"``.
+
+    Raises
+    ------
+    SpaceidError
+        A name in ``known`` is neither a minimal parameter nor a physical parameter that one
+        equals alone; the message lists those that are.
+    """
+    out = {}
+    for joint in param.model.wheels:
+        body = next(b.name for b in param.model.bodies if b.joint == joint)
+        for i, d in enumerate(param.definitions):
+            if all(s.endswith(f"_{body}") for s in _symbols(d)):
+                out[i] = (float(param.true_values[i]), f"reaction wheel {joint} (model)")
+    alone = {d.strip(): i for i, d in enumerate(param.definitions) if re.fullmatch(r"\s*[A-Za-z_][A-Za-z_0-9]*\s*", d)}
+    for name, value in known.items():
+        i = param.names.index(name) if name in param.names else alone.get(name)
+        if i is None:
+            hint = ", ".join(f"{param.names[j]} = {d}" for d, j in alone.items()) or "none"
+            raise SpaceidError(
+                f"{where}: --known {name}: not a minimal parameter ({param.names[0]}..{param.names[-1]}) nor a "
+                f"physical parameter that one equals alone (those are: {hint}); see 'spaceid model' for the definitions"
+            )
+        out[i] = (float(value), "given")
+    return out
+
+
+def _rotvec_matrix(v):
+    """Rotation matrices ``(n, 3, 3)`` of rotation vectors ``(n, 3)`` (Rodrigues)."""
+    angle = np.linalg.norm(v, axis=-1)[:, None, None]
+    k = skew(v)
+    a = np.where(angle > 1e-8, np.sin(angle) / np.where(angle > 0, angle, 1), 1 - angle**2 / 6)
+    b = np.where(angle > 1e-8, (1 - np.cos(angle)) / np.where(angle > 0, angle, 1) ** 2, 0.5 - angle**2 / 24)
+    return np.eye(3) + a * k + b * (k @ k)
+
+
+@dataclass(frozen=True)
+class _Equations:
+    """The momentum equations of a log as ``Phi_n(x) [theta; 1] = 0``, sample by sample.
+
+    ``theta`` holds the free minimal parameters and, when the momentum is unknown, its inertial
+    components (z only for planar systems). ``x (n, n_x)`` are the signals
+    ``[q, qd, w0 (z only if planar), dtheta (spatial)]``, ``dtheta`` a small rotation of the
+    measured attitude in base axes (``R0 = R0_meas exp([dtheta]x)``).
+    """
+
+    param: Parameterization
+    rot: np.ndarray  # (n, 3, 3) measured base-to-inertial rotations
+    free: np.ndarray  # indices of the estimated minimal parameters
+    known: np.ndarray  # indices of the known ones ...
+    known_values: np.ndarray  # ... and their values
+    momentum: np.ndarray | None  # (3,) inertial [N m s], None when estimated
+
+    @property
+    def planar(self):
+        return self.param.model.planar
+
+    @property
+    def axes(self):
+        return [2] if self.planar else [0, 1, 2]
+
+    @property
+    def n_h(self):
+        return 0 if self.momentum is not None else len(self.axes)
+
+    @property
+    def p(self):
+        return len(self.free) + self.n_h
+
+    def names(self):
+        h = [f"h_{'xyz'[a]}" for a in self.axes] if self.n_h else []
+        return [self.param.names[i] for i in self.free] + h
+
+    def signals(self, log: Log) -> np.ndarray:
+        att = np.zeros((log.n_samples, 0 if self.planar else 3))
+        return np.hstack([log.q, log.qd, log.base_w[:, self.axes], att])
+
+    def unpack(self, x):
+        nj = len(self.param.model.joints)
+        w = np.zeros((len(x), 3))
+        w[:, self.axes] = x[:, 2 * nj : 2 * nj + len(self.axes)]
+        rot = self.rot if self.planar else self.rot @ _rotvec_matrix(x[:, 2 * nj + 3 :])
+        return x[:, :nj], x[:, nj : 2 * nj], w, rot
+
+    def full(self, theta):
+        """All minimal parameters ``(k,)`` and the inertial momentum ``(3,)`` of ``theta``."""
+        pi = np.empty(self.param.n_params)
+        pi[self.known], pi[self.free] = self.known_values, theta[: len(self.free)]
+        h = self.momentum
+        if h is None:
+            h = np.zeros(3)
+            h[self.axes] = theta[len(self.free) :]
+        return pi, h
+
+    def phi(self, x) -> np.ndarray:
+        """``[A | -b]`` of every sample: ``(n, rows, p + 1)``."""
+        q, qd, w, rot = self.unpack(x)
+        y = self.param.regressor(q, qd, w)
+        rows = slice(2, 3) if self.planar else slice(None)
+        rot_t = np.swapaxes(rot, -1, -2)[:, rows]  # R0^T, the rows of the equations
+        out = np.empty(y.shape[:-1] + (self.p + 1,))
+        # the free columns as contiguous runs: slice copies, several times faster than a gather
+        runs = np.split(self.free, np.flatnonzero(np.diff(self.free) > 1) + 1)
+        at = 0
+        for run in runs:
+            if len(run):
+                out[..., at : at + len(run)] = y[..., run[0] : run[-1] + 1]
+                at += len(run)
+        b = -(y[..., self.known] @ self.known_values)
+        if self.momentum is None:
+            out[..., at:-1] = -rot_t[..., self.axes]
+        else:
+            b = b + rot_t @ self.momentum
+        out[..., -1] = -b
+        return out
+
+    def dphi(self, x, v) -> np.ndarray:
+        """Directional derivative of :meth:`phi` along ``v (n, n_x)``, by central differences
+        with a step of ``FD_STEP`` in the largest component of each sample's ``v``."""
+        scale = np.max(np.abs(v), axis=1, keepdims=True)
+        step = FD_STEP / np.where(scale > 0, scale, 1.0)
+        return (self.phi(x + step * v) - self.phi(x - step * v)) / (2 * step[..., None])
+
+    def jacobian(self, x, theta) -> np.ndarray:
+        """``d(Phi theta_bar)/dx``: ``(n, rows, n_x)`` (see :func:`spaceid.estimation.signal_jacobian`)."""
+        q, qd, w, rot = self.unpack(x)
+        pi, h = self.full(theta)
+        return signal_jacobian(self.param, pi, q, qd, w, np.einsum("nji,j->ni", rot, h))
+
+
+def _split(phi):
+    """``A (n rows, p)`` and ``b (n rows,)`` of stacked ``[A | -b]``."""
+    flat = phi.reshape(-1, phi.shape[-1])
+    return flat[:, :-1], -flat[:, -1]
+
+
+def _equations(param, log, momentum, known, where) -> tuple:
+    """The equations of ``log`` and the anchors used, as records for the settings of a result
+    (see :func:`spaceid.estimation.identify`)."""
+    anchors = resolve_anchors(param, dict(known or {}), where)
+    homogeneous = momentum is None or not np.linalg.norm(momentum) > 0
+    if homogeneous and not anchors:
+        state = "unknown" if momentum is None else "zero"
+        raise SpaceidError(
+            f"{where}: the momentum is {state}, so the equations are homogeneous and fix the parameters only up to "
+            "scale: give the nonzero momentum of the run (--momentum), or anchor the scale with a known parameter "
+            "(--known NAME=VALUE, e.g. a reaction-wheel rotor inertia)"
+        )
+    idx = np.array(sorted(anchors), int)
+    free = np.setdiff1d(np.arange(param.n_params), idx)
+    values = np.array([anchors[i][0] for i in idx], float)
+    eq = _Equations(param, quat_to_matrix(log.base_quat), free, idx, values, momentum)
+    return eq, [{"name": param.names[i], "definition": param.definitions[i], "value": anchors[i][0],
+                 "source": anchors[i][1]} for i in idx]  # fmt: skip

@@ -1,0 +1,245 @@
+"""The five estimators of the minimal parameters (the paper's Eq. 11 and beyond), and the linear
+algebra they share.
+
+Each kernel solves the stacked equations ``Phi_n(x) [theta; 1] = 0`` of
+:class:`~spaceid.estimation._equations._Equations` for ``theta``, starting from the OLS
+solution; ``ESTIMATORS`` names them and ``_KERNELS`` dispatches on the name:
+
+``ols``
+    Ordinary least squares (the paper's Eq. 11). Biased by O(sigma^2) as the regressor is
+    noisy, and not efficient: every equation counts the same however noisy it is. Needs no noise
+    model: its covariance is the heteroscedasticity-consistent one from the residuals, and it is
+    the fast choice for long logs of large systems (10,000 samples of a 496-parameter servicer
+    in about a second).
+``wls``
+    Weighted least squares, each sample weighted by the inverse first-order covariance of its
+    equation error, ``S_n = J_n Sigma J_n^T`` (:mod:`spaceid.estimation`), iterated twice. Efficient
+    to first order; keeps an O(sigma^2) bias.
+``tls``
+    Total least squares on the column-scaled system (errors in every column, of the size the
+    noise model predicts). Consistent only when the regressor's entry errors are independent
+    and alike after scaling, which they are not here (columns share the same noisy signals):
+    offered for comparison with the literature.
+``iv``
+    Instrumental variables: instruments are the regressor rebuilt from signals that do not
+    share the measurement noise: the commanded joint trajectory (``instruments=``) with the
+    base rate the current estimate predicts, or, without one, the measured joint signals with
+    the predicted base rate (removes the base-rate noise, the largest on a motion-capture
+    table, but not the joint noise). Iterated twice.
+``ml`` (default)
+    Maximum likelihood for Gaussian signal noise of known levels: alternates the projection of
+    the signals onto the momentum constraint and the fundamental-numerical-scheme update of pi
+    (the stationarity condition of the Sampson cost, derivative of the weights included), so
+    that at convergence the corrected signals satisfy the equations exactly and pi minimises
+    the whitened signal corrections. Unbiased to first order and efficient: its covariance is
+    the Cramer-Rao bound of the errors-in-variables model (:func:`spaceid.estimation.cramer_rao`).
+    Costs about ``3 n_joints + 6`` regressor evaluations per sample and iteration.
+
+Linear algebra. The factorisations that the kernels, the covariances
+(:mod:`spaceid.estimation._uncertainty`) and the excitation check share live together in the
+first section below: whitening by the Cholesky factors of the equation-error covariances
+(``_whiten``, ``_equation_whitener``, ``_whitened``, ``_inverse_times``) and least squares
+(``_scaled_gram``, ``_solve``, ``_inverse_gram``, ``_sandwich``). ``_solve`` works on the
+column-scaled normal equations (Cholesky, one refinement step), which squares the condition
+number of the regressor, and also returns the inverse Gram matrix ``(A^T A)^-1`` that the
+covariances use as their "bread"; a different least-squares factorisation replaces it and
+``_inverse_gram`` here.
+
+References
+----------
+.. [1] The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md), Eq. 11 (least squares).
+.. [2] W. Chojnacki, M. J. Brooks, A. van den Hengel, D. Gawley, "On the fitting of surfaces to
+   data with covariances", IEEE TPAMI 22(11), 2000 (the fundamental numerical scheme).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import cho_factor, cho_solve
+from scipy.optimize import brentq
+
+from .._threads import one_blas_thread
+from ..dynamics import base_rate
+from ._equations import _split
+from ._noise import FD_STEP, equation_covariance
+
+__all__ = ["ESTIMATORS"]
+
+ESTIMATORS = ("ml", "wls", "iv", "tls", "ols")
+
+
+# --- linear algebra -----------------------------------------------------------------------------
+
+
+def _whiten(S):
+    """Cholesky factors ``L (n, rows, rows)`` of the equation covariances, ``S = L L^T``; a
+    floor of 1e-12 of the mean variance keeps noise-free channels finite."""
+    mean = np.trace(S, axis1=-2, axis2=-1).mean() / S.shape[-1]
+    eye = np.eye(S.shape[-1])
+    return np.linalg.cholesky(S + (1e-12 * mean if mean > 0 else 1.0) * eye)
+
+
+def _equation_whitener(eq, x, theta, sigma):
+    """:func:`_whiten` of the equation-error covariances at signals ``x (n, n_x)`` and ``theta``
+    for signal noise ``sigma (n_x,)``."""
+    return _whiten(equation_covariance(eq.jacobian(x, theta), sigma))
+
+
+def _whitened(L, phi):
+    """``L^-1 phi`` sample by sample: equations of unit error covariance."""
+    return np.linalg.solve(L, phi)
+
+
+def _inverse_times(L, m):
+    """``S^-1 m = L^-T L^-1 m`` sample by sample, ``m (n, rows, c)``."""
+    return np.linalg.solve(np.swapaxes(L, -1, -2), _whitened(L, m))
+
+
+def _scaled_gram(A, gram=None):
+    """Column norms ``(p,)`` of ``A (rows, p)`` (zero columns: 1) and the Gram matrix of the
+    columns scaled to unit norm, from ``gram = A^T A`` when given (no scaled copy of ``A``)."""
+    gram = A.T @ A if gram is None else gram
+    scale = np.sqrt(np.diag(gram)).copy()
+    scale[scale == 0] = 1.0
+    return scale, gram / np.outer(scale, scale)
+
+
+def _solve(A, b, extra=None, gram=None):
+    """Least squares on column-scaled normal equations with one refinement step.
+
+    ``extra (p,)`` is added to the right-hand side ``A^T b`` (the FNS correction); ``gram``
+    is ``A^T A`` if already formed. Returns the solution and the inverse Gram matrix
+    ``(A^T A)^{-1}``.
+    """
+    scale, gram_s = _scaled_gram(A, gram)
+    rhs = (A.T @ b + (0 if extra is None else extra)) / scale
+    with one_blas_thread():
+        factor = cho_factor(gram_s)
+        x = cho_solve(factor, rhs)
+        x += cho_solve(factor, rhs - (A.T @ (A @ (x / scale))) / scale)
+        return x / scale, cho_solve(factor, np.eye(len(scale))) / np.outer(scale, scale)
+
+
+def _inverse_gram(A):
+    """``(A^T A)^{-1}`` of ``A (rows, p)``, by :func:`_solve`."""
+    return _solve(A, np.zeros(len(A)))[1]
+
+
+def _sandwich(bread, Z, S_half):
+    """``bread Z^T S Z bread^T`` with ``S = blockdiag(L L^T)``, ``Z (n, rows, p)``."""
+    zl = (np.swapaxes(Z, -1, -2) @ S_half).transpose(1, 0, 2).reshape(Z.shape[-1], -1)  # Z_n^T L_n, side by side
+    meat = zl @ zl.T
+    with one_blas_thread():
+        return bread @ meat @ bread.T
+
+
+# --- the kernels: (eq, x, sigma, theta, ctx) -> (theta, info) -----------------------------------
+
+
+def _ols(eq, x, sigma, theta, ctx):
+    A, b = _split(ctx["phi"])
+    theta, ginv = _solve(A, b, gram=ctx.get("gram"))
+    return theta, {"ginv": ginv}  # reused by the covariance
+
+
+def _wls(eq, x, sigma, theta, ctx, iterations=2):
+    phi = ctx["phi"]
+    for _ in range(iterations):
+        L = _equation_whitener(eq, x, theta, sigma)
+        theta, _ = _solve(*_split(_whitened(L, phi)))
+    return theta, {"iterations": iterations}
+
+
+def _column_noise(eq, x, sigma):
+    """RMS noise of each column of ``[A | -b]`` [per entry], propagated from the signal noise."""
+    total = np.zeros(eq.p + 1)
+    for i in np.flatnonzero(sigma):
+        e = np.zeros(x.shape[1])
+        e[i] = FD_STEP
+        d = (eq.phi(x + e) - eq.phi(x - e)) / (2 * FD_STEP)
+        total += sigma[i] ** 2 * np.sum(d**2, axis=(0, 1))
+    return np.sqrt(total / (len(x) * eq.param.rows))
+
+
+def _tls(eq, x, sigma, theta, ctx):
+    A, b = _split(ctx["phi"])
+    noise = _column_noise(eq, x, sigma)
+    d_a = np.where(noise[:-1] > 0, noise[:-1], np.linalg.norm(A, axis=0) * 1e-12 + 1e-300)
+    As = A / d_a
+    # minimise |As y - b|^2 / (|y|^2 + d_b^2): (As^T As - lam I) y = As^T b, lam the root of the
+    # secular equation sum c_i^2 / (mu_i - lam) + lam d_b^2 - |b|^2 = 0 below the smallest mu
+    U, sv, Vt = np.linalg.svd(As, full_matrices=False)  # not the Gram matrix: keeps cond(A), not its square
+    mu, c = sv**2, sv * (U.T @ b)
+    secular = lambda lam: np.sum(c**2 / (mu - lam)) + lam * noise[-1] ** 2 - b @ b  # noqa: E731
+    lam = 0.0
+    if secular(0.0) < 0:
+        hi = mu[-1] * (1 - 1e-12)
+        lam = brentq(secular, 0.0, hi, xtol=1e-14 * mu[-1], rtol=1e-14) if secular(hi) > 0 else hi
+    return Vt.T @ (c / (mu - lam)) / d_a, {"lambda": float(lam), "column_noise": noise.tolist()}
+
+
+def _instrument_rows(eq, x, theta, reference):
+    """Instruments ``Z (n rows, p)``: the regressor columns at the joint signals ``reference``
+    ``(q, qd)`` and the base rate that ``theta`` predicts for them."""
+    pi, h = eq.full(theta)
+    nj = len(eq.param.model.joints)
+    xz = x.copy()
+    xz[:, : 2 * nj] = np.hstack(reference)
+    w = base_rate(eq.param, pi, reference[0], reference[1], np.einsum("nji,j->ni", eq.rot, h))
+    xz[:, 2 * nj : 2 * nj + len(eq.axes)] = w[:, eq.axes]
+    return _split(eq.phi(xz))[0]
+
+
+def _iv(eq, x, sigma, theta, ctx, iterations=2):
+    A, b = _split(ctx["phi"])
+    for _ in range(iterations):
+        Z = _instrument_rows(eq, x, theta, ctx["reference"])
+        # (Z^T A) theta = Z^T b, solved as least squares in the instruments' orthonormal basis:
+        # conditioned like A, not like A^T Z
+        scale = np.linalg.norm(A, axis=0)
+        scale[scale == 0] = 1.0
+        basis = np.linalg.qr(Z / scale)[0]
+        theta = np.linalg.lstsq(basis.T @ (A / scale), basis.T @ b, rcond=None)[0] / scale
+    return theta, {"iterations": iterations, "instruments": ctx["instruments"], "Z": Z}
+
+
+def _ml_step(eq, x, xh, theta, sigma):
+    """One FNS update of ``theta`` at corrected signals ``xh (n, n_x)``, then the projection of
+    the measured ``x`` onto the constraint linearised at ``xh``: the new ``theta``, its inverse
+    whitened Gram matrix and the new corrected signals."""
+    phi = eq.phi(xh)
+    d = x - xh
+    phit = phi + eq.dphi(xh, d) if np.any(d) else phi  # linearised at xh, evaluated at x
+    J = eq.jacobian(xh, theta)
+    L = _whiten(equation_covariance(J, sigma))
+    Aw, bw = _split(_whitened(L, phit))
+    u = _inverse_times(L, (phit @ np.append(theta, 1.0))[..., None])[..., 0]  # S^{-1} r
+    v = sigma**2 * np.einsum("nrx,nr->nx", J, u)
+    T = eq.dphi(xh, v)[..., :-1] if np.any(v) else np.zeros_like(phi[..., :-1])
+    new, ginv = _solve(Aw, bw, np.einsum("nrp,nr->p", T, u))
+    u_new = _inverse_times(L, (phit @ np.append(new, 1.0))[..., None])[..., 0]
+    return new, ginv, x - sigma**2 * np.einsum("nrx,nr->nx", J, u_new)
+
+
+def _ml(eq, x, sigma, theta, ctx, max_iter=50, tol=1e-4):
+    """FNS update of theta and projection of the signals, alternated to their joint fixed point.
+
+    Converged when a step changes no parameter by more than ``tol`` of its standard error (or
+    1e-9 relative: the finite differences in the signals leave a jitter of ~1e-10). The
+    iteration contracts linearly (by ~0.1 a step on the servicer at 1e-3 noise), so the last
+    step bounds the remaining iteration error to about ``tol`` standard errors: far below the
+    statistical error, and each step costs ~3 n_joints + 6 regressor evaluations."""
+    xh = x.copy()
+    converged = False
+    for it in range(1, max_iter + 1):
+        new, ginv, xh = _ml_step(eq, x, xh, theta, sigma)
+        step = np.abs(new - theta) / np.sqrt(np.maximum(np.diag(ginv), 1e-300))
+        small = np.abs(new - theta).max() <= 1e-9 * np.abs(new).max()
+        theta = new
+        if step.max() < tol or small:
+            converged = True
+            break
+    return theta, {"iterations": it, "converged": converged, "corrected": xh}
+
+
+_KERNELS = {"ols": _ols, "wls": _wls, "tls": _tls, "iv": _iv, "ml": _ml}

@@ -1,0 +1,162 @@
+"""The result of an identification: :class:`Identification`, its RESULT.json form
+(:meth:`Identification.to_dict`, :func:`load_result`) and the comparison of two (:func:`compare`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .._errors import SpaceidError
+from ..data import read_json
+
+__all__ = ["Identification", "compare", "load_result"]
+
+Z95 = 1.959963984540054  # two-sided 95 % normal quantile, for confidence intervals
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Result of an identification.
+
+    Attributes
+    ----------
+    names, definitions : tuple of str
+    values, std : ndarray of shape (k,)
+        Estimates and their standard errors.
+    cov : ndarray of shape (k, k)
+    condition_number : float
+        2-norm condition number of the stacked regressor.
+    singular_values : ndarray of shape (k,)
+    residual_rms : float
+        RMS of ``Y pi - h`` [N m s].
+    n_samples : int
+    estimator : str
+    momentum : ndarray of shape (3,)
+        Inertial momentum used [N m s].
+    model : str
+        Model source (preset name or path) and planar flag, to rebuild the regressor.
+    planar : bool
+    settings : dict
+        Rank tolerance, seeds, log provenance: everything needed to reproduce the result.
+    units : tuple of str
+        Each parameter's unit (``kg``, ``kg m``, ``kg m^2``; see ``Parameterization.units``);
+        empty for results written before units were recorded.
+    """
+
+    names: tuple
+    definitions: tuple
+    values: np.ndarray
+    std: np.ndarray
+    cov: np.ndarray
+    condition_number: float
+    singular_values: np.ndarray
+    residual_rms: float
+    n_samples: int
+    estimator: str
+    momentum: np.ndarray
+    model: str
+    planar: bool
+    settings: dict = field(default_factory=dict)
+    units: tuple = ()
+
+    def to_dict(self) -> dict:
+        """JSON-ready RESULT.json form: parameters with 95 % confidence intervals, covariance,
+        conditioning, residual and settings (read back by :meth:`from_dict`)."""
+        return {
+            "model": self.model,
+            "planar": self.planar,
+            "estimator": self.estimator,
+            "momentum": self.momentum.tolist(),
+            "parameters": [
+                {"name": n, "definition": d, "value": float(v), "std": float(s),
+                 "ci95": [float(v - Z95 * s), float(v + Z95 * s)], **({"unit": self.units[i]} if self.units else {})}
+                for i, (n, d, v, s) in enumerate(zip(self.names, self.definitions, self.values, self.std))
+            ],
+            "covariance": self.cov.tolist(),
+            "condition_number": self.condition_number,
+            "singular_values": self.singular_values.tolist(),
+            "residual_rms": self.residual_rms,
+            "n_samples": self.n_samples,
+            "settings": self.settings,
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict, where: str = "result") -> Identification:
+        """The identification of a :meth:`to_dict` record; ``where`` names it in errors
+        (:class:`~spaceid.SpaceidError` for a missing or bad field)."""
+        try:
+            params = data["parameters"]
+            k = len(params)
+            cov = np.asarray(data.get("covariance", np.diag([p["std"] ** 2 for p in params])), float).reshape(k, k)
+            return cls(
+                tuple(p["name"] for p in params),
+                tuple(p["definition"] for p in params),
+                np.array([p["value"] for p in params], float),
+                np.array([p["std"] for p in params], float),
+                cov,
+                float(data["condition_number"]),
+                np.asarray(data.get("singular_values", []), float),
+                float(data.get("residual_rms", np.nan)),
+                int(data.get("n_samples", 0)),
+                str(data.get("estimator", "ols")),
+                np.asarray(data["momentum"], float).reshape(3),
+                str(data["model"]),
+                bool(data["planar"]),
+                dict(data.get("settings", {})),
+                tuple(p["unit"] for p in params) if all("unit" in p for p in params) else (),
+            )
+        except (KeyError, TypeError, ValueError) as exc:
+            raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "
+                               "use a file written by 'spaceid identify'") from None
+
+
+def load_result(path) -> Identification:
+    """An identification saved as RESULT.json (by ``spaceid identify`` or
+    :meth:`Identification.to_dict`), back as an :class:`Identification`.
+
+    Parameters
+    ----------
+    path : str or Path
+        The JSON file.
+
+    Raises
+    ------
+    SpaceidError
+        The file is missing, not JSON, or not a result; the message names the file and field.
+    """
+    return Identification.from_dict(read_json(path, what="result file"), where=str(path))
+
+
+def compare(before: Identification, after: Identification, *, where: str = "results") -> dict:
+    """How the parameters changed between two identifications of the same structure.
+
+    For the on-orbit servicing case: identify before and after a capture (or a fuel burn) and
+    see which combinations moved, with a z-score ``change / sqrt(std_before^2 + std_after^2)``
+    that says whether the change stands out from the estimation noise.
+
+    Returns
+    -------
+    dict
+        ``parameters``: per parameter ``name``, ``definition``, ``before``, ``after``,
+        ``change``, ``relative_change`` and ``z``.
+    """
+    if before.names != after.names or before.definitions != after.definitions:
+        raise SpaceidError(
+            f"{where}: the two results have different parameter sets ({len(before.names)} vs {len(after.names)}): "
+            "compare identifications of the same kinematic structure"
+        )
+    change = after.values - before.values
+    noise = np.hypot(before.std, after.std)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(before.values != 0, change / np.abs(before.values), np.inf)
+        z = np.where(noise > 0, change / noise, np.inf * np.sign(change))
+    return {
+        "parameters": [
+            {"name": n, "definition": d, "before": float(b), "after": float(a), "change": float(c),
+             "relative_change": float(r), "z": float(s)}
+            for n, d, b, a, c, r, s in zip(
+                before.names, before.definitions, before.values, after.values, change, rel, z
+            )
+        ]
+    }
