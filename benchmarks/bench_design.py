@@ -1,7 +1,7 @@
 """Excitation design on the Cepheus case: condition number reached against wall time.
 
 Uses spaceid's own regressor of the ``cepheus`` preset (or, with ``--regressor closed-form``,
-the closed form of MATH.md sec. 2 in tests/cepheus_closed_form.py). Prints, for a few seeds,
+the closed form of docs/theory/cepheus.md in tests/cepheus_closed_form.py). Prints, for a few seeds,
 the best condition number found by each wall time (the paper's Table 2 trajectory beside it),
 the median over seeds, the time to come within 5 % of the best known value (about 36), and
 the default run (64 starts, no budget). Prints only; never fails on timings.

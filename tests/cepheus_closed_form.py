@@ -1,4 +1,4 @@
-"""Closed-form momentum regressor of the planar Cepheus emulator (MATH.md section 2).
+"""Closed-form momentum regressor of the planar Cepheus emulator (docs/theory/cepheus.md).
 
 A test helper, independent of the package's own regressor: the columns Y1..Y8 and the
 parameters pi are typed in from the reconstructed paper Appendix B, with the Table 1 values.
@@ -7,8 +7,8 @@ The base rate w0 comes from momentum conservation; because Y is affine in w0,
 
 References
 ----------
-Papadopoulos et al., identification of free-floating space robots from angular momentum
-conservation, Eqs. 2 and 12 and Appendix B (reconstructed in MATH.md).
+The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md):
+ Eqs. 2 and 12 and Appendix B (reconstructed in docs/theory/cepheus.md).
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ TABLE1 = dict(
 
 
 def cepheus_pi(p=TABLE1):
-    """Minimal parameters pi1..pi8 of MATH.md section 2; shape (8,), SI units."""
+    """Minimal parameters pi1..pi8 of docs/theory/cepheus.md; shape (8,), SI units."""
     m0, m1, m2 = p["m0"], p["m1"], p["m2"]
     l1, r1, l2 = p["l1"], p["r1"], p["l2"]
     r0x, r0y = p["r0x"], p["r0y"]

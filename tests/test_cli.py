@@ -64,10 +64,79 @@ def test_predict_and_validate(workdir):
     assert (workdir / "val" / "validation.png").stat().st_size > 10000
 
 
+def test_predict_takes_the_trajectory_design_writes(workdir, capsys):
+    """The designed trajectory at its own 35 sample times is the simulated log's joint motion."""
+    log = np.genfromtxt(workdir / "log.csv", delimiter=",", names=True)
+    assert run("predict", workdir / "result.json", workdir / "traj.json", "--momentum", 0.4934,
+               "-o", workdir / "pred_traj.csv") == 0
+    pred = np.genfromtxt(workdir / "pred_traj.csv", delimiter=",", names=True)
+    np.testing.assert_allclose(pred["t"], log["t"], rtol=1e-12)
+    np.testing.assert_allclose(pred["base_wz"], log["base_wz"], rtol=1e-9)
+    assert run("predict", workdir / "result.json", workdir / "traj.json", "--momentum", 0.4934, "--rate", 20,
+               "-o", workdir / "pred_20hz.csv") == 0
+    assert len((workdir / "pred_20hz.csv").read_text().splitlines()) == 1 + 101  # 5 s at 20 Hz
+    capsys.readouterr()
+    assert run("predict", workdir / "result.json", workdir / "log.csv", "--momentum", 0.4934, "--samples", 9,
+               "-o", workdir / "bad.csv") == 2
+    assert "a CSV gives its own samples" in capsys.readouterr().err and not (workdir / "bad.csv").exists()
+
+
+def test_iv_takes_the_trajectory_design_writes_as_instruments(workdir):
+    assert run("identify", "cepheus", workdir / "log.csv", "--momentum", 0.4934, "--estimator", "iv",
+               "--instruments", workdir / "traj.json", "-o", workdir / "iv.json") == 0
+    assert json.loads((workdir / "iv.json").read_text())["estimator"] == "iv"
+
+
+def test_result_records_units_and_reads_files_without_them(workdir, capsys):
+    from spaceid.estimation import Identification, load_result
+
+    result = json.loads((workdir / "result.json").read_text())
+    assert [p["unit"] for p in result["parameters"]] == ["kg m^2"] * 8  # planar basis: h [N m s] = Y [1/s] pi
+    assert load_result(workdir / "result.json").units == ("kg m^2",) * 8
+    for p in result["parameters"]:
+        del p["unit"]
+    assert Identification.from_dict(result).units == ()  # results written before units were recorded
+
+
+def test_compare_without_change_says_so_in_one_line(workdir, capsys):
+    assert run("compare", workdir / "result.json", workdir / "result.json") == 0
+    out = capsys.readouterr().out
+    assert out.strip() == "no parameter changed beyond 3 standard errors (8 compared; --all lists them)"
+
+
 def test_model_json(capsys):
+    from spaceid.dynamics import minimal_parameters
+    import spaceid
+
     assert run("model", "cepheus", "--json") == 0
     info = json.loads(capsys.readouterr().out)
     assert info["n_minimal_parameters"] == 8 and len(info["parameters"]) == 8
+    truth = minimal_parameters(spaceid.load_model("cepheus")).true_values
+    np.testing.assert_array_equal([p["value"] for p in info["parameters"]], truth)  # as the table shows them
+    assert {p["unit"] for p in info["parameters"]} == {"kg m^2"}
+
+
+def test_model_of_a_large_system_is_a_summary(tmp_path, capsys):
+    """The servicer's report was thousands of lines: a summary by default, all with --all or a file."""
+    import spaceid
+    import sympy as sp
+
+    urdf = tmp_path / "sat.urdf"
+    urdf.write_bytes((Path(spaceid.__file__).parent / "models" / "presets" / "satellite-7dof.urdf").read_bytes())
+    assert run("model", urdf) == 0
+    summary = capsys.readouterr().out
+    assert len(summary.splitlines()) < 80 and "pi20 " in summary and "pi21 " not in summary
+    assert "the first 20 of 153 parameters" in summary and "--all" in summary and "--definitions FILE" in summary
+    assert run("model", urdf, "--all") == 0
+    assert "pi153 " in capsys.readouterr().out
+    assert run("model", urdf, "--definitions", tmp_path / "defs.txt") == 0
+    lines = (tmp_path / "defs.txt").read_text().splitlines()
+    assert len(lines) == 1 + 153 and lines[1].startswith("pi1 = ") and "# [kg m^2]" in lines[1]
+    name, definition = lines[-1].split("  #")[0].split(" = ")
+    assert name == "pi153" and sp.sympify(definition).free_symbols
+    before = urdf.read_bytes()
+    assert run("model", urdf, "--definitions", urdf) == 2  # never over an input
+    assert urdf.read_bytes() == before and "that is the model file" in capsys.readouterr().err
 
 
 def _log_with(workdir, tmp_path, edit):
@@ -181,6 +250,10 @@ def test_spatial_pipeline_through_files(tmp_path, capsys):
     rows = json.loads(capsys.readouterr().out)["parameters"]
     assert len(rows) == 153 and np.median(np.abs([r["z"] for r in rows])) < 3  # noise only: no real change
     assert run("identify", urdf, tmp_path / "log.csv", "--momentum", "1,-2", "-o", tmp_path / "x.json") == 2
+    capsys.readouterr()
+    # started at rest: 0 is 0,0,0 for a spatial model too, which needs an anchor as a planar one does
+    assert run("identify", urdf, tmp_path / "log.csv", "--momentum", 0, "-o", tmp_path / "x.json") == 2
+    assert "the momentum is zero" in capsys.readouterr().err and not (tmp_path / "x.json").exists()
 
 
 def test_angles_only_log_is_differentiated(tmp_path):

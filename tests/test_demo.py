@@ -13,13 +13,13 @@ def test_paper_trajectory_noise_free():
     res = run_demo(trajectory="paper-table2")
     rel = np.abs(res.ident.values / res.true - 1) * 100
     assert rel.max() < 1e-6  # percent
-    assert res.ident.condition_number == pytest.approx(360, rel=0.01)  # MATH.md sec. 3
-    # our exact truth against the paper's rounded Table 3 'true values' (MATH.md: within 2.2 %)
+    assert res.ident.condition_number == pytest.approx(360, rel=0.01)  # docs/theory/excitation.md
+    # our exact truth against the paper's rounded Table 3 'true values' (docs/theory/cepheus.md: within 2.2 %)
     assert np.abs(res.true / PAPER_TABLE3["true"] - 1).max() < 0.025
 
 
 def test_noise_reproduces_the_papers_error_size():
-    """MATH.md sec. 2: noise of about 1e-4 on the rates gives errors of the paper's size."""
+    """docs/theory/cepheus.md: noise of about 1e-4 on the rates gives errors of the paper's size."""
     a = run_demo(trajectory="paper-table2", noise_angle=1e-4, noise_rate=1e-4, seed=4)
     b = run_demo(trajectory="paper-table2", noise_angle=1e-4, noise_rate=1e-4, seed=4)
     np.testing.assert_array_equal(a.ident.values, b.ident.values)  # seeded

@@ -46,8 +46,11 @@ def test_loads_spatial_and_matches_pinocchio(name, models):
     assert model.joints == joints and model.n_joints == len(joints)
     assert all(b.joint_type == "revolute" for b in model.bodies[1:])
     assert model.mass == pytest.approx(total, abs=1e-9)
-    for kind in ("lower", "upper", "velocity"):
+    for kind in ("lower", "upper", "velocity", "acceleration"):  # what 'spaceid design' needs
         assert np.all(np.isfinite(model.joint_limits(kind)))
+    assert np.all(model.joint_limits("acceleration") > 0)
+    preset = spaceid.load_model(name.removesuffix(".urdf"))  # the preset reads the same file
+    np.testing.assert_array_equal(preset.joint_limits("acceleration"), model.joint_limits("acceleration"))
     with pytest.raises(spaceid.SpaceidError, match="planar"):
         spaceid.load_model(path, planar=True)
 
@@ -75,6 +78,7 @@ def test_every_link_is_physical(name):
             limit = joint.find("limit").attrib
             assert float(limit["lower"]) < 0 < float(limit["upper"])
             assert float(limit["velocity"]) > 0 and float(limit["effort"]) > 0
+            assert 0 < float(limit["acceleration"]) <= 1.0  # rad/s^2: a space arm's servo ramp
 
 
 @pytest.mark.parametrize("name, prefixes", [("satellite-7dof.urdf", ["arm"]), ("servicer-dual.urdf", ["left", "right"])])

@@ -18,7 +18,7 @@ def ideal(tmp_path_factory):
 def test_identification_from_the_twin_bag_is_within_its_uncertainty(ideal):
     res = ideal
     known = res.ident.std == 0
-    assert res.ident.settings["anchors"][0]["definition"] == "Izz_wheel"
+    assert res.ident.settings["anchors"][0]["definition"] == "Iczz_wheel"
     assert np.all(res.ident.values[known] == res.true[known])
     z = (res.ident.values - res.true)[~known] / res.ident.std[~known]
     assert np.abs(z).max() < 4, z

@@ -74,6 +74,19 @@ def test_bad_urdf(tmp_path, name):
     assert str(path) in str(info.value) and "\n" not in str(info.value)
 
 
+def test_urdf_acceleration_limits(tmp_path):
+    """URDF has no acceleration limit: spaceid reads an extra ``acceleration`` attribute of
+    <limit>, which Pinocchio ignores; joints without one have none (NaN)."""
+    joints = _joint("j1", "a", "b").replace('effort="1"', 'effort="1" acceleration="0.7"') + _joint("j2", "b", "c")
+    path = tmp_path / "acc.urdf"
+    path.write_text(URDF_HEAD + f'<robot name="r">{_link("a")}{_link("b")}{_link("c")}{joints}</robot>')
+    limits = spaceid.load_model(path).joint_limits("acceleration")
+    assert limits[0] == 0.7 and np.isnan(limits[1])
+    path.write_text(path.read_text().replace('acceleration="0.7"', 'acceleration="-1"'))
+    with pytest.raises(spaceid.SpaceidError, match="joint 'j1' has acceleration limit '-1'"):
+        spaceid.load_model(path)
+
+
 def test_non_planar_joint_is_named(tmp_path):
     path = tmp_path / "tilted.urdf"
     path.write_text(URDF_HEAD + f'<robot name="r">{_link("a")}{_link("b")}{_joint("wrist", "a", "b", axis="1 0 0")}</robot>')

@@ -1,6 +1,6 @@
 """Differentiating measured angles: accuracy against the best tuning of each method, exactness
 without noise, uneven stamps, quantisation, manual overrides, reproducibility, quaternions and
-errors. Signals are the paper's exciting trajectory (Table 2 Fourier part, MATH.md section 3)
+errors. Signals are the paper's exciting trajectory (Table 2 Fourier part, docs/theory/excitation.md)
 sampled at 100 Hz for 5 s, with exact derivatives; every random draw is seeded."""
 
 import json
@@ -15,7 +15,7 @@ from spaceid.data import differentiate, differentiate_quaternion, estimate_noise
 from spaceid.data import yaw_to_quat
 
 STEP, DURATION, NOISE = 0.01, 5.0, 1e-4
-# Table 2 (MATH.md section 3): qd_i = sum_l a_il cos(wf l t) + b_il sin(wf l t), wf = 2 pi / 5 s
+# Table 2 (docs/theory/excitation.md): qd_i = sum_l a_il cos(wf l t) + b_il sin(wf l t), wf = 2 pi / 5 s
 A = np.array([[-0.1642, 0.2786, 0.3582], [0.0846, 0.0597, 0.0498]])
 B = np.array([[0.0010, 0.2090, -0.1000], [0.3682, -0.1692, -0.3283]])
 

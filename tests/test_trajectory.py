@@ -80,7 +80,7 @@ def test_paper_table2_extremes_and_condition_number():
     traj = load_trajectory("paper-table2")
     assert traj.joints == ("left_shoulder", "left_elbow") and traj.duration == 5.0
     q, qd, qdd = traj.evaluate(sample_times(5.0, 2001))
-    # MATH.md section 3 gives two decimals read from the paper; joint 2's rate peak is 1.308
+    # docs/theory/excitation.md gives two decimals read from the paper; joint 2's rate peak is 1.308
     # on a fine grid against 1.29 read, hence 2 %.
     np.testing.assert_allclose(np.abs(q).max(0), [0.66, 1.36], rtol=0.02)
     np.testing.assert_allclose(np.abs(qd).max(0), [1.01, 1.29], rtol=0.02)

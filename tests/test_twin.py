@@ -145,7 +145,7 @@ def test_spin_up_reaches_170_within_effort_limit(experiment):
     assert np.abs(wheel[a.truth.t > t_ramp + 1.3] - 170.0).max() < 0.5  # settled ~1 s after the ramp
     assert abs(wheel[-1] - 170.0) < 0.05
     assert np.abs(a.effort[:, 0]).max() <= 0.5  # within the model's effort limit (not saturated)
-    # the rest of the system carries -I_rw (w0 + w_rw) + h0 (MATH.md sec. 5)
+    # the rest of the system carries -I_rw (w0 + w_rw) + h0 (docs/theory/scale.md)
     h = angular_momentum(MODEL, a.truth.q, a.truth.qd, a.truth.base_w)[:, 2]
     spin = I_RW * (a.truth.qd[-1, 0] + a.truth.base_w[-1, 2])
     assert spin > 0.33 and abs(h[-1] - h[0]) < 1e-9 * spin  # the base counter-rotates

@@ -24,14 +24,38 @@ err = Console(stderr=True)
 
 MODEL = click.argument("model_src", metavar="MODEL")
 PLANAR = click.option("--planar/--spatial", default=None, help="Force planar (x, y, yaw) or spatial mode; default: the model's.")
-MOMENTUM = click.option("--momentum", required=True, help="Angular momentum [N m s]: h (planar) or hx,hy,hz (inertial axes).")
+MOMENTUM_METAVAR = "H|HX,HY,HZ"
+MOMENTUM = click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR, help="Angular momentum of the whole "
+                        "system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest.")
 SEED = click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random choice (recorded in the output).")
 NOISE = [
     click.option("--noise-angle", type=float, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
 ]
-OUTPUT = click.option("-o", "--output", type=click.Path(path_type=Path), required=True)
 ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
+ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, efficient); wls: weighted least squares "
+                  "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
+                  "noise as instruments); tls: total least squares (for comparison with the literature); ols: "
+                  "ordinary least squares, the paper's Eq. 11 (fast, no noise model, biased by noise).")
+
+
+def output(help_text):
+    """The required ``-o/--output FILE`` option, with what the command writes there."""
+    return click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar="PATH",
+                        help=help_text)
+
+
+class _Command(click.Command):
+    """A command whose usage line also lists its required options (click leaves them in [OPTIONS])."""
+
+    def collect_usage_pieces(self, ctx):
+        required = [f"{p.opts[-1]} {p.make_metavar(ctx)}" for p in self.get_params(ctx)
+                    if isinstance(p, click.Option) and p.required]
+        return super().collect_usage_pieces(ctx) + required
+
+
+class _Group(click.Group):
+    command_class = _Command
 
 
 def noise_options(f):
@@ -85,7 +109,7 @@ def bag_options(f):
     )(command)
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 def app():
     """Identify free-floating space manipulators from angular-momentum conservation."""
 
@@ -117,19 +141,29 @@ def _momentum(value, planar, *, allow_unknown=False):
     return h
 
 
+SUMMARY_ROWS = 20
+"""``spaceid model`` lists this many parameters (definitions cut to a line) and this many names
+per identifiability list unless ``--all``: the servicer's 496 definitions fill thousands of lines."""
+
+
 @app.command(short_help="Identifiability report: bodies, joints, standard and minimal parameters.")
 @MODEL
 @PLANAR
-@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of tables.")
-def model(model_src, planar, as_json):
+@click.option("--json", "as_json", is_flag=True, help="Print JSON (every parameter, with its value and unit) "
+              "instead of tables.")
+@click.option("--all", "show_all", is_flag=True, help=f"Every parameter and definition in full (default: a summary, "
+              f"the first {SUMMARY_ROWS} cut to a line).")
+@click.option("--definitions", "definitions_file", type=click.Path(path_type=Path), metavar="FILE",
+              help="Also write every definition to FILE, one 'name = definition  # [unit]' line each.")
+def model(model_src, planar, as_json, show_all, definitions_file):
     """Identifiability report: bodies, joints, standard and minimal parameters."""
-    from rich.table import Table
-
     from .dynamics import full_parameter_names, identifiability
 
     param = _param(model_src, planar)
     m = param.model
     ident = identifiability(param)
+    description = param.to_dict()
+    description["parameters"] = [{**p, "value": float(v)} for p, v in zip(description["parameters"], param.true_values)]
     info = {
         "model": m.name,
         "source": m.source,
@@ -140,42 +174,81 @@ def model(model_src, planar, as_json):
         "n_standard_parameters": 10 * len(m.bodies),
         "n_full_parameters": len(full_parameter_names(m)),
         "n_minimal_parameters": param.n_params,
-        **param.to_dict(),
+        **description,
         "identifiability": ident,
     }
+    if definitions_file is not None:
+        _write_definitions(definitions_file, info, model_src)
     if as_json:
         print(json.dumps(info, indent=2))
         return
-    out.print(f"[bold]{m.name}[/]  ({m.source}), {'planar' if m.planar else 'spatial'}, total mass {m.mass:.6g} kg")
-    bodies = Table("body", "parent", "joint", "type", "mass [kg]", title="Bodies")
+    _print_model(info, show_all)
+    if definitions_file is not None:
+        err.print(f"{param.n_params} definitions written to {definitions_file}")
+
+
+def _print_model(info, show_all):
+    """The terminal report of ``spaceid model``: ``info`` is its JSON, summarised unless ``show_all``."""
+    from rich.markup import escape
+    from rich.table import Table
+    from rich.text import Text
+
+    out.print(f"[bold]{info['model']}[/]  ({info['source']}), {'planar' if info['planar'] else 'spatial'}, "
+              f"total mass {info['mass']:.6g} kg")
+    bodies = Table("body", "parent", "joint", "type", escape("mass [kg]"), title="Bodies")
     for b in info["bodies"]:
         bodies.add_row(b["name"], b["parent"] or "-", b["joint"] or "(floating base)", b["type"], f"{b['mass']:.6g}")
     out.print(bodies)
     out.print(
         f"standard parameters: {info['n_standard_parameters']} (10 per body); with lumped products: "
-        f"{info['n_full_parameters']}; minimal identifiable set: [bold]{param.n_params}[/] "
-        f"(basis '{param.basis}', rank tolerance {param.rank_tol:g}, seed {param.seed})"
+        f"{info['n_full_parameters']}; minimal identifiable set: [bold]{info['n_minimal_parameters']}[/] "
+        f"(basis '{info['basis']}', rank tolerance {info['rank_tol']:g}, seed {info['seed']})"
     )
-    table = Table("name", "value (model)", "definition", title="Minimal parameters")
-    for n, v, d in zip(param.names, param.true_values, param.definitions):
-        table.add_row(n, f"{v:.6g}", d)
+    params = info["parameters"]
+    cut = not show_all and len(params) > SUMMARY_ROWS
+    table = Table("", "unit", "value", "definition", title="Minimal parameters (model values)")
+    table.columns[3].overflow = "fold"
+    for p in params[:SUMMARY_ROWS] if cut else params:
+        definition = Text(p["definition"], no_wrap=True, overflow="ellipsis") if cut else p["definition"]
+        table.add_row(p["name"], p["unit"], f"{p['value']:.6g}", definition)
     out.print(table)
+    if cut:
+        out.print(f"the first {SUMMARY_ROWS} of {len(params)} parameters, definitions cut to a line: --all lists "
+                  "them in full, --definitions FILE writes them to a file, --json prints everything")
+    ident = info["identifiability"]
     verdict = "determines" if ident["determines_dynamics"] else "does NOT determine"
     out.print(f"The identified set {verdict} the reduced dynamics (kinetic energy with zero linear momentum; "
               f"residual {ident['energy_residual']:.1e}).")
     for key, label in [("no_effect", "no effect on the momentum (not identifiable)"),
                        ("individually_identifiable", "identifiable on their own"),
                        ("in_combinations", "identifiable only in the combinations above")]:
-        out.print(f"{label}: {', '.join(ident[key]) or 'none'}", highlight=False)
+        names = ident[key]
+        shown = names if show_all or len(names) <= SUMMARY_ROWS else names[:SUMMARY_ROWS] + [
+            f"... {len(names) - SUMMARY_ROWS} more (--all)"]
+        out.print(f"{label} ({len(names)}): {', '.join(shown) or 'none'}", highlight=False)
+
+
+def _write_definitions(path, info, model_src):
+    """The minimal parameters' definitions as text at ``path`` (atomically), never over the model file."""
+    from ._atomic import write_text_atomic
+
+    source = Path(model_src)
+    if source.is_file() and Path(path).resolve() == source.resolve():
+        raise SpaceidError(f"--definitions {path}: that is the model file: give another file name")
+    lines = [f"# minimal parameters of {info['model']} ({info['source']}): name = definition  # [unit], model value"]
+    lines += [f"{p['name']} = {p['definition']}  # [{p['unit']}], {p['value']:.6g}" for p in info["parameters"]]
+    write_text_atomic(path, "\n".join(lines) + "\n")
 
 
 @app.command(short_help="Optimal exciting trajectory (min cond(Y) or predicted error) under joint limits.")
 @MODEL
 @PLANAR
-@click.option("--duration", type=float, required=True, help="Trajectory duration tf [s].")
-@click.option("--harmonics", type=int, required=True, help="Fourier harmonics Nf.")
-@click.option("--samples", type=int, required=True, help="Samples N, equally spaced over [0, tf].")
-@MOMENTUM
+@click.option("--duration", type=float, required=True, metavar="TF", help="Trajectory duration tf [s].")
+@click.option("--harmonics", type=int, required=True, metavar="NF", help="Fourier harmonics Nf.")
+@click.option("--samples", type=int, required=True, metavar="N", help="Samples N, equally spaced over [0, tf].")
+@click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR, help="Angular momentum of the whole system "
+              "[N m s]: h (planar) or hx,hy,hz (inertial axes); nonzero (with zero momentum Y pi = 0: no "
+              "condition number to minimise).")
 @SEED
 @click.option("--criterion", type=click.Choice(["cond", "logdet", "dopt", "crb"]), default="cond", show_default=True,
               help="cond (condition number), logdet (scaled columns), or with the --noise-* options: dopt (max "
@@ -187,7 +260,7 @@ def model(model_src, planar, as_json):
 @click.option("--starts", type=int, default=64, show_default=True, help="Local starts of the global search.")
 @click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
               "depends on the machine's speed).")
-@OUTPUT
+@output("Trajectory JSON to write (for simulate, predict, identify --instruments).")
 def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max, starts, time_budget, output):
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
@@ -213,25 +286,21 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 @PLANAR
 @click.option("--trajectory", required=True, help="File from 'design' or a named trajectory (paper-table2).")
 @MOMENTUM
-@click.option("--samples", type=int, help="N samples equally spaced over [0, tf].")
+@click.option("--samples", type=int, help="N samples equally spaced over [0, tf] [default: the design's N].")
 @click.option("--rate", type=float, help="Sample rate [Hz] (instead of --samples).")
 @_options(*NOISE)
 @SEED
-@OUTPUT
+@output("Log CSV to write.")
 def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
     from .data import write_log
     from .motion import add_noise, simulate as run
-    from .motion import load_trajectory, sample_times
+    from .motion import load_trajectory
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
     traj = load_trajectory(trajectory, joints=param.model.joints)
-    if (samples is None) == (rate is None):
-        raise SpaceidError("simulate: give exactly one of --samples N or --rate HZ")
-    if samples is not None and samples < 2 or rate is not None and not rate > 0:
-        raise SpaceidError("simulate: --samples must be at least 2 and --rate positive")
-    times = sample_times(traj.duration, samples) if samples else np.arange(0, traj.duration + 1e-12, 1 / rate)
+    times = _trajectory_times(traj, samples, rate, "simulate")
     log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model)
     log.meta.update(trajectory=trajectory, seed=seed)
     if noise_angle or noise_rate:
@@ -244,20 +313,20 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @MODEL
 @click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @PLANAR
-@click.option("--momentum", required=True, help="Angular momentum of the whole system [N m s]: h (planar) or "
-              "hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to estimate it (both need an anchor).")
-@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True,
-              help="ml: maximum likelihood (errors in variables); wls, iv, tls, ols: see the documentation.")
+@click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
+              "whole system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to "
+              "estimate it (both need an anchor, --known or a reaction wheel).")
+@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
-              "parameter one equals alone, e.g. Izz_wheel=0.00197): anchors the scale; repeatable.")
-@click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (YAML from 'spaceid "
-              "design') for --estimator iv; default: measured joints with the predicted base rate.")
+              "parameter one equals alone, e.g. Iczz_wheel=0.00197): anchors the scale; repeatable.")
+@click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (the JSON 'spaceid "
+              "design' writes) for --estimator iv; default: measured joints with the predicted base rate.")
 @noise_options
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
 @click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
 @bag_options
-@OUTPUT
+@output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
              output, bag):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
@@ -303,8 +372,10 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     write_json(output, ident.to_dict())
     out.print(parameter_table(ident))
     s = ident.settings
+    units = dict(zip(ident.names, ident.units))
     for a in s["anchors"]:
-        out.print(f"anchor: {a['name']} = {a['definition']} = {a['value']:.6g} ({a['source']})")
+        out.print(f"anchor: {a['name']} = {a['definition']} = {a['value']:.6g} {units.get(a['name'], '')} "
+                  f"({a['source']})", highlight=False)
     if s["momentum_estimated"]:
         axes = [2] if ident.planar else [0, 1, 2]
         out.print("momentum (estimated): " + ", ".join(
@@ -317,13 +388,18 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
 
 @app.command(short_help="Base motion of an identified model for a joint motion.")
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
-@click.argument("traj_csv", metavar="TRAJ.csv", type=click.Path(path_type=Path))
+@click.argument("trajectory", metavar="TRAJ", type=click.Path(path_type=Path))
 @MOMENTUM
+@click.option("--samples", type=int, help="TRAJ from 'design': N samples equally spaced over [0, tf] [default: "
+              "the design's N].")
+@click.option("--rate", type=float, help="TRAJ from 'design': sample rate [Hz] (instead of --samples).")
 @click.option("--initial-yaw", type=float, help="Base yaw at t0 [rad] (planar; default 0).")
 @click.option("--initial-quat", help="Base attitude at t0 as w,x,y,z (spatial; default 1,0,0,0).")
-@OUTPUT
-def predict(result, traj_csv, momentum, initial_yaw, initial_quat, output):
-    """Base motion of an identified model for a joint motion (t, q_J, qd_J)."""
+@output("Predicted log CSV to write.")
+def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_quat, output):
+    """Base motion of an identified model for a joint motion TRAJ: a joint-trajectory CSV
+    (columns t, q_J, qd_J) or a trajectory from 'design' (JSON, or a named one such as
+    paper-table2), sampled like 'simulate' does."""
     from .data import read_joint_trajectory, write_log
     from .data import yaw_to_quat
     from .studies import predict as run
@@ -331,7 +407,17 @@ def predict(result, traj_csv, momentum, initial_yaw, initial_quat, output):
     ident = _read_result(result)
     h = _momentum(momentum, ident.planar)
     joints = _model_joints(ident)
-    t, q, qd = read_joint_trajectory(traj_csv, joints=joints)
+    if trajectory.suffix.lower() == ".csv":
+        if samples is not None or rate is not None:
+            raise SpaceidError(f"{trajectory}: a CSV gives its own samples: --samples and --rate are for a "
+                               "trajectory from 'design'")
+        t, q, qd = read_joint_trajectory(trajectory, joints=joints)
+    else:
+        from .motion import load_trajectory
+
+        traj = load_trajectory(trajectory, joints=joints)
+        t = _trajectory_times(traj, samples, rate, "predict")
+        q, qd, _ = traj.evaluate(t)
     if initial_quat is not None:
         try:
             quat0 = np.array([float(v) for v in initial_quat.split(",")])
@@ -346,15 +432,32 @@ def predict(result, traj_csv, momentum, initial_yaw, initial_quat, output):
     err.print(f"{log.n_samples} predicted samples written to {output}")
 
 
+def _trajectory_times(traj, samples, rate, command):
+    """Sample times [s] of a designed trajectory: ``--samples N`` or ``--rate HZ``, else the N it
+    was designed with; shape (n,)."""
+    from .motion import sample_times
+
+    if samples is not None and rate is not None:
+        raise SpaceidError(f"{command}: give one of --samples N or --rate HZ, not both")
+    if samples is None and rate is None:
+        samples = traj.meta.get("samples")
+        if samples is None:
+            raise SpaceidError(f"{command}: the trajectory records no sample count: give --samples N or --rate HZ")
+    if samples is not None and samples < 2 or rate is not None and not rate > 0:
+        raise SpaceidError(f"{command}: --samples must be at least 2 and --rate positive")
+    return sample_times(traj.duration, samples) if samples else np.arange(0, traj.duration + 1e-12, 1 / rate)
+
+
 @app.command(short_help="Re-simulate an identified model against a log: metrics and plots.")
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
 @click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @MOMENTUM
 @bag_options
-@OUTPUT
+@output("Folder to write predicted.csv, metrics.json and validation.png into.")
 def validate(result, log_path, momentum, output, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     from .studies._figures import plot_validation
+    from .studies._report import _METRIC_LABELS
     from .data import read_log, write_json, write_log
     from .studies import validate as run
 
@@ -370,7 +473,7 @@ def validate(result, log_path, momentum, output, bag):
     write_json(output / "metrics.json", metrics)
     plot_validation(log, predicted, output / "validation.png")
     for key, value in metrics.items():
-        out.print(f"{key:>14s} = {value:.4g}")
+        out.print(f"{_METRIC_LABELS.get(key, key)} = {value:.4g}", markup=False, highlight=False)
     err.print(f"plots and metrics written to {output}/")
 
 
@@ -401,19 +504,24 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
 
 
 @app.command(short_help="The paper's Cepheus experiment on the digital twin, through a ROS bag.")
-@click.argument("model_src", metavar="MODEL", default="cepheus")
+@click.argument("model_src", metavar="[MODEL]", default="cepheus")
 @click.option("--trajectory", default="designed", show_default=True, help="designed, paper-table2 or a file from 'design'.")
 @click.option("--wheel-speed", type=float, default=170.0, show_default=True, help="Wheel speed relative to the base [rad/s].")
 @click.option("--samples", type=int, default=29, show_default=True, help="N, the samples identification uses.")
-@click.option("--format", "bag_format", type=click.Choice(["ros1", "ros2", "mcap"]), default="ros1", show_default=True)
-@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True)
+@click.option("--format", "bag_format", type=click.Choice(["ros1", "ros2", "mcap"]), default="ros1", show_default=True,
+              help="Bag the twin records: ros1 (ROS 1 .bag file), ros2 (ROS 2 bag folder, sqlite3 storage), mcap "
+              "(ROS 2 bag folder, MCAP storage).")
+@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
 @SEED
 @click.option("--out", "folder", type=click.Path(path_type=Path), default=Path("spaceid-experiment"), show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, seed, folder):
     """Rest, wheel spin-up, exciting trajectory on the Cepheus twin; identify from the recorded bag
-    (N samples and all), validate the identified model against the measurement (Fig. 6)."""
+    (N samples and all), validate the identified model against the measurement (Fig. 6).
+
+    MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default.
+    """
     from .studies import run_experiment
     from .studies import parameter_table
     from .twin import TwinSettings
@@ -443,15 +551,24 @@ def compare(before, after, as_json, show_all):
 
     from .estimation import compare as run
 
-    res = run(_read_result(before), _read_result(after), where=f"{before}, {after}")
+    first = _read_result(before)
+    res = run(first, _read_result(after), where=f"{before}, {after}")
     if as_json:
         print(json.dumps(res, indent=2))
         return
-    rows = [p for p in res["parameters"] if show_all or abs(p["z"]) > 3]
-    table = Table("", "before", "after", "change [%]", "z", title=f"{len(rows)} of {len(res['parameters'])} parameters "
-                  + ("" if show_all else "changed beyond 3 standard errors"))
+    params = res["parameters"]
+    rows = [p for p in params if show_all or abs(p["z"]) > 3]
+    if not rows:
+        out.print(f"no parameter changed beyond 3 standard errors ({len(params)} compared; --all lists them)")
+        return
+    units = dict(zip(first.names, first.units))
+    table = Table(title=f"{len(rows)} of {len(params)} parameters" + ("" if show_all else ", |z| > 3"),
+                  caption="z: change / combined standard error")
+    for name in ("", "unit", "before", "after", "change [%]", "z"):
+        table.add_column(name, justify="left" if name in ("", "unit") else "right", no_wrap=True)
     for p in rows:
-        table.add_row(p["name"], f"{p['before']:.6g}", f"{p['after']:.6g}", f"{100 * p['relative_change']:.3g}", f"{p['z']:.3g}")
+        table.add_row(p["name"], units.get(p["name"], ""), f"{p['before']:.6g}", f"{p['after']:.6g}",
+                      f"{100 * p['relative_change']:.3g}", f"{p['z']:.3g}")
     out.print(table)
 
 
@@ -470,8 +587,8 @@ def compare(before, after, as_json, show_all):
               "(cond, logdet, dopt, crb; see 'spaceid design').")
 @MOMENTUM
 @click.option("--runs", type=int, default=200, show_default=True, help="Noise draws.")
-@click.option("--estimator", "estimators", multiple=True, help="Estimator to study, repeatable: ml, wls, iv, tls, "
-              "ols [default: ml and ols].")
+@click.option("--estimator", "estimators", multiple=True, metavar="[" + "|".join(ESTIMATOR_CHOICES) + "]",
+              help="Estimator to study, repeatable [default: ml and ols]. " + ESTIMATOR_HELP)
 @noise_options
 @click.option("--angles-only", is_flag=True, help="Noise on joint angles and base attitude only, rates differentiated "
               "from them (Savitzky-Golay, automatic window).")
@@ -482,9 +599,10 @@ def compare(before, after, as_json, show_all):
 def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
                noise, angles_only, seed, jobs, folder):
     """Monte Carlo study: simulate once, identify under fresh noise RUNS times, and report per
-    estimator and parameter the bias, RMSE, predicted vs actual spread and RMSE / CRB. Noise
-    levels default to 1e-4 (rad, rad/s) on every signal when no --noise-* option is given
-    (otherwise the ones not given are zero)."""
+    estimator and parameter the bias, RMSE, predicted vs actual spread and RMSE / CRB. The
+    momentum of the simulated motion (--momentum) is required. Noise levels default to 1e-4
+    (rad, rad/s) on every signal when no --noise-* option is given (otherwise the ones not
+    given are zero)."""
     from .studies import DEFAULT_NOISE, run_montecarlo, write_montecarlo
     from .studies import montecarlo_table
 

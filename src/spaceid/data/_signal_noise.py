@@ -51,6 +51,11 @@ def estimate_noise(t, x, *, quantum=None):
     ------
     SpaceidError
         Non-increasing stamps, non-finite values, fewer than 7 samples or a bad ``quantum``.
+
+    References
+    ----------
+    .. [3] T. Gasser, L. Sroka and C. Jennen-Steinmetz, "Residual variance and residual pattern
+       in nonlinear regression", Biometrika 73(3), 1986.
     """
     t, x, _ = _check_series(t, x, "x")
     quantum = _check_quantum(quantum, "x")

@@ -2,7 +2,7 @@
 
 On hardware the joint rates ``qd`` and the base angular velocity ``w0`` are not measured: they
 come from differentiating encoder and motion-capture angles, and the differentiator decides much
-of the final identification error (MATH.md section 6). This module turns angle samples into
+of the final identification error (docs/theory/noise.md). This module turns angle samples into
 smoothed angles and rates, choosing its bandwidth from the data and recording the choice.
 
 Two families, both exact for polynomials of their degree and both working on the actual time
@@ -160,6 +160,13 @@ def differentiate(
     >>> q_s, qd, info = differentiate(t, q)
     >>> bool(np.abs(qd[:, 0] - np.cos(t)).max() < 1e-2), info["method"]
     (True, 'savgol')
+
+    References
+    ----------
+    .. [2] J. Fan and I. Gijbels, "Local Polynomial Modelling and Its Applications", Chapman &
+       Hall, 1996, sections 3.7 and 4.2.
+    .. [4] P. Craven and G. Wahba, "Smoothing noisy data with spline functions", Numerische
+       Mathematik 31, 1979.
     """
     t, x, shape = _check_series(t, x, name)
     quantum = _check_quantum(quantum, name)
@@ -284,7 +291,7 @@ def differentiate_quaternion(t, quat, *, method="auto", window=None, order=None,
 
     The series is made sign-continuous (``q`` and ``-q`` are the same rotation, and motion
     capture may flip between them), its four components are smoothed and differentiated by
-    :func:`differentiate`, the smoothed quaternion is renormalised, and the body rate is
+    :func:`differentiate`, the smoothed quaternion is renormalised, and the body rate is::
 
         w_body = 2 * vec(conj(q) (x) qdot) / |q|^2,
 

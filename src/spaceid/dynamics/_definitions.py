@@ -5,19 +5,21 @@ Planar trees: each parameter is the coefficient of one body-pair function (see
 momentum: with ``s_i`` written as a sum of body-fixed vectors ``v`` (joint offsets and CoM
 offsets), and ``mu_v`` the mass of the bodies whose CoM position contains ``v``,
 
-    h = sum_b Izz_b w_b + sum_{v, w} (mu_vw - mu_v mu_w / M) (w_a + w_b) (R_a v . R_b w)
+    h = sum_b Iczz_b w_b + sum_{v, w} (mu_vw - mu_v mu_w / M) (w_a + w_b) (R_a v . R_b w)
 
 over unordered pairs of vectors (``v`` fixed in body a, ``w`` in body b, each pair once, a
-vector with itself counted once with a half weight). Symbols: ``m_<body>`` mass, ``cx_<body>``,
-``cy_<body>`` CoM in the body frame, ``Izz_<body>`` inertia about the CoM, ``x_<joint>``,
-``y_<joint>`` the joint's position in its parent's frame, ``M`` the total mass. A test
-evaluates every definition and compares it with the numerical parameter values.
+vector with itself counted once with a half weight). Symbols: ``m_<body>`` mass [kg],
+``cx_<body>``, ``cy_<body>`` CoM in the body frame [m], ``Iczz_<body>`` inertia about the CoM
+[kg m^2] (``c`` for CoM: ``Izz_<body>`` is the standard parameter, about the body frame origin),
+``x_<joint>``, ``y_<joint>`` the joint's position in its parent's frame [m], ``M`` the total
+mass. A test evaluates every definition and compares it with the numerical parameter values.
 """
 
 from __future__ import annotations
 
 import functools
 import operator
+import re
 from collections import Counter
 
 import numpy as np
@@ -25,6 +27,12 @@ import numpy as np
 from ..models._model import Model, _inertia_matrix
 
 __all__ = ["planar_definitions", "planar_symbol_values", "column_definitions"]
+
+
+def symbol_suffix(name: str) -> str:
+    """A body or joint name as the suffix of a symbol name (non-word characters become ``_``),
+    so that every definition stays a valid SymPy expression."""
+    return re.sub(r"\W", "_", name)
 
 
 def _sym(name, present):
@@ -39,9 +47,12 @@ def planar_symbol_values(model: Model) -> dict:
     values = {"M": model.mass}
     for b in model.bodies:
         i_com = _inertia_matrix(b.inertial) - b.mass * (b.com @ b.com * np.eye(3) - np.outer(b.com, b.com))
-        values.update({f"m_{b.name}": b.mass, f"cx_{b.name}": b.com[0], f"cy_{b.name}": b.com[1], f"Izz_{b.name}": i_com[2, 2]})
+        body = symbol_suffix(b.name)
+        values.update({f"m_{body}": b.mass, f"cx_{body}": b.com[0], f"cy_{body}": b.com[1],
+                       f"Iczz_{body}": i_com[2, 2]})
         if b.joint:
-            values.update({f"x_{b.joint}": b.translation[0], f"y_{b.joint}": b.translation[1]})
+            joint = symbol_suffix(b.joint)
+            values.update({f"x_{joint}": b.translation[0], f"y_{joint}": b.translation[1]})
     return values
 
 
@@ -56,17 +67,18 @@ def planar_definitions(model: Model, terms) -> list:
     """Definitions (SymPy strings) of the coefficients of the planar body-pair ``terms``."""
     import sympy as sp  # here: importing it takes ~0.5 s, and spatial models do not need it
     bodies = model.bodies
-    mass = [sp.Symbol(f"m_{b.name}", positive=True) for b in bodies]
+    body = [symbol_suffix(b.name) for b in bodies]
+    mass = [sp.Symbol(f"m_{n}", positive=True) for n in body]
     total = sum(mass)
     sub = _subtrees(model)
     vectors = [[] for _ in bodies]  # per body: (x, y, set of bodies whose CoM contains it)
     for i, b in enumerate(bodies):
         # CoM coordinates are unknowns unless declared zero; joint offsets are known geometry
-        cx, cy = _sym(f"cx_{b.name}", "mcx" not in b.known_zero), _sym(f"cy_{b.name}", "mcy" not in b.known_zero)
+        cx, cy = _sym(f"cx_{body[i]}", "mcx" not in b.known_zero), _sym(f"cy_{body[i]}", "mcy" not in b.known_zero)
         vectors[i].append((cx, cy, {i}))
         if b.parent >= 0:
-            t = b.translation
-            vectors[b.parent].append((_sym(f"x_{b.joint}", abs(t[0]) > 0), _sym(f"y_{b.joint}", abs(t[1]) > 0), sub[i]))
+            t, joint = b.translation, symbol_suffix(b.joint)
+            vectors[b.parent].append((_sym(f"x_{joint}", abs(t[0]) > 0), _sym(f"y_{joint}", abs(t[1]) > 0), sub[i]))
 
     def mu(s):
         return sum((mass[i] for i in s), sp.Integer(0))
@@ -78,7 +90,7 @@ def planar_definitions(model: Model, terms) -> list:
     out = []
     for kind, a, b in terms:
         if kind == "spin":
-            spin = sp.Symbol(f"Izz_{bodies[a].name}", positive=True)
+            spin = sp.Symbol(f"Iczz_{body[a]}", positive=True)
             expr = sp.Integer(0)
             vs = vectors[a]
             for p, (vx, vy, sv) in enumerate(vs):
@@ -110,7 +122,7 @@ def column_definitions(names, projection, *, digits: int = 6) -> list:
     """Definitions of column-basis parameters: a full parameter plus the dependent ones it absorbs.
 
     Terms with the same coefficient are grouped and the factors common to a group written once
-    (``0.5*MY_bus*(M_link1 + M_link2)/M``), so each definition is a valid SymPy expression in
+    (``0.5*mcy_bus*(m_link1 + m_link2)/M``), so each definition is a valid SymPy expression in
     the names of ``full_parameter_names`` (``A`` or ``A*B/M``; coefficients to ``digits``
     digits). Plain string work: SymPy's own factoring took seconds for the servicer's 496.
     """

@@ -5,8 +5,8 @@ inertia as they are, never the lumped parameter combinations of :mod:`spaceid.dy
 
 References
 ----------
-.. [1] Papadopoulos et al., "Parameter identification of a free-floating space manipulator
-   based on the conservation of angular momentum", Eq. 1 (``../shared/design/MATH.md`` sec. 1).
+.. [1] The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md), Eq. 1
+   (docs/theory/momentum.md).
 """
 
 from __future__ import annotations

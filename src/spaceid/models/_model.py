@@ -80,7 +80,9 @@ class Body:
     inertial : ndarray of shape (10,)
         Standard inertial parameters about the body frame origin (see ``INERTIAL_NAMES``).
     limits : dict
-        ``lower``, ``upper`` [rad or m], ``velocity`` [rad/s or m/s], ``effort``; absent if unknown.
+        ``lower``, ``upper`` [rad or m], ``velocity`` [rad/s or m/s], ``acceleration``
+        [rad/s^2 or m/s^2], ``effort`` [N m or N]; absent if unknown. URDF files give the
+        acceleration in an extra ``acceleration`` attribute of ``<limit>``.
     known_zero : frozenset of str
         Inertial parameter names known to be zero by construction (structural zeros).
     """
@@ -346,7 +348,8 @@ def _model_from_yaml(text: str, where: str) -> Model:
 
 
 def _check_urdf_tree(text: str, where: str):
-    """Reject unsafe or malformed XML and tree errors with messages Pinocchio does not give."""
+    """Reject unsafe or malformed XML and tree errors with messages Pinocchio does not give;
+    return the parsed root element."""
     import defusedxml.ElementTree as ET
     from defusedxml import DefusedXmlException
 
@@ -386,17 +389,44 @@ def _check_urdf_tree(text: str, where: str):
             raise SpaceidError(
                 f"{where}: link '{link.get('name')}' has mass {mass.get('value')}: masses must be positive"
             )
+    return root
+
+
+def _urdf_accelerations(root, where: str) -> dict:
+    """``{joint: acceleration limit}`` from the ``acceleration`` attribute of ``<limit>``.
+
+    URDF has no acceleration limit; this extra attribute (which Pinocchio and other URDF
+    parsers ignore) keeps the limit in the file, so the preset and the same file loaded by path
+    agree. Units: rad/s^2 (revolute) or m/s^2 (prismatic)."""
+    out = {}
+    for joint in root.findall("joint"):
+        limit = joint.find("limit")
+        value = None if limit is None else limit.get("acceleration")
+        if value is None:
+            continue
+        try:
+            number = float(value)
+        except ValueError:
+            number = np.nan
+        if not number > 0 or not np.isfinite(number):
+            raise SpaceidError(f"{where}: joint '{joint.get('name')}' has acceleration limit '{value}': give a "
+                               "positive number [rad/s^2 or m/s^2]")
+        out[joint.get("name")] = number
+    return out
 
 
 def _model_from_urdf(text: str, where: str) -> Model:
     import pinocchio as pin
 
-    _check_urdf_tree(text, where)
+    accelerations = _urdf_accelerations(_check_urdf_tree(text, where), where)
     try:
         pmodel = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
     except (RuntimeError, ValueError) as exc:
         raise SpaceidError(f"{where}: Pinocchio could not build the model ({str(exc).splitlines()[0]})") from None
-    return _validate(from_pinocchio(pmodel, where))
+    model = from_pinocchio(pmodel, where)
+    bodies = tuple(replace(b, limits={**b.limits, "acceleration": accelerations[b.joint]})
+                   if b.joint in accelerations else b for b in model.bodies)
+    return _validate(replace(model, bodies=bodies))
 
 
 def from_pinocchio(pmodel, source: str = "") -> Model:

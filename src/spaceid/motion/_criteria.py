@@ -12,7 +12,7 @@ and a smooth surrogate of increasing sharpness for the trust-region search. :dat
 * ``dopt`` and ``crb``, which know the measurement noise: on the regressor whitened sample by
   sample by the covariance of its equation error and scaled by the nominal ``|pi|``
   (:class:`whitened_regressor`), whose Gram matrix is the Fisher information of the
-  errors-in-variables model (MATH.md section 6), ``dopt`` maximises its log det and ``crb``
+  errors-in-variables model (docs/theory/noise.md), ``dopt`` maximises its log det and ``crb``
   minimises the trace of its inverse, the sum of the parameters' relative Cramer-Rao
   variances. cond(Y) ignores which signals are noisy and how the noise reaches each equation;
   these weigh the samples by it.

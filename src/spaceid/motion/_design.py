@@ -18,8 +18,8 @@ a model: limits from the model, the regressor (plain or whitened) from its nomin
 
 References
 ----------
-Papadopoulos et al., identification of free-floating space robots from angular momentum
-conservation, Eq. 12 (MATH.md section 3).
+The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md):
+Eq. 12 (docs/theory/excitation.md).
 """
 
 from __future__ import annotations
@@ -141,7 +141,7 @@ def optimize_excitation(
         Number of equally spaced samples over ``[0, duration]`` (both ends included) at which
         the regressor is stacked.
     q_max, qd_max, qdd_max : float or array_like of shape (n_joints,)
-        Limits on |q| [rad], |qd| [rad/s], |qdd| [rad/s^2], held at all times (imposed on
+        Limits on ``|q|`` [rad], ``|qd|`` [rad/s], ``|qdd|`` [rad/s^2], held at all times (imposed on
         ``n_grid`` times during the search, the result scaled into them between those).
     criterion : {"cond", "logdet", "dopt", "crb"}
         ``cond``: minimise the 2-norm condition number of the stacked regressor; ``logdet``:
@@ -207,8 +207,8 @@ def optimize_excitation(
 
     References
     ----------
-    Papadopoulos et al., identification of free-floating space robots from angular momentum
-    conservation, Eq. 12 (MATH.md section 3).
+    The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md):
+    Eq. 12 (docs/theory/excitation.md).
     """
     t_start = time.perf_counter()
     joints = tuple(joints)

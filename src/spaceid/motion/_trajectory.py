@@ -17,8 +17,8 @@ values. The designer uses this form for linear limit constraints and batched eva
 
 References
 ----------
-Papadopoulos et al., identification of free-floating space robots from angular momentum
-conservation, Eq. 12 and Table 2 (as read in MATH.md section 3).
+The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md):
+Eq. 12 and Table 2 (as read in docs/theory/excitation.md).
 """
 
 from __future__ import annotations
@@ -324,7 +324,7 @@ def _paper_table2():
         meta={
             "name": "paper-table2",
             "source": "paper-table2",
-            "reference": "Papadopoulos et al. Table 2 as read in MATH.md section 3 "
+            "reference": "The Cepheus paper's Table 2 as read in docs/theory/excitation.md "
             "(moderate confidence)",
         },
     )

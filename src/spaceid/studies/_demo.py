@@ -6,7 +6,7 @@ model by re-simulation, and write a report folder.
 
 References
 ----------
-.. [1] Papadopoulos et al., Section "Simulation results", Tables 1-3.
+.. [1] The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md), Section "Simulation results", Tables 1-3.
 """
 
 from __future__ import annotations
@@ -29,7 +29,7 @@ from ._validate import validate
 __all__ = ["PAPER_TABLE3", "CEPHEUS_STUDY", "DemoResult", "run_demo"]
 
 PAPER_TABLE3 = {
-    # Table 3 of the paper as read in MATH.md sec. 2: 'true values' and relative errors [%]
+    # Table 3 of the paper as read in docs/theory/cepheus.md: 'true values' and relative errors [%]
     "true": np.array([0.0074, 0.0046, 0.0039, 0.0024, 0.1314, 0.0048, 0.0075, 0.0046]),
     "relative_error_percent": np.array([0.5162, 0.4071, 0.3191, 1.2574, 0.0432, 0.7286, 1.3010, 0.6634]),
 }

@@ -23,7 +23,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ..data import read_bag_log, write_bag
-from ..estimation._estimate import Identification, _anchors, identify
+from ..estimation import Identification, identify, resolve_anchors
 from ..data import write_json, write_log
 from ..models import load_model
 from ..dynamics import minimal_parameters
@@ -155,7 +155,7 @@ def run_experiment(
     if not model.wheels:
         raise SpaceidError(f"{model.name}: the experiment needs a model with a reaction wheel (e.g. cepheus-rw)")
     param = minimal_parameters(model)
-    rotor = sum(value for value, _ in _anchors(param, {}, model.name).values())  # I_rw from the model (CAD)
+    rotor = sum(value for value, _ in resolve_anchors(param, {}, model.name).values())  # I_rw from the model (CAD)
     traj = _trajectory(trajectory, momentum=rotor * wheel_speed, samples=int(samples), seed=seed, progress=progress)
 
     # the twin: rest -> wheel spin-up and settling -> excitation (tf) and one second of hold

@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 from rich.console import Group
 from rich.table import Table
+from rich.text import Text
 
 from .._errors import SpaceidError
 from ..estimation import Identification
@@ -39,9 +40,13 @@ def _relative_errors(ident: Identification, true):
 
 
 def _columns(ident: Identification, true, reference, reference_label, reference_true=None):
-    """Header and formatted rows shared by the rich and the Markdown tables."""
+    """Header and formatted rows shared by the rich and the Markdown tables: name, definition,
+    then the unit (when the result records units) and the numbers."""
     header = ["parameter", "definition"]
     cols = [ident.names, ident.definitions]
+    if ident.units:
+        header.append("unit")
+        cols.append(ident.units)
     if true is not None:
         header.append("true")
         cols.append([f"{v:.6g}" for v in true])
@@ -88,27 +93,34 @@ def parameter_table(ident: Identification, *, true=None, reference=None, referen
     reference = _per_param(reference, ident, "reference")
     reference_true = _per_param(reference_true, ident, "reference_true")
     header, rows = _columns(ident, true, reference, reference_label, reference_true)
-    table = Table(title=f"{ident.estimator.upper()} estimates (cond {ident.condition_number:.4g}, N = {ident.n_samples})")
+    # one unit for all (every planar-basis pi is in kg m^2) goes in the caption, and the paper's
+    # seven columns still fit 80
+    shown = [i for i, name in enumerate(header) if name != "definition" and (name != "unit" or len(set(ident.units)) > 1)]
+    same_unit = f"; all in {ident.units[0]}" if ident.units and len(set(ident.units)) == 1 else ""
+    # under the table, not its caption: a caption wraps at the (often narrow) table's width
+    note = Text(f"cond(Y) {ident.condition_number:.4g}, N = {ident.n_samples}{same_unit}")
+    table = Table(title=f"{ident.estimator.upper()} estimates", title_justify="left")
     short = {"parameter": "", "rel. error [%]": "err [%]", f"{reference_label} true": reference_label,
              f"{reference_label} rel. error [%]": f"{reference_label} err [%]"}  # fits 80 columns
-    for i, name in enumerate(header):
-        if i != 1:
-            table.add_column(short.get(name, name), justify="left" if i == 0 else "right", no_wrap=True)
+    for i in shown:
+        table.add_column(short.get(header[i], header[i]), justify="left" if header[i] in ("parameter", "unit")
+                         else "right", no_wrap=True)
     for row in rows:
-        table.add_row(row[0], *row[2:])
+        table.add_row(*(row[i] for i in shown))
     if len(ident.names) > DEFINITIONS_SHOWN:
-        return Group(table, f"{len(ident.names)} parameters: their definitions are in the result file and in "
-                            f"'spaceid model {ident.model}'")
+        return Group(table, note, f"{len(ident.names)} parameters: their definitions are in the result file "
+                                  f"and in 'spaceid model {ident.model}'")
     definitions = Table.grid(padding=(0, 1))
     definitions.add_column(no_wrap=True)
     definitions.add_column(overflow="fold")
     for name, definition in zip(ident.names, ident.definitions):
         definitions.add_row(f"{name} =", definition)
-    return Group(table, definitions)
+    return Group(table, note, definitions)
 
 
-def montecarlo_table(result) -> Table:
-    """Monte Carlo statistics as a rich table, one section per estimator.
+def montecarlo_table(result) -> Group:
+    """Monte Carlo statistics as a rich table, one section per estimator, and a line on the
+    seed and noise under it.
 
     Columns per parameter: bias / std, relative RMSE [%], the relative Cramer-Rao std [%],
     mean predicted std / actual std (1: honest standard errors) and RMSE / CRB (1: efficient).
@@ -119,15 +131,15 @@ def montecarlo_table(result) -> Table:
     """
     s = result.settings
     noise = s["noise"]
-    table = Table(
-        title=f"Monte Carlo: {s['runs']} runs, N = {s['n_samples']}, seed {s['seed']}"
-        + (", angles only (rates differentiated)" if s.get("angles_only") else ""),
-        caption=(f"noise: angle {noise['angle']:.3g} rad, attitude {noise['attitude']:.3g} rad; CRB*: white-noise "
-                 "equivalent of the differentiated rates, not a bound" if s.get("angles_only") else
-                 f"noise: angle {noise['angle']:.3g} rad, rate {noise['rate']:.3g} rad/s, base rate "
-                 f"{noise['base_rate']:.3g} rad/s"
-                 + ("" if s.get("planar") else f", attitude {noise['attitude']:.3g} rad"))
-        + (f"; {s['failures']['count']} failed identifications" if s["failures"]["count"] else ""),
+    table = Table(title=f"Monte Carlo: {s['runs']} runs, N = {s['n_samples']}")  # short: fits the table's width
+    note = Text(
+        f"seed {s['seed']}; "
+        + (f"angles only, rates differentiated; noise: angle {noise['angle']:.3g} rad, attitude "
+           f"{noise['attitude']:.3g} rad; CRB*: white-noise equivalent of the differentiated rates, not a bound"
+           if s.get("angles_only") else
+           f"noise: angle {noise['angle']:.3g} rad, rate {noise['rate']:.3g} rad/s, base rate "
+           f"{noise['base_rate']:.3g} rad/s" + ("" if s.get("planar") else f", attitude {noise['attitude']:.3g} rad"))
+        + (f"; {s['failures']['count']} failed identifications" if s["failures"]["count"] else "")
     )
     crb = "CRB*" if s.get("angles_only") else "CRB"
     for name in ("", "", "bias/std", "RMSE [%]", f"{crb} [%]", "pred/act std", f"RMSE/{crb}"):
@@ -143,6 +155,6 @@ def montecarlo_table(result) -> Table:
                           fmt(100 * st["relative_rmse"][i], ".3g"), fmt(100 * rel_crb[i], ".3g"),
                           fmt(honest[i], ".2f"), fmt(st["rmse_crb"][i], ".2f"),
                           end_section=i == len(result.names) - 1)  # fmt: skip
-    return table
+    return Group(table, note)
 
 

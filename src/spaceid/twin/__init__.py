@@ -50,13 +50,12 @@ the settings parametrise them all.
 
 References
 ----------
-Papadopoulos et al., identification of free-floating space robots from angular momentum
-conservation, sections "The NTUA CSL emulator" and "Experiment results" (seed paper): three air
+The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md):
+sections "The NTUA CSL emulator" and "Experiment results": three air
 bearings fed with CO2 from an on-board tank (1.5 kg full, 60 bar) that also feeds three pairs of
 opposed thrusters at 120 deg; a reaction wheel with I_rw = 0.00197372 kg m^2 spun to 170 rad/s;
 arm joints under ros_control ``effort_controllers/JointPositionController`` (PD) and the wheel
-under ``effort_controllers/JointVelocityController`` (PI); tf = 5 s. ``../shared/design/MATH.md``
-section 5 (reaction wheel momentum).
+under ``effort_controllers/JointVelocityController`` (PI); tf = 5 s. docs/theory/scale.md (reaction wheel momentum).
 """
 
 from . import _settings, _plant, _effects, _run

@@ -47,6 +47,19 @@ ARM_GEOMETRY = (
     (0.15, 0.060, 0.055, "z", 3.054, 0.60, 40.0),   # 7 wrist roll, ends at the flange
 )
 
+#: Joint acceleration limits [rad/s^2], joints 1..7. URDF has no acceleration field, so they go
+#: into an extra ``acceleration`` attribute of ``<limit>``: URDF parsers (Pinocchio's included)
+#: ignore attributes they do not know, and spaceid's loader reads it, so the file stays a
+#: plain URDF and a model loaded from its path gets the same limits as the preset.
+#: Rule: half the joint torque over the largest inertia the joint drives (base held, the
+#: outboard arm stretched across its axis: about 240 kg m^2 at the shoulder, 48 at the elbow,
+#: 1.1 at the wrist), at most 1 rad/s^2 so that no joint reaches full speed in much under half a
+#: second (space-arm servo ramps); the half leaves torque for friction and the base reaction.
+ARM_ACCELERATION = (0.5, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0)
+#: The left arm holding the 150 kg target, by the same rule (about 2,440 kg m^2 at the shoulder,
+#: 940 at the elbow, 205 at the wrist, 15 at the last roll): a controller slows down after capture.
+ARM_ACCELERATION_CAPTURED = (0.05, 0.05, 0.08, 0.08, 0.15, 0.15, 1.0)
+
 #: Nominal arm: per link mass [kg], CoM (x, y off the axis; z as a fraction of the length)
 #: and the small tilt (rx, ry, rz) [deg] of the principal axes.
 ARM_NOMINAL = (
@@ -150,8 +163,9 @@ def joint(name, jtype, parent, child, xyz, rpy=(0.0, 0.0, 0.0), axis=None, limit
     if axis is not None:
         out.append(f'    <axis xyz="{_vec(axis)}"/>')
     if limit is not None:
-        lo, hi, vel, eff = limit
-        out.append(f'    <limit lower="{_fmt(lo)}" upper="{_fmt(hi)}" velocity="{_fmt(vel)}" effort="{_fmt(eff)}"/>')
+        lo, hi, vel, eff, acc = limit
+        out.append(f'    <limit lower="{_fmt(lo)}" upper="{_fmt(hi)}" velocity="{_fmt(vel)}" effort="{_fmt(eff)}" '
+                   f'acceleration="{_fmt(acc)}"/>')
     out.append("  </joint>")
     return out
 
@@ -165,20 +179,21 @@ MATERIALS = (
 )
 
 
-def arm(prefix, parent, mount_xyz, mount_rpy, spec, ee_mass, ee_name=None):
+def arm(prefix, parent, mount_xyz, mount_rpy, spec, ee_mass, acceleration=ARM_ACCELERATION):
     """Links and joints of one 7-DOF arm plus its end effector on a fixed joint."""
     out = []
     prev = parent
     xyz, rpy = mount_xyz, mount_rpy
-    for i, ((length, a, b, axis, lim, vel, eff), (mass, (cx, cy, fz), tilt)) in enumerate(zip(ARM_GEOMETRY, spec), 1):
+    links = zip(ARM_GEOMETRY, spec, acceleration)
+    for i, ((length, a, b, axis, lim, vel, eff), (mass, (cx, cy, fz), tilt), acc) in enumerate(links, 1):
         name = f"{prefix}_link{i}"
         axis_vec = (0.0, 0.0, 1.0) if axis == "z" else (0.0, 1.0, 0.0)
-        out += joint(f"{prefix}_joint{i}", "revolute", prev, name, xyz, rpy, axis_vec, (-lim, lim, vel, eff))
+        out += joint(f"{prefix}_joint{i}", "revolute", prev, name, xyz, rpy, axis_vec, (-lim, lim, vel, eff, acc))
         geom = f'<cylinder radius="{_fmt(max(a, b))}" length="{_fmt(length)}"/>'
         out += link(name, mass, (cx, cy, fz * length), cylinder(mass, length, a, b, tilt),
                     ((0.0, 0.0, length / 2), geom), "white" if i % 2 else "grey")
         prev, xyz, rpy = name, (0.0, 0.0, length), (0.0, 0.0, 0.0)
-    ee = ee_name or f"{prefix}_ee"
+    ee = f"{prefix}_ee"
     out += joint(ee, "fixed", prev, ee, xyz)  # the tool flange
     geom = '<cylinder radius="0.07" length="0.16"/>'
     out += link(ee, ee_mass, (0.004, -0.003, 0.07), cylinder(ee_mass, 0.16, 0.07, 0.065, (1.0, -1.0, 10.0)),
@@ -208,7 +223,9 @@ ARM_NOTE = (
     "the link frames, KUKA LBR / ERA-like), straight out of the bus face at q = 0; 3.3 m",
     "from the shoulder to the tool flange (3.05 m from the shoulder pitch axis). Links are",
     "5 to 18 kg, with CoMs a few mm to 15 mm off the joint axis and principal axes turned",
-    "a few degrees. Space-arm joint rates (0.3 to 0.6 rad/s) and torques (40 to 250 N m).",
+    "a few degrees. Space-arm joint rates (0.3 to 0.6 rad/s) and torques (40 to 250 N m);",
+    "joint accelerations (0.5 to 1 rad/s^2) in an extra 'acceleration' attribute of <limit>",
+    "(not standard URDF: other parsers ignore it; spaceid reads it).",
 )
 
 # ------------------------------------------------------------------ the three models ------
@@ -248,7 +265,7 @@ TARGET_MASS = 150.0
 ARM_SPLAY = 0.15  # rad: each arm turned outwards about the bus z axis
 
 
-def _servicer_body():
+def _servicer_body(left_acceleration=ARM_ACCELERATION):
     body = link("bus", SERV_BUS_MASS, (0.032, 0.018, -0.061),
                 box(SERV_BUS_MASS, 1.6, 1.6, 2.0, (-2.0, 3.0, 7.0), concentration=0.75),
                 ((0.0, 0.0, 0.0), '<box size="1.6 1.6 2.0"/>'), "gold")
@@ -264,7 +281,8 @@ def _servicer_body():
                  inertia_from_second_moments(ANTENNA_MASS * 0.4**2 / 4, ANTENNA_MASS * 0.4**2 / 4,
                                              ANTENNA_MASS * 0.05**2),
                  ((0.0, 0.0, 0.30), '<cylinder radius="0.4" length="0.1"/>'), "white")
-    body += arm("left", "bus", (0.8, 0.45, 0.55), (0.0, math.pi / 2, ARM_SPLAY), ARM_NOMINAL, LEFT_EE_MASS)
+    body += arm("left", "bus", (0.8, 0.45, 0.55), (0.0, math.pi / 2, ARM_SPLAY), ARM_NOMINAL, LEFT_EE_MASS,
+                left_acceleration)
     body += arm("right", "bus", (0.8, -0.45, 0.55), (0.0, math.pi / 2, -ARM_SPLAY), ARM_RIGHT, RIGHT_EE_MASS)
     return body
 
@@ -299,7 +317,7 @@ def servicer_dual() -> str:
 
 
 def servicer_captured() -> str:
-    body = _servicer_body()
+    body = _servicer_body(ARM_ACCELERATION_CAPTURED)
     # a defunct small satellite grasped at its launch-adapter ring, rigidly held
     body += joint("capture", "fixed", "left_ee", "target", (0.0, 0.0, 0.20), (0.0, 0.0, 0.35))
     body += link("target", TARGET_MASS, (0.035, -0.022, 0.56),
@@ -311,8 +329,10 @@ def servicer_captured() -> str:
         f"Target: a defunct {TARGET_MASS:g} kg small satellite (0.8 x 0.8 x 1.0 m), held by the left",
         "gripper 0.20 m beyond the flange (fixed joint 'capture' from 'left_ee'); its CoM is",
         "(35, -22, 560) mm in its frame, its inertia a full tensor (products of inertia) from",
-        "a box whose principal axes are turned by 9, -6 and 14 degrees. Everything else is",
-        "identical to servicer-dual.urdf (same script).",
+        "a box whose principal axes are turned by 9, -6 and 14 degrees. The left arm's",
+        "acceleration limits are lower (0.05 to 0.15 rad/s^2, 1 at the last roll): the same",
+        "torques now move the target. Everything else is identical to servicer-dual.urdf",
+        "(same script).",
         f"Total mass {_servicer_mass() + TARGET_MASS:g} kg.",
     )
     return document("servicer_captured", header, body)
