@@ -96,6 +96,7 @@ def _assert_same(a, b):
 
 @pytest.mark.parametrize("name, format, kind", [("run.bag", None, "ros1"), ("run", "ros2", "ros2-sqlite3"),
                                                 ("run", "mcap", "ros2-mcap"), ("run.mcap", None, "mcap")])
+@pytest.mark.slow
 def test_round_trip_is_exact(tmp_path, recording, name, format, kind):
     path = tmp_path / name
     write_bag(path, recording, format=format)
@@ -207,6 +208,7 @@ def lab_recording(truth):
     return _recording(truth, joint_t, capture_t[keep], stamp_offset=LATENCY), int((~keep).sum())
 
 
+@pytest.mark.slow
 def test_to_log_recovers_rates_from_uneven_streams(lab_recording, truth):
     rec, n_dropped = lab_recording
     log = to_log(rec, joints=truth.joints, planar=True, wheels=("reaction_wheel_joint",), pose_latency=LATENCY)
@@ -259,6 +261,7 @@ def test_wrapped_wheel_at_170_rad_s_is_unwrapped_with_its_rate(truth):
     np.testing.assert_allclose(log.q[:, 0], angle, rtol=0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_spatial_attitude_and_body_rate(tmp_path):
     """Base attitude Rz(a) Rx(b), published with random quaternion signs (q and -q), sampled at
     100 Hz and aligned to 50 Hz joints: body rate [b', a' sin b, a' cos b]."""
@@ -285,6 +288,7 @@ def test_spatial_attitude_and_body_rate(tmp_path):
         to_log(rec, joints=("j1",), planar=True)
 
 
+@pytest.mark.slow
 def test_identification_from_a_bag_through_the_cli(tmp_path, recording, rw):
     """The bag with its own joint names and topics, a mapping file, `spaceid identify`."""
     model, param = rw

@@ -31,6 +31,7 @@ def workdir(tmp_path_factory):
     return d
 
 
+@pytest.mark.slow
 def test_identify_recovers_truth_through_files(workdir):
     result = json.loads((workdir / "result.json").read_text())
     from spaceid.dynamics import minimal_parameters
@@ -116,6 +117,7 @@ def test_model_json(capsys):
     assert {p["unit"] for p in info["parameters"]} == {"kg m^2"}
 
 
+@pytest.mark.slow
 def test_model_of_a_large_system_is_a_summary(tmp_path, capsys):
     """The servicer's report was thousands of lines: a summary by default, all with --all or a file."""
     import spaceid
@@ -221,12 +223,14 @@ def test_missing_files_and_bad_momentum(workdir, tmp_path, capsys):
     assert not any(tmp_path.glob("*.json")) and not (tmp_path / "l.csv").exists()
 
 
+@pytest.mark.slow
 def test_console_script_exit_code(tmp_path):
     proc = subprocess.run([sys.executable, "-m", "spaceid.cli", "identify", "cepheus", str(tmp_path / "x.csv"),
                            "--momentum", "0.4934", "-o", str(tmp_path / "r.json")], capture_output=True, text=True)
     assert proc.returncode == 2 and proc.stderr.count("\n") == 1 and "Traceback" not in proc.stderr
 
 
+@pytest.mark.slow
 def test_spatial_pipeline_through_files(tmp_path, capsys):
     """A 7-DOF satellite: quaternion logs, identification, validation, and compare."""
     import spaceid
@@ -256,6 +260,7 @@ def test_spatial_pipeline_through_files(tmp_path, capsys):
     assert "the momentum is zero" in capsys.readouterr().err and not (tmp_path / "x.json").exists()
 
 
+@pytest.mark.slow
 def test_angles_only_log_is_differentiated(tmp_path):
     """Encoder and motion-capture angles only (rates differentiated), as on the real emulator."""
     assert run("simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", 0.4934, "--rate", 100,

@@ -99,6 +99,7 @@ def test_parameter_table_of_mixed_units_has_a_unit_column():
     assert "unit" in header and any("│ kg m  " in line for line in lines) and any("kg m^2" in line for line in lines)
 
 
+@pytest.mark.slow
 def test_montecarlo_table_fits_80_columns_with_its_title_on_one_line():
     from spaceid.studies import DEFAULT_NOISE, montecarlo_table, run_montecarlo
 

@@ -29,6 +29,7 @@ def test_noise_reproduces_the_papers_error_size():
     assert np.all(np.abs(a.ident.values - a.true) < 5 * a.ident.std)
 
 
+@pytest.mark.slow
 def test_designed_demo_writes_report(tmp_path, capsys):
     assert main(["demo", "--seed", "1", "--out", str(tmp_path / "rep"), "--json"]) == 0
     out = json.loads(capsys.readouterr().out)

@@ -53,6 +53,7 @@ def short_run():
     return design(seed=3, n_starts=8)
 
 
+@pytest.mark.slow
 def test_short_run_beats_the_paper_by_a_large_factor(short_run):
     paper = cond(load_trajectory("paper-table2"))
     assert short_run.value == pytest.approx(cond(short_run.trajectory), rel=1e-9)
@@ -73,6 +74,7 @@ def test_limits_hold_at_all_times(short_run):
     assert peak_ratio(traj, 1001).max() > 0.999  # the optimum presses on a limit
 
 
+@pytest.mark.slow
 def test_room_used_finds_the_peaks_between_grid_points():
     """A coarse grid (101 times, 8 a period of the top harmonic): scaled onto the limits by
     the gauge, each joint's largest room used is 1 on 200001 times, its grid values less."""
@@ -93,6 +95,7 @@ def test_room_used_finds_the_peaks_between_grid_points():
     assert np.all(on_grid < 1 - 1e-4)  # the grid alone would miss the peaks
 
 
+@pytest.mark.slow
 def test_same_seed_same_result_in_one_or_two_processes(short_run):
     again = design(seed=3, n_starts=8, n_jobs=2)
     assert again.trajectory == short_run.trajectory and again.value == short_run.value
@@ -100,6 +103,7 @@ def test_same_seed_same_result_in_one_or_two_processes(short_run):
     assert other.trajectory != short_run.trajectory
 
 
+@pytest.mark.slow
 def test_boundary_values_and_limits_are_kept():
     boundary = {"q0": [0.3, -0.2], "qf": [-0.1, 0.4], "qd0": [0.2, 0.0], "qddf": [0.0, 0.5]}
     result = design(seed=0, n_starts=4, boundary=boundary)
@@ -230,6 +234,7 @@ def spatial_run(chain):
     return spatial_design(chain)
 
 
+@pytest.mark.slow
 def test_trust_region_improves_on_random_feasible_starts(chain, spatial_run):
     joints, regressor = chain
     traj = spatial_run.trajectory
@@ -252,6 +257,7 @@ def test_trust_region_keeps_the_limits_at_all_times(spatial_run):
     assert np.all(spatial_peaks(traj, 501).max(1) > 0.95)  # every joint on (or near) its limits
 
 
+@pytest.mark.slow
 def test_trust_region_is_reproducible(chain, spatial_run):
     again = spatial_design(chain, n_jobs=2)
     assert again.trajectory == spatial_run.trajectory and again.value == spatial_run.value
@@ -392,6 +398,7 @@ def noisy_designs(cepheus):
     return {c: design_excitation(cepheus, criterion=c, **NOISY) for c in ("cond", "dopt", "crb")}
 
 
+@pytest.mark.slow
 def test_crb_design_predicts_a_smaller_error_than_the_cond_design(cepheus, noisy_designs):
     bound = whitened_regressor(cepheus, cepheus.true_values, H, NOISE)
 
@@ -437,6 +444,7 @@ def test_whitened_regressor_errors(cepheus):
     whitened_regressor(cepheus, pi, H, NOISE, relative=False)  # absolute: fine
 
 
+@pytest.mark.slow
 def test_cli_design_with_noise(tmp_path, capsys):
     args = ["design", "cepheus", "--duration", "5", "--harmonics", "3", "--samples", "35",
             "--momentum", "0.4934", "--starts", "2", "--criterion", "crb"]  # fmt: skip

@@ -68,6 +68,7 @@ def test_noise_free_recovery_spatial(rng, estimator):
     assert err.max() < 1e-8
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("estimator", ESTIMATORS)
 def test_spread_matches_predicted_covariance(cepheus, estimator):
     """150 noise draws: the empirical std agrees with the predicted standard error (the std of
@@ -82,6 +83,7 @@ def test_spread_matches_predicted_covariance(cepheus, estimator):
     assert np.all((ratio > 0.78) & (ratio < 1.28)), ratio
 
 
+@pytest.mark.slow
 def test_ml_removes_the_bias_of_least_squares(cepheus):
     """At 1 % noise OLS is biased by several standard deviations; ML is not, and reaches the CRB."""
     param, make = cepheus
@@ -200,6 +202,7 @@ def test_tls_is_consistent_under_its_own_assumptions():
     assert np.abs(errors.mean(0) / (errors.std(0) / np.sqrt(len(errors)))).max() < 4.5
 
 
+@pytest.mark.slow
 def test_standard_errors_stay_honest_with_differentiated_rates(cepheus):
     """Angles only at 100 Hz, rates from a Savitzky-Golay window: the errors are correlated over
     the window and the white-noise covariance would understate them ~4 times; the Newey-West

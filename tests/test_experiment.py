@@ -15,6 +15,7 @@ def ideal(tmp_path_factory):
                           seed=3, out=folder)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_identification_from_the_twin_bag_is_within_its_uncertainty(ideal):
     res = ideal
     known = res.ident.std == 0

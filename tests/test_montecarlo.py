@@ -120,6 +120,7 @@ def test_differentiated_noise_is_the_filter_noise(joints, base):
         differentiated_noise(Log(t, ("j",), x[:, :1], x[:, :1], yaw_to_quat(yaw), np.zeros((t.size, 3))))
 
 
+@pytest.mark.slow
 def test_angles_only_differentiates_and_records(param):
     res = study(param, runs=2, samples=201, estimators=("ml", "ols"), angles_only=True,
                 noise=Noise(angle=1e-4, attitude=1e-4))
@@ -131,6 +132,7 @@ def test_angles_only_differentiates_and_records(param):
     assert np.all(res.stats["ml"]["relative_rmse"] < 0.1)  # the pipeline works: errors of a few percent at most
 
 
+@pytest.mark.slow
 def test_cli_writes_table_json_and_figure(tmp_path, capsys):
     code = main(["montecarlo", "cepheus", "--momentum", "0.4934", "--runs", "4", "--estimator", "ml",
                  "--estimator", "wls", "--seed", "3", "--jobs", "1", "--noise-angle", "2e-4", "--noise-rate", "1e-4",

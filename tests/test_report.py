@@ -126,6 +126,7 @@ def _assert_titled_and_labelled(fig):
     assert all(re.search(r"\[.+\]|parameter|index", x) for x in xlabels), xlabels
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("planar", [True, False])
 def test_validation_figure_is_a_png(tmp_path, planar):
     out = plot_validation(_log(planar), _log(planar, bias=1e-3), tmp_path / "validation.png", title="Validation")
@@ -270,6 +271,7 @@ def montecarlo():
     return replace(res, estimates={**res.estimates, "ols": ols})
 
 
+@pytest.mark.slow
 def test_montecarlo_figure(tmp_path, montecarlo):
     _assert_png(plot_montecarlo(montecarlo, tmp_path / "montecarlo.png"), min_width=900)
     fig = _draw_montecarlo(montecarlo)
@@ -335,6 +337,7 @@ def test_large_systems_point_to_their_definitions(ident):
     assert f"{k} parameters: their definitions are in the result file and in 'spaceid model" in text
 
 
+@pytest.mark.slow
 def test_markdown_report(tmp_path, ident):
     plot_parameters(ident, tmp_path / "parameters.png", true=TRUE)
     (tmp_path / "figs").mkdir()

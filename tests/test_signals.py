@@ -57,6 +57,7 @@ def best_tuning_rmse(t, y, qd, method):
 # (best tuning 2.7e-4), spline 1.1e-3 (best 1.1e-3), naive 6.8e-3. The cubic spline's rates are
 # no better than a local quadratic fit's here, and its natural end conditions (f'' = 0) bias
 # them at both ends, hence its smaller margin over finite differences.
+@pytest.mark.slow
 @pytest.mark.parametrize("method, margin", [("savgol", 10), ("spline", 4)])
 def test_rate_error_near_the_best_tuning_and_far_below_finite_differences(method, margin):
     t, y, qd = noisy()
@@ -84,6 +85,7 @@ def test_noise_free_rates_exact_in_the_interior(method):
     assert np.abs(q_smooth - q)[inner].max() <= 1e-9
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["savgol", "spline"])
 def test_jittered_stamps_and_a_gap(method):
     rng = np.random.default_rng(2)
@@ -120,6 +122,7 @@ def test_spline_penalty_matches_scipy_and_is_recorded():
     np.testing.assert_allclose(rate, reference.derivative()(t), atol=1e-8)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["savgol", "spline"])
 def test_automatic_choice_reproducible_recorded_and_per_channel(method):
     t, y, _ = noisy(seed=5)
@@ -144,6 +147,7 @@ def test_manual_window_with_automatic_order():
     assert info["selection"] == {"window": "manual", "order": "auto"}
 
 
+@pytest.mark.slow
 def test_encoder_quantisation():
     quantum = 2 * np.pi / 4096  # 4096 counts per revolution: 1.5e-3 rad, std 4.4e-4 rad
     t = np.arange(0, DURATION, STEP)
@@ -199,6 +203,7 @@ def spin_and_wobble(t):
     return qmul(spin, tilt), w_body
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("noise, tolerance", [(0.0, 1e-6), (NOISE, 1.2e-3)])
 def test_quaternion_body_rate(noise, tolerance):
     t = np.arange(0, DURATION, STEP)

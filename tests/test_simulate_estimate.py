@@ -58,6 +58,7 @@ def test_noise_free_identification_recovers_pi(cepheus):
     assert ident.residual_rms < 1e-14 and ident.n_samples == 35
 
 
+@pytest.mark.slow
 def test_noisy_spread_matches_predicted_std(cepheus):
     """OLS with noisy regressors: the empirical spread over 400 noise draws agrees with the
     predicted standard error (the bias stays a small fraction of it at this noise level)."""

@@ -84,6 +84,7 @@ def test_planar_model_momentum_matches_rigid_body_definition(rng):
         np.testing.assert_allclose(h.angular, ours, atol=1e-13)
 
 
+@pytest.mark.slow
 def test_momentum_conserved_over_30_s(experiment):
     _, _, run = experiment
     log = run.truth
@@ -97,6 +98,7 @@ def test_momentum_conserved_over_30_s(experiment):
     assert np.abs(p[:, :2] - p[0, :2]).max() <= 1e-9 * np.linalg.norm(p[0, :2])
 
 
+@pytest.mark.slow
 def test_base_rate_matches_kinematic_simulation(experiment):
     """Same joint motion, same momentum: the planar pipeline's simulate() gives the same base
     motion. The joint motion is a cubic Hermite through the 1 kHz samples (error <= dt^4/384
@@ -151,6 +153,7 @@ def test_spin_up_reaches_170_within_effort_limit(experiment):
     assert spin > 0.33 and abs(h[-1] - h[0]) < 1e-9 * spin  # the base counter-rotates
 
 
+@pytest.mark.slow
 def test_feedforward_improves_tracking():
     traj = load_trajectory("paper-table2")
     plain = run_twin(traj, duration=5.0, seed=0)
@@ -324,6 +327,7 @@ def test_encoders_quantise_and_publish_at_50_hz():
     np.testing.assert_array_equal(quiet.recording.joints.position, quiet.truth.q[:-1:20])
 
 
+@pytest.mark.slow
 def test_motion_capture_noise_drops_and_latency():
     mc = MotionCapture(drop_probability=0.2, latency=0.0123)
     run = run_twin(None, duration=10.0, settings=TwinSettings(mocap=mc), state=MOVING, seed=7)

@@ -6,19 +6,40 @@ Any URDF tree on a floating root link works like Cepheus, in three dimensions: t
 attitude becomes a quaternion, the momentum a 3-vector and every sample gives three equations.
 This tutorial loads the ``satellite-7dof`` example (a 500 kg bus carrying a 7-joint arm; an
 illustrative model shipped with spaceid, not a real spacecraft), reads its identifiability
-report, designs an exciting motion within explicit joint limits and identifies the parameters
-from noise-free data. From a shell:
+report, designs an exciting motion within the joint limits and identifies the parameters from
+noise-free data. From a shell:
 
 .. code-block:: bash
 
     spaceid model satellite-7dof
-    spaceid design satellite-7dof --duration 30 --harmonics 6 --samples 120 --momentum 1,-2,3 \\
-        --qdd-max 0.5 --starts 2 -o traj.json
-    spaceid simulate satellite-7dof --trajectory traj.json --momentum 1,-2,3 --samples 120 -o log.csv
+    spaceid design satellite-7dof --duration 90 --harmonics 8 --samples 300 --momentum 1,-2,3 \\
+        --starts 8 -o traj.json
+    spaceid simulate satellite-7dof --trajectory traj.json --momentum 1,-2,3 --samples 300 -o log.csv
     spaceid identify satellite-7dof log.csv --momentum 1,-2,3 --estimator ols -o result.json
 
-(``--q-max``, ``--qd-max`` and ``--qdd-max`` take one value for every joint and default to the
-model's limits; the library takes one value per joint.)
+The limits default to the model's: angle and rate from each URDF ``<limit>`` tag, and the
+joint acceleration from its ``acceleration`` attribute (an extension that Pinocchio ignores; the
+presets give 0.5-1 rad/s², about half the joint torque over the largest inertia the joint
+drives). ``--q-max``, ``--qd-max`` and ``--qdd-max`` override them with one value for every
+joint; the library takes one value per joint.
+
+Settings that work for this robot (``--momentum 1,-2,3``, seed 0, 8 starts, the model's
+limits; measured on the 2-core development machine while it was shared, so the times are
+indicative):
+
+============  =========  =======  ======================  =========
+duration [s]  harmonics  samples  designed cond(Y)         wall time
+============  =========  =======  ======================  =========
+30            6          120      42,246                  31 s
+60            6          200      3,005                   71 s
+60            8          240      959                     51 s
+90            6          240      718                     69 s
+90            8          300      417                     93 s
+============  =========  =======  ======================  =========
+
+Longer motions with more harmonics excite more: the arm's small distal links need time at
+their rate limits to show in the momentum. The default 64 starts take several minutes.
+
 """
 
 # %%
@@ -68,20 +89,19 @@ print(f"determines the reduced dynamics: {report['determines_dynamics']} "
 assert param.n_params == 153 and param.basis == "columns" and report["determines_dynamics"]
 
 # %%
-# A design within explicit limits
-# -------------------------------
+# A design within the joint limits
+# --------------------------------
 # Spatial regressors have many columns whose singular values spread over decades, so a random
-# motion is poorly conditioned and the design matters. Three samples a time give three
-# equations, so 120 samples over 30 s (360 equations for 153 unknowns) with 6 harmonics are
-# enough. The limits are passed explicitly, one value per joint: position and rate from the
-# URDF's ``<limit>`` tags, and 0.5 rad/s² on every acceleration. Two local starts of 10 steps
-# keep this tutorial short; longer searches reach lower condition numbers
-# (:doc:`/benchmarks`).
+# motion is poorly conditioned and the design matters. Each sample gives three equations, so
+# 120 samples over 30 s (360 equations for 153 unknowns) with 6 harmonics are enough to
+# identify. The limits are the model's (passed here explicitly, one value per joint, to show
+# the form: leave them out to get the same). Two local starts of 10 steps keep this tutorial
+# short; the table above and :doc:`/benchmarks` show what longer searches reach.
 
 h = np.array([1.0, -2.0, 3.0])  # inertial angular momentum [N m s]
 q_max = np.fmin(abs(model.joint_limits("lower")), abs(model.joint_limits("upper")))
 qd_max = model.joint_limits("velocity")
-qdd_max = np.full(model.n_joints, 0.5)
+qdd_max = model.joint_limits("acceleration")
 design = spaceid.design_excitation(param, duration=30.0, harmonics=6, samples=120, momentum=h, seed=0,
                                    q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, n_starts=2, max_steps=10)
 traj = design.trajectory

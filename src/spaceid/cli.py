@@ -254,9 +254,9 @@ def _write_definitions(path, info, model_src):
               help="cond (condition number), logdet (scaled columns), or with the --noise-* options: dopt (max "
               "log det of the Fisher information), crb (min trace of the relative Cramer-Rao bound).")
 @noise_options
-@click.option("--q-max", type=float, help="|q| limit [rad] (default: model limits).")
-@click.option("--qd-max", type=float, help="|qd| limit [rad/s] (default: model limits).")
-@click.option("--qdd-max", type=float, help="|qdd| limit [rad/s^2] (default: model limits).")
+@click.option("--q-max", type=float, help="Joint angle limit, largest abs(q) [rad] (default: model limits).")
+@click.option("--qd-max", type=float, help="Joint rate limit, largest abs(qd) [rad/s] (default: model limits).")
+@click.option("--qdd-max", type=float, help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
 @click.option("--starts", type=int, default=64, show_default=True, help="Local starts of the global search.")
 @click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
               "depends on the machine's speed).")
@@ -481,7 +481,7 @@ def validate(result, log_path, momentum, output, bag):
 @click.option("--trajectory", default="designed", show_default=True, help="designed, paper-table2 or a file from 'design'.")
 @_options(*NOISE)
 @SEED
-@click.option("--out", "folder", type=click.Path(path_type=Path), default=Path("spaceid-report"), show_default=True, help="Report folder.")
+@click.option("--out", "folder", type=click.Path(path_type=Path), default="spaceid-report", show_default=True, help="Report folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of tables.")
 def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
     """The paper's simulation study on the built-in Cepheus model (Tables 1-3)."""
@@ -514,7 +514,7 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
 @click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
 @SEED
-@click.option("--out", "folder", type=click.Path(path_type=Path), default=Path("spaceid-experiment"), show_default=True,
+@click.option("--out", "folder", type=click.Path(path_type=Path), default="spaceid-experiment", show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, seed, folder):
     """Rest, wheel spin-up, exciting trajectory on the Cepheus twin; identify from the recorded bag
@@ -544,7 +544,7 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
 @click.argument("before", metavar="BEFORE.json", type=click.Path(path_type=Path))
 @click.argument("after", metavar="AFTER.json", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
-@click.option("--all", "show_all", is_flag=True, help="List every parameter, not only those that changed (|z| > 3).")
+@click.option("--all", "show_all", is_flag=True, help="List every parameter, not only those that changed (z-score above 3 in magnitude).")
 def compare(before, after, as_json, show_all):
     """Compare two identifications of the same structure, e.g. before and after a capture."""
     from rich.table import Table

@@ -1,7 +1,7 @@
 """The stacked momentum equations of a log (the paper's Eq. 4) and the anchors of their scale.
 
 The momentum equations of sample n, ``Y(x_n) pi = R0(x_n)^T h``, are built from measured
-signals ``x_n = [q, qd, w0, attitude]``: an errors-in-variables problem (MATH.md section 6).
+signals ``x_n = [q, qd, w0, attitude]``: an errors-in-variables problem (docs/theory/noise.md).
 
 Scale. A known nonzero momentum fixes pi absolutely. With zero or unknown momentum (its inertial
 components then estimated with pi) the equations are homogeneous and need an anchor: known
