@@ -224,3 +224,41 @@ def test_cli_offers_exactly_the_estimators():
     from spaceid.cli import ESTIMATOR_CHOICES
 
     assert set(ESTIMATOR_CHOICES) == set(ESTIMATORS)
+
+
+def test_wrong_sign_of_the_momentum_warns_of_negative_inertias(cepheus):
+    """Planar: the momentum negated negates every parameter; the inertia-like ones (led by Izz)
+    are named, with the likely cause, and the warning is recorded in the result."""
+    param, make = cepheus
+    with pytest.warns(UserWarning, match=r"physically impossible .*pi5 = .*Izz_base.*pi7.*pi8.*wrong sign of the momentum"):
+        ident = identify(param, make(101), -H, estimator="ols")
+    assert np.allclose(ident.values, -param.true_values)
+    assert "pi5" in ident.settings["plausibility"] and "pi1 " not in ident.settings["plausibility"]
+
+
+def test_wrong_sign_of_the_momentum_warns_spatial():
+    model = random_tree(np.random.default_rng(7), [0, 1], planar=False)
+    param = minimal_parameters(model)
+
+    def motion(t):
+        t = np.asarray(t)[:, None]
+        w = np.array([1.1, 1.7])
+        return np.sin(w * t + 0.3) + 0.3 * np.sin(2.9 * w * t), w * np.cos(w * t + 0.3) + 0.87 * w * np.cos(2.9 * w * t)
+
+    h = np.array([0.3, -0.2, 0.5])
+    log = simulate(param, param.true_values, motion, np.linspace(0, 5, 60), h, initial_quat=[0.8, 0.6, 0, 0])
+    with pytest.warns(UserWarning, match=r"physically impossible .*\(leads with Ixx_base\).*every one of them negative"):
+        identify(param, log, -h, estimator="ols")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ident = identify(param, log, h, estimator="ols")
+    assert ident.settings["plausibility"] == "no inertia-like parameter negative"
+
+
+@pytest.mark.parametrize("estimator", ESTIMATORS)
+def test_correct_identification_gives_no_plausibility_warning(cepheus, estimator):
+    param, make = cepheus
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ident = identify(param, add_noise(make(101), angle=1e-3, rate=1e-3, seed=1), H, estimator=estimator)
+    assert ident.settings["plausibility"] == "no inertia-like parameter negative"

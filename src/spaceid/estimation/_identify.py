@@ -22,14 +22,18 @@ import numpy as np
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log
-from ..dynamics import Parameterization
+from ..dynamics import Parameterization, full_parameter_names
 from ._equations import _equations, _split
-from ._estimators import _KERNELS, ESTIMATORS, _ols, _scaled_gram
+from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
 from ._result import Identification
 from ._uncertainty import _reported_covariance
 
 __all__ = ["identify"]
+
+_INERTIA_LIKE = {"m", "Ixx", "Iyy", "Izz"}
+"""Full parameters whose minimal combinations are masses or moments of inertia (see
+:func:`_implausible`)."""
 
 
 def _check_sample_count(eq, log: Log, where: str) -> None:
@@ -42,40 +46,40 @@ def _check_sample_count(eq, log: Log, where: str) -> None:
         )
 
 
-def _unexcited(y: np.ndarray, names, tol: float) -> list:
-    """Names of the parameters that dominate the (near-)null space of ``y``."""
-    scaled = y / np.maximum(np.linalg.norm(y, axis=0), 1e-300)
-    _, s, vt = np.linalg.svd(scaled, full_matrices=False)
+def _unexcited(r: np.ndarray, names, tol: float) -> list:
+    """Names of the parameters that dominate the (near-)null space of the column-scaled
+    regressor, from its triangular factor ``r (p, p)`` (same right singular vectors): the
+    directions with singular values below ``tol`` of the largest."""
+    with one_blas_thread():
+        _, s, vt = np.linalg.svd(r)
     null = vt[s < tol * s[0]]
     weight = np.abs(null).max(axis=0) if len(null) else np.zeros(len(names))
     return [n for n, w in zip(names, weight) if w > 0.3]
 
 
 def _check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
-    """The Gram matrix ``A^T A (p, p)`` of the stacked equations ``phi (n, rows, p + 1)`` and the
-    condition number of the column-scaled regressor; raises when the right-hand side vanishes
-    or the condition number reaches ``cond_limit`` (naming the parameters not excited)."""
+    """The orthogonal factorisation ``(scale (p,), R (p + 1, p + 1))`` of the column-scaled
+    stacked equations ``phi (n, rows, p + 1)`` (see :func:`~spaceid.estimation._estimators._triangular_factor`)
+    and the condition number of the column-scaled regressor; raises when the right-hand side
+    vanishes or the condition number reaches ``cond_limit`` (naming the parameters not excited)."""
     A, b = _split(phi)
     if not np.any(b):
         raise SpaceidError(f"{where}: the right-hand side is zero (no momentum and the anchored parameters' columns "
                            "vanish, e.g. a reaction wheel at rest): spin the wheel or give the momentum")
     # Columns scaled to unit norm: the scaled condition number decides excitation (it does not
-    # depend on units).
-    gram = A.T @ A  # formed once: excitation check, singular values and the OLS solution
-    scale, gram_s = _scaled_gram(A, gram)
+    # depend on units). R is formed once: excitation check, singular values and the OLS solution.
+    scale = _column_scale(A)
+    R = _triangular_factor(A, b, scale)
     with one_blas_thread():
-        eig = np.linalg.eigvalsh(gram_s)
-    cond_scaled = float(np.sqrt(eig[-1] / eig[0])) if eig[0] > 0 else np.inf
-    if cond_scaled > 1e6:  # near the precision limit of the Gram matrix: decide on the SVD
-        sv = np.linalg.svd(A / scale, compute_uv=False)
-        cond_scaled = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
+        sv = np.linalg.svd(R[:-1, :-1], compute_uv=False)  # those of A / scale, to eps * sv[0]
+    cond_scaled = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
     if not cond_scaled < cond_limit:
-        bad = _unexcited(A, names, 1e-8)
+        bad = _unexcited(R[:-1, :-1], names, max(1e-8, 1 / cond_limit))
         raise SpaceidError(
             f"{where}: the regressor is rank-deficient (scaled cond {cond_scaled:.3g}); not excited: "
             f"{', '.join(bad) or 'unclear'}: use an exciting trajectory (spaceid design) that moves every joint"
         )
-    return gram, cond_scaled
+    return (scale, R), cond_scaled
 
 
 def _instrument_context(log: Log, instruments, where: str) -> dict:
@@ -98,12 +102,57 @@ def _full_covariance(eq, cov_t, k: int) -> tuple:
     return cov, h_std
 
 
-def _singular_values(gram) -> np.ndarray:
+def _singular_values(factor) -> np.ndarray:
     """Singular values of the unscaled regressor (the paper's condition number), largest first,
-    from its Gram matrix: accurate to eps * s_max, ample for the condition numbers of exciting
-    motions."""
+    from the factor ``(scale, R)`` of the scaled equations: those of ``R[:p, :p] diag(scale)``."""
+    scale, R = factor
     with one_blas_thread():
-        return np.sqrt(np.clip(np.linalg.eigvalsh(gram), 0, None))[::-1]
+        return np.linalg.svd(R[:-1, :-1] * scale, compute_uv=False)
+
+
+def _estimate(eq, x, log: Log, sigma, ctx: dict, estimator: str, estimated: bool) -> tuple:
+    """``theta``, the estimator's record and :func:`_reported_covariance`'s ``(cov, rms,
+    record)``, from the OLS start; raises ``LinAlgError`` when the estimate is not finite (as the
+    factorisations do on singular systems), which :func:`identify` turns into a ``SpaceidError``."""
+    theta, info = _ols(eq, x, sigma, None, ctx)
+    if estimator != "ols":
+        theta, info = _KERNELS[estimator](eq, x, sigma, theta, ctx)
+    if not np.all(np.isfinite(theta)):
+        raise np.linalg.LinAlgError("the estimate is not finite")
+    reported = _reported_covariance(eq, x, ctx["phi"], sigma, theta, estimator, info, log, estimated)
+    info.pop("corrected", None)
+    return theta, info, reported
+
+
+def _leading_parameters(param: Parameterization) -> list:
+    """The leading full parameter of each minimal one: the first full parameter (in
+    ``full_parameter_names`` order) with a coefficient above round-off in its projection row;
+    for the columns basis, the independent column that the others were absorbed into."""
+    full = full_parameter_names(param.model)
+    rows = np.abs(param.projection)
+    return [full[int(np.argmax(row > 1e-9 * row.max()))] for row in rows]
+
+
+def _implausible(param: Parameterization, pi: np.ndarray, std: np.ndarray, where: str) -> str:
+    """A warning naming the inertia-like minimal parameters that came out significantly negative
+    (below -2 standard errors), or ``""``.
+
+    A parameter is inertia-like when its leading full parameter is a mass or a diagonal moment
+    of inertia (``m_*``, ``Ixx_*``, ``Iyy_*``, ``Izz_*``, not a lumped product); only those positive
+    for the model's own (physical) values count, as absorbed terms could make others negative.
+    All of them negated at once is the signature of a momentum of the wrong sign."""
+    lead = _leading_parameters(param)
+    like = np.array([name.split("_")[0] in _INERTIA_LIKE and "*" not in name for name in lead])
+    like &= param.true_values > 0
+    bad = like & (pi + 2 * std < 0)
+    if not bad.any():
+        return ""
+    listed = ", ".join(f"{param.names[i]} = {pi[i]:.4g} {param.units[i]} (leads with {lead[i]})"
+                       for i in np.flatnonzero(bad))  # fmt: skip
+    every = "every one of them negative: " if bad.sum() == like.sum() > 1 else ""
+    return (f"{where}: physically impossible parameters, negative though they lead with a mass or moment of inertia: "
+            f"{listed}; {every}likely the wrong sign of the momentum (--momentum) or a wrong anchor (--known, the "
+            "reaction-wheel inertia)")
 
 
 def identify(
@@ -153,8 +202,16 @@ def identify(
     -------
     Identification
         ``values``/``std``/``cov`` over all minimal parameters (known ones with zero
-        variance); the estimated momentum, anchors, noise model, ``chi2_dof`` and the
-        estimator's iterations in ``settings``.
+        variance); the estimated momentum, anchors, noise model, ``chi2_dof``, the
+        estimator's iterations and ``plausibility`` (the warning about inertia-like parameters
+        that came out negative, also issued as a ``UserWarning``) in ``settings``.
+
+    Raises
+    ------
+    SpaceidError
+        Too few samples, no scale anchor, a scaled condition number at or above ``cond_limit``
+        (naming the parameters not excited), or a singular or non-finite system in any
+        estimator: one line naming the log and the fix.
     """
     if estimator not in ESTIMATORS:
         raise SpaceidError(f"--estimator: '{estimator}' is not one of {', '.join(ESTIMATORS)}")
@@ -163,22 +220,29 @@ def identify(
     _check_sample_count(eq, log, where)
     x = eq.signals(log)
     phi = eq.phi(x)
-    gram, cond_scaled = _check_excitation(phi, eq.names(), cond_limit, where)
     estimated = noise is None and estimator != "ols"  # ols needs no noise model
-    noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
-    sigma = signal_sigma(param, noise)
-    ctx = {"phi": phi, "gram": gram}
-    theta, start = _ols(eq, x, sigma, None, ctx)
-    if estimator == "iv":
-        ctx |= _instrument_context(log, instruments, where)
-    theta, info = (theta, start) if estimator == "ols" else _KERNELS[estimator](eq, x, sigma, theta, ctx)
+    try:
+        factor, cond_scaled = _check_excitation(phi, eq.names(), cond_limit, where)
+        noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
+        ctx = {"phi": phi, "factor": factor}
+        if estimator == "iv":
+            ctx |= _instrument_context(log, instruments, where)
+        theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, signal_sigma(param, noise), ctx, estimator,
+                                                           estimated)  # fmt: skip
+        s = _singular_values(factor)
+    except np.linalg.LinAlgError as exc:  # singular or non-finite systems, at any step: one line, not a traceback
+        raise SpaceidError(
+            f"{where}: estimator '{estimator}' met a singular or non-finite linear system ({exc}): check the log for "
+            "NaN or frozen signals and use an exciting trajectory (spaceid design)"
+            + ("" if estimator == "ols" else ", or try --estimator ols")
+        ) from None
     if info.get("converged") is False:
         warnings.warn(f"{where}: maximum likelihood did not converge in {info['iterations']} iterations", stacklevel=2)
-    cov_t, rms, uncertainty = _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimated)
-    info.pop("corrected", None)
     pi, h = eq.full(theta)
     cov, h_std = _full_covariance(eq, cov_t, param.n_params)
-    s = _singular_values(gram)
+    implausible = _implausible(param, pi, np.sqrt(np.diag(cov)), where)
+    if implausible:
+        warnings.warn(implausible, stacklevel=2)
     settings = {
         "parameterization": param.to_dict(),
         "log": dict(log.meta),
@@ -189,6 +253,7 @@ def identify(
         "noise": noise.to_dict(),
         **uncertainty,
         "estimator_info": {k: v for k, v in info.items() if np.isscalar(v) or isinstance(v, (str, list))},
+        "plausibility": implausible or "no inertia-like parameter negative",
     }
     return Identification(
         names=param.names, definitions=param.definitions, values=pi, std=np.sqrt(np.diag(cov)), cov=cov,

@@ -22,7 +22,7 @@ from .._threads import one_blas_thread
 from ..data import Log
 from ..dynamics import Parameterization
 from ._equations import _equations, _split
-from ._estimators import _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
+from ._estimators import _column_scale, _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
 from ._noise import Noise, signal_sigma
 
 __all__ = ["cramer_rao"]
@@ -35,8 +35,9 @@ def _influence(estimator, A, phi, L, info):
         return _inverse_times(L, A), _solve(*_split(_whitened(L, phi)))[1]
     if estimator == "iv":
         M = info.pop("Z").reshape(A.shape)
+        scale = _column_scale(A.reshape(-1, A.shape[-1]))  # (Z^T A)^-1 = D^-1 (Z_s^T A_s)^-1 D^-1: balanced
         with one_blas_thread():
-            return M, np.linalg.inv(np.einsum("nrp,nrq->pq", M, A))
+            return M, np.linalg.inv(np.einsum("nrp,nrq->pq", M / scale, A / scale)) / np.outer(scale, scale)
     return A, _inverse_gram(A.reshape(-1, A.shape[-1]))
 
 
@@ -69,14 +70,14 @@ def _covariance(eq, x, phi, sigma, theta, estimator, info, bandwidth=0):
 def _newey_west(bread, M, r, bandwidth, p):
     """``bread Omega bread^T`` with ``Omega`` the Bartlett-weighted autocovariance of the scores
     ``g_n = M_n^T r_n`` up to lag ``bandwidth`` (0: White's heteroscedasticity-consistent form),
-    scaled by ``n / (n - p)``."""
-    g = np.einsum("nrp,nr->np", M, r)
-    meat = g.T @ g
-    for lag in range(1, min(bandwidth, len(g) - 1) + 1):
-        c = g[lag:].T @ g[:-lag]
-        meat += (1 - lag / (bandwidth + 1)) * (c + c.T)
-    with one_blas_thread():
-        return bread @ meat @ bread.T * len(g) / max(len(g) - p, 1)
+    scaled by ``n / (n - p)``. Formed from the mapped scores ``bread g_n``, so that at lag 0 it is
+    a Gram matrix: no negative variances from round-off when the residuals vanish."""
+    x = np.einsum("nrp,nr->np", M, r) @ bread.T
+    cov = x.T @ x
+    for lag in range(1, min(bandwidth, len(x) - 1) + 1):
+        c = x[lag:].T @ x[:-lag]
+        cov += (1 - lag / (bandwidth + 1)) * (c + c.T)
+    return cov * len(x) / max(len(x) - p, 1)
 
 
 def _window_spans(node):
