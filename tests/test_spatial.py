@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import pinocchio_momentum, random_states, random_tree
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 import spaceid
@@ -29,18 +29,33 @@ def trees(draw):
     return parents, tuple(prismatic), draw(st.integers(0, 2**31 - 1))
 
 
-@settings(max_examples=10, deadline=None, suppress_health_check=[HealthCheck.too_slow])
-@given(trees())
-def test_spatial_regressor_equals_pinocchio_on_random_trees(tree):
+def minimal_momentum_error(tree, *, planar):
+    """Largest error of the minimal regressor times the true minimal parameters against Pinocchio's
+    momentum (its z component for planar trees) at fresh random states, relative to the momentum."""
     parents, prismatic, seed = tree
     rng = np.random.default_rng(seed)
-    model = random_tree(rng, parents, planar=False, prismatic=prismatic)
+    model = random_tree(rng, parents, planar=planar, prismatic=prismatic)
     param = minimal_parameters(model)
     q, qd, w0 = random_states(rng, model, 20)
     for j in prismatic:
         q[:, j - 1] = rng.uniform(-0.5, 0.5, 20)
     ref = pinocchio_momentum(to_pinocchio(model), q, qd, w0)
-    assert np.abs(param.regressor(q, qd, w0) @ param.true_values - ref).max() < 1e-10 * np.abs(ref).max()
+    ref = ref[:, 2:] if planar else ref
+    return np.abs(param.regressor(q, qd, w0) @ param.true_values - ref).max() / np.abs(ref).max()
+
+
+@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(trees())
+@example(([0, 0], (), 14151224))  # a joint axis 2.5e-4 off an x-y plane: dependency coefficients of 4e4
+@example(([0, 1, 2, 3], (1,), 212293424))  # columns only weakly independent (parts of 8e-7): 57 kept for 55
+def test_spatial_regressor_equals_pinocchio_on_random_trees(tree):
+    assert minimal_momentum_error(tree, planar=False) < 1e-10
+
+
+@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])  # planar definitions: ~1 s
+@given(trees())
+def test_planar_regressor_equals_pinocchio_on_random_trees(tree):
+    assert minimal_momentum_error(tree, planar=True) < 1e-10
 
 
 def test_planar_special_case_agrees_with_spatial_engine(rng):

@@ -1,6 +1,6 @@
 """Momentum regressor ``h = Y(q, qd, w0) pi`` and its minimal parameter set, for any tree.
 
-The full regressor (MATH.md sec. 4) is linear in the standard inertial parameters ``theta``
+The full regressor (docs/theory/general-tree.md) is linear in the standard inertial parameters ``theta``
 of every body and in the lumped products ``phi_ab = theta_a theta_b / M`` of the first-order
 ones (masses and first moments), once zero linear momentum has eliminated the base velocity:
 
@@ -13,20 +13,21 @@ seeded random states, with a recorded rank tolerance. Two bases are offered for 
   ``w_b``, ``cos(D_ab) (w_a + w_b)`` and ``sin(D_ab) (w_a + w_b)`` (``D_ab`` the angle of body b
   relative to body a). For Cepheus these are exactly the paper's 8 parameters (Appendix B).
 * ``columns``: otherwise, the independent columns of the full regressor taken greedily in a
-  fixed order (a QR without pivoting on unit-norm columns), each absorbing the dependent ones.
+  fixed order (a QR without pivoting on unit-norm columns, the weakly independent ones last),
+  each absorbing the dependent ones.
 
 Both are the same engine: the planar basis is only a change of coordinates on the z row of the
 spatial regressor, fitted and checked at the random states.
 
 References
 ----------
-.. [1] Papadopoulos et al., Eq. 2 and Eq. 9-10 (minimum parameter set), Appendix B.
+.. [1] The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md), Eq. 2 and Eq. 9-10
+   (minimum parameter set), Appendix B.
 """
 
 from __future__ import annotations
 
 import functools
-import re
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 
@@ -35,6 +36,7 @@ from scipy.linalg import solve_triangular
 
 from .._errors import SpaceidError
 from .._threads import blas_threads
+from ._definitions import column_definitions, planar_definitions, symbol_suffix
 from ._kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
 
@@ -52,9 +54,16 @@ RANK_TOL = 1e-9
 """Default rank tolerance: a column (or basis row) is dependent when the part of it that the
 previous ones do not explain is below this fraction of its norm (unit-norm columns)."""
 
+ROUND_OFF = 1e-12
+"""A dependency coefficient ``beta_id`` (dependent column ``d`` in the independent ones) is
+round-off, set to zero, when its term is below this fraction of column ``d``:
+``|beta_id| |y_i| < ROUND_OFF |y_d|`` (norms at the sample states). Structural zeros come out at
+1e-14 and below for the presets, their true coefficients at 1e-3 and above."""
 
-# Khalil's names of the standard parameters (about the body frame origin), as in the literature
-KHALIL = dict(zip(INERTIAL_NAMES, ("M", "MX", "MY", "MZ", "XX", "XY", "YY", "XZ", "YZ", "ZZ")))
+
+UNITS = ("kg", "kg m", "kg m^2")
+"""Unit of a parameter with ``p`` powers of length, ``UNITS[p]``: masses, first moments, inertias
+(and lumped products ``theta_a theta_b / M``, with the units of ``theta_a theta_b`` over kg)."""
 
 
 def _layout(model: Model):
@@ -73,14 +82,22 @@ def _layout(model: Model):
 def full_parameter_names(model: Model) -> list:
     """Names of the full parameter vector ``[theta, phi]``, valid SymPy expressions.
 
-    Standard parameters in Khalil's notation, ``M_link1``, ``MX_link1`` .. ``ZZ_link1`` (mass,
-    first moments, inertia about the body frame origin); lumped products ``M_base*MX_link1/M``
-    with ``M`` the total mass.
+    Standard parameters as in the YAML ``known_zero`` (``INERTIAL_NAMES``, Pinocchio's order)
+    with the body after an underscore: ``m_link1`` [kg], ``mcx_link1`` .. ``mcz_link1`` first
+    moments [kg m], ``Ixx_link1`` .. ``Izz_link1`` inertia about the body frame origin
+    [kg m^2]; lumped products ``m_base*mcx_link1/M`` with ``M`` the total mass.
     """
     theta, first, pairs = _layout(model)
-    ident = [re.sub(r"\W", "_", b.name) for b in model.bodies]
-    names = [f"{KHALIL[INERTIAL_NAMES[k]]}_{ident[i]}" for i, k in theta]
+    names = [f"{INERTIAL_NAMES[k]}_{symbol_suffix(model.bodies[i].name)}" for i, k in theta]
     return names + [f"{names[theta.index(first[a])]}*{names[theta.index(first[c])]}/M" for a, c in pairs]
+
+
+def _length_powers(model: Model) -> np.ndarray:
+    """Powers of length in the unit of each full parameter (kg m^p), shape ``(n_full,)``."""
+    theta, first, pairs = _layout(model)
+    power = [0 if k == 0 else 1 if k < 4 else 2 for _, k in theta]
+    first_power = [power[theta.index(f)] for f in first]
+    return np.array(power + [first_power[a] + first_power[c] for a, c in pairs], dtype=int)
 
 
 def full_values(model: Model) -> np.ndarray:
@@ -302,6 +319,11 @@ def _random_states(model: Model, n: int, seed: int):
     return q, qd, w0
 
 
+def _nonzero(norms: np.ndarray, tol: float) -> np.ndarray:
+    """Columns that count as nonzero: norm above ``tol`` times the largest one."""
+    return norms > tol * norms.max()
+
+
 def _independent(matrix: np.ndarray, tol: float, *, block: int = 128):
     """Columns of ``matrix`` independent of the kept columns before them, and their basis.
 
@@ -312,35 +334,58 @@ def _independent(matrix: np.ndarray, tol: float, *, block: int = 128):
     twice (BCGS2): blocks are projected with matrix products, columns within a block one by
     one, which keeps the cost in BLAS-3 for regressors with thousands of columns.
 
+    A column whose orthogonal part is below ``sqrt(tol)`` is only weakly independent (a
+    near-degenerate geometry) and is taken at the end, unless the columns after it have covered
+    its direction. Taken at once, it would make the basis ill-conditioned (condition ~1/its
+    part): the round-off of later dependent columns (machine epsilon times the condition) could
+    pass ``tol``, keeping them wrongly, and the dependency coefficients would grow to ~1/its part
+    (parts of 8e-7: 57 columns kept for a rank of 55, momentum off by 5e-9 of itself, for the
+    random tree ``parents=[0, 1, 2, 3]``, prismatic joint 1, seed 212293424).
+
     Returns
     -------
     keep : ndarray of int
-        Indices of the independent columns, increasing.
+        Indices of the independent columns in the order taken: increasing, then the weakly
+        independent ones, increasing.
     basis : ndarray of shape (n_rows, len(keep))
         Orthonormal basis of their span (``basis.T @ matrix[:, keep]`` is upper triangular).
     """
     norms = np.linalg.norm(matrix, axis=0)
-    nonzero = norms > tol * norms.max()
+    nonzero = _nonzero(norms, tol)
     basis = np.zeros((matrix.shape[0], min(matrix.shape)))
-    keep = []
+    keep, weak = [], []
     for start in range(0, matrix.shape[1], block):
         cols = [j for j in range(start, min(start + block, matrix.shape[1])) if nonzero[j]]
-        if not cols:
-            continue
-        b = matrix[:, cols] / norms[cols]
-        for _ in range(2):  # project the block on the kept basis, twice for orthogonality
-            b -= basis[:, : len(keep)] @ (basis[:, : len(keep)].T @ b)
-        first = len(keep)  # then each column on the columns kept from this block, twice
-        for k, j in enumerate(cols):
-            c = b[:, k]
-            for _ in range(2):
-                local = basis[:, first : len(keep)]
-                c = c - local @ (local.T @ c)
-            norm = np.linalg.norm(c)
-            if norm > tol:
-                basis[:, len(keep)] = c / norm
-                keep.append(j)
+        weak += _take_columns(matrix[:, cols] / norms[cols], cols, basis, keep, tol, np.sqrt(tol))
+    _take_columns(matrix[:, weak] / norms[weak], weak, basis, keep, tol, tol)
     return np.array(keep, dtype=int), basis[:, : len(keep)]
+
+
+def _take_columns(b: np.ndarray, cols: list, basis: np.ndarray, keep: list, tol: float, strong: float) -> list:
+    """One block of :func:`_independent`: orthogonalise the unit columns ``b`` (indices ``cols``)
+    against ``basis[:, :len(keep)]`` and take, in order, those whose orthogonal part exceeds
+    ``strong`` (appended to ``keep``, their unit parts to ``basis``, both in place).
+
+    Returns the indices of the weakly independent columns: parts between ``tol`` and ``strong``.
+    """
+    if not cols:
+        return []
+    for _ in range(2):  # project the block on the kept basis, twice for orthogonality
+        b -= basis[:, : len(keep)] @ (basis[:, : len(keep)].T @ b)
+    first = len(keep)  # then each column on the columns kept from this block, twice
+    weak = []
+    for k, j in enumerate(cols):
+        c = b[:, k]
+        for _ in range(2):
+            local = basis[:, first : len(keep)]
+            c = c - local @ (local.T @ c)
+        norm = np.linalg.norm(c)
+        if norm > strong:
+            basis[:, len(keep)] = c / norm
+            keep.append(j)
+        elif norm > tol:
+            weak.append(j)
+    return weak
 
 
 # ------------------------------------------------------------------ planar basis --------------
@@ -392,6 +437,9 @@ class Parameterization:
         ``pi1 .. pik``.
     definitions : tuple of str
         Each parameter in physical terms (symbolic, SymPy syntax).
+    units : tuple of str
+        Each parameter's unit (``UNITS``): that of its leading full parameter (columns basis),
+        kg m^2 for every planar-basis parameter (``h`` [N m s] = ``Y`` [1/s] ``pi``).
     projection : ndarray of shape (k, n_full)
         ``pi = projection @ [theta, phi]`` (see ``full_parameter_names``).
     basis : {"planar", "columns"}
@@ -405,6 +453,7 @@ class Parameterization:
     model: Model
     names: tuple
     definitions: tuple
+    units: tuple
     projection: np.ndarray
     basis: str
     rank_tol: float
@@ -455,7 +504,8 @@ class Parameterization:
             "rank_tol": self.rank_tol,
             "seed": self.seed,
             "n_states": self.n_states,
-            "parameters": [{"name": n, "definition": d} for n, d in zip(self.names, self.definitions)],
+            "parameters": [{"name": n, "definition": d, "unit": u}
+                           for n, d, u in zip(self.names, self.definitions, self.units)],
         }
 
 
@@ -501,18 +551,17 @@ def _minimal_cached(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
         scale = np.abs(y_full).max()
         if np.abs(f @ coef - y_full).max() <= 1e-9 * scale:
             # rows of coef that are independent (and not structurally zero), in the paper's order
-            sel, _ = _independent(coef.T, tol)
+            sel = np.sort(_independent(coef.T, tol)[0])
             if len(sel) != rank:
                 raise AssertionError(f"planar basis rank {len(sel)} != regressor rank {rank}")
             proj = coef[sel]
             weights = coef @ np.linalg.pinv(proj)  # coef = weights @ proj
             used = [s for s in range(len(terms)) if np.abs(weights[s]).max() > 0]
-            from ._definitions import planar_definitions
-
             return Parameterization(
                 model,
                 tuple(f"pi{i + 1}" for i in range(rank)),
                 tuple(planar_definitions(model, [terms[s] for s in sel])),
+                (UNITS[2],) * rank,
                 proj,
                 "planar",
                 tol,
@@ -522,19 +571,17 @@ def _minimal_cached(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
             )
     # columns basis: pi_i = theta_i + sum_d beta_id theta_d over the dependent columns d
     dep = np.setdiff1d(np.arange(len(names)), indep)
-    # y_dep = y_indep @ beta, solved through the basis: y_indep = basis @ r with r triangular
-    r = basis.T @ y_full[:, indep]
-    beta = solve_triangular(r, basis.T @ y_full[:, dep])
-    beta[np.abs(beta) < tol * max(1.0, np.abs(beta).max())] = 0.0
+    beta = _dependency_coefficients(y_full, indep, dep, basis, tol)
+    order = np.argsort(indep)  # the weakly independent columns were taken last
+    indep, beta = indep[order], beta[order]
     proj = np.zeros((rank, len(names)))
     proj[np.arange(rank), indep] = 1.0
     proj[:, dep] = beta
-    from ._definitions import column_definitions
-
     return Parameterization(
         model,
         tuple(f"pi{i + 1}" for i in range(rank)),
         tuple(column_definitions(names, proj)),
+        tuple(UNITS[p] for p in _length_powers(model)[indep]),
         proj,
         "columns",
         tol,
@@ -542,6 +589,28 @@ def _minimal_cached(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
         n_states,
         ("columns", _plan(model, indep), None),
     )
+
+
+def _dependency_coefficients(y: np.ndarray, indep, dep, basis: np.ndarray, tol: float) -> np.ndarray:
+    """``beta`` with ``y[:, dep] = y[:, indep] @ beta``, shape ``(len(indep), len(dep))``, its
+    round-off set to zero (``ROUND_OFF``); ``basis`` from :func:`_independent` with ``tol``.
+
+    Round-off is judged by each term's share of its own dependent column, not by the size of the
+    coefficient against the largest one: near-degenerate geometry gives some relations
+    coefficients of 1e4 and more (a joint axis at ``e`` from the x-y plane of its frame writes the
+    link's dependent mcz in the columns before it through ~1/e), and a threshold scaled by them
+    zeroed true coefficients (momentum off by 1e-5 of itself for the random tree
+    ``parents=[0, 0]``, seed 14151224). The round-off of ill-conditioned relations may exceed
+    ``ROUND_OFF`` and is then kept: it is as accurate as the fit.
+    """
+    # solved through the basis: y_indep = basis @ r with r triangular
+    beta = solve_triangular(basis.T @ y[:, indep], basis.T @ y[:, dep])
+    norms = np.linalg.norm(y, axis=0)
+    live = _nonzero(norms, tol)[dep]  # the columns that count as zero absorb nothing
+    beta[:, ~live] = 0.0
+    share = np.abs(beta[:, live]) * norms[indep, None] / norms[dep][live]
+    beta[:, live] = np.where(share < ROUND_OFF, 0.0, beta[:, live])
+    return beta
 
 
 def identifiability(param: Parameterization, *, tol: float | None = None) -> dict:
@@ -561,7 +630,7 @@ def identifiability(param: Parameterization, *, tol: float | None = None) -> dic
         ``in_combinations``: the rest (identifiable only through the combinations ``pi``);
         ``determines_dynamics``: whether ``pi`` fixes the kinetic energy with zero linear
         momentum for every state (its regressor lies in the row space of the momentum
-        regressor, MATH.md sec. 4), hence the reduced inertia matrix that model-based control
+        regressor, docs/theory/general-tree.md), hence the reduced inertia matrix that model-based control
         and the Generalized Jacobian need; ``energy_residual``: the relative size of the part
         of the energy regressor outside that row space.
     """
