@@ -11,6 +11,16 @@ from spaceid.models._model import Body, Model, _validate, inertial_vector
 
 sys.path.insert(0, str(Path(__file__).parent))  # test helper modules
 
+# Module fixtures that take seconds to build (a design, a twin run, a simulated campaign): a test
+# that needs one is slow, so the fast subset (-m "not slow") never builds them.
+SLOW_FIXTURES = {"workdir", "noisy_designs", "short_run", "ideal", "examples", "spatial_run"}
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        if SLOW_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.slow)
+
 
 def _rot_z(a):
     c, s = np.cos(a), np.sin(a)

@@ -55,6 +55,7 @@ def test_minimal_count_equals_rank(rng, parents):
     assert param.n_params == _rank(model) == n_bodies + n_bodies * (n_bodies - 1)
 
 
+@pytest.mark.slow
 def test_spatial_regressor_equals_pinocchio(rng):
     model = random_tree(rng, [0, 1, 0, 3, 1], planar=False)
     param = minimal_parameters(model)
@@ -77,6 +78,7 @@ def test_prismatic_planar_tree_uses_column_basis(rng):
     assert np.abs(param.regressor(q, qd, w0)[:, 0] @ param.true_values - direct).max() < 1e-11 * np.abs(direct).max()
 
 
+@pytest.mark.slow
 def test_minimal_set_independent_of_seed(rng):
     model = random_tree(rng, [0, 1, 0])
     a, b = minimal_parameters(model, seed=0), minimal_parameters(model, seed=99)
@@ -193,6 +195,7 @@ def test_dynamics_not_determined_when_energy_escapes():
     assert not report["determines_dynamics"] and report["energy_residual"] > 1e-3
 
 
+@pytest.mark.slow
 def test_column_definitions_evaluate_to_the_values(rng):
     from spaceid.dynamics import full_parameter_names
 

@@ -44,6 +44,7 @@ def minimal_momentum_error(tree, *, planar):
     return np.abs(param.regressor(q, qd, w0) @ param.true_values - ref).max() / np.abs(ref).max()
 
 
+@pytest.mark.slow
 @settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(trees())
 @example(([0, 0], (), 14151224))  # a joint axis 2.5e-4 off an x-y plane: dependency coefficients of 4e4
@@ -52,12 +53,14 @@ def test_spatial_regressor_equals_pinocchio_on_random_trees(tree):
     assert minimal_momentum_error(tree, planar=False) < 1e-10
 
 
+@pytest.mark.slow
 @settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])  # planar definitions: ~1 s
 @given(trees())
 def test_planar_regressor_equals_pinocchio_on_random_trees(tree):
     assert minimal_momentum_error(tree, planar=True) < 1e-10
 
 
+@pytest.mark.slow
 def test_planar_special_case_agrees_with_spatial_engine(rng):
     planar = random_tree(rng, [0, 1, 0])
     spatial = spaceid.load_model(planar, planar=False)
