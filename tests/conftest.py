@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).parent))  # test helper modules
 
 # Module fixtures that take seconds to build (a design, a twin run, a simulated campaign): a test
 # that needs one is slow, so the fast subset (-m "not slow") never builds them.
-SLOW_FIXTURES = {"workdir", "noisy_designs", "short_run", "ideal", "examples", "spatial_run"}
+SLOW_FIXTURES = {"workdir", "noisy_designs", "short_run", "ideal", "examples", "spatial_run", "chain"}
 
 
 def pytest_collection_modifyitems(items):

@@ -138,6 +138,7 @@ def test_definitions_evaluate_to_the_values(name):
         assert got == pytest.approx(value, rel=1e-12)
 
 
+@pytest.mark.slow
 def test_definitions_of_random_tree(rng):
     model = random_tree(rng, [0, 1, 0])
     param = minimal_parameters(model)
