@@ -285,3 +285,9 @@ def test_partly_missing_rates_are_an_error(workdir, tmp_path, capsys):
     assert run("identify", "cepheus", path, "--momentum", 0.4934, "--differentiate", "-o", tmp_path / "r.json") == 0
     assert run("identify", "cepheus", path, "--momentum", 0.4934, "-o", tmp_path / "s.json") == 2
     assert "--differentiate" in capsys.readouterr().err
+
+
+def test_compare_all_draws_the_table_with_units(workdir, capsys):
+    assert run("compare", workdir / "result.json", workdir / "result.json", "--all") == 0
+    out = capsys.readouterr().out
+    assert "8 of 8 parameters" in out and "kg m^2" in out and "pi8" in out

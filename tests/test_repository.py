@@ -55,7 +55,9 @@ def test_readme_fits_on_two_screens():
 
 def test_readme_docs_build_is_the_one_ci_runs():
     ci = (ROOT / ".ci" / "run").read_text()
-    for command in re.findall(r"`(\.venv/bin/(?:pip install -e \"\.\[docs\]\"|sphinx-build [^`]*))`", README):
+    commands = re.findall(r"`(\.venv/bin/(?:pip install -e \"\.\[docs\]\"|sphinx-build [^`]*))`", README)
+    assert len(commands) == 2, "the README gives the docs install and build commands"
+    for command in commands:
         assert command in ci, f"README docs command not in .ci/run: {command}"
     assert "sphinx-build -W" in ci
 

@@ -402,9 +402,10 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
     paper-table2), sampled like 'simulate' does."""
     from .data import read_joint_trajectory, write_log
     from .data import yaw_to_quat
+    from .estimation import load_result
     from .studies import predict as run
 
-    ident = _read_result(result)
+    ident = load_result(result)
     h = _momentum(momentum, ident.planar)
     joints = _model_joints(ident)
     if trajectory.suffix.lower() == ".csv":
@@ -457,11 +458,12 @@ def _trajectory_times(traj, samples, rate, command):
 def validate(result, log_path, momentum, output, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     from .studies._figures import plot_validation
-    from .studies._report import _METRIC_LABELS
     from .data import read_log, write_json, write_log
+    from .estimation import load_result
+    from .studies import metric_label
     from .studies import validate as run
 
-    ident = _read_result(result)
+    ident = load_result(result)
     h = _momentum(momentum, ident.planar)
     from .models import load_model
 
@@ -473,7 +475,7 @@ def validate(result, log_path, momentum, output, bag):
     write_json(output / "metrics.json", metrics)
     plot_validation(log, predicted, output / "validation.png")
     for key, value in metrics.items():
-        out.print(f"{_METRIC_LABELS.get(key, key)} = {value:.4g}", markup=False, highlight=False)
+        out.print(f"{metric_label(key)} = {value:.4g}", markup=False, highlight=False)
     err.print(f"plots and metrics written to {output}/")
 
 
@@ -550,9 +552,10 @@ def compare(before, after, as_json, show_all):
     from rich.table import Table
 
     from .estimation import compare as run
+    from .estimation import load_result
 
-    first = _read_result(before)
-    res = run(first, _read_result(after), where=f"{before}, {after}")
+    first = load_result(before)
+    res = run(first, load_result(after), where=f"{before}, {after}")
     if as_json:
         print(json.dumps(res, indent=2))
         return
@@ -622,12 +625,6 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
     if folder is not None:
         write_montecarlo(res, folder)
         err.print(f"table, JSON and figure written to {folder}/ ({res.settings['wall_time_s']:.1f} s)")
-
-
-def _read_result(path):
-    from .estimation import load_result
-
-    return load_result(path)
 
 
 def _model_joints(ident):

@@ -14,7 +14,7 @@ from ..estimation import Identification
 
 from ._tables import _columns, _per_param
 
-__all__ = ["write_markdown_report"]
+__all__ = ["write_markdown_report", "metric_label"]
 
 
 def _md(text) -> str:
@@ -44,6 +44,12 @@ _METRIC_LABELS = {
     "base_yaw_rms": "base yaw, RMS error [rad]",
     "base_yaw_max": "base yaw, largest error [rad]",
 }
+
+
+def metric_label(key: str) -> str:
+    """Readable name, with its unit, of a :func:`spaceid.studies.validation_metrics` key (other
+    keys are returned as given)."""
+    return _METRIC_LABELS.get(key, key)
 
 
 def write_markdown_report(
@@ -113,7 +119,7 @@ def write_markdown_report(
     ]
     if metrics:
         lines += ["", "## Validation", ""]
-        lines += _md_table(["metric", "value"], [(_md(_METRIC_LABELS.get(k, k)), _md_value(v)) for k, v in metrics.items()])
+        lines += _md_table(["metric", "value"], [(_md(metric_label(k)), _md_value(v)) for k, v in metrics.items()])
     if links:
         lines += ["", "## Figures"]
         for caption, link in links:
