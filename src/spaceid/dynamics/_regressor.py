@@ -47,6 +47,7 @@ __all__ = [
     "energy_regressor",
     "full_parameter_names",
     "full_values",
+    "full_values_jacobian",
     "identifiability",
 ]
 
@@ -106,6 +107,26 @@ def full_values(model: Model) -> np.ndarray:
     values = [model.bodies[i].inertial[k] for i, k in theta]
     f = [model.bodies[i].inertial[k] for i, k in first]
     return np.array(values + [f[a] * f[c] / model.mass for a, c in pairs])
+
+
+def full_values_jacobian(model: Model) -> np.ndarray:
+    """Derivative of ``full_values`` with respect to the standard parameters ``theta`` (the first
+    entries of ``full_parameter_names``), at the model's values, shape ``(n_full, n_theta)``.
+
+    The lumped products ``theta_a theta_c / M`` are homogeneous of degree one in ``theta`` (``M``
+    is the sum of the masses), so ``full_values_jacobian(model) @ theta == full_values(model)``.
+    """
+    theta, first, pairs = _layout(model)
+    n = len(theta)
+    f = np.array([model.bodies[i].inertial[k] for i, k in first])
+    at = np.array([theta.index(x) for x in first], dtype=int)  # first-order parameters in theta
+    a, c = np.array(pairs, dtype=int).reshape(-1, 2).T
+    rows = np.arange(len(pairs))
+    lumped = np.zeros((len(pairs), n))
+    np.add.at(lumped, (rows, at[a]), f[c] / model.mass)
+    np.add.at(lumped, (rows, at[c]), f[a] / model.mass)
+    lumped -= np.outer(f[a] * f[c] / model.mass**2, [k == 0 for _, k in theta])  # through M
+    return np.vstack([np.eye(n), lumped])
 
 
 # entries (m1, m2) of the inertia parameters [Ixx, Ixy, Iyy, Ixz, Iyz, Izz]

@@ -1,0 +1,407 @@
+"""Physically consistent standard parameters for an identified model: :func:`export_model`.
+
+The identification fixes only the minimal combinations ``pi = P [theta, phi(theta)]`` of the
+standard parameters ``theta``. A robot description needs every body's mass, centre of mass and
+inertia, and a physical one. Among the ``theta`` that reproduce ``pi`` (or lie in its confidence
+ellipsoid), with every body's pseudo-inertia ``J = [[Sigma, h], [h^T, m]]`` positive definite, the
+one closest to a prior model in the log-det divergence of pseudo-inertias is taken
+(docs/theory/export.md). The lumped products ``phi`` make the constraint nonlinear; being
+homogeneous of degree one in ``theta``, its linearisation at ``theta_k`` is ``J_k theta``, so each
+step is a convex program (cvxpy, Clarabel) and the steps repeat until ``theta`` stops moving.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._errors import SpaceidError
+from .._threads import one_blas_thread
+from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian, identifiability
+from ..dynamics import minimal_parameters
+from ..estimation import Identification
+from ..models import INERTIAL_NAMES, Model, load_model
+
+__all__ = ["Export", "export_model", "inertial_from_pseudo", "pseudo_divergence", "pseudo_inertia"]
+
+MARGIN = 1e-6
+"""Every exported pseudo-inertia satisfies ``J - MARGIN J_prior`` positive semidefinite: strictly
+physical, by a margin relative to the prior's own mass distribution (free of units)."""
+STEP_TOL = 1e-7
+"""The convex steps stop when the whitened parameters (the prior at the identity) move less (the
+solver's own noise is ~3e-9); the last Newton steps then meet the equalities to round-off."""
+MAX_STEPS = 60
+SHRINK = 1e-6
+"""``--region``: the ellipsoid used is this much smaller (relative radius), so the exported
+parameters lie inside the stated one despite the solver's tolerance."""
+
+
+def pseudo_inertia(inertial) -> np.ndarray:
+    """Pseudo-inertia (second moments of mass) of a body, shape (4, 4).
+
+    Parameters
+    ----------
+    inertial : array_like of shape (10,)
+        ``[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]``, inertia about the frame origin.
+
+    Returns
+    -------
+    ndarray of shape (4, 4)
+        ``[[Sigma, h], [h^T, m]]`` with ``Sigma = tr(I)/2 1 - I`` [kg m^2] and ``h = m c`` [kg m].
+        Positive definite exactly when the mass is positive, the inertia about the CoM positive
+        definite and its principal moments obey the triangle inequality (strictly).
+    """
+    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = np.asarray(inertial, float)
+    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    out = np.empty((4, 4))
+    out[:3, :3] = 0.5 * np.trace(inertia) * np.eye(3) - inertia
+    out[:3, 3] = out[3, :3] = hx, hy, hz
+    out[3, 3] = m
+    return out
+
+
+def inertial_from_pseudo(pseudo) -> np.ndarray:
+    """Inverse of :func:`pseudo_inertia`: the standard parameters (10,) of a (4, 4) pseudo-inertia
+    (its symmetric part)."""
+    j = 0.5 * (np.asarray(pseudo, float) + np.asarray(pseudo, float).T)
+    inertia = np.trace(j[:3, :3]) * np.eye(3) - j[:3, :3]
+    return np.array([j[3, 3], *j[:3, 3], inertia[0, 0], inertia[0, 1], inertia[1, 1], inertia[0, 2],
+                     inertia[1, 2], inertia[2, 2]])  # fmt: skip
+
+
+def pseudo_divergence(model: Model, reference: Model) -> float:
+    """Log-det (Bregman) divergence of ``model``'s pseudo-inertias from ``reference``'s, summed
+    over the bodies: ``sum_b -log det(J_ref^-1 J) + tr(J_ref^-1 J) - 4`` (zero only when equal).
+
+    Invariant to the choice of body frames and units; infinite if a pseudo-inertia of ``model``
+    is not positive definite.
+    """
+    total = 0.0
+    for body, ref in zip(model.bodies, reference.bodies):
+        ratio = np.linalg.solve(pseudo_inertia(ref.inertial), pseudo_inertia(body.inertial))
+        eig = np.linalg.eigvals(ratio).real
+        total += np.inf if eig.min() <= 0 else float(eig.sum() - np.log(eig).sum() - 4)
+    return max(total, 0.0)  # nonnegative: below zero only by round-off
+
+
+@dataclass(frozen=True)
+class Export:
+    """Standard inertial parameters for an identification, physical and close to a prior.
+
+    Attributes
+    ----------
+    model : Model
+        The prior's kinematics with the exported inertial parameters.
+    prior : Model
+    param : Parameterization
+        The minimal set of the identification, on the prior's geometry.
+    values : ndarray of shape (k,)
+        Minimal parameters of the exported model.
+    region : float or None
+        Probability of the confidence ellipsoid searched, None for an exact fit.
+    mahalanobis : float
+        ``(values - pi)^T cov^+ (values - pi)`` over the parameters with variance.
+    bound : float or None
+        ``chi2_dof(region)``, the ellipsoid's bound on ``mahalanobis``.
+    divergence : float
+        :func:`pseudo_divergence` of ``model`` from ``prior``.
+    steps : int
+        Convex programs solved.
+    seen : dict of str to tuple of str
+        Per body, the standard parameters that enter the momentum (set by the data).
+    """
+
+    model: Model
+    prior: Model
+    param: Parameterization
+    values: np.ndarray
+    region: float | None
+    mahalanobis: float
+    bound: float | None
+    divergence: float
+    steps: int
+    seen: dict
+
+    def changes(self) -> list:
+        """Per body what changed from the prior: ``body``, ``mass_prior``, ``mass`` [kg],
+        ``com_shift`` (distance between the CoMs) [m], ``inertia_change`` (relative Frobenius norm
+        of the change of the inertia about the CoM) and ``seen`` (the standard parameters set by
+        the data)."""
+        out = []
+        for new, old in zip(self.model.bodies, self.prior.bodies):
+            i_new, i_old = (pseudo_inertia(b.inertial)[:3, :3] - b.mass * np.outer(b.com, b.com) for b in (new, old))
+            out.append({"body": new.name, "mass_prior": old.mass, "mass": new.mass,
+                        "com_shift": float(np.linalg.norm(new.com - old.com)),
+                        "inertia_change": float(np.linalg.norm(i_new - i_old) / np.linalg.norm(i_old)),
+                        "seen": self.seen[new.name]})  # fmt: skip
+        return out
+
+
+def _theta_slots(model: Model):
+    """``(body, index into INERTIAL_NAMES)`` of each standard parameter in ``theta``, the order of
+    ``full_parameter_names`` (declared zeros left out)."""
+    return [(b, k) for b, body in enumerate(model.bodies) for k, n in enumerate(INERTIAL_NAMES) if n not in body.known_zero]
+
+
+def _with_theta(model: Model, theta) -> Model:
+    inertials = np.zeros((len(model.bodies), 10))
+    for (b, k), value in zip(_theta_slots(model), theta):
+        inertials[b, k] = value
+    return model.with_inertials(inertials)
+
+
+def _whitening(prior: Model, where: str):
+    """The linear maps of the stacked ``vec(X_b)`` (column-major) to ``theta`` and to the declared
+    zeros, ``G (n_theta, 16 nb)`` and ``Z (n_zero, 16 nb)``, where ``J_b = L_b X_b L_b^T`` with
+    ``L_b`` the Cholesky factor of the prior's pseudo-inertia (the prior is at ``X_b = 1``)."""
+    factors = []
+    for body in prior.bodies:
+        pseudo = pseudo_inertia(body.inertial)
+        eig = np.linalg.eigvalsh(pseudo)
+        if not eig[0] > 1e-12 * eig[-1]:
+            raise SpaceidError(f"{where}: body '{body.name}' of the prior has a degenerate mass distribution (a point, "
+                               "rod or plate: pseudo-inertia not positive definite): give it a plausible 3-D inertia")
+        factors.append(np.linalg.cholesky(pseudo))
+    nb = len(prior.bodies)
+    full = np.zeros((10 * nb, 16 * nb))
+    for b, low in enumerate(factors):
+        for col in range(16):
+            unit = np.zeros(16)
+            unit[col] = 1.0
+            full[10 * b : 10 * b + 10, 16 * b + col] = inertial_from_pseudo(low @ unit.reshape(4, 4, order="F") @ low.T)
+    slots = [10 * b + k for b, k in _theta_slots(prior)]
+    zeros = np.setdiff1d(np.arange(10 * nb), slots)
+    return full[slots], full[zeros]
+
+
+def _constraint_rows(result: Identification, region):
+    """The conditions on ``r = P theta - pi`` as ``E r = 0`` and ``|W r| <= radius``.
+
+    Exact fit: ``E = 1``, no ``W``. Within the ``region`` ellipsoid: ``W`` whitens the residual
+    with the covariance; the anchored parameters (zero variance) and the combinations the
+    covariance gives no variance go to ``E``. Returns ``(E, labels of E's rows, W, radius, dof)``.
+    """
+    k = len(result.values)
+    if region is None:
+        return np.eye(k), list(result.names), np.zeros((0, k)), 0.0
+    from scipy.stats import chi2
+
+    std = np.sqrt(np.clip(np.diag(result.cov), 0, None))
+    var = np.flatnonzero(std > 0)
+    corr = result.cov[np.ix_(var, var)] / np.outer(std[var], std[var])
+    s, v = np.linalg.eigh(0.5 * (corr + corr.T))
+    null = s <= 1e-12 * s.max() if len(s) else np.zeros(0, bool)
+    e = np.zeros((k - len(var) + null.sum(), k))
+    e[np.arange(k - len(var)), np.setdiff1d(np.arange(k), var)] = 1.0
+    e[k - len(var) :, var] = (v[:, null] / std[var, None]).T
+    labels = [result.names[i] for i in np.setdiff1d(np.arange(k), var)] + ["a zero-variance combination"] * null.sum()
+    w = np.zeros(((~null).sum(), k))
+    w[:, var] = (v[:, ~null] / np.sqrt(s[~null]) / std[var, None]).T
+    dof = int((~null).sum())
+    return e, labels, w, float(np.sqrt(chi2.ppf(region, dof))) if dof else 0.0
+
+
+_CLARABEL = {"tol_gap_abs": 1e-13, "tol_gap_rel": 1e-13, "tol_feas": 1e-12, "tol_ktratio": 1e-10}
+"""Clarabel's tolerances: its defaults (1e-8) leave ~5e-5 of noise in the whitened solution (the
+objective is flat to second order), enough to keep the steps from settling."""
+
+
+class _Program:
+    """The convex step: ``min sum_b -log det X_b + tr X_b`` over ``X_b - MARGIN 1`` PSD, declared
+    zeros, ``A_eq theta = b_eq`` and ``|A_w theta - b_w| <= radius`` (``theta = G vec X``); the
+    matrices are cvxpy parameters, so the program is compiled once and re-solved per step.
+    ``elastic`` instead minimises the violation of the conditions (to name what is infeasible)."""
+
+    def __init__(self, g, z, n_eq, n_w, radius, *, elastic=False):
+        import cvxpy as cp
+
+        nb = g.shape[1] // 16
+        self.x = [cp.Variable((4, 4), symmetric=True) for _ in range(nb)]
+        vec = cp.hstack([cp.vec(x, order="F") for x in self.x])
+        theta = g @ vec
+        self.a_eq, self.b_eq = cp.Parameter((n_eq, g.shape[0])), cp.Parameter(n_eq)
+        self.a_w, self.b_w = cp.Parameter((n_w, g.shape[0])), cp.Parameter(n_w)
+        cons = [x >> MARGIN * np.eye(4) for x in self.x] + ([z @ vec == 0] if len(z) else [])
+        eq = self.a_eq @ theta - self.b_eq if n_eq else None
+        ball = cp.norm(self.a_w @ theta - self.b_w) if n_w else None
+        if elastic:
+            self.slack = cp.Variable(n_eq) if n_eq else None
+            self.excess = cp.Variable(nonneg=True)
+            cons += ([eq == self.slack] if n_eq else []) + ([ball <= radius + self.excess] if n_w else [])
+            objective = (cp.norm1(self.slack) if n_eq else 0) + self.excess
+        else:
+            cons += ([eq == 0] if n_eq else []) + ([ball <= radius] if n_w else [])
+            objective = sum(cp.trace(x) - cp.log_det(x) for x in self.x)
+        self.problem = cp.Problem(cp.Minimize(objective), cons)
+
+    def solve(self, a_eq, b_eq, a_w, b_w):
+        """The solution ``vec X`` (16 nb,), or None when the program is infeasible."""
+        import cvxpy as cp
+
+        for p, value in ((self.a_eq, a_eq), (self.b_eq, b_eq), (self.a_w, a_w), (self.b_w, b_w)):
+            p.value = value
+        try:
+            with warnings.catch_warnings():  # "may be inaccurate": the steps repeat and the polish follows
+                warnings.simplefilter("ignore", UserWarning)
+                self.problem.solve(solver=cp.CLARABEL, **_CLARABEL)
+        except cp.SolverError:
+            return None
+        if self.problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            return None
+        return np.concatenate([x.value.ravel(order="F") for x in self.x])
+
+
+def _conditions(param, g, theta, e, w, pi, *, project=True):
+    """The linearised conditions at ``theta`` (``P J(theta) theta``, exact there) as ``(A_eq,
+    b_eq, A_w, b_w)``, each row of ``E`` scaled to unit norm in the whitened variables.
+
+    ``project``: the equalities only along the directions the linearisation reaches (the range of
+    ``E P J``, a Gauss-Newton step): a spatial system has more minimal parameters than standard
+    ones, so the linearised equalities alone are overdetermined and met only at the solution.
+    The other rows are zero, so the programs keep their shapes."""
+    jac = param.projection @ full_values_jacobian(_with_theta(param.model, theta))
+    a_eq, b_eq = e @ jac, e @ pi
+    scale = np.linalg.norm(a_eq @ g, axis=1)
+    scale = np.where(scale > 0, scale, 1.0)
+    a_eq, b_eq = a_eq / scale[:, None], b_eq / scale
+    if project and len(a_eq):
+        u, s, _ = np.linalg.svd(a_eq @ g, full_matrices=False)
+        u[:, s <= 1e-9 * s[0]] = 0.0
+        a_eq, b_eq = np.vstack([u.T @ a_eq, np.zeros((len(a_eq) - len(s), a_eq.shape[1]))]), np.concatenate(
+            [u.T @ b_eq, np.zeros(len(a_eq) - len(s))])
+    return a_eq, b_eq, w @ jac, w @ pi
+
+
+def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region):
+    """The error naming the conditions that no physical model meets (from the elastic program)."""
+    program = _Program(g, z, len(e), len(w), radius, elastic=True)
+    x = program.solve(*_conditions(param, g, theta, e, w, result.values, project=False))
+    names = []
+    if x is not None and program.slack is not None:
+        slack = np.abs(program.slack.value)
+        names = [f"{labels[i]} = {result.values[i]:.6g}" if labels[i] in result.names else labels[i]
+                 for i in np.flatnonzero(slack > 1e-6 * max(1.0, slack.max()))]  # fmt: skip
+    if region is None:
+        return SpaceidError(
+            f"{where}: the identified parameters are not physically realisable (no positive masses, inertias and "
+            f"triangle inequalities reproduce {', '.join(names) or 'them'}): export within the confidence ellipsoid "
+            "with --region P (e.g. 0.95), or check the identification")
+    outside = "" if x is None or program.excess.value <= 1e-9 else "the ellipsoid reaches no physical model; "
+    return SpaceidError(
+        f"{where}: no physical model within the {region:g} confidence ellipsoid ({outside}"
+        f"{', '.join(names) or 'the anchors'} cannot be met): try a larger --region, or check the identification")
+
+
+def _polish(param, theta, e, pi, slots_scale):
+    """Newton steps of least change (in ``theta`` relative to ``slots_scale``) onto ``E (P
+    full(theta) - pi) = 0``: the convex steps meet the conditions to the solver's tolerance, this
+    to round-off."""
+    for _ in range(4):
+        model = _with_theta(param.model, theta)
+        r = e @ (param.projection @ full_values(model) - pi)
+        a = e @ param.projection @ full_values_jacobian(model) * slots_scale
+        row = np.linalg.norm(a, axis=1)
+        row = np.where(row > 0, row, 1.0)
+        step = np.linalg.lstsq(a / row[:, None], -r / row, rcond=None)[0] * slots_scale
+        theta = theta + step
+        if np.abs(step).max() <= 1e-15 * np.abs(theta).max():
+            break
+    return theta
+
+
+def _checked_prior(result: Identification, prior, where: str, prior_name: str):
+    """The prior in the result's planar mode and its minimal set, which must be the
+    identification's (same joints and geometry): ``(Model, Parameterization)``."""
+    prior = load_model(prior)
+    try:
+        identified = load_model(result.model).joints
+    except SpaceidError:
+        identified = None  # the identified model's file is elsewhere: the parameter sets decide
+    if identified is not None and tuple(identified) != tuple(prior.joints):
+        raise SpaceidError(f"{prior_name}: joints {list(prior.joints)} differ from the identified model's "
+                           f"{list(identified)} ({result.model}): give a prior of the same robot")
+    prior = load_model(prior, planar=result.planar)
+    param = minimal_parameters(prior, tol=result.settings.get("parameterization", {}).get("rank_tol", 1e-9))
+    if param.names != tuple(result.names) or param.definitions != tuple(result.definitions):
+        raise SpaceidError(
+            f"{prior_name}: its {param.n_params} minimal parameters differ from the {len(result.names)} of {where} "
+            "(other joints, geometry or declared zeros): give a prior with the identified model's kinematics")
+    return prior, param
+
+
+def export_model(result: Identification, prior: Model, *, region: float | None = None, where: str = "result",
+                 prior_name: str = "prior") -> Export:
+    """Standard inertial parameters that reproduce an identification, physical and close to a prior.
+
+    Parameters
+    ----------
+    result : Identification
+        Minimal parameters ``pi`` and their covariance.
+    prior : Model
+        Same joints and geometry as the identified model; its inertial parameters are the prior
+        guess (every body's pseudo-inertia positive definite). Loaded in the result's planar mode.
+    region : float, optional
+        Probability ``P`` in (0, 1): search the ``P`` confidence ellipsoid of ``pi`` (anchored
+        parameters exact) instead of reproducing ``pi`` exactly.
+    where, prior_name : str
+        Names of the result and the prior in error messages.
+
+    Returns
+    -------
+    Export
+
+    Raises
+    ------
+    SpaceidError
+        A prior of other joints or geometry, a degenerate prior body, ``region`` outside (0, 1),
+        or no physical model meeting the conditions (the message names the parameters).
+    """
+    if region is not None and not 0 < region < 1:
+        raise SpaceidError(f"--region {region:g}: give a probability between 0 and 1 (e.g. 0.95)")
+    prior, param = _checked_prior(result, prior, where, prior_name)
+    with one_blas_thread():  # small dense factorisations: threads only wait on busy cores
+        return _export(result, prior, param, region, where, prior_name)
+
+
+def _export(result, prior, param, region, where, prior_name) -> Export:
+    """:func:`export_model` once the prior is checked."""
+    pi = np.asarray(result.values, float)
+    g, z = _whitening(prior, prior_name)
+    e, labels, w, radius = _constraint_rows(result, region)
+    program = _Program(g, z, len(e), len(w), radius * (1 - SHRINK))
+    theta = full_values(prior)[: g.shape[0]]
+    x = np.concatenate([np.eye(4).ravel()] * len(prior.bodies))
+    for steps in range(1, MAX_STEPS + 1):
+        new = program.solve(*_conditions(param, g, theta, e, w, pi))
+        if new is None:
+            raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
+        moved = np.abs(new - x).max()
+        x, theta = new, g @ new
+        if moved < STEP_TOL:
+            break
+    else:
+        warnings.warn(f"{where}: the export did not settle in {MAX_STEPS} convex steps (last move {moved:.2g})",
+                      stacklevel=3)
+    scale = np.abs(g).max(axis=1)  # of each standard parameter, for a unit change of X
+    theta = _polish(param, theta, e, pi, scale)
+    hidden = _hidden(param)
+    prior_theta = full_values(prior)[: len(theta)]
+    # the parameters the momentum does not see are at the prior up to the solver's noise: exactly there
+    theta = np.where(hidden & (np.abs(theta - prior_theta) <= 1e-9 * scale), prior_theta, theta)
+    a_eq, b_eq, *_ = _conditions(param, g, theta, e, w, pi, project=False)
+    if len(a_eq) and np.abs(a_eq @ theta - b_eq).max() > 1e-9:  # in units of the prior's distribution
+        raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
+    model = _with_theta(prior, theta)
+    values = param.projection @ full_values(model)
+    seen = {b.name: tuple(INERTIAL_NAMES[k] for (i, k), h in zip(_theta_slots(prior), hidden) if i == n and not h)
+            for n, b in enumerate(prior.bodies)}  # fmt: skip
+    return Export(model, prior, param, values, region, float(np.sum((w @ (values - pi)) ** 2)),
+                  float(radius**2) if region is not None else None, pseudo_divergence(model, prior), steps, seen)
+
+
+def _hidden(param: Parameterization) -> np.ndarray:
+    """Which standard parameters (``theta``) do not enter the momentum at all, shape (n_theta,)."""
+    hidden = set(identifiability(param)["no_effect"])
+    return np.array([name in hidden for name in full_parameter_names(param.model)[: len(_theta_slots(param.model))]])

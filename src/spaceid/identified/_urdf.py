@@ -1,0 +1,143 @@
+"""The exported model as URDF: the prior's own file with new ``<inertial>`` elements, or a URDF
+written from the model (:func:`urdf_text`, :func:`write_urdf`)."""
+
+from __future__ import annotations
+
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .._atomic import write_text_atomic
+from .._errors import SpaceidError
+from ..models import PRESETS, Model
+from ._export import Export
+
+__all__ = ["urdf_text", "write_urdf"]
+
+
+def _num(x: float) -> str:
+    """Shortest exact form: the file reproduces the parameters to the last bit."""
+    return repr(float(x)) if x != 0 else "0"
+
+
+def _vec(v) -> str:
+    return " ".join(_num(x) for x in v)
+
+
+def _inertial_xml(inertial, indent: str) -> str:
+    """``<inertial>`` of a body's standard parameters (about its frame origin, ``INERTIAL_NAMES``
+    order) as URDF gives it: mass, CoM, inertia about the CoM in the link axes."""
+    m, c = inertial[0], inertial[1:4] / inertial[0]
+    i_o = np.array([[inertial[4], inertial[5], inertial[7]], [inertial[5], inertial[6], inertial[8]],
+                    [inertial[7], inertial[8], inertial[9]]])  # fmt: skip
+    i_c = i_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+    entries = " ".join(f'{k}="{_num(i_c[a, b])}"' for k, (a, b) in
+                       zip(("ixx", "ixy", "ixz", "iyy", "iyz", "izz"), ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))))
+    inner = indent + "  "
+    return (f'<inertial>\n{inner}<origin xyz="{_vec(c)}" rpy="0 0 0"/>\n{inner}<mass value="{_num(m)}"/>\n'
+            f"{inner}<inertia {entries}/>\n{indent}</inertial>")
+
+
+def _prior_urdf(prior: Model) -> str | None:
+    """The text of the prior's URDF file (a URDF preset or path), None for a YAML model."""
+    source = prior.source or prior.name
+    if source in PRESETS:
+        file = resources.files("spaceid.models.presets").joinpath(f"{source}.urdf")
+        return file.read_text() if file.is_file() else None
+    path = Path(source)
+    if not path.is_file():
+        return None
+    text = path.read_text()
+    return text if path.suffix.lower() == ".urdf" or text.lstrip().startswith("<") else None
+
+
+def _rewrite(text: str, model: Model, note: str) -> str:
+    """``text`` (a URDF) with every body's ``<inertial>`` replaced by the model's and those of the
+    links merged into a body through fixed joints removed (the body's inertial holds them).
+    Comments inside ``<robot>`` stay; those before it go (they describe the prior)."""
+    import xml.etree.ElementTree as ET
+
+    from defusedxml.ElementTree import DefusedXMLParser
+
+    parser = DefusedXMLParser(target=ET.TreeBuilder(insert_comments=True))
+    parser.feed(text)
+    root = parser.close()
+    bodies = {b.name: b for b in model.bodies}
+    for link in root.findall("link"):
+        old = link.find("inertial")
+        if link.get("name") in bodies:
+            indent = (link.text or "").rsplit("\n", 1)[-1] if len(link) else ""
+            new = ET.fromstring(_inertial_xml(bodies[link.get("name")].inertial, indent or "    "))
+        elif old is not None:
+            new = ET.Comment(" inertial merged into the link of its body (fixed joint) by spaceid export ")
+        else:
+            continue
+        if old is not None:
+            new.tail = old.tail
+            link[list(link).index(old)] = new
+        else:
+            new.tail = link.text if len(link) else "\n  "
+            link.text = "\n" + (indent or "    ")
+            link.insert(0, new)
+    return f'<?xml version="1.0"?>\n<!-- {note} -->\n{ET.tostring(root, encoding="unicode")}\n'
+
+
+def _joint_xml(model: Model, body) -> str:
+    import pinocchio as pin
+
+    limits = body.limits
+    kind = body.joint_type
+    if kind == "revolute" and not {"lower", "upper"} <= set(limits):
+        kind = "continuous"
+    attrs = [f'{k}="{_num(limits[k])}"' for k in ("lower", "upper") if kind != "continuous" and k in limits]
+    if kind == "prismatic" and not attrs:
+        attrs = ['lower="0"', 'upper="0"']  # URDF needs them; spaceid reads 0, 0 as none
+    attrs += [f'{k}="{_num(limits.get(k, 0.0))}"' for k in ("effort", "velocity")]
+    attrs += [f'acceleration="{_num(limits["acceleration"])}"'] if "acceleration" in limits else []
+    rpy = pin.rpy.matrixToRpy(body.rotation)
+    return (f'  <joint name="{body.joint}" type="{kind}">\n    <parent link="{model.bodies[body.parent].name}"/>\n'
+            f'    <child link="{body.name}"/>\n    <origin xyz="{_vec(body.translation)}" rpy="{_vec(rpy)}"/>\n'
+            f'    <axis xyz="{_vec(body.axis)}"/>\n    <limit {" ".join(attrs)}/>\n  </joint>\n')
+
+
+def _generate(model: Model, note: str) -> str:
+    """A URDF of ``model`` (root link the floating base; no visuals: the model has none)."""
+    out = [f'<?xml version="1.0"?>\n<!-- {note} -->\n<robot name="{model.name}">\n']
+    for body in model.bodies:
+        out.append(f'  <link name="{body.name}">\n    {_inertial_xml(body.inertial, "    ")}\n  </link>\n')
+        if body.parent >= 0:
+            out.append(_joint_xml(model, body))
+    return "".join(out) + "</robot>\n"
+
+
+def urdf_text(export: Export, note: str = "inertial parameters identified by spaceid export") -> str:
+    """The exported model as URDF text.
+
+    A URDF prior keeps everything (kinematics, names, limits, visuals, comments) but its
+    ``<inertial>`` elements: each body's link gets the exported one; the links merged into a
+    body through fixed joints lose theirs (the body's holds the merged inertia). A YAML prior is
+    written out as a URDF of its model (joints, limits with the ``acceleration`` attribute
+    spaceid reads). ``note`` goes into a comment at the top. Planar mode, reaction wheels and
+    declared zeros are not URDF: load the file with ``planar=True`` for a planar model.
+    """
+    prior = _prior_urdf(export.prior)
+    return _generate(export.model, note) if prior is None else _rewrite(prior, export.model, note)
+
+
+def write_urdf(export: Export, path, *, inputs=(), note: str = "inertial parameters identified by spaceid export"):
+    """Write :func:`urdf_text` to ``path`` atomically, never over one of the ``inputs`` files.
+
+    Raises
+    ------
+    SpaceidError
+        ``path`` is one of ``inputs``, or cannot be written.
+    """
+    path = Path(path)
+    for source in inputs:
+        if Path(source).is_file() and path.resolve() == Path(source).resolve():
+            raise SpaceidError(f"-o {path}: that is an input file ({source}): give another file name")
+    try:
+        write_text_atomic(path, urdf_text(export, note))
+    except OSError as err:
+        raise SpaceidError(f"{path}: cannot write ({err.strerror or err}): check the path is writable") from None

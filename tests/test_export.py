@@ -1,0 +1,231 @@
+"""Export of an identified model: physical standard parameters that reproduce the identification,
+closest to a prior, as a URDF that Pinocchio loads and whose momentum is the identified one."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from test_simulate_estimate import H, motion
+
+import spaceid
+from spaceid.cli import main
+from spaceid.data import write_json
+from spaceid.dynamics import full_values, full_values_jacobian, minimal_parameters
+from spaceid.estimation import Identification, identify
+from spaceid.identified import export_model, pseudo_divergence, pseudo_inertia, urdf_text, write_urdf
+from spaceid.models import inertial_vector, to_pinocchio
+from spaceid.motion import add_noise, simulate
+
+
+def perturbed(model, seed, spread=0.3):
+    """``model`` with every mass and inertia about the CoM scaled by a factor in 1 +- spread (seeded)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for b in model.bodies:
+        i_c = pseudo_inertia(b.inertial)[:3, :3] - b.mass * np.outer(b.com, b.com)  # second moments about the CoM
+        i_c = np.trace(i_c) * np.eye(3) - i_c
+        out.append(inertial_vector(b.mass * rng.uniform(1 - spread, 1 + spread), b.com,
+                                   i_c * rng.uniform(1 - spread, 1 + spread)))
+    return model.with_inertials(out)
+
+
+def exact_result(param):
+    """The identification a noise-free log gives (pi to ~1e-12), without simulating one."""
+    k = param.n_params
+    return Identification(param.names, param.definitions, param.true_values, np.zeros(k), np.zeros((k, k)), 1.0,
+                          np.ones(k), 0.0, 100, "ols", np.asarray(H), param.model.source, param.model.planar,
+                          units=param.units)
+
+
+def pinocchio_momentum(pmodel, joints, states):
+    """Angular momentum about the CoM (Pinocchio's centroidal momentum) at base-at-origin states
+    ``(q, qd, w0)``, base axes, shape (n, 3); the base linear velocity is arbitrary (it does not enter)."""
+    data = pmodel.createData()
+    ids = [pmodel.getJointId(j) for j in joints]
+    out = []
+    for q, qd, w0 in zip(*states):
+        qp, v = pin.neutral(pmodel), np.zeros(pmodel.nv)
+        v[:3], v[3:6] = [0.3, -0.2, 0.1], w0
+        for j, a, r in zip(ids, q, qd):
+            qp[pmodel.joints[j].idx_q], v[pmodel.joints[j].idx_v] = a, r
+        out.append(np.array(pin.computeCentroidalMomentum(pmodel, data, qp, v).angular))
+    return np.array(out)
+
+
+def held_out_states(model, n=20, seed=7):
+    rng = np.random.default_rng(seed)
+    w0 = rng.standard_normal((n, 3))
+    if model.planar:
+        w0[:, :2] = 0.0
+    return rng.uniform(-1.5, 1.5, (n, model.n_joints)), rng.standard_normal((n, model.n_joints)), w0
+
+
+def check_export(true, prior, res, tmp_path, *, rtol=1e-8):
+    """The exported URDF loads in Pinocchio and spaceid; pseudo-inertias PD; pi reproduced; momentum
+    equal to the true model's on a held-out motion; closer to the truth than the prior."""
+    path = tmp_path / "identified.urdf"
+    write_urdf(res, path)
+    pmodel = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
+    back = spaceid.load_model(path, planar=true.planar)
+    assert back.joints == true.joints and [b.name for b in back.bodies] == [b.name for b in true.bodies]
+    for b in back.bodies:
+        assert np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() > 0, b.name
+    # recomputed from the file, on the prior's structure (URDF has no declared zeros)
+    pi = minimal_parameters(true.with_inertials([b.inertial for b in back.bodies])).true_values
+    pi_true = minimal_parameters(true).true_values
+    assert np.abs(pi - pi_true).max() <= rtol * np.abs(pi_true).max()
+    states = held_out_states(true)
+    h = pinocchio_momentum(pmodel, true.joints, states)
+    h_true = pinocchio_momentum(to_pinocchio(true), true.joints, states)
+    axes = [2] if true.planar else [0, 1, 2]
+    assert np.abs(h - h_true)[:, axes].max() <= rtol * np.abs(h_true[:, axes]).max()
+    assert pseudo_divergence(true, back) < pseudo_divergence(true, prior)
+    return back
+
+
+@pytest.fixture(scope="module")
+def cepheus():
+    """Noise-free identification of Cepheus (simulated log, ols) and a prior 30 % off."""
+    true = spaceid.load_model("cepheus")
+    param = minimal_parameters(true)
+    log = simulate(param, param.true_values, motion, np.linspace(0, 5, 35), H, model=true)
+    ident = identify(param, log, H, estimator="ols")
+    prior = perturbed(true, seed=3)
+    return true, prior, ident, export_model(ident, prior)
+
+
+def test_full_values_are_homogeneous_of_degree_one():
+    model = spaceid.load_model("satellite-7dof")
+    jac, values = full_values_jacobian(model), full_values(model)
+    assert np.abs(jac @ values[: jac.shape[1]] - values).max() < 1e-13 * np.abs(values).max()
+
+
+def test_pseudo_inertia_is_pd_for_physical_bodies_only():
+    body = spaceid.load_model("cepheus").bodies[1].inertial
+    assert np.linalg.eigvalsh(pseudo_inertia(body)).min() > 0
+    flat = body.copy()
+    flat[9] = flat[4] + flat[6] + 1e-4  # Izz above Ixx + Iyy (about the origin): no rigid body
+    assert np.linalg.eigvalsh(pseudo_inertia(flat)).min() < 0
+
+
+def test_planar_export_reproduces_pi_and_momentum(cepheus, tmp_path):
+    true, prior, ident, res = cepheus
+    np.testing.assert_allclose(ident.values, minimal_parameters(true).true_values, rtol=1e-9)
+    back = check_export(true, prior, res, tmp_path)
+    assert res.divergence == pytest.approx(pseudo_divergence(res.model, prior))
+    # the out-of-plane part the planar data cannot see stays at the prior: mcz, Ixz, Iyz and the
+    # out-of-plane second moment Szz = (Ixx + Iyy - Izz) / 2 of every body
+    for b, p in zip(back.bodies, prior.bodies):
+        for index in (3, 7, 8):
+            assert b.inertial[index] == p.inertial[index]
+        assert pseudo_inertia(b.inertial)[2, 2] == pytest.approx(pseudo_inertia(p.inertial)[2, 2], rel=1e-7)
+    assert res.seen["base"] == ("m", "mcx", "mcy", "Izz") and res.seen["link1"] == ("m", "mcx", "Izz")
+
+
+def test_generated_urdf_keeps_joints_and_limits(cepheus, tmp_path):
+    true, _, _, res = cepheus
+    text = urdf_text(res)  # the prior is YAML: a URDF written from the model
+    assert '<joint name="left_elbow" type="revolute">' in text and 'acceleration="3.0"' in text
+    (tmp_path / "cepheus.urdf").write_text(text)
+    back = spaceid.load_model(tmp_path / "cepheus.urdf")
+    for b, t in zip(back.bodies, true.bodies):
+        assert b.name == t.name and b.joint == t.joint and b.limits == t.limits
+        np.testing.assert_array_equal(b.translation, t.translation)
+        np.testing.assert_allclose(b.rotation, t.rotation, atol=1e-15)
+
+
+def test_infeasible_pi_is_one_line_naming_it(cepheus):
+    true, prior, ident, _ = cepheus
+    values = ident.values.copy()
+    values[7] = -abs(values[7])  # pi8 = Iczz_link2 + (positive terms): negative, no physical body has it
+    bad = Identification(**{**ident.__dict__, "values": values})
+    with pytest.raises(spaceid.SpaceidError, match=r"not physically realisable.*pi8.*--region") as info:
+        export_model(bad, prior, where="bad.json")
+    assert "\n" not in str(info.value)
+
+
+def test_bad_region_and_other_joints_are_refused(cepheus):
+    _, prior, ident, _ = cepheus
+    with pytest.raises(spaceid.SpaceidError, match="--region 1.5: give a probability"):
+        export_model(ident, prior, region=1.5)
+    with pytest.raises(spaceid.SpaceidError, match="joints .* differ from the identified model"):
+        export_model(ident, "satellite-7dof", prior_name="satellite-7dof")
+
+
+@pytest.mark.slow
+def test_noisy_planar_export_within_the_ellipsoid(tmp_path):
+    true = spaceid.load_model("cepheus")
+    param = minimal_parameters(true)
+    log = simulate(param, param.true_values, motion, np.linspace(0, 5, 201), H, model=true)
+    ident = identify(param, add_noise(log, angle=1e-3, rate=1e-3, seed=5), H, estimator="wls")
+    prior = perturbed(true, seed=4)
+    res = export_model(ident, prior, region=0.95)
+    r = res.values - ident.values
+    assert r @ np.linalg.solve(ident.cov, r) <= res.bound == pytest.approx(15.5073, rel=1e-4)  # chi2_8(0.95)
+    assert res.mahalanobis == pytest.approx(r @ np.linalg.solve(ident.cov, r), rel=1e-6)
+    for b in res.model.bodies:
+        assert np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() > 0
+
+
+@pytest.mark.slow
+def test_spatial_export_reproduces_pi_and_momentum(tmp_path):
+    true = spaceid.load_model("satellite-7dof")
+    prior = perturbed(true, seed=1)
+    res = export_model(exact_result(minimal_parameters(true)), prior)
+    check_export(true, prior, res, tmp_path)
+    text = (tmp_path / "identified.urdf").read_text()
+    # the prior's file is kept (visuals, limits); the end effector on its fixed joint is merged into link 7
+    preset = (Path(spaceid.__file__).parent / "models" / "presets" / "satellite-7dof.urdf").read_text()
+    assert text.count("<visual>") == preset.count("<visual>") > 0 and 'acceleration="0.5"' in text
+    assert "merged into the link of its body" in text
+
+
+@pytest.mark.slow
+def test_noisy_spatial_needs_the_region(tmp_path):
+    true = spaceid.load_model("satellite-7dof")
+    param = minimal_parameters(true)
+    exact = exact_result(param)
+    std = 1e-3 * np.abs(param.true_values) + 1e-6 * np.abs(param.true_values).max()
+    noisy = Identification(**{**exact.__dict__, "values": param.true_values + std * np.random.default_rng(2).standard_normal(param.n_params),
+                              "std": std, "cov": np.diag(std**2)})
+    prior = perturbed(true, seed=1)
+    with pytest.raises(spaceid.SpaceidError, match="not physically realisable.*--region"):
+        export_model(noisy, prior)  # 153 noisy combinations of 80 standard parameters: none reproduces them
+    res = export_model(noisy, prior, region=0.95)
+    assert res.mahalanobis <= res.bound
+    for b in res.model.bodies:
+        assert np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() > 0
+
+
+def test_cli_errors_are_one_line(cepheus, tmp_path, capsys):
+    _, _, ident, _ = cepheus
+    result = tmp_path / "result.json"
+    write_json(result, ident.to_dict())
+    assert main(["export", str(tmp_path / "missing.json"), "--prior", "cepheus", "-o", str(tmp_path / "x.urdf")]) == 2
+    assert main(["export", str(result), "--prior", "satellite-7dof", "-o", str(tmp_path / "x.urdf")]) == 2
+    assert main(["export", str(result), "--prior", "cepheus", "--region", "0", "-o", str(tmp_path / "x.urdf")]) == 2
+    errors = capsys.readouterr().err.strip().splitlines()
+    assert len(errors) == 3 and all(e.startswith("error: ") for e in errors)
+    assert "missing.json" in errors[0] and "differ" in errors[1] and "--region" in errors[2]
+    assert not (tmp_path / "x.urdf").exists()
+
+
+@pytest.mark.slow
+def test_cli_writes_the_urdf_and_refuses_its_inputs(cepheus, tmp_path, capsys):
+    true, _, ident, _ = cepheus
+    result, prior = tmp_path / "result.json", tmp_path / "prior.yaml"
+    write_json(result, ident.to_dict())
+    prior.write_text((Path(spaceid.__file__).parent / "models" / "presets" / "cepheus.yaml").read_text())
+    before = prior.read_text(), result.read_text()
+    assert main(["export", str(result), "--prior", str(prior), "-o", str(prior)]) == 2
+    assert main(["export", str(result), "--prior", str(prior), "-o", str(result)]) == 2
+    assert capsys.readouterr().err.count("input file") == 2 and (prior.read_text(), result.read_text()) == before
+    out = tmp_path / "identified.urdf"
+    assert main(["export", str(result), "--prior", str(prior), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "link2" in printed and "exact" in printed
+    back = spaceid.load_model(out, planar=True)
+    pi = minimal_parameters(true.with_inertials([b.inertial for b in back.bodies])).true_values
+    np.testing.assert_allclose(pi, ident.values, rtol=1e-8)
