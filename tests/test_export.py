@@ -1,7 +1,6 @@
 """Export of an identified model: physical standard parameters that reproduce the identification,
 closest to a prior, as a URDF that Pinocchio loads and whose momentum is the identified one."""
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +13,7 @@ from spaceid.cli import main
 from spaceid.data import write_json
 from spaceid.dynamics import full_values, full_values_jacobian, minimal_parameters
 from spaceid.estimation import Identification, identify
-from spaceid.identified import export_model, pseudo_divergence, pseudo_inertia, urdf_text, write_urdf
+from spaceid.identified import export_model, pseudo_divergence, pseudo_inertia, urdf_text, write_export, yaml_text
 from spaceid.models import inertial_vector, to_pinocchio
 from spaceid.motion import add_noise, simulate
 
@@ -66,7 +65,7 @@ def check_export(true, prior, res, tmp_path, *, rtol=1e-8):
     """The exported URDF loads in Pinocchio and spaceid; pseudo-inertias PD; pi reproduced; momentum
     equal to the true model's on a held-out motion; closer to the truth than the prior."""
     path = tmp_path / "identified.urdf"
-    write_urdf(res, path)
+    write_export(res, path)
     pmodel = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
     back = spaceid.load_model(path, planar=true.planar)
     assert back.joints == true.joints and [b.name for b in back.bodies] == [b.name for b in true.bodies]
@@ -136,8 +135,22 @@ def test_generated_urdf_keeps_joints_and_limits(cepheus, tmp_path):
         np.testing.assert_allclose(b.rotation, t.rotation, atol=1e-15)
 
 
+def test_yaml_keeps_planar_mode_and_declared_zeros(cepheus, tmp_path):
+    true, _, ident, res = cepheus
+    path = tmp_path / "identified.yaml"
+    write_export(res, path, fmt="yaml")
+    assert path.read_text() == yaml_text(res)
+    back = spaceid.load_model(path)  # planar and known_zero from the file: the identified minimal set itself
+    param = minimal_parameters(back)
+    assert back.planar and [b.known_zero for b in back.bodies] == [b.known_zero for b in true.bodies]
+    assert param.definitions == ident.definitions
+    np.testing.assert_allclose(param.true_values, ident.values, rtol=1e-12)
+    with pytest.raises(spaceid.SpaceidError, match="--format step: not one of urdf, yaml"):
+        write_export(res, path, fmt="step")
+
+
 def test_infeasible_pi_is_one_line_naming_it(cepheus):
-    true, prior, ident, _ = cepheus
+    _, prior, ident, _ = cepheus
     values = ident.values.copy()
     values[7] = -abs(values[7])  # pi8 = Iczz_link2 + (positive terms): negative, no physical body has it
     bad = Identification(**{**ident.__dict__, "values": values})
@@ -155,18 +168,25 @@ def test_bad_region_and_other_joints_are_refused(cepheus):
 
 
 @pytest.mark.slow
-def test_noisy_planar_export_within_the_ellipsoid(tmp_path):
+def test_noisy_planar_export_within_the_ellipsoid_anchor_exact(tmp_path):
+    """Noisy Cepheus, momentum unknown and the scale anchored by a known pi5 (zero variance)."""
     true = spaceid.load_model("cepheus")
     param = minimal_parameters(true)
     log = simulate(param, param.true_values, motion, np.linspace(0, 5, 201), H, model=true)
-    ident = identify(param, add_noise(log, angle=1e-3, rate=1e-3, seed=5), H, estimator="wls")
+    ident = identify(param, add_noise(log, angle=1e-3, rate=1e-3, seed=5), None, estimator="wls",
+                     known={"pi5": param.true_values[4]})
+    assert ident.std[4] == 0 and ident.std[np.arange(8) != 4].min() > 0
     prior = perturbed(true, seed=4)
     res = export_model(ident, prior, region=0.95)
-    r = res.values - ident.values
-    assert r @ np.linalg.solve(ident.cov, r) <= res.bound == pytest.approx(15.5073, rel=1e-4)  # chi2_8(0.95)
-    assert res.mahalanobis == pytest.approx(r @ np.linalg.solve(ident.cov, r), rel=1e-6)
+    free = np.arange(8) != 4
+    r = (res.values - ident.values)[free]
+    d2 = r @ np.linalg.solve(ident.cov[np.ix_(free, free)], r)
+    assert d2 <= res.bound == pytest.approx(14.0671, rel=1e-4)  # chi2_7(0.95): the anchor has no variance
+    assert res.mahalanobis == pytest.approx(d2, rel=1e-6)
+    assert res.values[4] == pytest.approx(ident.values[4], rel=1e-12)
     for b in res.model.bodies:
         assert np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() > 0
+    assert pseudo_divergence(true, res.model) < pseudo_divergence(true, prior)
 
 
 @pytest.mark.slow
@@ -188,8 +208,8 @@ def test_noisy_spatial_needs_the_region(tmp_path):
     param = minimal_parameters(true)
     exact = exact_result(param)
     std = 1e-3 * np.abs(param.true_values) + 1e-6 * np.abs(param.true_values).max()
-    noisy = Identification(**{**exact.__dict__, "values": param.true_values + std * np.random.default_rng(2).standard_normal(param.n_params),
-                              "std": std, "cov": np.diag(std**2)})
+    values = param.true_values + std * np.random.default_rng(2).standard_normal(param.n_params)
+    noisy = Identification(**{**exact.__dict__, "values": values, "std": std, "cov": np.diag(std**2)})
     prior = perturbed(true, seed=1)
     with pytest.raises(spaceid.SpaceidError, match="not physically realisable.*--region"):
         export_model(noisy, prior)  # 153 noisy combinations of 80 standard parameters: none reproduces them

@@ -635,24 +635,26 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
 @click.option("--region", type=float, metavar="P", help="Search the P confidence ellipsoid of the identified "
               "parameters (e.g. 0.95; anchored ones stay exact) instead of reproducing them exactly: for noisy "
               "results that no physical model reproduces.")
-@click.option("--format", "fmt", type=click.Choice(["urdf"]), default="urdf", show_default=True, help="Output "
-              "format: urdf (a URDF prior keeps its file but the <inertial> elements; a YAML prior is written out).")
-@output("URDF file to write (never over RESULT.json or the prior).")
+@click.option("--format", "fmt", type=click.Choice(["urdf", "yaml"]), default="urdf", show_default=True,
+              help="Output format: urdf (a URDF prior keeps its file but the <inertial> elements; a YAML prior is "
+              "written out as URDF) or yaml (spaceid's YAML model: keeps the planar flag, reaction wheels and "
+              "declared zeros, no visuals).")
+@output("File to write (never over RESULT.json or the prior).")
 def export(result, prior_src, region, fmt, output):
     """Standard inertial parameters of every body (mass, CoM, inertia) that reproduce the identified
     parameters (or lie within their --region P ellipsoid), with every body's pseudo-inertia positive
-    definite, closest to the prior in the log-det divergence; written as URDF. Prints per body what
-    changed and which standard parameters the data set."""
+    definite, closest to the prior in the log-det divergence; written as URDF (or YAML). Prints per
+    body what changed and which standard parameters the data set."""
     from rich.markup import escape
     from rich.table import Table
 
     from .estimation import load_result
-    from .identified import export_model, write_urdf
+    from .identified import export_model, write_export
 
     ident = load_result(result)
     res = export_model(ident, prior_src, region=region, where=str(result), prior_name=str(prior_src))
-    write_urdf(res, output, inputs=(result, prior_src),
-               note=f"inertial parameters identified by spaceid export from {Path(result).name}, prior {prior_src}")
+    write_export(res, output, fmt=fmt, inputs=(result, prior_src),
+                 note=f"inertial parameters identified by spaceid export from {Path(result).name}, prior {prior_src}")
     table = Table("body", escape("mass [kg]"), escape("dm [%]"), escape("dCoM [mm]"), escape("dI [%]"),
                   "set by the data", title="Exported inertials against the prior",
                   caption="dI: change of the inertia about the CoM (relative Frobenius norm)")
@@ -661,10 +663,13 @@ def export(result, prior_src, region, fmt, output):
         table.add_row(c["body"], f"{c['mass']:.6g}", f"{100 * (c['mass'] / c['mass_prior'] - 1):+.2f}",
                       f"{1e3 * c['com_shift']:.2f}", f"{100 * c['inertia_change']:.2f}", seen)
     out.print(table)
-    fit = (f"within the {region:g} ellipsoid (distance^2 {res.mahalanobis:.4g} <= {res.bound:.4g})" if region
-           else f"exact (largest relative error {np.max(np.abs(res.values - ident.values) / np.maximum(np.abs(ident.values), 1e-300)):.1e})")
-    out.print(f"fit {fit}; log-det divergence from the prior {res.divergence:.4g}; {res.steps} convex step{'s' * (res.steps != 1)}; "
-              f"written to {output}", highlight=False)
+    if region:
+        fit = f"within the {region:g} ellipsoid (distance^2 {res.mahalanobis:.4g} <= {res.bound:.4g})"
+    else:
+        error = np.abs(res.values - ident.values) / np.maximum(np.abs(ident.values), 1e-300)
+        fit = f"exact (largest relative error {error.max():.1e})"
+    out.print(f"fit {fit}; log-det divergence from the prior {res.divergence:.4g}; {res.steps} convex "
+              f"step{'s' * (res.steps != 1)}; written to {output}", highlight=False)
 
 
 def _model_joints(ident):

@@ -142,7 +142,8 @@ class Export:
 def _theta_slots(model: Model):
     """``(body, index into INERTIAL_NAMES)`` of each standard parameter in ``theta``, the order of
     ``full_parameter_names`` (declared zeros left out)."""
-    return [(b, k) for b, body in enumerate(model.bodies) for k, n in enumerate(INERTIAL_NAMES) if n not in body.known_zero]
+    return [(b, k) for b, body in enumerate(model.bodies)
+            for k, n in enumerate(INERTIAL_NAMES) if n not in body.known_zero]
 
 
 def _with_theta(model: Model, theta) -> Model:
@@ -181,7 +182,7 @@ def _constraint_rows(result: Identification, region):
 
     Exact fit: ``E = 1``, no ``W``. Within the ``region`` ellipsoid: ``W`` whitens the residual
     with the covariance; the anchored parameters (zero variance) and the combinations the
-    covariance gives no variance go to ``E``. Returns ``(E, labels of E's rows, W, radius, dof)``.
+    covariance gives no variance go to ``E``. Returns ``(E, labels of E's rows, W, radius)``.
     """
     k = len(result.values)
     if region is None:
@@ -268,9 +269,10 @@ def _conditions(param, g, theta, e, w, pi, *, project=True):
     a_eq, b_eq = a_eq / scale[:, None], b_eq / scale
     if project and len(a_eq):
         u, s, _ = np.linalg.svd(a_eq @ g, full_matrices=False)
-        u[:, s <= 1e-9 * s[0]] = 0.0
-        a_eq, b_eq = np.vstack([u.T @ a_eq, np.zeros((len(a_eq) - len(s), a_eq.shape[1]))]), np.concatenate(
-            [u.T @ b_eq, np.zeros(len(a_eq) - len(s))])
+        u = u[:, s > 1e-9 * s[0]]
+        rows, rhs = np.zeros_like(a_eq), np.zeros_like(b_eq)
+        rows[: u.shape[1]], rhs[: u.shape[1]] = u.T @ a_eq, u.T @ b_eq
+        a_eq, b_eq = rows, rhs
     return a_eq, b_eq, w @ jac, w @ pi
 
 
@@ -281,8 +283,9 @@ def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
     names = []
     if x is not None and program.slack is not None:
         slack = np.abs(program.slack.value)
-        names = [f"{labels[i]} = {result.values[i]:.6g}" if labels[i] in result.names else labels[i]
-                 for i in np.flatnonzero(slack > 1e-6 * max(1.0, slack.max()))]  # fmt: skip
+        worst = [i for i in np.argsort(-slack) if slack[i] > 1e-6 * max(1.0, slack.max())]
+        names = [f"{labels[i]} = {result.values[i]:.6g}" if labels[i] in result.names else labels[i] for i in worst[:3]]
+        names += [f"{len(worst) - 3} more"] if len(worst) > 3 else []
     if region is None:
         return SpaceidError(
             f"{where}: the identified parameters are not physically realisable (no positive masses, inertias and "
@@ -323,7 +326,8 @@ def _checked_prior(result: Identification, prior, where: str, prior_name: str):
         raise SpaceidError(f"{prior_name}: joints {list(prior.joints)} differ from the identified model's "
                            f"{list(identified)} ({result.model}): give a prior of the same robot")
     prior = load_model(prior, planar=result.planar)
-    param = minimal_parameters(prior, tol=result.settings.get("parameterization", {}).get("rank_tol", 1e-9))
+    tol = result.settings.get("parameterization", {}).get("rank_tol")  # the identification's, if recorded
+    param = minimal_parameters(prior, **({"tol": tol} if tol else {}))
     if param.names != tuple(result.names) or param.definitions != tuple(result.definitions):
         raise SpaceidError(
             f"{prior_name}: its {param.n_params} minimal parameters differ from the {len(result.names)} of {where} "

@@ -1,5 +1,6 @@
-"""The exported model as URDF: the prior's own file with new ``<inertial>`` elements, or a URDF
-written from the model (:func:`urdf_text`, :func:`write_urdf`)."""
+"""The exported model as a file: URDF (the prior's own file with new ``<inertial>`` elements, or a
+URDF written from the model) or spaceid's YAML model (:func:`urdf_text`, :func:`yaml_text`,
+:func:`write_export`)."""
 
 from __future__ import annotations
 
@@ -13,7 +14,11 @@ from .._errors import SpaceidError
 from ..models import PRESETS, Model
 from ._export import Export
 
-__all__ = ["urdf_text", "write_urdf"]
+__all__ = ["FORMATS", "urdf_text", "write_export", "yaml_text"]
+
+FORMATS = ("urdf", "yaml")
+"""Output formats of :func:`write_export`."""
+NOTE = "inertial parameters identified by spaceid export"
 
 
 def _num(x: float) -> str:
@@ -25,15 +30,22 @@ def _vec(v) -> str:
     return " ".join(_num(x) for x in v)
 
 
-def _inertial_xml(inertial, indent: str) -> str:
-    """``<inertial>`` of a body's standard parameters (about its frame origin, ``INERTIAL_NAMES``
-    order) as URDF gives it: mass, CoM, inertia about the CoM in the link axes."""
+def _about_com(inertial):
+    """Mass [kg], CoM (3,) [m] and inertia about the CoM (3, 3) [kg m^2] of standard parameters."""
     m, c = inertial[0], inertial[1:4] / inertial[0]
     i_o = np.array([[inertial[4], inertial[5], inertial[7]], [inertial[5], inertial[6], inertial[8]],
                     [inertial[7], inertial[8], inertial[9]]])  # fmt: skip
-    i_c = i_o - m * (c @ c * np.eye(3) - np.outer(c, c))
-    entries = " ".join(f'{k}="{_num(i_c[a, b])}"' for k, (a, b) in
-                       zip(("ixx", "ixy", "ixz", "iyy", "iyz", "izz"), ((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))))
+    return m, c, i_o - m * (c @ c * np.eye(3) - np.outer(c, c))
+
+
+_ENTRIES = {"ixx": (0, 0), "ixy": (0, 1), "ixz": (0, 2), "iyy": (1, 1), "iyz": (1, 2), "izz": (2, 2)}
+
+
+def _inertial_xml(inertial, indent: str) -> str:
+    """``<inertial>`` of a body's standard parameters (about its frame origin, ``INERTIAL_NAMES``
+    order) as URDF gives it: mass, CoM, inertia about the CoM in the link axes."""
+    m, c, i_c = _about_com(inertial)
+    entries = " ".join(f'{k}="{_num(i_c[a, b])}"' for k, (a, b) in _ENTRIES.items())
     inner = indent + "  "
     return (f'<inertial>\n{inner}<origin xyz="{_vec(c)}" rpy="0 0 0"/>\n{inner}<mass value="{_num(m)}"/>\n'
             f"{inner}<inertia {entries}/>\n{indent}</inertial>")
@@ -83,13 +95,17 @@ def _rewrite(text: str, model: Model, note: str) -> str:
     return f'<?xml version="1.0"?>\n<!-- {note} -->\n{ET.tostring(root, encoding="unicode")}\n'
 
 
+def _joint_kind(body) -> str:
+    """URDF joint type: a revolute joint without position limits is continuous."""
+    if body.joint_type == "revolute" and not {"lower", "upper"} <= set(body.limits):
+        return "continuous"
+    return body.joint_type
+
+
 def _joint_xml(model: Model, body) -> str:
     import pinocchio as pin
 
-    limits = body.limits
-    kind = body.joint_type
-    if kind == "revolute" and not {"lower", "upper"} <= set(limits):
-        kind = "continuous"
+    limits, kind = body.limits, _joint_kind(body)
     attrs = [f'{k}="{_num(limits[k])}"' for k in ("lower", "upper") if kind != "continuous" and k in limits]
     if kind == "prismatic" and not attrs:
         attrs = ['lower="0"', 'upper="0"']  # URDF needs them; spaceid reads 0, 0 as none
@@ -111,7 +127,7 @@ def _generate(model: Model, note: str) -> str:
     return "".join(out) + "</robot>\n"
 
 
-def urdf_text(export: Export, note: str = "inertial parameters identified by spaceid export") -> str:
+def urdf_text(export: Export, note: str = NOTE) -> str:
     """The exported model as URDF text.
 
     A URDF prior keeps everything (kinematics, names, limits, visuals, comments) but its
@@ -119,25 +135,53 @@ def urdf_text(export: Export, note: str = "inertial parameters identified by spa
     body through fixed joints lose theirs (the body's holds the merged inertia). A YAML prior is
     written out as a URDF of its model (joints, limits with the ``acceleration`` attribute
     spaceid reads). ``note`` goes into a comment at the top. Planar mode, reaction wheels and
-    declared zeros are not URDF: load the file with ``planar=True`` for a planar model.
+    declared zeros are not URDF: load the file with ``planar=True`` for a planar model, or
+    write YAML (:func:`yaml_text`).
     """
     prior = _prior_urdf(export.prior)
     return _generate(export.model, note) if prior is None else _rewrite(prior, export.model, note)
 
 
-def write_urdf(export: Export, path, *, inputs=(), note: str = "inertial parameters identified by spaceid export"):
-    """Write :func:`urdf_text` to ``path`` atomically, never over one of the ``inputs`` files.
+def yaml_text(export: Export, note: str = NOTE) -> str:
+    """The exported model as spaceid's YAML model (docs/formats/yaml-model.md): the prior's
+    kinematics, planar flag, reaction wheels and declared zeros with the exported inertials
+    (no visuals: YAML has none). ``note`` goes into a comment at the top."""
+    import pinocchio as pin
+    import yaml
+
+    model = export.model
+    bodies = []
+    for b in model.bodies:
+        m, c, i_c = _about_com(b.inertial)
+        spec = {"name": b.name}
+        if b.parent >= 0:
+            joint = {"name": b.joint, "type": _joint_kind(b), "xyz": b.translation.tolist(),
+                     "rpy": np.asarray(pin.rpy.matrixToRpy(b.rotation)).tolist(), "axis": b.axis.tolist()}
+            spec |= {"parent": model.bodies[b.parent].name, "joint": joint | ({"limit": b.limits} if b.limits else {})}
+        inertia = {k: float(i_c[r, s]) for k, (r, s) in _ENTRIES.items()}
+        spec |= {"mass": float(m), "com": c.tolist(), "inertia": inertia}
+        bodies.append(spec | ({"known_zero": sorted(b.known_zero)} if b.known_zero else {}))
+    doc = {"name": model.name, "planar": model.planar} | ({"wheels": list(model.wheels)} if model.wheels else {})
+    return f"# {note}\n" + yaml.safe_dump(doc | {"bodies": bodies}, sort_keys=False, width=120)
+
+
+def write_export(export: Export, path, *, fmt: str = "urdf", inputs=(), note: str = NOTE) -> None:
+    """Write the exported model to ``path`` atomically as ``fmt`` (``FORMATS``: :func:`urdf_text`
+    or :func:`yaml_text`), never over one of the ``inputs`` files.
 
     Raises
     ------
     SpaceidError
-        ``path`` is one of ``inputs``, or cannot be written.
+        An unknown format, ``path`` one of ``inputs``, or a path that cannot be written.
     """
+    if fmt not in FORMATS:
+        raise SpaceidError(f"--format {fmt}: not one of {', '.join(FORMATS)}")
     path = Path(path)
     for source in inputs:
         if Path(source).is_file() and path.resolve() == Path(source).resolve():
             raise SpaceidError(f"-o {path}: that is an input file ({source}): give another file name")
+    text = urdf_text(export, note) if fmt == "urdf" else yaml_text(export, note)
     try:
-        write_text_atomic(path, urdf_text(export, note))
+        write_text_atomic(path, text)
     except OSError as err:
         raise SpaceidError(f"{path}: cannot write ({err.strerror or err}): check the path is writable") from None
