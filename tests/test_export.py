@@ -167,6 +167,28 @@ def test_bad_region_and_other_joints_are_refused(cepheus):
         export_model(ident, "satellite-7dof", prior_name="satellite-7dof")
 
 
+def test_point_mass_prior_is_refused(cepheus):
+    _, prior, ident, _ = cepheus
+    inertials = [b.inertial for b in prior.bodies]
+    inertials[1] = inertial_vector(prior.bodies[1].mass, [0, 0, 0], np.zeros((3, 3)))  # a point at the joint
+    with pytest.raises(spaceid.SpaceidError, match="body 'link1' of the prior is a point mass"):
+        export_model(ident, prior.with_inertials(inertials), prior_name="prior.yaml")
+
+
+@pytest.mark.slow
+def test_flat_wheel_prior_gets_a_small_spread():
+    """The cepheus-rw wheel is a disc (Izz = Ixx + Iyy: pseudo-inertia singular): it is measured
+    with 1e-6 of isotropic spread added, and its identified axial inertia is reproduced exactly."""
+    true = spaceid.load_model("cepheus-rw")
+    param = minimal_parameters(true)
+    res = export_model(exact_result(param), perturbed(true, seed=2))
+    assert np.abs(res.values - param.true_values).max() <= 1e-12 * np.abs(param.true_values).max()
+    wheel = res.model.bodies[1]
+    assert wheel.inertial[9] == pytest.approx(true.bodies[1].inertial[9], rel=1e-12)
+    thickness = pseudo_inertia(wheel.inertial)[2, 2]  # Szz = (Ixx + Iyy - Izz) / 2
+    assert 0 < thickness < 1e-5 * wheel.inertial[9]
+
+
 @pytest.mark.slow
 def test_noisy_planar_export_within_the_ellipsoid_anchor_exact(tmp_path):
     """Noisy Cepheus, momentum unknown and the scale anchored by a known pi5 (zero variance)."""

@@ -33,6 +33,9 @@ STEP_TOL = 1e-7
 """The convex steps stop when the whitened parameters (the prior at the identity) move less (the
 solver's own noise is ~3e-9); the last Newton steps then meet the equalities to round-off."""
 MAX_STEPS = 60
+SPREAD = 1e-6
+"""A prior body whose pseudo-inertia has an eigenvalue below this fraction of its largest (a plate,
+a rod) is measured against a copy with ``SPREAD tr(Sigma)`` of isotropic second moment added."""
 SHRINK = 1e-6
 """``--region``: the ellipsoid used is this much smaller (relative radius), so the exported
 parameters lie inside the stated one despite the solver's tolerance."""
@@ -71,16 +74,34 @@ def inertial_from_pseudo(pseudo) -> np.ndarray:
                      inertia[1, 2], inertia[2, 2]])  # fmt: skip
 
 
+def _reference_pseudo(inertial, where: str, name: str) -> np.ndarray:
+    """The pseudo-inertia of a reference (prior) body, positive definite: a degenerate one (a
+    plate such as a reaction-wheel disc with ``Izz = Ixx + Iyy``, or a rod) gets the isotropic
+    second moment ``SPREAD tr(Sigma)`` added; a point mass is refused."""
+    pseudo = pseudo_inertia(inertial)
+    eig = np.linalg.eigvalsh(pseudo)
+    if eig[0] > SPREAD * eig[-1]:
+        return pseudo
+    spread = SPREAD * np.trace(pseudo[:3, :3])
+    pseudo[:3, :3] += spread * np.eye(3)
+    if not np.linalg.eigvalsh(pseudo)[0] > 0.1 * spread > 0:
+        raise SpaceidError(f"{where}: body '{name}' of the prior is a point mass or not physical (pseudo-inertia "
+                           "not positive definite): give it a plausible inertia")
+    return pseudo
+
+
 def pseudo_divergence(model: Model, reference: Model) -> float:
     """Log-det (Bregman) divergence of ``model``'s pseudo-inertias from ``reference``'s, summed
     over the bodies: ``sum_b -log det(J_ref^-1 J) + tr(J_ref^-1 J) - 4`` (zero only when equal).
 
     Invariant to the choice of body frames and units; infinite if a pseudo-inertia of ``model``
-    is not positive definite.
+    is not positive definite. A degenerate reference body (a plate or a rod) counts with a small
+    isotropic spread ``SPREAD tr(Sigma)`` added to its second moments.
     """
     total = 0.0
     for body, ref in zip(model.bodies, reference.bodies):
-        ratio = np.linalg.solve(pseudo_inertia(ref.inertial), pseudo_inertia(body.inertial))
+        ref_pseudo = _reference_pseudo(ref.inertial, reference.name, ref.name)
+        ratio = np.linalg.solve(ref_pseudo, pseudo_inertia(body.inertial))
         eig = np.linalg.eigvals(ratio).real
         total += np.inf if eig.min() <= 0 else float(eig.sum() - np.log(eig).sum() - 4)
     return max(total, 0.0)  # nonnegative: below zero only by round-off
@@ -157,14 +178,7 @@ def _whitening(prior: Model, where: str):
     """The linear maps of the stacked ``vec(X_b)`` (column-major) to ``theta`` and to the declared
     zeros, ``G (n_theta, 16 nb)`` and ``Z (n_zero, 16 nb)``, where ``J_b = L_b X_b L_b^T`` with
     ``L_b`` the Cholesky factor of the prior's pseudo-inertia (the prior is at ``X_b = 1``)."""
-    factors = []
-    for body in prior.bodies:
-        pseudo = pseudo_inertia(body.inertial)
-        eig = np.linalg.eigvalsh(pseudo)
-        if not eig[0] > 1e-12 * eig[-1]:
-            raise SpaceidError(f"{where}: body '{body.name}' of the prior has a degenerate mass distribution (a point, "
-                               "rod or plate: pseudo-inertia not positive definite): give it a plausible 3-D inertia")
-        factors.append(np.linalg.cholesky(pseudo))
+    factors = [np.linalg.cholesky(_reference_pseudo(b.inertial, where, b.name)) for b in prior.bodies]
     nb = len(prior.bodies)
     full = np.zeros((10 * nb, 16 * nb))
     for b, low in enumerate(factors):

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
+from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -24,6 +25,16 @@ NOTE = "inertial parameters identified by spaceid export"
 def _num(x: float) -> str:
     """Shortest exact form: the file reproduces the parameters to the last bit."""
     return repr(float(x)) if x != 0 else "0"
+
+
+def _attr(text: str) -> str:
+    """``text`` safe inside a double-quoted XML attribute."""
+    return escape(str(text), {'"': "&quot;"})
+
+
+def _comment(note: str) -> str:
+    """An XML comment of ``note`` (which must not hold ``--``)."""
+    return f"<!-- {note.replace('--', '- -')} -->"
 
 
 def _vec(v) -> str:
@@ -92,7 +103,7 @@ def _rewrite(text: str, model: Model, note: str) -> str:
             new.tail = link.text if len(link) else "\n  "
             link.text = "\n" + (indent or "    ")
             link.insert(0, new)
-    return f'<?xml version="1.0"?>\n<!-- {note} -->\n{ET.tostring(root, encoding="unicode")}\n'
+    return f'<?xml version="1.0"?>\n{_comment(note)}\n{ET.tostring(root, encoding="unicode")}\n'
 
 
 def _joint_kind(body) -> str:
@@ -112,16 +123,17 @@ def _joint_xml(model: Model, body) -> str:
     attrs += [f'{k}="{_num(limits.get(k, 0.0))}"' for k in ("effort", "velocity")]
     attrs += [f'acceleration="{_num(limits["acceleration"])}"'] if "acceleration" in limits else []
     rpy = pin.rpy.matrixToRpy(body.rotation)
-    return (f'  <joint name="{body.joint}" type="{kind}">\n    <parent link="{model.bodies[body.parent].name}"/>\n'
-            f'    <child link="{body.name}"/>\n    <origin xyz="{_vec(body.translation)}" rpy="{_vec(rpy)}"/>\n'
+    return (f'  <joint name="{_attr(body.joint)}" type="{kind}">\n'
+            f'    <parent link="{_attr(model.bodies[body.parent].name)}"/>\n    <child link="{_attr(body.name)}"/>\n'
+            f'    <origin xyz="{_vec(body.translation)}" rpy="{_vec(rpy)}"/>\n'
             f'    <axis xyz="{_vec(body.axis)}"/>\n    <limit {" ".join(attrs)}/>\n  </joint>\n')
 
 
 def _generate(model: Model, note: str) -> str:
     """A URDF of ``model`` (root link the floating base; no visuals: the model has none)."""
-    out = [f'<?xml version="1.0"?>\n<!-- {note} -->\n<robot name="{model.name}">\n']
+    out = [f'<?xml version="1.0"?>\n{_comment(note)}\n<robot name="{_attr(model.name)}">\n']
     for body in model.bodies:
-        out.append(f'  <link name="{body.name}">\n    {_inertial_xml(body.inertial, "    ")}\n  </link>\n')
+        out.append(f'  <link name="{_attr(body.name)}">\n    {_inertial_xml(body.inertial, "    ")}\n  </link>\n')
         if body.parent >= 0:
             out.append(_joint_xml(model, body))
     return "".join(out) + "</robot>\n"
@@ -162,7 +174,7 @@ def yaml_text(export: Export, note: str = NOTE) -> str:
         spec |= {"mass": float(m), "com": c.tolist(), "inertia": inertia}
         bodies.append(spec | ({"known_zero": sorted(b.known_zero)} if b.known_zero else {}))
     doc = {"name": model.name, "planar": model.planar} | ({"wheels": list(model.wheels)} if model.wheels else {})
-    return f"# {note}\n" + yaml.safe_dump(doc | {"bodies": bodies}, sort_keys=False, width=120)
+    return f"# {note}\n" + yaml.safe_dump(doc | {"bodies": bodies}, sort_keys=False, default_flow_style=None, width=120)
 
 
 def write_export(export: Export, path, *, fmt: str = "urdf", inputs=(), note: str = NOTE) -> None:
