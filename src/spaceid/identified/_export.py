@@ -6,8 +6,9 @@ inertia, and a physical one. Among the ``theta`` that reproduce ``pi`` (or lie i
 ellipsoid), with every body's pseudo-inertia ``J = [[Sigma, h], [h^T, m]]`` positive definite, the
 one closest to a prior model in the log-det divergence of pseudo-inertias is taken
 (docs/theory/export.md). The lumped products ``phi`` make the constraint nonlinear; being
-homogeneous of degree one in ``theta``, its linearisation at ``theta_k`` is ``J_k theta``, so each
-step is a convex program (cvxpy, Clarabel) and the steps repeat until ``theta`` stops moving.
+homogeneous of degree one in ``theta``, its linearisation at ``theta_k`` is ``A(theta_k) theta``
+(``A`` its Jacobian), so each step is a convex program (cvxpy, Clarabel) and the steps repeat
+until ``theta`` stops moving.
 """
 
 from __future__ import annotations
@@ -269,11 +270,11 @@ class _Program:
 
 
 def _conditions(param, g, theta, e, w, pi, *, project=True):
-    """The linearised conditions at ``theta`` (``P J(theta) theta``, exact there) as ``(A_eq,
+    """The linearised conditions at ``theta`` (``A(theta) theta``, exact there) as ``(A_eq,
     b_eq, A_w, b_w)``, each row of ``E`` scaled to unit norm in the whitened variables.
 
     ``project``: the equalities only along the directions the linearisation reaches (the range of
-    ``E P J``, a Gauss-Newton step): a spatial system has more minimal parameters than standard
+    ``E A``, a Gauss-Newton step): a spatial system has more minimal parameters than standard
     ones, so the linearised equalities alone are overdetermined and met only at the solution.
     The other rows are zero, so the programs keep their shapes."""
     jac = param.projection @ full_values_jacobian(_with_theta(param.model, theta))
@@ -373,7 +374,7 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
     Raises
     ------
     SpaceidError
-        A prior of other joints or geometry, a degenerate prior body, ``region`` outside (0, 1),
+        A prior of other joints or geometry, a point-mass prior body, ``region`` outside (0, 1),
         or no physical model meeting the conditions (the message names the parameters).
     """
     if region is not None and not 0 < region < 1:
@@ -389,7 +390,7 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
     g, z = _whitening(prior, prior_name)
     e, labels, w, radius = _constraint_rows(result, region)
     program = _Program(g, z, len(e), len(w), radius * (1 - SHRINK))
-    theta = full_values(prior)[: g.shape[0]]
+    theta = prior_theta = full_values(prior)[: g.shape[0]]
     x = np.concatenate([np.eye(4).ravel()] * len(prior.bodies))
     for steps in range(1, MAX_STEPS + 1):
         new = program.solve(*_conditions(param, g, theta, e, w, pi))
@@ -405,7 +406,6 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
     scale = np.abs(g).max(axis=1)  # of each standard parameter, for a unit change of X
     theta = _polish(param, theta, e, pi, scale)
     hidden = _hidden(param)
-    prior_theta = full_values(prior)[: len(theta)]
     # the parameters the momentum does not see are at the prior up to the solver's noise: exactly there
     theta = np.where(hidden & (np.abs(theta - prior_theta) <= 1e-9 * scale), prior_theta, theta)
     a_eq, b_eq, *_ = _conditions(param, g, theta, e, w, pi, project=False)
