@@ -236,10 +236,10 @@ class _Program:
         nb = g.shape[1] // 16
         self.x = [cp.Variable((4, 4), symmetric=True) for _ in range(nb)]
         vec = cp.hstack([cp.vec(x, order="F") for x in self.x])
-        theta = g @ vec
+        theta = cp.Variable(g.shape[0])  # a variable of its own: parameter @ variable compiles fast
         self.a_eq, self.b_eq = cp.Parameter((n_eq, g.shape[0])), cp.Parameter(n_eq)
         self.a_w, self.b_w = cp.Parameter((n_w, g.shape[0])), cp.Parameter(n_w)
-        cons = [x >> MARGIN * np.eye(4) for x in self.x] + ([z @ vec == 0] if len(z) else [])
+        cons = [x >> MARGIN * np.eye(4) for x in self.x] + [theta == g @ vec] + ([z @ vec == 0] if len(z) else [])
         eq = self.a_eq @ theta - self.b_eq if n_eq else None
         ball = cp.norm(self.a_w @ theta - self.b_w) if n_w else None
         if elastic:
@@ -269,6 +269,11 @@ class _Program:
         return np.concatenate([x.value.ravel(order="F") for x in self.x])
 
 
+def _projected_rows(shape) -> int:
+    """Rows of the projected equalities of an ``E A`` of ``shape``: at most its rank."""
+    return min(shape)
+
+
 def _conditions(param, g, theta, e, w, pi, *, project=True):
     """The linearised conditions at ``theta`` (``A(theta) theta``, exact there) as ``(A_eq,
     b_eq, A_w, b_w)``, each row of ``E`` scaled to unit norm in the whitened variables.
@@ -276,7 +281,8 @@ def _conditions(param, g, theta, e, w, pi, *, project=True):
     ``project``: the equalities only along the directions the linearisation reaches (the range of
     ``E A``, a Gauss-Newton step): a spatial system has more minimal parameters than standard
     ones, so the linearised equalities alone are overdetermined and met only at the solution.
-    The other rows are zero, so the programs keep their shapes."""
+    They are at most ``n_theta`` (``len(theta)``) rows, padded with zero rows to that number (or to
+    the number of rows of ``E``, if fewer), so the program keeps its shape."""
     jac = param.projection @ full_values_jacobian(_with_theta(param.model, theta))
     a_eq, b_eq = e @ jac, e @ pi
     scale = np.linalg.norm(a_eq @ g, axis=1)
@@ -285,7 +291,8 @@ def _conditions(param, g, theta, e, w, pi, *, project=True):
     if project and len(a_eq):
         u, s, _ = np.linalg.svd(a_eq @ g, full_matrices=False)
         u = u[:, s > 1e-9 * s[0]]
-        rows, rhs = np.zeros_like(a_eq), np.zeros_like(b_eq)
+        n = _projected_rows(a_eq.shape)
+        rows, rhs = np.zeros((n, a_eq.shape[1])), np.zeros(n)
         rows[: u.shape[1]], rhs[: u.shape[1]] = u.T @ a_eq, u.T @ b_eq
         a_eq, b_eq = rows, rhs
     return a_eq, b_eq, w @ jac, w @ pi
@@ -389,7 +396,7 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
     pi = np.asarray(result.values, float)
     g, z = _whitening(prior, prior_name)
     e, labels, w, radius = _constraint_rows(result, region)
-    program = _Program(g, z, len(e), len(w), radius * (1 - SHRINK))
+    program = _Program(g, z, _projected_rows((len(e), g.shape[0])), len(w), radius * (1 - SHRINK))
     theta = prior_theta = full_values(prior)[: g.shape[0]]
     x = np.concatenate([np.eye(4).ravel()] * len(prior.bodies))
     for steps in range(1, MAX_STEPS + 1):
