@@ -222,6 +222,17 @@ def test_spatial_export_reproduces_pi_and_momentum(tmp_path):
     preset = (Path(spaceid.__file__).parent / "models" / "presets" / "satellite-7dof.urdf").read_text()
     assert text.count("<visual>") == preset.count("<visual>") > 0 and 'acceleration="0.5"' in text
     assert "merged into the link of its body" in text
+    # everything but the inertials is the prior's: joints, materials, visuals and collisions element by element
+    import defusedxml.ElementTree as ET
+
+    def without_inertials(xml):
+        root = ET.fromstring(xml)
+        for link in root.findall("link"):
+            for inertial in link.findall("inertial"):
+                link.remove(inertial)
+        return [" ".join(ET.tostring(child, encoding="unicode").split()) for child in root]
+
+    assert without_inertials(text) == without_inertials(preset)
 
 
 @pytest.mark.slow
@@ -267,7 +278,7 @@ def test_cli_writes_the_urdf_and_refuses_its_inputs(cepheus, tmp_path, capsys):
     out = tmp_path / "identified.urdf"
     assert main(["export", str(result), "--prior", str(prior), "-o", str(out)]) == 0
     printed = capsys.readouterr().out
-    assert "link2" in printed and "exact" in printed
+    assert "link2" in printed and "m mcx Izz" in printed and "exact" in printed
     back = spaceid.load_model(out, planar=True)
     pi = minimal_parameters(true.with_inertials([b.inertial for b in back.bodies])).true_values
     np.testing.assert_allclose(pi, ident.values, rtol=1e-8)
