@@ -9,6 +9,7 @@ import pinocchio as pin
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from conftest import random_tree
 
 import spaceid
 from spaceid import SpaceidError
@@ -276,3 +277,20 @@ def test_round_trip_from_identify_on_the_command_line(cepheus, tmp_path, rng):
     _close(loaded.forward_dynamics(q[0], qd[0], tau[0], momentum=ref[2]), ref[3])
     _, metrics = spaceid.validate(loaded, log, momentum=H_CEPHEUS)
     assert metrics["base_w_nrms"] < 1e-9
+
+
+@pytest.mark.parametrize("planar", [True, False], ids=["planar", "spatial"])
+def test_trees_with_a_prismatic_joint_equal_pinocchio(rng, planar):
+    """Any tree: a branch and a slide (whose derivative stencil is the central difference)."""
+    model = random_tree(rng, [0, 1, 1], planar=planar, prismatic=(2,))
+    param = minimal_parameters(model)
+    h = np.array([0.0, 0.0, 0.7]) if planar else H_SPATIAL
+    log = random_log(param, h, 4 * param.n_params // param.rows, rng)
+    ident = IdentifiedModel(identify(param, log, h), param)  # an in-memory model: nothing to reload
+    q, qd, w0, tau = _states(model, rng, 3)
+    q[:, 1] = rng.uniform(-0.5, 0.5, 3)
+    for n in range(3):
+        reduced, energy, h_base, qdd = pinocchio_reference(model, q[n], qd[n], w0[n], tau[n])
+        _close(ident.reduced_inertia(q[n]), reduced)
+        _close(ident.kinetic_energy(q[n], qd[n], w0[n]), energy)
+        _close(ident.forward_dynamics(q[n], qd[n], tau[n], momentum=h_base), qdd)

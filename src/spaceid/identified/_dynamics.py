@@ -14,8 +14,9 @@ inertia ``H* = A - B D^-1 B^T`` (blocks of ``M``: joints ``A``, coupling ``B``, 
 ``D``) and the joint dynamics (docs/theory/control.md).
 
 ``M(q)`` has degree two in ``cos q_k, sin q_k`` (revolute joint k) or in ``q_k`` (prismatic):
-every body velocity is linear in them. Its configuration derivative is therefore exact from
-five equally spaced angles (a discrete Fourier series of degree two) or a central difference.
+every body velocity is linear in them. Its configuration derivative (applied to a velocity,
+``dM/dq_k x``, all the dynamics need) is therefore exact from five equally spaced angles (a
+discrete Fourier series of degree two) or a central difference.
 """
 
 from __future__ import annotations
@@ -377,23 +378,32 @@ class IdentifiedModel:
         q, qd = np.asarray(q, float), np.asarray(qd, float)
         n = self.geometry.n_joints
         x = self._rates(qd, self.base_rate(q, qd, momentum, attitude))
-        m, dm = self.inertia(q), self._inertia_derivative(q)  # dm: (..., n, d, d)
-        mdot_x = np.einsum("...kab,...k,...b->...a", dm, qd, x)
-        grad = 0.5 * np.einsum("...a,...kab,...b->...k", x, dm, x)
+        m, dm_x = self.inertia(q), self._inertia_derivative_times(q, x)  # dm_x: (..., n, d)
+        mdot_x = np.einsum("...ka,...k->...a", dm_x, qd)
+        grad = 0.5 * np.einsum("...a,...ka->...k", x, dm_x)
         c_b = mdot_x[..., n:]
         if not self.geometry.planar:  # Euler: dh/dt = h x w0 in base axes (a planar h_z stays)
             c_b = c_b - np.cross((m[..., n:, :] @ x[..., None])[..., 0], x[..., n:])
         reduced, xb = _schur(m, n)  # xb = D^-1 B^T
         return reduced, mdot_x[..., :n] - grad - (np.swapaxes(xb, -1, -2) @ c_b[..., None])[..., 0]
 
-    def _inertia_derivative(self, q) -> np.ndarray:
-        """``dM/dq_k``, shape ``(..., n, d, d)``: exact stencils (the module docstring)."""
+    def _inertia_times(self, q, x) -> np.ndarray:
+        """``inertia(q) @ x``, shape ``(..., d)``, from the energies at ``x``, ``e_i`` and
+        ``x + e_i`` (``2 d + 1`` of them, where the whole matrix takes ``d (d + 1) / 2``)."""
+        d, x = self._dim, np.asarray(x, float)[..., None, :]
+        rates = np.concatenate(np.broadcast_arrays(x, np.eye(d), x + np.eye(d)), -2)
+        t = self._energy(np.asarray(q, float)[..., None, :], rates)
+        return t[..., 2 * d : 3 * d] - t[..., :d] - t[..., d : 2 * d]
+
+    def _inertia_derivative_times(self, q, x) -> np.ndarray:
+        """``dM/dq_k @ x``, shape ``(..., n, d)``: exact stencils (the module docstring)."""
         n = self.geometry.n_joints
         revolute = np.array([b.joint_type == "revolute" for b in self.geometry.bodies[1:]])
         steps = np.where(revolute[:, None], _ANGLES, [_SLIDE, -_SLIDE, 0.0, 0.0])  # (n, 4)
         weights = np.where(revolute[:, None], _ANGLE_WEIGHTS, [0.5 / _SLIDE, -0.5 / _SLIDE, 0.0, 0.0])
         shifted = np.asarray(q, float)[..., None, None, :] + steps[..., None] * np.eye(n)[:, None, :]
-        return np.einsum("...kjab,kj->...kab", self.inertia(shifted), weights)
+        m_x = self._inertia_times(shifted, np.asarray(x, float)[..., None, None, :])  # (..., n, 4, d)
+        return np.einsum("...kja,kj->...ka", m_x, weights)
 
 
 def _schur(m: np.ndarray, n: int):
