@@ -52,7 +52,7 @@ def test_imports_go_down_the_pipeline():
     assert not upward, "imports against the pipeline order:\n" + "\n".join(upward)
 
 
-@pytest.mark.parametrize("package", ["models", "data", "dynamics", "estimation", "identified", "motion", "twin", "studies"])
+@pytest.mark.parametrize("package", LAYERS[1:-1])
 def test_public_names_exist_and_are_documented(package):
     module = importlib.import_module(f"spaceid.{package}")
     assert module.__doc__

@@ -168,6 +168,24 @@ png = plot_validation(log, predicted, folder / "validation.png")
 assert png.stat().st_size > 10_000
 
 # %%
+# Model-based control
+# -------------------
+# ``again`` is more than the numbers: ``spaceid.load_result`` gives the identified model with
+# the free-floating dynamics its parameters fix (:doc:`/theory/control`): the joints' inertia
+# with the base free to move, ``H*(q)``, with its standard deviations from the covariance of
+# the parameters, and the joint accelerations under motor torques with the momentum conserved.
+
+q0 = log.q[0]
+reduced = again.reduced_inertia(q0)
+spread = np.sqrt(np.einsum("ijij->ij", again.reduced_inertia_cov(q0)))
+print(f"H*(q0) [kg m^2]:\n{reduced}\nstandard deviations:\n{spread}")
+qdd = again.forward_dynamics(q0, log.qd[0], np.array([0.01, 0.0]), momentum=h)
+print(f"accelerations under 0.01 N m on {model.joints[0]}: {qdd} rad/s^2")
+print("not fixed by the parameters:", ", ".join(again.undetermined))
+exact = spaceid.identified.identified_model(spaceid.identify(param, clean, h)).reduced_inertia(q0)
+assert np.abs(reduced - exact).max() < 0.01 * np.abs(exact).max()
+
+# %%
 # The files of this tutorial went into a temporary folder; remove it.
 
 shutil.rmtree(folder)

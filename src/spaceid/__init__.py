@@ -7,11 +7,12 @@ The pipeline, one function a stage::
     design = spaceid.design_excitation(param, ...)        # exciting joint motion
     log = spaceid.simulate(param, pi, design.trajectory, ...)  # or spaceid.read_log(path, ...)
     result = spaceid.identify(param, log, momentum)       # estimate, standard errors
+    model = spaceid.load_result(path)                     # saved result -> controller-ready dynamics
     spaceid.validate(result, log)                         # re-simulation against the log
 
 The subpackages hold the rest, stage by stage: :mod:`spaceid.models`, :mod:`spaceid.data`,
-:mod:`spaceid.dynamics`, :mod:`spaceid.estimation`, :mod:`spaceid.motion`, :mod:`spaceid.twin`
-and :mod:`spaceid.studies`. Names are loaded on first use, so ``import spaceid`` stays fast.
+:mod:`spaceid.dynamics`, :mod:`spaceid.estimation`, :mod:`spaceid.identified`, :mod:`spaceid.motion`,
+:mod:`spaceid.twin` and :mod:`spaceid.studies`. Names are loaded on first use, so ``import spaceid`` stays fast.
 """
 
 import importlib
@@ -20,7 +21,7 @@ from ._errors import SpaceidError
 
 __version__ = "0.1.0"
 
-# public name -> subpackage that defines it
+# public name -> subpackage that defines it, or (subpackage, its name there)
 _HOME = {
     "Model": "models",
     "load_model": "models",
@@ -33,7 +34,8 @@ _HOME = {
     "Identification": "estimation",
     "identify": "estimation",
     "cramer_rao": "estimation",
-    "load_result": "estimation",
+    "load_result": ("identified", "load_identified"),  # the controller-ready model of a RESULT.json
+    "IdentifiedModel": "identified",
     "load_trajectory": "motion",
     "sample_times": "motion",
     "design_excitation": "motion",
@@ -53,7 +55,8 @@ __all__ = ["SpaceidError", *_HOME]
 
 def __getattr__(name):
     if name in _HOME:
-        value = getattr(importlib.import_module(f".{_HOME[name]}", __name__), name)
+        package, attr = _HOME[name] if isinstance(_HOME[name], tuple) else (_HOME[name], name)
+        value = getattr(importlib.import_module(f".{package}", __name__), attr)
         globals()[name] = value  # later look-ups skip this function
         return value
     raise AttributeError(f"module 'spaceid' has no attribute {name!r}")

@@ -105,8 +105,8 @@ def full_values(model: Model) -> np.ndarray:
     """Values of the full parameter vector, shape ``(n_full,)``, order of ``full_parameter_names``."""
     theta, first, pairs = _layout(model)
     values = [model.bodies[i].inertial[k] for i, k in theta]
-    f = [model.bodies[i].inertial[k] for i, k in first]
-    return np.array(values + [f[a] * f[c] / model.mass for a, c in pairs])
+    f, total = [model.bodies[i].inertial[k] for i, k in first], model.mass
+    return np.array(values + [f[a] * f[c] / total for a, c in pairs])
 
 
 def full_values_jacobian(model: Model) -> np.ndarray:
@@ -310,13 +310,16 @@ def full_regressor(model: Model, q, qd, w0, *, columns=None) -> np.ndarray:
     return _regressor(model, q, qd, w0, _plan(model, columns), energy=False)
 
 
-def energy_regressor(model: Model, q, qd, w0, *, columns=None) -> np.ndarray:
+def energy_regressor(model: Model, q, qd, w0, *, columns=None, weights=None) -> np.ndarray:
     """Kinetic-energy regressor with zero linear momentum, shape ``(..., n_columns)``.
 
     ``energy_regressor(...) @ full_values(model)`` is the kinetic energy [J] of the system
     moving with zero linear momentum: the reduced dynamics that model-based control needs.
+    With ``weights`` of shape ``(n_columns,)``, the product ``regressor @ weights``, shape
+    ``(...)``, formed without storing the columns.
     """
-    return _regressor(model, q, qd, w0, _plan(model, columns), energy=True)
+    weights = None if weights is None else np.asarray(weights, float)
+    return _regressor(model, q, qd, w0, _plan(model, columns), energy=True, weights=weights)
 
 
 # ------------------------------------------------------------------ random states -------------

@@ -1,9 +1,12 @@
-"""The identified model as a whole robot: physically consistent standard parameters that reproduce
-an identification, exported as a robot description.
+"""The identified model put to use: the free-floating dynamics that the minimal parameters and
+their covariance fix (reduced joint inertia, kinetic energy, forward dynamics, base rate) and what
+they do not fix; and physically consistent standard parameters that reproduce an identification,
+exported as a robot description.
 """
 
+from . import _dynamics, _export, _files
+from ._dynamics import *  # noqa: F403
 from ._export import *  # noqa: F403
 from ._files import *  # noqa: F403
 
-# one line a module above; the public names are those they export
-__all__ = sorted(name for name in dir() if not name.startswith("_"))
+__all__ = [*_dynamics.__all__, *_export.__all__, *_files.__all__]

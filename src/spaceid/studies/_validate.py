@@ -8,27 +8,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._errors import SpaceidError
 from ..estimation import Identification
-from ..models import load_model
-from ..dynamics import Parameterization, minimal_parameters
+from ..identified import parameterization_of
 from ..motion import hermite_motion, simulate
 from ..data import Log
 
-__all__ = ["parameterization_of", "predict", "validate", "validation_metrics"]
-
-
-def parameterization_of(ident: Identification, *, where: str = "result") -> Parameterization:
-    """Rebuild the minimal parameter set that ``ident`` was identified with, and check it."""
-    settings = ident.settings.get("parameterization", {})
-    model = load_model(ident.model, planar=ident.planar)
-    param = minimal_parameters(model, tol=settings.get("rank_tol", 1e-9), seed=settings.get("seed", 0))
-    if param.names != ident.names or param.definitions != ident.definitions:
-        raise SpaceidError(
-            f"{where}: its parameters do not match model '{ident.model}' as loaded now "
-            f"({len(ident.names)} vs {param.n_params}): identify again with this model"
-        )
-    return param
+__all__ = ["predict", "validate", "validation_metrics"]
 
 
 def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None, where: str = "result") -> Log:
@@ -36,7 +21,7 @@ def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None
 
     Parameters
     ----------
-    ident : Identification
+    ident : Identification or IdentifiedModel
     t : array_like of shape (n,)
         Time stamps [s].
     q, qd : array_like of shape (n, n_joints)
