@@ -1,17 +1,57 @@
-"""Safe YAML loading with one-line errors (models and bag mappings)."""
+"""Safe YAML loading with one-line errors (models and bag mappings).
+
+Model and mapping files are short, hand-written descriptions: aliases (``*name``) are refused,
+since a few hundred bytes of nested aliases expand to gigabytes (a "billion laughs" file), and
+so are Python tags (safe loading), files beyond :data:`MAX_YAML_CHARS` and nesting too deep to
+compose.
+"""
 
 import yaml
 
 from ._errors import SpaceidError
 
-__all__ = ["parse_yaml"]
+__all__ = ["parse_yaml", "MAX_YAML_CHARS"]
+
+MAX_YAML_CHARS = 1_000_000
+"""Longest YAML text read [characters]: a model of a thousand bodies takes ~400 kB."""
+
+
+class _NoAliasLoader(yaml.SafeLoader):
+    """The safe loader, refusing aliases where they are met (before anything is expanded)."""
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.AliasEvent):
+            event = self.peek_event()
+            raise _AliasRefused(event.anchor, event.start_mark)
+        return super().compose_node(parent, index)
+
+
+class _AliasRefused(Exception):
+    def __init__(self, anchor, mark):
+        super().__init__(anchor)
+        self.anchor, self.mark = anchor, mark
 
 
 def parse_yaml(text: str, where: str, fix: str = "fix the syntax"):
-    """``yaml.safe_load`` of ``text``; a syntax error names ``where`` and its line."""
+    """``yaml.safe_load`` of ``text`` without aliases; every failure is a one-line SpaceidError
+    naming ``where`` (and the line where YAML knows it), ending in ``fix``."""
+    if len(text) > MAX_YAML_CHARS:
+        raise SpaceidError(
+            f"{where}: {len(text)} characters of YAML, beyond the {MAX_YAML_CHARS} a model or mapping file may "
+            "have: is this the right file?"
+        )
     try:
-        return yaml.safe_load(text)
+        return yaml.load(text, Loader=_NoAliasLoader)  # noqa: S506 (a SafeLoader subclass)
+    except _AliasRefused as exc:
+        raise SpaceidError(
+            f"{where}: line {exc.mark.line + 1}: YAML alias '*{str(exc.anchor)[:40]}' refused (aliases can expand "
+            "without bound): write the value out in full"
+        ) from None
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         line = f" at line {mark.line + 1}" if mark else ""
         raise SpaceidError(f"{where}: not valid YAML{line}: {fix}") from None
+    except RecursionError:
+        raise SpaceidError(f"{where}: YAML nested too deeply to read: {fix}") from None
+    except (ValueError, OverflowError) as exc:  # e.g. an integer of 5000 digits, a date 2001-13-45
+        raise SpaceidError(f"{where}: a YAML value cannot be read ({str(exc).splitlines()[0][:80]}): {fix}") from None

@@ -228,7 +228,15 @@ def write_json(path, obj) -> None:
 
 
 def read_json(path, *, what="JSON file"):
-    """Read a JSON file; ``what`` names it in error messages (e.g. ``"result"``)."""
+    """Read a JSON file; ``what`` names it in error messages (e.g. ``"result"``).
+
+    Raises
+    ------
+    SpaceidError
+        As :func:`~spaceid._inputs.read_input_text` (a file beyond 256 MiB, not a regular file),
+        invalid JSON, nesting deeper than Python's recursion limit, or an integer too long to
+        convert (over 4300 digits).
+    """
     text = _read_text(path, what)
     try:
         return json.loads(text)
@@ -237,6 +245,10 @@ def read_json(path, *, what="JSON file"):
             f"{path}: not a valid {what} (line {err.lineno}, column {err.colno}: {err.msg}): "
             "fix the JSON or write the file again"
         ) from None
+    except RecursionError:
+        raise SpaceidError(f"{path}: the {what} is nested too deeply to read: is this the right file?") from None
+    except ValueError as err:  # an integer of thousands of digits
+        raise SpaceidError(f"{path}: a value of the {what} cannot be read ({str(err)[:80]}): fix the JSON") from None
 
 
 def _dumps(obj, level: int = 0) -> str:

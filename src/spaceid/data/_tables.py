@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import SpaceidError
+from .._inputs import MiB, read_input_text
 from ._timeseries import first_unordered
 
 _MAX_ANGLE = 20 * math.pi  # [rad]; ten turns over a run means the column is in degrees
@@ -24,6 +25,13 @@ _GAP = 10.0  # a step this many times the median one is a gap (dropped samples),
 _MAX_WHEEL_RATE = 1000.0  # [rad/s]; reaction wheels spin at a few hundred rad/s
 _QUAT_WARN = 1e-6  # |norm - 1| above which a quaternion is renormalised, with a warning
 _QUAT_FAIL = 1e-2  # |norm - 1| above which it is not a unit quaternion at all
+
+MAX_TABLE_BYTES = 128 * MiB
+"""Largest CSV table read [bytes]: 1 kHz for 15 min at 17 digits a cell, ~2 GB of memory while read."""
+MAX_TABLE_ROWS = 1_000_000
+"""Most rows of a CSV table (read whole: ~2 kB of memory a row while parsed)."""
+MAX_TEXT_BYTES = 256 * MiB
+"""Largest other text input read [bytes] (JSON results and trajectories, mapping files)."""
 
 _PLANAR_BASE = (("base_yaw",), ("base_wz",))
 _SPATIAL_BASE = (("base_qw", "base_qx", "base_qy", "base_qz"), ("base_wx", "base_wy", "base_wz"))
@@ -40,24 +48,29 @@ class _Table:
     lines: list
 
 
-def _read_text(path, what):
-    try:
-        # utf-8-sig: spreadsheet exports often start with a byte-order mark.
-        return Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise SpaceidError(f"{path}: no such file (expected a {what}): check the path") from None
-    except UnicodeDecodeError as err:
-        raise SpaceidError(
-            f"{path}: not a UTF-8 text file (byte {err.start} cannot be decoded): expected a {what}"
-        ) from None
-    except OSError as err:
-        raise SpaceidError(
-            f"{path}: cannot read the {what} ({err.strerror or err}): check the path and permissions"
-        ) from None
+def _read_text(path, what, max_bytes=None):
+    """The text of a user file within bounds (:func:`~spaceid._inputs.read_input_text`); a folder
+    without ``metadata.yaml`` gets a hint when it looks like a damaged ROS 2 bag."""
+    folder, hint = Path(path), ""
+    if folder.is_dir():
+        try:
+            storage = next((f for f in folder.iterdir() if f.suffix.lower() in (".db3", ".mcap")), None)
+        except OSError:
+            storage = None
+        hint = (f": it holds {storage.name} but no metadata.yaml, which a ROS 2 bag folder needs: restore it "
+                "(`ros2 bag reindex` rebuilds it)" if storage else
+                ": give the file itself, or a ROS 2 bag folder (with metadata.yaml)")
+    return read_input_text(path, what, MAX_TEXT_BYTES if max_bytes is None else max_bytes, folder_hint=hint)
 
 
 def _read_csv(path, *, what):
-    text = _read_text(path, what)
+    text = _read_text(path, what, MAX_TABLE_BYTES)
+    rows_given = text.count("\n")
+    if rows_given > MAX_TABLE_ROWS:
+        raise SpaceidError(
+            f"{path}: {rows_given} lines, beyond the {MAX_TABLE_ROWS} rows a {what} may have (it is read whole): "
+            "split the run or downsample it"
+        )
     reader = csv.reader(io.StringIO(text, newline=""))
     rows, lines = [], []
     try:
