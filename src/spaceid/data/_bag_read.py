@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextlib
 import difflib
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -131,7 +132,7 @@ def _read_messages(path, joint_topic, pose_topic):
             for connection, _, raw in reader.messages(connections=[c for cs in connections.values() for c in cs]):
                 msg = reader.deserialize(raw, connection.msgtype)
                 (joint_msgs if connection.topic == joint_topic else pose_msgs).append(msg)
-        except _rosbags_errors() as err:
+        except _damaged() as err:
             raise SpaceidError(
                 f"{where}: cannot read the messages ({_text(err)}): the bag is damaged; re-record or repair it"
             ) from None
@@ -172,7 +173,7 @@ def _open_bag(path):
     try:
         reader = AnyReader([path])
         reader.open()
-    except (AnyReaderError, OSError) as err:
+    except (AnyReaderError, OSError, *_damaged()) as err:
         raise SpaceidError(
             f"{path}: not a readable ROS bag ({_text(err)}): {_SUFFIX_HINT}, written completely"
         ) from None
@@ -180,6 +181,13 @@ def _open_bag(path):
         yield reader
     finally:
         reader.close()
+
+
+def _damaged():
+    """What rosbags raises on a damaged bag: its own errors, and (found by fuzzing: a size field
+    overwritten, a truncated record, a zeroed schema) what its parsers let through."""
+    return (*_rosbags_errors(), ValueError, KeyError, IndexError, TypeError, OverflowError, MemoryError, EOFError,
+            struct.error)
 
 
 def _topic_connections(reader, where, topic, msgtype, option):
@@ -212,6 +220,8 @@ def _merge_joint_states(msgs, label):
     NaN there; velocity (effort) is None when no message carries one.
     """
     per_joint = _samples_by_joint(msgs, label)
+    if not per_joint:
+        raise SpaceidError(f"{label}: no message names any joint: record the joint states with their names")
     for name, samples in per_joint.items():
         stamps = np.array([s[0] for s in samples], dtype=np.int64)
         _check_stamps(stamps, [s[1] for s in samples], f"{label}: joint '{name}'")

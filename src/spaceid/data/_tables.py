@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import SpaceidError
+from .._errors import SpaceidError, shown
 from .._inputs import MiB, read_input_text
 from ._timeseries import first_unordered
 
@@ -27,7 +27,7 @@ _QUAT_WARN = 1e-6  # |norm - 1| above which a quaternion is renormalised, with a
 _QUAT_FAIL = 1e-2  # |norm - 1| above which it is not a unit quaternion at all
 
 MAX_TABLE_BYTES = 128 * MiB
-"""Largest CSV table read [bytes]: 1 kHz for 15 min at 17 digits a cell, ~2 GB of memory while read."""
+"""Largest CSV table read [bytes]: ~16 min at 1 kHz with 7 columns of 17 digits (~2 GB of memory while read)."""
 MAX_TABLE_ROWS = 1_000_000
 """Most rows of a CSV table (read whole: ~2 kB of memory a row while parsed)."""
 MAX_TEXT_BYTES = 256 * MiB
@@ -86,7 +86,7 @@ def _read_csv(path, *, what):
     seen = set()
     for name in header:
         if name in seen:
-            raise SpaceidError(f"{path}: column '{name}' appears twice in the header: rename or drop one")
+            raise SpaceidError(f"{path}: column {shown(name)} appears twice in the header: rename or drop one")
         seen.add(name)
     if len(rows) == 1:
         raise SpaceidError(f"{path}: the {what} has a header but no data rows: give at least one sample")
@@ -104,7 +104,7 @@ def _check_joint_columns(table, joints):
         prefix = "q_" if name.startswith("q_") else "qd_" if name.startswith("qd_") else None
         if prefix and name[len(prefix):] not in joints:
             raise SpaceidError(
-                f"{table.path}: joint '{name[len(prefix):]}' in the log is not in the model "
+                f"{table.path}: joint {shown(name[len(prefix):])} in the log is not in the model "
                 f"(joints: {', '.join(joints) or 'none'}): rename the column or use the matching model"
             )
 
@@ -123,8 +123,14 @@ def _require(table, names, *, planar):
     elif all(_is_rate(name) for name in missing):
         hint = "; give the rates or let spaceid differentiate the angles (require_rates=False)"
     raise SpaceidError(
-        f"{table.path}: missing column(s) {', '.join(missing)} (header: {', '.join(table.header)}){hint}"
+        f"{table.path}: missing column(s) {', '.join(missing)} (header: {_listed(table.header)}){hint}"
     )
+
+
+def _listed(names, most=20):
+    """``names`` joined for a message, at most ``most`` of them (a hostile header has thousands)."""
+    shown_names = [shown(n)[1:-1] for n in names[:most]]
+    return ", ".join(shown_names) + (f", ... ({len(names)} in all)" if len(names) > most else "")
 
 
 def _column(table, name):
@@ -135,7 +141,7 @@ def _column(table, name):
     except ValueError:
         i = next((i for i, cell in enumerate(raw) if not _is_float(cell)), 0)
         raise SpaceidError(
-            f"{table.path}: line {table.lines[i]}, column '{name}': {str(raw[i]).strip()!r} is not a number: "
+            f"{table.path}: line {table.lines[i]}, column '{name}': {shown(str(raw[i]).strip())} is not a number: "
             "give plain decimal numbers"
         ) from None
     bad = ~np.isfinite(x)

@@ -368,7 +368,8 @@ def _yaml_body(where, spec, names):
         raise SpaceidError(f"{here} has no 'mass': give it in kg")
     mass = _yaml_number(here, spec["mass"], "mass", "kg")
     com = _yaml_vector(here, spec.get("com", [0, 0, 0]), 3, "com")
-    inertial = inertial_vector(mass, com, _yaml_inertia(here, spec.get("inertia", {}), "inertia"))
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused by _validate, by name
+        inertial = inertial_vector(mass, com, _yaml_inertia(here, spec.get("inertia", {}), "inertia"))
     known_zero = _yaml_known_zero(here, spec.get("known_zero", []))
     for k in known_zero:
         if abs(inertial[INERTIAL_NAMES.index(k)]) > 1e-12 * max(1.0, abs(inertial).max()):
@@ -579,10 +580,11 @@ def _urdf_cycle(where, links, parent_of, roots):
     while link not in path:  # walk up the parents: every detached link leads into a cycle
         path.append(link)
         link = parent_of[link][1]
-    cycle = path[path.index(link):]
-    joints = [parent_of[name][0] for name in reversed(cycle)]
+    cycle = path[path.index(link):][::-1]  # parent before child
+    joints = [parent_of[name][0] for name in cycle]
+    parents = [parent_of[name][1] for name in cycle]
     raise SpaceidError(
-        f"{where}: joints {shown(joints)[1:-1]} form a cycle (links {shown(cycle[::-1])[1:-1]}), apart from the tree "
+        f"{where}: joints {shown(joints)[1:-1]} form a cycle (links {shown(parents)[1:-1]}), apart from the tree "
         f"of root link '{roots[0] if roots else '?'}': closed loops are not supported; cut the loop and attach it"
     )
 
