@@ -167,8 +167,7 @@ class Model:
 
     def as_planar(self) -> "Model":
         """This model in planar mode; a clear error names the first joint that is not planar."""
-        for b in self.bodies[1:]:
-            axis = _axis_in_base(self, b)
+        for b, axis in zip(self.bodies[1:], _axes_in_base(self)):
             if b.joint_type == "revolute" and np.linalg.norm(np.cross(axis, [0, 0, 1])) > _PLANAR_TOL:
                 raise SpaceidError(
                     f"{self.source or self.name}: joint '{b.joint}' has axis {np.round(axis, 6).tolist()} "
@@ -183,16 +182,15 @@ class Model:
         return replace(self, planar=True)
 
 
-def _axis_in_base(model: Model, body: Body) -> np.ndarray:
-    """Joint axis of ``body`` in base axes at the zero configuration."""
-    rot = body.rotation
-    parent = body.parent
-    while parent > 0:
-        rot = model.bodies[parent].rotation @ rot
-        parent = model.bodies[parent].parent
+def _axes_in_base(model: Model) -> list:
+    """Joint axes of the bodies after the base, in base axes at the zero configuration, each
+    (3,); one pass down the tree (parents come first)."""
+    rot = [np.eye(3)]
+    for b in model.bodies[1:]:
+        rot.append(rot[b.parent] @ b.rotation)
     # Every rotation on the path is about an axis parallel to z in planar mode, so the
     # zero configuration is representative; ``as_planar`` checks exactly this.
-    return rot @ body.axis
+    return [r @ b.axis for r, b in zip(rot[1:], model.bodies[1:])]
 
 
 def symbol_suffix(name: str) -> str:
@@ -206,9 +204,11 @@ def _check_names(model: Model, where: str):
     ``l_1`` would both be ``m_l_1`` in the parameter names)."""
     for kind, names in (("body", [b.name for b in model.bodies]), ("joint", list(model.joints))):
         seen: dict = {}  # symbol suffix -> the name that gave it
-        for k, name in enumerate(names):
-            if name in names[:k]:
+        exact: set = set()
+        for name in names:
+            if name in exact:
                 raise SpaceidError(f"{where}: {kind} name '{name}' appears twice: {kind} names must be unique")
+            exact.add(name)
             other = seen.setdefault(symbol_suffix(name), name)
             if other != name:
                 raise SpaceidError(

@@ -281,7 +281,7 @@ class FourierTrajectory:
             )
         if data.get("version") != _VERSION:
             raise SpaceidError(
-                f"{source}: field 'version' must be {_VERSION}, got {data.get('version')!r}"
+                f"{source}: field 'version' must be {_VERSION}, got {shown(data.get('version'))}"
             )
         missing = [k for k in ("joints", "duration", "a", "b") if k not in data]
         if missing:
