@@ -57,13 +57,17 @@ def _urdf(tmp_path, body, name="m.urdf"):
 ARM = _link("a") + _link("b") + _joint("j1", "a", "b")
 BAD_URDFS = {
     # a cycle beside a valid tree: Pinocchio builds the tree and drops the cycle without a word
-    "cycle beside the tree": (ARM + _link("c") + _link("d") + _joint("j2", "c", "d") + _joint("j3", "d", "c"),
-                              r"joints 'j2', 'j3' form a cycle \(links 'c', 'd'\), apart from the tree of root link 'a'"),
-    "several roots": (ARM + _link("c") + _link("e"), r"3 root links \('a', 'c', 'e'\): the floating base must be the only"),
+    "cycle beside the tree": (
+        ARM + _link("c") + _link("d") + _joint("j2", "c", "d") + _joint("j3", "d", "c"),
+        r"joints 'j2', 'j3' form a cycle \(links 'c', 'd'\), apart from the tree of root link 'a'",
+    ),
+    "several roots": (ARM + _link("c") + _link("e"),
+                      r"3 root links \('a', 'c', 'e'\): the floating base must be the only"),
     # Pinocchio's motion subspace of a zero axis is a translation: the joint became prismatic
     "zero revolute axis": (_link("a") + _link("b") + _joint("j1", "a", "b", axis="0 0 0"),
                            r"joint 'j1': axis xyz='0 0 0' is zero: give the direction"),
-    "axis not numbers": (_link("a") + _link("b") + _joint("j1", "a", "b", axis="x y"), r"axis xyz='x y' is not 3 numbers"),
+    "axis not numbers": (_link("a") + _link("b") + _joint("j1", "a", "b", axis="x y"),
+                         r"axis xyz='x y' is not 3 numbers"),
     "unknown joint type": (_link("a") + _link("b") + _joint("j1", "a", "b", jtype="spherical"),
                            r"joint 'j1' has unknown type 'spherical': use revolute, continuous, prismatic or fixed"),
     "two joints named alike": (ARM + _link("c") + _joint("j1", "b", "c"), r"joint name 'j1' appears twice"),
@@ -78,7 +82,8 @@ BAD_URDFS = {
                                                              'velocity="1" effort="1"/>'),
                            r"limit lower = 1 is above upper = -1: swap them"),
     # urdfdom prints two lines, drops the <inertial> and goes on: a body of zero mass
-    "unreadable inertial": (_link("a") + _link("b").replace("<mass", '<origin xyz="q w e"/><mass') + _joint("j1", "a", "b"),
+    "unreadable inertial": (_link("a") + _link("b").replace("<mass", '<origin xyz="q w e"/><mass')
+                            + _joint("j1", "a", "b"),
                             r"the URDF parser refused the file \(Error: Unable to parse component \[q\]"),
 }
 
@@ -102,10 +107,12 @@ def test_urdf_negative_range_keeps_its_upper_limit_and_design_refuses_it(tmp_pat
     model = load_model(path)
     assert model.joint_limits("lower")[0] == -2 and model.joint_limits("upper")[0] == -0.5
     none = dict(q_max=None, qd_max=None, qdd_max=None)
-    _one_line_error(lambda: _model_limits(model, none), r"joint 'j1' has the range \[-2, -0.5\], which does not hold q = 0")
+    _one_line_error(lambda: _model_limits(model, none),
+                    r"joint 'j1' has the range \[-2, -0.5\], which does not hold q = 0")
     path.write_text(path.read_text().replace('upper="-0.5"', 'upper="0.3"'))
     limits = _model_limits(load_model(path), none)
-    assert limits["q_max"].tolist() == [0.3] and limits["qd_max"].tolist() == [1.5] and limits["qdd_max"].tolist() == [3]
+    assert limits["q_max"].tolist() == [0.3] and limits["qd_max"].tolist() == [1.5]
+    assert limits["qdd_max"].tolist() == [3]
 
 
 def test_urdf_mimic_joint_is_an_independent_joint_with_a_warning(tmp_path):
@@ -132,7 +139,8 @@ BOMB = 'a: &a ["lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol", "lol"]\n'
 BAD_YAMLS = {
     "inertial typo": ("bodies:\n  - {name: base, mass: 10, inertial: {izz: 0.1}}\n",
                       r"body 'base': unknown key 'inertial' in the body: did you mean 'inertia'\? the keys are name, "),
-    "comm typo": ("bodies:\n  - {name: base, mass: 10, comm: [0, 0, 0]}\n", r"unknown key 'comm'.*did you mean 'com'\?"),
+    "comm typo": ("bodies:\n  - {name: base, mass: 10, comm: [0, 0, 0]}\n",
+                  r"unknown key 'comm'.*did you mean 'com'\?"),
     "top-level typo": ("bodys: []\nbodies:\n" + BASE, r"unknown key 'bodys' in the model: did you mean 'bodies'\?"),
     "mass true": ("bodies:\n  - {name: base, mass: true}\n", r"body 'base': 'mass' must be a number \[kg\], got True"),
     "mass abc": ("bodies:\n  - {name: base, mass: abc}\n", r"'mass' must be a number \[kg\], got 'abc'"),
@@ -143,7 +151,8 @@ BAD_YAMLS = {
                           r"body 'link': 'joint' must be a mapping with keys among name, type, xyz, rpy, axis, limit"),
     "limit as a list": ("bodies:\n" + BASE + "  - {name: link, parent: base, mass: 1, joint: {limit: [-1, 1]}}\n",
                         r"'joint.limit' must be a mapping with keys among lower, upper, velocity, acceleration"),
-    "limit upside down": ("bodies:\n" + BASE + "  - {name: link, parent: base, mass: 1, joint: {limit: {lower: 1, upper: -1}}}\n",
+    "limit upside down": ("bodies:\n" + BASE
+                          + "  - {name: link, parent: base, mass: 1, joint: {limit: {lower: 1, upper: -1}}}\n",
                           r"joint limit lower = 1 is above upper = -1"),
     "wheels 5": ("wheels: 5\nbodies:\n" + BASE, r"'wheels' must be a list of joint names, got 5"),
     "two joints named alike": ("bodies:\n" + BASE + LINK + LINK.replace("name: link", "name: link2"),
@@ -152,7 +161,8 @@ BAD_YAMLS = {
     "alias bomb as the name": (BOMB + "name: *i\nbodies:\n" + BASE, r"line 2: YAML alias '\*a' refused"),
     "alias bomb as a com": (BOMB + "bodies:\n  - {name: base, mass: 1, com: *i}\n", r"YAML alias '\*a' refused"),
     "deep nesting": ("bodies: " + "[" * 900_000, r"brackets nested 900000 deep, beyond 100"),
-    "deep block nesting": ("".join(" " * i + "a:\n" for i in range(1100)), r"not valid YAML at line 1000|YAML nested too deeply to read"),
+    "deep block nesting": ("".join(" " * i + "a:\n" for i in range(1100)),
+                           r"not valid YAML at line 1000|YAML nested too deeply to read"),
     "integer of 5000 digits": ("bodies:\n  - {name: base, mass: " + "9" * 5000 + "}\n", r"a YAML value cannot be read"),
     "python tag": ("!!python/object/apply:os.system ['true']\n", r"not valid YAML"),
     "huge value quoted briefly": ("bodies:\n  - {name: base, mass: 1, com: [" + ", ".join(["1"] * 1000) + "]}\n",
@@ -301,7 +311,8 @@ def test_ros2_metadata_alias_bomb_is_refused(tmp_path):
 
 # --- fuzzed readers (issue 12, point 5) -----------------------------------------------------------
 
-HOSTILE = ["", "\x00", "\ufeff", "\n", ",", '"', "'", "[", "]", "{", "}", ":", "- ", "&a ", "*a", "<<: *a", "!!python/name:os.system",
+HOSTILE = ["", "\x00", "\ufeff", "\n", ",", '"', "'", "[", "]", "{", "}", ":", "- ", "&a ", "*a", "<<: *a",
+           "!!python/name:os.system",
            "1e999", "-1e999", "nan", ".nan", "inf", "-0", "true", "null", "9" * 5000, "0x1F", "1_000", "\t", "\r\n",
            "[" * 2000, "<!DOCTYPE r [<!ENTITY x 'y'>]>", "&x;", "<", ">", "</link>", "<joint", 'type="', "é", "\udcff"]
 
@@ -342,7 +353,8 @@ def _parses_or_refuses(call):
 
 URDF_TEXT = (PRESETS / "satellite-7dof.urdf").read_text()[:4000].rsplit("</joint>", 1)[0] + "</joint></robot>"
 YAML_TEXT = (PRESETS / "cepheus-rw.yaml").read_text()
-MAPPING_TEXT = "joint_topic: /joint_states\npose_topic: /pose\njoints: {shoulder: left_shoulder}\nrate: 50\nmax_gap: 0.1\n"
+MAPPING_TEXT = ("joint_topic: /joint_states\npose_topic: /pose\njoints: {shoulder: left_shoulder}\n"
+                "rate: 50\nmax_gap: 0.1\n")
 TRAJECTORY_TEXT = json.dumps(load_trajectory("paper-table2").to_dict())
 
 READERS = {
@@ -381,7 +393,8 @@ def test_fuzzed_readers(tmp_path, name):
 
 
 @pytest.mark.slow
-@settings(max_examples=40, deadline=20_000, suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@settings(max_examples=40, deadline=20_000,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(data=st.data())
 def test_fuzzed_bags(tmp_path_factory, data):
     """A small bag in each format, damaged byte by byte (truncated, overwritten, zeroed)."""

@@ -169,7 +169,9 @@ def _open_bag(path):
     if not path.is_dir() and path.suffix.lower() not in _BAG_SUFFIXES:
         raise SpaceidError(f"{path}: not a bag name: {_SUFFIX_HINT}")
     if path.is_dir() and not isinstance(_ros2_metadata(path), dict):
-        raise SpaceidError(f"{path / 'metadata.yaml'}: not a rosbag2 metadata mapping: fix or rebuild it (ros2 bag reindex)")
+        raise SpaceidError(
+            f"{path / 'metadata.yaml'}: not a rosbag2 metadata mapping: fix or rebuild it (ros2 bag reindex)"
+        )
     try:
         reader = AnyReader([path])
         reader.open()

@@ -316,10 +316,10 @@ def _yaml_number(where, value, key, unit):
     return number
 
 
-def _yaml_vector(where, value, n, key):
+def _yaml_vector(where, value, n, key, unit="m"):
     if not isinstance(value, list) or len(value) != n:
         raise SpaceidError(f"{where}: '{key}' must be a list of {n} numbers, got {shown(value)}")
-    return np.array([_yaml_number(where, v, key, "m" if key != "joint.rpy" else "rad") for v in value])
+    return np.array([_yaml_number(where, v, key, unit) for v in value])
 
 
 def _yaml_inertia(where, spec, key):
@@ -328,7 +328,7 @@ def _yaml_inertia(where, spec, key):
         _known_keys(where, spec, _INERTIA_KEYS, f"'{key}'")
         v = [_yaml_number(where, spec.get(k, 0.0), f"{key}.{k}", "kg m^2") for k in _INERTIA_KEYS]
     else:
-        v = _yaml_vector(where, spec, 6, key)
+        v = _yaml_vector(where, spec, 6, key, "kg m^2")
     ixx, ixy, ixz, iyy, iyz, izz = v
     return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
 
@@ -380,7 +380,9 @@ def _yaml_body(where, spec, names):
         return Body(name, -1, None, "base", np.zeros(3), np.eye(3), np.zeros(3), inertial, {}, known_zero)
     parent = spec["parent"]
     if not isinstance(parent, str) or parent not in names:
-        raise SpaceidError(f"{here} has parent {shown(parent)}, which is not listed before it: list every body after its parent")
+        raise SpaceidError(
+            f"{here} has parent {shown(parent)}, which is not listed before it: list every body after its parent"
+        )
     joint = _yaml_mapping(here, spec.get("joint"), "joint", _JOINT_KEYS)
     jtype = joint.get("type", "revolute")
     if jtype not in ("revolute", "continuous", "prismatic"):
@@ -388,7 +390,7 @@ def _yaml_body(where, spec, names):
     joint_name = joint.get("name", f"{name}_joint")
     if not isinstance(joint_name, str) or not joint_name:
         raise SpaceidError(f"{here}: 'joint.name' must be a string, got {shown(joint_name)}")
-    axis = _yaml_vector(here, joint.get("axis", [0, 0, 1]), 3, "joint.axis")
+    axis = _yaml_vector(here, joint.get("axis", [0, 0, 1]), 3, "joint.axis", "a direction")
     if np.linalg.norm(axis) == 0:
         raise SpaceidError(f"{here}: joint axis is zero: give a direction such as [0, 0, 1]")
     limits = _yaml_limits(here, joint)
@@ -400,7 +402,7 @@ def _yaml_body(where, spec, names):
         joint_name,
         "prismatic" if jtype == "prismatic" else "revolute",
         axis / np.linalg.norm(axis),
-        _rpy_matrix(_yaml_vector(here, joint.get("rpy", [0, 0, 0]), 3, "joint.rpy")),
+        _rpy_matrix(_yaml_vector(here, joint.get("rpy", [0, 0, 0]), 3, "joint.rpy", "rad")),
         _yaml_vector(here, joint.get("xyz", [0, 0, 0]), 3, "joint.xyz"),
         inertial,
         limits,
@@ -420,7 +422,9 @@ def _model_from_yaml(text: str, where: str) -> Model:
             raise SpaceidError(f"{where}: every entry of 'bodies' must be a mapping, got {shown(entry)}")
         body = _yaml_body(where, entry, names)
         if (body.parent < 0) != (not bodies):
-            raise SpaceidError(f"{where}: exactly the first body (the base) has no parent; body '{body.name}' breaks this")
+            raise SpaceidError(
+                f"{where}: exactly the first body (the base) has no parent; body '{body.name}' breaks this"
+            )
         if body.name in names:
             raise SpaceidError(f"{where}: body name '{body.name}' appears twice: body names must be unique")
         names[body.name] = len(bodies)
@@ -437,7 +441,9 @@ def _model_from_yaml(text: str, where: str) -> Model:
     model = _validate(Model(str(name), tuple(bodies), False, tuple(wheels), where))
     unknown = set(model.wheels) - set(model.joints)
     if unknown:
-        raise SpaceidError(f"{where}: 'wheels' names unknown joint(s) {shown(sorted(unknown))}: use {', '.join(model.joints)}")
+        raise SpaceidError(
+            f"{where}: 'wheels' names unknown joint(s) {shown(sorted(unknown))}: use {', '.join(model.joints)}"
+        )
     return model.as_planar() if planar else model
 
 

@@ -182,7 +182,9 @@ class FourierTrajectory:
         except (TypeError, ValueError):
             duration = math.nan
         if not (math.isfinite(duration) and duration > 0):
-            raise SpaceidError(f"{src}: field 'duration' must be a positive number of seconds, got {shown(self.duration)}")
+            raise SpaceidError(
+                f"{src}: field 'duration' must be a positive number of seconds, got {shown(self.duration)}"
+            )
         a = finite_array(self.a, 2, "a", src)
         if a.shape[0] != len(joints) or a.shape[1] < 1:
             raise SpaceidError(
