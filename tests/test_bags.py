@@ -471,7 +471,7 @@ def test_mapping_file(tmp_path):
     good.write_text("pose_topic: /mocap/cepheus/pose\njoints: {shoulder: left_shoulder}\nrate: 50\npose_latency: 0.01\n")
     assert read_mapping(good) == {"pose_topic": "/mocap/cepheus/pose", "joints": {"shoulder": "left_shoulder"},
                                   "rate": 50, "pose_latency": 0.01}
-    for text, message in [("topic: /x\n", r"unknown key 'topic': the keys are joint_topic, pose_topic"),
+    for text, message in [("topic: /x\n", r"unknown key 'topic': did you mean 'pose_topic'\? the keys are joint_topic, pose_topic"),
                           ("rate: -5\n", r"'rate' is -5: expected a sample rate \[Hz\] > 0"),
                           ("joints: [a, b]\n", r"'joints' is \['a', 'b'\]: expected a mapping"),
                           ("- a\n", r"expected a mapping of keys"),

@@ -222,7 +222,7 @@ def test_bad_log_gives_one_clear_error(tmp_path, text, match):
 def test_missing_file_and_unreadable_file(tmp_path):
     with pytest.raises(SpaceidError, match=r"nope\.csv: no such file"):
         read_log(tmp_path / "nope.csv", joints=JOINTS, planar=True)
-    with pytest.raises(SpaceidError, match=r"cannot read"):
+    with pytest.raises(SpaceidError, match=r"is a folder, not a log file: give the file itself"):
         read_log(tmp_path, joints=JOINTS, planar=True)  # a directory
     binary = tmp_path / "bin.csv"
     binary.write_bytes(b"t,base_yaw\n\xff\xfe\x00\x01\n")

@@ -1,11 +1,11 @@
-"""The one exception type that the command line turns into a one-line message, and the check
-of numeric array fields that raises it."""
+"""The one exception type that the command line turns into a one-line message, the check of
+numeric array fields that raises it, and the short form of a value that messages quote."""
 
 import reprlib
 
 import numpy as np
 
-__all__ = ["SpaceidError", "finite_array"]
+__all__ = ["SpaceidError", "finite_array", "shown"]
 
 
 class SpaceidError(ValueError):
@@ -16,17 +16,44 @@ class SpaceidError(ValueError):
     """
 
 
+_SHOWN = reprlib.Repr()
+_SHOWN.maxstring, _SHOWN.maxother, _SHOWN.maxlevel = 60, 60, 3
+_SHOWN_CHARS = 80  # [characters]; a message quotes at most this much of a value
+
+
+def shown(value) -> str:
+    """A bounded, one-line ``repr`` of ``value`` for messages (at most ~80 characters, nesting
+    cut at 3 levels): a hostile input is never expanded or repr()'d whole into a message."""
+    text = _SHOWN.repr(value).replace("\n", " ")
+    return text if len(text) <= _SHOWN_CHARS else text[: _SHOWN_CHARS - 3] + "..."
+
+
+def _has_bool(value) -> bool:
+    """Whether a nested list or tuple holds a boolean (``np.array`` would take it as 0 or 1)."""
+    stack = [value]  # iterative: a deeply nested input must not exhaust the recursion limit
+    while stack:
+        item = stack.pop()
+        if isinstance(item, (bool, np.bool_)):
+            return True
+        if isinstance(item, (list, tuple)):
+            stack.extend(item)
+    return False
+
+
 def finite_array(value, shape, name, source):
     """``value`` as a finite, read-only float array, or a SpaceidError naming the field.
 
-    ``shape`` is the expected shape, or an int: the expected number of dimensions.
+    ``shape`` is the expected shape, or an int: the expected number of dimensions. Booleans
+    are refused (``true`` is not the number 1).
     """
+    if _has_bool(value):
+        raise SpaceidError(f"{source}: field '{name}' holds true/false where numbers are expected: give numbers")
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError):
         raise SpaceidError(
             f"{source}: field '{name}' must be a rectangular array of numbers, "
-            f"got {reprlib.repr(value)}"
+            f"got {shown(value)}"
         ) from None
     if arr.shape != shape if isinstance(shape, tuple) else arr.ndim != shape:
         expected = shape if isinstance(shape, tuple) else f"{shape} dimensions"

@@ -72,9 +72,11 @@ def _rosbags_errors():
     return AnyReaderError, Reader1Error, Writer1Error, Reader2Error, Writer2Error, SerdeError
 
 
-def _text(err):
-    """An exception's message on one line."""
-    return " ".join(str(err).split())
+def _text(err, most=200):
+    """An exception's message on one line, at most ``most`` characters (rosbags quotes whole
+    message definitions)."""
+    text = " ".join(str(err).split()) or type(err).__name__
+    return text if len(text) <= most else text[: most - 3] + "..."
 
 
 def _check_origin_ns(origin, label):

@@ -9,13 +9,14 @@ bag's topics and joints and sets the alignment options of :func:`~spaceid.data.t
 from __future__ import annotations
 
 import contextlib
+import difflib
 import math
+import struct
 from pathlib import Path
 
 import numpy as np
-import yaml
 
-from .._errors import SpaceidError
+from .._errors import SpaceidError, shown
 from .._yaml import parse_yaml
 from ._bag_format import (
     _BAG_SUFFIXES, _NS, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC, JOINT_STATE, POSE_STAMPED, _check_origin_ns,
@@ -131,7 +132,7 @@ def _read_messages(path, joint_topic, pose_topic):
             for connection, _, raw in reader.messages(connections=[c for cs in connections.values() for c in cs]):
                 msg = reader.deserialize(raw, connection.msgtype)
                 (joint_msgs if connection.topic == joint_topic else pose_msgs).append(msg)
-        except _rosbags_errors() as err:
+        except _damaged() as err:
             raise SpaceidError(
                 f"{where}: cannot read the messages ({_text(err)}): the bag is damaged; re-record or repair it"
             ) from None
@@ -142,11 +143,18 @@ def _ros2_format(path):
     """``"ros2-sqlite3"``, ``"ros2-mcap"`` or ``"mcap"`` (single file) for a ROS 2 bag path."""
     if path.is_dir():
         try:
-            info = yaml.safe_load((path / "metadata.yaml").read_text(encoding="utf-8"))
+            info = _ros2_metadata(path)
             return f"ros2-{info['rosbag2_bagfile_information']['storage_identifier']}"
-        except (OSError, yaml.YAMLError, KeyError, TypeError):
+        except (SpaceidError, KeyError, TypeError):
             return "ros2"
     return "mcap" if path.suffix.lower() == ".mcap" else "ros2-sqlite3"
+
+
+def _ros2_metadata(path):
+    """The parsed ``metadata.yaml`` of a ROS 2 bag folder, read as model files are (bounded, no
+    aliases), before rosbags reads it: a hostile metadata file is refused, not expanded."""
+    where = path / "metadata.yaml"
+    return parse_yaml(_read_text(where, "ROS 2 bag metadata file"), str(where), "fix or rebuild it (ros2 bag reindex)")
 
 
 @contextlib.contextmanager
@@ -160,10 +168,14 @@ def _open_bag(path):
         raise SpaceidError(f"{path}: a folder without metadata.yaml is not a ROS 2 bag: {_SUFFIX_HINT}")
     if not path.is_dir() and path.suffix.lower() not in _BAG_SUFFIXES:
         raise SpaceidError(f"{path}: not a bag name: {_SUFFIX_HINT}")
+    if path.is_dir() and not isinstance(_ros2_metadata(path), dict):
+        raise SpaceidError(
+            f"{path / 'metadata.yaml'}: not a rosbag2 metadata mapping: fix or rebuild it (ros2 bag reindex)"
+        )
     try:
         reader = AnyReader([path])
         reader.open()
-    except (AnyReaderError, OSError) as err:
+    except (AnyReaderError, OSError, *_damaged()) as err:
         raise SpaceidError(
             f"{path}: not a readable ROS bag ({_text(err)}): {_SUFFIX_HINT}, written completely"
         ) from None
@@ -171,6 +183,13 @@ def _open_bag(path):
         yield reader
     finally:
         reader.close()
+
+
+def _damaged():
+    """What rosbags raises on a damaged bag: its own errors, and (found by fuzzing: a size field
+    overwritten, a truncated record, a zeroed schema) what its parsers let through."""
+    return (*_rosbags_errors(), ValueError, KeyError, IndexError, TypeError, OverflowError, MemoryError, EOFError,
+            struct.error)
 
 
 def _topic_connections(reader, where, topic, msgtype, option):
@@ -203,6 +222,8 @@ def _merge_joint_states(msgs, label):
     NaN there; velocity (effort) is None when no message carries one.
     """
     per_joint = _samples_by_joint(msgs, label)
+    if not per_joint:
+        raise SpaceidError(f"{label}: no message names any joint: record the joint states with their names")
     for name, samples in per_joint.items():
         stamps = np.array([s[0] for s in samples], dtype=np.int64)
         _check_stamps(stamps, [s[1] for s in samples], f"{label}: joint '{name}'")
@@ -364,7 +385,9 @@ def read_mapping(path) -> dict:
         raise SpaceidError(f"{path}: expected a mapping of keys ({', '.join(MAPPING_KEYS)}), got {type(data).__name__}")
     for key, value in data.items():
         if key not in MAPPING_KEYS:
-            raise SpaceidError(f"{path}: unknown key '{key}': the keys are {', '.join(MAPPING_KEYS)}")
+            close = difflib.get_close_matches(str(key), MAPPING_KEYS, n=1)
+            hint = f"did you mean '{close[0]}'? " if close else ""
+            raise SpaceidError(f"{path}: unknown key {shown(key)}: {hint}the keys are {', '.join(MAPPING_KEYS)}")
         if key.endswith("topic"):
             ok = isinstance(value, str) and value.strip() != ""
         elif key == "joints":
@@ -373,5 +396,5 @@ def read_mapping(path) -> dict:
             ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
             ok = ok and (value > 0 or key == "pose_latency")
         if not ok:
-            raise SpaceidError(f"{path}: '{key}' is {value!r}: expected {MAPPING_KEYS[key]}")
+            raise SpaceidError(f"{path}: '{key}' is {shown(value)}: expected {MAPPING_KEYS[key]}")
     return data

@@ -86,7 +86,7 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
     if bags.is_bag(path):
         return bags.read_bag_log(path, joints=joints, planar=planar, wheels=wheels, **(bag_options or {}))
     given = [k for k in ("joint_topic", "pose_topic", "mapping") if (bag_options or {}).get(k) is not None]
-    if given:
+    if given and not Path(path).is_dir():  # a folder gets the message of what it lacks to be a bag
         raise SpaceidError(
             f"{path}: {', '.join(given)} apply to ROS bags, but this is a CSV log: drop them or give a bag "
             "(.bag, .mcap or a ROS 2 bag folder)"
@@ -228,7 +228,15 @@ def write_json(path, obj) -> None:
 
 
 def read_json(path, *, what="JSON file"):
-    """Read a JSON file; ``what`` names it in error messages (e.g. ``"result"``)."""
+    """Read a JSON file; ``what`` names it in error messages (e.g. ``"result"``).
+
+    Raises
+    ------
+    SpaceidError
+        As :func:`~spaceid._inputs.read_input_text` (a file beyond 256 MiB, not a regular file),
+        invalid JSON, nesting deeper than Python's recursion limit, or an integer too long to
+        convert (over 4300 digits).
+    """
     text = _read_text(path, what)
     try:
         return json.loads(text)
@@ -237,6 +245,10 @@ def read_json(path, *, what="JSON file"):
             f"{path}: not a valid {what} (line {err.lineno}, column {err.colno}: {err.msg}): "
             "fix the JSON or write the file again"
         ) from None
+    except RecursionError:
+        raise SpaceidError(f"{path}: the {what} is nested too deeply to read: is this the right file?") from None
+    except ValueError as err:  # an integer of thousands of digits
+        raise SpaceidError(f"{path}: a value of the {what} cannot be read ({str(err)[:80]}): fix the JSON") from None
 
 
 def _dumps(obj, level: int = 0) -> str:

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._errors import SpaceidError
+from .._errors import SpaceidError, shown
+from .._inputs import MiB, read_input_text
 from ._timeseries import first_unordered
 
 _MAX_ANGLE = 20 * math.pi  # [rad]; ten turns over a run means the column is in degrees
@@ -24,6 +25,13 @@ _GAP = 10.0  # a step this many times the median one is a gap (dropped samples),
 _MAX_WHEEL_RATE = 1000.0  # [rad/s]; reaction wheels spin at a few hundred rad/s
 _QUAT_WARN = 1e-6  # |norm - 1| above which a quaternion is renormalised, with a warning
 _QUAT_FAIL = 1e-2  # |norm - 1| above which it is not a unit quaternion at all
+
+MAX_TABLE_BYTES = 128 * MiB
+"""Largest CSV table read [bytes]: ~16 min at 1 kHz with 7 columns of 17 digits (~2 GB of memory while read)."""
+MAX_TABLE_ROWS = 1_000_000
+"""Most rows of a CSV table (read whole: ~2 kB of memory a row while parsed)."""
+MAX_TEXT_BYTES = 256 * MiB
+"""Largest other text input read [bytes] (JSON results and trajectories, mapping files)."""
 
 _PLANAR_BASE = (("base_yaw",), ("base_wz",))
 _SPATIAL_BASE = (("base_qw", "base_qx", "base_qy", "base_qz"), ("base_wx", "base_wy", "base_wz"))
@@ -40,24 +48,29 @@ class _Table:
     lines: list
 
 
-def _read_text(path, what):
-    try:
-        # utf-8-sig: spreadsheet exports often start with a byte-order mark.
-        return Path(path).read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise SpaceidError(f"{path}: no such file (expected a {what}): check the path") from None
-    except UnicodeDecodeError as err:
-        raise SpaceidError(
-            f"{path}: not a UTF-8 text file (byte {err.start} cannot be decoded): expected a {what}"
-        ) from None
-    except OSError as err:
-        raise SpaceidError(
-            f"{path}: cannot read the {what} ({err.strerror or err}): check the path and permissions"
-        ) from None
+def _read_text(path, what, max_bytes=None):
+    """The text of a user file within bounds (:func:`~spaceid._inputs.read_input_text`); a folder
+    without ``metadata.yaml`` gets a hint when it looks like a damaged ROS 2 bag."""
+    folder, hint = Path(path), ""
+    if folder.is_dir():
+        try:
+            storage = next((f for f in folder.iterdir() if f.suffix.lower() in (".db3", ".mcap")), None)
+        except OSError:
+            storage = None
+        hint = (f": it holds {storage.name} but no metadata.yaml, which a ROS 2 bag folder needs: restore it "
+                "(`ros2 bag reindex` rebuilds it)" if storage else
+                ": give the file itself, or a ROS 2 bag folder (with metadata.yaml)")
+    return read_input_text(path, what, MAX_TEXT_BYTES if max_bytes is None else max_bytes, folder_hint=hint)
 
 
 def _read_csv(path, *, what):
-    text = _read_text(path, what)
+    text = _read_text(path, what, MAX_TABLE_BYTES)
+    rows_given = text.count("\n")
+    if rows_given > MAX_TABLE_ROWS:
+        raise SpaceidError(
+            f"{path}: {rows_given} lines, beyond the {MAX_TABLE_ROWS} rows a {what} may have (it is read whole): "
+            "split the run or downsample it"
+        )
     reader = csv.reader(io.StringIO(text, newline=""))
     rows, lines = [], []
     try:
@@ -73,7 +86,7 @@ def _read_csv(path, *, what):
     seen = set()
     for name in header:
         if name in seen:
-            raise SpaceidError(f"{path}: column '{name}' appears twice in the header: rename or drop one")
+            raise SpaceidError(f"{path}: column {shown(name)} appears twice in the header: rename or drop one")
         seen.add(name)
     if len(rows) == 1:
         raise SpaceidError(f"{path}: the {what} has a header but no data rows: give at least one sample")
@@ -91,7 +104,7 @@ def _check_joint_columns(table, joints):
         prefix = "q_" if name.startswith("q_") else "qd_" if name.startswith("qd_") else None
         if prefix and name[len(prefix):] not in joints:
             raise SpaceidError(
-                f"{table.path}: joint '{name[len(prefix):]}' in the log is not in the model "
+                f"{table.path}: joint {shown(name[len(prefix):])} in the log is not in the model "
                 f"(joints: {', '.join(joints) or 'none'}): rename the column or use the matching model"
             )
 
@@ -110,8 +123,14 @@ def _require(table, names, *, planar):
     elif all(_is_rate(name) for name in missing):
         hint = "; give the rates or let spaceid differentiate the angles (require_rates=False)"
     raise SpaceidError(
-        f"{table.path}: missing column(s) {', '.join(missing)} (header: {', '.join(table.header)}){hint}"
+        f"{table.path}: missing column(s) {', '.join(missing)} (header: {_listed(table.header)}){hint}"
     )
+
+
+def _listed(names, most=20):
+    """``names`` joined for a message, at most ``most`` of them (a hostile header has thousands)."""
+    shown_names = [shown(n)[1:-1] for n in names[:most]]
+    return ", ".join(shown_names) + (f", ... ({len(names)} in all)" if len(names) > most else "")
 
 
 def _column(table, name):
@@ -122,7 +141,7 @@ def _column(table, name):
     except ValueError:
         i = next((i for i, cell in enumerate(raw) if not _is_float(cell)), 0)
         raise SpaceidError(
-            f"{table.path}: line {table.lines[i]}, column '{name}': {str(raw[i]).strip()!r} is not a number: "
+            f"{table.path}: line {table.lines[i]}, column '{name}': {shown(str(raw[i]).strip())} is not a number: "
             "give plain decimal numbers"
         ) from None
     bad = ~np.isfinite(x)

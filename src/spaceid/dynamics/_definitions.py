@@ -19,20 +19,13 @@ from __future__ import annotations
 
 import functools
 import operator
-import re
 from collections import Counter
 
 import numpy as np
 
-from ..models._model import Model, _inertia_matrix
+from ..models._model import Model, _inertia_matrix, symbol_suffix
 
 __all__ = ["planar_definitions", "planar_symbol_values", "column_definitions"]
-
-
-def symbol_suffix(name: str) -> str:
-    """A body or joint name as the suffix of a symbol name (non-word characters become ``_``),
-    so that every definition stays a valid SymPy expression."""
-    return re.sub(r"\W", "_", name)
 
 
 def _sym(name, present):

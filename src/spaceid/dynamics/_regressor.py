@@ -36,9 +36,10 @@ from scipy.linalg import solve_triangular
 
 from .._errors import SpaceidError
 from .._threads import blas_threads
-from ._definitions import column_definitions, planar_definitions, symbol_suffix
+from ._definitions import column_definitions, planar_definitions
 from ._kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
+from ..models._model import symbol_suffix
 
 __all__ = [
     "Parameterization",
@@ -54,6 +55,17 @@ __all__ = [
 RANK_TOL = 1e-9
 """Default rank tolerance: a column (or basis row) is dependent when the part of it that the
 previous ones do not explain is below this fraction of its norm (unit-norm columns)."""
+
+MAX_SET_BYTES = 2 << 30
+"""Most memory the minimal-set derivation may take [bytes]: the full regressor at twice as many
+equations as full parameters, ~48 n_full^2 bytes spatial (the full set grows as 8 n_bodies^2: a
+28-body spatial chain fits, a 100-body chain would take ~100 GiB). Larger trees are refused
+before anything is allocated."""
+
+PLANAR_SYMBOLIC_BODIES = 6
+"""Largest planar tree given the planar basis with SymPy definitions [bodies]: the factoring
+grows steeply (3.5 s for a 6-body chain, 24 s for 8, 33 s for 11); larger planar trees get the
+columns basis, whose definitions are written without SymPy."""
 
 ROUND_OFF = 1e-12
 """A dependency coefficient ``beta_id`` (dependent column ``d`` in the independent ones) is
@@ -552,6 +564,7 @@ def minimal_parameters(model: Model, *, tol: float = RANK_TOL, seed: int = 0) ->
     -------
     Parameterization
     """
+    _check_set_size(model)
     return replace(_minimal_cached(_Geometry(model), tol, seed), model=model)
 
 
@@ -561,14 +574,15 @@ def _minimal_cached(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
     names = full_parameter_names(model)
     rows = slice(2, 3) if model.planar else slice(None)
     n_rows = 1 if model.planar else 3
-    n_states = max(64, -(-2 * len(names) // n_rows))  # twice as many equations as unknowns
+    n_states = _n_states(len(names), n_rows)
     q, qd, w0 = _random_states(model, n_states, seed)
     y_full = full_regressor(model, q, qd, w0)[:, rows, :].reshape(-1, len(names))
     indep, basis = _independent(y_full, tol)
     rank = len(indep)
     if rank == 0:
         raise SpaceidError(f"{model.source or model.name}: the momentum does not depend on any parameter (no moving body?)")
-    if model.planar and all(b.joint_type == "revolute" for b in model.bodies[1:]):
+    symbolic = len(model.bodies) <= PLANAR_SYMBOLIC_BODIES
+    if model.planar and symbolic and all(b.joint_type == "revolute" for b in model.bodies[1:]):
         terms = _planar_pairs(len(model.bodies))
         f = _planar_functions(model, terms, q, qd, w0)
         coef, *_ = np.linalg.lstsq(f, y_full, rcond=None)
@@ -613,6 +627,28 @@ def _minimal_cached(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
         n_states,
         ("columns", _plan(model, indep), None),
     )
+
+
+def _n_states(n_full: int, n_rows: int) -> int:
+    """Random states of the minimal-set derivation: twice as many equations as unknowns."""
+    return max(64, -(-2 * n_full // n_rows))
+
+
+def _check_set_size(model: Model):
+    """Refuse a tree whose minimal-set derivation needs more than ``MAX_SET_BYTES``, counted
+    before anything is built: the full regressor (3 rows a state) and the basis of its rows used
+    (1 planar, 3 spatial), 8 bytes a value."""
+    n_theta = sum(len(INERTIAL_NAMES) - len(b.known_zero) for b in model.bodies)
+    n_first = sum(1 for b in model.bodies for n in INERTIAL_NAMES[:4] if n not in b.known_zero)
+    n_full = n_theta + n_first * (n_first + 1) // 2
+    n_rows = 1 if model.planar else 3
+    need = 8 * _n_states(n_full, n_rows) * n_full * (3 + 2 * n_rows)
+    if need > MAX_SET_BYTES:
+        raise SpaceidError(
+            f"{model.source or model.name}: {len(model.bodies)} bodies give {n_full} full parameters, whose "
+            f"minimal set would take {need / 2**30:.3g} GiB (at most {MAX_SET_BYTES / 2**30:.3g} GiB): split the "
+            "tree, lock joints that do not move (fixed joints), or declare known zeros"
+        )
 
 
 def _dependency_coefficients(y: np.ndarray, indep, dep, basis: np.ndarray, tol: float) -> np.ndarray:

@@ -9,14 +9,22 @@ origin.
 
 from __future__ import annotations
 
+import contextlib
+import difflib
 import math
+import os
+import re
+import sys
+import tempfile
+import warnings
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
 
 import numpy as np
 
-from .._errors import SpaceidError
+from .._errors import SpaceidError, shown
+from .._inputs import MiB, read_input_text
 from .._yaml import parse_yaml
 
 __all__ = [
@@ -33,6 +41,8 @@ INERTIAL_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "
 PRESETS = ("cepheus", "cepheus-rw", "satellite-7dof", "servicer-dual", "servicer-captured")
 """Built-in models: the paper's emulator (YAML) and the worked spatial examples (URDF)."""
 _PLANAR_TOL = 1e-9
+MAX_MODEL_BYTES = 16 * MiB
+"""Largest model file read [bytes] (a 1000-link URDF chain is ~0.4 MB)."""
 
 
 def inertial_vector(mass, com, inertia_com):
@@ -157,8 +167,7 @@ class Model:
 
     def as_planar(self) -> "Model":
         """This model in planar mode; a clear error names the first joint that is not planar."""
-        for b in self.bodies[1:]:
-            axis = _axis_in_base(self, b)
+        for b, axis in zip(self.bodies[1:], _axes_in_base(self)):
             if b.joint_type == "revolute" and np.linalg.norm(np.cross(axis, [0, 0, 1])) > _PLANAR_TOL:
                 raise SpaceidError(
                     f"{self.source or self.name}: joint '{b.joint}' has axis {np.round(axis, 6).tolist()} "
@@ -173,25 +182,45 @@ class Model:
         return replace(self, planar=True)
 
 
-def _axis_in_base(model: Model, body: Body) -> np.ndarray:
-    """Joint axis of ``body`` in base axes at the zero configuration."""
-    rot = body.rotation
-    parent = body.parent
-    while parent > 0:
-        rot = model.bodies[parent].rotation @ rot
-        parent = model.bodies[parent].parent
+def _axes_in_base(model: Model) -> list:
+    """Joint axes of the bodies after the base, in base axes at the zero configuration, each
+    (3,); one pass down the tree (parents come first)."""
+    rot = [np.eye(3)]
+    for b in model.bodies[1:]:
+        rot.append(rot[b.parent] @ b.rotation)
     # Every rotation on the path is about an axis parallel to z in planar mode, so the
     # zero configuration is representative; ``as_planar`` checks exactly this.
-    return rot @ body.axis
+    return [r @ b.axis for r, b in zip(rot[1:], model.bodies[1:])]
+
+
+def symbol_suffix(name: str) -> str:
+    """A body or joint name as the suffix of a parameter or symbol name (non-word characters
+    become ``_``), so that every definition stays a valid SymPy expression."""
+    return re.sub(r"\W", "_", name)
+
+
+def _check_names(model: Model, where: str):
+    """Body names and joint names must be unique, also once made symbol suffixes (``l-1`` and
+    ``l_1`` would both be ``m_l_1`` in the parameter names)."""
+    for kind, names in (("body", [b.name for b in model.bodies]), ("joint", list(model.joints))):
+        seen: dict = {}  # symbol suffix -> the name that gave it
+        exact: set = set()
+        for name in names:
+            if name in exact:
+                raise SpaceidError(f"{where}: {kind} name '{name}' appears twice: {kind} names must be unique")
+            exact.add(name)
+            other = seen.setdefault(symbol_suffix(name), name)
+            if other != name:
+                raise SpaceidError(
+                    f"{where}: {kind} names '{other}' and '{name}' both become '{symbol_suffix(name)}' in parameter "
+                    f"names (characters other than letters, digits and _ read as _): rename one"
+                )
 
 
 def _validate(model: Model) -> Model:
     where = model.source or model.name
-    seen = set()
+    _check_names(model, where)
     for i, b in enumerate(model.bodies):
-        if b.name in seen:
-            raise SpaceidError(f"{where}: body name '{b.name}' appears twice: body names must be unique")
-        seen.add(b.name)
         if not np.all(np.isfinite(b.inertial)):
             raise SpaceidError(f"{where}: body '{b.name}' has non-finite inertial values: give numbers")
         if b.mass <= 0:
@@ -248,67 +277,132 @@ def _rpy_matrix(rpy):
 # ---------------------------------------------------------------- YAML ---------------------
 
 
-def _yaml_vector(where, value, n, key):
-    try:
-        arr = np.asarray(value, dtype=float).reshape(n)
-    except (TypeError, ValueError):
-        raise SpaceidError(f"{where}: '{key}' must be a list of {n} numbers, got {value!r}") from None
-    if not np.all(np.isfinite(arr)):
-        raise SpaceidError(f"{where}: '{key}' holds NaN or infinite values: give finite numbers")
-    return arr
+_MODEL_KEYS = ("name", "planar", "wheels", "bodies")
+_BODY_KEYS = ("name", "parent", "joint", "mass", "com", "inertia", "known_zero")
+_JOINT_KEYS = ("name", "type", "xyz", "rpy", "axis", "limit")
+_LIMIT_UNITS = {"lower": "rad or m", "upper": "rad or m", "velocity": "rad/s or m/s",
+                "acceleration": "rad/s^2 or m/s^2", "effort": "N m or N"}
+_LIMIT_KEYS = tuple(_LIMIT_UNITS)
+_INERTIA_KEYS = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+
+
+def _known_keys(where, spec, known, what):
+    """Refuse keys of the mapping ``spec`` not in ``known`` (a typo would be silently ignored,
+    e.g. ``inertial:`` leaving a body without inertia), suggesting the closest known key."""
+    for key in spec:
+        if key not in known:
+            close = difflib.get_close_matches(str(key), known, n=1)
+            hint = f"did you mean '{close[0]}'? " if close else ""
+            raise SpaceidError(f"{where}: unknown key {shown(key)} in {what}: {hint}the keys are {', '.join(known)}")
+
+
+def _yaml_mapping(where, value, key, known):
+    """``value`` checked to be a mapping with keys among ``known`` (None reads as empty)."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise SpaceidError(f"{where}: '{key}' must be a mapping with keys among {', '.join(known)}, got {shown(value)}")
+    _known_keys(where, value, known, f"'{key}'")
+    return value
+
+
+def _yaml_number(where, value, key, unit):
+    """``value`` as a finite float; booleans, strings and lists are refused with the key named."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise SpaceidError(f"{where}: '{key}' must be a number [{unit}], got {shown(value)}")
+    number = float(value)
+    if not math.isfinite(number):
+        raise SpaceidError(f"{where}: '{key}' is non-finite ({value}): give a finite number [{unit}]")
+    return number
+
+
+def _yaml_vector(where, value, n, key, unit="m"):
+    if not isinstance(value, list) or len(value) != n:
+        raise SpaceidError(f"{where}: '{key}' must be a list of {n} numbers, got {shown(value)}")
+    return np.array([_yaml_number(where, v, key, unit) for v in value])
 
 
 def _yaml_inertia(where, spec, key):
     """Inertia about the CoM from ``{izz: ..}`` style mappings or a 6-list ixx ixy ixz iyy iyz izz."""
     if isinstance(spec, dict):
-        unknown = set(spec) - {"ixx", "ixy", "ixz", "iyy", "iyz", "izz"}
-        if unknown:
-            raise SpaceidError(f"{where}: unknown key(s) {sorted(unknown)} in '{key}': use ixx, ixy, ixz, iyy, iyz, izz")
-        v = [float(spec.get(k, 0.0)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")]
+        _known_keys(where, spec, _INERTIA_KEYS, f"'{key}'")
+        v = [_yaml_number(where, spec.get(k, 0.0), f"{key}.{k}", "kg m^2") for k in _INERTIA_KEYS]
     else:
-        v = _yaml_vector(where, spec, 6, key)
+        v = _yaml_vector(where, spec, 6, key, "kg m^2")
     ixx, ixy, ixz, iyy, iyz, izz = v
     return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
 
 
+def _yaml_known_zero(here, value):
+    if not isinstance(value, list) or not all(isinstance(k, str) for k in value):
+        raise SpaceidError(
+            f"{here}: 'known_zero' must be a list of parameter names ({', '.join(INERTIAL_NAMES)}), got {shown(value)}"
+        )
+    bad = set(value) - set(INERTIAL_NAMES)
+    if bad:
+        raise SpaceidError(f"{here}: unknown known_zero name(s) {shown(sorted(bad))}: use {', '.join(INERTIAL_NAMES)}")
+    return frozenset(value)
+
+
+def _yaml_limits(here, joint):
+    """The joint's limits: numbers, lower <= upper, rates and effort positive."""
+    spec = _yaml_mapping(here, joint.get("limit"), "joint.limit", _LIMIT_KEYS)
+    limits = {k: _yaml_number(here, v, f"joint.limit.{k}", _LIMIT_UNITS[k]) for k, v in spec.items()}
+    if limits.get("lower", -math.inf) > limits.get("upper", math.inf):
+        raise SpaceidError(
+            f"{here}: joint limit lower = {limits['lower']:g} is above upper = {limits['upper']:g}: swap them"
+        )
+    for k in ("velocity", "acceleration", "effort"):
+        if k in limits and limits[k] <= 0:
+            raise SpaceidError(f"{here}: joint.limit.{k} is {limits[k]:g}: give a positive limit or leave it out")
+    return limits
+
+
 def _yaml_body(where, spec, names):
     name = spec.get("name")
-    if not isinstance(name, str):
-        raise SpaceidError(f"{where}: every body needs a 'name'")
-    here = f"{where}: body '{name}'"
+    if not isinstance(name, str) or not name:
+        raise SpaceidError(f"{where}: every body needs a 'name' (a string), got {shown(name)}")
+    here = f"{where}: body '{shown(name)[1:-1]}'"
+    _known_keys(here, spec, _BODY_KEYS, "the body")
     if "mass" not in spec:
         raise SpaceidError(f"{here} has no 'mass': give it in kg")
-    mass = float(spec["mass"])
+    mass = _yaml_number(here, spec["mass"], "mass", "kg")
     com = _yaml_vector(here, spec.get("com", [0, 0, 0]), 3, "com")
-    inertial = inertial_vector(mass, com, _yaml_inertia(here, spec.get("inertia", {}), "inertia"))
-    known_zero = frozenset(spec.get("known_zero", ()))
-    bad = known_zero - set(INERTIAL_NAMES)
-    if bad:
-        raise SpaceidError(f"{here}: unknown known_zero name(s) {sorted(bad)}: use {', '.join(INERTIAL_NAMES)}")
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused by _validate, by name
+        inertial = inertial_vector(mass, com, _yaml_inertia(here, spec.get("inertia", {}), "inertia"))
+    known_zero = _yaml_known_zero(here, spec.get("known_zero", []))
     for k in known_zero:
         if abs(inertial[INERTIAL_NAMES.index(k)]) > 1e-12 * max(1.0, abs(inertial).max()):
             raise SpaceidError(f"{here} declares {k} known to be zero but its value is not zero")
     if "parent" not in spec:
+        if "joint" in spec:
+            raise SpaceidError(f"{here} has a 'joint' but no 'parent': give the parent body, or drop the joint")
         return Body(name, -1, None, "base", np.zeros(3), np.eye(3), np.zeros(3), inertial, {}, known_zero)
-    if spec["parent"] not in names:
-        raise SpaceidError(f"{here} has parent '{spec['parent']}', which is not listed before it")
-    joint = spec.get("joint") or {}
+    parent = spec["parent"]
+    if not isinstance(parent, str) or parent not in names:
+        raise SpaceidError(
+            f"{here} has parent {shown(parent)}, which is not listed before it: list every body after its parent"
+        )
+    joint = _yaml_mapping(here, spec.get("joint"), "joint", _JOINT_KEYS)
     jtype = joint.get("type", "revolute")
     if jtype not in ("revolute", "continuous", "prismatic"):
-        raise SpaceidError(f"{here}: joint type '{jtype}' is not one of revolute, continuous, prismatic")
-    axis = _yaml_vector(here, joint.get("axis", [0, 0, 1]), 3, "joint.axis")
+        raise SpaceidError(f"{here}: joint type {shown(jtype)} is not one of revolute, continuous, prismatic")
+    joint_name = joint.get("name", f"{name}_joint")
+    if not isinstance(joint_name, str) or not joint_name:
+        raise SpaceidError(f"{here}: 'joint.name' must be a string, got {shown(joint_name)}")
+    axis = _yaml_vector(here, joint.get("axis", [0, 0, 1]), 3, "joint.axis", "a direction")
     if np.linalg.norm(axis) == 0:
         raise SpaceidError(f"{here}: joint axis is zero: give a direction such as [0, 0, 1]")
-    limits = {k: float(v) for k, v in (joint.get("limit") or {}).items()}
+    limits = _yaml_limits(here, joint)
     if jtype == "continuous":
         limits.pop("lower", None), limits.pop("upper", None)
     return Body(
         name,
-        names[spec["parent"]],
-        str(joint.get("name", f"{name}_joint")),
+        names[parent],
+        joint_name,
         "prismatic" if jtype == "prismatic" else "revolute",
         axis / np.linalg.norm(axis),
-        _rpy_matrix(_yaml_vector(here, joint.get("rpy", [0, 0, 0]), 3, "joint.rpy")),
+        _rpy_matrix(_yaml_vector(here, joint.get("rpy", [0, 0, 0]), 3, "joint.rpy", "rad")),
         _yaml_vector(here, joint.get("xyz", [0, 0, 0]), 3, "joint.xyz"),
         inertial,
         limits,
@@ -320,36 +414,49 @@ def _model_from_yaml(text: str, where: str) -> Model:
     spec = parse_yaml(text, where)
     if not isinstance(spec, dict) or not isinstance(spec.get("bodies"), list) or not spec["bodies"]:
         raise SpaceidError(f"{where}: a YAML model needs a 'bodies' list, the base first")
+    _known_keys(where, spec, _MODEL_KEYS, "the model")
     names: dict = {}
     bodies = []
-    try:
-        for entry in spec["bodies"]:
-            if not isinstance(entry, dict):
-                raise SpaceidError(f"{where}: every entry of 'bodies' must be a mapping")
-            body = _yaml_body(where, entry, names)
-            if (body.parent < 0) != (not bodies):
-                raise SpaceidError(f"{where}: exactly the first body (the base) has no parent; body '{body.name}' breaks this")
-            names[body.name] = len(bodies)
-            bodies.append(body)
-    except (TypeError, ValueError) as exc:
-        if isinstance(exc, SpaceidError):
-            raise
-        raise SpaceidError(f"{where}: a value could not be read as a number ({exc})") from None
-    model = _validate(
-        Model(str(spec.get("name", Path(where).stem)), tuple(bodies), False, tuple(spec.get("wheels", ())), where)
-    )
+    for entry in spec["bodies"]:
+        if not isinstance(entry, dict):
+            raise SpaceidError(f"{where}: every entry of 'bodies' must be a mapping, got {shown(entry)}")
+        body = _yaml_body(where, entry, names)
+        if (body.parent < 0) != (not bodies):
+            raise SpaceidError(
+                f"{where}: exactly the first body (the base) has no parent; body '{body.name}' breaks this"
+            )
+        if body.name in names:
+            raise SpaceidError(f"{where}: body name '{body.name}' appears twice: body names must be unique")
+        names[body.name] = len(bodies)
+        bodies.append(body)
+    wheels = spec.get("wheels", [])
+    if not isinstance(wheels, list) or not all(isinstance(w, str) for w in wheels):
+        raise SpaceidError(f"{where}: 'wheels' must be a list of joint names, got {shown(wheels)}")
+    planar = spec.get("planar", False)
+    if not isinstance(planar, bool):
+        raise SpaceidError(f"{where}: 'planar' must be true or false, got {shown(planar)}")
+    name = spec.get("name", Path(where).stem)
+    if not isinstance(name, (str, int, float)) or isinstance(name, bool):
+        raise SpaceidError(f"{where}: 'name' must be a string, got {shown(name)}")
+    model = _validate(Model(str(name), tuple(bodies), False, tuple(wheels), where))
     unknown = set(model.wheels) - set(model.joints)
     if unknown:
-        raise SpaceidError(f"{where}: 'wheels' names unknown joint(s) {sorted(unknown)}")
-    return model.as_planar() if spec.get("planar") else model
+        raise SpaceidError(
+            f"{where}: 'wheels' names unknown joint(s) {shown(sorted(unknown))}: use {', '.join(model.joints)}"
+        )
+    return model.as_planar() if planar else model
 
 
 # ---------------------------------------------------------------- URDF ---------------------
 
 
+_URDF_MOVING = ("revolute", "continuous", "prismatic")
+
+
 def _check_urdf_tree(text: str, where: str):
-    """Reject unsafe or malformed XML and tree errors with messages Pinocchio does not give;
-    return the parsed root element."""
+    """Reject unsafe or malformed XML and tree errors with messages Pinocchio does not give
+    (or gives wrongly: a cycle beside the tree is dropped, a zero axis makes a revolute joint
+    prismatic); return the parsed root element."""
     import defusedxml.ElementTree as ET
     from defusedxml import DefusedXmlException
 
@@ -360,36 +467,132 @@ def _check_urdf_tree(text: str, where: str):
     except ET.ParseError as exc:
         raise SpaceidError(f"{where}: not well-formed XML ({exc}): fix the URDF") from None
     if root.tag != "robot":
-        raise SpaceidError(f"{where}: the root element is <{root.tag}>, not <robot>: is this a URDF?")
+        raise SpaceidError(f"{where}: the root element is <{shown(root.tag)[1:-1]}>, not <robot>: is this a URDF?")
     links = [link.get("name") for link in root.findall("link")]
+    _urdf_unique(where, "link", links)
+    _urdf_unique(where, "joint", [joint.get("name") for joint in root.findall("joint")])
     parent_of = {}
     for joint in root.findall("joint"):
         name, jtype = joint.get("name"), joint.get("type")
-        parent, child = joint.find("parent"), joint.find("child")
-        if parent is None or child is None:
-            raise SpaceidError(f"{where}: joint '{name}' lacks a <parent> or <child> element")
-        child_name = child.get("link")
+        _urdf_joint(where, joint, name, jtype, set(links))
+        child_name = joint.find("child").get("link")
         if child_name in parent_of:
             raise SpaceidError(
                 f"{where}: link '{child_name}' has two parent joints ('{parent_of[child_name][0]}' and "
                 f"'{name}'): closed kinematic loops are not supported; cut the loop"
             )
-        parent_of[child_name] = (name, jtype)
-        if jtype in ("floating", "planar"):
-            raise SpaceidError(
-                f"{where}: joint '{name}' is of type '{jtype}' below the root: only the root link floats; "
-                "make it fixed, revolute, continuous or prismatic"
-            )
+        parent_of[child_name] = (name, joint.find("parent").get("link"))
     roots = [name for name in links if name not in parent_of]
-    if len(roots) != 1:
-        raise SpaceidError(f"{where}: expected one root link (the floating base), found {roots or 'none (a loop)'}")
+    if len(roots) > 1:
+        raise SpaceidError(
+            f"{where}: {len(roots)} root links ({shown(roots)[1:-1]}): the floating base must be the only link "
+            "without a parent joint; attach the others with joints (fixed if rigid) or remove them"
+        )
+    _urdf_cycle(where, links, parent_of, roots)
     for link in root.findall("link"):
         mass = link.find("inertial/mass")
-        if mass is not None and float(mass.get("value", "nan")) <= 0:
-            raise SpaceidError(
-                f"{where}: link '{link.get('name')}' has mass {mass.get('value')}: masses must be positive"
-            )
+        value = None if mass is None else _urdf_float(mass.get("value"))
+        if mass is not None and not value > 0:
+            raise SpaceidError(f"{where}: link '{link.get('name')}' has mass {shown(mass.get('value'))}: masses "
+                               "must be positive numbers [kg]")
     return root
+
+
+def _urdf_float(text):
+    """``text`` as a float, NaN when it is missing or not a number."""
+    try:
+        return float(text)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def _urdf_unique(where, kind, names):
+    seen = set()
+    for name in names:
+        if not name:
+            raise SpaceidError(f"{where}: a <{kind}> has no name: give every {kind} a name attribute")
+        if name in seen:
+            raise SpaceidError(f"{where}: {kind} name '{name}' appears twice: {kind} names must be unique")
+        seen.add(name)
+
+
+def _urdf_joint(where, joint, name, jtype, links):
+    """One <joint>: a supported type, existing parent and child links, a non-zero numeric axis
+    and the limits URDF requires, ordered."""
+    here = f"{where}: joint '{name}'"
+    if jtype in ("floating", "planar"):
+        raise SpaceidError(
+            f"{here} is of type '{jtype}' below the root: only the root link floats; "
+            "make it fixed, revolute, continuous or prismatic"
+        )
+    if jtype not in (*_URDF_MOVING, "fixed"):
+        raise SpaceidError(f"{here} has unknown type {shown(jtype)}: use revolute, continuous, prismatic or fixed")
+    for tag in ("parent", "child"):
+        element = joint.find(tag)
+        if element is None:
+            raise SpaceidError(f"{here} lacks a <{tag}> element")
+        if element.get("link") not in links:
+            raise SpaceidError(f"{here}: {tag} link {shown(element.get('link'))} is not a <link> of the URDF")
+    if jtype == "fixed":
+        return
+    axis_element = joint.find("axis")
+    text = "1 0 0" if axis_element is None else axis_element.get("xyz", "")  # URDF's default axis is x
+    axis = [_urdf_float(v) for v in text.split()]
+    if len(axis) != 3 or not np.all(np.isfinite(axis)):
+        raise SpaceidError(f"{here}: axis xyz={shown(text)} is not 3 numbers: give a direction such as '0 0 1'")
+    if not np.any(axis):
+        raise SpaceidError(f"{here}: axis xyz='{text}' is zero: give the direction of the joint, such as '0 0 1'")
+    limit = joint.find("limit")
+    if limit is None:
+        if jtype != "continuous":
+            raise SpaceidError(
+                f"{here} ({jtype}) has no <limit>: URDF requires lower, upper, velocity and effort; "
+                "add one, or make the joint continuous"
+            )
+        return
+    values = {k: _urdf_float(limit.get(k, "0")) for k in ("lower", "upper", "velocity", "effort")}
+    bad = [k for k, v in values.items() if not math.isfinite(v)]
+    if bad:
+        raise SpaceidError(f"{here}: <limit> {bad[0]}={shown(limit.get(bad[0]))} is not a finite number: fix it")
+    if jtype != "continuous" and values["lower"] > values["upper"]:
+        raise SpaceidError(
+            f"{here}: limit lower = {values['lower']:g} is above upper = {values['upper']:g}: swap them"
+        )
+    if joint.find("mimic") is not None:
+        warnings.warn(
+            f"{here} mimics '{joint.find('mimic').get('joint')}': it is treated as an independent joint, so "
+            "its angles must be in the logs, and excitation design does not keep the coupling",
+            stacklevel=5,
+        )
+
+
+def _urdf_cycle(where, links, parent_of, roots):
+    """Every link must hang below the root; one that does not sits on (or below) a cycle of
+    joints, which Pinocchio would silently drop: name the joints of that cycle."""
+    below = set(roots)
+    children: dict = {}
+    for child, (_, parent) in parent_of.items():
+        children.setdefault(parent, []).append(child)
+    stack = list(roots)
+    while stack:
+        for child in children.get(stack.pop(), []):
+            if child not in below:
+                below.add(child)
+                stack.append(child)
+    detached = [name for name in links if name not in below]
+    if not detached:
+        return
+    path, link = [], detached[0]
+    while link not in path:  # walk up the parents: every detached link leads into a cycle
+        path.append(link)
+        link = parent_of[link][1]
+    cycle = path[path.index(link):][::-1]  # parent before child
+    joints = [parent_of[name][0] for name in cycle]
+    parents = [parent_of[name][1] for name in cycle]
+    raise SpaceidError(
+        f"{where}: joints {shown(joints)[1:-1]} form a cycle (links {shown(parents)[1:-1]}), apart from the tree "
+        f"of root link '{roots[0] if roots else '?'}': closed loops are not supported; cut the loop and attach it"
+    )
 
 
 def _urdf_accelerations(root, where: str) -> dict:
@@ -419,14 +622,40 @@ def _model_from_urdf(text: str, where: str) -> Model:
     import pinocchio as pin
 
     accelerations = _urdf_accelerations(_check_urdf_tree(text, where), where)
-    try:
-        pmodel = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
-    except (RuntimeError, ValueError) as exc:
-        raise SpaceidError(f"{where}: Pinocchio could not build the model ({str(exc).splitlines()[0]})") from None
+    pmodel, failure = None, ""
+    with _captured_stderr() as printed:
+        try:
+            pmodel = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+        except (RuntimeError, ValueError) as exc:
+            failure = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    # urdfdom prints its errors, and for some (an unreadable <inertial>) drops the element and goes on
+    errors = [" ".join(line.split()) for line in printed() if line.lstrip().startswith("Error")]
+    if pmodel is None or errors:
+        said = "; ".join([*errors[:2], failure] if failure else errors[:2])
+        raise SpaceidError(f"{where}: the URDF parser refused the file ({said}): fix the element it names")
     model = from_pinocchio(pmodel, where)
     bodies = tuple(replace(b, limits={**b.limits, "acceleration": accelerations[b.joint]})
                    if b.joint in accelerations else b for b in model.bodies)
     return _validate(replace(model, bodies=bodies))
+
+
+@contextlib.contextmanager
+def _captured_stderr():
+    """Capture what C++ code (urdfdom) prints on file descriptor 2 inside the block, so that a
+    library call prints nothing; yields a function returning the captured non-empty lines."""
+    lines: list = []
+    sys.stderr.flush()
+    with tempfile.TemporaryFile(mode="w+b") as sink:
+        saved = os.dup(2)
+        os.dup2(sink.fileno(), 2)
+        try:
+            yield lambda: lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            text = sink.read(4096).decode("utf-8", "replace")
+            lines[:] = [line for line in text.splitlines() if line.strip() and not line.lstrip().startswith("at line")]
 
 
 def from_pinocchio(pmodel, source: str = "") -> Model:
@@ -475,7 +704,8 @@ def from_pinocchio(pmodel, source: str = "") -> Model:
                 np.array(placement.rotation),
                 np.array(placement.translation),
                 inertial,
-                {k: v for k, v in limits.items() if v > 0 or k == "lower"},
+                # position limits of any sign ([-2, -0.5] rad keeps its upper limit); rates and effort > 0
+                {k: v for k, v in limits.items() if v > 0 or k in ("lower", "upper")},
             )
         )
     return Model(Path(source).stem if source else pmodel.name, tuple(bodies), False, (), source)
@@ -525,14 +755,11 @@ def load_model(source, *, planar: bool | None = None) -> Model:
         model = replace(model, name=str(source), source=str(source))
     else:
         path = Path(source)
-        if not path.is_file():
+        if not path.exists():
             raise SpaceidError(
                 f"{path}: no such model file; give a URDF or YAML path or a preset ({', '.join(PRESETS)})"
             )
-        try:
-            text = path.read_text()
-        except (OSError, UnicodeDecodeError) as exc:
-            raise SpaceidError(f"{path}: cannot be read ({exc})") from None
+        text = read_input_text(path, "model file", MAX_MODEL_BYTES)
         suffix = path.suffix.lower()
         if suffix == ".urdf" or (suffix not in (".yaml", ".yml") and text.lstrip().startswith("<")):
             model = _model_from_urdf(text, str(path))

@@ -354,8 +354,17 @@ def _model_limits(model, overrides):
     :func:`optimize_excitation`: ``q_max`` [rad] (the nearer of the lower and upper position
     limits), ``qd_max`` [rad/s], ``qdd_max`` [rad/s^2]; ``overrides`` (the same keys, None where
     not given) replace them. Every joint must have all three."""
+    lower, upper = model.joint_limits("lower"), model.joint_limits("upper")
+    outside = np.flatnonzero((lower >= 0) | (upper <= 0))  # NaN (no limit) compares False
+    if outside.size:  # |q| <= q_max about 0 cannot keep such a joint inside its range
+        j = outside[0]
+        raise SpaceidError(
+            f"{model.source}: joint '{model.joints[j]}' has the range [{lower[j]:g}, {upper[j]:g}], which does "
+            "not hold q = 0 inside: designed trajectories move about q = 0, so they would leave it; put the "
+            "joint's zero inside its range (shift the joint origin) and design again"
+        )
     limits = {
-        "q_max": np.fmin(np.abs(model.joint_limits("lower")), np.abs(model.joint_limits("upper"))),
+        "q_max": np.fmin(np.abs(lower), np.abs(upper)),
         "qd_max": model.joint_limits("velocity"),
         "qdd_max": model.joint_limits("acceleration"),
     }

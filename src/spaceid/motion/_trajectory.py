@@ -31,7 +31,8 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import write_text_atomic
-from .._errors import SpaceidError, finite_array
+from .._errors import SpaceidError, finite_array, shown
+from ..data import read_json
 
 __all__ = [
     "FourierTrajectory",
@@ -176,12 +177,14 @@ class FourierTrajectory:
     def __post_init__(self):
         src = self.meta.get("source", "trajectory")
         joints = tuple(str(j) for j in self.joints)
-        try:
-            duration = float(self.duration)
+        try:  # true is not one second
+            duration = math.nan if isinstance(self.duration, (bool, np.bool_)) else float(self.duration)
         except (TypeError, ValueError):
             duration = math.nan
         if not (math.isfinite(duration) and duration > 0):
-            raise SpaceidError(f"{src}: field 'duration' must be a positive number of seconds")
+            raise SpaceidError(
+                f"{src}: field 'duration' must be a positive number of seconds, got {shown(self.duration)}"
+            )
         a = finite_array(self.a, 2, "a", src)
         if a.shape[0] != len(joints) or a.shape[1] < 1:
             raise SpaceidError(
@@ -280,7 +283,7 @@ class FourierTrajectory:
             )
         if data.get("version") != _VERSION:
             raise SpaceidError(
-                f"{source}: field 'version' must be {_VERSION}, got {data.get('version')!r}"
+                f"{source}: field 'version' must be {_VERSION}, got {shown(data.get('version'))}"
             )
         missing = [k for k in ("joints", "duration", "a", "b") if k not in data]
         if missing:
@@ -358,16 +361,12 @@ def load_trajectory(name_or_path, joints=None):
         traj = NAMED_TRAJECTORIES[key]()
     else:
         path = Path(name_or_path)
-        if not path.is_file():
+        if not path.exists():
             raise SpaceidError(
                 f"{key}: no such trajectory file and not a named trajectory "
                 f"(named: {', '.join(NAMED_TRAJECTORIES)})"
             )
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise SpaceidError(f"{path}: cannot read a JSON trajectory ({exc})") from None
-        traj = FourierTrajectory.from_dict(data, source=str(path))
+        traj = FourierTrajectory.from_dict(read_json(path, what="JSON trajectory"), source=str(path))
     if joints is not None and tuple(joints) != traj.joints:
         raise SpaceidError(
             f"{key}: trajectory drives joints ({', '.join(traj.joints)}) but the model has "
