@@ -127,7 +127,7 @@ def _warnings_to_stderr():
         warnings.simplefilter("always")
         yield
     for w in caught:
-        err.print(f"warning: {w.message}", markup=False, highlight=False)
+        err.print(f"warning: {w.message}", markup=False, highlight=False, soft_wrap=True)  # one line each
 
 
 def _print_joint_rates(log) -> None:
