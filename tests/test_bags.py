@@ -12,7 +12,7 @@ import pytest
 
 from spaceid.data import _bag_format as bags
 from spaceid._errors import SpaceidError
-from spaceid.data import read_mapping, read_recording, to_log, write_bag
+from spaceid.data import JOINT_RATE_POLICY, read_mapping, read_recording, to_log, write_bag
 from spaceid.cli import main
 from spaceid.models import load_model
 from spaceid.data import JointStates, Poses, Recording
@@ -211,7 +211,8 @@ def lab_recording(truth):
 @pytest.mark.slow
 def test_to_log_recovers_rates_from_uneven_streams(lab_recording, truth):
     rec, n_dropped = lab_recording
-    log = to_log(rec, joints=truth.joints, planar=True, wheels=("reaction_wheel_joint",), pose_latency=LATENCY)
+    log = to_log(rec, joints=truth.joints, planar=True, wheels=("reaction_wheel_joint",), pose_latency=LATENCY,
+                 joint_rates="auto")
     i = _at(truth, log.t)
     # time base: the joint stamps inside the overlap with the (latency-corrected) pose stream
     assert log.t[0] == 0.02 and log.t[-1] == 4.98 and log.n_samples == 249
@@ -231,10 +232,11 @@ def test_to_log_recovers_rates_from_uneven_streams(lab_recording, truth):
     assert 1.95 < log.t[np.argmax(error)] < 2.1  # the worst is at the long gap
     np.testing.assert_allclose(log.base_yaw, truth.base_yaw[i], rtol=0, atol=3e-8)
 
-    # joint rates from the positions instead of the velocities: noise-free evenly sampled
-    # positions, so only the smoothing bias remains (1.1e-8 rad/s measured)
-    diff = to_log(rec, joints=truth.joints, planar=True, wheels=("reaction_wheel_joint",), pose_latency=LATENCY,
-                  joint_rates="differentiate")
+    # joint rates from the positions instead of the velocities (the default): noise-free evenly
+    # sampled positions, so only the smoothing bias remains (1.1e-8 rad/s measured)
+    diff = to_log(rec, joints=truth.joints, planar=True, wheels=("reaction_wheel_joint",), pose_latency=LATENCY)
+    assert diff.meta["joint_rate_policy"] == JOINT_RATE_POLICY == "differentiate"
+    assert log.meta["joint_rate_policy"] == "auto"
     assert diff.meta["joint_rates"] == dict.fromkeys(truth.joints, "differentiated")
     assert set(diff.meta["differentiation"]["joints"]) == set(truth.joints)
     np.testing.assert_allclose(diff.qd, truth.qd[i], rtol=0, atol=1e-7)
@@ -257,7 +259,8 @@ def test_wrapped_wheel_at_170_rad_s_is_unwrapped_with_its_rate(truth):
     wrapped = np.angle(np.exp(1j * angle))
     js = JointStates(t, ("reaction_wheel_joint",), wrapped[:, None], rate[:, None])
     base = Poses(t, np.zeros((t.size, 3)), yaw_to_quat(0.1 * np.sin(t)), "world")
-    log = to_log(Recording(js, base), joints=("reaction_wheel_joint",), planar=True, wheels=("reaction_wheel_joint",))
+    log = to_log(Recording(js, base), joints=("reaction_wheel_joint",), planar=True, wheels=("reaction_wheel_joint",),
+                 joint_rates="auto")  # the measured angles, unwrapped, not smoothed by a differentiator
     np.testing.assert_allclose(log.q[:, 0], angle, rtol=0, atol=1e-9)
 
 

@@ -139,12 +139,50 @@ def test_validation_figure_is_titled_and_labelled(planar):
     fig = _draw_validation(_log(planar), _log(planar, bias=1e-3))
     _assert_titled_and_labelled(fig)
     assert "identified model" in fig.get_suptitle()  # a default title: 'spaceid validate' gives none
-    assert _legend_labels(fig) == ["measured", "identified model"]
+    assert _legend_labels(fig) == ["measured", "identified model (predicted)", "residual"]
     assert {ax.get_ylabel().split("[")[1] for ax in fig.axes} == {"rad]", "rad/s]"}
-    assert [ax.get_xlabel() for ax in fig.axes if ax.get_xlabel()] == ["time $t$ [s]"] * (1 if planar else 3)
+    assert [ax.get_xlabel() for ax in fig.axes if ax.get_xlabel()] == ["time $t$ [s]"] * (2 if planar else 4)
     # no offset text ('+1.7e2' of a spinning wheel's rate) to collide with the panel titles
     assert not any(ax.yaxis.get_major_formatter().get_useOffset() for ax in fig.axes)
     assert _draw_validation(_log(planar), _log(planar), title="Fig. 6").get_suptitle() == "Fig. 6"
+
+
+def _turning(log, rate):
+    """``log`` with its base turned about a tilted axis at ``rate`` [rad/s] (a spatial attitude)."""
+    axis = np.array([0.6, 0.0, 0.8])
+    half = 0.5 * rate * log.t[:, None]
+    return replace(log, base_quat=np.hstack([np.cos(half), np.sin(half) * axis]))
+
+
+@pytest.mark.parametrize("planar", [True, False])
+def test_validation_figure_shows_base_rate_and_attitude_with_residuals(planar):
+    """What the model predicts, measured against predicted, the residual below; no joint panels."""
+    measured, predicted = _log(planar), _log(planar, bias=1e-3)
+    if not planar:
+        measured, predicted = _turning(measured, 0.2), _turning(predicted, 0.21)
+    fig = _draw_validation(measured, predicted)
+    top = [ax for ax in fig.axes if ax.get_title(loc="left").startswith("base")]
+    bottom = [ax for ax in fig.axes if ax.get_title(loc="left").startswith("residual")]
+    assert len(top) == len(bottom) == len(fig.axes) // 2 == (2 if planar else 4)
+    assert not any("left_" in ax.get_title(loc="left") for ax in fig.axes)  # no joint panels
+    titles = [ax.get_title(loc="left") for ax in top]
+    assert titles[:-1] == (["base angular velocity"] if planar else [f"base angular velocity, {a}" for a in "xyz"])
+    assert titles[-1] == ("base attitude: yaw" if planar else "base attitude: rotation angle")
+    rate, attitude = top[-2], top[-1]
+    np.testing.assert_array_equal(_line(rate, "measured").get_ydata(), measured.base_w[:, 2])
+    np.testing.assert_array_equal(_line(rate, "identified model").get_ydata(), predicted.base_w[:, 2])
+    residual = predicted.base_w[:, 2] - measured.base_w[:, 2]
+    np.testing.assert_allclose(_line(bottom[-2], "residual").get_ydata(), residual)
+    if planar:
+        np.testing.assert_allclose(_line(attitude, "measured").get_ydata(), measured.base_yaw)
+        residual = predicted.base_yaw - measured.base_yaw
+    else:  # turned about one axis at 0.2 and 0.21 rad/s: angles 0.2 t and 0.21 t, error angle 0.01 t
+        np.testing.assert_allclose(_line(attitude, "measured").get_ydata(), 0.2 * measured.t, atol=1e-12)
+        np.testing.assert_allclose(_line(attitude, "identified model").get_ydata(), 0.21 * measured.t, atol=1e-12)
+        residual = 0.01 * measured.t
+    np.testing.assert_allclose(_line(bottom[-1], "residual").get_ydata(), residual, atol=1e-12)
+    assert bottom[-1].get_title(loc="left") == f"residual, RMS {np.sqrt(np.mean(residual**2)):.2g} rad"
+    assert bottom[-1].get_ylabel() == ("pred. $-$ meas. [rad]" if planar else "error angle [rad]")
 
 
 def test_validation_needs_matching_logs(tmp_path):

@@ -92,12 +92,14 @@ def _options(*decorators):
 
 
 def bag_options(f):
-    """Options ``--joint-topic``, ``--pose-topic``, ``--mapping`` for a log that is a ROS bag,
-    handed to the command as one ``bag`` argument: the keywords of ``read_log(bag_options=...)``."""
+    """Options ``--joint-topic``, ``--pose-topic``, ``--mapping``, ``--joint-rates`` for a log that
+    is a ROS bag, handed to the command as one ``bag`` argument: the keywords of
+    ``read_log(bag_options=...)``."""
 
     @functools.wraps(f)
     def command(*args, **kwargs):
-        return f(*args, bag={k: kwargs.pop(k) for k in ("joint_topic", "pose_topic", "mapping")}, **kwargs)
+        return f(*args, bag={k: kwargs.pop(k) for k in ("joint_topic", "pose_topic", "mapping", "joint_rates")},
+                 **kwargs)
 
     return _options(
         click.option("--joint-topic", help="Bag logs (.bag, .mcap, ROS 2 bag folder): sensor_msgs/JointState topic "
@@ -106,12 +108,39 @@ def bag_options(f):
                      "[default: /vrpn_client_node/cepheus/pose]."),
         click.option("--mapping", type=click.Path(path_type=Path), help="Bag logs: YAML file with joint_topic, "
                      "pose_topic, joints {bag name: model name}, rate, pose_latency, max_gap, max_tilt."),
+        click.option("--joint-rates", type=click.Choice(["differentiate", "velocity", "auto"]), help="Bag logs: "
+                     "joint rates from the encoder angles, differentiated (the default, as 'spaceid experiment' "
+                     "reads its bag: one-tick encoder velocities gave 6-17 times larger errors there), from the "
+                     "published velocities, or from those where every message has one."),
     )(command)
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
 def app():
     """Identify free-floating space manipulators from angular-momentum conservation."""
+
+
+@contextlib.contextmanager
+def _warnings_to_stderr():
+    """Show the library's warnings from the block as ``warning: ...`` lines on stderr, every one."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        yield
+    for w in caught:
+        err.print(f"warning: {w.message}", markup=False, highlight=False, soft_wrap=True)  # one line each
+
+
+def _print_joint_rates(log) -> None:
+    """One line naming where a bag log's joint rates came from (nothing for a CSV log)."""
+    from .data import JOINT_RATE_POLICY
+
+    policy = log.meta.get("joint_rate_policy")
+    if policy is None:
+        return
+    other = "velocity" if policy == "differentiate" else "differentiate"
+    sources = ", ".join(f"{joint} {source}" for joint, source in log.meta["joint_rates"].items())
+    out.print(f"joint rates: '{policy}'{' (default)' if policy == JOINT_RATE_POLICY else ''}: {sources}; "
+              f"--joint-rates {other} for the other", markup=False, highlight=False)
 
 
 @contextlib.contextmanager
@@ -341,9 +370,12 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
+    if differentiate and bag["joint_rates"] not in (None, "differentiate"):
+        raise SpaceidError(f"--differentiate and --joint-rates {bag['joint_rates']} contradict each other: give one")
+    rates = bag["joint_rates"] or ("differentiate" if differentiate else None)
     log = read_log(log_path, joints=param.model.joints, planar=param.model.planar, wheels=param.model.wheels,
-                   require_rates=False, bag_options=dict(bag, quantum=quantum,
-                                                         joint_rates="differentiate" if differentiate else None))
+                   require_rates=False, bag_options=dict(bag, quantum=quantum, joint_rates=rates))
+    _print_joint_rates(log)
     missing = log.meta.get("missing_rates", [])
     if missing and not differentiate and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
         raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
@@ -363,12 +395,9 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
             raise SpaceidError(f"{instruments}: joints {list(traj.joints)} differ from the model's "
                                f"{list(param.model.joints)}: give the trajectory that was commanded on this model")
         reference = traj.evaluate(log.t - log.t[0])[:2]
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
+    with _warnings_to_stderr():
         ident = run(param, log, h, estimator=estimator, known=parse_known(known), noise=noise, instruments=reference,
                     where=str(log_path))
-    for w in caught:
-        err.print(f"warning: {w.message}")
     write_json(output, ident.to_dict())
     out.print(parameter_table(ident))
     s = ident.settings
@@ -469,7 +498,9 @@ def validate(result, log_path, momentum, output, bag):
 
     model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
     log = read_log(log_path, joints=model.joints, planar=ident.planar, wheels=model.wheels, bag_options=bag)
-    predicted, metrics = run(ident, log, momentum=h, where=str(result))
+    _print_joint_rates(log)
+    with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
+        predicted, metrics = run(ident, log, momentum=h, where=str(result))
     output.mkdir(parents=True, exist_ok=True)
     write_log(output / "predicted.csv", predicted)
     write_json(output / "metrics.json", metrics)
@@ -515,12 +546,16 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
               "(ROS 2 bag folder, MCAP storage).")
 @click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
+@click.option("--validation", help="Held-out motion, run after the excitation, that the model is validated on: "
+              "paper-table2, designed (seed + 1) or a file from 'design' [default: paper-table2; designed when "
+              "--trajectory is paper-table2].")
 @SEED
 @click.option("--out", "folder", type=click.Path(path_type=Path), default="spaceid-experiment", show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
-def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, seed, folder):
-    """Rest, wheel spin-up, exciting trajectory on the Cepheus twin; identify from the recorded bag
-    (N samples and all), validate the identified model against the measurement (Fig. 6).
+def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, seed, folder):
+    """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
+    identify from the recorded bag (N samples and all of the excitation), validate the identified
+    model on the held-out motion (Fig. 6).
 
     MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default.
     """
@@ -533,12 +568,15 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     settings = settings.without_effects() if ideal else settings
     with _progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress:
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
-                             bag_format=bag_format, estimator=estimator, seed=seed, out=folder, progress=progress)
+                             bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=folder,
+                             progress=progress)
     out.print(parameter_table(res.ident, true=res.true))
     worst = float(np.max(np.abs(res.ident_all.values - res.true) / np.abs(res.true)))
     out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g}; all {res.ident_all.n_samples} "
-              f"samples: worst relative error {100 * worst:.3g} %; validation base-rate RMS error "
-              f"{res.metrics['base_w_rms']:.3g} rad/s ({100 * res.metrics['base_w_nrms']:.3g} %)")
+              f"samples: worst relative error {100 * worst:.3g} %")
+    out.print(f"validation on the held-out motion ({res.settings['validation trajectory']}): base-rate RMS error "
+              f"{res.metrics['base_w_rms']:.3g} rad/s ({100 * res.metrics['base_w_nrms']:.3g} %); on the fitting "
+              f"log, which checks only the fit: {100 * res.fit_metrics['base_w_nrms']:.3g} %", highlight=False)
     out.print(f"report written to {folder}/report.md")
 
 

@@ -7,11 +7,12 @@ for planar and spatial systems alike; a planar log is one whose attitude is a pu
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["Log", "yaw_to_quat", "quat_to_yaw", "quat_to_matrix", "first_unordered"]
+__all__ = ["Log", "yaw_to_quat", "quat_to_yaw", "quat_to_matrix", "first_unordered", "log_fingerprint"]
 
 
 def first_unordered(t):
@@ -107,3 +108,16 @@ class Log:
             base_quat=self.base_quat[index],
             base_w=self.base_w[index],
         )
+
+
+def log_fingerprint(log: Log) -> str:
+    """A hash of the log's time stamps and joint angles (SHA-256, hex), equal for the same
+    samples of the same motion however they were stored (a log CSV reads back bit for bit).
+
+    Identification records it, so that validation can tell the log a model was fitted to."""
+    digest = hashlib.sha256()
+    for x in (log.t, log.q):
+        x = np.ascontiguousarray(x, dtype="<f8")
+        digest.update(str(x.shape).encode())
+        digest.update(x.tobytes())
+    return digest.hexdigest()

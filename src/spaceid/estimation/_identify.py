@@ -21,7 +21,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
-from ..data import Log
+from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _triangular_factor
@@ -246,6 +246,7 @@ def identify(
     settings = {
         "parameterization": param.to_dict(),
         "log": dict(log.meta),
+        "log_fingerprint": log_fingerprint(log),  # validation warns when given this same log
         "condition_number_scaled": cond_scaled,
         "anchors": anchors,
         "momentum_estimated": momentum is None,

@@ -7,8 +7,12 @@ arm tracks the exciting trajectory (tf = 5 s) under its PD controllers; encoders
 capture are recorded as a ROS bag; the bag is read back, streams aligned and rates
 differentiated exactly as for a lab recording; pi is identified from N samples (the paper's 29)
 and from all samples, the total momentum zero and the wheel's measured spin momentum on the
-right-hand side (its rotor inertia is the scale anchor); the identified model is re-simulated
-with the measured joint motion and compared with the measured base motion (Fig. 6).
+right-hand side (its rotor inertia is the scale anchor). Then, from the state the excitation left,
+the arm tracks a second, different trajectory (the held-out motion; by default the paper's
+Table 2 trajectory, or a designed one when identification used that): the identified model is
+re-simulated with its measured joint motion and compared with the measured base motion
+(Fig. 6). Validation on the fitting motion checks only the fit (a model 36 % off fitted its own
+log to 0.05 %), so its metrics are kept only as a labelled comparison.
 
 The same reading, identification and validation steps are what ``spaceid identify`` and
 ``spaceid validate`` do with a real bag.
@@ -21,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._atomic import write_text_atomic
 from .._errors import SpaceidError
-from ..data import read_bag_log, write_bag
+from ..data import JOINT_RATE_POLICY, read_bag_log, write_bag
 from ..estimation import Identification, identify, resolve_anchors
 from ..data import write_json, write_log
 from ..models import load_model
@@ -51,10 +56,16 @@ class ExperimentResult:
     log : Log
         The excitation as read back from the bag (all samples).
     predicted : Log
-        The identified model (N samples) re-simulated with the measured joint motion.
+        The identified model (N samples) re-simulated with the held-out motion's measured joints.
     metrics : dict
-        Validation metrics (:func:`spaceid.studies.validation_metrics`).
+        Validation metrics on the held-out motion (:func:`spaceid.studies.validation_metrics`).
     trajectory : FourierTrajectory
+        The identification excitation.
+    validation_log : Log
+        The held-out motion as read back from the bag (all its samples).
+    validation_trajectory : FourierTrajectory
+    fit_metrics : dict
+        The same metrics on the fitting log ``log``: they check the fit, not the model.
     settings : dict
         Protocol, twin settings, seeds, bag.
     folder : Path or None
@@ -67,6 +78,9 @@ class ExperimentResult:
     predicted: Log
     metrics: dict
     trajectory: FourierTrajectory
+    validation_log: Log
+    validation_trajectory: FourierTrajectory
+    fit_metrics: dict
     settings: dict
     folder: Path | None = None
 
@@ -80,6 +94,7 @@ class ExperimentResult:
             "relative_error_percent": errors(self.ident),
             "relative_error_percent_all_samples": errors(self.ident_all),
             "validation": self.metrics,
+            "validation_fit_log": self.fit_metrics,
         }
 
 
@@ -93,6 +108,69 @@ def _trajectory(trajectory, *, momentum, samples, seed, progress):
     arm = minimal_parameters(load_model("cepheus"))  # the arm with the wheel locked: what is excited
     return design_excitation(arm, duration=5.0, harmonics=3, samples=samples, momentum=[0.0, 0.0, momentum], seed=seed,
                       progress=progress).trajectory  # fmt: skip
+
+
+def _validation_trajectory(validation, identification: FourierTrajectory, *, momentum, samples, seed, progress):
+    """The held-out excitation: ``validation`` as :func:`_trajectory` takes it (designed with
+    seed ``seed + 1``); by default the paper's Table 2 trajectory, or a designed one when the
+    identification excitation is that. Never the identification excitation itself.
+
+    Returns ``(trajectory, name)``, the name as the settings record it."""
+    if validation is None:
+        validation = "designed" if identification.meta.get("name") == "paper-table2" else "paper-table2"
+    traj = _trajectory(validation, momentum=momentum, samples=samples, seed=seed + 1, progress=progress)
+    if traj == identification:
+        raise SpaceidError(f"--validation {validation}: it is the identification trajectory, and validation on the "
+                           "fitting motion cannot fail: choose a different motion")  # fmt: skip
+    return traj, traj.meta.get("name", str(validation))
+
+
+def _excitation(full: Log, start: float, duration: float) -> Log:
+    """The samples of ``full`` in ``[start, start + duration]`` [s], the window in its meta."""
+    window = (full.t >= start - 1e-9) & (full.t <= start + duration + 1e-9)
+    return replace(full.select(window), meta=dict(full.meta, window=[start, start + duration]))
+
+
+def _held_out_log(run, traj: FourierTrajectory, folder: Path, bag_format: str, model, settings, joint_rates) -> Log:
+    """The held-out phase ``run`` recorded as a second bag in ``folder`` (``validation.bag``, ...:
+    a recording of its own, so that reading it leaves the identification bag's differentiation
+    as it was), read back as the excitation's and cut to ``traj``'s window."""
+    bag = folder / BAG_NAMES[bag_format].replace("run", "validation", 1)
+    write_bag(bag, run.recording, format=bag_format)
+    full = _read_bag(bag, model, settings, joint_rates)
+    start = run.truth.t[0] - full.meta["time_origin_ns"] / 1e9  # the reader's times start at a whole second
+    return _excitation(full, start, traj.duration)
+
+
+def _read_bag(bag: Path, model, settings: TwinSettings, joint_rates: str) -> Log:
+    """A bag of the twin read as a lab recording, whole; ``spaceid identify BAG --mapping
+    mapping.yaml`` reads it the same way (:func:`_write_mapping`)."""
+    # the lab knows its motion-capture latency (calibrated); the pose stamps lag by it
+    return read_bag_log(bag, joints=model.joints, planar=True, wheels=model.wheels, joint_rates=joint_rates,
+                        pose_latency=settings.mocap.latency)
+
+
+def _held_out_validation(ident: Identification, log: Log, held_out: Log, momentum, where: str) -> tuple:
+    """``(predicted, metrics, fit_metrics)``: ``ident`` re-simulated on the held-out motion and
+    compared with it, and the same metrics on the fitting window ``log`` (the check of the fit)."""
+    predicted, metrics = validate(ident, held_out, momentum=momentum, where=f"{where} (held-out motion)")
+    _, fit_metrics = validate(ident, log, momentum=momentum, where=f"{where} (fitting window)")
+    return predicted, metrics, fit_metrics
+
+
+def _validation_protocol(traj: FourierTrajectory, name: str, held_out: Log, seed: int) -> dict:
+    """The held-out motion's entries of the experiment's settings: trajectory, design seed, window
+    (in the session's time, as the excitation window; the bag's own times start at a whole
+    second), seeds."""
+    origin = held_out.meta["time_origin_ns"] / 1e9
+    return {
+        "validation trajectory": name,
+        "validation trajectory seed": traj.meta.get("seed"),
+        "validation bag": Path(held_out.meta["source"]).name,
+        "validation window [s]": [float(t + origin) for t in held_out.meta["window"]],
+        "validation samples": int(held_out.n_samples),
+        "validation phase seed": seed + 2,
+    }
 
 
 def _nearest(t, times):
@@ -110,7 +188,8 @@ def run_experiment(
     settings: TwinSettings | None = None,
     bag_format: str = "ros1",
     estimator: str = "ml",
-    joint_rates: str = "differentiate",
+    joint_rates: str = JOINT_RATE_POLICY,
+    validation=None,
     seed: int = 0,
     out=None,
     progress=None,
@@ -131,14 +210,21 @@ def run_experiment(
     bag_format : {"ros1", "ros2", "mcap"}
     estimator : str
         See :func:`spaceid.estimation.identify`.
-    joint_rates : {"differentiate", "velocity"}
-        Joint rates from the encoder angles (Savitzky-Golay on the 50 Hz joint states), or the
-        published velocities (one-tick encoder differences: a count per millisecond is
-        1.5 rad/s on the wheel encoder, so these are far noisier).
+    joint_rates : {"differentiate", "velocity", "auto"}
+        Joint rates from the encoder angles (Savitzky-Golay on the 50 Hz joint states; the
+        default of every bag reader, :data:`spaceid.data.JOINT_RATE_POLICY`), or the published
+        velocities (one-tick encoder differences: a count per millisecond is 1.5 rad/s on the
+        wheel encoder, so these are far noisier).
+    validation : {"designed", "paper-table2"} or path or FourierTrajectory, optional
+        The held-out motion, run after the excitation and its hold; default ``paper-table2``,
+        or ``designed`` (seed + 1) when ``trajectory`` is that.
     seed : int
-        Seeds the design, the spin-up phase (seed) and the excitation phase (seed + 1).
+        Seeds the design, the spin-up phase (seed), the excitation phase (seed + 1), the
+        validation design and phase (seed + 1, seed + 2).
     out : path-like, optional
-        Report folder: the bag, the aligned log CSV, results, figures and ``report.md``.
+        Report folder: the bags of the excitation and of the held-out motion (``validation.bag``,
+        ...), ``mapping.yaml`` (how to read them), the aligned log CSVs, results, figures and
+        ``report.md``.
     progress : callable, optional
         ``progress(done, total)`` for the design.
 
@@ -157,10 +243,13 @@ def run_experiment(
     param = minimal_parameters(model)
     rotor = sum(value for value, _ in resolve_anchors(param, {}, model.name).values())  # I_rw from the model (CAD)
     traj = _trajectory(trajectory, momentum=rotor * wheel_speed, samples=int(samples), seed=seed, progress=progress)
+    vtraj, vname = _validation_trajectory(validation, traj, momentum=rotor * wheel_speed, samples=int(samples),
+                                          seed=seed, progress=progress)
 
     # the twin: rest -> wheel spin-up and settling -> excitation (tf) and one second of hold
     a = spin_up(wheel_speed, settings=settings, seed=seed)
     b = run_twin(traj, duration=traj.duration + 1.0, state=a.state, settings=settings, seed=seed + 1)
+    c = run_twin(vtraj, duration=vtraj.duration + 1.0, state=b.state, settings=settings, seed=seed + 2)  # held out
     run = join_runs(a, b)
     start = a.state.t
 
@@ -177,20 +266,17 @@ def run_experiment(
     bag = folder_bag / BAG_NAMES[bag_format]
     try:
         write_bag(bag, run.recording, format=bag_format)
-        # the lab knows its motion-capture latency (calibrated); the pose stamps lag by it
-        full = read_bag_log(bag, joints=model.joints, planar=True, wheels=model.wheels, joint_rates=joint_rates,
-                            pose_latency=settings.mocap.latency)
+        full = _read_bag(bag, model, settings, joint_rates)
+        held_out = _held_out_log(c, vtraj, folder_bag, bag_format, model, settings, joint_rates)
     finally:
         if scratch is not None:
             scratch.cleanup()
-    window = (full.t >= start - 1e-9) & (full.t <= start + traj.duration + 1e-9)
-    log = full.select(window)
-    log = replace(log, meta=dict(full.meta, window=[start, start + traj.duration]))
+    log = _excitation(full, start, traj.duration)
     chosen = _nearest(log.t, start + sample_times(traj.duration, int(samples)))
     zero = np.zeros(3)  # started at rest: the whole system, wheel included, carries no momentum
     ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag))
     ident_all = identify(param, log, zero, estimator=estimator, where=str(bag))
-    predicted, metrics = validate(ident, log, momentum=zero, where=str(bag))
+    predicted, metrics, fit_metrics = _held_out_validation(ident, log, held_out, zero, str(bag))
     # the truth is the twin's model when the excitation starts: the CO2 tank may have drained
     drained = settings.tank.enabled and a.state.co2_mass is not None
     true = minimal_parameters(drained_model(model, settings.tank, a.state.co2_mass)).true_values if drained \
@@ -210,31 +296,40 @@ def run_experiment(
         "seed": seed,
         "co2 mass start/end [kg]": [run.meta["co2_mass_start"], run.meta["co2_mass_end"]],
         "mocap frames/dropped": [run.meta["mocap_frames"], run.meta["mocap_dropped"]],
+        "joint rates": joint_rates,
     }
-    result = ExperimentResult(ident, ident_all, true, log, predicted, metrics, traj,
+    protocol |= _validation_protocol(vtraj, vname, held_out, seed)
+    result = ExperimentResult(ident, ident_all, true, log, predicted, metrics, traj, held_out, vtraj, fit_metrics,
                               dict(protocol, twin=settings.to_dict()), folder)  # fmt: skip
     if folder is not None:
-        _write_report(result, run)
+        _write_report(result, run, c)
     return result
 
 
-def _write_report(result: ExperimentResult, run) -> None:
+def _write_report(result: ExperimentResult, run, held_out_run) -> None:
     from ._figures import plot_parameters, plot_singular_values, plot_validation
     from ._report import write_markdown_report
 
     folder = result.folder
     result.trajectory.save(folder / "trajectory.json")
+    result.validation_trajectory.save(folder / "validation_trajectory.json")
     write_log(folder / "log.csv", result.log)
+    write_log(folder / "validation_log.csv", result.validation_log)
+    _write_mapping(folder / "mapping.yaml", result.settings["twin"]["mocap"]["latency"])
     write_log(folder / "truth.csv", run.truth)
+    write_log(folder / "validation_truth.csv", held_out_run.truth)
     write_json(folder / "result.json", result.ident.to_dict())
     write_json(folder / "result_all_samples.json", result.ident_all.to_dict())
     write_json(folder / "experiment.json", result.to_dict())
     figures = {
-        "Validation: measured (twin, from the bag) vs identified model (N samples)": "validation.png",
+        "Validation on the held-out motion: measured (twin, from the bag) vs identified model (N samples)":
+            "validation.png",
         "Parameter estimates (N samples)": "parameters.png",
         "Singular values of the regressor (N samples)": "singular_values.png",
     }
-    plot_validation(result.log, result.predicted, folder / figures[next(iter(figures))])
+    plot_validation(result.validation_log, result.predicted, folder / "validation.png",
+                    title=f"Validation on the held-out motion ({result.settings['validation trajectory']}): "
+                    "measured base motion vs the identified model")
     plot_parameters(result.ident, folder / "parameters.png", true=result.true)
     plot_singular_values(result.ident, folder / "singular_values.png")
     worst_all = float(np.max(np.abs(result.ident_all.values - result.true) / np.abs(result.true))) * 100
@@ -244,5 +339,21 @@ def _write_report(result: ExperimentResult, run) -> None:
     settings["twin effects"] = ", ".join(f"{k} {'on' if on else 'off'}" for k, on in effects.items())
     write_markdown_report(
         folder, title="spaceid: the Cepheus experiment on the digital twin", ident=result.ident, settings=settings,
-        figures=figures, true=result.true, metrics=result.metrics,
+        figures=figures, true=result.true, metrics=_labelled_metrics(result),
     )
+
+
+def _write_mapping(path: Path, latency: float) -> None:
+    """The bag's mapping file: the motion-capture latency the lab calibrated [s], which the bag
+    does not carry, so that ``spaceid identify ... --mapping mapping.yaml`` reads it as here."""
+    write_text_atomic(path, f"# how the experiment read its bag\npose_latency: {latency!r}\n")
+
+
+def _labelled_metrics(result: ExperimentResult) -> dict:
+    """The report's validation table: the held-out metrics, then the fit-log ones, each labelled."""
+    from ._report import metric_label
+
+    held_out = f"held-out motion ({result.settings['validation trajectory']})"
+    rows = {f"{held_out}: {metric_label(k)}": v for k, v in result.metrics.items()}
+    return rows | {f"fitting log (checks the fit, not the model): {metric_label(k)}": v
+                   for k, v in result.fit_metrics.items()}  # fmt: skip

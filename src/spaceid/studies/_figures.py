@@ -22,6 +22,7 @@ from .._errors import SpaceidError
 from ..data import Log
 from ..estimation import Identification
 from ._tables import _per_param, _relative_errors
+from ._validate import attitude_error_angle
 
 __all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_trajectory", "plot_validation"]
 
@@ -112,7 +113,7 @@ def _rms(x) -> float:
 
 # --- validation (the paper's Fig. 6) -----------------------------------------------------------
 
-_VALIDATION_TITLE = "Validation: measured motion vs re-simulation of the identified model (same joint motion)"
+_VALIDATION_TITLE = "Validation: measured base motion vs the identified model driven by the measured joint motion"
 
 
 def _check_same_motion(measured: Log, predicted: Log) -> None:
@@ -129,47 +130,61 @@ def _check_same_motion(measured: Log, predicted: Log) -> None:
         )
 
 
+def _base_signals(measured: Log, predicted: Log) -> list:
+    """The base signals the validation figure compares, one column each: ``(title, symbol,
+    unit, measured, predicted, residual, residual axis label)``, arrays of shape (n,).
+
+    Base angular velocity (planar ``w_z``; spatial x, y, z in base axes) and attitude (planar:
+    the yaw; spatial: the angle turned from the measured start, the residual the attitude
+    error angle, as the difference of two such angles is not the error)."""
+    axes = [2] if measured.planar else [0, 1, 2]
+    rates = [("base angular velocity" + ("" if measured.planar else f", {'xyz'[i]}"), rf"$\omega_{{0{'xyz'[i]}}}$",
+              "rad/s", measured.base_w[:, i], predicted.base_w[:, i], predicted.base_w[:, i] - measured.base_w[:, i],
+              "pred. $-$ meas.") for i in axes]  # fmt: skip
+    if measured.planar:
+        yaw_m, yaw_p = measured.base_yaw, predicted.base_yaw
+        return rates + [("base attitude: yaw", r"$\theta_0$", "rad", yaw_m, yaw_p, yaw_p - yaw_m,
+                         "pred. $-$ meas.")]
+    start = measured.base_quat[0]
+    turned = [attitude_error_angle(start, log.base_quat) for log in (measured, predicted)]
+    error = attitude_error_angle(measured.base_quat, predicted.base_quat)
+    return rates + [("base attitude: rotation angle", r"angle from start $\phi_0$", "rad", *turned, error,
+                     "error angle")]
+
+
 @_styled
 def _draw_validation(measured: Log, predicted: Log, title: str | None = None) -> Figure:
     """The figure of :func:`plot_validation`."""
     _check_same_motion(measured, predicted)
-    nj = len(measured.joints)
-    axes_w = [2] if measured.planar else [0, 1, 2]
-    # rows: (label, unit, measured, predicted, panel title); 6 mosaic columns fit 2 and 3 panels
-    panels = []
-    for j, name in enumerate(measured.joints):
-        panels.append([(f"$q_{{{j + 1}}}$", "rad", measured.q[:, j], predicted.q[:, j], f"{name}: angle"),
-                       (rf"$\dot q_{{{j + 1}}}$", "rad/s", measured.qd[:, j], predicted.qd[:, j], f"{name}: rate")])
-    panels.append([(rf"$\omega_{{0{'xyz'[i]}}}$", "rad/s", measured.base_w[:, i], predicted.base_w[:, i],
-                    "base angular velocity" if measured.planar else f"base, {'xyz'[i]}")
-                   for i in axes_w])  # fmt: skip
-    mosaic = [[f"{r}.{c}" for c in range(len(row)) for _ in range(6 // len(row))] for r, row in enumerate(panels)]
+    signals = _base_signals(measured, predicted)
     marker = {"marker": "o", "linestyle": "none", "markersize": 3} if measured.n_samples <= 120 else {}
-    fig = _new_figure((7.2 if measured.planar else 8.4, 1.9 * (nj + 1) + 0.8))
-    axes = fig.subplot_mosaic(mosaic, sharex=True)
-    for r, row in enumerate(panels):
-        for c, (label, unit, y_meas, y_pred, panel_title) in enumerate(row):
-            ax = axes[f"{r}.{c}"]
-            ax.plot(measured.t, y_meas, color=_MEASURED, label="measured", **marker)
-            ax.plot(predicted.t, y_pred, color=_MODEL, linestyle="--", label="identified model")
-            ax.set_title(panel_title, loc="left")
-            ax.set_title(f"RMS error {_rms(y_pred - y_meas):.2g} {unit}", loc="right", fontsize=8, color="0.35")
-            ax.set_ylabel(f"{label} [{unit}]")
-            if r == len(panels) - 1:
-                ax.set_xlabel("time $t$ [s]")
-            else:
-                ax.tick_params(labelbottom=False)
-    _figure_legend(fig, [axes["0.0"]])
+    fig = _new_figure((7.2 if measured.planar else 11.0, 4.6))
+    axes = fig.subplots(2, len(signals), sharex=True, gridspec_kw={"height_ratios": [2, 1]}, squeeze=False)
+    for c, (panel_title, symbol, unit, y_meas, y_pred, residual, residual_label) in enumerate(signals):
+        top, bottom = axes[0, c], axes[1, c]
+        top.plot(measured.t, y_meas, color=_MEASURED, label="measured", **marker)
+        top.plot(predicted.t, y_pred, color=_MODEL, linestyle="--", label="identified model (predicted)")
+        top.set_title(panel_title, loc="left")
+        top.set_ylabel(f"{symbol} [{unit}]")
+        top.tick_params(labelbottom=False)
+        bottom.axhline(0, color=_REF, linewidth=0.8)
+        bottom.plot(measured.t, residual, color=_MODEL, linewidth=1.0, label="residual")
+        bottom.set_title(f"residual, RMS {_rms(residual):.2g} {unit}", loc="left", fontsize=8, color="0.35")
+        bottom.set_ylabel(f"{residual_label} [{unit}]")
+        bottom.set_xlabel("time $t$ [s]")
+    _figure_legend(fig, list(axes.flat))
     fig.suptitle(title or _VALIDATION_TITLE)
     return fig
 
 
 def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
-    """Measured motion vs the identified model's prediction (the paper's Fig. 6).
+    """Measured base motion vs the identified model's prediction (the paper's Fig. 6).
 
-    One row per joint (angle [rad], rate [rad/s]) and a last row with the base angular
-    velocity in base axes (planar: ``w_z``; spatial: x, y, z). Every panel prints the RMS
-    of ``predicted - measured``.
+    What the model predicts, one column each: the base angular velocity in base axes (planar
+    ``w_z``; spatial x, y, z) and the base attitude (planar: the yaw; spatial: the angle turned
+    from the measured start), measured against predicted, with the residual below (spatial
+    attitude: the attitude error angle) and its RMS. The joint motion is not shown: it drives
+    the prediction, so it matches by construction.
 
     Parameters
     ----------

@@ -43,6 +43,8 @@ _METRIC_LABELS = {
     "base_w_max": "base angular velocity, largest error [rad/s]",
     "base_yaw_rms": "base yaw, RMS error [rad]",
     "base_yaw_max": "base yaw, largest error [rad]",
+    "base_attitude_rms": "base attitude, RMS error angle [rad]",
+    "base_attitude_max": "base attitude, largest error angle [rad]",
 }
 
 

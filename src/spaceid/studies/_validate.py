@@ -6,14 +6,16 @@ and momentum; the base angular velocity and attitude it predicts are compared wi
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 from ..estimation import Identification
 from ..identified import parameterization_of
 from ..motion import hermite_motion, simulate
-from ..data import Log
+from ..data import Log, log_fingerprint
 
-__all__ = ["predict", "validate", "validation_metrics"]
+__all__ = ["attitude_error_angle", "predict", "validate", "validation_metrics"]
 
 
 def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None, where: str = "result") -> Log:
@@ -37,6 +39,18 @@ def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None
     return log
 
 
+def attitude_error_angle(a, b) -> np.ndarray:
+    """Angle [rad] of the rotation between attitudes ``a`` and ``b`` (unit quaternions, scalar
+    first, shape (n, 4) or (4,)), in [0, pi]; ``q`` and ``-q`` are the same attitude.
+
+    From ``a^* b = [c, v]`` as ``2 atan2(|v|, |c|)``, accurate for small angles too (``arccos``
+    of the scalar part loses half the digits there). Returns shape (n,)."""
+    a, b = np.atleast_2d(a), np.atleast_2d(b)
+    c = np.sum(a * b, axis=1)
+    v = a[:, :1] * b[:, 1:] - b[:, :1] * a[:, 1:] - np.cross(a[:, 1:], b[:, 1:])
+    return 2 * np.arctan2(np.linalg.norm(v, axis=1), np.abs(c))
+
+
 def validation_metrics(measured: Log, predicted: Log) -> dict:
     """RMS, normalised RMS and largest errors of the predicted base motion.
 
@@ -45,7 +59,8 @@ def validation_metrics(measured: Log, predicted: Log) -> dict:
     dict
         ``base_w_rms`` [rad/s] (norm over axes), ``base_w_nrms`` (RMS error / RMS of the
         measured rate), ``base_w_max`` [rad/s], and for planar logs ``base_yaw_rms`` and
-        ``base_yaw_max`` [rad].
+        ``base_yaw_max`` [rad], for spatial ones ``base_attitude_rms`` and
+        ``base_attitude_max`` [rad] (:func:`attitude_error_angle`).
     """
     err = predicted.base_w - measured.base_w
     out = {
@@ -56,11 +71,28 @@ def validation_metrics(measured: Log, predicted: Log) -> dict:
     if measured.planar:
         yaw_err = predicted.base_yaw - measured.base_yaw
         out.update(base_yaw_rms=float(np.sqrt(np.mean(yaw_err**2))), base_yaw_max=float(np.abs(yaw_err).max()))
+    else:
+        angle = attitude_error_angle(measured.base_quat, predicted.base_quat)
+        out.update(base_attitude_rms=float(np.sqrt(np.mean(angle**2))), base_attitude_max=float(angle.max()))
     return out
+
+
+def _warn_if_fitting_log(ident: Identification, log: Log, where: str) -> None:
+    """Warn when ``log`` has the time stamps and joint angles ``ident`` was identified from."""
+    if ident.settings.get("log_fingerprint") == log_fingerprint(log):
+        warnings.warn(
+            f"{where}: the log to validate on is the one the model was identified from (same time stamps and joint "
+            "angles): validation on the fitting log cannot fail; record a different motion and validate on it",
+            UserWarning, stacklevel=3,
+        )
 
 
 def validate(ident: Identification, log: Log, *, momentum=None, where: str = "result"):
     """Re-simulate ``ident`` with the log's joint motion and initial attitude; compare.
+
+    A ``UserWarning`` when ``log`` is the log ``ident`` was identified from (its
+    ``settings["log_fingerprint"]``, :func:`spaceid.data.log_fingerprint`): a fit follows its own
+    data, so only a different motion tests the model.
 
     Returns
     -------
@@ -68,5 +100,6 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
     metrics : dict
         See :func:`validation_metrics`.
     """
+    _warn_if_fitting_log(ident, log, where)
     predicted = predict(ident, log.t, log.q, log.qd, momentum=momentum, initial_quat=log.base_quat[0], where=where)
     return predicted, validation_metrics(log, predicted)
