@@ -33,6 +33,7 @@ _HOME = {
     "Identification": "estimation",
     "identify": "estimation",
     "cramer_rao": "estimation",
+    "cramer_rao_angles": "estimation",
     "load_result": "estimation",
     "load_trajectory": "motion",
     "sample_times": "motion",

@@ -32,11 +32,12 @@ NOISE = [
     click.option("--noise-angle", type=float, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
 ]
-ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
+ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
 ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, efficient); wls: weighted least squares "
                   "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
                   "noise as instruments); tls: total least squares (for comparison with the literature); ols: "
-                  "ordinary least squares, the paper's Eq. 11 (fast, no noise model, biased by noise).")
+                  "ordinary least squares, the paper's Eq. 11 (fast, no noise model, biased by noise); angles: maximum "
+                  "likelihood on the joint angles and base yaw alone, no rates (planar, >= 40 Hz).")
 
 
 def output(help_text):
@@ -345,10 +346,11 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
                    require_rates=False, bag_options=dict(bag, quantum=quantum,
                                                          joint_rates="differentiate" if differentiate else None))
     missing = log.meta.get("missing_rates", [])
-    if missing and not differentiate and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
+    angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
+    if missing and not differentiate and not angles_only and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
         raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
                            "--differentiate to compute every rate from the angles")
-    if (differentiate or missing) and "differentiation" not in log.meta:  # angles only (bags come differentiated)
+    if (differentiate or missing) and not angles_only and "differentiation" not in log.meta:  # bags come differentiated
         from .data import differentiate_log
 
         log = differentiate_log(log, quantum=quantum)
@@ -382,7 +384,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
             f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {s['momentum_std'][i]:.2g}" for i in axes) + " N m s")
     chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
-              f"N m s; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
+              f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
               f"result written to {output}")
 
 
