@@ -173,7 +173,8 @@ def _levels(noise: Noise, where: str) -> tuple:
     """Joint-angle and yaw noise levels [rad] of ``noise`` (the yaw is the planar attitude)."""
     if not (noise.angle > 0 and noise.attitude > 0):
         raise SpaceidError(f"{where}: the angles estimator weights by the angle and attitude (yaw) noise levels, "
-                           f"given as {noise.angle:g} and {noise.attitude:g} rad: give both > 0 (--noise)")  # fmt: skip
+                           f"given as {noise.angle:g} and {noise.attitude:g} rad: give both > 0 (--noise-angle, "
+                           "--noise-attitude)")  # fmt: skip
     return noise.angle, noise.attitude
 
 
@@ -182,7 +183,7 @@ def _gauss_newton(eq, path, q, yaw_meas, theta, sigma_q, sigma_yaw, max_iter=30,
     unknown by more than ``tol`` of its standard error (quadratic convergence for small
     residuals: a few steps). Returns ``theta``, the joint splines, ``yaw_0``, the inverse Fisher
     matrix of ``u`` (in whitened units: the covariance for the given levels), the residuals and
-    the iterations."""
+    the iterations and whether they converged."""
     coef = path.fit(q)
     p, nj = len(theta), q.shape[1]
     J, yaw = _model_jacobian(eq, path, theta, coef, sigma_q, sigma_yaw)
@@ -193,7 +194,7 @@ def _gauss_newton(eq, path, q, yaw_meas, theta, sigma_q, sigma_yaw, max_iter=30,
     for it in range(1, max_iter + 1):
         step, cov = _solve(J, r)
         cost, lam = r @ r, 1.0
-        while True:  # halve the step while the cost grows (never needed from the integral start, measured)
+        while True:  # halve the step while the cost grows: a safeguard against a poor start
             trial = unpack(u + lam * step)
             J_new, yaw = _model_jacobian(eq, path, *trial[:2], sigma_q, sigma_yaw)
             r_new = _residuals(path, q, yaw_meas, trial[1], trial[2], yaw, sigma_q, sigma_yaw)
@@ -201,11 +202,12 @@ def _gauss_newton(eq, path, q, yaw_meas, theta, sigma_q, sigma_yaw, max_iter=30,
                 break
             lam /= 2
         u, J, r = u + lam * step, J_new, r_new
-        if np.max(np.abs(lam * step) / np.sqrt(np.diag(cov))) < tol:
+        converged = bool(np.max(np.abs(lam * step) / np.sqrt(np.diag(cov))) < tol)
+        if converged:
             break
     _, cov = _solve(J, r)
     theta, coef, yaw0 = unpack(u)
-    return theta, coef, yaw0, cov, r, it
+    return theta, coef, yaw0, cov, r, (it, converged)
 
 
 def _angles_ml(eq, x, sigma, theta, ctx):
@@ -214,11 +216,12 @@ def _angles_ml(eq, x, sigma, theta, ctx):
     are not used. Its covariance (``info["covariance"]``) is the inverse Fisher block of theta."""
     path, q, yaw_meas = ctx["path"], ctx["q"], ctx["yaw"]
     sigma_q, sigma_yaw = _levels(ctx["noise"], ctx["where"])
-    theta, coef, _, cov, r, it = _gauss_newton(eq, path, q, yaw_meas, theta, sigma_q, sigma_yaw)
+    theta, coef, _, cov, r, (it, converged) = _gauss_newton(eq, path, q, yaw_meas, theta, sigma_q, sigma_yaw)
     p, dof = len(theta), max(len(r) - cov.shape[0], 1)
     raw = np.concatenate([(r[: q.size] * sigma_q), r[q.size :] * sigma_yaw])
-    info = {"iterations": it, "knot_spacing": float(path.knots[4] - path.knots[3]), "spline_coefficients": coef.size,
-            "covariance": (cov[:p, :p], float(r @ r / dof), float(np.sqrt(np.mean(raw**2))))}  # fmt: skip
+    covariance = (cov[:p, :p], float(r @ r / dof), float(np.sqrt(np.mean(raw**2))))  # cov, chi2_dof, RMS [rad]
+    info = {"iterations": it, "converged": converged, "knot_spacing": float(path.knots[4] - path.knots[3]),
+            "spline_coefficients": coef.size, "covariance": covariance}  # fmt: skip
     return theta, info
 
 
