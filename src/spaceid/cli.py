@@ -33,6 +33,7 @@ NOISE = [
     click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
 ]
 ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
+KNOT_SPACING = 0.05  # [s] spaceid.estimation.KNOT_SPACING, likewise
 ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, efficient); wls: weighted least squares "
                   "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
                   "noise as instruments); tls: total least squares (for comparison with the literature); ols: "
@@ -326,10 +327,12 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
 @click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
+@click.option("--knot-spacing", type=float, default=KNOT_SPACING, show_default=True, help="--estimator angles: knot spacing "
+              "of the joint-path splines [s]; at least two samples per span.")
 @bag_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
-             output, bag):
+             knot_spacing, output, bag):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -368,7 +371,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         ident = run(param, log, h, estimator=estimator, known=parse_known(known), noise=noise, instruments=reference,
-                    where=str(log_path))
+                    where=str(log_path), knot_spacing=knot_spacing)
     for w in caught:
         err.print(f"warning: {w.message}")
     write_json(output, ident.to_dict())

@@ -241,7 +241,7 @@ def _integral_equations(eq, path: _Path, q, yaw) -> np.ndarray:
     return out
 
 
-def _angle_context(eq, log: Log, noise: Noise, where: str, spacing: float = KNOT_SPACING) -> tuple:
+def _angle_context(eq, log: Log, noise: Noise, where: str, spacing: float) -> tuple:
     """The integral-form equations of ``log`` (the start and excitation check) and the context of
     the ``angles`` kernel: path, measured joint angles, unwrapped yaw, noise levels."""
     _planar_only(eq.param, where)

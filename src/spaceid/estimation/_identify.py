@@ -23,7 +23,7 @@ from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log
 from ..dynamics import Parameterization, full_parameter_names
-from ._angles import _angle_context
+from ._angles import KNOT_SPACING, _angle_context
 from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
@@ -167,6 +167,7 @@ def identify(
     instruments=None,
     where: str = "log",
     cond_limit: float = 1e10,
+    knot_spacing: float = KNOT_SPACING,
 ) -> Identification:
     """Estimate the minimal parameters from a measured motion.
 
@@ -199,6 +200,9 @@ def identify(
     cond_limit : float
         Condition numbers of the column-scaled regressor above this mean some parameters are
         not excited: an error names them.
+    knot_spacing : float
+        ``angles`` only: knot spacing of the joint-path splines [s] (at least two samples per
+        span; see :data:`spaceid.estimation.KNOT_SPACING`).
 
     Returns
     -------
@@ -223,7 +227,7 @@ def identify(
     x = eq.signals(log)
     estimated = noise is None and estimator != "ols"  # ols needs no noise model
     noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
-    phi, ctx = _angle_context(eq, log, noise, where) if estimator == "angles" else (eq.phi(x), {})
+    phi, ctx = _angle_context(eq, log, noise, where, knot_spacing) if estimator == "angles" else (eq.phi(x), {})
     try:
         factor, cond_scaled = _check_excitation(phi, eq.names(), cond_limit, where)
         ctx |= {"phi": phi, "factor": factor}
