@@ -34,6 +34,7 @@ _HOME = {
     "Identification": "estimation",
     "identify": "estimation",
     "cramer_rao": "estimation",
+    "cramer_rao_angles": "estimation",
     "load_result": ("identified", "load_identified"),  # the controller-ready model of a RESULT.json
     "IdentifiedModel": "identified",
     "load_trajectory": "motion",

@@ -32,11 +32,13 @@ NOISE = [
     click.option("--noise-angle", type=float, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
 ]
-ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
+ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
+KNOT_SPACING = 0.05  # [s] spaceid.estimation.KNOT_SPACING, likewise
 ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, efficient); wls: weighted least squares "
                   "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
                   "noise as instruments); tls: total least squares (for comparison with the literature); ols: "
-                  "ordinary least squares, the paper's Eq. 11 (fast, no noise model, biased by noise).")
+                  "ordinary least squares, the paper's Eq. 11 (fast, no noise model, biased by noise); angles: maximum "
+                  "likelihood on the joint angles and base yaw alone, no rates (planar, >= 40 Hz).")
 
 
 def output(help_text):
@@ -354,10 +356,12 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
 @click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
+@click.option("--knot-spacing", type=float, default=KNOT_SPACING, show_default=True, help="--estimator angles: knot spacing "
+              "of the joint-path splines [s]; at least two samples per span.")
 @bag_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
-             output, bag):
+             knot_spacing, output, bag):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -377,10 +381,11 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
                    require_rates=False, bag_options=dict(bag, quantum=quantum, joint_rates=rates))
     _print_joint_rates(log)
     missing = log.meta.get("missing_rates", [])
-    if missing and not differentiate and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
+    angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
+    if missing and not differentiate and not angles_only and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
         raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
                            "--differentiate to compute every rate from the angles")
-    if (differentiate or missing) and "differentiation" not in log.meta:  # angles only (bags come differentiated)
+    if (differentiate or missing) and not angles_only and "differentiation" not in log.meta:  # bags come differentiated
         from .data import differentiate_log
 
         log = differentiate_log(log, quantum=quantum)
@@ -397,7 +402,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         reference = traj.evaluate(log.t - log.t[0])[:2]
     with _warnings_to_stderr():
         ident = run(param, log, h, estimator=estimator, known=parse_known(known), noise=noise, instruments=reference,
-                    where=str(log_path))
+                    where=str(log_path), knot_spacing=knot_spacing)
     write_json(output, ident.to_dict())
     out.print(parameter_table(ident))
     s = ident.settings
@@ -411,7 +416,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
             f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {s['momentum_std'][i]:.2g}" for i in axes) + " N m s")
     chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
-              f"N m s; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
+              f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
               f"result written to {output}")
 
 

@@ -1,17 +1,18 @@
 """Estimating the minimal parameters from logs: least squares and errors-in-variables estimators,
-the signal noise model, the Cramer-Rao bound.
+the signal noise model, the Cramer-Rao bounds (rate and angle measurements).
 """
 
-from . import _noise, _equations, _estimators, _uncertainty, _result, _identify, _parse
+from . import _noise, _equations, _estimators, _angles, _uncertainty, _result, _identify, _parse
 from ._noise import *  # noqa: F403
 from ._equations import *  # noqa: F403
 from ._estimators import *  # noqa: F403
+from ._angles import *  # noqa: F403
 from ._uncertainty import *  # noqa: F403
 from ._result import *  # noqa: F403
 from ._identify import *  # noqa: F403
 from ._parse import *  # noqa: F403
 
 __all__ = (
-    _noise.__all__ + _equations.__all__ + _estimators.__all__ + _uncertainty.__all__ + _result.__all__
-    + _identify.__all__ + _parse.__all__
+    _noise.__all__ + _equations.__all__ + _estimators.__all__ + _angles.__all__ + _uncertainty.__all__
+    + _result.__all__ + _identify.__all__ + _parse.__all__
 )  # fmt: skip

@@ -23,6 +23,7 @@ from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
+from ._angles import KNOT_SPACING, _angle_context
 from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
@@ -166,6 +167,7 @@ def identify(
     instruments=None,
     where: str = "log",
     cond_limit: float = 1e10,
+    knot_spacing: float = KNOT_SPACING,
 ) -> Identification:
     """Estimate the minimal parameters from a measured motion.
 
@@ -179,9 +181,10 @@ def identify(
     momentum : array_like of shape (3,) or None
         Inertial angular momentum of the whole system [N m s]; None: a constant unknown
         momentum, estimated with the parameters.
-    estimator : {"ml", "wls", "iv", "tls", "ols"}
+    estimator : {"ml", "wls", "iv", "tls", "ols", "angles"}
         Maximum likelihood (efficient, the default), weighted, instrumental-variables, total or
-        ordinary least squares; ``spaceid.estimation._estimators`` describes each one's
+        ordinary least squares; ``angles``: maximum likelihood on the angles alone (the log's
+        rates unused; planar); ``spaceid.estimation._estimators`` describes each one's
         assumptions and cost.
     known : dict, optional
         Known parameter values ``{name: value}``, by minimal-parameter name or by the physical
@@ -197,6 +200,9 @@ def identify(
     cond_limit : float
         Condition numbers of the column-scaled regressor above this mean some parameters are
         not excited: an error names them.
+    knot_spacing : float
+        ``angles`` only: knot spacing of the joint-path splines [s] (at least two samples per
+        span; see :data:`spaceid.estimation.KNOT_SPACING`).
 
     Returns
     -------
@@ -219,12 +225,12 @@ def identify(
     eq, anchors = _equations(param, log, momentum, known, where)
     _check_sample_count(eq, log, where)
     x = eq.signals(log)
-    phi = eq.phi(x)
     estimated = noise is None and estimator != "ols"  # ols needs no noise model
+    noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
+    phi, ctx = _angle_context(eq, log, noise, where, knot_spacing) if estimator == "angles" else (eq.phi(x), {})
     try:
         factor, cond_scaled = _check_excitation(phi, eq.names(), cond_limit, where)
-        noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
-        ctx = {"phi": phi, "factor": factor}
+        ctx |= {"phi": phi, "factor": factor}
         if estimator == "iv":
             ctx |= _instrument_context(log, instruments, where)
         theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, signal_sigma(param, noise), ctx, estimator,

@@ -40,7 +40,8 @@ class Noise:
     base_rate : float
         Base angular velocity, per axis [rad/s].
     attitude : float
-        Base attitude, small rotation per axis [rad] (spatial systems only).
+        Base attitude, small rotation per axis [rad]; for planar systems the yaw, which only the
+        angles estimator uses (a yaw does not change ``h_z``).
     source : str
         Where the values come from (``"given"``, ``"estimated"``, ...), for the record.
     """
@@ -153,13 +154,18 @@ def noise_from_log(log) -> Noise:
     angles are smooth, and their sample-to-sample noise is no longer white: the estimate then
     understates their error, which the result records (``source``).
     """
-    from ..data import estimate_noise
+    from ..data import estimate_noise, quat_to_yaw
 
     def pooled(x):
-        return float(np.sqrt(np.mean(estimate_noise(log.t, x)[0] ** 2))) if x.size else 0.0
+        if not x.size or np.isnan(x).all():  # no such channel (rate columns missing: an angles-only log)
+            return 0.0
+        return float(np.sqrt(np.mean(estimate_noise(log.t, x)[0] ** 2)))
 
     axes = [2] if log.planar else [0, 1, 2]
-    attitude = 0.0 if log.planar else 2 * pooled(log.base_quat[:, 1:])  # dq ~ d(theta) / 2
+    if log.planar:  # the yaw: only the angles estimator weights by it
+        attitude = pooled(np.unwrap(quat_to_yaw(log.base_quat))[:, None])
+    else:
+        attitude = 2 * pooled(log.base_quat[:, 1:])  # dq ~ d(theta) / 2
     source = "estimated from the log (sixth-order differences)"
     if "differentiation" in log.meta:
         source += "; rates were differentiated, so their error is understated"

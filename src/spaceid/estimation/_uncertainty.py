@@ -110,8 +110,9 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     """The covariance ``(p, p)`` of ``theta`` that :func:`spaceid.estimation.identify` reports,
     the RMS residual, and the record of how it was obtained (``chi2_dof``, ``variance_factor``,
     ``covariance``) for the result's settings. ``estimated``: the noise levels came from the log."""
-    bandwidth = _correlation_length(log)
-    cov_t, chi2, rms = _covariance(eq, x, phi, sigma, theta, estimator, info, bandwidth)
+    bandwidth = 0 if "covariance" in info else _correlation_length(log)  # the angles estimator: its own
+    cov_t, chi2, rms = info.pop("covariance") if "covariance" in info else _covariance(eq, x, phi, sigma, theta,
+                                                                                       estimator, info, bandwidth)
     factor = 1.0
     if bandwidth:
         how = f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (differentiated rates)"

@@ -149,7 +149,8 @@ class _Study:
         }  # fmt: skip
         for j, state in enumerate(states):
             run = first + j
-            log, noise = self.measure(state), self.noise
+            measured = log = self.measure(state)
+            noise = self.noise
             if self.angles_only:
                 try:
                     log = differentiate_log(log, **self.differentiate)
@@ -160,8 +161,8 @@ class _Study:
                 noise = differentiated_noise(log)
                 out["noise"].append(noise)
                 out["differentiation"].append(_differentiator_choice(log))
-            for e in self.estimators:
-                res, reason, caught = self.estimate(log, noise, e)
+            for e in self.estimators:  # the angles estimator: the measured angles and their noise, not the smoothed
+                res, reason, caught = self.estimate(*((measured, self.noise) if e == "angles" else (log, noise)), e)
                 if res is None:
                     out["failures"].append({"run": run, "estimator": e, "reason": reason})
                     continue

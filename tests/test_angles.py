@@ -1,0 +1,215 @@
+"""The angles estimator (maximum likelihood on joint angles and base yaw, no rates) and the
+Cramer-Rao bound for angle measurements, on Cepheus with known truth."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from conftest import random_tree
+from scipy.interpolate import BSpline
+
+import spaceid
+from spaceid import SpaceidError
+from spaceid.cli import main
+from spaceid.data import differentiate_log, yaw_to_quat
+from spaceid.dynamics import minimal_parameters
+from spaceid.estimation import KNOT_SPACING, Noise, cramer_rao_angles, identify
+from spaceid.estimation._angles import _Path
+from spaceid.motion import add_noise, load_trajectory, simulate
+
+H = np.array([0.0, 0.0, 0.4934])
+NOISE = Noise(angle=1e-4, attitude=1e-4)
+TRAJ = load_trajectory("paper-table2")
+
+
+@pytest.fixture(scope="module")
+def param():
+    return minimal_parameters(spaceid.load_model("cepheus"))
+
+
+def spline_motion(t, spacing):
+    """The paper's joint motion as cubic splines on the estimator's knots for stamps ``t``: a
+    motion the estimator's model holds exactly."""
+    path = _Path(t, spacing, "test")
+    spline = BSpline(path.knots, path.fit(TRAJ.evaluate(t)[0]), 3)
+    deriv = spline.derivative()
+    return lambda s: (spline(s), deriv(s))
+
+
+def angles_only(clean, seed):
+    """Joint angles and yaw with 1e-4 rad of independent noise; the rates zeroed (not measured)."""
+    joints, base = add_noise(clean, angle=1e-4, seed=2 * seed), add_noise(clean, angle=1e-4, seed=2 * seed + 1)
+    return replace(joints, base_quat=base.base_quat, qd=np.zeros_like(joints.qd), base_w=np.zeros_like(joints.base_w))
+
+
+@pytest.fixture(scope="module")
+def spline_log(param):
+    t = np.linspace(0, 2.5, 251)
+    return simulate(param, param.true_values, spline_motion(t, KNOT_SPACING), t, H, initial_quat=yaw_to_quat(0.3),
+                    rtol=1e-14)  # fmt: skip
+
+
+def test_noise_free_recovery(param, spline_log):
+    log = replace(spline_log, qd=np.zeros_like(spline_log.qd), base_w=np.zeros_like(spline_log.base_w))
+    ident = identify(param, log, H, estimator="angles", noise=NOISE)
+    assert np.abs(ident.values / param.true_values - 1).max() < 1e-10
+    assert ident.settings["estimator_info"]["knot_spacing"] == pytest.approx(KNOT_SPACING)
+
+
+def test_noise_free_recovery_with_unknown_momentum(param, spline_log):
+    """Momentum estimated, the scale anchored by one known parameter."""
+    ident = identify(param, spline_log, None, estimator="angles", noise=NOISE,
+                     known={param.names[0]: param.true_values[0]})  # fmt: skip
+    assert np.abs(ident.values / param.true_values - 1).max() < 1e-10
+    assert ident.momentum[2] == pytest.approx(H[2], rel=1e-10)
+
+
+@pytest.mark.slow
+def test_spread_matches_predicted_std_and_reaches_the_bound(param):
+    """40 noise draws at 100 Hz on the paper's motion (not a spline): the spread agrees with the
+    predicted standard error (a 40-draw std is good to ~11 %), the RMSE is at the bound, and ML on
+    differentiated rates (Savitzky-Golay, a fixed window of 1 s) does not beat the bound."""
+    t = np.linspace(0, 5, 501)
+    clean = simulate(param, param.true_values, lambda s: TRAJ.evaluate(s)[:2], t, H)
+    _, bound = cramer_rao_angles(param, clean, H, NOISE)
+    runs = [identify(param, angles_only(clean, s), H, estimator="angles", noise=NOISE) for s in range(40)]
+    est = np.array([r.values for r in runs])
+    ratio = est.std(axis=0) / np.mean([r.std for r in runs], axis=0)
+    assert np.all((ratio > 0.65) & (ratio < 1.4)), ratio
+    rmse = np.sqrt(np.mean((est - param.true_values) ** 2, axis=0))
+    assert np.all((rmse / np.sqrt(np.diag(bound)) > 0.75) & (rmse / np.sqrt(np.diag(bound)) < 1.3)), rmse
+    differentiated = [differentiate_log(angles_only(clean, s), method="savgol", window=101, order=5) for s in range(12)]
+    rates = np.array([identify(param, log, H, estimator="ml").values for log in differentiated])
+    ratio = np.sqrt(np.mean((rates - param.true_values) ** 2, axis=0) / np.diag(bound))
+    assert np.all(ratio > 0.7) and np.median(ratio) > 1.1, ratio  # a 12-draw RMSE is good to ~20 %
+
+
+def _yaw(param, pi, coef, yaw0, knots, t):
+    """Brute force: the yaw samples by simulating the spline motion ``coef`` with parameters ``pi``."""
+    spline = BSpline(knots, coef, 3)
+    deriv = spline.derivative()
+    log = simulate(param, pi, lambda s: (spline(s), deriv(s)), t, H, initial_quat=yaw_to_quat(yaw0), rtol=1e-14)
+    return np.unwrap(2 * np.arctan2(log.base_quat[:, 3], log.base_quat[:, 0]))
+
+
+def test_bound_matches_a_brute_force_fisher_matrix(param):
+    """2 s at 20 Hz, knots every 0.25 s: the Fisher matrix from central differences of simulated
+    yaw samples (and the spline values at the joint samples), the nuisance eliminated by its Schur
+    complement, agrees with cramer_rao_angles."""
+    t = np.linspace(0, 2, 41)
+    spacing = 0.25
+    log = simulate(param, param.true_values, spline_motion(t, spacing), t, H)
+    path = _Path(t, spacing, "test")
+    coef = path.fit(log.q)
+    pi, k, (c, nj) = param.true_values, param.n_params, coef.shape
+    cols = []
+    for i in range(k):  # yaw derivatives in pi
+        d = np.zeros(k)
+        d[i] = 1e-5 * abs(pi[i])
+        cols.append((_yaw(param, pi + d, coef, 0.0, path.knots, t) - _yaw(param, pi - d, coef, 0.0, path.knots, t))
+                    / (2 * d[i]))  # fmt: skip
+    yaw_pi = np.column_stack(cols)
+    yaw_c = []
+    for j in range(nj):
+        for i in range(c):
+            d = np.zeros_like(coef)
+            d[i, j] = 1e-5
+            yaw_c.append((_yaw(param, pi, coef + d, 0.0, path.knots, t) - _yaw(param, pi, coef - d, 0.0, path.knots, t))
+                         / 2e-5)  # fmt: skip
+    n = len(t)
+    J = np.zeros((n * (nj + 1), k + nj * c + 1))  # joints then yaw; unknowns pi, coefficients, yaw_0
+    for j in range(nj):
+        J[j * n : (j + 1) * n, k + j * c : k + (j + 1) * c] = path.B
+    J[nj * n :, :k], J[nj * n :, k:-1], J[nj * n :, -1] = yaw_pi, np.column_stack(yaw_c), 1.0
+    F = J.T @ J / 1e-8  # both noise levels 1e-4 rad
+    schur = F[:k, :k] - F[:k, k:] @ np.linalg.solve(F[k:, k:], F[k:, :k])
+    brute = np.linalg.inv(schur)
+    _, bound = cramer_rao_angles(param, log, H, NOISE, knot_spacing=spacing)
+    np.testing.assert_allclose(np.sqrt(np.diag(bound)), np.sqrt(np.diag(brute)), rtol=1e-5)
+    scale = np.sqrt(np.outer(np.diag(brute), np.diag(brute)))
+    np.testing.assert_allclose(bound / scale, brute / scale, atol=1e-5)  # correlations
+
+
+@pytest.mark.slow
+def test_the_bound_does_not_depend_on_knots_that_resolve_the_motion(param):
+    """Nested knots (every 0.1, 0.05, 0.025 s): a richer nuisance never lowers the bound, and once
+    the splines resolve the motion it adds nothing (same to 1e-5); knots every 0.5 s do not
+    resolve the paper's motion and give another bound (by 1 %)."""
+    t = np.linspace(0, 5, 501)
+    clean = simulate(param, param.true_values, lambda s: TRAJ.evaluate(s)[:2], t, H)
+    var = [np.diag(cramer_rao_angles(param, clean, H, NOISE, knot_spacing=d)[1]) for d in (0.5, 0.1, 0.05, 0.025)]
+    for coarse, fine in zip(var[1:], var[2:]):
+        assert np.all(fine >= coarse * (1 - 1e-9)) and np.all(fine <= coarse * (1 + 1e-5))
+    assert np.abs(var[1] / var[0] - 1).max() > 0.005
+
+
+def test_too_few_samples_for_the_knots(param):
+    log = simulate(param, param.true_values, lambda s: TRAJ.evaluate(s)[:2], np.linspace(0, 5, 35), H)
+    with pytest.raises(SpaceidError, match=r"^log: 35 samples over 5 s are too few for spline knots every 0.05 s") as e:
+        identify(param, log, H, estimator="angles", noise=NOISE)
+    assert "\n" not in str(e.value)
+    with pytest.raises(SpaceidError, match="too few for spline knots"):
+        cramer_rao_angles(param, log, H, NOISE)
+
+
+def test_coarser_knots_for_slower_sampling(param):
+    """20 Hz is too slow for knots every 0.05 s, fine for 0.1 s (two samples per span); the CLI's
+    default is the library's."""
+    from spaceid.cli import KNOT_SPACING as cli_default
+
+    log = simulate(param, param.true_values, lambda s: TRAJ.evaluate(s)[:2], np.linspace(0, 5, 101), H)
+    with pytest.raises(SpaceidError, match=r"needs at least 201 samples \(sample at 40 Hz or more\)"):
+        identify(param, log, H, estimator="angles", noise=NOISE)
+    ident = identify(param, log, H, estimator="angles", noise=NOISE, knot_spacing=0.1)
+    assert ident.settings["estimator_info"]["knot_spacing"] == pytest.approx(0.1)
+    assert np.all(np.abs(ident.values - param.true_values) < 1e-2 * ident.std)  # spline error 3e-6 rad: 3e-4 std
+    assert cli_default == KNOT_SPACING
+
+
+def test_bad_noise_and_spatial_models_are_one_line_errors(param, spline_log):
+    with pytest.raises(SpaceidError, match=r"^log: the angles estimator weights by .* give both > 0"):
+        identify(param, spline_log, H, estimator="angles", noise=Noise(angle=1e-4))
+    spatial = minimal_parameters(random_tree(np.random.default_rng(7), [0, 1], planar=False))
+    t = np.linspace(0, 1, 201)
+    log = simulate(spatial, spatial.true_values, lambda s: (np.outer(np.sin(s), [1, 1]), np.outer(np.cos(s), [1, 1])),
+                   t, [0.3, -0.2, 0.5])  # fmt: skip
+    with pytest.raises(SpaceidError, match=r"^log: the angles estimator and bound support planar models only"):
+        identify(spatial, log, [0.3, -0.2, 0.5], estimator="angles", noise=NOISE)
+
+
+@pytest.mark.slow
+def test_cli_identifies_from_angles_alone(tmp_path):
+    """An angles-only CSV (no rate columns), noise levels given and estimated from the log."""
+    assert main(["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.4934", "--rate", "100",
+                 "--noise-angle", "1e-4", "--seed", "1", "-o", str(tmp_path / "full.csv")]) == 0  # fmt: skip
+    data = np.genfromtxt(tmp_path / "full.csv", delimiter=",", names=True)
+    cols = ["t", "base_yaw", "q_left_shoulder", "q_left_elbow"]
+    np.savetxt(tmp_path / "angles.csv", np.column_stack([data[c] for c in cols]), delimiter=",",
+               header=",".join(cols), comments="")  # fmt: skip
+    truth = minimal_parameters(spaceid.load_model("cepheus")).true_values
+    for extra in (["--noise-angle", "1e-4", "--noise-attitude", "1e-4"], []):
+        out = tmp_path / "r.json"
+        assert main(["identify", "cepheus", str(tmp_path / "angles.csv"), "--momentum", "0.4934", "--estimator",
+                     "angles", "-o", str(out), *extra]) == 0  # fmt: skip
+        result = json.loads(out.read_text())
+        values = np.array([p["value"] for p in result["parameters"]])
+        std = np.array([p["std"] for p in result["parameters"]])
+        assert np.all(np.abs(values - truth) < 5 * std) and np.all(std < 0.03 * np.abs(truth))
+
+
+@pytest.mark.slow
+def test_montecarlo_gives_the_angles_estimator_the_measured_angles(param):
+    """Angles-only Monte Carlo runs differentiate (and smooth) the angles for the rate-based
+    estimators; 'angles' gets the measured samples and the given noise (smoothed ones cost it the
+    bound: RMSE 1.3 times it and a bias of one standard deviation, measured)."""
+    from spaceid.studies._montecarlo_runs import _Study
+
+    t = np.linspace(0, 5, 501)
+    clean = simulate(param, param.true_values, lambda s: TRAJ.evaluate(s)[:2], t, H)
+    study = _Study(param, clean, H, NOISE, ("angles", "ols"), True, {})
+    state = np.array([[3, 4]])
+    out = study.chunk(0, state)
+    direct = identify(param, study.measure(state[0]), H, estimator="angles", noise=NOISE)
+    np.testing.assert_array_equal(out["estimates"]["angles"][0], direct.values)
+    np.testing.assert_array_equal(out["std"]["angles"][0], direct.std)
