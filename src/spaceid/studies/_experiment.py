@@ -114,6 +114,7 @@ def run_experiment(
     seed: int = 0,
     out=None,
     progress=None,
+    drift=(),
 ) -> ExperimentResult:
     """Rehearse the Cepheus identification experiment on the twin.
 
@@ -141,6 +142,11 @@ def run_experiment(
         Report folder: the bag, the aligned log CSV, results, figures and ``report.md``.
     progress : callable, optional
         ``progress(done, total)`` for the design.
+    drift : iterable of {"torque", "viscous", "coulomb"}
+        Drift terms identified with the parameters (the table's friction; see
+        :func:`spaceid.estimation.identify`). Friction also acts during the spin-up, so the
+        drift is integrated from rest (the bag's first sample, zero momentum) to each sample of
+        the window; validation uses the identified drift and momentum at the window's start.
 
     Returns
     -------
@@ -188,9 +194,10 @@ def run_experiment(
     log = replace(log, meta=dict(full.meta, window=[start, start + traj.duration]))
     chosen = _nearest(log.t, start + sample_times(traj.duration, int(samples)))
     zero = np.zeros(3)  # started at rest: the whole system, wheel included, carries no momentum
-    ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag))
-    ident_all = identify(param, log, zero, estimator=estimator, where=str(bag))
-    predicted, metrics = validate(ident, log, momentum=zero, where=str(bag))
+    rest = full.select(full.t <= start + traj.duration + 1e-9) if drift else None  # friction acts from rest on
+    ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag), drift=drift, history=rest)
+    ident_all = identify(param, log, zero, estimator=estimator, where=str(bag), drift=drift, history=rest)
+    predicted, metrics = validate(ident, log, momentum=None if drift else zero, where=str(bag))
     # the truth is the twin's model when the excitation starts: the CO2 tank may have drained
     drained = settings.tank.enabled and a.state.co2_mass is not None
     true = minimal_parameters(drained_model(model, settings.tank, a.state.co2_mass)).true_values if drained \
@@ -206,6 +213,7 @@ def run_experiment(
         "samples (N)": int(len(chosen)),
         "samples (all)": int(log.n_samples),
         "estimator": estimator,
+        "drift terms": ", ".join(drift) or "none",
         "bag": f"{BAG_NAMES[bag_format]} ({bag_format})",
         "seed": seed,
         "co2 mass start/end [kg]": [run.meta["co2_mass_start"], run.meta["co2_mass_end"]],
