@@ -166,7 +166,7 @@ def test_result_round_trip_and_validation_with_the_identified_drift(cepheus, tmp
     back = load_result(tmp_path / "r.json")
     assert back.drift == ident.drift and back.drift_terms().keys() == {"torque", "viscous"}
     assert Identification.from_dict({k: v for k, v in record.items() if k != "drift"}).drift == ()
-    predicted, metrics = validate(back, log)  # the identified drift is used
+    _, metrics = validate(back, log)  # the identified drift is used
     assert metrics["base_w_nrms"] < 1e-8
     _, without = validate(back, log, drift={"torque": 0.0, "viscous": 0.0})  # override
     assert without["base_w_nrms"] > 1e-3
@@ -263,3 +263,9 @@ def test_drift_integrated_over_a_history(cepheus):
     assert ident.settings["history"]["start"] == 0.0 and ident.settings["history"]["momentum"] == H.tolist()
     with pytest.raises(spaceid.SpaceidError, match="does not span the log"):
         identify(cepheus, full, H, drift=kinds, history=later)
+
+
+def test_sparse_samples_of_a_drift_warn(cepheus):
+    with pytest.warns(UserWarning, match="too sparse to integrate the drift"):
+        log = drifting(cepheus, ("coulomb",), np.linspace(0, 5, 29))
+    assert log.meta["momentum_balance_error"] > 1e-6

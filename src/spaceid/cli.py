@@ -314,7 +314,10 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     if noise_angle or noise_rate:
         log = add_noise(log, angle=noise_angle, rate=noise_rate, seed=seed)
     write_log(output, log)
-    err.print(f"{log.n_samples} samples written to {output} (momentum error {log.meta['momentum_rel_error']:.1e} relative)")
+    balance = log.meta.get("momentum_balance_error")
+    balance = "" if balance is None else f", momentum balance with the drift {balance:.1e}"
+    err.print(f"{log.n_samples} samples written to {output} (momentum error {log.meta['momentum_rel_error']:.1e} "
+              f"relative{balance})")
 
 
 @app.command(short_help="Estimate the minimal parameters from a log.")

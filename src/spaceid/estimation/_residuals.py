@@ -11,9 +11,9 @@ attitude change (base friction), and they are correlated from sample to sample. 
   significance level ``DRIFT_ALPHA``, and only when the fitted drift also changes the momentum
   by more than ``DRIFT_FLOOR`` of the right-hand side (round-off of a noise-free log is not a drift);
 - whiteness: the lag-1 autocorrelation ``rho`` of the whitened residuals in time order, with
-  the Durbin-Watson statistic (about ``2 (1 - rho)``: 2 for white residuals) and the one-sided p-value of ``rho sqrt(n)``
-  (normal under white residuals), recorded as supporting evidence (differentiated rates make
-  residuals correlated without any drift, so it does not decide).
+  the Durbin-Watson statistic (about ``2 (1 - rho)``: 2 for white residuals) and the one-sided
+  p-value of ``rho sqrt(n)`` (normal under white residuals), recorded as supporting evidence
+  (differentiated rates make residuals correlated without any drift, so it does not decide).
 """
 
 from __future__ import annotations

@@ -118,7 +118,7 @@ class Identification:
                 dict(data.get("settings", {})),
                 tuple(p["unit"] for p in params) if all("unit" in p for p in params) else (),
                 tuple({"name": str(d["name"]), "value": float(d["value"]), "std": float(d["std"]),
-                       "unit": str(d["unit"])} for d in data.get("drift", [])),  # fmt: skip
+                       "unit": str(d["unit"])} for d in data.get("drift", [])),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "

@@ -9,6 +9,7 @@ identified model (only ``pi`` is needed) for prediction and validation.
 from __future__ import annotations
 
 import functools
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -113,7 +114,8 @@ def simulate(
         sign changes are located as events, and a base it would hold at rest is an error).
         ``meta["momentum_balance_error"]`` then records the largest difference of the output's
         momentum change from the integral of the external torque (the quadrature that
-        identification uses), relative to the momentum. Omitted or all zero: constant momentum.
+        identification uses), relative to the momentum (a warning above 1e-6: samples too sparse
+        to integrate the drift). Omitted or all zero: constant momentum.
 
     Returns
     -------
@@ -159,6 +161,10 @@ def simulate(
     return Log(times, names, q, qd, quat, w0, param.model.planar, meta)
 
 
+BALANCE_TOLERANCE = 1e-6
+"""Largest relative momentum-balance error of a drifting simulation without a warning."""
+
+
 def _rate_splines(param, pi, motion, times):
     """Splines of the locked inertia ``(rows, n_axes)`` and free momentum ``(rows,)`` of the joint
     motion on a grid 8 times denser than ``times`` (the output times among its nodes): the base
@@ -172,7 +178,8 @@ def _drift_rhs(param, locked, offset, terms):
     """``f(t, y, s)`` of the state ``y = [yaw, h_z]`` (planar) or ``[quat, h]`` (spatial) under
     the external torque ``terms``, and the base rate about z ``w(t, y)`` (planar; its sign ``s``
     is held between the events of a Coulomb torque)."""
-    tau, c, mu = np.asarray(terms.get("torque", np.zeros(3)), float), terms.get("viscous", 0.0), terms.get("coulomb", 0.0)
+    tau = np.asarray(terms.get("torque", np.zeros(3)), float)
+    c, mu = terms.get("viscous", 0.0), terms.get("coulomb", 0.0)
     if param.model.planar:
         def rate(t, y):
             return (y[1] - offset(t)[0]) / locked(t)[0, 0]
@@ -259,6 +266,10 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
             "momentum_end": h[-1].tolist(), "momentum_balance_error": float(np.abs(h_out - expected).max() / scale)}
     if model is not None:
         meta["momentum_rel_error"] = float(np.abs(angular_momentum(model, q, qd, w0, quat) - h).max() / scale)
+    if meta["momentum_balance_error"] > BALANCE_TOLERANCE:
+        warnings.warn(f"simulate: the samples are too sparse to integrate the drift (momentum balance off by "
+                      f"{meta['momentum_balance_error']:.2g} of the momentum): identification with --drift from this "
+                      "log will be biased by as much; sample more finely", stacklevel=3)
     return replace(log, meta=meta)
 
 

@@ -109,8 +109,8 @@ def write_markdown_report(
     lines += ["", "## Identified parameters", ""]
     lines += _md_table([_md(h) for h in header], rows)
     if ident.drift:
-        lines += ["", "Drift terms, estimated with the parameters (the momentum at the first sample and its change by "
-                  "the external torque):", ""]
+        lines += ["", ("Drift terms, estimated with the parameters (the momentum at the first sample and its change "
+                       "by the external torque):"), ""]
         lines += _md_table(["drift term", "unit", "estimate", "std"], [tuple(map(_md, r)) for r in drift_rows(ident)])
     lines += [
         "",
