@@ -34,6 +34,11 @@ NOISE = [
 ]
 ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
 KNOT_SPACING = 0.05  # [s] spaceid.estimation.KNOT_SPACING, likewise
+DRIFT_VALUES = click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="External torque on the base, so "
+                            "that the momentum drifts from its --momentum value at t0: torque=TAU (constant torque "
+                            "[N m], about z for planar, TX:TY:TZ inertial axes for spatial; or torque_x=.. per "
+                            "axis), viscous=C (friction -C w0, [N m s/rad]), coulomb=MU (friction -MU w0/|w0|, "
+                            "[N m]); e.g. --drift torque=1e-4,viscous=5e-5.")
 ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, efficient); wls: weighted least squares "
                   "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
                   "noise as instruments); tls: total least squares (for comparison with the literature); ols: "
@@ -320,24 +325,30 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 @click.option("--samples", type=int, help="N samples equally spaced over [0, tf] [default: the design's N].")
 @click.option("--rate", type=float, help="Sample rate [Hz] (instead of --samples).")
 @_options(*NOISE)
+@DRIFT_VALUES
 @SEED
 @output("Log CSV to write.")
-def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, seed, output):
+def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, drift, seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
     from .data import write_log
+    from .estimation import parse_drift
     from .motion import add_noise, simulate as run
     from .motion import load_trajectory
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
+    terms = parse_drift(drift, planar=param.model.planar, values=True)
     traj = load_trajectory(trajectory, joints=param.model.joints)
     times = _trajectory_times(traj, samples, rate, "simulate")
-    log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model)
+    log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model, drift=terms)
     log.meta.update(trajectory=trajectory, seed=seed)
     if noise_angle or noise_rate:
         log = add_noise(log, angle=noise_angle, rate=noise_rate, seed=seed)
     write_log(output, log)
-    err.print(f"{log.n_samples} samples written to {output} (momentum error {log.meta['momentum_rel_error']:.1e} relative)")
+    balance = log.meta.get("momentum_balance_error")
+    balance = "" if balance is None else f", momentum balance with the drift {balance:.1e}"
+    err.print(f"{log.n_samples} samples written to {output} (momentum error {log.meta['momentum_rel_error']:.1e} "
+              f"relative{balance})")
 
 
 @app.command(short_help="Estimate the minimal parameters from a log.")
@@ -358,25 +369,32 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
 @click.option("--knot-spacing", type=float, default=KNOT_SPACING, show_default=True, help="--estimator angles: knot spacing "
               "of the joint-path splines [s]; at least two samples per span.")
+@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
+              "estimated with the parameters: torque (constant torque [N m]), viscous (base friction -c w0, c in "
+              "N m s/rad), coulomb (base friction -mu w0/|w0|, mu in N m); e.g. --drift viscous on an air-bearing "
+              "table (terms that move alike are confounded: start with one). --momentum is then the momentum at the "
+              "first sample ('unknown' when the log does not start at rest). Without it, a residual test warns when "
+              "the data show a drift.")
 @bag_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
-             knot_spacing, output, bag):
+             knot_spacing, drift, output, bag):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
     inertia) move their spin momentum to the right-hand side.
     """
     from .estimation import identify as run
-    from .estimation import parse_known
+    from .estimation import parse_drift, parse_known
     from .data import read_log, write_json
-    from .studies import parameter_table
+    from .studies import drift_lines, parameter_table
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     if differentiate and bag["joint_rates"] not in (None, "differentiate"):
         raise SpaceidError(f"--differentiate and --joint-rates {bag['joint_rates']} contradict each other: give one")
     rates = bag["joint_rates"] or ("differentiate" if differentiate else None)
+    kinds = parse_drift(drift, planar=param.model.planar, values=False)
     log = read_log(log_path, joints=param.model.joints, planar=param.model.planar, wheels=param.model.wheels,
                    require_rates=False, bag_options=dict(bag, quantum=quantum, joint_rates=rates))
     _print_joint_rates(log)
@@ -402,7 +420,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         reference = traj.evaluate(log.t - log.t[0])[:2]
     with _warnings_to_stderr():
         ident = run(param, log, h, estimator=estimator, known=parse_known(known), noise=noise, instruments=reference,
-                    where=str(log_path), knot_spacing=knot_spacing)
+                    where=str(log_path), knot_spacing=knot_spacing, drift=kinds)
     write_json(output, ident.to_dict())
     out.print(parameter_table(ident))
     s = ident.settings
@@ -414,6 +432,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         axes = [2] if ident.planar else [0, 1, 2]
         out.print("momentum (estimated): " + ", ".join(
             f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {s['momentum_std'][i]:.2g}" for i in axes) + " N m s")
+    for line in drift_lines(ident):
+        out.print(line, highlight=False)
     chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
               f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
@@ -429,18 +449,21 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
 @click.option("--rate", type=float, help="TRAJ from 'design': sample rate [Hz] (instead of --samples).")
 @click.option("--initial-yaw", type=float, help="Base yaw at t0 [rad] (planar; default 0).")
 @click.option("--initial-quat", help="Base attitude at t0 as w,x,y,z (spatial; default 1,0,0,0).")
+@click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="Drift terms replacing those of RESULT.json "
+              "(used by default): torque=TAU, viscous=C, coulomb=MU, as for 'spaceid simulate'.")
 @output("Predicted log CSV to write.")
-def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_quat, output):
+def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_quat, drift, output):
     """Base motion of an identified model for a joint motion TRAJ: a joint-trajectory CSV
     (columns t, q_J, qd_J) or a trajectory from 'design' (JSON, or a named one such as
     paper-table2), sampled like 'simulate' does."""
     from .data import read_joint_trajectory, write_log
     from .data import yaw_to_quat
-    from .estimation import load_result
+    from .estimation import load_result, parse_drift
     from .studies import predict as run
 
     ident = load_result(result)
     h = _momentum(momentum, ident.planar)
+    terms = parse_drift(drift, planar=ident.planar, values=True)
     joints = _model_joints(ident)
     if trajectory.suffix.lower() == ".csv":
         if samples is not None or rate is not None:
@@ -462,7 +485,7 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
             raise SpaceidError(f"--initial-quat: expected a unit quaternion w,x,y,z, got '{initial_quat}'")
     else:
         quat0 = yaw_to_quat(initial_yaw or 0.0)
-    log = run(ident, t, q, qd, momentum=h, initial_quat=quat0, where=str(result))
+    log = run(ident, t, q, qd, momentum=h, initial_quat=quat0, where=str(result), drift=terms)
     write_log(output, log)
     err.print(f"{log.n_samples} predicted samples written to {output}")
 
@@ -487,25 +510,29 @@ def _trajectory_times(traj, samples, rate, command):
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
 @click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @MOMENTUM
+@click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="Drift terms replacing those of RESULT.json "
+              "(used by default): torque=TAU, viscous=C, coulomb=MU, as for 'spaceid simulate'; --momentum is the "
+              "momentum at the log's first sample.")
 @bag_options
 @output("Folder to write predicted.csv, metrics.json and validation.png into.")
-def validate(result, log_path, momentum, output, bag):
+def validate(result, log_path, momentum, drift, output, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     from .studies._figures import plot_validation
     from .data import read_log, write_json, write_log
-    from .estimation import load_result
+    from .estimation import load_result, parse_drift
     from .studies import metric_label
     from .studies import validate as run
 
     ident = load_result(result)
     h = _momentum(momentum, ident.planar)
+    terms = parse_drift(drift, planar=ident.planar, values=True)
     from .models import load_model
 
     model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
     log = read_log(log_path, joints=model.joints, planar=ident.planar, wheels=model.wheels, bag_options=bag)
     _print_joint_rates(log)
     with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
-        predicted, metrics = run(ident, log, momentum=h, where=str(result))
+        predicted, metrics = run(ident, log, momentum=h, where=str(result), drift=terms)
     output.mkdir(parents=True, exist_ok=True)
     write_log(output / "predicted.csv", predicted)
     write_json(output / "metrics.json", metrics)
@@ -554,16 +581,21 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
 @click.option("--validation", help="Held-out motion, run after the excitation, that the model is validated on: "
               "paper-table2, designed (seed + 1) or a file from 'design' [default: paper-table2; designed when "
               "--trajectory is paper-table2].")
+@click.option("--drift", metavar="KIND[,KIND...]", help="Drift terms to identify with the parameters (torque, "
+              "viscous, coulomb; see 'spaceid identify --drift'): the table's friction, integrated from the rest "
+              "at the bag's start.")
 @SEED
 @click.option("--out", "folder", type=click.Path(path_type=Path), default="spaceid-experiment", show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
-def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, seed, folder):
+def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift, seed,
+               folder):
     """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
     identify from the recorded bag (N samples and all of the excitation), validate the identified
     model on the held-out motion (Fig. 6).
 
     MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default.
     """
+    from .estimation import parse_drift
     from .studies import run_experiment
     from .studies import parameter_table
     from .twin import TwinSettings
@@ -574,7 +606,7 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     with _progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress:
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
                              bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=folder,
-                             progress=progress)
+                             progress=progress, drift=parse_drift(drift, planar=True, values=False))
     out.print(parameter_table(res.ident, true=res.true))
     worst = float(np.max(np.abs(res.ident_all.values - res.true) / np.abs(res.true)))
     out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g}; all {res.ident_all.n_samples} "

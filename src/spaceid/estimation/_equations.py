@@ -20,6 +20,7 @@ import numpy as np
 from .._errors import SpaceidError
 from ..data import Log, quat_to_matrix
 from ..dynamics import Parameterization, skew
+from ._drift import drift_basis, drift_names
 from ._noise import FD_STEP, signal_jacobian
 
 __all__ = ["resolve_anchors"]
@@ -89,8 +90,10 @@ def _rotvec_matrix(v):
 class _Equations:
     """The momentum equations of a log as ``Phi_n(x) [theta; 1] = 0``, sample by sample.
 
-    ``theta`` holds the free minimal parameters and, when the momentum is unknown, its inertial
-    components (z only for planar systems). ``x (n, n_x)`` are the signals
+    ``theta`` holds the free minimal parameters, then, when the momentum is unknown, its inertial
+    components at the first sample (z only for planar systems), then the drift coefficients
+    (:mod:`spaceid.estimation._drift`): the momentum at sample n is ``h0 + sum_k d_k g_k(t_n)``.
+    ``x (n, n_x)`` are the signals
     ``[q, qd, w0 (z only if planar), dtheta (spatial)]``, ``dtheta`` a small rotation of the
     measured attitude in base axes (``R0 = R0_meas exp([dtheta]x)``).
     """
@@ -100,7 +103,9 @@ class _Equations:
     free: np.ndarray  # indices of the estimated minimal parameters
     known: np.ndarray  # indices of the known ones ...
     known_values: np.ndarray  # ... and their values
-    momentum: np.ndarray | None  # (3,) inertial [N m s], None when estimated
+    momentum: np.ndarray | None  # (3,) inertial [N m s] at the first sample, None when estimated
+    drift: tuple = ()  # names of the drift coefficients (torque_z, viscous, ...)
+    basis: np.ndarray | None = None  # (n, n_d, 3) their momentum change per unit, inertial axes
 
     @property
     def planar(self):
@@ -116,11 +121,11 @@ class _Equations:
 
     @property
     def p(self):
-        return len(self.free) + self.n_h
+        return len(self.free) + self.n_h + len(self.drift)
 
     def names(self):
         h = [f"h_{'xyz'[a]}" for a in self.axes] if self.n_h else []
-        return [self.param.names[i] for i in self.free] + h
+        return [self.param.names[i] for i in self.free] + h + list(self.drift)
 
     def signals(self, log: Log) -> np.ndarray:
         att = np.zeros((log.n_samples, 0 if self.planar else 3))
@@ -140,8 +145,21 @@ class _Equations:
         h = self.momentum
         if h is None:
             h = np.zeros(3)
-            h[self.axes] = theta[len(self.free) :]
+            h[self.axes] = theta[len(self.free) : len(self.free) + self.n_h]
         return pi, h
+
+    def drift_values(self, theta):
+        """The drift coefficients ``(n_d,)`` of ``theta``."""
+        return np.asarray(theta[len(theta) - len(self.drift) :], float)
+
+    def base_momentum(self, theta, rot=None):
+        """The momentum of ``theta`` in base axes at every sample, ``(n, 3)`` [N m s]:
+        ``R0^T (h0 + sum_k d_k g_k(t_n))``, with the rotations ``rot`` (default: the measured)."""
+        rot = self.rot if rot is None else rot
+        h = self.full(theta)[1]
+        if not self.drift:
+            return np.einsum("nji,j->ni", rot, h)
+        return np.einsum("nji,nj->ni", rot, h + np.einsum("nki,k->ni", self.basis, self.drift_values(theta)))
 
     def phi(self, x) -> np.ndarray:
         """``[A | -b]`` of every sample: ``(n, rows, p + 1)``."""
@@ -159,9 +177,11 @@ class _Equations:
                 at += len(run)
         b = -(y[..., self.known] @ self.known_values)
         if self.momentum is None:
-            out[..., at:-1] = -rot_t[..., self.axes]
+            out[..., at : at + self.n_h] = -rot_t[..., self.axes]
         else:
             b = b + rot_t @ self.momentum
+        if self.drift:  # the momentum change, in base axes, per unit drift coefficient
+            out[..., at + self.n_h : -1] = -np.einsum("nri,nki->nrk", rot_t, self.basis)
         out[..., -1] = -b
         return out
 
@@ -175,8 +195,7 @@ class _Equations:
     def jacobian(self, x, theta) -> np.ndarray:
         """``d(Phi theta_bar)/dx``: ``(n, rows, n_x)`` (see :func:`spaceid.estimation.signal_jacobian`)."""
         q, qd, w, rot = self.unpack(x)
-        pi, h = self.full(theta)
-        return signal_jacobian(self.param, pi, q, qd, w, np.einsum("nji,j->ni", rot, h))
+        return signal_jacobian(self.param, self.full(theta)[0], q, qd, w, self.base_momentum(theta, rot))
 
 
 def _split(phi):
@@ -185,9 +204,22 @@ def _split(phi):
     return flat[:, :-1], -flat[:, -1]
 
 
-def _equations(param, log, momentum, known, where) -> tuple:
-    """The equations of ``log`` and the anchors used, as records for the settings of a result
-    (see :func:`spaceid.estimation.identify`)."""
+def _drift_basis(log, drift, history, where):
+    """:func:`drift_basis` of ``log``, or integrated over ``history`` and taken at ``log``'s stamps."""
+    if history is None:
+        return drift_basis(log, drift)
+    if not (history.t[0] <= log.t[0] and log.t[-1] <= history.t[-1] + 1e-9):
+        raise SpaceidError(f"{where}: the history ({history.t[0]:.6g}..{history.t[-1]:.6g} s) does not span the log "
+                           f"({log.t[0]:.6g}..{log.t[-1]:.6g} s): give the record the log was cut from")
+    g = drift_basis(history, drift)
+    return np.stack([np.stack([np.interp(log.t, history.t, g[:, k, i]) for i in range(3)], -1)
+                     for k in range(g.shape[1])], 1)
+
+
+def _equations(param, log, momentum, known, where, drift=(), history=None) -> tuple:
+    """The equations of ``log`` (with the drift kinds ``drift``, integrated over ``history`` if
+    given) and the anchors used, as records for the settings of a result (see
+    :func:`spaceid.estimation.identify`)."""
     anchors = resolve_anchors(param, dict(known or {}), where)
     homogeneous = momentum is None or not np.linalg.norm(momentum) > 0
     if homogeneous and not anchors:
@@ -200,6 +232,8 @@ def _equations(param, log, momentum, known, where) -> tuple:
     idx = np.array(sorted(anchors), int)
     free = np.setdiff1d(np.arange(param.n_params), idx)
     values = np.array([anchors[i][0] for i in idx], float)
-    eq = _Equations(param, quat_to_matrix(log.base_quat), free, idx, values, momentum)
+    names = drift_names(drift, param.model.planar)[0]
+    eq = _Equations(param, quat_to_matrix(log.base_quat), free, idx, values, momentum, names,
+                    _drift_basis(log, drift, history, where) if names else None)
     return eq, [{"name": param.names[i], "definition": param.definitions[i], "value": anchors[i][0],
                  "source": anchors[i][1]} for i in idx]  # fmt: skip

@@ -256,11 +256,10 @@ def _tls(eq, x, sigma, theta, ctx):
 def _instrument_rows(eq, x, theta, reference):
     """Instruments ``Z (n rows, p)``: the regressor columns at the joint signals ``reference``
     ``(q, qd)`` and the base rate that ``theta`` predicts for them."""
-    pi, h = eq.full(theta)
     nj = len(eq.param.model.joints)
     xz = x.copy()
     xz[:, : 2 * nj] = np.hstack(reference)
-    w = base_rate(eq.param, pi, reference[0], reference[1], np.einsum("nji,j->ni", eq.rot, h))
+    w = base_rate(eq.param, eq.full(theta)[0], reference[0], reference[1], eq.base_momentum(theta))
     xz[:, 2 * nj : 2 * nj + len(eq.axes)] = w[:, eq.axes]
     return _split(eq.phi(xz))[0]
 

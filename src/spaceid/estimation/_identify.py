@@ -24,9 +24,11 @@ from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
+from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
+from ._residuals import drift_test
 from ._result import Identification
 from ._uncertainty import _reported_covariance
 
@@ -76,10 +78,12 @@ def _check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
     cond_scaled = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
     if not cond_scaled < cond_limit:
         bad = _unexcited(R[:-1, :-1], names, max(1e-8, 1 / cond_limit))
-        raise SpaceidError(
-            f"{where}: the regressor is rank-deficient (scaled cond {cond_scaled:.3g}); not excited: "
-            f"{', '.join(bad) or 'unclear'}: use an exciting trajectory (spaceid design) that moves every joint"
-        )
+        drifts = set(drift_names(DRIFT_KINDS, False)[0])
+        fix = ("drop one of the drift terms the log cannot tell apart (--drift; a constant torque and Coulomb "
+               "friction are the same while the base turns one way)" if drifts & set(bad) else
+               "use an exciting trajectory (spaceid design) that moves every joint")
+        raise SpaceidError(f"{where}: the regressor is rank-deficient (scaled cond {cond_scaled:.3g}); not excited: "
+                           f"{', '.join(bad) or 'unclear'}: {fix}")
     return (scale, R), cond_scaled
 
 
@@ -93,14 +97,63 @@ def _instrument_context(log: Log, instruments, where: str) -> dict:
 
 
 def _full_covariance(eq, cov_t, k: int) -> tuple:
-    """The covariance ``(k, k)`` of all minimal parameters (known ones with zero variance) and
-    the standard errors ``(3,)`` of the inertial momentum [N m s] (zero when it was given)."""
+    """The covariance ``(k, k)`` of all minimal parameters (known ones with zero variance), the
+    standard errors ``(3,)`` of the inertial momentum [N m s] (zero when it was given) and those
+    ``(n_d,)`` of the drift coefficients."""
     cov = np.zeros((k, k))
     cov[np.ix_(eq.free, eq.free)] = cov_t[: len(eq.free), : len(eq.free)]
+    std = np.sqrt(np.diag(cov_t))
     h_std = np.zeros(3)
-    if eq.n_h:
-        h_std[eq.axes] = np.sqrt(np.diag(cov_t)[len(eq.free) :])
-    return cov, h_std
+    if eq.drift and np.any(eq.basis[0]):  # integrated from a history: the momentum at the log's start
+        jac = np.zeros((len(eq.axes), eq.p))
+        jac[:, len(eq.free) : len(eq.free) + eq.n_h] = np.eye(len(eq.axes))[:, : eq.n_h]
+        jac[:, eq.p - len(eq.drift) :] = eq.basis[0][:, eq.axes].T
+        h_std[eq.axes] = np.sqrt(np.diag(jac @ cov_t @ jac.T))
+    elif eq.n_h:
+        h_std[eq.axes] = std[len(eq.free) : len(eq.free) + eq.n_h]
+    return cov, h_std, std[len(std) - len(eq.drift) :]
+
+
+DRIFT_CORRELATION = 0.99
+"""Drift coefficients whose estimates correlate beyond this are told apart by the log only weakly."""
+
+
+def _drift_collinear(eq, cov_t, where) -> tuple:
+    """The largest correlation between two drift coefficients' estimates and a warning naming the pair
+    when it exceeds ``DRIFT_CORRELATION`` (``""`` otherwise): e.g. a constant torque and a Coulomb
+    torque when the base never reverses, or any two while it turns one way only."""
+    d = len(eq.drift)
+    if d < 2:
+        return None, ""
+    block = cov_t[eq.p - d :, eq.p - d :]
+    std = np.sqrt(np.diag(block))
+    corr = block / np.outer(np.where(std > 0, std, 1), np.where(std > 0, std, 1))
+    np.fill_diagonal(corr, 0)
+    i, j = np.unravel_index(np.argmax(np.abs(corr)), corr.shape)
+    worst = float(corr[i, j])
+    if abs(worst) <= DRIFT_CORRELATION:
+        return worst, ""
+    return worst, (f"{where}: drift terms {eq.drift[i]} and {eq.drift[j]} are nearly indistinguishable on this log "
+                   f"(correlation {worst:.4f}): noise and model errors trade one for the other, which inflates their "
+                   "errors and the parameters'; keep one of them (--drift) unless the motion can tell them apart")
+
+
+def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where) -> tuple:
+    """The record of the residual test for an unmodelled drift (:func:`spaceid.estimation._residuals.drift_test`)
+    and its warning (``""`` when silent); not run when drift terms are modelled."""
+    if drift:
+        return {"run": False, "reason": f"drift terms modelled: {', '.join(drift)}"}, ""
+    if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
+        return {"run": False, "reason": "not defined for the angles estimator"}, ""
+    test = dict(drift_test(eq, x, phi, sigma, theta, estimator, log), run=True)
+    if not test["drift"]:
+        return test, ""
+    white = "" if test["whiteness_p_value"] >= test["alpha"] else (
+        f", and the residuals are correlated (lag-1 autocorrelation {test['lag1_autocorrelation']:.2f})")
+    return test, (f"{where}: the equation residuals trend with time and attitude (Wald p = {test['p_value']:.2g} "
+                  f"< {test['alpha']:g}, momentum drift {100 * test['relative_drift']:.2g} % of its RMS{white}): an "
+                  "external torque or base friction changes the momentum: model it with --drift (one term first, e.g. --drift "
+                  "viscous: terms that move alike are confounded; see the drift theory page)")
 
 
 def _singular_values(factor) -> np.ndarray:
@@ -168,6 +221,8 @@ def identify(
     where: str = "log",
     cond_limit: float = 1e10,
     knot_spacing: float = KNOT_SPACING,
+    drift=(),
+    history: Log | None = None,
 ) -> Identification:
     """Estimate the minimal parameters from a measured motion.
 
@@ -179,8 +234,8 @@ def identify(
     log : Log
         Measured motion; joint columns in ``param.model.joints`` order.
     momentum : array_like of shape (3,) or None
-        Inertial angular momentum of the whole system [N m s]; None: a constant unknown
-        momentum, estimated with the parameters.
+        Inertial angular momentum of the whole system [N m s] (at the first sample when
+        ``drift`` is given); None: unknown, estimated with the parameters.
     estimator : {"ml", "wls", "iv", "tls", "ols", "angles"}
         Maximum likelihood (efficient, the default), weighted, instrumental-variables, total or
         ordinary least squares; ``angles``: maximum likelihood on the angles alone (the log's
@@ -203,14 +258,24 @@ def identify(
     knot_spacing : float
         ``angles`` only: knot spacing of the joint-path splines [s] (at least two samples per
         span; see :data:`spaceid.estimation.KNOT_SPACING`).
+    drift : iterable of {"torque", "viscous", "coulomb"}
+        External torques that change the momentum, their coefficients estimated with the
+        parameters (:mod:`spaceid.estimation._drift`; docs/theory/drift.md). Without them, a
+        residual test warns when the data show a drift.
+    history : Log, optional
+        With ``drift``: a longer record (same stamps where they overlap) from whose first sample
+        the drift is integrated, ``momentum`` being the momentum there (e.g. a rest before the
+        log: friction acted in between). The result's ``momentum`` is still the one at the
+        log's first sample.
 
     Returns
     -------
     Identification
         ``values``/``std``/``cov`` over all minimal parameters (known ones with zero
-        variance); the estimated momentum, anchors, noise model, ``chi2_dof``, the
-        estimator's iterations and ``plausibility`` (the warning about inertia-like parameters
-        that came out negative, also issued as a ``UserWarning``) in ``settings``.
+        variance); ``drift``: the drift coefficients; the estimated momentum, anchors, noise
+        model, ``chi2_dof``, the estimator's iterations, ``plausibility`` (the warning about
+        inertia-like parameters that came out negative) and ``drift_test`` (the residual test
+        for an unmodelled drift) in ``settings``; both warnings also issued as ``UserWarning``.
 
     Raises
     ------
@@ -222,7 +287,11 @@ def identify(
     if estimator not in ESTIMATORS:
         raise SpaceidError(f"--estimator: '{estimator}' is not one of {', '.join(ESTIMATORS)}")
     momentum = None if momentum is None else np.asarray(momentum, float)
-    eq, anchors = _equations(param, log, momentum, known, where)
+    drift = check_drift_kinds(drift)
+    if drift and estimator == "angles":
+        raise SpaceidError("--drift: not available with --estimator angles (its equations do not carry drift "
+                           "columns): use another estimator, or no drift terms")
+    eq, anchors = _equations(param, log, momentum, known, where, drift, history)
     _check_sample_count(eq, log, where)
     x = eq.signals(log)
     estimated = noise is None and estimator != "ols"  # ols needs no noise model
@@ -233,9 +302,10 @@ def identify(
         ctx |= {"phi": phi, "factor": factor}
         if estimator == "iv":
             ctx |= _instrument_context(log, instruments, where)
-        theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, signal_sigma(param, noise), ctx, estimator,
-                                                           estimated)  # fmt: skip
+        sigma = signal_sigma(param, noise)
+        theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, estimator, estimated)
         s = _singular_values(factor)
+        drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where)
     except np.linalg.LinAlgError as exc:  # singular or non-finite systems, at any step: one line, not a traceback
         raise SpaceidError(
             f"{where}: estimator '{estimator}' met a singular or non-finite linear system ({exc}): check the log for "
@@ -245,10 +315,17 @@ def identify(
     if info.get("converged") is False:
         warnings.warn(f"{where}: maximum likelihood did not converge in {info['iterations']} iterations", stacklevel=2)
     pi, h = eq.full(theta)
-    cov, h_std = _full_covariance(eq, cov_t, param.n_params)
+    if history is not None and drift:  # the momentum at the log's first sample
+        h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])
+    cov, h_std, d_std = _full_covariance(eq, cov_t, param.n_params)
     implausible = _implausible(param, pi, np.sqrt(np.diag(cov)), where)
-    if implausible:
-        warnings.warn(implausible, stacklevel=2)
+    correlation, collinear = _drift_collinear(eq, cov_t, where)
+    for warning in (implausible, drift_warning, collinear):
+        if warning:
+            warnings.warn(warning, stacklevel=2)
+    units = drift_names(drift, param.model.planar)[1]
+    terms = tuple({"name": n, "value": float(v), "std": float(e), "unit": u}
+                  for n, v, e, u in zip(eq.drift, eq.drift_values(theta), d_std, units))  # fmt: skip
     settings = {
         "parameterization": param.to_dict(),
         "log": dict(log.meta),
@@ -256,15 +333,19 @@ def identify(
         "condition_number_scaled": cond_scaled,
         "anchors": anchors,
         "momentum_estimated": momentum is None,
+        **({"history": {"source": str(history.meta.get("source", "log")), "start": float(history.t[0]),
+                        "momentum": eq.full(theta)[1].tolist()}} if history is not None and drift else {}),
         "momentum_std": h_std.tolist(),
         "noise": noise.to_dict(),
         **uncertainty,
         "estimator_info": {k: v for k, v in info.items() if np.isscalar(v) or isinstance(v, (str, list))},
         "plausibility": implausible or "no inertia-like parameter negative",
+        "drift_test": drift_record,
+        **({"drift_correlation": correlation} if correlation is not None else {}),
     }
     return Identification(
         names=param.names, definitions=param.definitions, values=pi, std=np.sqrt(np.diag(cov)), cov=cov,
         condition_number=float(s[0] / s[-1]) if s[-1] > 0 else np.inf, singular_values=s, residual_rms=rms,
         n_samples=log.n_samples, estimator=estimator, momentum=h, model=param.model.source or param.model.name,
-        planar=param.model.planar, settings=settings, units=param.units,
+        planar=param.model.planar, settings=settings, units=param.units, drift=terms,
     )

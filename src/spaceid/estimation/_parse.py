@@ -1,4 +1,4 @@
-"""Command-line values of the estimation: momentum and known (anchor) parameters."""
+"""Command-line values of the estimation: momentum, known (anchor) parameters and drift terms."""
 
 from __future__ import annotations
 
@@ -6,8 +6,9 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import SpaceidError
+from ._drift import check_drift_kinds, drift_terms
 
-__all__ = ["parse_momentum", "parse_known"]
+__all__ = ["parse_momentum", "parse_known", "parse_drift"]
 
 
 def parse_momentum(value, *, planar: bool):
@@ -44,3 +45,31 @@ def parse_known(items) -> dict:
             raise SpaceidError(f"--known: '{item}' is not NAME=VALUE with a finite number (e.g. Iczz_wheel=0.00197)")
         known[name.strip()] = number
     return known
+
+
+def parse_drift(value, *, planar: bool, values: bool):
+    """``--drift``: drift kinds ``"torque,viscous"`` (``values=False``: for identification) or
+    drift terms ``"torque=VALUE,viscous=VALUE,coulomb=VALUE"`` (``values=True``: for simulation),
+    as :func:`spaceid.estimation.identify` and :func:`spaceid.motion.simulate` take them.
+
+    A spatial torque is ``torque=TX:TY:TZ`` [N m] (or ``torque_x=..`` per axis); empty or None
+    gives ``()`` or ``{}``."""
+    if value is None or not str(value).strip():
+        return {} if values else ()
+    if not values:
+        if "=" in str(value):
+            raise SpaceidError(f"--drift: '{value}' gives values: here --drift takes kinds to estimate, e.g. "
+                               "--drift torque,viscous,coulomb")
+        return check_drift_kinds(str(value))
+    terms = {}
+    for item in str(value).split(","):
+        name, sep, number = item.partition("=")
+        try:
+            parsed = [float(v) for v in number.split(":")]
+        except ValueError:
+            parsed = []
+        if not sep or not name.strip() or not parsed:
+            raise SpaceidError(f"--drift: '{item}' is not KIND=VALUE with a number (e.g. --drift torque=1e-4,"
+                               "viscous=5e-5; a spatial torque as torque=TX:TY:TZ)")
+        terms[name.strip()] = parsed[0] if len(parsed) == 1 else parsed
+    return drift_terms(terms, planar, where="--drift")

@@ -9,6 +9,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ..data import read_json
+from ._drift import drift_terms
 
 __all__ = ["Identification", "compare", "load_result"]
 
@@ -42,6 +43,10 @@ class Identification:
     units : tuple of str
         Each parameter's unit (``kg``, ``kg m``, ``kg m^2``; see ``Parameterization.units``);
         empty for results written before units were recorded.
+    drift : tuple of dict
+        The drift coefficients estimated with the parameters (``identify(..., drift=...)``),
+        each ``{name, value, std, unit}`` (``torque_z``, ``viscous``, ``coulomb``, ...); empty
+        without drift terms. ``momentum`` is then the momentum at the log's first sample.
     """
 
     names: tuple
@@ -59,6 +64,12 @@ class Identification:
     planar: bool
     settings: dict = field(default_factory=dict)
     units: tuple = ()
+    drift: tuple = ()
+
+    def drift_terms(self) -> dict:
+        """The drift coefficients as :func:`spaceid.motion.simulate` takes them (empty without drift)."""
+        return drift_terms({d["name"]: d["value"] for d in self.drift}, self.planar, where="result drift",
+                           physical=False)
 
     def to_dict(self) -> dict:
         """JSON-ready RESULT.json form: parameters with 95 % confidence intervals, covariance,
@@ -73,6 +84,7 @@ class Identification:
                  "ci95": [float(v - Z95 * s), float(v + Z95 * s)], **({"unit": self.units[i]} if self.units else {})}
                 for i, (n, d, v, s) in enumerate(zip(self.names, self.definitions, self.values, self.std))
             ],
+            "drift": [dict(d) for d in self.drift],
             "covariance": self.cov.tolist(),
             "condition_number": self.condition_number,
             "singular_values": self.singular_values.tolist(),
@@ -105,6 +117,8 @@ class Identification:
                 bool(data["planar"]),
                 dict(data.get("settings", {})),
                 tuple(p["unit"] for p in params) if all("unit" in p for p in params) else (),
+                tuple({"name": str(d["name"]), "value": float(d["value"]), "std": float(d["std"]),
+                       "unit": str(d["unit"])} for d in data.get("drift", [])),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "

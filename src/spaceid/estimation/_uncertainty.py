@@ -21,6 +21,7 @@ import numpy as np
 from .._threads import one_blas_thread
 from ..data import Log
 from ..dynamics import Parameterization
+from ._drift import drift_vector
 from ._equations import _equations, _split
 from ._estimators import _column_scale, _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
 from ._noise import Noise, signal_sigma
@@ -127,7 +128,8 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     return cov_t, rms, {"chi2_dof": chi2, "variance_factor": factor, "covariance": how}  # chi2_dof None for ols
 
 
-def cramer_rao(param: Parameterization, log: Log, momentum, noise: Noise, *, known=None, estimate_momentum=False):
+def cramer_rao(param: Parameterization, log: Log, momentum, noise: Noise, *, known=None, estimate_momentum=False,
+               drift=None):
     """Cramer-Rao bound of the errors-in-variables model for a motion and noise levels.
 
     With Gaussian noise on the signals and the momentum equations holding exactly for the true
@@ -148,16 +150,21 @@ def cramer_rao(param: Parameterization, log: Log, momentum, noise: Noise, *, kno
         Known parameters, as for :func:`spaceid.estimation.identify` (reaction wheels count as known).
     estimate_momentum : bool
         Whether the momentum is among the unknowns.
+    drift : dict, optional
+        True drift terms, estimated with the parameters: ``{kind: value}`` as
+        :func:`spaceid.motion.simulate` takes them (each kind given is an unknown, even at 0).
 
     Returns
     -------
     names : list of str
-        The unknowns (free parameters, then ``h_*`` if estimated).
+        The unknowns (free parameters, then ``h_*`` if estimated, then the drift coefficients).
     cov : ndarray of shape (p, p)
     """
     momentum = np.asarray(momentum, float)
-    eq, _ = _equations(param, log, None if estimate_momentum else momentum, known, "cramer_rao")
-    theta = np.concatenate([param.true_values[eq.free], momentum[eq.axes] if estimate_momentum else []])
+    drift = dict(drift or {})
+    eq, _ = _equations(param, log, None if estimate_momentum else momentum, known, "cramer_rao", tuple(drift))
+    theta = np.concatenate([param.true_values[eq.free], momentum[eq.axes] if estimate_momentum else [],
+                            drift_vector(drift, tuple(drift), param.model.planar)])
     x = eq.signals(log)
     L = _equation_whitener(eq, x, theta, signal_sigma(param, noise))
     Aw, _ = _split(_whitened(L, eq.phi(x)))

@@ -9,6 +9,8 @@ identified model (only ``pi`` is needed) for prediction and validation.
 from __future__ import annotations
 
 import functools
+import warnings
+from dataclasses import replace
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -19,6 +21,7 @@ from ..dynamics import angular_momentum
 from ..dynamics._base_rate import _rate_pieces, base_rate
 from ..dynamics import Parameterization
 from ..data import Log, quat_to_matrix, yaw_to_quat
+from ..estimation import drift_basis, drift_terms, drift_vector
 
 __all__ = ["simulate", "hermite_motion", "add_noise"]
 
@@ -76,8 +79,9 @@ def simulate(
     initial_quat=None,
     model=None,
     rtol: float = 1e-12,
+    drift=None,
 ) -> Log:
-    """Simulate the base motion for a prescribed joint motion and a constant momentum.
+    """Simulate the base motion for a prescribed joint motion and a constant or drifting momentum.
 
     Parameters
     ----------
@@ -90,7 +94,7 @@ def simulate(
     times : array_like of shape (n_samples,)
         Output time stamps [s], increasing.
     momentum : array_like of shape (3,)
-        Inertial angular momentum [N m s].
+        Inertial angular momentum [N m s] (at ``times[0]`` with ``drift``).
     joints : tuple of str, optional
         Joint names for the log (default: the model's).
     initial_quat : array_like of shape (4,), optional
@@ -102,6 +106,16 @@ def simulate(
     rtol : float
         Relative tolerance of the attitude integration (Gauss-Legendre quadrature of the yaw
         rate for planar systems, DOP853 on the quaternion for spatial ones).
+    drift : dict, optional
+        External torques on the base, ``{"torque": tau, "viscous": c, "coulomb": mu}`` (any
+        subset; ``tau`` [N m] 3 inertial components or, planar, a number about z; ``c`` [N m
+        s/rad], ``mu`` [N m]): the momentum becomes a state, ``dh/dt = tau - c R0 w0 - mu R0 w0 /
+        |w0|`` (docs/theory/drift.md), integrated with the attitude (DOP853; a Coulomb torque's
+        sign changes are located as events, and a base it would hold at rest is an error).
+        ``meta["momentum_balance_error"]`` then records the largest difference of the output's
+        momentum change from the integral of the external torque (the quadrature that
+        identification uses), relative to the momentum (a warning above 1e-6: samples too sparse
+        to integrate the drift). Omitted or all zero: constant momentum.
 
     Returns
     -------
@@ -113,6 +127,9 @@ def simulate(
     times = np.asarray(times, float)
     momentum = np.asarray(momentum, float)
     quat0 = np.array([1.0, 0, 0, 0]) if initial_quat is None else np.asarray(initial_quat, float)
+    terms = drift_terms(drift, param.model.planar, where="drift", physical=False)  # estimates may be < 0
+    if any(np.any(v) for v in terms.values()):
+        return _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol)
 
     if param.model.planar:
         # the base rate does not depend on the yaw: the yaw is a quadrature, done vectorised
@@ -142,6 +159,118 @@ def simulate(
         meta["momentum_rel_error"] = float(np.abs(h - momentum).max() / max(np.linalg.norm(momentum), 1e-300))
     names = tuple(joints or param.model.joints)
     return Log(times, names, q, qd, quat, w0, param.model.planar, meta)
+
+
+BALANCE_TOLERANCE = 1e-6
+"""Largest relative momentum-balance error of a drifting simulation without a warning."""
+
+
+def _rate_splines(param, pi, motion, times):
+    """Splines of the locked inertia ``(rows, n_axes)`` and free momentum ``(rows,)`` of the joint
+    motion on a grid 8 times denser than ``times`` (the output times among its nodes): the base
+    rate for a momentum ``h_base`` in base axes is ``locked^-1 (h_base[rows] - offset)``."""
+    grid = np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
+    free, unit, _ = _rate_pieces(param, *motion(grid), functools.partial(param.momentum, pi=pi))
+    return CubicSpline(grid, np.stack(unit, -1)), CubicSpline(grid, free)
+
+
+def _drift_rhs(param, locked, offset, terms):
+    """``f(t, y, s)`` of the state ``y = [yaw, h_z]`` (planar) or ``[quat, h]`` (spatial) under
+    the external torque ``terms``, and the base rate about z ``w(t, y)`` (planar; its sign ``s``
+    is held between the events of a Coulomb torque)."""
+    tau = np.asarray(terms.get("torque", np.zeros(3)), float)
+    c, mu = terms.get("viscous", 0.0), terms.get("coulomb", 0.0)
+    if param.model.planar:
+        def rate(t, y):
+            return (y[1] - offset(t)[0]) / locked(t)[0, 0]
+
+        def rhs(t, y, s):
+            w = rate(t, y)
+            return np.array([w, tau[2] - c * w - mu * s])
+
+        return rhs, rate
+
+    def rhs(t, y, s):
+        quat = y[:4] / np.linalg.norm(y[:4])
+        rot = quat_to_matrix(quat)
+        w = np.linalg.solve(locked(t), rot.T @ y[4:] - offset(t))
+        wi = rot @ w
+        norm = np.linalg.norm(wi)
+        return np.concatenate([_quat_rate(y[:4], w), tau - c * wi - (mu * wi / norm if norm > 0 else 0.0)])
+
+    return rhs, None
+
+
+def _moves_away(rhs, rate, t, y, s, span):
+    """Whether the base rate, at a zero, moves to the side of sign ``s`` under the Coulomb torque
+    of that sign (``False``: the torque would hold the base at rest)."""
+    step = 1e-7 * span
+    return s * (rate(t + step, y + step * rhs(t, y, s)) - rate(t, y)) > 0
+
+
+def _integrate_drifting(rhs, rate, y0, times, rtol, coulomb):
+    """States ``(n, len(y0))`` at ``times``; with a planar Coulomb torque, segment by segment
+    between the zero crossings of the base rate (events), the sign of the torque flipped at each."""
+    out, t0, y = [], times[0], np.asarray(y0, float)
+    span = times[-1] - times[0]
+    stuck = "the Coulomb torque (drift coulomb) holds the base at rest (stiction), which is not modelled: use a " \
+            "smaller coulomb value"
+    s, events = 0.0, None
+    if rate is not None:
+        s = np.sign(rate(t0, y)) or next((c for c in (1.0, -1.0) if _moves_away(rhs, rate, t0, y, c, span)), 0.0)
+        if coulomb and not s:
+            raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {stuck}")
+    while True:
+        if coulomb and rate is not None:
+            events = lambda t, yy, s=s: s * rate(t, yy)  # noqa: E731 - positive until the rate crosses zero
+            events.terminal, events.direction = True, -1
+        sol = solve_ivp(rhs, (t0, times[-1]), y, method="DOP853", t_eval=times[times >= t0], rtol=rtol, atol=1e-14,
+                        args=(s,), events=events)  # fmt: skip
+        if not sol.success:
+            raise SpaceidError(f"simulation failed: {sol.message}")
+        done = sol.t_events[0] if events is not None and len(sol.t_events[0]) else []
+        out.append(sol.y.T[sol.t < done[0]] if len(done) else sol.y.T)
+        if not len(done):
+            break
+        t0, y, s = done[0], sol.y_events[0][0], -s
+        if not _moves_away(rhs, rate, t0, y, s, span):
+            raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {stuck}")
+        if len(out) > 10 * len(times) + 1000:
+            raise SpaceidError("simulation failed: the base rate changes sign too often for the Coulomb torque")
+    return np.concatenate(out)
+
+
+def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol) -> Log:
+    """:func:`simulate` with the momentum a state driven by the external torque ``terms``."""
+    locked, offset = _rate_splines(param, pi, motion, times)
+    rhs, rate = _drift_rhs(param, locked, offset, terms)
+    if param.model.planar:
+        y0 = [2 * np.arctan2(quat0[3], quat0[0]), momentum[2]]
+    else:
+        y0 = np.concatenate([quat0, momentum])
+    y = _integrate_drifting(rhs, rate, y0, times, rtol, coulomb=bool(terms.get("coulomb")))
+    if param.model.planar:
+        quat, h = yaw_to_quat(y[:, 0]), np.outer(y[:, 1], [0.0, 0.0, 1.0])
+    else:
+        quat, h = y[:, :4] / np.linalg.norm(y[:, :4], axis=1, keepdims=True), y[:, 4:]
+    q, qd = motion(times)
+    rot = quat_to_matrix(quat)
+    w0 = base_rate(param, pi, q, qd, np.einsum("nji,nj->ni", rot, h))
+    log = Log(times, tuple(joints or param.model.joints), q, qd, quat, w0, param.model.planar, {})
+    kinds = tuple(terms)
+    h_out = np.einsum("nij,nj->ni", rot, param.momentum(q, qd, w0, pi) if not param.model.planar
+                      else np.pad(param.momentum(q, qd, w0, pi), ((0, 0), (2, 0))))  # fmt: skip
+    expected = h[0] + np.einsum("nki,k->ni", drift_basis(log, kinds), drift_vector(terms, kinds, param.model.planar))
+    scale = max(np.abs(h).max(), 1e-300)
+    meta = {"momentum": h[0].tolist(), "rtol": rtol, "drift": {k: np.asarray(v).tolist() for k, v in terms.items()},
+            "momentum_end": h[-1].tolist(), "momentum_balance_error": float(np.abs(h_out - expected).max() / scale)}
+    if model is not None:
+        meta["momentum_rel_error"] = float(np.abs(angular_momentum(model, q, qd, w0, quat) - h).max() / scale)
+    if meta["momentum_balance_error"] > BALANCE_TOLERANCE:
+        warnings.warn(f"simulate: the samples are too sparse to integrate the drift (momentum balance off by "
+                      f"{meta['momentum_balance_error']:.2g} of the momentum): identification with --drift from this "
+                      "log will be biased by as much; sample more finely", stacklevel=3)
+    return replace(log, meta=meta)
 
 
 def add_noise(log: Log, *, angle: float = 0.0, rate: float = 0.0, seed: int = 0) -> Log:

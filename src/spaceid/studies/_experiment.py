@@ -27,12 +27,11 @@ import numpy as np
 
 from .._atomic import write_text_atomic
 from .._errors import SpaceidError
-from ..data import JOINT_RATE_POLICY, read_bag_log, write_bag
-from ..estimation import Identification, identify, resolve_anchors
-from ..data import write_json, write_log
-from ..models import load_model
+from ..data import JOINT_RATE_POLICY, Log, quat_to_matrix, read_bag_log, write_bag, write_json, write_log
 from ..dynamics import minimal_parameters
-from ..data import Log
+from ..estimation import Identification, identify, resolve_anchors
+from ..identified import parameterization_of
+from ..models import load_model
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin, spin_up
 from ._validate import validate
@@ -152,10 +151,25 @@ def _read_bag(bag: Path, model, settings: TwinSettings, joint_rates: str) -> Log
 
 def _held_out_validation(ident: Identification, log: Log, held_out: Log, momentum, where: str) -> tuple:
     """``(predicted, metrics, fit_metrics)``: ``ident`` re-simulated on the held-out motion and
-    compared with it, and the same metrics on the fitting window ``log`` (the check of the fit)."""
-    predicted, metrics = validate(ident, held_out, momentum=momentum, where=f"{where} (held-out motion)")
+    compared with it, and the same metrics on the fitting window ``log`` (the check of the fit).
+
+    ``momentum`` None (drift terms identified): the fitting window starts from the identified
+    momentum, the held-out motion, later, from the identified model's momentum over its first
+    samples (friction changed it in between)."""
+    start = momentum if momentum is not None or not ident.drift else _initial_momentum(ident, held_out)
+    predicted, metrics = validate(ident, held_out, momentum=start, where=f"{where} (held-out motion)")
     _, fit_metrics = validate(ident, log, momentum=momentum, where=f"{where} (fitting window)")
     return predicted, metrics, fit_metrics
+
+
+def _initial_momentum(ident: Identification, log: Log, samples: int = 10) -> np.ndarray:
+    """The inertial angular momentum [N m s] (3,) of the identified model over the first
+    ``samples`` samples of ``log``, their mean (from the measured joint and base rates)."""
+    first = log.select(np.arange(min(samples, log.n_samples)))
+    h_base = np.zeros((first.n_samples, 3))
+    rows = [2] if ident.planar else [0, 1, 2]
+    h_base[:, rows] = parameterization_of(ident).momentum(first.q, first.qd, first.base_w, ident.values)
+    return np.einsum("nij,nj->ni", quat_to_matrix(first.base_quat), h_base).mean(axis=0)
 
 
 def _validation_protocol(traj: FourierTrajectory, name: str, held_out: Log, seed: int) -> dict:
@@ -193,6 +207,7 @@ def run_experiment(
     seed: int = 0,
     out=None,
     progress=None,
+    drift=(),
 ) -> ExperimentResult:
     """Rehearse the Cepheus identification experiment on the twin.
 
@@ -227,6 +242,11 @@ def run_experiment(
         ``report.md``.
     progress : callable, optional
         ``progress(done, total)`` for the design.
+    drift : iterable of {"torque", "viscous", "coulomb"}
+        Drift terms identified with the parameters (the table's friction; see
+        :func:`spaceid.estimation.identify`). Friction also acts during the spin-up, so the
+        drift is integrated from rest (the bag's first sample, zero momentum) to each sample of
+        the window; validation uses the identified drift and momentum at the window's start.
 
     Returns
     -------
@@ -274,9 +294,10 @@ def run_experiment(
     log = _excitation(full, start, traj.duration)
     chosen = _nearest(log.t, start + sample_times(traj.duration, int(samples)))
     zero = np.zeros(3)  # started at rest: the whole system, wheel included, carries no momentum
-    ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag))
-    ident_all = identify(param, log, zero, estimator=estimator, where=str(bag))
-    predicted, metrics, fit_metrics = _held_out_validation(ident, log, held_out, zero, str(bag))
+    rest = full.select(full.t <= start + traj.duration + 1e-9) if drift else None  # friction acts from rest on
+    ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag), drift=drift, history=rest)
+    ident_all = identify(param, log, zero, estimator=estimator, where=str(bag), drift=drift, history=rest)
+    predicted, metrics, fit_metrics = _held_out_validation(ident, log, held_out, None if drift else zero, str(bag))
     # the truth is the twin's model when the excitation starts: the CO2 tank may have drained
     drained = settings.tank.enabled and a.state.co2_mass is not None
     true = minimal_parameters(drained_model(model, settings.tank, a.state.co2_mass)).true_values if drained \
@@ -292,6 +313,7 @@ def run_experiment(
         "samples (N)": int(len(chosen)),
         "samples (all)": int(log.n_samples),
         "estimator": estimator,
+        "drift terms": ", ".join(drift) or "none",
         "bag": f"{BAG_NAMES[bag_format]} ({bag_format})",
         "seed": seed,
         "co2 mass start/end [kg]": [run.meta["co2_mass_start"], run.meta["co2_mass_end"]],

@@ -12,7 +12,7 @@ from .._errors import SpaceidError
 from ..estimation import Identification
 
 
-from ._tables import _columns, _per_param
+from ._tables import _columns, _per_param, drift_rows
 
 __all__ = ["write_markdown_report", "metric_label"]
 
@@ -110,6 +110,10 @@ def write_markdown_report(
     lines += _md_table(["setting", "value"], [(_md(k), _md_value(v)) for k, v in settings.items()])
     lines += ["", "## Identified parameters", ""]
     lines += _md_table([_md(h) for h in header], rows)
+    if ident.drift:
+        lines += ["", ("Drift terms, estimated with the parameters (the momentum at the first sample and its change "
+                       "by the external torque):"), ""]
+        lines += _md_table(["drift term", "unit", "estimate", "std"], [tuple(map(_md, r)) for r in drift_rows(ident)])
     lines += [
         "",
         f"Estimator {_md(ident.estimator)}, {ident.n_samples} samples, momentum "

@@ -12,7 +12,7 @@ from .._errors import SpaceidError
 from ..estimation import Identification
 
 
-__all__ = ["parameter_table", "montecarlo_table"]
+__all__ = ["parameter_table", "montecarlo_table", "drift_lines"]
 
 
 def _per_param(values, ident: Identification, name: str):
@@ -63,6 +63,16 @@ def _columns(ident: Identification, true, reference, reference_label, reference_
         header.append(f"{reference_label} rel. error [%]")
         cols.append([f"{v:.4g}" for v in reference])
     return header, list(zip(*cols))
+
+
+def drift_rows(ident: Identification) -> list:
+    """``(name, unit, value, std)`` strings of each drift coefficient of ``ident`` (none without drift)."""
+    return [(d["name"], d["unit"], f"{d['value']:.6g}", f"{d['std']:.3g}") for d in ident.drift]
+
+
+def drift_lines(ident: Identification) -> list:
+    """One line per drift coefficient, ``drift: torque_z = 1e-4 +/- 2e-6 N m``, for the terminal."""
+    return [f"drift: {n} = {v} +/- {s} {u}" for n, u, v, s in drift_rows(ident)]
 
 
 DEFINITIONS_SHOWN = 30

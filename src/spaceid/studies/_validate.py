@@ -18,7 +18,8 @@ from ..data import Log, log_fingerprint
 __all__ = ["attitude_error_angle", "predict", "validate", "validation_metrics"]
 
 
-def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None, where: str = "result") -> Log:
+def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None, where: str = "result",
+            drift=None) -> Log:
     """Base motion of the identified model for a joint motion.
 
     Parameters
@@ -32,11 +33,15 @@ def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None
         Inertial momentum [N m s] (default: the one of the identification).
     initial_quat : array_like of shape (4,), optional
         Base attitude at ``t[0]``.
+    drift : dict, optional
+        Drift terms (as :func:`spaceid.motion.simulate` takes them) that replace the
+        identification's own (``ident.drift``, used by default): the momentum at ``t[0]`` is
+        ``momentum`` and changes by the external torque.
     """
     param = parameterization_of(ident, where=where)
     h = ident.momentum if momentum is None else np.asarray(momentum, float)
-    log = simulate(param, ident.values, hermite_motion(t, q, qd), t, h, initial_quat=initial_quat)
-    return log
+    terms = {**ident.drift_terms(), **dict(drift or {})}
+    return simulate(param, ident.values, hermite_motion(t, q, qd), t, h, initial_quat=initial_quat, drift=terms)
 
 
 def attitude_error_angle(a, b) -> np.ndarray:
@@ -87,8 +92,9 @@ def _warn_if_fitting_log(ident: Identification, log: Log, where: str) -> None:
         )
 
 
-def validate(ident: Identification, log: Log, *, momentum=None, where: str = "result"):
-    """Re-simulate ``ident`` with the log's joint motion and initial attitude; compare.
+def validate(ident: Identification, log: Log, *, momentum=None, where: str = "result", drift=None):
+    """Re-simulate ``ident`` with the log's joint motion and initial attitude (and its drift
+    terms, or ``drift``: see :func:`predict`); compare.
 
     A ``UserWarning`` when ``log`` is the log ``ident`` was identified from (its
     ``settings["log_fingerprint"]``, :func:`spaceid.data.log_fingerprint`): a fit follows its own
@@ -101,5 +107,6 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
         See :func:`validation_metrics`.
     """
     _warn_if_fitting_log(ident, log, where)
-    predicted = predict(ident, log.t, log.q, log.qd, momentum=momentum, initial_quat=log.base_quat[0], where=where)
+    predicted = predict(ident, log.t, log.q, log.qd, momentum=momentum, initial_quat=log.base_quat[0], where=where,
+                        drift=drift)
     return predicted, validation_metrics(log, predicted)

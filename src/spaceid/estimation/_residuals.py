@@ -1,0 +1,98 @@
+"""The residual test for an unmodelled drift of the momentum (docs/theory/drift.md).
+
+After an identification without drift terms, the equation residuals of a log whose momentum
+drifted follow the drift: a trend against time (a constant external torque) and against the
+attitude change (base friction), and they are correlated from sample to sample. The test:
+
+- trend: the whitened equations are refitted with the ``torque`` and ``viscous`` drift columns
+  added (:mod:`spaceid.estimation._drift`), and a Wald test asks whether their coefficients are
+  zero, with the heteroscedasticity-consistent covariance (Newey-West over the differentiator's
+  window when rates were differentiated, whose errors are correlated); it decides, at the
+  significance level ``DRIFT_ALPHA``, and only when the fitted drift also changes the momentum
+  by more than ``DRIFT_FLOOR`` of the right-hand side (round-off of a noise-free log is not a drift);
+- whiteness: the lag-1 autocorrelation ``rho`` of the whitened residuals in time order, with
+  the Durbin-Watson statistic (about ``2 (1 - rho)``: 2 for white residuals) and the one-sided
+  p-value of ``rho sqrt(n)`` (normal under white residuals), recorded as supporting evidence
+  (differentiated rates make residuals correlated without any drift, so it does not decide).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.stats import chi2, norm
+
+from ._drift import drift_basis, drift_names
+from ._equations import _split
+from ._estimators import _equation_whitener, _solve, _whitened
+from ._uncertainty import _correlation_length, _newey_west
+
+DRIFT_ALPHA = 1e-3
+"""Significance level of the drift test: the probability that it warns on a log without drift."""
+
+DRIFT_FLOOR = 1e-6
+"""Smallest fitted momentum drift, relative to the RMS right-hand side, that the test reports."""
+
+_CANDIDATES = ("torque", "viscous")
+
+
+def _lag1(white):
+    """Lag-1 autocorrelation of residuals ``(n, rows)`` in time order (rows pooled)."""
+    den = float(np.sum(white**2))
+    return float(np.sum(white[1:] * white[:-1]) / den) if den > 0 else 0.0
+
+
+def drift_test(eq, x, phi, sigma, theta, estimator, log) -> dict:
+    """Whether the residuals of a drift-free identification show an unmodelled drift.
+
+    Parameters
+    ----------
+    eq : _Equations
+        The equations identified (without drift terms).
+    x, phi : ndarray
+        Their signals ``(n, n_x)`` and stacked ``[A | -b]`` ``(n, rows, p + 1)``.
+    sigma : ndarray of shape (n_x,)
+        Signal noise levels (whitening; unused for ``ols``).
+    theta : ndarray of shape (p,)
+        The estimate.
+    estimator : str
+    log : Log
+
+    Returns
+    -------
+    dict
+        ``alpha``, ``terms`` (the drift coefficients tried), ``trend`` (their fitted values),
+        ``wald``, ``dof``, ``p_value``, ``relative_drift`` (largest fitted momentum change /
+        RMS right-hand side), ``lag1_autocorrelation``, ``durbin_watson``, ``whiteness_p_value``
+        and ``drift`` (True when the test rejects: the caller warns).
+    """
+    names = drift_names(_CANDIDATES, eq.planar)[0]
+    rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
+    cols = -np.einsum("nri,nki->nrk", rot_t, drift_basis(log, _CANDIDATES))  # (n, rows, q)
+    full = np.concatenate([phi[..., :-1], cols, phi[..., -1:]], -1)
+    if estimator != "ols":
+        L = _equation_whitener(eq, x, theta, sigma)
+        full = _whitened(L, full)
+    white = full[..., : eq.p] @ theta + full[..., -1]  # whitened residuals of the drift-free fit
+    A, b = _split(full)
+    est, ginv = _solve(A, b)
+    r = full @ np.append(est, 1.0)
+    cov = _newey_west(ginv, full[..., :-1], r, _correlation_length(log), len(est))
+    d, cdd = est[eq.p :], cov[eq.p :, eq.p :]
+    wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
+    p_value = float(chi2.sf(wald, len(d)))
+    b_raw = _split(phi)[1]
+    change = np.abs(cols @ d).max() / max(float(np.sqrt(np.mean(b_raw**2))), 1e-300)
+    rho = _lag1(white)
+    return {
+        "alpha": DRIFT_ALPHA,
+        "terms": list(names),
+        "trend": dict(zip(names, d.tolist())),
+        "wald": wald,
+        "dof": len(d),
+        "p_value": p_value,
+        "relative_drift": float(change),
+        "lag1_autocorrelation": rho,
+        "durbin_watson": float(np.sum(np.diff(white, axis=0) ** 2) / max(float(np.sum(white**2)), 1e-300)),
+        "whiteness_p_value": float(norm.sf(rho * np.sqrt(len(white)))),
+        "drift": bool(p_value < DRIFT_ALPHA and change > DRIFT_FLOOR),
+    }

@@ -1,0 +1,274 @@
+"""Momentum that is not conserved: drift terms (external torque, base friction) simulated,
+identified with the parameters, recorded, re-simulated; the residual test for an unmodelled drift."""
+
+import json
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from test_simulate_estimate import motion
+
+import spaceid
+from spaceid.cli import main
+from spaceid.dynamics import angular_momentum, minimal_parameters
+from spaceid.estimation import Identification, Noise, cramer_rao, identify, load_result
+from spaceid.motion import FourierTrajectory, add_noise, simulate
+from spaceid.studies import validate
+
+PRESETS = Path(spaceid.__file__).parent / "models" / "presets"
+H = np.array([0.0, 0.0, 0.02])  # small: the arm reverses the base, so a Coulomb torque changes sign
+DRIFT = {"torque": 1e-3, "viscous": 5e-3, "coulomb": 2e-3}
+TIMES = np.linspace(0, 5, 2001)
+
+
+@pytest.fixture(scope="module")
+def cepheus():
+    return minimal_parameters(spaceid.load_model("cepheus"))
+
+
+def drifting(param, kinds, times=None):
+    """A Cepheus log under the drift terms ``kinds``; by default 400 Hz with Coulomb friction (its
+    sign changes are integrated to fourth order in the sample spacing), else 100 Hz (exact)."""
+    times = (TIMES if "coulomb" in kinds else TIMES[::4]) if times is None else times
+    return simulate(param, param.true_values, motion, times, H, model=param.model,
+                    drift={k: DRIFT[k] for k in kinds})
+
+
+def values(ident):
+    return {d["name"]: d["value"] for d in ident.drift}
+
+
+SUBSETS = [("torque",), ("viscous",), ("coulomb",), ("torque", "viscous"), ("viscous", "coulomb"),
+           ("torque", "viscous", "coulomb")]
+
+
+@pytest.mark.parametrize("kinds", SUBSETS)
+def test_planar_noise_free_recovers_pi_and_drift(cepheus, kinds):
+    log = drifting(cepheus, kinds)
+    if "coulomb" in kinds:
+        assert np.count_nonzero(np.diff(np.sign(log.base_w[:, 2]))) >= 2  # the friction changes sign
+    for momentum, known in [(H, None), (None, {"pi1": cepheus.true_values[0]})]:
+        ident = identify(cepheus, log, momentum, drift=kinds, known=known, estimator="ols")
+        np.testing.assert_allclose(ident.values, cepheus.true_values, rtol=1e-8)
+        expected = {"torque_z" if k == "torque" else k: DRIFT[k] for k in kinds}
+        assert values(ident).keys() == expected.keys()
+        for name, v in values(ident).items():
+            assert v == pytest.approx(expected[name], rel=1e-8)
+        np.testing.assert_allclose(ident.momentum, H, atol=1e-10)
+        assert ident.settings["drift_test"] == {"run": False, "reason": f"drift terms modelled: {', '.join(kinds)}"}
+
+
+def test_simulated_momentum_balances_the_external_torque(cepheus):
+    kinds = ("torque", "viscous")
+    log = drifting(cepheus, kinds)
+    assert log.meta["momentum_balance_error"] < 1e-12 and log.meta["momentum_rel_error"] < 1e-12
+    # independent of pi and of the identification's quadrature: the rigid-body momentum of the
+    # output against h0 + tau (t - t0) - c (yaw - yaw0)
+    h = angular_momentum(cepheus.model, log.q, log.qd, log.base_w, log.base_quat)[:, 2]
+    external = DRIFT["torque"] * (log.t - log.t[0]) - DRIFT["viscous"] * (log.base_yaw - log.base_yaw[0])
+    np.testing.assert_allclose(h - H[2], external, atol=1e-12)
+    assert log.meta["momentum_end"][2] - H[2] == pytest.approx(external[-1], abs=1e-12)
+    # with Coulomb friction the balance holds to the quadrature of the sign changes
+    assert drifting(cepheus, ("coulomb",)).meta["momentum_balance_error"] < 1e-9
+
+
+def test_drift_free_simulation_is_unchanged(cepheus):
+    t = np.linspace(0, 5, 35)
+    a = simulate(cepheus, cepheus.true_values, motion, t, H)
+    b = simulate(cepheus, cepheus.true_values, motion, t, H, drift={"viscous": 0.0})
+    assert np.array_equal(a.base_quat, b.base_quat) and np.array_equal(a.base_w, b.base_w) and a.meta == b.meta
+
+
+def test_coulomb_stiction_is_an_error(cepheus):
+    with pytest.raises(spaceid.SpaceidError, match="stiction"):
+        simulate(cepheus, cepheus.true_values, motion, TIMES, H, drift={"coulomb": 1.0})
+
+
+@pytest.fixture(scope="module")
+def spatial_log():
+    model = spaceid.load_model(PRESETS / "satellite-7dof.urdf")
+    param = minimal_parameters(model)
+    rng = np.random.default_rng(0)
+    traj = FourierTrajectory(model.joints, 20, rng.uniform(-0.3, 0.3, (model.n_joints, 6)),
+                             rng.uniform(-0.3, 0.3, (model.n_joints, 6)))
+    quat0 = np.array([0.9, 0.1, 0.3, 0.3]) / np.linalg.norm([0.9, 0.1, 0.3, 0.3])
+    drift = {"torque": [1e-3, -2e-3, 5e-4], "viscous": 0.05, "coulomb": 3e-3}
+    h0 = np.array([1.0, -2.0, 3.0])
+    log = simulate(param, param.true_values, lambda t: traj.evaluate(t)[:2], np.linspace(0, 20, 2001), h0,
+                   initial_quat=quat0, model=model, drift=drift)
+    return param, log, h0, drift
+
+
+@pytest.mark.slow
+def test_spatial_noise_free_recovers_pi_and_drift(spatial_log):
+    param, log, h0, drift = spatial_log
+    assert log.meta["momentum_rel_error"] < 1e-12 and log.meta["momentum_balance_error"] < 1e-9
+    ident = identify(param, log, h0, drift=tuple(drift), estimator="ols")
+    y = param.regressor(log.q, log.qd, log.base_w).reshape(-1, param.n_params)
+    err = np.abs(ident.values - param.true_values) * np.linalg.norm(y, axis=0) / (np.linalg.norm(h0) * np.sqrt(len(y)))
+    assert err.max() < 1e-8  # as momentum explained (parameters near zero stay meaningful)
+    assert np.median(np.abs(ident.values / param.true_values - 1)) < 1e-8
+    expected = dict(zip(("torque_x", "torque_y", "torque_z"), drift["torque"]), viscous=drift["viscous"],
+                    coulomb=drift["coulomb"])
+    for name, v in values(ident).items():
+        assert v == pytest.approx(expected[name], rel=1e-8)
+    names, _ = cramer_rao(param, log, h0, Noise(1e-4, 1e-4, 1e-4, 1e-4), drift=drift)
+    assert names[-5:] == ["torque_x", "torque_y", "torque_z", "viscous", "coulomb"]
+
+
+@pytest.mark.slow
+def test_noisy_drift_coefficients_within_their_predicted_spread(cepheus):
+    kinds = ("torque", "viscous", "coulomb")
+    clean = drifting(cepheus, kinds, np.linspace(0, 5, 501))
+    noise = Noise(angle=1e-4, rate=1e-3, base_rate=1e-3)
+    truth = {"torque_z": DRIFT["torque"], "viscous": DRIFT["viscous"], "coulomb": DRIFT["coulomb"]}
+    z = []
+    for seed in range(20):
+        log = add_noise(clean, angle=noise.angle, rate=noise.rate, seed=seed)
+        ident = identify(cepheus, log, H, drift=kinds, noise=noise)
+        z.append([(d["value"] - truth[d["name"]]) / d["std"] for d in ident.drift])
+    z = np.array(z)
+    # 20 draws: the sample RMS of a unit normal is within [0.6, 1.45] with probability > 0.99
+    assert np.all((0.6 < np.sqrt(np.mean(z**2, 0))) & (np.sqrt(np.mean(z**2, 0)) < 1.45)), z
+    assert np.all(np.abs(z.mean(0)) < 3 / np.sqrt(len(z)))
+    _, crb = cramer_rao(cepheus, clean, H, noise, drift={k: DRIFT[k] for k in kinds})
+    np.testing.assert_allclose(np.sqrt(np.diag(crb))[-3:], [d["std"] for d in ident.drift],
+                               rtol=0.2)
+
+
+@pytest.mark.slow
+def test_residual_test_silent_on_clean_logs_and_fires_on_drift(cepheus):
+    t = np.linspace(0, 5, 501)
+    clean = simulate(cepheus, cepheus.true_values, motion, t, H)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # any warning fails
+        ident = identify(cepheus, clean, H)
+        assert ident.settings["drift_test"]["drift"] is False
+        fired = 0
+        for seed in range(20):
+            log = add_noise(clean, angle=1e-4, rate=1e-3, seed=seed)
+            fired += identify(cepheus, log, H).settings["drift_test"]["p_value"] < 1e-3
+        assert fired == 0  # at alpha = 1e-3, 20 clean logs fire with probability 2 %
+    drift = simulate(cepheus, cepheus.true_values, motion, t, H, drift={"viscous": 5e-4})  # 1 % of h
+    with pytest.warns(UserWarning, match="--drift"):
+        ident = identify(cepheus, add_noise(drift, angle=1e-4, rate=1e-3, seed=0), H)
+    test = ident.settings["drift_test"]
+    assert test["drift"] and test["p_value"] < 1e-3 and test["terms"] == ["torque_z", "viscous"]
+    assert test["alpha"] == 1e-3 and test["durbin_watson"] < 1.8  # white: 2 +- 0.09
+
+
+def test_result_round_trip_and_validation_with_the_identified_drift(cepheus, tmp_path):
+    kinds = ("torque", "viscous")
+    log = drifting(cepheus, kinds, np.linspace(0, 5, 201))
+    ident = identify(cepheus, log, H, drift=kinds)
+    record = ident.to_dict()
+    assert [d["name"] for d in record["drift"]] == ["torque_z", "viscous"]
+    assert {d["unit"] for d in record["drift"]} == {"N m", "N m s/rad"}
+    (tmp_path / "r.json").write_text(json.dumps(record))
+    back = load_result(tmp_path / "r.json")
+    assert back.drift == ident.drift and back.drift_terms().keys() == {"torque", "viscous"}
+    assert Identification.from_dict({k: v for k, v in record.items() if k != "drift"}).drift == ()
+    _, metrics = validate(back, log)  # the identified drift is used
+    assert metrics["base_w_nrms"] < 1e-8
+    _, without = validate(back, log, drift={"torque": 0.0, "viscous": 0.0})  # override
+    assert without["base_w_nrms"] > 1e-3
+
+
+def test_report_lists_the_drift_terms(cepheus, tmp_path):
+    from spaceid.studies import write_markdown_report
+
+    log = drifting(cepheus, ("torque",), np.linspace(0, 5, 201))
+    report = write_markdown_report(tmp_path, title="t", ident=identify(cepheus, log, H, drift=("torque",)),
+                                   settings={}, figures={}).read_text()
+    assert "| torque\\_z | N m | 0.001 |" in report
+
+
+@pytest.mark.slow
+def test_cli_drift_through_files(tmp_path, capsys):
+    log, result = tmp_path / "log.csv", tmp_path / "r.json"
+    assert main(["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.02", "--rate", "200",
+                 "--drift", "torque=1e-3,viscous=5e-3", "-o", str(log)]) == 0
+    assert main(["identify", "cepheus", str(log), "--momentum", "0.02", "--drift", "torque,viscous",
+                 "--estimator", "ols", "-o", str(result)]) == 0
+    printed = capsys.readouterr().out
+    assert "drift: torque_z = 0.001" in printed and "drift: viscous = 0.005" in printed
+    drift = {d["name"]: d["value"] for d in json.loads(result.read_text())["drift"]}
+    assert drift["torque_z"] == pytest.approx(1e-3, rel=1e-6) and drift["viscous"] == pytest.approx(5e-3, rel=1e-6)
+    assert main(["validate", str(result), str(log), "--momentum", "0.02", "-o", str(tmp_path / "v")]) == 0
+    metrics = json.loads((tmp_path / "v" / "metrics.json").read_text())
+    assert metrics["base_w_nrms"] < 1e-5
+
+
+@pytest.mark.parametrize("args, message", [
+    (["identify", "cepheus", "LOG", "--momentum", "0.02", "--drift", "torque,friction"], "--drift: 'friction' is not"),
+    (["identify", "cepheus", "LOG", "--momentum", "0.02", "--drift", "viscous=1"], "--drift: 'viscous=1' gives"),
+    (["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.02", "--drift", "viscous=abc"],
+     "--drift: 'viscous=abc' is not KIND=VALUE"),
+    (["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.02", "--drift", "viscous=-1"],
+     "--drift: viscous = -1 must be >= 0"),
+    (["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.02", "--drift", "spin=1"],
+     "--drift: 'spin' is not a drift term"),
+    (["experiment", "--drift", "viscous,spin"], "--drift: 'spin' is not a drift kind"),
+])
+def test_cli_bad_drift_is_one_line_exit_2(tmp_path, capsys, args, message):
+    log = tmp_path / "log.csv"
+    if "identify" in args:
+        assert main(["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.02", "--samples", "40",
+                     "-o", str(log)]) == 0
+        capsys.readouterr()
+    out = ["--out", str(tmp_path / "out")] if args[0] == "experiment" else ["-o", str(tmp_path / "out")]
+    args = [str(log) if a == "LOG" else a for a in args] + out
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("error: " + message) and "\n" not in err
+
+
+def test_drift_terms_the_log_cannot_tell_apart(cepheus):
+    h = np.array([0.0, 0.0, 0.4934])  # the base turns one way only
+    log = simulate(cepheus, cepheus.true_values, motion, np.linspace(0, 5, 501), h, drift={"torque": 1e-3})
+    with pytest.raises(spaceid.SpaceidError, match=r"not excited: .*coulomb.*drop one of the drift terms"):
+        identify(cepheus, log, h, drift=("torque", "coulomb"))
+    with pytest.warns(UserWarning, match="torque_z and viscous are nearly indistinguishable"):
+        ident = identify(cepheus, add_noise(log, angle=1e-4, rate=1e-3, seed=0), h, drift=("torque", "viscous"))
+    assert ident.settings["drift_correlation"] > 0.99
+
+
+@pytest.mark.slow
+def test_experiment_with_friction_warns_and_drift_terms_reduce_the_error(tmp_path):
+    from spaceid.data import read_bag_log
+    from spaceid.twin import TwinSettings
+
+    res = spaceid.run_experiment(seed=0, out=tmp_path, drift=("viscous",))
+    assert res.settings["drift terms"] == "viscous" and [d["name"] for d in res.ident.drift] == ["viscous"]
+    assert res.ident.settings["history"]["start"] == 0.0
+    # seed 0 without drift terms: 36.5 %; with the bearing friction off: 3.7 % (measured)
+    assert np.max(np.abs(res.ident.values - res.true) / np.abs(res.true)) < 0.15
+    assert "| viscous | N m s/rad |" in (tmp_path / "report.md").read_text()
+    # the recorded bag read from rest, identified as 'spaceid identify' would, without --drift
+    model = spaceid.load_model("cepheus-rw")
+    log = read_bag_log(tmp_path / "run.bag", joints=model.joints, planar=True, wheels=model.wheels,
+                       joint_rates="differentiate", pose_latency=TwinSettings().mocap.latency)
+    with pytest.warns(UserWarning, match="model it with --drift"):
+        ident = identify(minimal_parameters(model), log, np.zeros(3))
+    assert ident.settings["drift_test"]["p_value"] < 1e-10
+
+
+def test_drift_integrated_over_a_history(cepheus):
+    kinds = ("torque", "viscous")
+    full = drifting(cepheus, kinds, np.linspace(0, 5, 501))
+    later = full.select(np.flatnonzero(full.t >= 2.0)[::10])  # a sparse part of the record, after t = 2 s
+    ident = identify(cepheus, later, H, drift=kinds, history=full, estimator="ols")
+    np.testing.assert_allclose(ident.values, cepheus.true_values, rtol=1e-9)
+    assert values(ident)["viscous"] == pytest.approx(DRIFT["viscous"], rel=1e-9)
+    h_later = angular_momentum(cepheus.model, later.q[:1], later.qd[:1], later.base_w[:1], later.base_quat[:1])[0]
+    np.testing.assert_allclose(ident.momentum, h_later, atol=1e-12)  # the momentum at the log's first sample
+    assert ident.settings["history"]["start"] == 0.0 and ident.settings["history"]["momentum"] == H.tolist()
+    with pytest.raises(spaceid.SpaceidError, match="does not span the log"):
+        identify(cepheus, full, H, drift=kinds, history=later)
+
+
+def test_sparse_samples_of_a_drift_warn(cepheus):
+    with pytest.warns(UserWarning, match="too sparse to integrate the drift"):
+        log = drifting(cepheus, ("coulomb",), np.linspace(0, 5, 29))
+    assert log.meta["momentum_balance_error"] > 1e-6
