@@ -515,10 +515,17 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
               "(ROS 2 bag folder, MCAP storage).")
 @click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
+@click.option("--feedforward/--no-feedforward", default=True, show_default=True,
+              help="Add the arm's inverse dynamics planned from the prior model to the PD loops (after holding the "
+              "start pose); --no-feedforward: the published PD loops alone.")
+@click.option("--rehearsals", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Rehearsals of the excitation at most, each refining the arm's reference by the encoder error "
+              "(iterative learning control); they stop at 5 mrad RMS.")
 @SEED
 @click.option("--out", "folder", type=click.Path(path_type=Path), default="spaceid-experiment", show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
-def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, seed, folder):
+def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, feedforward, rehearsals, seed,
+               folder):
     """Rest, wheel spin-up, exciting trajectory on the Cepheus twin; identify from the recorded bag
     (N samples and all), validate the identified model against the measurement (Fig. 6).
 
@@ -533,10 +540,15 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     settings = settings.without_effects() if ideal else settings
     with _progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress:
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
-                             bag_format=bag_format, estimator=estimator, seed=seed, out=folder, progress=progress)
+                             bag_format=bag_format, estimator=estimator, seed=seed, out=folder, progress=progress,
+                             feedforward=feedforward, rehearsals=rehearsals)
     out.print(parameter_table(res.ident, true=res.true))
+    track = res.settings["tracking RMS, encoders vs design [rad]"]
+    out.print(f"tracking RMS (encoders vs design): {', '.join(f'{j} {v:.3g}' for j, v in track.items())} rad")
+    designed = res.settings["cond(Y) designed / executed, N samples"][0]
     worst = float(np.max(np.abs(res.ident_all.values - res.true) / np.abs(res.true)))
-    out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g}; all {res.ident_all.n_samples} "
+    out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g} (designed motion: "
+              f"{designed:.4g}); all {res.ident_all.n_samples} "
               f"samples: worst relative error {100 * worst:.3g} %; validation base-rate RMS error "
               f"{res.metrics['base_w_rms']:.3g} rad/s ({100 * res.metrics['base_w_nrms']:.3g} %)")
     out.print(f"report written to {folder}/report.md")

@@ -10,6 +10,11 @@ and from all samples, the total momentum zero and the wheel's measured spin mome
 right-hand side (its rotor inertia is the scale anchor); the identified model is re-simulated
 with the measured joint motion and compared with the measured base motion (Fig. 6).
 
+By default the arm's PD loops get a feed-forward planned from the prior model, and rehearsals
+can refine the reference, so that the executed motion is the designed one
+(:mod:`~spaceid.studies._tracking`); the settings record the tracking error and cond(Y) of the
+designed and of the executed motion.
+
 The same reading, identification and validation steps are what ``spaceid identify`` and
 ``spaceid validate`` do with a real bag.
 """
@@ -22,14 +27,15 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import SpaceidError
-from ..data import read_bag_log, write_bag
+from ..data import read_recording, to_log, write_bag
 from ..estimation import Identification, identify, resolve_anchors
 from ..data import write_json, write_log
 from ..models import load_model
 from ..dynamics import minimal_parameters
 from ..data import Log
 from ..motion import FourierTrajectory, load_trajectory, sample_times
-from ..twin import TwinSettings, drained_model, join_runs, run_twin, spin_up
+from ..twin import TwinSettings, drained_model, join_runs
+from ._tracking import check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings
 from ._validate import validate
 
 __all__ = ["ExperimentResult", "run_experiment", "BAG_NAMES"]
@@ -95,6 +101,26 @@ def _trajectory(trajectory, *, momentum, samples, seed, progress):
                       progress=progress).trajectory  # fmt: skip
 
 
+MARGIN = 0.5  # [s] of recording either side of the excitation that is read (differentiation edges)
+
+
+def _read_excitation(bag, model, window, *, joint_rates, pose_latency) -> Log:
+    """The excitation ``window = [start, end]`` [s] of ``bag`` with :data:`MARGIN` s either side,
+    as a lab cuts a recording before processing it, so that the automatic differentiation windows
+    are chosen for the excitation alone. Read whole, the quiet spin-up made the base attitude's
+    window 4 s long once the arm tracked well (paper-table2, feed-forward: errors above 1000 %)."""
+    recording = read_recording(bag)
+    js, ps = recording.joints, recording.base
+    keep_j = (js.t >= window[0] - MARGIN) & (js.t <= window[1] + MARGIN)
+    keep_p = (ps.t >= window[0] - MARGIN) & (ps.t <= window[1] + MARGIN)
+    joints = replace(js, t=js.t[keep_j], position=js.position[keep_j],
+                     **{k: getattr(js, k)[keep_j] for k in ("velocity", "effort") if getattr(js, k) is not None})
+    recording = replace(recording, joints=joints, base=replace(ps, t=ps.t[keep_p], position=ps.position[keep_p],
+                                                               quat=ps.quat[keep_p]))  # fmt: skip
+    return to_log(recording, joints=model.joints, planar=True, wheels=model.wheels, joint_rates=joint_rates,
+                  pose_latency=pose_latency)
+
+
 def _nearest(t, times):
     """Indices of the samples of ``t`` nearest to ``times``, distinct."""
     idx = np.clip(np.searchsorted(t, times), 1, len(t) - 1)
@@ -114,6 +140,8 @@ def run_experiment(
     seed: int = 0,
     out=None,
     progress=None,
+    feedforward: bool = True,
+    rehearsals: int = 0,
 ) -> ExperimentResult:
     """Rehearse the Cepheus identification experiment on the twin.
 
@@ -136,11 +164,23 @@ def run_experiment(
         published velocities (one-tick encoder differences: a count per millisecond is
         1.5 rad/s on the wheel encoder, so these are far noisier).
     seed : int
-        Seeds the design, the spin-up phase (seed) and the excitation phase (seed + 1).
+        Seeds the design, the spin-up phase (seed), the excitation phase (seed + 1), the hold
+        at the start pose (seed + 2) and rehearsal k (seed + 3 + k).
     out : path-like, optional
         Report folder: the bag, the aligned log CSV, results, figures and ``report.md``.
     progress : callable, optional
         ``progress(done, total)`` for the design.
+    feedforward : bool
+        Add the arm's inverse dynamics planned offline from the prior model (the nominal preset)
+        to the PD loops, after holding the arm at the start pose with the planned holding
+        efforts (:mod:`spaceid.studies._tracking`); False: the PD loops alone, as published.
+    rehearsals : int
+        Rehearsals of the excitation at most before the recorded run, each refining the arm's
+        reference by what the encoders showed (iterative learning control); they stop once the
+        tracking error is within 5 mrad RMS.
+
+    The settings record how the excitation was executed, the tracking error (encoders against
+    the design) and cond(Y) of the designed and the executed motion at the same instants.
 
     Returns
     -------
@@ -150,6 +190,7 @@ def run_experiment(
         raise SpaceidError(f"--format: '{bag_format}' is not one of {', '.join(BAG_NAMES)}")
     if int(samples) < 10:
         raise SpaceidError(f"--samples {samples}: identification of Cepheus needs at least 10 samples")
+    rehearsals = check_rehearsals(rehearsals)
     settings = TwinSettings() if settings is None else settings
     model = load_model(settings.model) if not hasattr(settings.model, "bodies") else settings.model
     if not model.wheels:
@@ -158,11 +199,12 @@ def run_experiment(
     rotor = sum(value for value, _ in resolve_anchors(param, {}, model.name).values())  # I_rw from the model (CAD)
     traj = _trajectory(trajectory, momentum=rotor * wheel_speed, samples=int(samples), seed=seed, progress=progress)
 
-    # the twin: rest -> wheel spin-up and settling -> excitation (tf) and one second of hold
-    a = spin_up(wheel_speed, settings=settings, seed=seed)
-    b = run_twin(traj, duration=traj.duration + 1.0, state=a.state, settings=settings, seed=seed + 1)
-    run = join_runs(a, b)
-    start = a.state.t
+    # the twin: rest -> wheel spin-up and settling (rehearsals) -> excitation (tf) and one second of hold
+    phases, execution = execute_excitation(traj, settings, model, feedforward=feedforward, rehearsals=rehearsals,
+                                           wheel_speed=wheel_speed, seed=seed)  # fmt: skip
+    a = phases[0]
+    run = join_runs(*phases)
+    start = phases[-1].truth.t[0]
 
     folder = Path(out) if out is not None else None
     scratch = None
@@ -178,8 +220,8 @@ def run_experiment(
     try:
         write_bag(bag, run.recording, format=bag_format)
         # the lab knows its motion-capture latency (calibrated); the pose stamps lag by it
-        full = read_bag_log(bag, joints=model.joints, planar=True, wheels=model.wheels, joint_rates=joint_rates,
-                            pose_latency=settings.mocap.latency)
+        full = _read_excitation(bag, model, [start, start + traj.duration], joint_rates=joint_rates,
+                                pose_latency=settings.mocap.latency)
     finally:
         if scratch is not None:
             scratch.cleanup()
@@ -193,7 +235,7 @@ def run_experiment(
     predicted, metrics = validate(ident, log, momentum=zero, where=str(bag))
     # the truth is the twin's model when the excitation starts: the CO2 tank may have drained
     drained = settings.tank.enabled and a.state.co2_mass is not None
-    true = minimal_parameters(drained_model(model, settings.tank, a.state.co2_mass)).true_values if drained \
+    true = minimal_parameters(drained_model(model, settings.tank, phases[-1].co2_mass[0])).true_values if drained \
         else param.true_values
     protocol = {
         "model": model.name,
@@ -210,12 +252,45 @@ def run_experiment(
         "seed": seed,
         "co2 mass start/end [kg]": [run.meta["co2_mass_start"], run.meta["co2_mass_end"]],
         "mocap frames/dropped": [run.meta["mocap_frames"], run.meta["mocap_dropped"]],
+        **_execution_record(execution, param, traj, log, chosen, start, (ident, ident_all), wheel_speed),
     }
     result = ExperimentResult(ident, ident_all, true, log, predicted, metrics, traj,
                               dict(protocol, twin=settings.to_dict()), folder)  # fmt: skip
     if folder is not None:
         _write_report(result, run)
     return result
+
+
+def _execution_record(execution, param, traj, log, chosen, start, idents, wheel_speed) -> dict:
+    """``execution`` (from :func:`execute_excitation`) with cond(Y) of the designed and of the
+    executed motion (``idents``: from N samples and all) at the same instants, and their ratio."""
+    times = [log.t[chosen] - start, log.t - start]
+    designed = designed_condition_numbers(param, traj, times, wheel_speed=wheel_speed)
+    record = dict(execution)
+    for label, d, ident in zip(("N samples", "all samples"), designed, idents):
+        record[f"cond(Y) designed / executed, {label}"] = [d, ident.condition_number]
+    record["cond(Y) executed / designed, N and all samples"] = [i.condition_number / d
+                                                                for d, i in zip(designed, idents)]
+    return record
+
+
+def _plot_tracking(result: ExperimentResult, path) -> None:
+    """The tracking figure of the recorded excitation: encoder angles (the bag) against the design."""
+    from ._figures import plot_tracking
+
+    traj, log = result.trajectory, result.log
+    start = result.settings["excitation window [s]"][0]
+    t = log.t - start
+    designed = traj.evaluate(np.clip(t, 0.0, traj.duration))[0]
+    executed = log.q[:, [log.joints.index(j) for j in traj.joints]]
+    (d_n, e_n), ratio = result.settings["cond(Y) designed / executed, N samples"], \
+        result.settings["cond(Y) executed / designed, N and all samples"][0]
+    how = "feed-forward from the prior model" if result.settings["feedforward"] != "none" else "PD loops alone"
+    title = (f"Tracking of the exciting trajectory: {how}, "
+             f"{len(result.settings['rehearsal runs (seed, tracking RMS [rad])'])} rehearsals\n"
+             f"cond(Y), N = {result.ident.n_samples}: designed {d_n:.4g}, executed {e_n:.4g} (x {ratio:.3g})")
+    plot_tracking(t, designed, executed, traj.joints, path, samples=log.t[_nearest(log.t, start + sample_times(
+        traj.duration, result.ident.n_samples))] - start, title=title)  # fmt: skip
 
 
 def _write_report(result: ExperimentResult, run) -> None:
@@ -233,12 +308,14 @@ def _write_report(result: ExperimentResult, run) -> None:
         "Validation: measured (twin, from the bag) vs identified model (N samples)": "validation.png",
         "Parameter estimates (N samples)": "parameters.png",
         "Singular values of the regressor (N samples)": "singular_values.png",
+        "Tracking: the arm as designed (commanded) and as executed (encoders, from the bag)": "tracking.png",
     }
     plot_validation(result.log, result.predicted, folder / figures[next(iter(figures))])
+    _plot_tracking(result, folder / "tracking.png")
     plot_parameters(result.ident, folder / "parameters.png", true=result.true)
     plot_singular_values(result.ident, folder / "singular_values.png")
     worst_all = float(np.max(np.abs(result.ident_all.values - result.true) / np.abs(result.true))) * 100
-    settings = {k: v for k, v in result.settings.items() if k != "twin"}
+    settings = readable_settings({k: v for k, v in result.settings.items() if k != "twin"})
     settings["worst relative error, all samples [%]"] = round(worst_all, 4)
     effects = {k: v.get("enabled") for k, v in result.settings["twin"].items() if isinstance(v, dict) and "enabled" in v}
     settings["twin effects"] = ", ".join(f"{k} {'on' if on else 'off'}" for k, on in effects.items())
