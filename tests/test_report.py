@@ -19,6 +19,7 @@ from spaceid.studies import (
     plot_montecarlo,
     plot_parameters,
     plot_singular_values,
+    plot_tracking,
     plot_trajectory,
     plot_validation,
     run_montecarlo,
@@ -28,6 +29,7 @@ from spaceid.studies._figures import (
     _draw_montecarlo,
     _draw_parameters,
     _draw_singular_values,
+    _draw_tracking,
     _draw_trajectory,
     _draw_validation,
 )
@@ -295,6 +297,22 @@ def test_trajectory_figure(tmp_path):
         plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "t2.png", limits={"velocity": 1.0})
     with pytest.raises(SpaceidError, match=r"limits\['q'\]"):
         plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "t2.png", limits={"q": [1.0, 2.0, 3.0]})
+
+
+def test_tracking_figure(tmp_path):
+    t = np.linspace(0, 5, 251)
+    designed = np.stack([0.6 * np.sin(t), np.sin(2 * t)], axis=1)
+    executed = designed + np.stack([0.01 * np.ones_like(t), -0.002 * np.ones_like(t)], axis=1)
+    samples = np.linspace(0, 5, 29)
+    _assert_png(plot_tracking(t, designed, executed, JOINTS, tmp_path / "tracking.png", samples=samples), min_width=900)
+    fig = _draw_tracking(t, designed, executed, JOINTS, samples=samples, title="cond(Y) designed 76.6, executed 82.1")
+    _assert_titled_and_labelled(fig)
+    assert fig.get_suptitle() == "cond(Y) designed 76.6, executed 82.1"
+    assert _legend_labels(fig) == ["designed (commanded)", "executed (encoders)", "identification samples (N = 29)",
+                                   "executed - designed"]  # fmt: skip
+    assert [ax.get_title(loc="right") for ax in fig.axes[2:]] == ["RMS 10 mrad", "RMS 2 mrad"]  # the error row
+    with pytest.raises(SpaceidError, match="one column per joint"):
+        plot_tracking(t, designed[:, :1], executed, JOINTS, tmp_path / "t2.png")
 
 
 @pytest.fixture(scope="module")

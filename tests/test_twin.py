@@ -33,6 +33,7 @@ from spaceid.twin import (
     drained_model,
     join_runs,
     planar_pinocchio,
+    planned_feedforward,
     run_twin,
     spin_up,
     thruster_wrenches,
@@ -430,3 +431,25 @@ def test_join_runs_refuses_a_gap():
     b = run_twin(None, duration=0.05)  # starts at 0 again, not at a.state
     with pytest.raises(SpaceidError, match=r"join_runs: a phase starts at t = 0 s but the previous one ends at 0.05 s"):
         join_runs(a, b)
+
+
+@pytest.mark.slow
+def test_planned_feedforward_tracks_like_the_true_state_one():
+    # the prior model is the twin's own here: planned offline (base rate from zero momentum) it
+    # must do what the feed-forward reading the true state does
+    traj = load_trajectory("paper-table2")
+    ideal = TwinSettings().without_effects()
+    planned = lambda t: planned_feedforward(traj, t, settings=ideal)  # noqa: E731
+    ff = run_twin(traj, duration=5.0, seed=0, settings=ideal, effort=planned)
+    plain = run_twin(traj, duration=5.0, seed=0, settings=ideal)
+    for joint in ("left_shoulder", "left_elbow"):
+        assert ff.meta["tracking_rms"][joint] < 1e-3 < 0.1 * plain.meta["tracking_rms"][joint]
+    efforts = planned(np.linspace(0.0, 5.0, 11))
+    assert efforts.shape == (11, 2) and np.abs(efforts).max() > 0.01
+
+
+def test_effort_input_is_checked():
+    with pytest.raises(SpaceidError, match="effort\\(t\\) must return an array of shape"):
+        run_twin(None, duration=0.01, effort=lambda t: np.zeros((len(t), 3)))
+    with pytest.raises(SpaceidError, match="effort must be a callable"):
+        run_twin(None, duration=0.01, effort=np.zeros(2))

@@ -584,11 +584,17 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
 @click.option("--drift", metavar="KIND[,KIND...]", help="Drift terms to identify with the parameters (torque, "
               "viscous, coulomb; see 'spaceid identify --drift'): the table's friction, integrated from the rest "
               "at the bag's start.")
+@click.option("--feedforward/--no-feedforward", default=True, show_default=True,
+              help="Add the arm's inverse dynamics planned from the prior model to the PD loops (after holding the "
+              "start pose); --no-feedforward: the published PD loops alone.")
+@click.option("--rehearsals", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Rehearsals of the excitation at most, each refining the arm's reference by the encoder error "
+              "(iterative learning control); they stop at 5 mrad RMS.")
 @SEED
 @click.option("--out", "folder", type=click.Path(path_type=Path), default="spaceid-experiment", show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
-def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift, seed,
-               folder):
+def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift, feedforward,
+               rehearsals, seed, folder):
     """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
     identify from the recorded bag (N samples and all of the excitation), validate the identified
     model on the held-out motion (Fig. 6).
@@ -606,10 +612,15 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     with _progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress:
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
                              bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=folder,
-                             progress=progress, drift=parse_drift(drift, planar=True, values=False))
+                             progress=progress, drift=parse_drift(drift, planar=True, values=False),
+                             feedforward=feedforward, rehearsals=rehearsals)
     out.print(parameter_table(res.ident, true=res.true))
+    track = res.settings["tracking RMS, encoders vs design [rad]"]
+    out.print(f"tracking RMS (encoders vs design): {', '.join(f'{j} {v:.3g}' for j, v in track.items())} rad")
+    designed = res.settings["cond(Y) designed / executed, N samples"][0]
     worst = float(np.max(np.abs(res.ident_all.values - res.true) / np.abs(res.true)))
-    out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g}; all {res.ident_all.n_samples} "
+    out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g} (designed motion: "
+              f"{designed:.4g}); all {res.ident_all.n_samples} "
               f"samples: worst relative error {100 * worst:.3g} %")
     out.print(f"validation on the held-out motion ({res.settings['validation trajectory']}): base-rate RMS error "
               f"{res.metrics['base_w_rms']:.3g} rad/s ({100 * res.metrics['base_w_nrms']:.3g} %); on the fitting "

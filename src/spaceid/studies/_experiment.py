@@ -14,6 +14,11 @@ re-simulated with its measured joint motion and compared with the measured base 
 (Fig. 6). Validation on the fitting motion checks only the fit (a model 36 % off fitted its own
 log to 0.05 %), so its metrics are kept only as a labelled comparison.
 
+By default the arm's PD loops get a feed-forward planned from the prior model, and rehearsals
+can refine the reference, so that the executed motion is the designed one
+(:mod:`~spaceid.studies._tracking`); the settings record the tracking error and cond(Y) of the
+designed and of the executed motion.
+
 The same reading, identification and validation steps are what ``spaceid identify`` and
 ``spaceid validate`` do with a real bag.
 """
@@ -33,7 +38,8 @@ from ..estimation import Identification, identify, resolve_anchors
 from ..identified import parameterization_of
 from ..models import load_model
 from ..motion import FourierTrajectory, load_trajectory, sample_times
-from ..twin import TwinSettings, drained_model, join_runs, run_twin, spin_up
+from ..twin import TwinSettings, drained_model, join_runs, run_twin
+from ._tracking import check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings
 from ._validate import validate
 
 __all__ = ["ExperimentResult", "run_experiment", "BAG_NAMES"]
@@ -172,7 +178,12 @@ def _initial_momentum(ident: Identification, log: Log, samples: int = 10) -> np.
     return np.einsum("nij,nj->ni", quat_to_matrix(first.base_quat), h_base).mean(axis=0)
 
 
-def _validation_protocol(traj: FourierTrajectory, name: str, held_out: Log, seed: int) -> dict:
+def _held_out_seed(seed: int, rehearsals: int) -> int:
+    """The seed of the held-out phase: after those of the excitation's phases and rehearsals."""
+    return seed + 3 + rehearsals
+
+
+def _validation_protocol(traj: FourierTrajectory, name: str, held_out: Log, phase_seed: int) -> dict:
     """The held-out motion's entries of the experiment's settings: trajectory, design seed, window
     (in the session's time, as the excitation window; the bag's own times start at a whole
     second), seeds."""
@@ -183,7 +194,7 @@ def _validation_protocol(traj: FourierTrajectory, name: str, held_out: Log, seed
         "validation bag": Path(held_out.meta["source"]).name,
         "validation window [s]": [float(t + origin) for t in held_out.meta["window"]],
         "validation samples": int(held_out.n_samples),
-        "validation phase seed": seed + 2,
+        "validation phase seed": phase_seed,
     }
 
 
@@ -208,6 +219,8 @@ def run_experiment(
     out=None,
     progress=None,
     drift=(),
+    feedforward: bool = True,
+    rehearsals: int = 0,
 ) -> ExperimentResult:
     """Rehearse the Cepheus identification experiment on the twin.
 
@@ -234,8 +247,9 @@ def run_experiment(
         The held-out motion, run after the excitation and its hold; default ``paper-table2``,
         or ``designed`` (seed + 1) when ``trajectory`` is that.
     seed : int
-        Seeds the design, the spin-up phase (seed), the excitation phase (seed + 1), the
-        validation design and phase (seed + 1, seed + 2).
+        Seeds the design, the spin-up phase (seed), the excitation phase (seed + 1), the hold
+        at the start pose (seed + 2), rehearsal k (seed + 3 + k), the validation design
+        (seed + 1) and the held-out phase (seed + 3 + rehearsals).
     out : path-like, optional
         Report folder: the bags of the excitation and of the held-out motion (``validation.bag``,
         ...), ``mapping.yaml`` (how to read them), the aligned log CSVs, results, figures and
@@ -247,6 +261,17 @@ def run_experiment(
         :func:`spaceid.estimation.identify`). Friction also acts during the spin-up, so the
         drift is integrated from rest (the bag's first sample, zero momentum) to each sample of
         the window; validation uses the identified drift and momentum at the window's start.
+    feedforward : bool
+        Add the arm's inverse dynamics planned offline from the prior model (the nominal preset)
+        to the PD loops, after holding the arm at the start pose with the planned holding
+        efforts (:mod:`spaceid.studies._tracking`); False: the PD loops alone, as published.
+    rehearsals : int
+        Rehearsals of the excitation at most before the recorded run, each refining the arm's
+        reference by what the encoders showed (iterative learning control); they stop once the
+        tracking error is within 5 mrad RMS.
+
+    The settings record how the excitation was executed, the tracking error (encoders against
+    the design) and cond(Y) of the designed and the executed motion at the same instants.
 
     Returns
     -------
@@ -256,6 +281,7 @@ def run_experiment(
         raise SpaceidError(f"--format: '{bag_format}' is not one of {', '.join(BAG_NAMES)}")
     if int(samples) < 10:
         raise SpaceidError(f"--samples {samples}: identification of Cepheus needs at least 10 samples")
+    rehearsals = check_rehearsals(rehearsals)
     settings = TwinSettings() if settings is None else settings
     model = load_model(settings.model) if not hasattr(settings.model, "bodies") else settings.model
     if not model.wheels:
@@ -266,12 +292,14 @@ def run_experiment(
     vtraj, vname = _validation_trajectory(validation, traj, momentum=rotor * wheel_speed, samples=int(samples),
                                           seed=seed, progress=progress)
 
-    # the twin: rest -> wheel spin-up and settling -> excitation (tf) and one second of hold
-    a = spin_up(wheel_speed, settings=settings, seed=seed)
-    b = run_twin(traj, duration=traj.duration + 1.0, state=a.state, settings=settings, seed=seed + 1)
-    c = run_twin(vtraj, duration=vtraj.duration + 1.0, state=b.state, settings=settings, seed=seed + 2)  # held out
-    run = join_runs(a, b)
-    start = a.state.t
+    # the twin: rest -> wheel spin-up and settling (rehearsals) -> excitation (tf) and one second of hold
+    phases, execution = execute_excitation(traj, settings, model, feedforward=feedforward, rehearsals=rehearsals,
+                                           wheel_speed=wheel_speed, seed=seed)  # fmt: skip
+    a = phases[0]
+    c = run_twin(vtraj, duration=vtraj.duration + 1.0, state=phases[-1].state, settings=settings,
+                 seed=_held_out_seed(seed, rehearsals))  # the held-out motion
+    run = join_runs(*phases)
+    start = phases[-1].truth.t[0]
 
     folder = Path(out) if out is not None else None
     scratch = None
@@ -300,7 +328,7 @@ def run_experiment(
     predicted, metrics, fit_metrics = _held_out_validation(ident, log, held_out, None if drift else zero, str(bag))
     # the truth is the twin's model when the excitation starts: the CO2 tank may have drained
     drained = settings.tank.enabled and a.state.co2_mass is not None
-    true = minimal_parameters(drained_model(model, settings.tank, a.state.co2_mass)).true_values if drained \
+    true = minimal_parameters(drained_model(model, settings.tank, phases[-1].co2_mass[0])).true_values if drained \
         else param.true_values
     protocol = {
         "model": model.name,
@@ -319,13 +347,46 @@ def run_experiment(
         "co2 mass start/end [kg]": [run.meta["co2_mass_start"], run.meta["co2_mass_end"]],
         "mocap frames/dropped": [run.meta["mocap_frames"], run.meta["mocap_dropped"]],
         "joint rates": joint_rates,
+        **_execution_record(execution, param, traj, log, chosen, start, (ident, ident_all), wheel_speed),
     }
-    protocol |= _validation_protocol(vtraj, vname, held_out, seed)
+    protocol |= _validation_protocol(vtraj, vname, held_out, _held_out_seed(seed, rehearsals))
     result = ExperimentResult(ident, ident_all, true, log, predicted, metrics, traj, held_out, vtraj, fit_metrics,
                               dict(protocol, twin=settings.to_dict()), folder)  # fmt: skip
     if folder is not None:
         _write_report(result, run, c)
     return result
+
+
+def _execution_record(execution, param, traj, log, chosen, start, idents, wheel_speed) -> dict:
+    """``execution`` (from :func:`execute_excitation`) with cond(Y) of the designed and of the
+    executed motion (``idents``: from N samples and all) at the same instants, and their ratio."""
+    times = [log.t[chosen] - start, log.t - start]
+    designed = designed_condition_numbers(param, traj, times, wheel_speed=wheel_speed)
+    record = dict(execution)
+    for label, d, ident in zip(("N samples", "all samples"), designed, idents):
+        record[f"cond(Y) designed / executed, {label}"] = [d, ident.condition_number]
+    record["cond(Y) executed / designed, N and all samples"] = [i.condition_number / d
+                                                                for d, i in zip(designed, idents)]
+    return record
+
+
+def _plot_tracking(result: ExperimentResult, path) -> None:
+    """The tracking figure of the recorded excitation: encoder angles (the bag) against the design."""
+    from ._figures import plot_tracking
+
+    traj, log = result.trajectory, result.log
+    start = result.settings["excitation window [s]"][0]
+    t = log.t - start
+    designed = traj.evaluate(np.clip(t, 0.0, traj.duration))[0]
+    executed = log.q[:, [log.joints.index(j) for j in traj.joints]]
+    (d_n, e_n), ratio = result.settings["cond(Y) designed / executed, N samples"], \
+        result.settings["cond(Y) executed / designed, N and all samples"][0]
+    how = "feed-forward from the prior model" if result.settings["feedforward"] != "none" else "PD loops alone"
+    title = (f"Tracking of the exciting trajectory: {how}, "
+             f"{len(result.settings['rehearsal runs (seed, tracking RMS [rad])'])} rehearsals\n"
+             f"cond(Y), N = {result.ident.n_samples}: designed {d_n:.4g}, executed {e_n:.4g} (x {ratio:.3g})")
+    plot_tracking(t, designed, executed, traj.joints, path, samples=log.t[_nearest(log.t, start + sample_times(
+        traj.duration, result.ident.n_samples))] - start, title=title)  # fmt: skip
 
 
 def _write_report(result: ExperimentResult, run, held_out_run) -> None:
@@ -348,14 +409,16 @@ def _write_report(result: ExperimentResult, run, held_out_run) -> None:
             "validation.png",
         "Parameter estimates (N samples)": "parameters.png",
         "Singular values of the regressor (N samples)": "singular_values.png",
+        "Tracking: the arm as designed (commanded) and as executed (encoders, from the bag)": "tracking.png",
     }
     plot_validation(result.validation_log, result.predicted, folder / "validation.png",
                     title=f"Validation on the held-out motion ({result.settings['validation trajectory']}): "
                     "measured base motion vs the identified model")
+    _plot_tracking(result, folder / "tracking.png")
     plot_parameters(result.ident, folder / "parameters.png", true=result.true)
     plot_singular_values(result.ident, folder / "singular_values.png")
     worst_all = float(np.max(np.abs(result.ident_all.values - result.true) / np.abs(result.true))) * 100
-    settings = {k: v for k, v in result.settings.items() if k != "twin"}
+    settings = readable_settings({k: v for k, v in result.settings.items() if k != "twin"})
     settings["worst relative error, all samples [%]"] = round(worst_all, 4)
     effects = {k: v.get("enabled") for k, v in result.settings["twin"].items() if isinstance(v, dict) and "enabled" in v}
     settings["twin effects"] = ", ".join(f"{k} {'on' if on else 'off'}" for k, on in effects.items())

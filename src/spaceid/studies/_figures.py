@@ -1,4 +1,4 @@
-"""Figures of an identification, a validation, a trajectory and a Monte Carlo study.
+"""Figures of an identification, a validation, a trajectory, its tracking and a Monte Carlo study.
 
 Every figure is drawn on its own :class:`matplotlib.figure.Figure` with the Agg canvas (no
 pyplot state, no GUI), in one style, and written atomically as a 150 dpi PNG. Figures read
@@ -24,7 +24,8 @@ from ..estimation import Identification
 from ._tables import _per_param, _relative_errors
 from ._validate import attitude_error_angle
 
-__all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_trajectory", "plot_validation"]
+__all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_tracking", "plot_trajectory",
+           "plot_validation"]
 
 DPI = 150
 _STYLE = {
@@ -544,3 +545,67 @@ def plot_montecarlo(result, path, *, max_panels: int = 12) -> Path:
     Path
     """
     return _save(_draw_montecarlo(result, max_panels), path)
+
+
+# --- tracking: the excitation as designed and as executed ---------------------------------------
+
+
+@_styled
+def _draw_tracking(t, designed, executed, joints, samples=None, title=None) -> Figure:
+    """The figure of :func:`plot_tracking`."""
+    t = np.asarray(t, float)
+    nj = len(joints)
+    designed, executed = (np.asarray(y, float).reshape(t.size, -1) for y in (designed, executed))
+    if designed.shape[1] != nj or executed.shape[1] != nj:
+        raise SpaceidError(f"plot_tracking: designed and executed need one column per joint "
+                           f"({nj}: {', '.join(joints)})")
+    error = 1e3 * (executed - designed)  # [mrad]
+    fig = _new_figure((3.4 * nj + 0.6, 4.9))
+    axes = fig.subplots(2, nj, sharex=True, squeeze=False, height_ratios=[1.6, 1])
+    for j, name in enumerate(joints):
+        top, bottom = axes[0, j], axes[1, j]
+        top.plot(t, designed[:, j], color=_REF, linewidth=2.2, label="designed (commanded)")
+        top.plot(t, executed[:, j], color=_MEASURED, linestyle="--", label="executed (encoders)")
+        bottom.axhline(0, color=_REF, linewidth=0.8)
+        bottom.plot(t, error[:, j], color=_MODEL, label="executed - designed")
+        if samples is not None:
+            ts = np.asarray(samples, float)
+            top.plot(ts, np.interp(ts, t, executed[:, j]), "o", color=_MODEL, markersize=3,
+                     label=f"identification samples (N = {ts.size})")  # fmt: skip
+        top.set_title(name, loc="left")
+        bottom.set_title(f"RMS {_rms(error[:, j]):.3g} mrad", loc="right", fontsize=8, color="0.35")
+        top.set_ylabel(f"$q_{{{j + 1}}}$ [rad]")
+        bottom.set_ylabel(rf"$\Delta q_{{{j + 1}}}$ [mrad]")
+        bottom.set_xlabel("time since the start of the excitation $t$ [s]")
+    _figure_legend(fig, axes.flat)
+    fig.suptitle(title or "Tracking: the arm's designed (commanded) and executed motion")
+    return fig
+
+
+def plot_tracking(t, designed, executed, joints, path, *, samples=None, title=None) -> Path:
+    """The exciting trajectory as designed against the motion executed, joint by joint.
+
+    Top row: the designed angle of each joint and the executed one; bottom row: their
+    difference [mrad] with its RMS. A loosely tracked trajectory is a less exciting one: the
+    regressor is built from the executed motion.
+
+    Parameters
+    ----------
+    t : array_like of shape (n,)
+        Time since the start of the excitation [s].
+    designed, executed : array_like of shape (n, n_joints)
+        Designed (commanded) and executed (e.g. encoder) joint angles [rad] at ``t``.
+    joints : sequence of str
+        Joint names (columns).
+    path : path-like
+        Output PNG.
+    samples : array_like of shape (N,), optional
+        Sample instants identification uses [s], marked on the executed motion.
+    title : str, optional
+        Figure title; default names what is compared.
+
+    Returns
+    -------
+    Path
+    """
+    return _save(_draw_tracking(t, designed, executed, joints, samples, title), path)

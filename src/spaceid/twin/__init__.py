@@ -20,11 +20,14 @@ Everything is a free function or a frozen dataclass::
     run.base_position, run.base_velocity, run.effort, run.co2_mass   # more true histories
     run.state          # TwinState at the end: the start of the next phase
 
-* :func:`run_twin` ``(reference=None, *, duration, wheel_speed=None, settings, state, seed)``
+* :func:`run_twin` ``(reference=None, *, duration, wheel_speed=None, settings, state, seed, effort)``
   runs one phase from ``state`` (default: at rest at the origin, full tank); ``reference``
-  drives the position-controlled joints, ``wheel_speed`` [rad/s] the velocity-controlled ones.
+  drives the position-controlled joints, ``wheel_speed`` [rad/s] the velocity-controlled ones,
+  ``effort`` adds feed-forward efforts to the position loops.
 * :func:`spin_up` ramps the wheel set point to ``speed`` and lets it settle, arm holding.
 * :func:`join_runs` concatenates consecutive phases into one run.
+* :func:`planned_feedforward` plans feed-forward efforts offline from a model (no state read),
+  for ``run_twin(..., effort=...)``.
 * :func:`planar_pinocchio` builds the Pinocchio model (root PX, PY, RZ) and
   :func:`drained_model` the :class:`~spaceid.models.Model` with a partly empty CO2 tank.
 
@@ -38,8 +41,8 @@ the settings parametrise them all.
   (units, defaults and where they come from).
 * ``_plant``: the planar Pinocchio model, the base inertia as the tank drains, the RK4 step of
   the articulated-body algorithm; the coordinates and integration accuracy.
-* ``_controllers``: set points from the reference and wheel speed, the PD/PI effort controllers
-  and the optional inverse-dynamics feed-forward.
+* ``_controllers``: set points from the reference and wheel speed, the PD/PI effort controllers,
+  the optional inverse-dynamics feed-forward and the feed-forward planned offline.
 * ``_sensors``: encoder quantisation and ``/joint_states``, motion capture with noise, latency
   and dropped frames; time stamps.
 * ``_effects``: joint and air-bearing friction, torque limits, thrusters and the CO2 tank, table
@@ -58,10 +61,11 @@ arm joints under ros_control ``effort_controllers/JointPositionController`` (PD)
 under ``effort_controllers/JointVelocityController`` (PI); tf = 5 s. docs/theory/scale.md (reaction wheel momentum).
 """
 
-from . import _settings, _plant, _effects, _run
+from . import _settings, _plant, _controllers, _effects, _run
 from ._settings import *  # noqa: F403
 from ._plant import *  # noqa: F403
+from ._controllers import *  # noqa: F403
 from ._effects import *  # noqa: F403
 from ._run import *  # noqa: F403
 
-__all__ = _settings.__all__ + _plant.__all__ + _effects.__all__ + _run.__all__
+__all__ = _settings.__all__ + _plant.__all__ + _controllers.__all__ + _effects.__all__ + _run.__all__

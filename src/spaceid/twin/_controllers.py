@@ -6,9 +6,12 @@ encoder reading, optional integral term), velocity-controlled joints (the reacti
 :class:`~spaceid.twin.Controllers`. Both follow ``control_toolbox::Pid``: the integral term is
 updated first, clamped, then the effort formed. Set points come per control tick from a
 reference (a :class:`~spaceid.motion.FourierTrajectory` or a callable of the phase time) and a
-wheel speed, or hold the last command. The optional feed-forward adds the free-floating inverse
-dynamics of the reference; it reads the true base velocity (on the robot it would come from the
-motion capture).
+wheel speed, or hold the last command. The optional feed-forward
+(``Controllers(feedforward=True)``) adds the free-floating inverse dynamics of the reference with
+the twin's true model; it reads the true base velocity (on the robot it would come from the
+motion capture). :func:`planned_feedforward` is what a lab can do instead: the same inverse
+dynamics planned offline from its own model, the base velocity predicted from momentum
+conservation, given to :func:`~spaceid.twin.run_twin` as ``effort``.
 """
 
 from __future__ import annotations
@@ -19,10 +22,10 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ..motion import FourierTrajectory
-from ._plant import _symmetric
+from ._plant import _planar_model, _symmetric, planar_pinocchio
 from ._settings import PID, Controllers, _number
 
-__all__: list = []
+__all__ = ["planned_feedforward"]
 
 
 @dataclass(frozen=True)
@@ -143,6 +146,28 @@ def _callable_setpoints(reference, wanted, tau):
     return q_ref, qd_ref, qdd_ref
 
 
+def _effort_setpoints(gains: _Gains, effort, tau) -> np.ndarray | None:
+    """Feed-forward efforts (n_t, n) [N m] from ``effort(tau) -> (n_t, n_position_joints)``
+    (zero on the other joints), or None without one."""
+    if effort is None:
+        return None
+    if not callable(effort):
+        raise SpaceidError(f"effort must be a callable t -> efforts (e.g. from planned_feedforward) or None, "
+                           f"got {type(effort).__name__}")  # fmt: skip
+    pos = np.flatnonzero(gains.pos_mask)
+    values = effort(tau)
+    try:
+        values = np.asarray(values, float).reshape(len(tau), len(pos))
+    except (TypeError, ValueError):
+        raise SpaceidError(f"effort(t) must return an array of shape (len(t), n_position_joints) = "
+                           f"({len(tau)}, {len(pos)})") from None  # fmt: skip
+    if not np.all(np.isfinite(values)):
+        raise SpaceidError("effort: the feed-forward efforts contain NaN or infinite values")
+    out = np.zeros((len(tau), len(gains.pos_mask)))
+    out[:, pos] = values
+    return out
+
+
 def _velocity_setpoints(wheel_speed, tau, n_vel):
     """Velocity commands (n_t, n_vel) [rad/s] from a number or a callable of the phase time."""
     n_t = len(tau)
@@ -195,29 +220,86 @@ def _pid_law(gains: _Gains, dt):
     return efforts
 
 
+def _free_floating_efforts(pmodel, data, q, v, a_joints, M) -> np.ndarray:
+    """Joint efforts (n,) [N m] that give the joints the accelerations ``a_joints`` (n,) at the
+    state ``q``, ``v`` (nq,) with the base unactuated: ``pin.rnea`` with the base accelerations
+    solved so that the base receives no force; ``M`` (nv, nv) the joint-space inertia at ``q``."""
+    import pinocchio as pin
+
+    af = np.zeros(pmodel.nv)
+    af[3:] = a_joints
+    t_ff = pin.rnea(pmodel, data, q, v, af)
+    a_base = -np.linalg.solve(M[:3, :3], t_ff[:3])
+    return t_ff[3:] + M[3:, :3] @ a_base
+
+
 def _feedforward_law(pmodel, pos_mask):
     """The inverse-dynamics feed-forward as a function ``(q_pin, v_pin, command, rate, accel) ->
     efforts`` (list of n [N m], zero on joints that are not position-controlled).
 
     ``q_pin``, ``v_pin`` (nq,) are the true state, ``command``, ``rate``, ``accel`` (n,) the set
-    points: ``pin.crba`` and ``pin.rnea`` at the reference joint state with the current base
-    velocity, the base accelerations solved so that the base receives no actuation.
+    points: :func:`_free_floating_efforts` at the reference joint state with the current base
+    velocity, the other joints' accelerations zero.
     """
     import pinocchio as pin
 
     data = pmodel.createData()
     pos_idx = 3 + np.flatnonzero(pos_mask)
     posf = pos_mask.astype(float)
-    nq = pmodel.nq
 
     def efforts(q, v, cmd, rt, acc):
         qf, vf = q.copy(), v.copy()
         qf[pos_idx], vf[pos_idx] = cmd[pos_idx - 3], rt[pos_idx - 3]
-        af = np.zeros(nq)
-        af[pos_idx] = acc[pos_idx - 3]
         M = _symmetric(pin.crba(pmodel, data, qf))
-        t_ff = pin.rnea(pmodel, data, qf, vf, af)
-        a_base = -np.linalg.solve(M[:3, :3], t_ff[:3])
-        return ((t_ff[3:] + M[3:, :3] @ a_base) * posf).tolist()
+        return (_free_floating_efforts(pmodel, data, qf, vf, acc * posf, M) * posf).tolist()
 
     return efforts
+
+
+def planned_feedforward(reference, t, *, settings, model=None, wheel_speed: float = 0.0) -> np.ndarray:
+    """Feed-forward efforts of the position-controlled joints planned offline from a model.
+
+    What a lab computes before a run from its own model and the reference alone, reading no
+    state of the robot: the free-floating inverse dynamics of the reference (the model's base
+    unactuated and never measured), with the base velocity that keeps the total momentum zero
+    (a system started at rest) and the velocity-controlled joints (the reaction wheel) at
+    ``wheel_speed`` relative to the base. Pass it to :func:`~spaceid.twin.run_twin` as
+    ``effort``.
+
+    Parameters
+    ----------
+    reference : FourierTrajectory or callable
+        As :func:`~spaceid.twin.run_twin`.
+    t : array_like of shape (n_t,)
+        Time since the start of the phase [s].
+    settings : TwinSettings
+        Which joints are position- and velocity-controlled, and the default model.
+    model : Model or str, optional
+        The lab's model (default ``settings.model``: the nominal preset, with a full tank and a
+        level table, not the twin's state).
+    wheel_speed : float
+        Velocity-controlled joints' rate relative to the base [rad/s].
+
+    Returns
+    -------
+    ndarray of shape (n_t, n_position_joints)
+        Efforts [N m], position-controlled joints in model order.
+    """
+    import pinocchio as pin
+
+    model = _planar_model(settings.model if model is None else model)
+    joints = model.joints
+    gains = _controller_gains(settings.controllers, joints)
+    tau = np.atleast_1d(np.asarray(t, float))
+    q, qd, qdd = _setpoints(gains, joints, reference, _number("wheel_speed [rad/s]", wheel_speed), tau,
+                            np.zeros(len(joints)))  # fmt: skip
+    q[:, gains.vel_mask] = 0.0  # commands of velocity joints are rates; the rotor angle does not matter
+    qd[:, gains.vel_mask] = wheel_speed
+    pmodel = planar_pinocchio(model)
+    data = pmodel.createData()
+    Q = np.concatenate([np.zeros((len(tau), 3)), q], axis=1)  # the base pose does not matter on a level table
+    M = _symmetric(np.array([pin.crba(pmodel, data, x) for x in Q]))
+    v_base = -np.linalg.solve(M[:, :3, :3], M[:, :3, 3:] @ qd[..., None])[..., 0]  # zero linear and angular momentum
+    V = np.concatenate([v_base, qd], axis=1)
+    efforts = np.array([_free_floating_efforts(pmodel, data, *row) for row in zip(Q, V, qdd, M)])
+    return efforts[:, gains.pos_mask]

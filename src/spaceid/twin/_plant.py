@@ -140,8 +140,9 @@ def _com_inertia(inertial) -> np.ndarray:
 
 
 def _symmetric(upper) -> np.ndarray:
-    """The symmetric matrix of which Pinocchio filled the upper triangle (``crba``, ``computeMinverse``)."""
-    return np.triu(upper) + np.triu(upper, 1).T
+    """The symmetric matrices (..., n, n) of which Pinocchio filled the upper triangle (``crba``,
+    ``computeMinverse``)."""
+    return np.triu(upper) + np.triu(upper, 1).swapaxes(-1, -2)
 
 
 # ------------------------------------------------------------------ the dynamics step ---------

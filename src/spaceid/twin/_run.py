@@ -24,7 +24,7 @@ import numpy as np
 from .._errors import SpaceidError, finite_array
 from ..data import JointStates, Log, Poses, Recording, yaw_to_quat
 from ..models import Model
-from ._controllers import _controller_gains, _feedforward_law, _Gains, _pid_law, _setpoints
+from ._controllers import _controller_gains, _effort_setpoints, _feedforward_law, _Gains, _pid_law, _setpoints
 from ._effects import (
     _bearing_friction_law,
     _check_dry_base,
@@ -250,10 +250,12 @@ def _tick_laws(setup: _Setup, settings: TwinSettings, dt) -> _Laws:
     )
 
 
-def _integrate(setup: _Setup, settings: TwinSettings, state: TwinState, command, rate, accel, valves, dt):
+def _integrate(setup: _Setup, settings: TwinSettings, state: TwinState, command, rate, accel, valves, dt,
+               planned=None):
     """The hardware loop and RK4 integration over ``len(command) - 1`` steps.
 
-    Per tick: read the encoders, run the controllers, saturate, evaluate friction and thrust at
+    Per tick: read the encoders, run the controllers (plus the ``planned`` feed-forward efforts
+    (n_steps + 1, n) [N m] of the tick, if any), saturate, evaluate friction and thrust at
     the start of the step, then one RK4 step of ``pin.aba`` with all of them held. The loop is
     scalar Python over the (few) joints, and the RK4 stages are small matrix products on the
     rows ``[q, v, a1..a4]``: ~25-35 us per step on one core (``benchmarks/bench_twin.py``).
@@ -291,6 +293,7 @@ def _integrate(setup: _Setup, settings: TwinSettings, state: TwinState, command,
     tau = np.zeros(3 + nj)
     i_term, prev = state.i_term.tolist(), state.encoder_prev.tolist()
     commands, rates = command.tolist(), rate.tolist()  # Python floats: scalar code is faster on 3 joints
+    planned = None if planned is None else planned.tolist()
     for k in range(n_steps + 1):
         ql, vl = W[:2].tolist()
         qm = read_encoders(ql[3:])
@@ -303,6 +306,8 @@ def _integrate(setup: _Setup, settings: TwinSettings, state: TwinState, command,
         prev = qm
         if feedforward:
             effort = [u + f for u, f in zip(effort, feedforward(W[0], W[1], command[k], rate[k], accel[k]))]
+        if planned is not None:
+            effort = [u + f for u, f in zip(effort, planned[k])]
         effort = saturate(effort)
         EFF.append(effort)
         # joint friction (internal torques), held over the step like the effort
@@ -336,6 +341,7 @@ def run_twin(
     settings: TwinSettings | None = None,
     state: TwinState | None = None,
     seed: int = 0,
+    effort=None,
 ) -> TwinRun:
     """Run the twin for one phase.
 
@@ -359,6 +365,11 @@ def run_twin(
         Start state; default at rest at the origin at t = 0, full tank.
     seed : int
         Seed of the motion-capture noise and dropped frames (recorded in ``meta``).
+    effort : callable, optional
+        Feed-forward efforts of the position-controlled joints, ``effort(t) -> (n,
+        n_position_joints)`` [N m] of the phase time, added to the controllers' output before
+        saturation (e.g. :func:`~spaceid.twin.planned_feedforward`, computed offline; unlike
+        ``Controllers(feedforward=True)`` it reads no state of the twin).
 
     Returns
     -------
@@ -377,8 +388,9 @@ def run_twin(
     t0, joints = state.t, setup.model.joints
     times = t0 + dt * np.arange(_n_steps(duration, dt) + 1)
     command, rate, accel = _setpoints(setup.gains, joints, reference, wheel_speed, times - t0, state.command)
+    planned = _effort_setpoints(setup.gains, effort, times - t0)
     valves = _valves(settings.thrusters, times, dt)
-    Q, V, QM, EFF, CO2, i_term = _integrate(setup, settings, state, command, rate, accel, valves, dt)
+    Q, V, QM, EFF, CO2, i_term = _integrate(setup, settings, state, command, rate, accel, valves, dt, planned)
     rates = _hardware_rates(QM, state.encoder_prev, dt)
     joint_states = _publish_joint_states(settings.encoders, joints, times, dt, QM, rates, EFF)
     poses, n_frames, n_dropped = _capture_poses(settings.mocap, times, Q, V, seed)
