@@ -116,7 +116,11 @@ def _estimate(eq, x, log: Log, sigma, ctx: dict, estimator: str, estimated: bool
     factorisations do on singular systems), which :func:`identify` turns into a ``SpaceidError``."""
     theta, info = _ols(eq, x, sigma, None, ctx)
     if estimator != "ols":
+        ols_info = info
         theta, info = _KERNELS[estimator](eq, x, sigma, theta, ctx)
+        fallback = str(info.get("fallback")).split(":")[0]  # ML failed: WLS or OLS, with their covariance
+        if fallback in ("wls", "ols"):
+            estimator, info = fallback, info | (ols_info if fallback == "ols" else {})
     if not np.all(np.isfinite(theta)):
         raise np.linalg.LinAlgError("the estimate is not finite")
     reported = _reported_covariance(eq, x, ctx["phi"], sigma, theta, estimator, info, log, estimated)
@@ -236,8 +240,10 @@ def identify(
             "NaN or frozen signals and use an exciting trajectory (spaceid design)"
             + ("" if estimator == "ols" else ", or try --estimator ols")
         ) from None
-    if info.get("converged") is False:
-        warnings.warn(f"{where}: maximum likelihood did not converge in {info['iterations']} iterations", stacklevel=2)
+    if info.get("fallback"):
+        warnings.warn(f"{where}: maximum likelihood failed, the estimate reported is {info['fallback']}", stacklevel=2)
+    if uncertainty["noise_model_warning"]:
+        warnings.warn(f"{where}: {uncertainty['noise_model_warning']}", stacklevel=2)
     pi, h = eq.full(theta)
     cov, h_std = _full_covariance(eq, cov_t, param.n_params)
     implausible = _implausible(param, pi, np.sqrt(np.diag(cov)), where)
@@ -252,7 +258,7 @@ def identify(
         "momentum_std": h_std.tolist(),
         "noise": noise.to_dict(),
         **uncertainty,
-        "estimator_info": {k: v for k, v in info.items() if np.isscalar(v) or isinstance(v, (str, list))},
+        "estimator_info": {k: v for k, v in info.items() if v is None or np.isscalar(v) or isinstance(v, (str, list))},
         "plausibility": implausible or "no inertia-like parameter negative",
     }
     return Identification(
