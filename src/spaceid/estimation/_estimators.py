@@ -205,7 +205,7 @@ def _gram_factor(A, b, scale):
             step = cho_solve((r, False), (residual @ A) / scale)
             x += step
             previous, size = size, np.linalg.norm(step)
-            if not size > 1e-16 * np.linalg.norm(x) or size > 0.5 * previous:  # at the rounding floor
+            if not size > 1e-15 * np.linalg.norm(x) or size > 0.5 * previous:  # at the rounding floor
                 break
         if not size <= 1e-6 * np.linalg.norm(x):
             return None
