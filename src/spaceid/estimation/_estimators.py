@@ -389,13 +389,14 @@ def _ml(eq, x, sigma, theta, ctx, max_iter=50, tol=1e-4, ftol=1e-9, halvings=6):
     f, xh_acc, proposal, ginv, xh = _ml_step(eq, x, x, theta, sigma)
     start, reason, damping = f, None, 1.0
     for it in range(1, max_iter + 1):
-        std = np.sqrt(np.maximum(np.diag(ginv), 1e-300))
-        small = (np.abs(proposal - theta) / std).max() < tol or np.abs(proposal - theta).max() <= 1e-9 * np.abs(
+        moved = np.abs(proposal - theta)
+        small = (moved / np.sqrt(np.maximum(np.diag(ginv), 1e-300))).max() < tol or moved.max() <= 1e-9 * np.abs(
             proposal).max()  # fmt: skip
         trial = theta + damping * (proposal - theta)
         f_t, xh_t, prop_t, ginv_t, xh_next = _ml_step(eq, x, xh if damping == 1 else xh_acc, trial, sigma)
         if f_t <= f * (1 + ftol):  # accepted
-            change, f, theta, xh_acc, proposal, ginv, xh, damping = f - f_t, f_t, trial, xh_t, prop_t, ginv_t, xh_next, 1.0
+            change, f, theta, xh_acc, damping = f - f_t, f_t, trial, xh_t, 1.0
+            proposal, ginv, xh = prop_t, ginv_t, xh_next
             if small and abs(change) <= ftol * f:
                 break
         elif small:  # the update is within tolerance of the accepted estimate: its fixed point
@@ -418,7 +419,8 @@ def _ml(eq, x, sigma, theta, ctx, max_iter=50, tol=1e-4, ftol=1e-9, halvings=6):
         info["fallback"] = (f"wls: maximum likelihood {reason} (objective {f:.4g}, from {start:.4g} at the OLS start); "
                             f"WLS lowers it to {f_wls:.4g}")
         return wls, info
-    info["fallback"] = f"ols: maximum likelihood {reason}, and WLS did not lower the objective ({f_wls:.4g} > {start:.4g})"
+    info["fallback"] = (f"ols: maximum likelihood {reason}, and WLS did not lower the objective "
+                        f"({f_wls:.4g} > {start:.4g})")
     return start_theta, info
 
 

@@ -206,9 +206,12 @@ def identify(
     -------
     Identification
         ``values``/``std``/``cov`` over all minimal parameters (known ones with zero
-        variance); the estimated momentum, anchors, noise model, ``chi2_dof``, the
-        estimator's iterations and ``plausibility`` (the warning about inertia-like parameters
-        that came out negative, also issued as a ``UserWarning``) in ``settings``.
+        variance); the estimated momentum, anchors, noise model, ``chi2_dof`` and how the
+        covariance was obtained (``covariance``, ``residual_checks``, ``noise_model_warning``:
+        what a ``chi2_dof`` far from 1 means), the estimator's record (``estimator_info``: for
+        ``ml`` its convergence and ``fallback``, the estimate reported when it failed) and
+        ``plausibility`` (the warning about inertia-like parameters that came out negative) in
+        ``settings``; the three warnings are also issued as ``UserWarning``.
 
     Raises
     ------

@@ -198,7 +198,8 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     elif checks["ljung_box_p"] < SIGNIFICANCE:
         bandwidth = _hac_bandwidth(checks["lag1_autocorrelation"], len(r))
         how = (f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (residuals autocorrelated: "
-               f"Ljung-Box p = {checks['ljung_box_p']:.2g}, lag-1 autocorrelation {checks['lag1_autocorrelation']:.2f})")
+               f"Ljung-Box p = {checks['ljung_box_p']:.2g}, "
+               f"lag-1 autocorrelation {checks['lag1_autocorrelation']:.2f})")
     else:
         bandwidth = 0
         if estimator == "ols":
@@ -217,7 +218,8 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     else:
         cov_t = _sandwich(t["bread"], t["M"], t["L"]) * factor
     record = {"chi2_dof": chi2, "variance_factor": factor, "covariance": how, "covariance_from_residuals": follows,
-              "residual_checks": checks, "noise_model_warning": _noise_model_warning(chi2, checks, log, estimated)}  # fmt: skip
+              "residual_checks": checks,
+              "noise_model_warning": _noise_model_warning(chi2, checks, log, estimated)}  # fmt: skip
     return cov_t, rms, record  # chi2_dof None for ols
 
 
