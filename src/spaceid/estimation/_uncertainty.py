@@ -80,12 +80,14 @@ def _newey_west(bread, M, r, bandwidth, p):
     small against the log (Kiefer and Vogelsang's fixed-b result; on Cepheus at 501 samples and a
     50-sample bandwidth it moved 2-sigma coverage from 0.94 to 0.95). Formed from the mapped
     scores ``bread g_n``, so that at lag 0 it is a Gram matrix: no negative variances from
-    round-off when the residuals vanish."""
-    x = np.einsum("nrp,nr->np", M, r) @ bread.T
-    cov = x.T @ x
-    for lag in range(1, min(bandwidth, len(x) - 1) + 1):
-        c = x[lag:].T @ x[:-lag]
-        cov += (1 - lag / (bandwidth + 1)) * (c + c.T)
+    round-off when the residuals vanish. BLAS on one thread: on busy cores threaded BLAS took
+    these products (10,000 scores of 496 parameters) from 0.15 s to 0.5 s (measured)."""
+    with one_blas_thread():
+        x = np.einsum("nrp,nr->np", M, r) @ bread.T
+        cov = x.T @ x
+        for lag in range(1, min(bandwidth, len(x) - 1) + 1):
+            c = x[lag:].T @ x[:-lag]
+            cov += (1 - lag / (bandwidth + 1)) * (c + c.T)
     b = min(bandwidth / len(x), 1.0)
     return cov * len(x) / max(len(x) - p, 1) / (1 - b + b * b / 3)
 
