@@ -4,8 +4,10 @@ Builds the minimal momentum regressor for 10,000 random states of the dual-arm s
 (14 joints, 496 parameters) and prints its per-sample cost beside the per-sample cost of
 ``pinocchio.computeCentroidalMomentum`` on the same model (called once per sample, as from
 Python), then the wall time of identification from 10,000 samples (regressor and solve):
-least squares (``ols``, the target) on exact data, and one run of the default errors-in-variables
-maximum likelihood (``ml``) on data with 1e-3 noise on every signal.
+least squares (``ols``, the target) on exact data, beside the same with the former factor
+(Householder QR at any conditioning), the factorisation of ``[A | b]`` alone (Cholesky of the
+Gram matrix with refinement, Householder QR, normal equations), and one run of the default
+errors-in-variables maximum likelihood (``ml``) on data with 1e-3 noise on every signal.
 The two are timed alternately, repeat by repeat, so that a load change on a shared machine
 hits both; medians of the repeats and the median of the per-repeat ratios. Prints only,
 never fails on timings.
@@ -14,6 +16,7 @@ never fails on timings.
 """
 
 import argparse
+import contextlib
 import time
 from pathlib import Path
 
@@ -28,7 +31,7 @@ from spaceid.dynamics._regressor import _random_states, minimal_parameters
 from spaceid.dynamics import base_rate
 from spaceid.data import Log
 from spaceid.estimation._equations import _equations, _split
-from spaceid.estimation._estimators import _solve
+from spaceid.estimation import _estimators as estimate
 from spaceid._threads import one_blas_thread
 
 URDF = Path(spaceid.__file__).parent / "models" / "presets" / "servicer-dual.urdf"
@@ -44,6 +47,17 @@ def normal_equations(A, b):
         x = cho_solve(factor, rhs)
         x += cho_solve(factor, rhs - (A.T @ (A @ (x / scale))) / scale)
         return x / scale, cho_solve(factor, np.eye(len(scale))) / np.outer(scale, scale)
+
+
+@contextlib.contextmanager
+def patched(module, name, value):
+    """``module.name`` set to ``value`` meanwhile."""
+    original = getattr(module, name)
+    setattr(module, name, value)
+    try:
+        yield
+    finally:
+        setattr(module, name, original)
 
 
 def median_time(fn, repeats):
@@ -92,14 +106,34 @@ def main():
     h = np.array([1.0, -2.0, 3.0])
     w_cons = base_rate(param, param.true_values, q, qd, h)
     log = Log(np.arange(n) * 0.01, model.joints, q, qd, np.tile([1.0, 0, 0, 0], (n, 1)), w_cons, False)
-    result = []
-    t_id = median_time(lambda: result.append(identify(param, log, h, estimator="ols")), args.repeats)
-    err = np.abs(result[-1].values - param.true_values).max() / np.abs(param.true_values).max()
-    # the least-squares step alone: orthogonal factorisation (now) beside the former normal equations
+    result, former = [], []
+
+    def householder_only(*args):  # the former factor: blocked Householder QR at any conditioning
+        return None
+
+    def identify_householder():
+        with patched(estimate, "_gram_factor", householder_only):
+            former.append(identify(param, log, h, estimator="ols"))
+
+    def identify_now():
+        result.append(identify(param, log, h, estimator="ols"))
+
+    t_id, t_id_hh = np.median([(median_time(identify_now, 1), median_time(identify_householder, 1))
+                               for _ in range(args.repeats)], axis=0)  # fmt: skip
+    err, err_hh = (np.abs(r[-1].values - param.true_values).max() / np.abs(param.true_values).max()
+                   for r in (result, former))  # fmt: skip
+    # the least-squares step alone: the factor now (Cholesky of the Gram matrix, refined), the
+    # blocked Householder QR before it, and the normal equations before that
     eq, _ = _equations(param, log, h, None, "bench")
     A, b = _split(eq.phi(eq.signals(log)))
-    t_qr, t_ne = np.median([(median_time(lambda: _solve(A, b), 1), median_time(lambda: normal_equations(A, b), 1))
-                            for _ in range(args.repeats)], axis=0)  # fmt: skip
+    scale = estimate._column_scale(A)
+
+    def householder():
+        estimate._blockwise(A, b, scale, estimate._accumulate_factor, estimate._accumulate_factor)
+
+    t_ls, t_qr, t_ne = np.median([(median_time(lambda: estimate._triangular_factor(A, b, scale), 1),
+                                   median_time(householder, 1), median_time(lambda: normal_equations(A, b), 1))
+                                  for _ in range(args.repeats)], axis=0)  # fmt: skip
 
     print(f"dual-arm servicer: {model.n_joints} joints, {len(model.bodies)} bodies, {param.n_params} minimal parameters "
           f"(derived in {derive:.2f} s)")
@@ -108,8 +142,9 @@ def main():
     print(f"  pinocchio computeCentroidal... {t_pin / n * 1e6:8.2f} us/sample  ({t_pin:.3f} s)")
     print(f"  ratio                          {ratio:8.1f}  (target <= 10; median of per-repeat ratios)")
     print(f"  identify(ols) from {n} samples {t_id:8.3f} s  (target < 1 s); max error {err:.1e} of max |pi|")
-    print(f"    of which least squares       {t_qr:8.3f} s  (blocked QR; the former Cholesky normal equations "
-          f"{t_ne:.3f} s)")
+    print(f"    with Householder QR only     {t_id_hh:8.3f} s  (the former factor); max error {err_hh:.1e}")
+    print(f"  factor of [A | b]              {t_ls:8.3f} s  (Cholesky of the Gram matrix, refined; blocked "
+          f"Householder QR {t_qr:.3f} s, normal equations {t_ne:.3f} s)")
     if args.no_ml:
         return
     level = 1e-3

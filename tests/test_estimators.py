@@ -1,6 +1,7 @@
 """Estimators on data with known truth: noise-free recovery, spread vs predicted covariance,
 bias removal, the Cramer-Rao bound vs a brute-force Fisher information, scale anchors."""
 
+import dataclasses
 import warnings
 
 import numpy as np
@@ -117,6 +118,80 @@ def test_ml_stops_close_to_its_fixed_point(cepheus, monkeypatch):
     tight = identify(param, log, H, estimator="ml", noise=noise)
     assert tight.settings["estimator_info"]["iterations"] > default.settings["estimator_info"]["iterations"] >= 3
     assert (np.abs(default.values - tight.values) / default.std).max() < 1e-3
+    info = default.settings["estimator_info"]
+    assert info["converged"] and info["fallback"] is None and info["objective_end"] < info["objective_start"]
+
+
+def test_ml_that_does_not_converge_falls_back(cepheus, monkeypatch):
+    """Stopped after one iteration, ML reports WLS or OLS, whichever has the lower objective (the
+    two are within 0.1 % here), with its covariance, says so in a warning and records it."""
+    from spaceid.estimation import _estimators as estimate
+
+    param, make = cepheus
+    log = add_noise(make(501), angle=1e-2, rate=1e-2, seed=3)
+    noise = Noise(1e-2, 1e-2, 1e-2)
+    monkeypatch.setitem(estimate._KERNELS, "ml", lambda *args: estimate._ml(*args, max_iter=1))
+    with pytest.warns(UserWarning, match=r"maximum likelihood failed, the estimate reported is (wls|ols): .*did not "
+                                         r"converge in 1 iterations"):  # fmt: skip
+        ml = identify(param, log, H, estimator="ml", noise=noise)
+    info = ml.settings["estimator_info"]
+    fallback = info["fallback"].split(":")[0]
+    assert not info["converged"] and fallback in ("wls", "ols")
+    assert info["objective_end"] <= info["objective_start"]
+    assert "WLS" in info["fallback"]  # why: WLS's objective against the start's
+    reported = identify(param, log, H, estimator=fallback, noise=noise)
+    assert ml.values == pytest.approx(reported.values, rel=1e-12) and ml.std == pytest.approx(reported.std, rel=1e-9)
+
+
+@pytest.mark.slow
+def test_ml_never_reports_a_runaway_iteration(cepheus):
+    """Rates differentiated from angles with 3e-2 rad noise, levels estimated (far too small for
+    the rates): the ML objective keeps falling while the parameters run off (to 100 times their
+    size in 40 iterations). The iterates are not reported: OLS is, with its covariance, and the
+    result says why."""
+    from spaceid.data import differentiate_log
+
+    param, _ = cepheus
+    log = differentiate_log(add_noise(simulate(param, param.true_values, paper_motion, np.arange(0, 5.0001, 0.01), H),
+                                      angle=3e-2, seed=0))  # fmt: skip
+    ols = identify(param, log, H, estimator="ols")
+    with pytest.warns(UserWarning, match="maximum likelihood failed, the estimate reported is ols: .*did not converge"):
+        ml = identify(param, log, H, estimator="ml")
+    info = ml.settings["estimator_info"]
+    assert info["fallback"].startswith("ols") and info["objective_end"] == info["objective_start"]
+    assert ml.values == pytest.approx(ols.values, rel=1e-12) and ml.std == pytest.approx(ols.std, rel=1e-9)
+    assert np.abs(ml.values / param.true_values - 1).max() < 10  # OLS is biased at this noise; the 40th iterate: 100
+
+
+def test_chi2_far_from_one_warns_and_the_covariance_follows_the_residuals(cepheus):
+    """Noise levels given 100 times too small: chi2_dof ~ 1e4 is reported with a warning that
+    says what it means, and the standard errors are those of the residuals (close to the ones
+    with the right levels), not 100 times too small."""
+    param, make = cepheus
+    log = add_noise(make(201), angle=1e-3, rate=1e-3, seed=2)
+    right = identify(param, log, H, estimator="wls", noise=Noise(1e-3, 1e-3, 1e-3))
+    with pytest.warns(UserWarning, match=r"chi2_dof = .*contradict the noise model: the noise levels are too small.*"
+                                         r"unmodelled drift.*one-tick differences"):  # fmt: skip
+        wrong = identify(param, log, H, estimator="wls", noise=Noise(1e-5, 1e-5, 1e-5))
+    assert wrong.settings["chi2_dof"] > 1e3 and wrong.settings["covariance_from_residuals"]
+    assert "sandwich of the residuals" in wrong.settings["covariance"]
+    assert wrong.settings["noise_model_warning"].startswith("chi2_dof")
+    assert not right.settings["covariance_from_residuals"] and right.settings["noise_model_warning"] == ""
+    assert np.all((wrong.std / right.std > 0.6) & (wrong.std / right.std < 1.6)), wrong.std / right.std
+
+
+def test_autocorrelated_residuals_give_a_newey_west_covariance(cepheus):
+    """An unmodelled slow disturbance of the base rate (a drift the white-noise model does not
+    describe): the residuals fail the Ljung-Box test and the covariance is Newey-West."""
+    param, make = cepheus
+    log = add_noise(make(201), angle=1e-4, rate=1e-4, seed=4)
+    log = dataclasses.replace(log, base_w=log.base_w + np.outer(2e-3 * np.sin(1.3 * log.t), [0, 0, 1]))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # chi2_dof far from 1 as well
+        ident = identify(param, log, H, estimator="wls", noise=Noise(1e-4, 1e-4, 1e-4))
+    checks = ident.settings["residual_checks"]
+    assert checks["ljung_box_p"] < 1e-3 and checks["lag1_autocorrelation"] > 0.5
+    assert "residuals autocorrelated" in ident.settings["covariance"] and ident.settings["covariance_from_residuals"]
 
 
 def test_crb_equals_brute_force_fisher(cepheus):

@@ -170,7 +170,11 @@ def _estimate(eq, x, log: Log, sigma, ctx: dict, estimator: str, estimated: bool
     factorisations do on singular systems), which :func:`identify` turns into a ``SpaceidError``."""
     theta, info = _ols(eq, x, sigma, None, ctx)
     if estimator != "ols":
+        ols_info = info
         theta, info = _KERNELS[estimator](eq, x, sigma, theta, ctx)
+        fallback = str(info.get("fallback")).split(":")[0]  # ML failed: WLS or OLS, with their covariance
+        if fallback in ("wls", "ols"):
+            estimator, info = fallback, info | (ols_info if fallback == "ols" else {})
     if not np.all(np.isfinite(theta)):
         raise np.linalg.LinAlgError("the estimate is not finite")
     reported = _reported_covariance(eq, x, ctx["phi"], sigma, theta, estimator, info, log, estimated)
@@ -273,9 +277,12 @@ def identify(
     Identification
         ``values``/``std``/``cov`` over all minimal parameters (known ones with zero
         variance); ``drift``: the drift coefficients; the estimated momentum, anchors, noise
-        model, ``chi2_dof``, the estimator's iterations, ``plausibility`` (the warning about
-        inertia-like parameters that came out negative) and ``drift_test`` (the residual test
-        for an unmodelled drift) in ``settings``; both warnings also issued as ``UserWarning``.
+        model, ``chi2_dof`` and how the covariance was obtained (``covariance``,
+        ``residual_checks``, ``noise_model_warning``: what a ``chi2_dof`` far from 1 means), the
+        estimator's record (``estimator_info``: for ``ml`` its convergence and ``fallback``, the
+        estimate reported when it failed), ``plausibility`` (the warning about inertia-like
+        parameters that came out negative) and ``drift_test`` (the residual test for an
+        unmodelled drift) in ``settings``; the warnings are also issued as ``UserWarning``.
 
     Raises
     ------
@@ -312,8 +319,10 @@ def identify(
             "NaN or frozen signals and use an exciting trajectory (spaceid design)"
             + ("" if estimator == "ols" else ", or try --estimator ols")
         ) from None
-    if info.get("converged") is False:
-        warnings.warn(f"{where}: maximum likelihood did not converge in {info['iterations']} iterations", stacklevel=2)
+    if info.get("fallback"):
+        warnings.warn(f"{where}: maximum likelihood failed, the estimate reported is {info['fallback']}", stacklevel=2)
+    if uncertainty["noise_model_warning"]:
+        warnings.warn(f"{where}: {uncertainty['noise_model_warning']}", stacklevel=2)
     pi, h = eq.full(theta)
     if history is not None and drift:  # the momentum at the log's first sample
         h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])
@@ -338,7 +347,7 @@ def identify(
         "momentum_std": h_std.tolist(),
         "noise": noise.to_dict(),
         **uncertainty,
-        "estimator_info": {k: v for k, v in info.items() if np.isscalar(v) or isinstance(v, (str, list))},
+        "estimator_info": {k: v for k, v in info.items() if v is None or np.isscalar(v) or isinstance(v, (str, list))},
         "plausibility": implausible or "no inertia-like parameter negative",
         "drift_test": drift_record,
         **({"drift_correlation": correlation} if correlation is not None else {}),
