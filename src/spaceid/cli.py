@@ -7,6 +7,7 @@ a one-line ``error: ...`` on stderr and exit code 2.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import json
 import sys
@@ -325,10 +326,12 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
 @click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
+@click.option("--com", "with_com", is_flag=True, help="Also identify the system-CM terms from the log's base position "
+              "(base_x, base_y or base_px, base_py, base_pz [m]; zero linear momentum): RESULT.json field 'com'.")
 @bag_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
-             output, bag):
+             with_com, output, bag):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -369,6 +372,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
                     where=str(log_path))
     for w in caught:
         err.print(f"warning: {w.message}")
+    if with_com:
+        ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())
     out.print(parameter_table(ident))
     s = ident.settings
@@ -384,6 +389,17 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
               f"N m s; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
               f"result written to {output}")
+
+
+def _identify_com(ident, log):
+    """``ident`` with the CM terms of the log's base position (``--com``), and a summary line."""
+    from .identified import identified_model, identify_com
+
+    com = identify_com(identified_model(ident, where=str(log.meta.get("source", "result"))), log).identification.com
+    err.print(f"CM terms: {len(com['names'])} from {com['n_samples']} base positions, residual RMS "
+              f"{com['residual_rms']:.3g} m; system CM at {', '.join(f'{x:.4g}' for x in com['inertial_com'])} m",
+              highlight=False)
+    return dataclasses.replace(ident, com=com)
 
 
 @app.command(short_help="Base motion of an identified model for a joint motion.")

@@ -42,6 +42,9 @@ class Identification:
     units : tuple of str
         Each parameter's unit (``kg``, ``kg m``, ``kg m^2``; see ``Parameterization.units``);
         empty for results written before units were recorded.
+    com : dict or None
+        The system-CM terms identified from the base position (``spaceid.identified.identify_com``:
+        names, definitions, values, std, covariance, ...); None when not identified.
     """
 
     names: tuple
@@ -59,6 +62,7 @@ class Identification:
     planar: bool
     settings: dict = field(default_factory=dict)
     units: tuple = ()
+    com: dict | None = None
 
     def to_dict(self) -> dict:
         """JSON-ready RESULT.json form: parameters with 95 % confidence intervals, covariance,
@@ -79,6 +83,7 @@ class Identification:
             "residual_rms": self.residual_rms,
             "n_samples": self.n_samples,
             "settings": self.settings,
+            **({"com": self.com} if self.com is not None else {}),
         }
 
     @classmethod
@@ -105,6 +110,7 @@ class Identification:
                 bool(data["planar"]),
                 dict(data.get("settings", {})),
                 tuple(p["unit"] for p in params) if all("unit" in p for p in params) else (),
+                data.get("com"),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "
