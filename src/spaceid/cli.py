@@ -469,10 +469,16 @@ def _trajectory_times(traj, samples, rate, command):
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
 @click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @MOMENTUM
+@click.option("--torques", is_flag=True, help="Also drive the identified model's forward dynamics with the log's "
+              "joint torques (columns tau_J [N m]) and compare the motion: torque_*.csv/json/png.")
+@click.option("--horizon", type=float, metavar="SECONDS", help="With --torques: restart from the measured state "
+              "every SECONDS [s] (default: one run over the whole log).")
 @bag_options
 @output("Folder to write predicted.csv, metrics.json and validation.png into.")
-def validate(result, log_path, momentum, output, bag):
+def validate(result, log_path, momentum, torques, horizon, output, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
+    if horizon is not None and not torques:
+        raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
     from .studies._figures import plot_validation
     from .data import read_log, write_json, write_log
     from .estimation import load_result
@@ -492,7 +498,23 @@ def validate(result, log_path, momentum, output, bag):
     plot_validation(log, predicted, output / "validation.png")
     for key, value in metrics.items():
         out.print(f"{metric_label(key)} = {value:.4g}", markup=False, highlight=False)
+    if torques:
+        _validate_torques(ident, log, h, horizon, output, str(result))
     err.print(f"plots and metrics written to {output}/")
+
+
+def _validate_torques(ident, log, h, horizon, output, where):
+    """``validate --torques``: the torque-driven prediction, its metrics and figure in ``output``."""
+    from .data import write_json, write_log
+    from .studies import TORQUE_METRIC_LABELS, TORQUE_VALIDATION_TITLE, plot_validation, validate_torques
+
+    predicted, metrics = validate_torques(ident, log, horizon=horizon, momentum=h, where=where)
+    write_log(output / "torque_predicted.csv", predicted)
+    write_json(output / "torque_metrics.json", metrics)
+    plot_validation(log, predicted, output / "torque_validation.png",
+                    title=f"{TORQUE_VALIDATION_TITLE}\n(restarted from the measured state every {metrics['horizon']:.3g} s)")
+    for key, value in metrics.items():
+        out.print(f"{TORQUE_METRIC_LABELS[key]} = {value:.4g}", markup=False, highlight=False)
 
 
 @app.command(short_help="The paper's simulation study on the built-in Cepheus model.")

@@ -30,6 +30,7 @@ from ..dynamics import minimal_parameters
 from ..data import Log
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin, spin_up
+from ._torque_validation import validate_torques
 from ._validate import validate
 
 __all__ = ["ExperimentResult", "run_experiment", "BAG_NAMES"]
@@ -53,7 +54,8 @@ class ExperimentResult:
     predicted : Log
         The identified model (N samples) re-simulated with the measured joint motion.
     metrics : dict
-        Validation metrics (:func:`spaceid.studies.validation_metrics`).
+        Validation metrics (:func:`spaceid.studies.validation_metrics`), and when the bag carries
+        joint efforts those of the torque level (:func:`spaceid.studies.torque_metrics`).
     trajectory : FourierTrajectory
     settings : dict
         Protocol, twin settings, seeds, bag.
@@ -191,6 +193,11 @@ def run_experiment(
     ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag))
     ident_all = identify(param, log, zero, estimator=estimator, where=str(bag))
     predicted, metrics = validate(ident, log, momentum=zero, where=str(bag))
+    if log.tau is not None:  # the twin's joint efforts: the torque level beside, restarted every second
+        try:
+            metrics |= validate_torques(ident, log, horizon=1.0, momentum=zero, where=str(bag))[1]
+        except SpaceidError as exc:  # an inconsistent identified model (H* not positive definite)
+            metrics["torque_validation"] = str(exc)
     # the truth is the twin's model when the excitation starts: the CO2 tank may have drained
     drained = settings.tank.enabled and a.state.co2_mass is not None
     true = minimal_parameters(drained_model(model, settings.tank, a.state.co2_mass)).true_values if drained \
