@@ -104,3 +104,35 @@ def test_inconsistent_parameters_are_refused(setup):
     assert (np.linalg.eigvalsh(identified_model(broken).reduced_inertia(log.q))[:, 0] <= 0).any()
     with pytest.raises(SpaceidError, match="not positive definite"):
         validate_torques(broken, log, momentum=h)
+
+
+def test_the_twin_under_its_own_efforts():
+    """The twin's true 1 kHz motion and applied efforts (zero-order hold): the true model's
+    forward dynamics reproduce it; its bag carries the mocap position and published efforts."""
+    from spaceid.data import read_bag_log, write_bag
+    from spaceid.identified import IdentifiedModel
+    from spaceid.estimation import Identification
+    from spaceid.twin import TwinSettings, run_twin
+
+    settings = TwinSettings().without_effects()
+    model = spaceid.load_model("cepheus-rw")
+    run = run_twin(load_trajectory("paper-table2"), duration=0.4, wheel_speed=20.0, settings=settings, seed=1)
+    param = minimal_parameters(model)
+    k = param.n_params
+    true = IdentifiedModel(Identification(param.names, param.definitions, param.true_values, np.zeros(k),
+                                          np.zeros((k, k)), 1.0, np.ones(1), 0.0, 0, "ols", np.zeros(3),
+                                          "cepheus-rw", True), param)
+    truth = replace(run.truth, tau=run.effort).select(slice(0, 200))
+    _, held = validate_torques(true, truth, momentum=np.zeros(3), hold="zero", max_step=0.001)
+    _, linear = validate_torques(true, truth, momentum=np.zeros(3), hold="linear", max_step=0.001)
+    assert held["torque_q_rms"] < 1e-9 < 1e-6 < linear["torque_q_rms"]
+    import tempfile
+    with tempfile.TemporaryDirectory() as folder:
+        write_bag(f"{folder}/run.bag", run.recording, format="ros1")
+        log = read_bag_log(f"{folder}/run.bag", joints=model.joints, planar=True, wheels=model.wheels,
+                           pose_latency=settings.mocap.latency)
+    assert log.tau is not None and log.tau.shape == log.q.shape
+    at = np.searchsorted(run.truth.t, log.t)
+    noise = settings.mocap.position_noise  # the spline through noisy frames stays within a few sigma
+    assert 0 < np.abs(log.base_position[:, :2] - run.base_position[at]).max() < 6 * noise
+    np.testing.assert_allclose(log.tau, run.effort[at], atol=1e-12)

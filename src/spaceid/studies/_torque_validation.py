@@ -40,10 +40,11 @@ def _quat_rate(quat, w):
     return 0.5 * np.concatenate([-np.sum(v * w, -1, keepdims=True), s * w + np.cross(v, w)], -1)
 
 
-def _integrate(model: IdentifiedModel, log: Log, windows, momentum, max_step):
+def _integrate(model: IdentifiedModel, log: Log, windows, momentum, max_step, hold):
     """States ``[q, qd, yaw or quaternion]`` at every sample of ``windows`` (index arrays), each from
     its first sample: classical Runge-Kutta, all windows at once (the dynamics are batched), each
-    sample interval in equal steps of at most ``max_step`` over which the torque is linear."""
+    sample interval in equal steps of at most ``max_step`` over which the torque is linear (``hold``
+    "linear") or that of the interval's first sample ("zero")."""
     n, planar = model.geometry.n_joints, model.geometry.planar
     length = max(len(w) for w in windows)
     index = np.array([np.r_[w, np.full(length - len(w), w[-1])] for w in windows])  # (B, L), the ends held
@@ -64,7 +65,8 @@ def _integrate(model: IdentifiedModel, log: Log, windows, momentum, max_step):
         m = max(1, int(np.ceil(dt.max() / max_step - 1e-9)))
         h = (dt / m)[:, None]
         for k in range(m):
-            torque = [tau[:, i] + (tau[:, i + 1] - tau[:, i]) * (k + a) / m for a in (0.0, 0.5, 1.0)]
+            slope = 0.0 if hold == "zero" else tau[:, i + 1] - tau[:, i]
+            torque = [tau[:, i] + slope * (k + a) / m for a in (0.0, 0.5, 1.0)]
             k1 = rhs(y, torque[0])
             k2 = rhs(y + h / 2 * k1, torque[1])
             k3 = rhs(y + h / 2 * k2, torque[1])
@@ -81,7 +83,7 @@ def _integrate(model: IdentifiedModel, log: Log, windows, momentum, max_step):
 
 
 def validate_torques(model, log: Log, *, horizon: float | None = None, momentum=None, max_step: float = 0.005,
-                     where: str = "result"):
+                     hold: str = "linear", where: str = "result"):
     """Drive the identified model with the measured torques and compare its motion with the log.
 
     Parameters
@@ -93,6 +95,9 @@ def validate_torques(model, log: Log, *, horizon: float | None = None, momentum=
         Length [s] of each window integrated from the measured state (default: the whole log).
     momentum : array_like of shape (3,), optional
         Inertial angular momentum [N m s] (default: the identification's).
+    hold : {"linear", "zero"}
+        The torque between samples: linear interpolation, or held from each sample to the next
+        (a digital controller's zero-order hold, logged at its own rate).
     max_step : float
         Largest integration step [s] (classical Runge-Kutta, the sample intervals split evenly;
         the error falls as its fourth power: on a Cepheus motion of ~1 rad/s, 7e-9 rad at 0.01 s,
@@ -122,11 +127,13 @@ def validate_torques(model, log: Log, *, horizon: float | None = None, momentum=
     horizon = span if horizon is None else float(horizon)
     if not horizon > 0:
         raise SpaceidError(f"--horizon {horizon:g}: give a positive horizon in seconds")
+    if hold not in ("linear", "zero"):
+        raise SpaceidError(f"hold '{hold}': use 'linear' or 'zero'")
     h = model.momentum if momentum is None else np.asarray(momentum, float)
     _check_positive_inertia(model, log, where)
     count = max(1, int(np.ceil(span / horizon - 1e-9)))  # the last stamp closes the last window
     starts = np.minimum(np.floor((log.t - log.t[0]) / horizon + 1e-9).astype(int), count - 1)
-    states = _integrate(model, log, [np.flatnonzero(starts == k) for k in np.unique(starts)], h, max_step)
+    states = _integrate(model, log, [np.flatnonzero(starts == k) for k in np.unique(starts)], h, max_step, hold)
     n = model.geometry.n_joints
     q, qd = states[:, :n], states[:, n : 2 * n]
     quat = yaw_to_quat(states[:, 2 * n]) if log.planar else states[:, 2 * n :] / np.linalg.norm(
