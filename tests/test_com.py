@@ -9,7 +9,14 @@ import pytest
 
 import spaceid
 from spaceid import SpaceidError
-from spaceid.data import Log, quat_to_matrix, quat_to_yaw, read_log, write_json, write_log
+from spaceid.data import (
+    Log,
+    quat_to_matrix,
+    quat_to_yaw,
+    read_log,
+    write_json,
+    write_log,
+)
 from spaceid.dynamics import base_rate, minimal_parameters, system_com
 from spaceid.estimation import identify, load_result
 from spaceid.identified import identified_model, identify_com, load_identified
@@ -66,7 +73,7 @@ def pinocchio_jacobian(model, q, quat, frame):
 
 
 def test_noise_free_com_terms_are_exact(identified):
-    ident, log = identified
+    ident, _ = identified
     com = ident.identification.com
     assert com["residual_rms"] < 1e-12
     q = np.random.default_rng(8).uniform(-np.pi, np.pi, (5, ident.geometry.n_joints))
@@ -111,11 +118,11 @@ def test_frame_velocity_adds_the_momentum_drift(identified):
     # reference: Pinocchio's frame velocity with the logged base rate and the base linear velocity
     # of zero linear momentum
     if model.planar:
-        pmodel, nb, lin = planar_pinocchio(model), 3, [0, 1]
+        pmodel, lin = planar_pinocchio(model), [0, 1]
         config = np.r_[0.0, 0.0, quat_to_yaw(log.base_quat[k]), log.q[k]]
         vel = np.r_[0.0, 0.0, log.base_w[k, 2], log.qd[k]]
     else:
-        pmodel, nb, lin = to_pinocchio(model), 6, [0, 1, 2]
+        pmodel, lin = to_pinocchio(model), [0, 1, 2]
         config = np.r_[0.0, 0.0, 0.0, log.base_quat[k, 1:], log.base_quat[k, 0], log.q[k]]
         vel = np.r_[0.0, 0.0, 0.0, log.base_w[k], log.qd[k]]
     data = pmodel.createData()
@@ -130,7 +137,9 @@ def test_frame_velocity_adds_the_momentum_drift(identified):
 def test_simulate_keeps_the_cm_at_the_origin_and_the_csv_round_trip(tmp_path):
     model = spaceid.load_model("cepheus")
     param = minimal_parameters(model)
-    motion = lambda t: load_trajectory("paper-table2").evaluate(t)[:2]  # noqa: E731
+    def motion(t):
+        return load_trajectory("paper-table2").evaluate(t)[:2]
+
     log = simulate(param, param.true_values, motion, np.linspace(0, 5, 201), MODELS["cepheus"], model=model,
                    base_position=True)
     pmodel = planar_pinocchio(model)

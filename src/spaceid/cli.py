@@ -511,8 +511,8 @@ def _validate_torques(ident, log, h, horizon, output, where):
     predicted, metrics = validate_torques(ident, log, horizon=horizon, momentum=h, where=where)
     write_log(output / "torque_predicted.csv", predicted)
     write_json(output / "torque_metrics.json", metrics)
-    plot_validation(log, predicted, output / "torque_validation.png",
-                    title=f"{TORQUE_VALIDATION_TITLE}\n(restarted from the measured state every {metrics['horizon']:.3g} s)")
+    restarts = f"(restarted from the measured state every {metrics['horizon']:.3g} s)"
+    plot_validation(log, predicted, output / "torque_validation.png", title=f"{TORQUE_VALIDATION_TITLE}\n{restarts}")
     for key, value in metrics.items():
         out.print(f"{TORQUE_METRIC_LABELS[key]} = {value:.4g}", markup=False, highlight=False)
 

@@ -27,7 +27,7 @@ from .._threads import one_blas_thread
 from ..data import Log, quat_to_matrix
 from ..dynamics import body_states, com_regressor, com_terms
 
-__all__ = ["identify_com", "com_of", "com_position", "frame_jacobians"]
+__all__ = ["identify_com"]
 
 _RANK_TOL = 1e-9
 """Columns of ``W`` whose pivoted-QR diagonal is below this fraction of the largest are spans of the
@@ -107,7 +107,8 @@ def identify_com(model, log: Log, *, seed: int = 0):
         u, s, vt = np.linalg.svd(a, full_matrices=False)
     if s[-1] <= 1e-10 * s[0] or n * d <= a.shape[1]:
         raise SpaceidError(f"{where}: the motion does not excite the {len(cols)} CM terms (condition "
-                           f"{s[0] / max(s[-1], 1e-300):.3g}, {n} samples): log a motion that turns the base and every joint")
+                           f"{s[0] / max(s[-1], 1e-300):.3g}, {n} samples): log a motion that turns the base and "
+                           "every joint")
     x = vt.T @ ((u.T @ b) / s)
     residual = b - a @ x
     sigma2 = residual @ residual / (n * d - a.shape[1])
@@ -117,7 +118,8 @@ def identify_com(model, log: Log, *, seed: int = 0):
         "names": [names[c] for c in cols],
         "definitions": [_definition(row, names, definitions) for row in combination],
         "values": x[d:].tolist(), "std": std[d:].tolist(), "covariance": cov[d:, d:].tolist(),
-        "inertial_com": np.r_[x[:d], np.zeros(3 - d)].tolist(), "inertial_com_std": np.r_[std[:d], np.zeros(3 - d)].tolist(),
+        "inertial_com": np.r_[x[:d], np.zeros(3 - d)].tolist(),
+        "inertial_com_std": np.r_[std[:d], np.zeros(3 - d)].tolist(),
         "residual_rms": float(np.sqrt(np.mean(residual**2))), "n_samples": int(n), "seed": int(seed),
         "condition_number": float(s[0] / s[-1]),
     }

@@ -2,10 +2,10 @@
 
 From the measured state at the start of each window of ``horizon`` seconds, the joint dynamics of
 the identified model (:meth:`spaceid.identified.IdentifiedModel.forward_dynamics`, momentum
-conserved, linear momentum zero) are integrated under the logged efforts ``tau_J`` (linear
-interpolation between samples), with the base attitude following the base rate that momentum
-implies (classical Runge-Kutta, every window at once). The predicted joint angles and rates and base motion are compared with the measured ones.
-Restarting every window keeps the comparison about the model rather than the growth of an open-loop
+conserved, linear momentum zero) are integrated under the logged efforts ``tau_J`` (linear between
+samples, or held from each to the next), with the base attitude following the base rate that
+momentum implies (classical Runge-Kutta, every window at once). The predicted joint angles and
+rates and base motion are compared with the measured ones. Restarting every window keeps the comparison about the model rather than the growth of an open-loop
 error over long times.
 """
 
@@ -17,9 +17,10 @@ from .._errors import SpaceidError
 from ..data import Log, quat_to_yaw, yaw_to_quat
 from ..identified import IdentifiedModel, identified_model
 
-__all__ = ["validate_torques", "torque_metrics", "TORQUE_METRIC_LABELS", "TORQUE_VALIDATION_TITLE"]
+__all__ = ["TORQUE_METRIC_LABELS", "TORQUE_VALIDATION_TITLE", "torque_metrics", "validate_torques"]
 
-TORQUE_VALIDATION_TITLE = "Torque-level validation: measured motion vs the identified model driven by the measured torques"
+TORQUE_VALIDATION_TITLE = ("Torque-level validation: measured motion vs the identified model driven by the "
+                           "measured torques")
 
 TORQUE_METRIC_LABELS = {
     "torque_q_rms": "torque-driven joint angles, RMS error [rad]",
@@ -40,6 +41,10 @@ def _quat_rate(quat, w):
     return 0.5 * np.concatenate([-np.sum(v * w, -1, keepdims=True), s * w + np.cross(v, w)], -1)
 
 
+def _unit(quat):
+    return quat / np.linalg.norm(quat, axis=-1, keepdims=True)
+
+
 def _integrate(model: IdentifiedModel, log: Log, windows, momentum, max_step, hold):
     """States ``[q, qd, yaw or quaternion]`` at every sample of ``windows`` (index arrays), each from
     its first sample: classical Runge-Kutta, all windows at once (the dynamics are batched), each
@@ -54,7 +59,7 @@ def _integrate(model: IdentifiedModel, log: Log, windows, momentum, max_step, ho
 
     def rhs(y, torque):
         q, qd = y[:, :n], y[:, n : 2 * n]
-        quat = yaw_to_quat(y[:, 2 * n]) if planar else y[:, 2 * n :] / np.linalg.norm(y[:, 2 * n :], axis=1, keepdims=True)
+        quat = yaw_to_quat(y[:, 2 * n]) if planar else _unit(y[:, 2 * n :])
         w0 = model.base_rate(q, qd, momentum, quat)
         attitude = w0[:, 2:] if planar else _quat_rate(quat, w0)
         return np.column_stack([qd, model.forward_dynamics(q, qd, torque, momentum, quat), attitude])
@@ -73,7 +78,7 @@ def _integrate(model: IdentifiedModel, log: Log, windows, momentum, max_step, ho
             k4 = rhs(y + h * k3, torque[2])
             y = y + h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         if not planar:
-            y[:, 2 * n :] /= np.linalg.norm(y[:, 2 * n :], axis=1, keepdims=True)
+            y[:, 2 * n :] = _unit(y[:, 2 * n :])
         out.append(y)
     states = np.stack(out, 1)  # (B, L, state)
     if not np.isfinite(states).all():
@@ -136,12 +141,11 @@ def validate_torques(model, log: Log, *, horizon: float | None = None, momentum=
     states = _integrate(model, log, [np.flatnonzero(starts == k) for k in np.unique(starts)], h, max_step, hold)
     n = model.geometry.n_joints
     q, qd = states[:, :n], states[:, n : 2 * n]
-    quat = yaw_to_quat(states[:, 2 * n]) if log.planar else states[:, 2 * n :] / np.linalg.norm(
-        states[:, 2 * n :], axis=1, keepdims=True)
+    quat = yaw_to_quat(states[:, 2 * n]) if log.planar else _unit(states[:, 2 * n :])
     w0 = model.base_rate(q, qd, h, quat)
     meta = {"source": f"{where}: driven by the torques of {source}", "horizon": horizon, "momentum": h.tolist()}
     predicted = Log(log.t, log.joints, q, qd, quat, w0, log.planar, meta, None, log.tau)
-    return predicted, torque_metrics(log, predicted) | {"horizon": horizon, "windows": int(len(np.unique(starts)))}
+    return predicted, torque_metrics(log, predicted) | {"horizon": horizon, "windows": len(np.unique(starts))}
 
 
 def _check_positive_inertia(model: IdentifiedModel, log: Log, where: str, n_checked: int = 500) -> None:
