@@ -11,7 +11,7 @@ from scipy.integrate import solve_ivp
 import spaceid
 from spaceid import SpaceidError
 from spaceid.cli import main
-from spaceid.data import Log, read_log, write_json, write_log, yaw_to_quat
+from spaceid.data import Log, quat_to_matrix, read_log, write_json, write_log, yaw_to_quat
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import identify
 from spaceid.identified import identified_model
@@ -137,3 +137,49 @@ def test_the_twin_under_its_own_efforts():
     noise = settings.mocap.position_noise  # the spline through noisy frames stays within a few sigma
     assert 0 < np.abs(log.base_position[:, :2] - run.base_position[at]).max() < 6 * noise
     np.testing.assert_allclose(log.tau, run.effort[at], atol=1e-12)
+
+
+@pytest.mark.slow
+def test_spatial_model_against_free_flyer_aba():
+    """The spatial path (quaternion attitude): the 7-joint arm under known torques, Pinocchio ABA on
+    the free flyer from a state of zero linear momentum, against the true parameters."""
+    from spaceid.estimation import Identification
+    from spaceid.identified import IdentifiedModel
+    from spaceid.models import to_pinocchio
+
+    model = spaceid.load_model("satellite-7dof")
+    param = minimal_parameters(model)
+    pmodel = to_pinocchio(model)
+    data = pmodel.createData()
+    n, duration, rate = model.n_joints, 0.4, 50.0
+    t = np.arange(0.0, duration + 1e-9, 1 / rate)
+    tau = np.column_stack([0.5 * np.sin(2.0 * t + j) for j in range(n)])
+    config0 = np.r_[np.zeros(3), 0.1, -0.2, 0.3, 0.0, 0.2 * np.ones(n)]
+    config0[3:7] /= np.linalg.norm(config0[3:7])
+    v0 = np.r_[np.zeros(3), 0.02, -0.01, 0.03, 0.1 * np.ones(n)]
+    ag = pin.ccrba(pmodel, data, config0, v0)
+    v0[:3] = np.linalg.solve(ag[:3, :3], -ag[:3] @ v0)
+    h = (pin.ccrba(pmodel, data, config0, v0) @ v0)[3:]
+
+    def rhs(time, y):
+        torque = np.r_[np.zeros(6), [np.interp(time, t, tau[:, j]) for j in range(n)]]
+        config, v = y[: pmodel.nq], y[pmodel.nq :]
+        x, w = config[3:6], v[3:6]  # quaternion [x, y, z, w] of the base, body-axes rates
+        s = config[6]
+        rotation = quat_to_matrix(np.r_[s, x])
+        quat_rate = 0.5 * np.r_[s * w + np.cross(x, w), -x @ w]
+        return np.r_[rotation @ v[:3], quat_rate, v[6:], pin.aba(pmodel, data, config, v, torque)]
+
+    y = solve_ivp(rhs, (0, duration), np.r_[config0, v0], method="DOP853", t_eval=t, rtol=1e-12, atol=1e-14).y.T
+    quat = y[:, [6, 3, 4, 5]] / np.linalg.norm(y[:, 3:7], axis=1, keepdims=True)
+    nq = pmodel.nq
+    log = Log(t, model.joints, y[:, 7:nq], y[:, nq + 6 :], quat, y[:, nq + 3 : nq + 6], False, {}, None, tau)
+    k = param.n_params
+    true = IdentifiedModel(Identification(param.names, param.definitions, param.true_values, np.zeros(k),
+                                          np.zeros((k, k)), 1.0, np.ones(1), 0.0, 0, "ols", h, "satellite-7dof",
+                                          False), param)
+    _, metrics = validate_torques(true, log, momentum=h, max_step=0.005)
+    assert metrics["torque_q_rms"] < 1e-8 and 0 < metrics["torque_attitude_rms"] < 1e-9, metrics
+    wrong = replace(true.identification, values=true.values * (1 + 0.05 * np.random.default_rng(1).standard_normal(k)))
+    _, off = validate_torques(wrong, log, momentum=h, max_step=0.005)
+    assert off["torque_q_rms"] > 1e4 * metrics["torque_q_rms"] and off["torque_attitude_rms"] > 1e-6, off

@@ -184,6 +184,9 @@ def torque_metrics(measured: Log, predicted: Log) -> dict:
         yaw = np.angle(np.exp(1j * (quat_to_yaw(predicted.base_quat) - quat_to_yaw(measured.base_quat))))
         out["torque_base_yaw_rms"] = float(np.sqrt(np.mean(yaw**2)))
     else:
-        dot = np.abs(np.einsum("ij,ij->i", predicted.base_quat, measured.base_quat)).clip(max=1.0)
-        out["torque_attitude_rms"] = float(np.sqrt(np.mean((2 * np.arccos(dot)) ** 2)))
+        # angle of conj(measured) (x) predicted, from its vector part (arccos of the dot loses small angles)
+        a, b = measured.base_quat, predicted.base_quat
+        vector = a[:, :1] * b[:, 1:] - b[:, :1] * a[:, 1:] - np.cross(a[:, 1:], b[:, 1:])
+        angle = 2 * np.arctan2(np.linalg.norm(vector, axis=1), np.abs(np.einsum("ij,ij->i", a, b)))
+        out["torque_attitude_rms"] = float(np.sqrt(np.mean(angle**2)))
     return out
