@@ -37,6 +37,7 @@ _HOME = {
     "cramer_rao_angles": "estimation",
     "load_result": ("identified", "load_identified"),  # the controller-ready model of a RESULT.json
     "IdentifiedModel": "identified",
+    "identify_com": "identified",
     "load_trajectory": "motion",
     "sample_times": "motion",
     "design_excitation": "motion",
@@ -46,6 +47,7 @@ _HOME = {
     "TwinSettings": "twin",
     "predict": "studies",
     "validate": "studies",
+    "validate_torques": "studies",
     "run_demo": "studies",
     "run_experiment": "studies",
     "run_montecarlo": "studies",

@@ -7,6 +7,7 @@ a one-line ``error: ...`` on stderr and exit code 2.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import functools
 import json
 import sys
@@ -375,10 +376,12 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "table (terms that move alike are confounded: start with one). --momentum is then the momentum at the "
               "first sample ('unknown' when the log does not start at rest). Without it, a residual test warns when "
               "the data show a drift.")
+@click.option("--com", "with_com", is_flag=True, help="Also identify the system-CM terms from the log's base position "
+              "(base_x, base_y or base_px, base_py, base_pz [m]; zero linear momentum): RESULT.json field 'com'.")
 @bag_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
-             knot_spacing, drift, output, bag):
+             knot_spacing, drift, with_com, output, bag):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -421,6 +424,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     with _warnings_to_stderr():
         ident = run(param, log, h, estimator=estimator, known=parse_known(known), noise=noise, instruments=reference,
                     where=str(log_path), knot_spacing=knot_spacing, drift=kinds)
+    if with_com:
+        ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())
     out.print(parameter_table(ident))
     s = ident.settings
@@ -438,6 +443,17 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
               f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
               f"result written to {output}")
+
+
+def _identify_com(ident, log):
+    """``ident`` with the CM terms of the log's base position (``--com``), and a summary line."""
+    from .identified import identified_model, identify_com
+
+    com = identify_com(identified_model(ident, where=str(log.meta.get("source", "result"))), log).identification.com
+    err.print(f"CM terms: {len(com['names'])} from {com['n_samples']} base positions, residual RMS "
+              f"{com['residual_rms']:.3g} m; system CM at {', '.join(f'{x:.4g}' for x in com['inertial_com'])} m",
+              highlight=False)
+    return dataclasses.replace(ident, com=com)
 
 
 @app.command(short_help="Base motion of an identified model for a joint motion.")
@@ -513,10 +529,16 @@ def _trajectory_times(traj, samples, rate, command):
 @click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="Drift terms replacing those of RESULT.json "
               "(used by default): torque=TAU, viscous=C, coulomb=MU, as for 'spaceid simulate'; --momentum is the "
               "momentum at the log's first sample.")
+@click.option("--torques", is_flag=True, help="Also drive the identified model's forward dynamics with the log's "
+              "joint torques (columns tau_J [N m]) and compare the motion: torque_*.csv/json/png.")
+@click.option("--horizon", type=float, metavar="SECONDS", help="With --torques: restart from the measured state "
+              "every SECONDS [s] (default: one run over the whole log).")
 @bag_options
 @output("Folder to write predicted.csv, metrics.json and validation.png into.")
-def validate(result, log_path, momentum, drift, output, bag):
+def validate(result, log_path, momentum, drift, torques, horizon, output, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
+    if horizon is not None and not torques:
+        raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
     from .studies._figures import plot_validation
     from .data import read_log, write_json, write_log
     from .estimation import load_result, parse_drift
@@ -539,7 +561,23 @@ def validate(result, log_path, momentum, drift, output, bag):
     plot_validation(log, predicted, output / "validation.png")
     for key, value in metrics.items():
         out.print(f"{metric_label(key)} = {value:.4g}", markup=False, highlight=False)
+    if torques:
+        _validate_torques(ident, log, h, horizon, output, str(result))
     err.print(f"plots and metrics written to {output}/")
+
+
+def _validate_torques(ident, log, h, horizon, output, where):
+    """``validate --torques``: the torque-driven prediction, its metrics and figure in ``output``."""
+    from .data import write_json, write_log
+    from .studies import TORQUE_METRIC_LABELS, TORQUE_VALIDATION_TITLE, plot_validation, validate_torques
+
+    predicted, metrics = validate_torques(ident, log, horizon=horizon, momentum=h, where=where)
+    write_log(output / "torque_predicted.csv", predicted)
+    write_json(output / "torque_metrics.json", metrics)
+    restarts = f"(restarted from the measured state every {metrics['horizon']:.3g} s)"
+    plot_validation(log, predicted, output / "torque_validation.png", title=f"{TORQUE_VALIDATION_TITLE}\n{restarts}")
+    for key, value in metrics.items():
+        out.print(f"{TORQUE_METRIC_LABELS[key]} = {value:.4g}", markup=False, highlight=False)
 
 
 @app.command(short_help="The paper's simulation study on the built-in Cepheus model.")

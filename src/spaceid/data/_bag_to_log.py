@@ -118,7 +118,9 @@ def to_log(
     -------
     Log
         ``t`` (n,) [s, after the recording's time origin]; ``q``, ``qd`` (n, n_joints);
-        ``base_quat`` (n, 4); ``base_w`` (n, 3) [rad/s] in base axes. ``meta``: the recording's
+        ``base_quat`` (n, 4); ``base_w`` (n, 3) [rad/s] in base axes; ``base_position`` (n, 3) [m]
+        (the poses' positions, cubic spline); ``tau`` (n, n_joints) [N m or N] when every message
+        of the selected joints carries efforts (linear interpolation), else None. ``meta``: the recording's
         meta plus ``time_base``, ``pose_latency``, ``streams`` (rates, dropped frames, largest
         gaps, pose frame and tilt), ``joint_rate_policy`` (the ``joint_rates`` given),
         ``joint_rates`` (per joint ``"velocity"`` or ``"differentiated"``), ``interpolation`` and
@@ -172,7 +174,22 @@ def to_log(
         "base on the pose stamps, joints on theirs (none when the time base is the joint stamps)",
         differentiation={"base": info_base, "joints": infos or None},
     )
-    return Log(t=t, joints=joints, q=q, qd=qd, base_quat=base_quat, base_w=base_w, planar=bool(planar), meta=meta)
+    return Log(t=t, joints=joints, q=q, qd=qd, base_quat=base_quat, base_w=base_w, planar=bool(planar), meta=meta,
+               **_position_and_efforts(js, columns, valid, t_pose, base.position, t, planar))
+
+
+def _position_and_efforts(js, columns, valid, t_pose, position, t, planar) -> dict:
+    """``base_position`` (n, 3) [m] at ``t``, a cubic spline through the poses (capture frame; planar:
+    z zero), and ``tau`` (n, n_joints), the messages' efforts linearly interpolated on each joint's
+    stamps (exact on them), or None when some message of a selected joint lacks one."""
+    base_position = CubicSpline(t_pose, np.asarray(position, float), axis=0)(t)
+    if planar:
+        base_position[:, 2] = 0.0
+    tau = None
+    if js.effort is not None and np.isfinite(js.effort[:, columns][valid]).all():
+        tau = np.column_stack([np.interp(t, js.t[valid[:, c]], js.effort[valid[:, c], col])
+                               for c, col in enumerate(columns)]) if len(columns) else np.empty((t.size, 0))
+    return {"base_position": base_position, "tau": tau}
 
 
 def _joint_columns(names, joints, where, topic):

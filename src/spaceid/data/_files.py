@@ -7,7 +7,10 @@ not needed are ignored. Units are SI and angles are radians:
 - planar: ``base_yaw`` [rad] and ``base_wz`` [rad/s];
 - spatial: ``base_qw, base_qx, base_qy, base_qz``, the scalar-first unit quaternion of the
   base-to-inertial rotation, and ``base_wx, base_wy, base_wz`` [rad/s] in base axes;
-- for every model joint ``J``: ``q_J`` [rad or m] and ``qd_J`` [rad/s or m/s].
+- for every model joint ``J``: ``q_J`` [rad or m] and ``qd_J`` [rad/s or m/s];
+- optional, the base position (origin of the base frame, inertial frame) [m]: planar
+  ``base_x, base_y``, spatial ``base_px, base_py, base_pz`` (all of them or none);
+- optional, the joint efforts ``tau_J`` [N m or N] (every joint or none).
 
 Readers turn every defect into a one-line :class:`~spaceid.SpaceidError` that names the file,
 the column and line where relevant, and the fix. Writers replace files atomically, so a failed
@@ -122,6 +125,7 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
         base_quat = _unit_quaternions(table, _stack(values, base_angles, n))
         base_w = _stack(values, base_rates, n, fill=nan)
     return Log(
+        **_optional_columns(table, joints, planar, n),
         t=values["t"],
         joints=joints,
         q=_stack(values, [f"q_{j}" for j in joints], n),
@@ -138,7 +142,8 @@ def write_log(path, log: Log) -> None:
 
     Columns: ``t``, then ``base_yaw, base_wz`` (planar; the yaw unwrapped, continuous) or
     ``base_qw, base_qx, base_qy, base_qz, base_wx, base_wy, base_wz`` (spatial), then ``q_J``
-    and ``qd_J`` for every joint. Values are written with 17 significant digits, so every float
+    and ``qd_J`` for every joint, then the base position and ``tau_J`` when the log has them.
+    Values are written with 17 significant digits, so every float
     reads back bit for bit. Rate columns that are entirely NaN (rates not yet known) are left
     out, so the file reads back with ``require_rates=False``.
 
@@ -155,6 +160,7 @@ def write_log(path, log: Log) -> None:
     columns = {"t": log.t, **base}
     columns |= {f"q_{j}": log.q[:, k] for k, j in enumerate(log.joints)}
     columns |= {f"qd_{j}": log.qd[:, k] for k, j in enumerate(log.joints)}
+    columns |= _optional_values(log)
     columns = {
         name: np.asarray(x, dtype=float)
         for name, x in columns.items()
@@ -174,6 +180,35 @@ def write_log(path, log: Log) -> None:
         raise SpaceidError(
             f"{path}: cannot write the log ({err.strerror or err}): check the path is writable"
         ) from None
+
+
+def _position_names(planar):
+    return ("base_x", "base_y") if planar else ("base_px", "base_py", "base_pz")
+
+
+def _optional_columns(table, joints, planar, n) -> dict:
+    """``base_position`` (n, 3) and ``tau`` (n, n_joints) from their optional columns, or None."""
+    out = {}
+    for key, names in (("base_position", _position_names(planar)), ("tau", [f"tau_{j}" for j in joints])):
+        given = [name for name in names if name in table.header]
+        if given and len(given) < len(names):
+            missing = ", ".join(name for name in names if name not in given)
+            raise SpaceidError(f"{table.path}: column(s) {', '.join(given)} without {missing}: give all of "
+                               f"{', '.join(names)} or none")
+        out[key] = _stack({name: _column(table, name) for name in given}, names, n) if given else None
+    if out["base_position"] is not None and planar:
+        out["base_position"] = np.column_stack([out["base_position"], np.zeros(n)])
+    return out
+
+
+def _optional_values(log: Log) -> dict:
+    """The optional columns of ``log`` (base position, efforts) by CSV name."""
+    out = {}
+    if log.base_position is not None:
+        out |= {name: log.base_position[:, i] for i, name in enumerate(_position_names(log.planar))}
+    if log.tau is not None:
+        out |= {f"tau_{j}": log.tau[:, k] for k, j in enumerate(log.joints)}
+    return out
 
 
 def read_joint_trajectory(path, *, joints, wheels=()):

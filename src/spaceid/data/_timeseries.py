@@ -78,6 +78,11 @@ class Log:
         ``base_yaw`` and ``base_wz`` instead of the quaternion and the 3-vector.
     meta : dict
         Provenance (source file, seed, noise levels, ...), carried into results.
+    base_position : ndarray of shape (n_samples, 3) or None
+        Base frame origin in the inertial frame [m] (z zero for planar logs), when measured
+        (motion capture) or simulated; None otherwise.
+    tau : ndarray of shape (n_samples, n_joints) or None
+        Joint efforts [N m or N], when recorded; None otherwise.
     """
 
     t: np.ndarray
@@ -88,6 +93,8 @@ class Log:
     base_w: np.ndarray
     planar: bool = True
     meta: dict = field(default_factory=dict, compare=False)
+    base_position: np.ndarray | None = field(default=None, compare=False)
+    tau: np.ndarray | None = field(default=None, compare=False)
 
     @property
     def n_samples(self) -> int:
@@ -107,6 +114,8 @@ class Log:
             qd=self.qd[index],
             base_quat=self.base_quat[index],
             base_w=self.base_w[index],
+            base_position=None if self.base_position is None else self.base_position[index],
+            tau=None if self.tau is None else self.tau[index],
         )
 
 

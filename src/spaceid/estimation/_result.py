@@ -47,6 +47,9 @@ class Identification:
         The drift coefficients estimated with the parameters (``identify(..., drift=...)``),
         each ``{name, value, std, unit}`` (``torque_z``, ``viscous``, ``coulomb``, ...); empty
         without drift terms. ``momentum`` is then the momentum at the log's first sample.
+    com : dict or None
+        The system-CM terms identified from the base position (``spaceid.identified.identify_com``:
+        names, definitions, values, std, covariance, ...); None when not identified.
     """
 
     names: tuple
@@ -65,6 +68,7 @@ class Identification:
     settings: dict = field(default_factory=dict)
     units: tuple = ()
     drift: tuple = ()
+    com: dict | None = None
 
     def drift_terms(self) -> dict:
         """The drift coefficients as :func:`spaceid.motion.simulate` takes them (empty without drift)."""
@@ -91,6 +95,7 @@ class Identification:
             "residual_rms": self.residual_rms,
             "n_samples": self.n_samples,
             "settings": self.settings,
+            **({"com": self.com} if self.com is not None else {}),
         }
 
     @classmethod
@@ -119,6 +124,7 @@ class Identification:
                 tuple(p["unit"] for p in params) if all("unit" in p for p in params) else (),
                 tuple({"name": str(d["name"]), "value": float(d["value"]), "std": float(d["std"]),
                        "unit": str(d["unit"])} for d in data.get("drift", [])),
+                data.get("com"),
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "

@@ -30,16 +30,18 @@ from scipy.linalg import qr
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import quat_to_matrix
-from ..dynamics import Parameterization, base_rate, body_states, energy_regressor, full_values, identifiability
+from ..dynamics import Parameterization, base_rate, body_states, energy_regressor, full_values, identifiability, skew
 from ..dynamics import minimal_parameters
 from ..estimation import Identification, load_result
 from ..models import INERTIAL_NAMES, load_model
+from ._com import com_of, com_position, frame_jacobians
 
 __all__ = ["IdentifiedModel", "identified_model", "load_identified", "parameterization_of"]
 
 _FIXES = {
     "total_mass": "a weighing of the whole system, or a thruster test with a known force",
-    "system_com": "the total mass (pi fixes the rest)",
+    "system_com": "the total mass (pi fixes the rest), or the base position logged over a motion "
+                  "(spaceid.identified.identify_com, 'spaceid identify --com')",
     "linear_velocity": "the system centre of mass (see 'system_com'): zero linear momentum fixes the base "
                        "linear velocity, hence any point's, relative to it",
     "base_force_response": "the total mass and the system centre of mass: a force on the base changes the "
@@ -188,6 +190,8 @@ class IdentifiedModel:
             out["system_com"] = _FIXES["system_com"] if fixed["system_com_given_mass"] else (
                 "the total mass and every body's first moment (mass times CoM), e.g. from a CAD model")
             out["linear_velocity"] = _FIXES["linear_velocity"]
+        if self.identification.com is not None:  # identified from the base position
+            out.pop("system_com", None), out.pop("linear_velocity", None)
         if len(out) > 1:
             out["base_force_response"] = _FIXES["base_force_response"]
         return out
@@ -205,13 +209,68 @@ class IdentifiedModel:
         raise SpaceidError(f"{self.where}: the identified parameters do not fix the {label}; it needs "
                            f"{self.undetermined[quantity]}")
 
-    def system_com(self, q):
-        """The system CM: not computed from ``pi``; raises the error of :meth:`requires`."""
-        self.requires("system_com")
+    def system_com(self, q) -> np.ndarray:
+        """The system CM [m] relative to the base origin in base axes, shape ``(..., 3)`` (z zero for
+        planar models), from the CM terms identified from the base position (:func:`identify_com`);
+        without them it raises the error of :meth:`requires`."""
+        return com_position(self, q)
 
     def linear_velocity(self, q, qd, w0, body: str):
-        """A body's linear velocity: not computed from ``pi``; raises the error of :meth:`requires`."""
-        self.requires("linear_velocity")
+        """A body's linear velocity: use :meth:`frame_velocity` (it needs the CM terms); raises the
+        error of :meth:`requires` without them."""
+        if com_of(self) is None:
+            self.requires("linear_velocity")
+        raise SpaceidError("linear_velocity: use frame_velocity(q, qd, frame, momentum, attitude), which takes the "
+                           "base rate from the momentum")
+
+    # ---------------------------------------------------------------- generalized Jacobian ----
+
+    def generalized_jacobian(self, q, frame: str, attitude=None, point=None) -> np.ndarray:
+        """Umetani and Yoshida's generalized Jacobian of a frame: its twist per joint rate at zero
+        linear and angular momentum, the base's motion eliminated.
+
+        Parameters
+        ----------
+        q : array_like of shape (..., n_joints)
+        frame : str
+            A body name of the model (a fixed joint's child is merged into its parent: give its
+            parent and the child's origin as ``point``).
+        attitude : array_like of shape (..., 4), optional
+            Base attitude ``[w, x, y, z]``; default identity (the result in base axes).
+        point : array_like of shape (3,), optional
+            The point of the frame whose linear velocity is wanted, in the frame's axes [m]
+            (default its origin).
+
+        Returns
+        -------
+        ndarray of shape (..., 6, n_joints)
+            Rows: the point's linear velocity [m/s], then the frame's angular velocity [rad/s],
+            inertial axes, per unit joint rate.
+
+        Raises
+        ------
+        SpaceidError
+            The CM terms were not identified (:func:`identify_com`), or ``frame`` is unknown.
+        """
+        p, jp, jw, c, jc = frame_jacobians(self, q, frame, point)
+        n = self.geometry.n_joints
+        q = np.asarray(q, float)
+        rates = base_rate(self.param, self.values, q[..., None, :], np.eye(n), np.zeros(3))  # (..., n, 3)
+        k = np.swapaxes(rates, -1, -2)
+        return _to_inertial(np.concatenate([jp - jc - skew(p - c) @ k, jw + k], -2), attitude)
+
+    def frame_velocity(self, q, qd, frame: str, momentum=None, attitude=None, point=None) -> np.ndarray:
+        """Inertial twist ``[v, w]`` [m/s, rad/s] of a frame, shape ``(..., 6)``: the generalized
+        Jacobian times ``qd`` plus the drift of a nonzero angular momentum (linear momentum zero).
+
+        ``momentum``, ``attitude`` as in :meth:`base_rate` (default: the identification's momentum,
+        identity attitude); ``frame``, ``point`` as in :meth:`generalized_jacobian`.
+        """
+        qd = np.asarray(qd, float)
+        drift_rate = self.base_rate(q, np.zeros_like(qd), momentum, attitude)  # base axes
+        p, _, _, c, _ = frame_jacobians(self, q, frame, point)
+        drift = _to_inertial(np.concatenate([np.cross(drift_rate, p - c), drift_rate], -1)[..., None], attitude)
+        return (self.generalized_jacobian(q, frame, attitude, point) @ qd[..., None] + drift)[..., 0]
 
     # ---------------------------------------------------------------- energy and inertia ------
 
@@ -404,6 +463,14 @@ class IdentifiedModel:
         shifted = np.asarray(q, float)[..., None, None, :] + steps[..., None] * np.eye(n)[:, None, :]
         m_x = self._inertia_times(shifted, np.asarray(x, float)[..., None, None, :])  # (..., n, 4, d)
         return np.einsum("...kja,kj->...ka", m_x, weights)
+
+
+def _to_inertial(rows: np.ndarray, attitude) -> np.ndarray:
+    """Stacked base-axes 3-vectors ``rows (..., 6, m)`` in inertial axes (identity if ``attitude`` is None)."""
+    if attitude is None:
+        return rows
+    rot = quat_to_matrix(attitude)
+    return np.concatenate([rot @ rows[..., :3, :], rot @ rows[..., 3:, :]], -2)
 
 
 def _schur(m: np.ndarray, n: int):

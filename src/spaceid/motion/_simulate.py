@@ -17,7 +17,7 @@ from scipy.integrate import solve_ivp
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from .._errors import SpaceidError
-from ..dynamics import angular_momentum
+from ..dynamics import angular_momentum, system_com
 from ..dynamics._base_rate import _rate_pieces, base_rate
 from ..dynamics import Parameterization
 from ..data import Log, quat_to_matrix, yaw_to_quat
@@ -80,6 +80,7 @@ def simulate(
     model=None,
     rtol: float = 1e-12,
     drift=None,
+    base_position: bool = False,
 ) -> Log:
     """Simulate the base motion for a prescribed joint motion and a constant or drifting momentum.
 
@@ -116,6 +117,10 @@ def simulate(
         momentum change from the integral of the external torque (the quadrature that
         identification uses), relative to the momentum (a warning above 1e-6: samples too sparse
         to integrate the drift). Omitted or all zero: constant momentum.
+    base_position : bool, default False
+        Also output the base position (``Log.base_position``), which needs ``model``. Convention:
+        zero linear momentum with the system CM fixed at the inertial origin, so the base origin
+        is at ``-R0 c(q)`` (:func:`spaceid.dynamics.system_com`).
 
     Returns
     -------
@@ -158,7 +163,13 @@ def simulate(
         h = angular_momentum(model, q, qd, w0, quat)
         meta["momentum_rel_error"] = float(np.abs(h - momentum).max() / max(np.linalg.norm(momentum), 1e-300))
     names = tuple(joints or param.model.joints)
-    return Log(times, names, q, qd, quat, w0, param.model.planar, meta)
+    position = None
+    if base_position:
+        if model is None:
+            raise SpaceidError("simulate: base_position=True needs the physical model (model=...): pi does not fix "
+                               "the system centre of mass")
+        position = -np.einsum("nij,nj->ni", quat_to_matrix(quat), system_com(model, q))
+    return Log(times, names, q, qd, quat, w0, param.model.planar, meta, position)
 
 
 BALANCE_TOLERANCE = 1e-6
@@ -301,4 +312,4 @@ def add_noise(log: Log, *, angle: float = 0.0, rate: float = 0.0, seed: int = 0)
          w0_ * y1 - x0 * z1 + y0 * w1 + z0 * x1, w0_ * z1 + x0 * y1 - y0 * x1 + z0 * w1], -1
     )
     meta = dict(log.meta, noise_angle=angle, noise_rate=rate, noise_seed=seed)
-    return Log(log.t, log.joints, q, qd, quat, w, log.planar, meta)
+    return Log(log.t, log.joints, q, qd, quat, w, log.planar, meta, log.base_position, log.tau)

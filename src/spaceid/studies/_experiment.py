@@ -40,6 +40,7 @@ from ..models import load_model
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin
 from ._tracking import check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings
+from ._torque_validation import validate_torques
 from ._validate import validate
 
 __all__ = ["ExperimentResult", "run_experiment", "BAG_NAMES"]
@@ -63,7 +64,8 @@ class ExperimentResult:
     predicted : Log
         The identified model (N samples) re-simulated with the held-out motion's measured joints.
     metrics : dict
-        Validation metrics on the held-out motion (:func:`spaceid.studies.validation_metrics`).
+        Validation metrics on the held-out motion (:func:`spaceid.studies.validation_metrics`)., and when the bag
+        carries joint efforts those of the torque level (:func:`spaceid.studies.torque_metrics`).
     trajectory : FourierTrajectory
         The identification excitation.
     validation_log : Log
@@ -326,6 +328,12 @@ def run_experiment(
     ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag), drift=drift, history=rest)
     ident_all = identify(param, log, zero, estimator=estimator, where=str(bag), drift=drift, history=rest)
     predicted, metrics, fit_metrics = _held_out_validation(ident, log, held_out, None if drift else zero, str(bag))
+    if held_out.tau is not None:  # the twin's joint efforts: the torque level beside, restarted every second
+        try:
+            metrics |= validate_torques(ident, held_out, horizon=1.0, where=str(bag),
+                                        momentum=_initial_momentum(ident, held_out) if drift else zero)[1]
+        except SpaceidError as exc:  # an inconsistent identified model (H* not positive definite)
+            metrics["torque_validation"] = str(exc)
     # the truth is the twin's model when the excitation starts: the CO2 tank may have drained
     drained = settings.tank.enabled and a.state.co2_mass is not None
     true = minimal_parameters(drained_model(model, settings.tank, phases[-1].co2_mass[0])).true_values if drained \

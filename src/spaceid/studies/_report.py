@@ -13,6 +13,7 @@ from ..estimation import Identification
 
 
 from ._tables import _columns, _per_param, drift_rows
+from ._torque_validation import TORQUE_METRIC_LABELS
 
 __all__ = ["write_markdown_report", "metric_label"]
 
@@ -49,9 +50,9 @@ _METRIC_LABELS = {
 
 
 def metric_label(key: str) -> str:
-    """Readable name, with its unit, of a :func:`spaceid.studies.validation_metrics` key (other
-    keys are returned as given)."""
-    return _METRIC_LABELS.get(key, key)
+    """Readable name, with its unit, of a :func:`spaceid.studies.validation_metrics` or
+    :func:`spaceid.studies.torque_metrics` key (other keys are returned as given)."""
+    return _METRIC_LABELS.get(key) or TORQUE_METRIC_LABELS.get(key, key)
 
 
 def write_markdown_report(
