@@ -300,3 +300,17 @@ def test_compare_all_draws_the_table_with_units(workdir, capsys):
     assert run("compare", workdir / "result.json", workdir / "result.json", "--all") == 0
     out = capsys.readouterr().out
     assert "8 of 8 parameters" in out and "kg m^2" in out and "pi8" in out
+
+
+def test_simulate_base_position_feeds_identify_com(tmp_path):
+    """'simulate --base-position' writes the columns 'identify --com' needs; it then recovers the CM."""
+    common = ("--trajectory", "paper-table2", "--momentum", 0.4934, "--rate", 20)
+    assert run("simulate", "cepheus", *common, "-o", tmp_path / "plain.csv") == 0
+    assert "base_x" not in (tmp_path / "plain.csv").read_text().splitlines()[0].split(",")
+    assert run("simulate", "cepheus", *common, "--base-position", "-o", tmp_path / "log.csv") == 0
+    header = (tmp_path / "log.csv").read_text().splitlines()[0].split(",")
+    assert {"base_x", "base_y"} <= set(header)
+    assert run("identify", "cepheus", tmp_path / "log.csv", "--momentum", 0.4934, "--com", "-o", tmp_path / "r.json") == 0
+    com = json.loads((tmp_path / "r.json").read_text())["com"]
+    np.testing.assert_allclose(com["inertial_com"], 0.0, atol=1e-9)  # the simulated CM is the origin
+    assert com["residual_rms"] < 1e-9

@@ -327,9 +327,12 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 @click.option("--rate", type=float, help="Sample rate [Hz] (instead of --samples).")
 @_options(*NOISE)
 @DRIFT_VALUES
+@click.option("--base-position", is_flag=True, help="Also write the base position (base_x, base_y or base_px, "
+              "base_py, base_pz [m]; system CM at the origin), which 'identify --com' needs.")
 @SEED
 @output("Log CSV to write.")
-def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, drift, seed, output):
+def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, drift, base_position,
+             seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
     from .data import write_log
     from .estimation import parse_drift
@@ -341,7 +344,8 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     terms = parse_drift(drift, planar=param.model.planar, values=True)
     traj = load_trajectory(trajectory, joints=param.model.joints)
     times = _trajectory_times(traj, samples, rate, "simulate")
-    log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model, drift=terms)
+    log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model, drift=terms,
+              base_position=base_position)
     log.meta.update(trajectory=trajectory, seed=seed)
     if noise_angle or noise_rate:
         log = add_noise(log, angle=noise_angle, rate=noise_rate, seed=seed)
