@@ -310,7 +310,8 @@ def test_simulate_base_position_feeds_identify_com(tmp_path):
     assert run("simulate", "cepheus", *common, "--base-position", "-o", tmp_path / "log.csv") == 0
     header = (tmp_path / "log.csv").read_text().splitlines()[0].split(",")
     assert {"base_x", "base_y"} <= set(header)
-    assert run("identify", "cepheus", tmp_path / "log.csv", "--momentum", 0.4934, "--com", "-o", tmp_path / "r.json") == 0
+    assert run("identify", "cepheus", tmp_path / "log.csv", "--momentum", 0.4934, "--com",
+               "-o", tmp_path / "r.json") == 0
     com = json.loads((tmp_path / "r.json").read_text())["com"]
     np.testing.assert_allclose(com["inertial_com"], 0.0, atol=1e-9)  # the simulated CM is the origin
     assert com["residual_rms"] < 1e-9

@@ -122,6 +122,7 @@ def test_forward_dynamics_equals_pinocchio_aba(noise_free, rng, at_rest):
         _, _, h, qdd = pinocchio_reference(model, q[n], qd[n], w0[n], tau[n])
         _close(noise_free.base_rate(q[n], qd[n], momentum=h), w0[n], 1e-10)
         _close(noise_free.forward_dynamics(q[n], qd[n], tau[n], momentum=h), qdd)
+        _close(noise_free.inverse_dynamics(q[n], qd[n], qdd, momentum=h), tau[n])
     # batched, the momentum inertial: the attitude rotates it into base axes
     quat = rng.standard_normal((4, 4))
     if model.planar:
@@ -132,6 +133,7 @@ def test_forward_dynamics_equals_pinocchio_aba(noise_free, rng, at_rest):
     batched = noise_free.forward_dynamics(q, qd, tau, momentum=h, attitude=quat)
     one_by_one = [noise_free.forward_dynamics(q[n], qd[n], tau[n], momentum=h_base[n]) for n in range(4)]
     _close(batched, np.stack(one_by_one), 1e-12)
+    _close(noise_free.inverse_dynamics(q, qd, batched, momentum=h, attitude=quat), tau, 1e-10)
 
 
 def test_zero_momentum_dynamics_are_lagrange_of_the_reduced_inertia(cepheus, rng):

@@ -431,6 +431,16 @@ class IdentifiedModel:
         reduced, bias = self._joint_dynamics(q, qd, momentum, attitude)
         return np.linalg.solve(reduced, (np.asarray(tau, float) - bias)[..., None])[..., 0]
 
+    def inverse_dynamics(self, q, qd, qdd, momentum=None, attitude=None) -> np.ndarray:
+        """Joint torques [N m or N] that give joint accelerations ``qdd``, momentum conserved and
+        linear momentum zero: ``H*(q) qdd + bias_torque(q, qd)``, shape ``(..., n_joints)`` (the
+        inverse of :meth:`forward_dynamics`; e.g. a computed-torque law or its feed-forward).
+
+        ``q, qd, qdd`` of shape ``(..., n_joints)``; ``momentum``, ``attitude`` as in :meth:`base_rate`.
+        """
+        reduced, bias = self._joint_dynamics(q, qd, momentum, attitude)
+        return (reduced @ np.asarray(qdd, float)[..., None])[..., 0] + bias
+
     def _joint_dynamics(self, q, qd, momentum, attitude):
         """``(H*, bias)`` of ``H* qdd = tau - bias``: Lagrange's equations of the joints and
         Euler's of the base, the base acceleration eliminated (docs/theory/control.md)."""
