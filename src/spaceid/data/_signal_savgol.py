@@ -34,7 +34,7 @@ _CRITERION_ROWS = 250  # evenly spaced samples on which the bandwidth criterion 
 _CRITERION_BUDGET = 125_000  # ... fewer (rows x pilot window at most this) for long windows ...
 _MIN_ROWS = 64  # ... but never fewer than this
 _BLOCKS = 8  # the bias check tests this many consecutive stretches of the record ...
-_BIAS_LEVEL = 1e-2  # ... each at this false-alarm probability
+_BIAS_LEVEL = 1e-3  # ... each at this false-alarm probability
 _CHUNK = 1 << 21  # local-fit elements (samples x window x coefficients) processed at a time
 
 

@@ -154,7 +154,7 @@ def differentiate(
     shorter candidate (nested in it) by more than noise: the difference has noise variance
     ``s_i^2 = sigma^2 (sum_j h_ij^2 - sum_j d_ij^2)`` (``h_i`` the shorter fit's weights), and
     on each eighth of the record the mean of ``diff_i^2 / s_i^2`` is tested as chi-square with
-    as many degrees of freedom as shorter windows fit in it, at false-alarm probability 1 %.
+    as many degrees of freedom as shorter windows fit in it, at false-alarm probability 0.1 %.
 
     Spline penalty: the minimiser of ``GCV(lam) = n RSS(lam) / tr(I - A(lam))^2``, A the hat
     matrix [4]_, searched over quarter decades of ``lam`` then refined. GCV targets the
