@@ -82,7 +82,7 @@ def quiet_then_active(t):
 # order) reaches on the active stretch with the true rates known (an oracle: 3.1e-3 rad/s, a
 # 0.9 s septic fit, the balance of this noise's variance and the 2 Hz component's bias), with the
 # margin of test_rate_error_near_the_best_tuning_...; it is 6 % of the 0.056 rad/s RMS rate
-# variation. Measured: 4.2e-3 rad/s (window 0.42 s, cubic). The former criterion, whose bias
+# variation. Measured: 4.4e-3 rad/s (window 0.78 s, quintic). The former criterion, whose bias
 # pilot (a polynomial over twice the window) did not see the band once the window spanned the
 # quiet stretch, chose 3.7 s (septic) and smoothed the band away: 3.8e-2 rad/s, 73 % of it.
 @pytest.mark.slow
