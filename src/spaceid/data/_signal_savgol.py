@@ -4,7 +4,19 @@ Each sample's value and derivative come from a least-squares polynomial of degre
 fitted to the ``window`` samples around it, on their actual times (the window is shifted
 inwards at the ends of the record) [1]. The automatic (window, order) minimises a plug-in
 estimate of the derivative's mean squared error [2] (the rule is in the Notes of
-:func:`spaceid.data.differentiate`).
+:func:`spaceid.data.differentiate`), among windows whose bias the data do not show.
+
+The plug-in's bias comes from a polynomial pilot over twice the window, which sees only what
+that polynomial can follow: on a record that is quiet for most of its length and active for a
+few seconds (a base attitude during wheel spin-up, then the arm's excitation), the pilot of a
+window spanning both stretches misses the active band, the estimated MSE keeps falling with the
+window, and the band was smoothed away (2 to 4 s windows for 0.3 to 2 Hz base-rate variations).
+Hence a direct check that needs no model of the signal: for each order the candidates are
+walked from the shortest, and the walk stops at the first window whose derivatives differ from
+those of the next shorter candidate by more than noise on some eighth of the record (a
+chi-square test, :func:`_bias_shown`). The check is local, so the active stretch counts however
+long the quiet one is; where the signal is smooth at every scale the plug-in's optimum, whose
+bias is well below that noise, comes first and is unchanged.
 
 The numbered references are in the list of :mod:`spaceid.data._signals`.
 """
@@ -12,6 +24,7 @@ The numbered references are in the list of :mod:`spaceid.data._signals`.
 from __future__ import annotations
 
 import numpy as np
+from scipy.stats import chi2
 
 _AUTO_ORDERS = (3, 5, 7)  # polynomial degrees the automatic Savitzky-Golay choice compares
 _PILOT_EXTRA = 3  # the bias pilot fits degree order + 3 ...
@@ -20,6 +33,8 @@ _WINDOW_RATIO = 1.25  # ratio of successive candidate windows, from the shortest
 _CRITERION_ROWS = 250  # evenly spaced samples on which the bandwidth criterion is averaged ...
 _CRITERION_BUDGET = 125_000  # ... fewer (rows x pilot window at most this) for long windows ...
 _MIN_ROWS = 64  # ... but never fewer than this
+_BLOCKS = 8  # the bias check tests this many consecutive stretches of the record ...
+_BIAS_LEVEL = 1e-3  # ... each at this false-alarm probability
 _CHUNK = 1 << 21  # local-fit elements (samples x window x coefficients) processed at a time
 
 
@@ -76,7 +91,8 @@ def _savgol_gains(t, window, order):
 
 
 def _select_savgol(t, y, sigma, window, order):
-    """(window, order) minimising the plug-in derivative MSE of :func:`differentiate`'s Notes."""
+    """(window, order) minimising the plug-in derivative MSE of :func:`differentiate`'s Notes, among
+    the windows shorter than the first whose bias the data show (:func:`_bias_shown`)."""
     n = t.size
     orders = [p for p in (_AUTO_ORDERS if order is None else (order,)) if window is None or p < window]
     best = (np.inf, None, None)
@@ -85,15 +101,47 @@ def _select_savgol(t, y, sigma, window, order):
             pilot = min(_PILOT_WIDTH * w + 1, n)
             if pilot <= p + _PILOT_EXTRA:  # only for the highest order on a 7- or 8-sample record
                 continue
+            if window is None and _bias_shown(t, y, sigma, _criterion_rows(n, w), int(w), p):
+                break
             mse = _plugin_mse(t, y, sigma, _criterion_rows(n, pilot), int(w), p, pilot)
             if mse < best[0]:
                 best = (mse, int(w), p)
     return best[1], best[2]
 
 
+def _bias_shown(t, y, sigma, rows, window, order):
+    """Whether the derivatives of the (window, order) fit at ``rows`` differ from those of the next
+    shorter candidate's fit by more than noise, on any of :data:`_BLOCKS` consecutive stretches.
+
+    The shorter window is nested in the longer one, so the difference of the two derivatives is
+    the difference of their biases plus noise of variance ``s_i^2 = sigma^2 (|h_i|^2 - |d_i|^2)``
+    (``h_i . d_i = |d_i|^2``: the shorter fit's weights ``h_i`` differentiate exactly the
+    polynomial of degree ``order`` that ``d_i`` is on their window). Without bias, the mean of
+    ``diff_i^2 / s_i^2`` over a stretch is taken as chi-square over as many degrees of freedom as
+    shorter windows fit in the stretch (neighbouring rows share their noise), tested at
+    :data:`_BIAS_LEVEL`.
+    """
+    shorter = max(int(window / _WINDOW_RATIO) | 1, _shortest_window(order))
+    if shorter >= window:
+        return False
+    rate, gain = _local_rates(t, y, rows, window, order)
+    rate_short, gain_short = _local_rates(t, y, rows, shorter, order)
+    ratio = (rate - rate_short) ** 2 / (sigma**2 * (gain_short - gain))
+    for block in np.array_split(np.arange(rows.size), min(_BLOCKS, rows.size)):
+        dof = max(1, (rows[block[-1]] - rows[block[0]] + 1) // shorter)
+        if np.mean(ratio[block]) > chi2.isf(_BIAS_LEVEL, dof) / dof:
+            return True
+    return False
+
+
+def _shortest_window(order):
+    """The shortest odd window that a fit of degree ``order`` smooths: order + 2 or order + 3 samples."""
+    return order + 2 + (order + 1) % 2
+
+
 def _candidate_windows(n, order):
     """Odd windows about :data:`_WINDOW_RATIO` apart, from the shortest fit of ``order`` to the record."""
-    shortest, longest = order + 2 + (order + 1) % 2, n - 1 + n % 2
+    shortest, longest = _shortest_window(order), n - 1 + n % 2
     count = int(np.ceil(np.log(longest / shortest) / np.log(_WINDOW_RATIO))) + 1
     return np.unique(np.geomspace(shortest, longest, max(count, 1)).astype(int) | 1)
 
@@ -102,6 +150,16 @@ def _criterion_rows(n, pilot):
     """Evenly spaced samples on which the criterion is averaged: fewer for a long ``pilot`` window."""
     count = min(n, _CRITERION_ROWS, max(_MIN_ROWS, _CRITERION_BUDGET // pilot))
     return np.unique(np.linspace(0, n - 1, count).round().astype(int))
+
+
+def _local_rates(t, y, rows, window, order):
+    """Derivatives (r,) [1/s x units of y] of the degree-``order`` fits to the ``window`` samples
+    around ``rows``, and the squared norms (r,) [1/s^2] of their weights: with ``c_i = G_i^-1 e_1``
+    (``G`` the Gram matrix of the scaled offsets' Vandermonde matrix ``V``), the derivative is
+    ``c_i . (V_i^T y) / scale_i`` and the squared norm ``c_i1 / scale_i^2``."""
+    sums, weighted, scale = _power_sums(t, y, rows, window, 2 * order)
+    c = _inverse_gram(sums, order + 1)[:, :, 1]
+    return np.einsum("ra,ra->r", c, weighted) / scale, c[:, 1] / scale**2
 
 
 def _power_sums(t, y, rows, window, degree):

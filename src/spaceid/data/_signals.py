@@ -147,6 +147,15 @@ def differentiate(
     wins. The criterion is averaged over at most 250 evenly spaced samples (fewer for windows
     of thousands of samples), so long logs cost little.
 
+    Bias check. The pilot sees only what a polynomial over 2w+1 samples can follow, so on a
+    record with a quiet stretch and an active one it misses the active band once the window
+    spans both. Without ``window``, the candidates of each order are therefore taken from the
+    shortest up to, not including, the first whose derivatives differ from those of the next
+    shorter candidate (nested in it) by more than noise: the difference has noise variance
+    ``s_i^2 = sigma^2 (sum_j h_ij^2 - sum_j d_ij^2)`` (``h_i`` the shorter fit's weights), and
+    on each eighth of the record the mean of ``diff_i^2 / s_i^2`` is tested as chi-square with
+    as many degrees of freedom as shorter windows fit in it, at false-alarm probability 0.1 %.
+
     Spline penalty: the minimiser of ``GCV(lam) = n RSS(lam) / tr(I - A(lam))^2``, A the hat
     matrix [4]_, searched over quarter decades of ``lam`` then refined. GCV targets the
     smoothed values, not the rates: at low noise it undersmooths the rates in the middle of
@@ -221,7 +230,10 @@ def _selection(method, window, order, smoothing):
     that chose the automatic ones (``"manual"`` when none was)."""
     if method == "savgol":
         selection = {"window": _how(window), "order": _how(order)}
-        rule = "plug-in derivative MSE (moments on the stamps, degree p+3 pilot, noise subtracted)"
+        rule = (
+            "plug-in derivative MSE (moments on the stamps, degree p+3 pilot, noise subtracted), "
+            "windows up to the first with bias shown on an eighth of the record"
+        )
     else:
         selection = {"smoothing": _how(smoothing)}
         rule = f"generalised cross-validation (hat-matrix trace from {_PROBES} sign probes, seed 0)"
