@@ -72,7 +72,8 @@ def test_validation_is_on_a_held_out_motion(ideal):
     assert res.metrics != res.fit_metrics and np.array_equal(res.predicted.q, res.validation_log.q)
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the experiment never validates on a fitting log itself
-        assert validate(res.ident, res.validation_log, momentum=np.zeros(3))[1] == res.metrics
+        kinematic = validate(res.ident, res.validation_log, momentum=np.zeros(3))[1]
+    assert kinematic == {k: v for k, v in res.metrics.items() if k in kinematic}  # beside them: the torque level
 
 
 @pytest.mark.slow
