@@ -126,6 +126,12 @@ chi-square test of ``chi2_dof`` and the Ljung-Box test of their autocorrelation)
 LAGS = 10
 """Lags of the Ljung-Box test (fewer on short logs: a tenth of the samples)."""
 
+LEVERAGE_LIMIT = 0.1
+"""Largest ratio of unknowns to equations for which the Ljung-Box test decides the covariance: a
+fit's residuals share its projection, so with many unknowns per equation (a 496-parameter
+servicer from 1,500 equations) they are correlated though the noise is white, and the test
+would inflate honest standard errors (measured: 8-fold)."""
+
 
 def _residual_checks(res, dof, chi2):
     """The tests of the residuals ``res (n, rows)`` (whitened when there is a noise model) against
@@ -212,7 +218,7 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     if window:  # a differentiator's errors are positively correlated over about half its window, negatively
         bandwidth = max(1, window // 2)  # beyond (they sum to zero): the whole window understated the std by ~16 %
         how = f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (differentiated rates)"
-    elif checks["ljung_box_p"] < SIGNIFICANCE:
+    elif checks["ljung_box_p"] < SIGNIFICANCE and eq.p <= LEVERAGE_LIMIT * r.size:
         bandwidth = _hac_bandwidth(checks["lag1_autocorrelation"], len(r))
         how = (f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (residuals autocorrelated: "
                f"Ljung-Box p = {checks['ljung_box_p']:.2g}, "
