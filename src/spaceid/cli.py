@@ -38,7 +38,7 @@ KNOT_SPACING = 0.05  # [s] spaceid.estimation.KNOT_SPACING, likewise
 DRIFT_VALUES = click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="External torque on the base, so "
                             "that the momentum drifts from its --momentum value at t0: torque=TAU (constant torque "
                             "[N m], about z for planar, TX:TY:TZ inertial axes for spatial; or torque_x=.. per "
-                            "axis), viscous=C (friction -C w0, [N m s/rad]), coulomb=MU (friction -MU w0/|w0|, "
+                            "axis), viscous=C (friction -C w0, [N m s/rad]), coulomb=MU (friction -MU w0/norm(w0), "
                             "[N m]); e.g. --drift torque=1e-4,viscous=5e-5.")
 ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, efficient); wls: weighted least squares "
                   "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
@@ -376,7 +376,7 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "of the joint-path splines [s]; at least two samples per span.")
 @click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
               "estimated with the parameters: torque (constant torque [N m]), viscous (base friction -c w0, c in "
-              "N m s/rad), coulomb (base friction -mu w0/|w0|, mu in N m); e.g. --drift viscous on an air-bearing "
+              "N m s/rad), coulomb (base friction -mu w0/norm(w0), mu in N m); e.g. --drift viscous on an air-bearing "
               "table (terms that move alike are confounded: start with one). --momentum is then the momentum at the "
               "first sample ('unknown' when the log does not start at rest). Without it, a residual test warns when "
               "the data show a drift.")
