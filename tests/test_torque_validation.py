@@ -57,6 +57,7 @@ def setup():
     return identified_model(identify(param, sim, H)), aba_log(model)
 
 
+@pytest.mark.slow  # seconds of batched forward dynamics
 def test_true_parameters_tiny_error_perturbed_clearly_larger(setup):
     ident, (log, h) = setup
     _, exact = validate_torques(ident, log, momentum=h, horizon=1.0)
@@ -77,6 +78,7 @@ def test_missing_efforts_and_bad_horizon(setup):
         validate_torques(ident, log, momentum=h, horizon=0.0)
 
 
+@pytest.mark.slow  # seconds of batched forward dynamics
 def test_csv_and_command_line(setup, tmp_path, capsys):
     ident, (log, h) = setup
     write_log(tmp_path / "log.csv", log)
@@ -106,6 +108,7 @@ def test_inconsistent_parameters_are_refused(setup):
         validate_torques(broken, log, momentum=h)
 
 
+@pytest.mark.slow  # seconds of batched forward dynamics
 def test_the_twin_under_its_own_efforts():
     """The twin's true 1 kHz motion and applied efforts (zero-order hold): the true model's
     forward dynamics reproduce it; its bag carries the mocap position and published efforts."""
