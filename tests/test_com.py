@@ -6,6 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 import pytest
+from random_states import random_log
 
 import spaceid
 from spaceid import SpaceidError
@@ -17,7 +18,7 @@ from spaceid.data import (
     write_json,
     write_log,
 )
-from spaceid.dynamics import base_rate, minimal_parameters, system_com
+from spaceid.dynamics import minimal_parameters, system_com
 from spaceid.estimation import identify, load_result
 from spaceid.identified import identified_model, identify_com, load_identified
 from spaceid.models import to_pinocchio
@@ -30,20 +31,13 @@ MODELS = {"cepheus": np.array([0.0, 0.0, 0.3]), "satellite-7dof": np.array([1.0,
 def positioned_log(param, h, n, rng, noise=0.0):
     """Samples at random states and attitudes, the base rate from ``h`` and the base position
     that keeps the system CM at ``r_c`` (plus white noise of ``noise`` [m])."""
-    model = param.model
-    q = rng.uniform(-np.pi, np.pi, (n, model.n_joints))
-    qd = rng.standard_normal((n, model.n_joints))
-    quat = rng.standard_normal((n, 4))
-    if model.planar:
-        quat[:, 1:3] = 0.0
-    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
-    rot = quat_to_matrix(quat)
-    w0 = base_rate(param, param.true_values, q, qd, np.einsum("nji,j->ni", rot, h))
-    r_c = np.array([0.4, -0.2, 0.0 if model.planar else 0.7])
-    position = r_c - np.einsum("nij,nj->ni", rot, system_com(model, q)) + noise * rng.standard_normal((n, 3))
-    if model.planar:
+    log = random_log(param, h, n, rng)
+    r_c = np.array([0.4, -0.2, 0.0 if param.model.planar else 0.7])
+    position = r_c - np.einsum("nij,nj->ni", quat_to_matrix(log.base_quat), system_com(param.model, log.q))
+    position += noise * rng.standard_normal((n, 3))
+    if param.model.planar:
         position[:, 2] = 0.0
-    return Log(np.arange(n) * 0.01, model.joints, q, qd, quat, w0, model.planar, {}, position)
+    return replace(log, base_position=position)
 
 
 @pytest.fixture(scope="module", params=list(MODELS))

@@ -7,6 +7,7 @@ from dataclasses import replace
 import numpy as np
 import pinocchio as pin
 import pytest
+from random_states import random_log
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from conftest import random_tree
@@ -14,8 +15,8 @@ from conftest import random_tree
 import spaceid
 from spaceid import SpaceidError
 from spaceid.cli import main
-from spaceid.data import Log, quat_to_matrix, write_log
-from spaceid.dynamics import base_rate, body_states, full_values, minimal_parameters
+from spaceid.data import quat_to_matrix, write_log
+from spaceid.dynamics import body_states, full_values, minimal_parameters
 from spaceid.estimation import Identification, Noise, identify
 from spaceid.estimation import load_result as load_identification
 from spaceid.identified import IdentifiedModel, identified_model
@@ -25,20 +26,6 @@ from spaceid.twin import planar_pinocchio
 
 H_CEPHEUS = np.array([0.0, 0.0, 0.4934])
 H_SPATIAL = np.array([1.0, -2.0, 3.0])
-
-
-def random_log(param, h, n, rng):
-    """Noise-free samples at random states and attitudes, the base rate from momentum ``h``."""
-    model = param.model
-    q = rng.uniform(-np.pi, np.pi, (n, model.n_joints))
-    qd = rng.standard_normal((n, model.n_joints))
-    quat = rng.standard_normal((n, 4))
-    if model.planar:
-        quat[:, 1:3] = 0.0
-    quat /= np.linalg.norm(quat, axis=1, keepdims=True)
-    h_base = np.einsum("nji,j->ni", quat_to_matrix(quat), h)
-    w0 = base_rate(param, param.true_values, q, qd, h_base)
-    return Log(np.arange(n) * 0.01, model.joints, q, qd, quat, w0, model.planar)
 
 
 @pytest.fixture(scope="module")
