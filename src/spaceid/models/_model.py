@@ -35,6 +35,9 @@ __all__ = [
     "load_model",
     "inertial_vector",
     "to_pinocchio",
+    "attach_payload",
+    "body_index",
+    "check_rigid_inertia",
 ]
 
 INERTIAL_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
@@ -229,19 +232,7 @@ def _validate(model: Model) -> Model:
                 "(merge massless frames into their parent with a fixed joint)"
             )
         i_com = _inertia_matrix(b.inertial) - b.mass * _skew(b.com).T @ _skew(b.com)
-        eig = np.linalg.eigvalsh(i_com)
-        scale = max(abs(eig).max(), 1e-300)
-        if eig.min() < -1e-9 * scale:
-            raise SpaceidError(
-                f"{where}: body '{b.name}' has an inertia tensor about its CoM that is not positive "
-                f"(semi-)definite (eigenvalues {np.round(eig, 9).tolist()}): check ixx..izz and their signs"
-            )
-        e = np.sort(eig)
-        if e[0] + e[1] < e[2] * (1 - 1e-6) - 1e-12 * scale:
-            raise SpaceidError(
-                f"{where}: body '{b.name}' violates the triangle inequality of principal inertias "
-                f"({np.round(e, 9).tolist()}): no rigid body has this inertia; check the values"
-            )
+        check_rigid_inertia(f"{where}: body '{b.name}'", i_com)
         if i > 0:
             if not 0 <= b.parent < i:
                 raise SpaceidError(f"{where}: body '{b.name}' must come after its parent")
@@ -251,6 +242,72 @@ def _validate(model: Model) -> Model:
                     "prismatic and fixed joints can sit below the floating base"
                 )
     return model
+
+
+def check_rigid_inertia(what: str, inertia_com):
+    """Refuse an inertia about the CoM (3, 3) [kg m^2] that no rigid body has: not positive
+    semi-definite, or principal moments that violate the triangle inequality; the SpaceidError
+    starts with ``what`` (the body or setting)."""
+    eig = np.linalg.eigvalsh(np.asarray(inertia_com, float))
+    scale = max(abs(eig).max(), 1e-300)
+    if eig.min() < -1e-9 * scale:
+        raise SpaceidError(
+            f"{what} has an inertia tensor about its CoM that is not positive "
+            f"(semi-)definite (eigenvalues {np.round(eig, 9).tolist()}): check ixx..izz and their signs"
+        )
+    e = np.sort(eig)
+    if e[0] + e[1] < e[2] * (1 - 1e-6) - 1e-12 * scale:
+        raise SpaceidError(
+            f"{what} violates the triangle inequality of principal inertias "
+            f"({np.round(e, 9).tolist()}): no rigid body has this inertia; check the values"
+        )
+
+
+def body_index(model: Model, name: str, where: str = "link") -> int:
+    """Index in ``model.bodies`` of the body ``name``, or a SpaceidError naming ``where``."""
+    names = [b.name for b in model.bodies]
+    if name not in names:
+        raise SpaceidError(
+            f"{where} names '{name}', which is not a body of model {model.name} "
+            f"(bodies: {', '.join(names)}): use one of these names"
+        )
+    return names.index(name)
+
+
+def attach_payload(model: Model, link: str, inertial, *, where: str = "link") -> Model:
+    """``model`` with a payload rigidly fixed to its body ``link`` (a grasped or docked object).
+
+    Inertial parameters of rigidly joined bodies add when taken about the same point in the same
+    axes, so the body's parameters become its own plus the payload's.
+
+    Parameters
+    ----------
+    model : Model
+    link : str
+        Name of the body that holds the payload.
+    inertial : array_like of shape (10,)
+        The payload's standard inertial parameters about the origin of ``link``, in its axes
+        (:func:`inertial_vector` of its mass, its CoM in that frame and its inertia about the CoM
+        in those axes).
+    where : str
+        What names ``link`` in an error (an option or setting).
+
+    Returns
+    -------
+    Model
+        The copy; the structural zeros (``known_zero``) of ``link`` that the payload makes nonzero
+        are dropped.
+    """
+    i = body_index(model, link, where)
+    payload = np.asarray(inertial, float)
+    if payload.shape != (10,) or not np.all(np.isfinite(payload)) or payload[0] <= 0:
+        raise SpaceidError(
+            f"{where}: the payload needs 10 finite inertial parameters with a positive mass, got {shown(inertial)}"
+        )
+    body = model.bodies[i]
+    broken = {n for n, value in zip(INERTIAL_NAMES, payload) if value != 0}
+    new = replace(body, inertial=body.inertial + payload, known_zero=frozenset(body.known_zero - broken))
+    return replace(model, bodies=model.bodies[:i] + (new,) + model.bodies[i + 1 :])
 
 
 def _skew(v):

@@ -20,6 +20,10 @@ Everything is a free function or a frozen dataclass::
     run.base_position, run.base_velocity, run.effort, run.co2_mass   # more true histories
     run.state          # TwinState at the end: the start of the next phase
 
+    grasping = replace(settings, capture=Capture(time=4.0, mass=0.5, position=(0.6, 0.2)))
+    c = run_twin(load_trajectory("paper-table2"), duration=6.0, settings=grasping, state=a.state)
+    c.meta["capture"]  # the truth: payload in the link's frame, grasp time, parameters before/after
+
 * :func:`run_twin` ``(reference=None, *, duration, wheel_speed=None, settings, state, seed, effort)``
   runs one phase from ``state`` (default: at rest at the origin, full tank); ``reference``
   drives the position-controlled joints, ``wheel_speed`` [rad/s] the velocity-controlled ones,
@@ -30,6 +34,10 @@ Everything is a free function or a frozen dataclass::
   for ``run_twin(..., effort=...)``.
 * :func:`planar_pinocchio` builds the Pinocchio model (root PX, PY, RZ) and
   :func:`drained_model` the :class:`~spaceid.models.Model` with a partly empty CO2 tank.
+* ``TwinSettings(capture=Capture(time, ...))`` makes the end effector grasp a free-floating
+  payload (:func:`payload_pose` where it is before) in a plastic impact that conserves the total
+  momentum (:func:`table_momentum`); the run then integrates the combined system and records the
+  truth in ``meta["capture"]`` (docs/theory/capture.md).
 
 Structure
 ---------
@@ -47,6 +55,8 @@ the settings parametrise them all.
   and dropped frames; time stamps.
 * ``_effects``: joint and air-bearing friction, torque limits, thrusters and the CO2 tank, table
   tilt.
+* ``_capture``: the grasp of a payload: its free flight, its parameters in the grasping link's
+  frame, the impact (generalised momentum conserved) and the truth record.
 * ``_run``: :class:`TwinState`, :class:`TwinRun`, the hardware loop (one tick: encoders,
   controllers, saturation, friction and thrust, RK4 step, tank), :func:`run_twin`,
   :func:`spin_up`, :func:`join_runs`; phases.
@@ -61,11 +71,13 @@ arm joints under ros_control ``effort_controllers/JointPositionController`` (PD)
 under ``effort_controllers/JointVelocityController`` (PI); tf = 5 s. docs/theory/scale.md (reaction wheel momentum).
 """
 
-from . import _settings, _plant, _controllers, _effects, _run
+from . import _settings, _plant, _controllers, _effects, _capture, _run
 from ._settings import *  # noqa: F403
 from ._plant import *  # noqa: F403
 from ._controllers import *  # noqa: F403
 from ._effects import *  # noqa: F403
+from ._capture import *  # noqa: F403
 from ._run import *  # noqa: F403
 
-__all__ = _settings.__all__ + _plant.__all__ + _controllers.__all__ + _effects.__all__ + _run.__all__
+__all__ = (_settings.__all__ + _plant.__all__ + _controllers.__all__ + _effects.__all__ + _capture.__all__
+           + _run.__all__)

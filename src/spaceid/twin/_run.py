@@ -5,13 +5,17 @@ The hardware loop runs at the control rate. At every tick it reads the encoders
 (:mod:`~spaceid.twin._controllers`), saturates the efforts, evaluates joint friction, thrust and
 air-bearing friction from the state at the start of the step (:mod:`~spaceid.twin._effects`) and
 takes one RK4 step of the plant with all of them held (:mod:`~spaceid.twin._plant`), then drains
-the tank. After the loop the sensor streams are formed from the per-tick histories.
+the tank. After the loop the sensor streams are formed from the per-tick histories. A grasp
+(:class:`~spaceid.twin.Capture`) splits the loop at its tick: the impact changes the rates
+(:mod:`~spaceid.twin._capture`) and the loop goes on with the combined model.
 
 A run covers ``[state.t, state.t + duration]``: the true history includes both ends, the sensor
 streams are stamped on absolute time grids in ``[t0, t_end)`` (so consecutive phases continue the
 same grids) and :func:`join_runs` drops the repeated boundary sample. The state carries the
 controller memory (set points, integral terms, last encoder reading), so a phase split in two
-gives the same true motion as one phase.
+gives the same true motion as one phase, also across a grasp: the true history holds the state
+just before the grasp at its tick, the state after it starts the next step (and a phase that ends
+at the grasp tick leaves the grasp to the next one).
 """
 
 from __future__ import annotations
@@ -23,7 +27,8 @@ import numpy as np
 
 from .._errors import SpaceidError, finite_array
 from ..data import JointStates, Log, Poses, Recording, yaw_to_quat
-from ..models import Model
+from ..models import Model, attach_payload
+from ._capture import _grasp, _grasp_link
 from ._controllers import _controller_gains, _effort_setpoints, _feedforward_law, _Gains, _pid_law, _setpoints
 from ._effects import (
     _bearing_friction_law,
@@ -83,6 +88,10 @@ class TwinState:
         Integral terms of the controllers [N m]; None: zeros.
     encoder_prev : ndarray of shape (n_joints,) or None
         Encoder reading one control period before ``t`` [rad]; None: the current reading.
+    grasp : dict or None
+        The truth record of the grasp once a payload is held (``meta["capture"]`` of the run
+        that grasped it; its ``link`` and ``payload["inertial"]`` make the plant the combined
+        model); None: no payload held.
     """
 
     t: float = 0.0
@@ -96,6 +105,7 @@ class TwinState:
     command: np.ndarray | None = None
     i_term: np.ndarray | None = None
     encoder_prev: np.ndarray | None = None
+    grasp: dict | None = None
 
     def __post_init__(self):
         for name in ("t", "base_yaw", "base_wz"):
@@ -142,7 +152,8 @@ class TwinRun:
     state : TwinState
         The final state (start of a next phase).
     meta : dict
-        Seeds, settings, model, CO2 mass at start and end, per-phase records.
+        Seeds, settings, model, CO2 mass at start and end, per-phase records; ``capture``: the
+        truth record of the grasp once a payload is held (docs/theory/capture.md).
     """
 
     recording: Recording
@@ -173,10 +184,18 @@ class _Setup:
     coulomb: np.ndarray  # joint friction [N m]
 
 
-def _setup(settings: TwinSettings) -> _Setup:
-    """The model and per-joint constants of ``settings``, checked against each other."""
+def _setup(settings: TwinSettings, grasp: dict | None = None) -> _Setup:
+    """The model and per-joint constants of ``settings``, checked against each other; with the
+    payload of ``grasp`` (a :attr:`TwinState.grasp` record) held by its link."""
     model = _planar_model(settings.model)
     _check_joint_names(settings, model)
+    if settings.capture is not None:
+        _grasp_link(settings.capture, model)
+    if grasp is not None:
+        try:
+            model = attach_payload(model, grasp["link"], grasp["payload"]["inertial"], where="state.grasp")
+        except (KeyError, TypeError):
+            raise SpaceidError("state.grasp must be the grasp record of a run (run.state.grasp)") from None
     c, jf = settings.controllers, settings.joint_friction
     _check_publish_rate(settings.encoders, c.rate)
     joints = model.joints
@@ -330,6 +349,53 @@ def _integrate(setup: _Setup, settings: TwinSettings, state: TwinState, command,
     return X[:, 0], X[:, 1], np.array(QM, float), np.array(EFF, float), CO2, np.array(i_term)
 
 
+def _grasp_tick(capture, state: TwinState, times, dt) -> int | None:
+    """The tick of the phase at which ``capture`` grasps: the first at or after its time (to
+    within 1e-6 dt) that starts a step; None when there is none or a payload is already held."""
+    if capture is None or state.grasp is not None:
+        return None
+    if capture.time < times[0] - 1e-6 * dt:
+        raise SpaceidError(
+            f"capture.time = {capture.time:g} s is before the phase's start (t = {times[0]:g} s) but the state "
+            "holds no payload: start the phase from the state of the run that grasped it (run.state)"
+        )
+    k = int(np.searchsorted(times, capture.time - 1e-6 * dt))
+    return k if k < len(times) - 1 else None
+
+
+def _state_at(t, q_pin, v_pin, co2, command, i_term, encoder_prev, grasp) -> TwinState:
+    """The :class:`TwinState` at a tick from the plant's coordinates and the controller memory."""
+    return TwinState(t=float(t), base_xy=q_pin[:2], base_yaw=float(q_pin[2]), base_vxy=v_pin[:2],
+                     base_wz=float(v_pin[2]), q=q_pin[3:], qd=v_pin[3:], co2_mass=float(co2), command=command,
+                     i_term=i_term, encoder_prev=encoder_prev, grasp=grasp)  # fmt: skip
+
+
+def _integrate_phase(setup: _Setup, settings: TwinSettings, state: TwinState, times, command, rate, accel, valves,
+                     dt, planned):
+    """:func:`_integrate` over a phase, split at the grasp tick if ``settings.capture`` grasps in it.
+
+    Returns the histories of :func:`_integrate` (at the grasp tick the state just before the
+    grasp, and the effort applied after it), then ``grasp``: the record of the payload held at the
+    end (or None), and ``jump``: ``(k, v_after)``, the grasp tick and the rates after the impact
+    (or None)."""
+    k = _grasp_tick(settings.capture, state, times, dt)
+    if k is None:
+        return *_integrate(setup, settings, state, command, rate, accel, valves, dt, planned), state.grasp, None
+
+    def inputs(ticks):
+        return command[ticks], rate[ticks], accel[ticks], valves[ticks], None if planned is None else planned[ticks]
+
+    c1, r1, a1, w1, p1 = inputs(slice(None, k + 1))
+    Q1, V1, QM1, EFF1, CO21, i_term = _integrate(setup, settings, state, c1, r1, a1, w1, dt, p1)
+    v_after, grasp = _grasp(setup.model, settings, Q1[-1], V1[-1], times[k], CO21[-1])
+    prev = QM1[-2] if k else state.encoder_prev
+    held = _state_at(times[k], Q1[-1], v_after, CO21[-1], command[k], i_term, prev, grasp)
+    c2, r2, a2, w2, p2 = inputs(slice(k, None))
+    Q2, V2, QM2, EFF2, CO22, i_term = _integrate(_setup(settings, grasp), settings, held, c2, r2, a2, w2, dt, p2)
+    return (np.concatenate([Q1, Q2[1:]]), np.concatenate([V1, V2[1:]]), np.concatenate([QM1, QM2[1:]]),
+            np.concatenate([EFF1[:-1], EFF2]), np.concatenate([CO21, CO22[1:]]), i_term, grasp, (k, v_after))
+
+
 # ------------------------------------------------------------------ a phase -------------------
 
 
@@ -382,7 +448,7 @@ def run_twin(
         seed = int(seed)
     except (TypeError, ValueError):
         raise SpaceidError(f"seed must be an integer, got {seed!r}") from None
-    setup = _setup(settings)
+    setup = _setup(settings, getattr(state, "grasp", None))  # the state is checked next
     state = _start_state(setup, state, settings)
     dt = 1.0 / settings.controllers.rate
     t0, joints = state.t, setup.model.joints
@@ -390,24 +456,15 @@ def run_twin(
     command, rate, accel = _setpoints(setup.gains, joints, reference, wheel_speed, times - t0, state.command)
     planned = _effort_setpoints(setup.gains, effort, times - t0)
     valves = _valves(settings.thrusters, times, dt)
-    Q, V, QM, EFF, CO2, i_term = _integrate(setup, settings, state, command, rate, accel, valves, dt, planned)
+    Q, V, QM, EFF, CO2, i_term, grasp, jump = _integrate_phase(setup, settings, state, times, command, rate, accel,
+                                                               valves, dt, planned)
     rates = _hardware_rates(QM, state.encoder_prev, dt)
     joint_states = _publish_joint_states(settings.encoders, joints, times, dt, QM, rates, EFF)
-    poses, n_frames, n_dropped = _capture_poses(settings.mocap, times, Q, V, seed)
-    final = TwinState(
-        t=float(times[-1]),
-        base_xy=Q[-1, :2],
-        base_yaw=float(Q[-1, 2]),
-        base_vxy=V[-1, :2],
-        base_wz=float(V[-1, 2]),
-        q=Q[-1, 3:],
-        qd=V[-1, 3:],
-        co2_mass=float(CO2[-1]),
-        command=command[-1],
-        i_term=i_term,
-        encoder_prev=QM[-2],
-    )
+    poses, n_frames, n_dropped = _capture_poses(settings.mocap, times, Q, V, seed, jump)
+    final = _state_at(times[-1], Q[-1], V[-1], CO2[-1], command[-1], i_term, QM[-2], grasp)
     meta = _run_meta(setup, settings, seed, times, Q, command, CO2, n_frames, n_dropped)
+    if grasp is not None:
+        meta["capture"] = grasp
     return TwinRun(
         recording=Recording(joint_states, poses, meta),
         truth=_true_log(times, joints, Q, V, seed),
@@ -586,4 +643,6 @@ def _joined_meta(runs) -> dict:
         seed=[r.meta["seed"] for r in runs],
     )
     meta.pop("tracking_rms", None)  # of one phase only
+    if "capture" in runs[-1].meta:  # the payload held at the end, whichever phase grasped it
+        meta["capture"] = runs[-1].meta["capture"]
     return meta

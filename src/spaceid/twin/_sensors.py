@@ -102,7 +102,27 @@ def _grid(t0, t_end, period):
     return np.arange(first, last + 1) * period
 
 
-def _capture_poses(mocap: MotionCapture, times, Q, V, seed):
+def _base_path(times, Q, V, jump):
+    """The base pose ``[x, y, yaw]`` between the ticks, ``f(t) -> (n, 3)``: the cubic Hermite of
+    ``Q`` and ``V``, in two pieces at a grasp ``jump = (k, v_after)`` (the rates jump there)."""
+    if jump is None:
+        return lambda t: hermite_motion(times, Q[:, :3], V[:, :3])(t)[0]
+    k, v_after = jump
+    before = hermite_motion(times[: k + 1], Q[: k + 1, :3], V[: k + 1, :3]) if k else None
+    after = hermite_motion(times[k:], Q[k:, :3], np.vstack([v_after[:3], V[k + 1 :, :3]]))
+
+    def pose(t):
+        late = t >= times[k]
+        out = np.empty((len(t), 3))
+        out[late] = after(t[late])[0]
+        if before is not None:
+            out[~late] = before(t[~late])[0]
+        return out
+
+    return pose
+
+
+def _capture_poses(mocap: MotionCapture, times, Q, V, seed, jump=None):
     """Motion-capture frames of a phase from the true base motion.
 
     Parameters
@@ -114,6 +134,9 @@ def _capture_poses(mocap: MotionCapture, times, Q, V, seed):
         True ``q_pin`` and ``v_pin`` at the ticks (the pose between ticks is their cubic Hermite).
     seed : int
         Seed of the noise and the dropped frames.
+    jump : tuple (k, v_after) or None
+        A grasp at tick ``k``: ``V[k]`` holds the rates just before it, ``v_after`` (3 + n,)
+        those just after, which start the next step.
 
     Returns
     -------
@@ -123,7 +146,7 @@ def _capture_poses(mocap: MotionCapture, times, Q, V, seed):
         Frames captured and lost.
     """
     capture = _grid(times[0], times[-1], 1.0 / mocap.rate)
-    pose, _ = hermite_motion(times, Q[:, :3], V[:, :3])(capture)
+    pose = _base_path(times, Q, V, jump)(capture)
     noise_rng, drop_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
     sigma = [mocap.position_noise, mocap.position_noise, mocap.attitude_noise]
     noise = noise_rng.standard_normal((len(capture), 3)) * sigma

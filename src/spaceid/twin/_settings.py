@@ -3,7 +3,8 @@ default and where the default comes from (published, measured, or assumed and wh
 
 :class:`TwinSettings` gathers :class:`Controllers` (with :class:`PID` gains), :class:`Encoders`,
 :class:`MotionCapture` and the optional effects :class:`BearingFriction`, :class:`JointFriction`,
-:class:`TorqueLimits`, :class:`Thrusters` and :class:`Tank`, each with an ``enabled`` switch.
+:class:`TorqueLimits`, :class:`Thrusters` and :class:`Tank`, each with an ``enabled`` switch, and
+the optional grasp of a free-floating payload, :class:`Capture`.
 Every value is checked on construction (a :class:`~spaceid.SpaceidError` names the setting);
 joint names are checked against the model when a run starts.
 """
@@ -17,7 +18,7 @@ from dataclasses import dataclass, field, fields, is_dataclass, replace
 import numpy as np
 
 from .._errors import SpaceidError
-from ..models import Model, inertial_vector
+from ..models import Model, check_rigid_inertia, inertial_vector
 
 __all__ = [
     "PID",
@@ -29,6 +30,7 @@ __all__ = [
     "TorqueLimits",
     "Thrusters",
     "Tank",
+    "Capture",
     "TwinSettings",
 ]
 
@@ -465,6 +467,98 @@ class Tank:
         return inertial_vector(1.0, [*self.position, 0.0], i_com)
 
 
+def _default_payload_inertia():
+    # a solid cylinder of 0.5 kg, radius 0.05 m, height 0.1 m, axis vertical
+    side = 0.5 * (3 * 0.05**2 + 0.1**2) / 12
+    return ((side, 0.0, 0.0), (0.0, side, 0.0), (0.0, 0.0, 0.5 * 0.5 * 0.05**2))
+
+
+@dataclass(frozen=True)
+class Capture:
+    """A free-floating payload on the table that the end effector grasps at ``time``.
+
+    Before the grasp the payload floats on its own air bearings without friction: its CoM moves
+    at the constant ``velocity`` and it turns at the constant ``rate``. At the first control tick
+    at or after ``time`` it becomes rigidly attached to the body ``link`` where it then is (no
+    contact or approach is modelled), in a plastic impact that conserves the total linear and
+    angular momentum and applies no impulsive joint torque (:mod:`spaceid.twin._capture`); from
+    then on the twin integrates the combined system, the payload's inertial parameters added to
+    those of ``link``. The payload is a planar body: its CoM lies in the plane of the frame origin
+    of ``link``, and its frame turns about the vertical only.
+
+    Attributes
+    ----------
+    time : float
+        Grasp instant [s] on the twin's clock (``TwinState.t``, 0 at the default start).
+    link : str or None
+        The body that grasps [model body name]; None (default): the model's last body (cepheus-rw:
+        ``link2``, the arm's end link).
+    mass : float
+        Payload mass [kg]. Default 0.5.
+    com : tuple of 2 floats
+        Its CoM in the payload frame [m]. Default (0.02, 0.01).
+    inertia : 3 x 3 nested tuples or 3 floats
+        Inertia about the CoM, payload axes [kg m^2] (3 floats: the principal moments along the
+        payload axes); it must be one a rigid body has. Default a solid cylinder of 0.5 kg, radius
+        0.05 m and height 0.1 m with a vertical axis (Izz = 6.25e-4).
+    position : tuple of 2 floats
+        Payload frame origin in the world (table) frame at t = 0 [m]. Default (0.5, 0.1).
+    yaw : float
+        Payload frame yaw at t = 0 [rad]. Default 0.
+    velocity : tuple of 2 floats
+        Velocity of its CoM, world axes [m/s]. Default (0, 0).
+    rate : float
+        Its yaw rate [rad/s]. Default 0.
+    """
+
+    time: float
+    link: str | None = None
+    mass: float = 0.5
+    com: tuple = (0.02, 0.01)
+    inertia: tuple = field(default_factory=_default_payload_inertia)
+    position: tuple = (0.5, 0.1)
+    yaw: float = 0.0
+    velocity: tuple = (0.0, 0.0)
+    rate: float = 0.0
+
+    def __post_init__(self):
+        _set(self, "time", _number("capture.time [s]", self.time, low=0.0))
+        if self.link is not None and (not isinstance(self.link, str) or not self.link):
+            raise SpaceidError(
+                f"capture.link must be a body name of the model or None (the last body), got {self.link!r}"
+            )
+        _set(self, "mass", _number("capture.mass [kg]", self.mass, low=0.0, strict=True))
+        for name in ("com", "position", "velocity"):
+            pair = _finite_tuple(getattr(self, name), 2)
+            if pair is None:
+                raise SpaceidError(f"capture.{name} must be 2 finite numbers (x, y), got {getattr(self, name)!r}")
+            _set(self, name, pair)
+        for name in ("yaw", "rate"):
+            _set(self, name, _number(f"capture.{name}", getattr(self, name)))
+        _set(self, "inertia", _payload_inertia(self.inertia))
+
+    def inertia_matrix(self) -> np.ndarray:
+        """The inertia about the CoM (3, 3) [kg m^2], payload axes."""
+        return np.array(self.inertia)
+
+
+def _payload_inertia(value) -> tuple:
+    """:attr:`Capture.inertia` as a checked, symmetric 3 x 3 nested tuple [kg m^2]."""
+    diagonal = _finite_tuple(value, 3) if np.ndim(value) == 1 else None
+    try:
+        matrix = np.diag(diagonal) if diagonal is not None else np.array(value, dtype=float)
+    except (TypeError, ValueError):
+        matrix = None
+    if matrix is None or matrix.shape != (3, 3) or not np.all(np.isfinite(matrix)):
+        raise SpaceidError(
+            f"capture.inertia must be a 3 x 3 matrix or 3 principal moments [kg m^2], got {value!r}"
+        )
+    if not np.allclose(matrix, matrix.T, rtol=0, atol=1e-12 * np.abs(matrix).max()):
+        raise SpaceidError(f"capture.inertia must be symmetric, got {matrix.tolist()}")
+    check_rigid_inertia("capture.inertia: the payload", matrix)
+    return tuple(tuple(row) for row in (matrix + matrix.T) / 2)
+
+
 @dataclass(frozen=True)
 class TwinSettings:
     """Everything the twin needs, with units; ``to_dict()`` for provenance.
@@ -482,6 +576,8 @@ class TwinSettings:
         within 0.01 deg = 1.7e-4 rad).
     tilt_azimuth : float
         Default 0.
+    capture : Capture or None
+        A payload the end effector grasps during the run; None (default): none.
     """
 
     model: str | Model = "cepheus-rw"
@@ -495,6 +591,7 @@ class TwinSettings:
     tank: Tank = field(default_factory=Tank)
     table_tilt: float = 0.0
     tilt_azimuth: float = 0.0
+    capture: Capture | None = None
 
     def __post_init__(self):
         for f in fields(self):
@@ -511,9 +608,12 @@ class TwinSettings:
         if self.table_tilt >= math.pi / 2:
             raise SpaceidError(f"settings.table_tilt must be below pi/2 rad, got {self.table_tilt:g}")
         _set(self, "tilt_azimuth", _number("settings.tilt_azimuth [rad]", self.tilt_azimuth))
+        if self.capture is not None and not isinstance(self.capture, Capture):
+            raise SpaceidError(f"settings.capture must be a Capture(time=...) or None, got {self.capture!r}")
 
     def without_effects(self) -> "TwinSettings":
-        """The same settings with friction, torque limits, thrusters, tank drain and tilt off."""
+        """The same settings with friction, torque limits, thrusters, tank drain and tilt off (a
+        capture stays)."""
         return replace(
             self,
             bearing_friction=replace(self.bearing_friction, enabled=False),
