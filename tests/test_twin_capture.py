@@ -22,6 +22,7 @@ from spaceid.twin import (
     TwinState,
     drained_model,
     join_runs,
+    place_payload,
     planar_pinocchio,
     run_twin,
 )
@@ -222,7 +223,8 @@ def test_post_grasp_base_motion_matches_the_kinematic_simulation(grasping):
 
 def test_truth_record(grasping):
     record = grasping.meta["capture"]
-    json.dumps(record)  # JSON-ready
+    json.dumps(grasping.meta)  # JSON-ready, the settings' capture section too
+    assert grasping.meta["settings"]["capture"]["inertia"] == [list(row) for row in PAYLOAD.inertia]
     assert record["time"] == PAYLOAD.time and record["link"] == "link2"
     assert grasping.recording.meta["capture"] == record and grasping.state.grasp == record
     q = coordinates(grasping, int(round(PAYLOAD.time * 1000)))[0]
@@ -247,6 +249,18 @@ def test_truth_record(grasping):
     assert after.n_params == before.n_params + 1
 
 
+def test_payload_placed_at_the_gripper():
+    """place_payload: at the grasp the payload frame sits at the offset in the link frame, turned by yaw."""
+    a = run(IDEAL, duration=0.8)
+    capture = place_payload(PAYLOAD, "cepheus-rw", a.state, offset=(0.05, -0.01), yaw=0.3)
+    assert capture.time == a.state.t and capture.velocity == PAYLOAD.velocity and capture.mass == PAYLOAD.mass
+    b = run(replace(IDEAL, capture=capture), duration=0.2, state=a.state, start=0.8)
+    payload = b.meta["capture"]["payload"]
+    turn = pin.rpy.rpyToMatrix(0, 0, 0.3)
+    np.testing.assert_allclose(payload["com"], np.r_[0.05, -0.01, 0.0] + turn @ np.r_[PAYLOAD.com, 0.0], atol=1e-12)
+    np.testing.assert_allclose(payload["inertia"], turn @ np.array(PAYLOAD.inertia) @ turn.T, rtol=0, atol=1e-15)
+
+
 def test_truth_with_the_tank_drained_before_the_grasp():
     """With thrusters firing before the grasp, 'before' is the drained robot at the grasp."""
     settings = TwinSettings(thrusters=Thrusters(schedule=((0.0, 0.2, 0, 1),)), tank=Tank(),
@@ -259,6 +273,7 @@ def test_truth_with_the_tank_drained_before_the_grasp():
     np.testing.assert_allclose(record["minimal_parameters"]["before"]["values"], drained.true_values, rtol=1e-12)
 
 
+@pytest.mark.slow
 def test_bag_carries_the_whole_run(tmp_path):
     """The realistic twin grasps; its bag, read back, covers the run before and after the grasp."""
     r = run(TwinSettings(capture=PAYLOAD), seed=3)

@@ -35,9 +35,10 @@ Everything is a free function or a frozen dataclass::
 * :func:`planar_pinocchio` builds the Pinocchio model (root PX, PY, RZ) and
   :func:`drained_model` the :class:`~spaceid.models.Model` with a partly empty CO2 tank.
 * ``TwinSettings(capture=Capture(time, ...))`` makes the end effector grasp a free-floating
-  payload (:func:`payload_pose` where it is before) in a plastic impact that conserves the total
-  momentum (:func:`table_momentum`); the run then integrates the combined system and records the
-  truth in ``meta["capture"]`` (docs/theory/capture.md).
+  payload (:func:`payload_pose` where it is before; :func:`place_payload` puts it at the gripper
+  at the grasp) in a plastic impact that conserves the total momentum (:func:`table_momentum`);
+  the run then integrates the combined system and records the truth in ``meta["capture"]``
+  (docs/theory/capture.md).
 
 Structure
 ---------

@@ -22,15 +22,16 @@ kinetic energy lost is that of the relative motion that the impulse stops.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from ..dynamics import minimal_parameters
 from ..models import Model, attach_payload, body_index, inertial_vector
-from ._plant import _symmetric, drained_model, planar_pinocchio
+from ._plant import _planar_model, _symmetric, drained_model, planar_pinocchio
 from ._settings import Capture, TwinSettings
 
-__all__ = ["payload_pose", "table_momentum"]
+__all__ = ["payload_pose", "place_payload", "table_momentum"]
 
 
 def payload_pose(capture: Capture, t: float):
@@ -45,6 +46,46 @@ def payload_pose(capture: Capture, t: float):
     """
     c0 = np.asarray(capture.position) + _rotation(capture.yaw)[:2, :2] @ np.asarray(capture.com)
     return c0 + np.asarray(capture.velocity) * t, capture.yaw + capture.rate * t
+
+
+def place_payload(capture: Capture, model, state, *, offset=(0.0, 0.0), yaw: float = 0.0) -> Capture:
+    """``capture`` set to grasp at ``state.t`` with the payload frame at ``offset`` in the link.
+
+    The payload keeps its velocity and rate; its pose at t = 0 is set back along them so that at
+    the grasp its frame origin is at ``offset`` (2,) [m] in the grasping link's frame (in the plane
+    of its origin) and turned by ``yaw`` [rad] from the link's axes: a grasp at the gripper.
+
+    Parameters
+    ----------
+    capture : Capture
+        The payload (mass, CoM, inertia, velocity, rate, link); its time and pose are replaced.
+    model : str or Model
+        The twin's model (``TwinSettings.model``).
+    state : TwinState
+        Where the robot is at the grasp, e.g. the ``state`` of the run that ends there.
+    offset : tuple of 2 floats
+    yaw : float
+
+    Returns
+    -------
+    Capture
+    """
+    import pinocchio as pin
+
+    model = _planar_model(model)
+    pm = planar_pinocchio(model)
+    data = pm.createData()
+    q = np.zeros(model.n_joints) if state.q is None else state.q
+    pin.framesForwardKinematics(pm, data, np.r_[state.base_xy, state.base_yaw, q])
+    link = data.oMf[pm.getFrameId(_grasp_link(capture, model))]
+    at = np.array(link.translation)[:2] + np.array(link.rotation)[:2, :2] @ np.asarray(offset, float)
+    heading = math.atan2(link.rotation[1, 0], link.rotation[0, 0]) + float(yaw)
+    com = at + _rotation(heading)[:2, :2] @ np.asarray(capture.com)
+    t = state.t
+    start_yaw = heading - capture.rate * t
+    com0 = com - np.asarray(capture.velocity) * t
+    return replace(capture, time=t, yaw=start_yaw,
+                   position=tuple(com0 - _rotation(start_yaw)[:2, :2] @ np.asarray(capture.com)))
 
 
 def table_momentum(model: Model, q_pin, v_pin) -> np.ndarray:
