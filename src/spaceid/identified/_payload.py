@@ -27,7 +27,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
-from ..data import Log, log_fingerprint, quat_to_matrix
+from ..data import Log, log_fingerprint, quat_to_matrix, read_json
 from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian, minimal_parameters
 from ..estimation import Noise, equation_covariance, noise_from_log, signal_sigma
 from ..estimation._drift import check_drift_kinds, drift_names
@@ -37,7 +37,7 @@ from ..models import INERTIAL_NAMES, PRESETS, Model, load_model
 from ..models._model import symbol_suffix
 from ._export import _CLARABEL, MARGIN, inertial_from_pseudo, pseudo_inertia
 
-__all__ = ["PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent"]
+__all__ = ["PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent", "nominal_payload"]
 
 SPATIAL_NAMES = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 """The payload's physical parameters: mass [kg], CoM in LINK's frame [m], inertia about the CoM
@@ -319,14 +319,16 @@ class PayloadEstimate:
 
     @property
     def com(self) -> np.ndarray:
-        """CoM [m] in the link frame (planar: z zero, not identifiable)."""
-        return np.array([*self.values[1:3], 0.0]) if len(self.names) == 4 else self.values[1:4].copy()
+        """CoM [m] in the link frame (planar: z NaN, not identifiable)."""
+        return np.array([*self.values[1:3], np.nan]) if len(self.names) == 4 else self.values[1:4].copy()
 
     @property
     def inertia(self) -> np.ndarray:
-        """Inertia about the CoM, link axes [kg m^2], ``(3, 3)`` (planar: Izz only, the rest zero)."""
+        """Inertia about the CoM, link axes [kg m^2], ``(3, 3)`` (planar: Izz only, the rest NaN)."""
         if len(self.names) == 4:
-            return np.diag([0.0, 0.0, self.values[3]])
+            out = np.full((3, 3), np.nan)
+            out[2, 2] = self.values[3]
+            return out
         return np.array(_matrix(self.values[4:]))
 
     def to_dict(self) -> dict:
@@ -393,9 +395,12 @@ def _whitened(pmap, eq, x, y, rhs, sigma, theta):
 def _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where) -> tuple:
     """The least-squares ``theta (p,)`` from zero (no payload: the first step solves the
     first-order problem), the whitened residuals and Jacobian there, and the steps taken."""
-    theta = np.zeros(p)
+    theta, cost = np.zeros(p), np.inf
     for step in range(1, MAX_STEPS + 1):
         r, a = _whitened(pmap, eq, x, y, rhs, sigma, theta)
+        if not r.ravel() @ r.ravel() < cost * (1 - STEP_TOL):  # no progress: at the optimum (e.g. no payload at all)
+            break
+        cost = r.ravel() @ r.ravel()
         flat = a.reshape(-1, p)
         scale = np.linalg.norm(flat, axis=0)
         scale[scale == 0] = 1.0
@@ -523,3 +528,21 @@ def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | Non
     values = _physical(consistent, pmap.planar)
     return PayloadEstimate(pmap.link, physical, values, np.sqrt(np.maximum(np.diag(cov), 0)), cov,
                            pmap.standard(consistent), NOT_PLANAR if pmap.planar else (), h, terms, settings)
+
+
+def nominal_payload(path, *, planar: bool) -> np.ndarray:
+    """The standard parameters of the payload in a PAYLOAD.json (a nominal for the design): all ten
+    (spatial) or ``m, mcx, mcy, Izz`` about the link origin (planar), shape ``(10,)`` or ``(4,)``.
+
+    Raises
+    ------
+    SpaceidError
+        The file is not a PAYLOAD.json (no ``standard_parameters``).
+    """
+    data = read_json(path, what="payload")
+    std = data.get("standard_parameters") if isinstance(data, dict) else None
+    if not isinstance(std, dict) or any(not isinstance(std.get(n), (int, float)) for n in INERTIAL_NAMES):
+        raise SpaceidError(f"{path}: no standard_parameters with {', '.join(INERTIAL_NAMES)}: give a PAYLOAD.json "
+                           "that 'spaceid payload' wrote")
+    values = np.array([std[n] for n in INERTIAL_NAMES], float)
+    return values[list(PLANAR_SLOTS)] if planar else values
