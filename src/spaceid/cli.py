@@ -298,8 +298,9 @@ def _write_definitions(path, info, model_src):
 @click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
               "depends on the machine's speed).")
 @click.option("--payload-link", metavar="LINK", help="Design for the parameters of a payload held by LINK (see "
-              "'spaceid payload') instead of the minimal parameters; with the --noise-* options the trajectory "
-              "records the payload's predicted Cramer-Rao standard deviations.")
+              "'spaceid payload') instead of the minimal parameters (--momentum 0 allowed: the known servicer fixes the "
+              "scale); with the --noise-* options the trajectory records the payload's predicted Cramer-Rao standard "
+              "deviations.")
 @click.option("--payload-nominal", type=click.Path(path_type=Path), metavar="PAYLOAD.json", help="With "
               "--payload-link: the nominal payload (a 'spaceid payload' output; default none, zero mass).")
 @output("Trajectory JSON to write (for simulate, predict, identify --instruments).")
