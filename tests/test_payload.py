@@ -95,7 +95,8 @@ def test_servicer_captured_target_from_the_dual_arm_servicer():
     est = identify_payload(pmap, log, "left_ee", h, noise=spaceid.Noise())
     c, s = np.cos(0.35), np.sin(0.35)
     rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
-    i_target = np.array([[18.4343, -0.0446216, 0.247962], [-0.0446216, 18.3235, 0.703207], [0.247962, 0.703207, 14.5423]])
+    i_target = np.array([[18.4343, -0.0446216, 0.247962], [-0.0446216, 18.3235, 0.703207],
+                         [0.247962, 0.703207, 14.5423]])
     assert est.mass == pytest.approx(150.0, rel=1e-8)
     np.testing.assert_allclose(est.com, rot @ [0.035, -0.022, 0.56] + [0, 0, 0.2], atol=1e-8)
     np.testing.assert_allclose(est.inertia, rot @ i_target @ rot.T, atol=1e-8 * 18.5)
@@ -172,9 +173,44 @@ def test_a_noisy_point_mass_is_projected_to_a_consistent_estimate(cepheus):
     assert projected  # Izz std ~2e-5 against 1e-7: about half the runs come out negative
 
 
-def test_unknown_link_is_refused(satellite):
+@pytest.mark.slow
+def test_spatial_noisy_spread_agrees_with_the_standard_errors(satellite):
+    pmap, traj = satellite
+    h = np.array([0.5, -1.0, 2.0])
+    log = _log_with_payload(pmap, inertial_vector(*SAT_PAYLOAD), traj, 120, h)
+    noise = spaceid.Noise(angle=1e-5, rate=1e-5, base_rate=1e-5, attitude=1e-5)
+    runs = [identify_payload(pmap, add_noise(log, angle=1e-5, rate=1e-5, seed=s), "arm_ee", h, noise=noise)
+            for s in range(30)]
+    ratio = np.array([r.values for r in runs]).std(0) / np.mean([r.std for r in runs], 0)
+    np.testing.assert_allclose(ratio, 1.0, atol=0.3)  # 30 runs: the sample std is within ~26 % (2 sigma)
+
+
+def test_drift_is_estimated_with_the_payload(cepheus):
+    pmap, traj, theta, _ = cepheus
+    h = np.array([0, 0, 0.05])
+    log = spaceid.simulate(pmap.param, pmap.pi(theta), traj, np.linspace(0, traj.duration, 200), h,
+                           model=pmap.model(theta), drift={"torque": 2e-4, "viscous": 1e-4})
+    est = identify_payload(pmap, log, "link2", h, noise=spaceid.Noise(), drift=("torque", "viscous"))
+    np.testing.assert_allclose(est.values, [CEPHEUS_PAYLOAD[0], *CEPHEUS_PAYLOAD[1], CEPHEUS_PAYLOAD[2]], rtol=1e-6)
+    assert [d["name"] for d in est.drift] == ["torque_z", "viscous"]
+    np.testing.assert_allclose([d["value"] for d in est.drift], [2e-4, 1e-4], rtol=1e-5)
+    # without the drift terms the fit is off: the test can fail
+    off = identify_payload(pmap, log, "link2", h, noise=spaceid.Noise())
+    assert abs(off.mass - CEPHEUS_PAYLOAD[0]) > 1e-4
+
+
+def test_links_from_a_urdf_file_and_unknown_links(satellite, tmp_path):
+    from importlib import resources
+
+    path = tmp_path / "servicer.urdf"
+    path.write_text(resources.files("spaceid.models.presets").joinpath("satellite-7dof.urdf").read_text())
+    pmap = payload_map(path, "arm_ee")
+    assert pmap.body == satellite[0].body and np.allclose(pmap.transform, satellite[0].transform)
+    assert not np.allclose(pmap.transform, payload_map(path, pmap.param.model.bodies[pmap.body].name).transform)
     with pytest.raises(spaceid.SpaceidError, match="--link: 'gripper' is not a link"):
         payload_map("satellite-7dof", "gripper")
+    with pytest.raises(spaceid.SpaceidError, match="differs from the payload map's link"):
+        identify_payload(pmap, None, "other", [0, 0, 0])
 
 
 def test_cli_payload_end_to_end(cepheus, tmp_path, capsys):

@@ -298,14 +298,14 @@ def _write_definitions(path, info, model_src):
 @click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
               "depends on the machine's speed).")
 @click.option("--payload-link", metavar="LINK", help="Design for the parameters of a payload held by LINK (see "
-              "'spaceid payload') instead of the minimal parameters (--momentum 0 allowed: the known servicer fixes the "
-              "scale); with the --noise-* options the trajectory records the payload's predicted Cramer-Rao standard "
+              "'spaceid payload') instead of the minimal parameters (--momentum 0 allowed: the known servicer "
+              "fixes the scale); with the --noise-* options the trajectory records the payload's predicted Cramer-Rao standard "
               "deviations.")
 @click.option("--payload-nominal", type=click.Path(path_type=Path), metavar="PAYLOAD.json", help="With "
               "--payload-link: the nominal payload (a 'spaceid payload' output; default none, zero mass).")
 @output("Trajectory JSON to write (for simulate, predict, identify --instruments).")
-def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max, starts, time_budget,
-           payload_link, payload_nominal, output):
+def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max, starts, time_budget, output,
+           payload_link=None, payload_nominal=None):
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
     standard deviations are recorded in the trajectory."""
@@ -331,7 +331,8 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     if payload_link is not None:
         bound = res.trajectory.meta.get("payload_crb_std")
         if bound:
-            err.print("predicted payload CRB std: " + ", ".join(f"{k} {v:.3g}" for k, v in bound.items()), highlight=False)
+            err.print("predicted payload CRB std: " + ", ".join(f"{k} {v:.3g}" for k, v in bound.items()),
+                      highlight=False)
     elif rel:
         worst = max(rel, key=rel.get)
         err.print(f"predicted CRB: worst relative std {100 * rel[worst]:.3g} % ({worst})", highlight=False)

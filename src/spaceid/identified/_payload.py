@@ -360,8 +360,8 @@ def _equations(pmap: PayloadMap, log: Log, momentum, drift, where) -> _Equations
     values, the payload's, set per step), the momentum and drift as the other unknowns."""
     names = drift_names(drift, pmap.planar)[0]
     k = pmap.param.n_params
-    return _Equations(pmap.param, quat_to_matrix(log.base_quat), np.array([], int), np.arange(k), pmap.pi(np.zeros(pmap.n)),
-                      momentum, names, _drift_basis(log, drift, None, where) if names else None)
+    return _Equations(pmap.param, quat_to_matrix(log.base_quat), np.array([], int), np.arange(k),
+                      pmap.pi(np.zeros(pmap.n)), momentum, names, _drift_basis(log, drift, None, where) if names else None)
 
 
 def _affine_momentum(eq: _Equations, p: int) -> tuple:
@@ -475,8 +475,52 @@ def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | Non
         converge.
     """
     pmap = model if isinstance(model, PayloadMap) else payload_map(model, link, seed=seed)
+    if pmap.link != link:
+        raise SpaceidError(f"--link: '{link}' differs from the payload map's link '{pmap.link}': use one link")
     drift = check_drift_kinds(drift)
     momentum = None if momentum is None else np.asarray(momentum, float)
+    estimated = noise is None
+    noise = noise_from_log(log) if estimated else noise
+    fit = _fit(pmap, log, momentum, drift, noise, estimated, where, cond_limit)
+    eq, theta, cov_all = fit["equations"], fit["theta"], fit["cov"]
+    n = pmap.n
+    standard, cov_std = theta[:n], cov_all[:n, :n]
+    consistent, moved = project_consistent(standard, cov_std, pmap.planar)
+    jac = _physical_jacobian(consistent, pmap.planar)
+    cov = jac @ cov_std @ jac.T
+    std_all = np.sqrt(np.maximum(np.diag(cov_all), 0))
+    units = drift_names(drift, pmap.planar)[1]
+    terms = tuple({"name": nm, "value": float(v), "std": float(e), "unit": u} for nm, v, e, u in
+                  zip(eq.drift, eq.drift_values(theta), std_all[len(theta) - len(eq.drift) :], units))  # fmt: skip
+    physical = PLANAR_NAMES if pmap.planar else SPATIAL_NAMES
+    settings = {
+        "model": pmap.param.model.source or pmap.param.model.name,
+        "body": pmap.param.model.bodies[pmap.body].name,
+        "estimator": fit["estimator"],
+        "noise": noise.to_dict(),
+        "covariance": fit["covariance"],
+        "chi2_dof": fit["chi2_dof"],
+        "residual_rms": fit["residual_rms"],
+        "gauss_newton_steps": fit["steps"],
+        "condition_number_scaled": fit["cond"],
+        "consistency": {"projected": moved > 0, "mahalanobis_distance": moved,
+                        "unconstrained": dict(zip(physical, _physical(standard, pmap.planar).tolist()))},
+        "momentum_estimated": momentum is None,
+        "momentum_std": std_all[n : n + eq.n_h].tolist(),
+        "n_samples": log.n_samples,
+        "seed": pmap.param.seed,
+        "minimal_set": {"basis": pmap.param.basis, "rank_tol": pmap.param.rank_tol, "n_params": pmap.param.n_params},
+        "log": dict(log.meta),
+        "log_fingerprint": log_fingerprint(log),
+    }
+    return PayloadEstimate(pmap.link, physical, _physical(consistent, pmap.planar),
+                           np.sqrt(np.maximum(np.diag(cov), 0)), cov, pmap.standard(consistent), NOT_PLANAR if pmap.planar else (), eq.full(theta[n:])[1],
+                           terms, settings)
+
+
+def _fit(pmap, log, momentum, drift, noise, estimated, where, cond_limit) -> dict:
+    """The unconstrained fit of ``[payload, momentum, drift]``: the equations, the estimate, its
+    covariance and the record of how they were obtained (see :func:`identify_payload`)."""
     eq = _equations(pmap, log, momentum, drift, where)
     p = pmap.n + eq.p
     if log.n_samples * pmap.param.rows < p + 1:
@@ -488,46 +532,17 @@ def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | Non
     names = list(PLANAR_NAMES if pmap.planar else INERTIAL_NAMES) + eq.names()
     r0, a0 = _whitened(pmap, eq, x, y, rhs, None, np.zeros(p))
     _, cond = _check_excitation(np.concatenate([a0, r0[..., None]], -1), names, cond_limit, where)
-    estimated = noise is None
-    noise = noise_from_log(log) if estimated else noise
     sigma = None if noise.is_zero else signal_sigma(pmap.param, noise)
     theta, r, a, steps = _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where)
-    cov_all, chi2 = _covariance(r, a, sigma is not None, estimated)
-    standard, cov_std = theta[: pmap.n], cov_all[: pmap.n, : pmap.n]
-    consistent, moved = project_consistent(standard, cov_std, pmap.planar)
-    jac = _physical_jacobian(consistent, pmap.planar)
-    cov = jac @ cov_std @ jac.T
-    h = eq.full(theta[pmap.n :])[1]
-    std_all = np.sqrt(np.maximum(np.diag(cov_all), 0))
-    units = drift_names(drift, pmap.planar)[1]
-    terms = tuple({"name": nm, "value": float(v), "std": float(s), "unit": u} for nm, v, s, u in
-                  zip(eq.drift, eq.drift_values(theta), std_all[p - len(eq.drift) :], units))  # fmt: skip
-    physical = PLANAR_NAMES if pmap.planar else SPATIAL_NAMES
-    settings = {
-        "model": pmap.param.model.source or pmap.param.model.name,
-        "body": pmap.param.model.bodies[pmap.body].name,
-        "estimator": "wls (Gauss-Newton, errors-in-variables weights)" if sigma is not None else "ols (Gauss-Newton)",
-        "noise": noise.to_dict(),
-        "covariance": ("inverse Fisher information" + (" scaled by chi2/dof" if estimated else "")
-                       if sigma is not None else "sandwich of the per-sample residuals"),
-        "chi2_dof": chi2,
-        "residual_rms": float(np.sqrt(np.mean((y @ pmap.pi(theta[: pmap.n]) - rhs[0] - rhs[1] @ theta[pmap.n :]) ** 2))),
-        "gauss_newton_steps": steps,
-        "condition_number_scaled": cond,
-        "consistency": {"projected": moved > 0, "mahalanobis_distance": moved,
-                        "unconstrained": dict(zip(physical, _physical(standard, pmap.planar).tolist()))},
-        "momentum_estimated": momentum is None,
-        "momentum_std": [float(s) for s in std_all[pmap.n : pmap.n + eq.n_h]],
-        "n_samples": log.n_samples,
-        "seed": seed,
-        "minimal_set": {"basis": pmap.param.basis, "rank_tol": pmap.param.rank_tol, "seed": pmap.param.seed,
-                        "n_params": pmap.param.n_params},
-        "log": dict(log.meta),
-        "log_fingerprint": log_fingerprint(log),
-    }
-    values = _physical(consistent, pmap.planar)
-    return PayloadEstimate(pmap.link, physical, values, np.sqrt(np.maximum(np.diag(cov), 0)), cov,
-                           pmap.standard(consistent), NOT_PLANAR if pmap.planar else (), h, terms, settings)
+    cov, chi2 = _covariance(r, a, sigma is not None, estimated)
+    weighted = sigma is not None
+    return {
+        "equations": eq, "theta": theta, "cov": cov, "chi2_dof": chi2, "steps": steps, "cond": cond,
+        "residual_rms": float(np.sqrt(np.mean(_whitened(pmap, eq, x, y, rhs, None, theta)[0] ** 2))),
+        "estimator": "wls (Gauss-Newton, errors-in-variables weights)" if weighted else "ols (Gauss-Newton)",
+        "covariance": ("inverse Fisher information" + (" scaled by chi2/dof" if estimated else "") if weighted
+                       else "sandwich of the per-sample residuals"),
+    }  # fmt: skip
 
 
 def nominal_payload(path, *, planar: bool) -> np.ndarray:

@@ -373,8 +373,8 @@ def _with_payload_record(result, pmap, payload, momentum, noise, *, duration, sa
     from ._design_payload import payload_regressor
 
     names = ("m", "mcx", "mcy", "Izz") if pmap.planar else INERTIAL_NAMES
-    meta = {**result.trajectory.meta, "payload_link": pmap.link,
-            "payload_nominal": dict(zip(names, (np.zeros(pmap.n) if payload is None else np.asarray(payload, float)).tolist()))}
+    nominal = np.zeros(pmap.n) if payload is None else np.asarray(payload, float)
+    meta = {**result.trajectory.meta, "payload_link": pmap.link, "payload_nominal": dict(zip(names, nominal.tolist()))}
     if noise is not None and not noise.is_zero:
         q, qd, _ = result.trajectory.evaluate(sample_times(duration, samples))
         bound = payload_regressor(pmap, momentum, noise, payload)
