@@ -8,7 +8,7 @@ import pytest
 import spaceid
 from spaceid.cli import main
 from spaceid.data import write_log
-from spaceid.identified import identify_payload, payload_map, project_consistent, pseudo_inertia
+from spaceid.identified import identify_payload, nominal_payload, payload_map, project_consistent, pseudo_inertia
 from spaceid.identified._payload import _lmi
 from spaceid.models import inertial_vector
 from spaceid.motion import FourierTrajectory, add_noise, payload_regressor, sample_times
@@ -231,6 +231,15 @@ def test_cli_payload_end_to_end(cepheus, tmp_path, capsys):
     assert "not identifiable from planar motion" in capsys.readouterr().out
     assert main(args[:3] + ["--link", "nowhere"] + args[5:]) == 2
     assert "error: --link: 'nowhere'" in capsys.readouterr().err
+    # the design reads it back as its nominal payload
+    std = data["standard_parameters"]
+    np.testing.assert_allclose(nominal_payload(out, planar=True), [std["m"], std["mcx"], std["mcy"], std["Izz"]])
+    (tmp_path / "empty.json").write_text("{}")
+    with pytest.raises(spaceid.SpaceidError, match="no standard_parameters"):
+        nominal_payload(tmp_path / "empty.json", planar=True)
+    assert main(["design", "cepheus", "--duration", "5", "--harmonics", "1", "--samples", "20", "--momentum", "0",
+                 "--payload-nominal", str(out), "-o", str(tmp_path / "t.json")]) == 2
+    assert "--payload-nominal needs --payload-link" in capsys.readouterr().err
 
 
 @pytest.mark.slow
