@@ -8,7 +8,13 @@ import pytest
 import spaceid
 from spaceid.cli import main
 from spaceid.data import write_log
-from spaceid.identified import identify_payload, nominal_payload, payload_map, project_consistent, pseudo_inertia
+from spaceid.identified import (
+    identify_payload,
+    nominal_payload,
+    payload_map,
+    project_consistent,
+    pseudo_inertia,
+)
 from spaceid.identified._payload import _lmi
 from spaceid.models import inertial_vector
 from spaceid.motion import FourierTrajectory, add_noise, payload_regressor, sample_times
@@ -214,7 +220,7 @@ def test_links_from_a_urdf_file_and_unknown_links(satellite, tmp_path):
 
 
 def test_cli_payload_end_to_end(cepheus, tmp_path, capsys):
-    pmap, _, _, log = cepheus
+    log = cepheus[3]
     path = tmp_path / "after.csv"
     write_log(path, add_noise(log, angle=1e-5, rate=1e-5, seed=3))
     out = tmp_path / "payload.json"

@@ -28,7 +28,13 @@ import numpy as np
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint, quat_to_matrix, read_json
-from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian, minimal_parameters
+from ..dynamics import (
+    Parameterization,
+    full_parameter_names,
+    full_values,
+    full_values_jacobian,
+    minimal_parameters,
+)
 from ..estimation import Noise, equation_covariance, noise_from_log, signal_sigma
 from ..estimation._drift import check_drift_kinds, drift_names
 from ..estimation._equations import _drift_basis, _Equations
@@ -47,7 +53,6 @@ PLANAR_SLOTS = (0, 1, 2, 9)
 """Entries of the standard vector ``[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` that a
 planar motion sees (the z row of the momentum)."""
 NOT_PLANAR = ("cz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz")
-UNITS = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"}
 MAX_STEPS = 50
 STEP_TOL = 1e-12
 """Gauss-Newton stops when a step moves the column-scaled unknowns by less than this, relative."""
@@ -216,8 +221,8 @@ def _matrix(six) -> list:
 
 
 def _lmi(theta, planar: bool):
-    """The matrix that is positive definite exactly when ``theta`` is consistent (works on NumPy
-    arrays and cvxpy expressions alike): the pseudo-inertia (spatial) or, planar,
+    """The matrix that is positive definite exactly when ``theta`` is consistent: the
+    pseudo-inertia (spatial) or, planar,
     ``[[m, mcx, mcy], [mcx, Izz, 0], [mcy, 0, Izz]]`` (positive mass, ``Izz`` about the CoM
     positive)."""
     if planar:
@@ -342,7 +347,7 @@ class PayloadEstimate:
             "inertia": self.inertia.tolist(),
             "std": {"mass": std["m"], "com": [std["cx"], std["cy"], None if planar else std["cz"]],
                     "inertia": [[None] * 3, [None] * 3, [None, None, std["Izz"]]] if planar else
-                    _matrix([std[n] for n in SPATIAL_NAMES[4:]])},  # fmt: skip
+                    _matrix([std[n] for n in SPATIAL_NAMES[4:]])},
             "covariance": {"names": list(self.names), "matrix": self.cov.tolist()},
             "standard_parameters": dict(zip(INERTIAL_NAMES, self.standard.tolist())),
             "not_identifiable": list(self.not_identifiable),
