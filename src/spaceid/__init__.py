@@ -38,6 +38,7 @@ _HOME = {
     "load_result": ("identified", "load_identified"),  # the controller-ready model of a RESULT.json
     "IdentifiedModel": "identified",
     "identify_com": "identified",
+    "identify_payload": "identified",
     "load_trajectory": "motion",
     "sample_times": "motion",
     "design_excitation": "motion",

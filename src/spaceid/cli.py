@@ -297,8 +297,15 @@ def _write_definitions(path, info, model_src):
 @click.option("--starts", type=int, default=64, show_default=True, help="Local starts of the global search.")
 @click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
               "depends on the machine's speed).")
+@click.option("--payload-link", metavar="LINK", help="Design for the parameters of a payload held by LINK (see "
+              "'spaceid payload') instead of the minimal parameters (--momentum 0 allowed: the known servicer "
+              "fixes the scale); with the --noise-* options the trajectory records the payload's predicted Cramer-Rao standard "
+              "deviations.")
+@click.option("--payload-nominal", type=click.Path(path_type=Path), metavar="PAYLOAD.json", help="With "
+              "--payload-link: the nominal payload (a 'spaceid payload' output; default none, zero mass).")
 @output("Trajectory JSON to write (for simulate, predict, identify --instruments).")
-def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max, starts, time_budget, output):
+def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max, starts, time_budget, output,
+           payload_link=None, payload_nominal=None):
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
     standard deviations are recorded in the trajectory."""
@@ -306,14 +313,27 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
+    if payload_nominal is not None and payload_link is None:
+        raise SpaceidError("--payload-nominal needs --payload-link: name the link that holds the payload")
+    nominal = None
+    if payload_nominal is not None:
+        from .identified import nominal_payload
+
+        nominal = nominal_payload(payload_nominal, planar=param.model.planar)
     with _progress("designing") as progress:
         res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
-                         noise=noise, n_starts=starts, time_budget=time_budget)
+                         noise=noise, n_starts=starts, time_budget=time_budget, payload_link=payload_link,
+                         payload=nominal)
     res.trajectory.save(output)
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {output}")
     rel = {k: v for k, v in res.trajectory.meta.get("crb_relative_std", {}).items() if v is not None}
-    if rel:
+    if payload_link is not None:
+        bound = res.trajectory.meta.get("payload_crb_std")
+        if bound:
+            err.print("predicted payload CRB std: " + ", ".join(f"{k} {v:.3g}" for k, v in bound.items()),
+                      highlight=False)
+    elif rel:
         worst = max(rel, key=rel.get)
         err.print(f"predicted CRB: worst relative std {100 * rel[worst]:.3g} % ({worst})", highlight=False)
 
@@ -393,27 +413,14 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     """
     from .estimation import identify as run
     from .estimation import parse_drift, parse_known
-    from .data import read_log, write_json
+    from .data import write_json
     from .studies import drift_lines, parameter_table
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
-    if differentiate and bag["joint_rates"] not in (None, "differentiate"):
-        raise SpaceidError(f"--differentiate and --joint-rates {bag['joint_rates']} contradict each other: give one")
-    rates = bag["joint_rates"] or ("differentiate" if differentiate else None)
     kinds = parse_drift(drift, planar=param.model.planar, values=False)
-    log = read_log(log_path, joints=param.model.joints, planar=param.model.planar, wheels=param.model.wheels,
-                   require_rates=False, bag_options=dict(bag, quantum=quantum, joint_rates=rates))
-    _print_joint_rates(log)
-    missing = log.meta.get("missing_rates", [])
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
-    if missing and not differentiate and not angles_only and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
-        raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
-                           "--differentiate to compute every rate from the angles")
-    if (differentiate or missing) and not angles_only and "differentiation" not in log.meta:  # bags come differentiated
-        from .data import differentiate_log
-
-        log = differentiate_log(log, quantum=quantum)
+    log = _measured_log(param.model, log_path, differentiate, quantum, bag, angles_only=angles_only)
     reference = None
     if instruments is not None:
         if estimator != "iv":
@@ -447,6 +454,28 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
               f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
               f"result written to {output}")
+
+
+def _measured_log(model, log_path, differentiate, quantum, bag, *, angles_only=False):
+    """The log at ``log_path`` (CSV or bag, ``bag`` options) for ``model``, its rates differentiated
+    with ``--differentiate`` or where missing (not for ``angles_only``); prints the joint rates."""
+    from .data import read_log
+
+    if differentiate and bag["joint_rates"] not in (None, "differentiate"):
+        raise SpaceidError(f"--differentiate and --joint-rates {bag['joint_rates']} contradict each other: give one")
+    rates = bag["joint_rates"] or ("differentiate" if differentiate else None)
+    log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels,
+                   require_rates=False, bag_options=dict(bag, quantum=quantum, joint_rates=rates))
+    _print_joint_rates(log)
+    missing = log.meta.get("missing_rates", [])
+    if missing and not differentiate and not angles_only and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
+        raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
+                           "--differentiate to compute every rate from the angles")
+    if (differentiate or missing) and not angles_only and "differentiation" not in log.meta:  # bags come differentiated
+        from .data import differentiate_log
+
+        log = differentiate_log(log, quantum=quantum)
+    return log
 
 
 def _identify_com(ident, log):
@@ -798,6 +827,53 @@ def export(result, prior_src, region, fmt, output):
         fit = f"exact (largest relative error {error.max():.1e})"
     out.print(f"fit {fit}; log-det divergence from the prior {res.divergence:.4g}; {res.steps} convex "
               f"step{'s' * (res.steps != 1)}; written to {output}", highlight=False)
+
+
+@app.command(short_help="Mass, CoM and inertia of a payload held by a known servicer, from a log.")
+@MODEL
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
+@PLANAR
+@click.option("--link", required=True, metavar="LINK", help="The link that holds the payload: a body of MODEL, or a "
+              "URDF link on fixed joints below one (a tool link); the CoM and inertia are in its frame.")
+@click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
+              "whole system after the capture [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at "
+              "rest; 'unknown' to estimate it (the known servicer fixes the scale: no anchor needed).")
+@noise_options
+@click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
+              "also used when the log has no rate columns.")
+@click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
+@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
+              "estimated with the payload: torque, viscous, coulomb (as for 'spaceid identify').")
+@SEED
+@bag_options
+@output("PAYLOAD.json to write.")
+def payload(model_src, log_path, planar, link, momentum, noise, differentiate, quantum, drift, seed, output, bag):
+    """Identify the payload that LINK of the known servicer MODEL holds rigidly, from a LOG recorded
+    after the capture: its mass, centre of mass and inertia about the centre of mass (planar
+    motion: mass, CoM x and y, Izz), physically consistent, with standard errors. Noise levels not
+    given are estimated from the log; with every one zero the fit is unweighted."""
+    from .data import write_json
+    from .estimation import parse_drift
+    from .identified import identify_payload
+    from .models import load_model
+
+    model = load_model(model_src, planar=planar)
+    h = _momentum(momentum, model.planar, allow_unknown=True)
+    kinds = parse_drift(drift, planar=model.planar, values=False)
+    log = _measured_log(model, log_path, differentiate, quantum, bag)
+    with _warnings_to_stderr():
+        res = identify_payload(model, log, link, h, noise=noise, drift=kinds, seed=seed, where=str(log_path))
+    write_json(output, res.to_dict())
+    for name, value, std in zip(res.names, res.values, res.std):
+        unit = {"m": "kg"}.get(name, "m" if name.startswith("c") else "kg m^2")
+        out.print(f"{name:>4s} = {value:12.6g} +/- {std:.3g} {unit}", highlight=False)
+    if res.not_identifiable:
+        out.print(f"not identifiable from planar motion: {', '.join(res.not_identifiable)}", highlight=False)
+    s = res.settings
+    projected = " (projected to the nearest consistent estimate)" if s["consistency"]["projected"] else ""
+    chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g}; "
+    out.print(f"{s['estimator']}: {s['gauss_newton_steps']} steps; residual RMS {s['residual_rms']:.3g} N m s; {chi2}"
+              f"{log.n_samples} samples{projected}; written to {output}", highlight=False)
 
 
 def _model_joints(ident):

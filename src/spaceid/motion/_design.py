@@ -32,6 +32,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ..estimation import Noise
+from ..models import INERTIAL_NAMES
 from ._criteria import CRITERIA, _criterion_named, whitened_regressor
 from ._design_problem import (
     _boundary_array,
@@ -280,7 +281,7 @@ def _check_options(criterion, duration, time_budget, **integers):
 
 
 def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, progress=None,
-                      criterion="cond", noise=None, **options):
+                      criterion="cond", noise=None, payload_link=None, payload=None, **options):
     """Optimal exciting trajectory for ``param``'s model, joint limits from the model, the base
     rate from momentum conservation at the model's nominal parameters.
 
@@ -299,6 +300,15 @@ def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, 
         it and the predicted Cramer-Rao standard deviation of every parameter, absolute
         (``crb_std``) and relative to its nominal value (``crb_relative_std``, None where
         that is zero), whatever the criterion.
+    payload_link : str, optional
+        Design for the parameters of a payload held by this link (a body, or a URDF link on
+        fixed joints below one) instead of the minimal parameters: the criterion is on their
+        (scaled) regressor, :class:`~spaceid.motion.payload_regressor`, and the trajectory's
+        ``meta`` records the link and, with ``noise``, the payload's predicted Cramer-Rao
+        standard deviations (``payload_crb_std``).
+    payload : array_like, optional
+        With ``payload_link``: the nominal payload's standard parameters in the link's frame (ten;
+        planar ``m, mcx, mcy, Izz`` about the link origin); default none (zero mass).
     **options
         ``q_max``, ``qd_max``, ``qdd_max`` override the model's limits (and must be given
         where it has none); the others go to :func:`optimize_excitation`.
@@ -328,7 +338,13 @@ def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, 
     options = {k: v for k, v in options.items() if v is not None}
     from ..dynamics import excitation_regressor
 
-    if crit.noise_aware:
+    if payload_link is not None:
+        from ..identified import payload_map
+        from ._design_payload import payload_regressor
+
+        pmap = payload_map(param.model, payload_link, seed=param.seed)
+        regressor = payload_regressor(pmap, momentum, noise if crit.noise_aware else None, payload)
+    elif crit.noise_aware:
         regressor = whitened_regressor(param, param.true_values, momentum, noise)
     else:
         regressor = excitation_regressor(param, param.true_values, momentum)
@@ -344,9 +360,26 @@ def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, 
         **limits,
         **options,
     )
+    if payload_link is not None:
+        result = _with_payload_record(result, pmap, payload, momentum, noise, duration=duration, samples=samples)
     if noise is None or noise.is_zero:
         return result
     return _with_predicted_bound(result, param, momentum, noise, duration=duration, samples=samples)
+
+
+def _with_payload_record(result, pmap, payload, momentum, noise, *, duration, samples):
+    """``result`` with the payload's link, nominal and reference scale in its trajectory's ``meta``
+    and, given ``noise``, the payload's predicted Cramer-Rao standard deviations."""
+    from ._design_payload import payload_regressor
+
+    names = ("m", "mcx", "mcy", "Izz") if pmap.planar else INERTIAL_NAMES
+    nominal = np.zeros(pmap.n) if payload is None else np.asarray(payload, float)
+    meta = {**result.trajectory.meta, "payload_link": pmap.link, "payload_nominal": dict(zip(names, nominal.tolist()))}
+    if noise is not None and not noise.is_zero:
+        q, qd, _ = result.trajectory.evaluate(sample_times(duration, samples))
+        bound = payload_regressor(pmap, momentum, noise, payload)
+        meta["payload_crb_std"] = dict(zip(names, np.sqrt(np.diag(bound.crb(q, qd))).tolist()))
+    return replace(result, trajectory=replace(result.trajectory, meta=meta))
 
 
 def _model_limits(model, overrides):

@@ -1,0 +1,568 @@
+"""The inertial parameters of a payload rigidly held by a known servicer: :func:`identify_payload`
+(docs/theory/payload.md).
+
+With the servicer known, the momentum equations of a log after the capture have the payload's
+standard parameters ``theta`` on its link as their only unknowns (with the momentum and drift
+terms when those are estimated). They are not linear in ``theta``: zero linear momentum brings in
+the lumped products ``theta_a theta_b / M`` whose total mass ``M`` holds the payload's. The
+minimal parameters ``pi(theta) = P [theta_all, phi(theta_all)]`` of the whole system are smooth in
+``theta``, so Gauss-Newton on ``Y pi(theta) = R0^T h`` (whitened by the errors-in-variables
+covariance of each sample) starts from the payload-free linearisation (its first step solves the
+first-order problem) and converges in a few steps. The known servicer fixes the scale: no anchor
+is needed and a capture from rest works.
+
+Planar motion sees only the mass, the in-plane CoM and the moment about the CoM's vertical axis.
+An estimate that is not physically consistent (pseudo-inertia not positive definite) is projected
+to the nearest consistent one in the metric of its covariance (a convex program, cvxpy and
+Clarabel).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+from .._errors import SpaceidError
+from .._threads import one_blas_thread
+from ..data import Log, log_fingerprint, quat_to_matrix, read_json
+from ..dynamics import (
+    Parameterization,
+    full_parameter_names,
+    full_values,
+    full_values_jacobian,
+    minimal_parameters,
+)
+from ..estimation import Noise, equation_covariance, noise_from_log, signal_sigma
+from ..estimation._drift import check_drift_kinds, drift_names
+from ..estimation._equations import _drift_basis, _Equations
+from ..estimation._identify import _check_excitation
+from ..models import INERTIAL_NAMES, PRESETS, Model, load_model
+from ..models._model import symbol_suffix
+from ._export import _CLARABEL, MARGIN, inertial_from_pseudo, pseudo_inertia
+
+__all__ = ["PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent", "nominal_payload"]
+
+SPATIAL_NAMES = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
+"""The payload's physical parameters: mass [kg], CoM in LINK's frame [m], inertia about the CoM
+in LINK's axes [kg m^2] (``INERTIAL_NAMES`` order)."""
+PLANAR_NAMES = ("m", "cx", "cy", "Izz")
+PLANAR_SLOTS = (0, 1, 2, 9)
+"""Entries of the standard vector ``[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` that a
+planar motion sees (the z row of the momentum)."""
+NOT_PLANAR = ("cz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz")
+MAX_STEPS = 50
+STEP_TOL = 1e-12
+"""Gauss-Newton stops when a step moves the column-scaled unknowns by less than this, relative."""
+
+
+# ---------------------------------------------------------------- the link and the map --------
+
+
+def _urdf_text(model: Model) -> str | None:
+    """The URDF text of ``model``'s source (a preset or a file), or None for YAML models."""
+    source = str(model.source)
+    if source in PRESETS:
+        files = resources.files("spaceid.models.presets")
+        return files.joinpath(f"{source}.urdf").read_text() if files.joinpath(f"{source}.urdf").is_file() else None
+    path = Path(source)
+    if path.suffix.lower() == ".urdf" and path.is_file():
+        return path.read_text()
+    return None
+
+
+def _link_frame(model: Model, link: str) -> tuple:
+    """The body that carries ``link`` and the link frame's placement in it: ``(index, R (3, 3),
+    p (3,))``. A body of the model is its own frame; a URDF link on fixed joints below a body (a
+    tool link) is found in the URDF the model was read from."""
+    names = [b.name for b in model.bodies]
+    if link in names:
+        return names.index(link), np.eye(3), np.zeros(3)
+    text = _urdf_text(model)
+    if text is not None:
+        import pinocchio as pin
+
+        pmodel = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+        for frame in pmodel.frames:
+            if frame.name == link and str(frame.type) == "BODY":  # a model body is joint j's, body j - 1
+                return frame.parentJoint - 1, np.array(frame.placement.rotation), np.array(frame.placement.translation)
+    raise SpaceidError(f"--link: '{link}' is not a link of model '{model.name}' (bodies: {', '.join(names)}; a URDF "
+                       "model also accepts links on fixed joints below them): name the link that holds the payload")
+
+
+def _frame_transform(rotation, translation) -> np.ndarray:
+    """Map ``(10, 10)`` of standard parameters about a frame to those about the body frame that
+    holds it at ``(rotation, translation)``: pseudo-inertias transform as ``X J X^T``."""
+    x = np.eye(4)
+    x[:3, :3], x[:3, 3] = rotation, translation
+    return np.stack([inertial_from_pseudo(x @ pseudo_inertia(e) @ x.T) for e in np.eye(10)], -1)
+
+
+@dataclass(frozen=True)
+class PayloadMap:
+    """How the payload's parameters enter the servicer's minimal parameters.
+
+    Attributes
+    ----------
+    param : Parameterization
+        Minimal set of the servicer (its holding body's declared zeros cleared: the payload has
+        none).
+    link : str
+        The link that holds the payload.
+    body : int
+        Index of the servicer body that carries ``link``.
+    transform : ndarray of shape (10, n)
+        The body's standard parameters (about its frame origin) per unit of the unknowns: the
+        payload's standard parameters in ``link``'s frame, all ten (spatial) or ``m, mcx, mcy,
+        Izz`` about the link origin (planar).
+    """
+
+    param: Parameterization
+    link: str
+    body: int
+    transform: np.ndarray
+    _columns: np.ndarray = field(repr=False, default=None)
+
+    @property
+    def planar(self) -> bool:
+        return self.param.model.planar
+
+    @property
+    def n(self) -> int:
+        return self.transform.shape[1]
+
+    def model(self, theta) -> Model:
+        """The servicer holding the payload ``theta (n,)``."""
+        inertials = np.array([b.inertial for b in self.param.model.bodies])
+        inertials[self.body] += self.transform @ np.asarray(theta, float)
+        return self.param.model.with_inertials(inertials)
+
+    def pi(self, theta) -> np.ndarray:
+        """Minimal parameters ``(k,)`` of the servicer holding the payload ``theta``."""
+        return self.param.projection @ full_values(self.model(theta))
+
+    def columns(self, theta) -> np.ndarray:
+        """``d pi / d theta`` ``(k, n)`` at ``theta``."""
+        return self.param.projection @ (full_values_jacobian(self.model(theta))[:, self._columns] @ self.transform)
+
+    def standard(self, theta) -> np.ndarray:
+        """The payload's ten standard parameters in ``link``'s frame (planar: zeros where unseen)."""
+        out = np.zeros(10)
+        out[list(PLANAR_SLOTS) if self.planar else slice(None)] = theta
+        return out
+
+
+def payload_map(model, link: str, *, seed: int = 0) -> PayloadMap:
+    """The :class:`PayloadMap` of a payload on ``link`` of the servicer ``model``.
+
+    Parameters
+    ----------
+    model : Model or str or Path
+        The known servicer (a preset, URDF or YAML).
+    link : str
+        A body of the model, or (URDF models) a link on fixed joints below one.
+    seed : int
+        Seed of the minimal set's random states (``minimal_parameters``).
+
+    Raises
+    ------
+    SpaceidError
+        ``link`` is not a link of the model, or (planar) its z axis is not the base z axis.
+    """
+    model = load_model(model)
+    body, rotation, translation = _link_frame(model, link)
+    if model.planar and not abs(rotation[2, 2] - 1) < 1e-9:
+        raise SpaceidError(f"--link: the frame of '{link}' is tilted out of the plane: a planar payload needs its z "
+                           "axis along the base z axis (identify it spatially, --spatial)")
+    bodies = list(model.bodies)
+    bodies[body] = replace(bodies[body], known_zero=frozenset())  # the payload's moments are not zero
+    model = replace(model, bodies=tuple(bodies))
+    transform = _frame_transform(rotation, translation)
+    if model.planar:
+        transform = transform[:, list(PLANAR_SLOTS)]
+    names = full_parameter_names(model)
+    suffix = symbol_suffix(model.bodies[body].name)
+    columns = np.array([names.index(f"{n}_{suffix}") for n in INERTIAL_NAMES])
+    return PayloadMap(minimal_parameters(model, seed=seed), link, body, transform, columns)
+
+
+# ---------------------------------------------------------------- physical parameters ----------
+
+
+def _physical(theta, planar: bool) -> np.ndarray:
+    """Mass, CoM and inertia about the CoM (``SPATIAL_NAMES`` or ``PLANAR_NAMES``) of standard
+    parameters about the link origin."""
+    theta = np.asarray(theta, float)
+    m, h = theta[0], theta[1:3] if planar else theta[1:4]
+    c = h / m
+    if planar:
+        return np.array([m, *c, theta[3] - m * (c @ c)])
+    inertia = np.array([[theta[4], theta[5], theta[7]], [theta[5], theta[6], theta[8]], [theta[7], theta[8], theta[9]]])
+    i_com = inertia - m * (c @ c * np.eye(3) - np.outer(c, c))
+    return np.array([m, *c, i_com[0, 0], i_com[0, 1], i_com[1, 1], i_com[0, 2], i_com[1, 2], i_com[2, 2]])
+
+
+def _physical_jacobian(theta, planar: bool) -> np.ndarray:
+    """``d _physical / d theta``, central differences of step 1e-6 of each entry's scale (the map
+    is rational and smooth away from zero mass: errors ~1e-10 relative)."""
+    theta = np.asarray(theta, float)
+    step = 1e-6 * np.maximum(np.abs(theta), 1e-6 * np.abs(theta).max())
+    cols = [(_physical(theta + s * e, planar) - _physical(theta - s * e, planar)) / (2 * s)
+            for s, e in zip(step, np.eye(len(theta)))]
+    return np.stack(cols, -1)
+
+
+def _matrix(six) -> list:
+    """The symmetric 3 x 3 matrix of ``[xx, xy, yy, xz, yz, zz]``."""
+    xx, xy, yy, xz, yz, zz = six
+    return [[xx, xy, xz], [xy, yy, yz], [xz, yz, zz]]
+
+
+def _lmi(theta, planar: bool):
+    """The matrix that is positive definite exactly when ``theta`` is consistent: the
+    pseudo-inertia (spatial) or, planar,
+    ``[[m, mcx, mcy], [mcx, Izz, 0], [mcy, 0, Izz]]`` (positive mass, ``Izz`` about the CoM
+    positive)."""
+    if planar:
+        return [[theta[0], theta[1], theta[2]], [theta[1], theta[3], 0], [theta[2], 0, theta[3]]]
+    return pseudo_inertia(theta)
+
+
+def _lmi_basis(planar: bool, n: int) -> np.ndarray:
+    """``_lmi`` of the unit vectors, ``(n, d, d)``: it is linear in ``theta``."""
+    return np.array([np.array(_lmi(e, planar), float) for e in np.eye(n)])
+
+
+def project_consistent(theta, cov, planar: bool) -> tuple:
+    """The physically consistent standard parameters nearest to ``theta`` in the metric of ``cov``.
+
+    Minimises ``(t - theta)^T cov^-1 (t - theta)`` over ``t`` whose pseudo-inertia (spatial; planar:
+    ``[[m, mcx, mcy], [mcx, Izz, 0], [mcy, 0, Izz]]``) is positive semidefinite with a margin of
+    ``MARGIN`` times its largest eigenvalue at ``theta`` (cvxpy, Clarabel).
+
+    Parameters
+    ----------
+    theta : array_like of shape (n,)
+        Standard parameters about the link origin: all ten (spatial) or ``m, mcx, mcy, Izz``.
+    cov : array_like of shape (n, n)
+        Their covariance (a singular one is floored at 1e-12 of its largest eigenvalue).
+    planar : bool
+
+    Returns
+    -------
+    (ndarray of shape (n,), float)
+        The consistent parameters (``theta`` itself when already consistent) and the Mahalanobis
+        distance moved.
+    """
+    import cvxpy as cp
+
+    theta = np.asarray(theta, float)
+    basis = _lmi_basis(planar, len(theta))
+    lmi = np.einsum("i,ijk->jk", theta, basis)
+    eig = np.linalg.eigvalsh(lmi)
+    margin = MARGIN * max(abs(eig).max(), np.finfo(float).tiny)
+    if eig[0] >= margin:
+        return theta, 0.0
+    with one_blas_thread():
+        w, v = np.linalg.eigh(np.asarray(cov, float))
+    top = max(w.max(), np.finfo(float).tiny)
+    root = v * np.sqrt(np.maximum(w, 1e-12 * top) / top)  # cov / top = root root^T: a scale leaves the nearest
+    z = cp.Variable(len(theta))  # whitened step: t = theta + root z, so the objective is |z|^2 (times top)
+    matrix = lmi + sum((root @ z)[i] * basis[i] for i in range(len(theta)))
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(z)), [0.5 * (matrix + matrix.T) >> margin * np.eye(len(lmi))])
+    problem.solve(solver=cp.CLARABEL, **_CLARABEL)
+    if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        raise SpaceidError(f"payload: the consistency projection failed ({problem.status}): check the log and --link")
+    return theta + root @ z.value, float(np.linalg.norm(z.value) / np.sqrt(top))
+
+
+# ---------------------------------------------------------------- the estimate ------------------
+
+
+@dataclass(frozen=True)
+class PayloadEstimate:
+    """The payload's identified inertial parameters (PAYLOAD.json, docs/formats/payload-json.md).
+
+    Attributes
+    ----------
+    link : str
+        The link that holds the payload; ``com`` and ``inertia`` are in its frame.
+    names : tuple of str
+        The identified physical parameters, ``SPATIAL_NAMES`` or ``PLANAR_NAMES``.
+    values, std : ndarray of shape (n,)
+        Their (consistent) estimates and standard errors [kg, m, kg m^2].
+    cov : ndarray of shape (n, n)
+        Their covariance (of the unconstrained estimate, to first order).
+    standard : ndarray of shape (10,)
+        The estimate's standard parameters about the link origin (planar: zeros where unseen).
+    not_identifiable : tuple of str
+        Physical parameters the motion cannot see (planar: ``NOT_PLANAR``).
+    momentum : ndarray of shape (3,)
+        Inertial momentum [N m s] (estimated when not given; at the first sample with drift).
+    drift : tuple of dict
+        Drift coefficients ``{name, value, std, unit}`` estimated with the payload.
+    settings : dict
+        Estimator, noise model, convergence, consistency projection, seed, log provenance.
+    """
+
+    link: str
+    names: tuple
+    values: np.ndarray
+    std: np.ndarray
+    cov: np.ndarray
+    standard: np.ndarray
+    not_identifiable: tuple
+    momentum: np.ndarray
+    drift: tuple
+    settings: dict
+
+    @property
+    def mass(self) -> float:
+        return float(self.values[0])
+
+    @property
+    def com(self) -> np.ndarray:
+        """CoM [m] in the link frame (planar: z NaN, not identifiable)."""
+        return np.array([*self.values[1:3], np.nan]) if len(self.names) == 4 else self.values[1:4].copy()
+
+    @property
+    def inertia(self) -> np.ndarray:
+        """Inertia about the CoM, link axes [kg m^2], ``(3, 3)`` (planar: Izz only, the rest NaN)."""
+        if len(self.names) == 4:
+            out = np.full((3, 3), np.nan)
+            out[2, 2] = self.values[3]
+            return out
+        return np.array(_matrix(self.values[4:]))
+
+    def to_dict(self) -> dict:
+        """The PAYLOAD.json object."""
+        std = dict(zip(self.names, self.std))
+        planar = len(self.names) == 4
+        return {
+            "link": self.link,
+            "mass": self.mass,
+            "com": self.com.tolist(),
+            "inertia": self.inertia.tolist(),
+            "std": {"mass": std["m"], "com": [std["cx"], std["cy"], None if planar else std["cz"]],
+                    "inertia": [[None] * 3, [None] * 3, [None, None, std["Izz"]]] if planar else
+                    _matrix([std[n] for n in SPATIAL_NAMES[4:]])},
+            "covariance": {"names": list(self.names), "matrix": self.cov.tolist()},
+            "standard_parameters": dict(zip(INERTIAL_NAMES, self.standard.tolist())),
+            "not_identifiable": list(self.not_identifiable),
+            "planar": planar,
+            "momentum": self.momentum.tolist(),
+            "drift": list(self.drift),
+            "units": {"mass": "kg", "com": "m", "inertia": "kg m^2", "momentum": "N m s",
+                      "standard_parameters": "kg, kg m, kg m^2 (about the link origin, link axes)"},
+            "settings": self.settings,
+        }
+
+
+def _equations(pmap: PayloadMap, log: Log, momentum, drift, where) -> _Equations:
+    """The servicer's momentum equations of ``log`` with every minimal parameter known (their
+    values, the payload's, set per step), the momentum and drift as the other unknowns."""
+    names = drift_names(drift, pmap.planar)[0]
+    k = pmap.param.n_params
+    return _Equations(pmap.param, quat_to_matrix(log.base_quat), np.array([], int), np.arange(k),
+                      pmap.pi(np.zeros(pmap.n)), momentum, names, _drift_basis(log, drift, None, where) if names else None)
+
+
+def _affine_momentum(eq: _Equations, p: int) -> tuple:
+    """The right-hand side ``R0^T h`` of every sample as ``b0 (n, rows) + C (n, rows, p) theta``
+    in the momentum and drift unknowns ``theta`` (``base_momentum`` is affine in them)."""
+    axes = eq.axes
+    b0 = eq.base_momentum(np.zeros(p))[:, axes]
+    c = [eq.base_momentum(e)[:, axes] - b0 for e in np.eye(p)]
+    return b0, np.stack(c, -1) if c else np.zeros(b0.shape + (0,))
+
+
+def _whitened(pmap, eq, x, y, rhs, sigma, theta):
+    """Residuals ``(n, rows)`` and Jacobian ``(n, rows, p)`` of ``theta = [payload, momentum,
+    drift]``, whitened by the equation-error covariance at ``theta`` when ``sigma`` is given."""
+    n_p = pmap.n
+    b0, c = rhs
+    pi = pmap.pi(theta[:n_p])
+    r = y @ pi - b0 - c @ theta[n_p:]
+    a = np.concatenate([y @ pmap.columns(theta[:n_p]), -c], -1)
+    if sigma is None:
+        return r, a
+    s = equation_covariance(replace(eq, known_values=pi).jacobian(x, theta[n_p:]), sigma)
+    try:
+        chol = np.linalg.cholesky(s)
+    except np.linalg.LinAlgError:
+        raise SpaceidError("noise: the equation-error covariance is singular at some sample: give a nonzero "
+                           "--noise-base-rate, or no noise levels at all (estimated from the log)") from None
+    return np.linalg.solve(chol, r[..., None])[..., 0], np.linalg.solve(chol, a)
+
+
+def _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where) -> tuple:
+    """The least-squares ``theta (p,)`` from zero (no payload: the first step solves the
+    first-order problem), the whitened residuals and Jacobian there, and the steps taken."""
+    theta, cost = np.zeros(p), np.inf
+    for step in range(1, MAX_STEPS + 1):
+        r, a = _whitened(pmap, eq, x, y, rhs, sigma, theta)
+        if not r.ravel() @ r.ravel() < cost * (1 - STEP_TOL):  # no progress: at the optimum (e.g. no payload at all)
+            break
+        cost = r.ravel() @ r.ravel()
+        flat = a.reshape(-1, p)
+        scale = np.linalg.norm(flat, axis=0)
+        scale[scale == 0] = 1.0
+        with one_blas_thread():
+            delta = np.linalg.lstsq(flat / scale, -r.ravel(), rcond=None)[0]
+        theta = theta + delta / scale
+        if not np.all(np.isfinite(theta)):
+            raise SpaceidError(f"{where}: the payload fit diverged: check --link, --momentum and the log")
+        if np.linalg.norm(delta) <= STEP_TOL * max(np.linalg.norm(theta * scale), 1e-300):
+            break
+    else:
+        raise SpaceidError(f"{where}: the payload fit did not converge in {MAX_STEPS} Gauss-Newton steps: check "
+                           "--link and --momentum, or design an exciting motion (spaceid design --payload-link)")
+    r, a = _whitened(pmap, eq, x, y, rhs, sigma, theta)
+    return theta, r, a, step
+
+
+def _covariance(r, a, weighted: bool, estimated: bool) -> tuple:
+    """Covariance of the unknowns and chi2/dof: the inverse Fisher information (given noise), scaled
+    by chi2/dof (noise estimated from the log), or, unweighted, the sandwich of the per-sample
+    residuals (heteroscedastic errors)."""
+    n, rows, p = a.shape
+    flat = a.reshape(-1, p)
+    with one_blas_thread():
+        bread = np.linalg.pinv(flat.T @ flat)
+    dof = max(n * rows - p, 1)
+    chi2 = float(r.ravel() @ r.ravel()) / dof
+    if weighted:
+        return bread * (chi2 if estimated else 1.0), chi2
+    scores = np.einsum("nrp,nr->np", a, r)
+    return bread @ (scores.T @ scores) @ bread * (n / max(n - p, 1)), None
+
+
+def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | None = None, drift=(), seed: int = 0,
+                     where: str = "log", cond_limit: float = 1e10) -> PayloadEstimate:
+    """Identify the inertial parameters of a payload held rigidly by a known servicer.
+
+    Parameters
+    ----------
+    model : Model or str or Path or PayloadMap
+        The servicer without the payload (a preset, URDF or YAML; e.g. one 'spaceid export' wrote).
+    log : Log
+        Motion after the capture; joint columns in the model's joint order.
+    link : str
+        The link that holds the payload: a body, or (URDF) a link on fixed joints below one.
+    momentum : array_like of shape (3,) or None
+        Inertial angular momentum of the whole system [N m s] (zero for a capture from rest; at
+        the first sample with ``drift``); None: estimated with the payload.
+    noise : Noise, optional
+        Measurement noise levels (the equations are whitened by them and the covariance is their
+        Fisher information); estimated from the log when omitted; all zero: unweighted least
+        squares with a residual-based (sandwich) covariance.
+    drift : iterable of {"torque", "viscous", "coulomb"}
+        External torques estimated with the payload (as ``spaceid.identify``).
+    seed : int
+        Seed of the minimal set's random states (recorded).
+    where : str
+        Name of the log, for error messages.
+    cond_limit : float
+        Largest condition number of the column-scaled first-order equations.
+
+    Returns
+    -------
+    PayloadEstimate
+        Mass, CoM and inertia about the CoM in ``link``'s frame, physically consistent, with
+        standard errors and covariance.
+
+    Raises
+    ------
+    SpaceidError
+        An unknown link, too few samples, unexcited payload parameters, or a fit that does not
+        converge.
+    """
+    pmap = model if isinstance(model, PayloadMap) else payload_map(model, link, seed=seed)
+    if pmap.link != link:
+        raise SpaceidError(f"--link: '{link}' differs from the payload map's link '{pmap.link}': use one link")
+    drift = check_drift_kinds(drift)
+    momentum = None if momentum is None else np.asarray(momentum, float)
+    estimated = noise is None
+    noise = noise_from_log(log) if estimated else noise
+    fit = _fit(pmap, log, momentum, drift, noise, estimated, where, cond_limit)
+    eq, theta, cov_all = fit["equations"], fit["theta"], fit["cov"]
+    n = pmap.n
+    standard, cov_std = theta[:n], cov_all[:n, :n]
+    consistent, moved = project_consistent(standard, cov_std, pmap.planar)
+    jac = _physical_jacobian(consistent, pmap.planar)
+    cov = jac @ cov_std @ jac.T
+    std_all = np.sqrt(np.maximum(np.diag(cov_all), 0))
+    units = drift_names(drift, pmap.planar)[1]
+    terms = tuple({"name": nm, "value": float(v), "std": float(e), "unit": u} for nm, v, e, u in
+                  zip(eq.drift, eq.drift_values(theta), std_all[len(theta) - len(eq.drift) :], units))  # fmt: skip
+    physical = PLANAR_NAMES if pmap.planar else SPATIAL_NAMES
+    settings = {
+        "model": pmap.param.model.source or pmap.param.model.name,
+        "body": pmap.param.model.bodies[pmap.body].name,
+        "estimator": fit["estimator"],
+        "noise": noise.to_dict(),
+        "covariance": fit["covariance"],
+        "chi2_dof": fit["chi2_dof"],
+        "residual_rms": fit["residual_rms"],
+        "gauss_newton_steps": fit["steps"],
+        "condition_number_scaled": fit["cond"],
+        "consistency": {"projected": moved > 0, "mahalanobis_distance": moved,
+                        "unconstrained": dict(zip(physical, _physical(standard, pmap.planar).tolist()))},
+        "momentum_estimated": momentum is None,
+        "momentum_std": std_all[n : n + eq.n_h].tolist(),
+        "n_samples": log.n_samples,
+        "seed": pmap.param.seed,
+        "minimal_set": {"basis": pmap.param.basis, "rank_tol": pmap.param.rank_tol, "n_params": pmap.param.n_params},
+        "log": dict(log.meta),
+        "log_fingerprint": log_fingerprint(log),
+    }
+    return PayloadEstimate(pmap.link, physical, _physical(consistent, pmap.planar),
+                           np.sqrt(np.maximum(np.diag(cov), 0)), cov, pmap.standard(consistent), NOT_PLANAR if pmap.planar else (), eq.full(theta[n:])[1],
+                           terms, settings)
+
+
+def _fit(pmap, log, momentum, drift, noise, estimated, where, cond_limit) -> dict:
+    """The unconstrained fit of ``[payload, momentum, drift]``: the equations, the estimate, its
+    covariance and the record of how they were obtained (see :func:`identify_payload`)."""
+    eq = _equations(pmap, log, momentum, drift, where)
+    p = pmap.n + eq.p
+    if log.n_samples * pmap.param.rows < p + 1:
+        raise SpaceidError(f"{where}: {log.n_samples} samples give too few equations for {p} unknowns: record more")
+    x = eq.signals(log)
+    q, qd, w, _ = eq.unpack(x)
+    y = pmap.param.regressor(q, qd, w)
+    rhs = _affine_momentum(eq, eq.p)
+    names = list(PLANAR_NAMES if pmap.planar else INERTIAL_NAMES) + eq.names()
+    r0, a0 = _whitened(pmap, eq, x, y, rhs, None, np.zeros(p))
+    _, cond = _check_excitation(np.concatenate([a0, r0[..., None]], -1), names, cond_limit, where)
+    sigma = None if noise.is_zero else signal_sigma(pmap.param, noise)
+    theta, r, a, steps = _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where)
+    cov, chi2 = _covariance(r, a, sigma is not None, estimated)
+    weighted = sigma is not None
+    return {
+        "equations": eq, "theta": theta, "cov": cov, "chi2_dof": chi2, "steps": steps, "cond": cond,
+        "residual_rms": float(np.sqrt(np.mean(_whitened(pmap, eq, x, y, rhs, None, theta)[0] ** 2))),
+        "estimator": "wls (Gauss-Newton, errors-in-variables weights)" if weighted else "ols (Gauss-Newton)",
+        "covariance": ("inverse Fisher information" + (" scaled by chi2/dof" if estimated else "") if weighted
+                       else "sandwich of the per-sample residuals"),
+    }  # fmt: skip
+
+
+def nominal_payload(path, *, planar: bool) -> np.ndarray:
+    """The standard parameters of the payload in a PAYLOAD.json (a nominal for the design): all ten
+    (spatial) or ``m, mcx, mcy, Izz`` about the link origin (planar), shape ``(10,)`` or ``(4,)``.
+
+    Raises
+    ------
+    SpaceidError
+        The file is not a PAYLOAD.json (no ``standard_parameters``).
+    """
+    data = read_json(path, what="payload")
+    std = data.get("standard_parameters") if isinstance(data, dict) else None
+    if not isinstance(std, dict) or any(not isinstance(std.get(n), (int, float)) for n in INERTIAL_NAMES):
+        raise SpaceidError(f"{path}: no standard_parameters with {', '.join(INERTIAL_NAMES)}: give a PAYLOAD.json "
+                           "that 'spaceid payload' wrote")
+    values = np.array([std[n] for n in INERTIAL_NAMES], float)
+    return values[list(PLANAR_SLOTS)] if planar else values

@@ -1,0 +1,277 @@
+"""Payload identification with a known servicer (spaceid.identified._payload) and the design for it."""
+
+import json
+
+import numpy as np
+import pytest
+
+import spaceid
+from spaceid.cli import main
+from spaceid.data import write_log
+from spaceid.identified import (
+    identify_payload,
+    nominal_payload,
+    payload_map,
+    project_consistent,
+    pseudo_inertia,
+)
+from spaceid.identified._payload import _lmi
+from spaceid.models import inertial_vector
+from spaceid.motion import FourierTrajectory, add_noise, payload_regressor, sample_times
+
+# a 20 kg tool-held box, CoM off every axis, a full inertia tensor that obeys the triangle rule
+SAT_PAYLOAD = (20.0, [0.05, -0.03, 0.3], np.diag([2.0, 2.5, 1.5]) + 0.1 * np.ones((3, 3)))
+# on Cepheus' end effector: 0.3 kg, CoM 5 cm along and 1 cm across the link, Izz about the CoM
+CEPHEUS_PAYLOAD = (0.3, [0.05, 0.01], 7.8e-4)
+NOISE = spaceid.Noise(angle=1e-4, rate=1e-4, base_rate=1e-4, attitude=1e-4)
+
+
+def _motion(model, duration, harmonics, amplitude, seed):
+    rng = np.random.default_rng(seed)
+    nj = model.n_joints
+    return FourierTrajectory(model.joints, duration, rng.uniform(-amplitude, amplitude, (nj, harmonics)),
+                             rng.uniform(-amplitude, amplitude, (nj, harmonics)))  # fmt: skip
+
+
+def _planar_theta(mass, com, izz):
+    """``m, mcx, mcy, Izz`` about the link origin of a planar payload."""
+    c = np.asarray(com)
+    return np.array([mass, *(mass * c), izz + mass * c @ c])
+
+
+def _log_with_payload(pmap, theta, traj, n, h):
+    """A noise-free log of the servicer holding ``theta``, the momentum checked from rigid bodies."""
+    log = spaceid.simulate(pmap.param, pmap.pi(theta), traj, np.linspace(0, traj.duration, n), h,
+                           model=pmap.model(theta))
+    assert log.meta["momentum_rel_error"] < 1e-9 or not np.any(h)
+    return log
+
+
+@pytest.fixture(scope="module")
+def satellite():
+    pmap = payload_map("satellite-7dof", "arm_ee")  # a tool link on a fixed joint of the URDF
+    return pmap, _motion(pmap.param.model, 15.0, 3, 0.3, 1)
+
+
+@pytest.fixture(scope="module")
+def cepheus():
+    pmap = payload_map("cepheus", "link2")  # its declared zeros (mcy) cleared for the payload
+    traj = _motion(pmap.param.model, 20.0, 3, 0.3, 1)
+    theta = _planar_theta(*CEPHEUS_PAYLOAD)
+    return pmap, traj, theta, _log_with_payload(pmap, theta, traj, 200, np.array([0, 0, 0.05]))
+
+
+@pytest.mark.parametrize("h", [[0.5, -1.0, 2.0], pytest.param([0.0, 0.0, 0.0], marks=pytest.mark.slow)],
+                         ids=["momentum", "from-rest"])
+def test_spatial_noise_free_recovers_the_payload(satellite, h):
+    pmap, traj = satellite
+    mass, com, inertia = SAT_PAYLOAD
+    log = _log_with_payload(pmap, inertial_vector(mass, com, inertia), traj, 120, np.array(h))
+    est = identify_payload(pmap, log, "arm_ee", h, noise=spaceid.Noise())
+    assert est.mass == pytest.approx(mass, rel=1e-8)
+    np.testing.assert_allclose(est.com, com, atol=1e-8)
+    np.testing.assert_allclose(est.inertia, inertia, atol=1e-8 * np.abs(inertia).max())
+    assert est.not_identifiable == () and not est.settings["consistency"]["projected"]
+    assert est.settings["gauss_newton_steps"] > 2  # nonlinear in the mass: more than the linear step
+
+
+def test_momentum_is_nonlinear_in_the_payload_mass(satellite):
+    pmap, _ = satellite
+    theta = inertial_vector(*SAT_PAYLOAD)
+    # pi(t theta) is not t-affine: the total mass M holds the payload's
+    mid = pmap.pi(0.5 * theta) - 0.5 * (pmap.pi(np.zeros(10)) + pmap.pi(theta))
+    assert np.abs(mid).max() > 1e-3 * np.abs(pmap.pi(theta) - pmap.pi(np.zeros(10))).max()
+    # and the analytic Jacobian is the derivative
+    step = 1e-6 * np.maximum(np.abs(theta), 1e-3)
+    fd = np.stack([(pmap.pi(theta + s * e) - pmap.pi(theta - s * e)) / (2 * s) for s, e in zip(step, np.eye(10))], -1)
+    np.testing.assert_allclose(pmap.columns(theta), fd, atol=1e-7 * np.abs(fd).max())
+
+
+@pytest.mark.slow
+def test_servicer_captured_target_from_the_dual_arm_servicer():
+    """The servicer-captured preset's target (150 kg, held 0.2 m beyond left_ee and turned 0.35 rad
+    about z) identified in left_ee's frame with servicer-dual as the known servicer."""
+    before, after = spaceid.load_model("servicer-dual"), spaceid.load_model("servicer-captured")
+    pmap = payload_map(before, "left_ee")
+    param = spaceid.minimal_parameters(after)
+    assert param.definitions == pmap.param.definitions
+    traj = _motion(before, 30.0, 4, 0.1, 0)
+    h = np.array([1.0, -2.0, 3.0])
+    log = spaceid.simulate(param, param.true_values, traj, np.linspace(0, 30, 300), h, model=after)
+    est = identify_payload(pmap, log, "left_ee", h, noise=spaceid.Noise())
+    c, s = np.cos(0.35), np.sin(0.35)
+    rot = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1]])
+    i_target = np.array([[18.4343, -0.0446216, 0.247962], [-0.0446216, 18.3235, 0.703207],
+                         [0.247962, 0.703207, 14.5423]])
+    assert est.mass == pytest.approx(150.0, rel=1e-8)
+    np.testing.assert_allclose(est.com, rot @ [0.035, -0.022, 0.56] + [0, 0, 0.2], atol=1e-8)
+    np.testing.assert_allclose(est.inertia, rot @ i_target @ rot.T, atol=1e-8 * 18.5)
+
+
+def test_planar_noise_free_recovers_what_the_plane_shows(cepheus):
+    pmap, _, _, log = cepheus
+    mass, com, izz = CEPHEUS_PAYLOAD
+    est = identify_payload(pmap, log, "link2", [0, 0, 0.05], noise=spaceid.Noise())
+    assert est.names == ("m", "cx", "cy", "Izz")
+    np.testing.assert_allclose(est.values, [mass, *com, izz], rtol=1e-8, atol=1e-12)
+    assert est.not_identifiable == ("cz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz")
+    assert np.isnan(est.com[2]) and np.isnan(est.inertia[0, 0]) and est.inertia[2, 2] == pytest.approx(izz)
+
+
+def test_planar_capture_from_rest_and_unknown_momentum(cepheus):
+    pmap, traj, theta, _ = cepheus
+    log = _log_with_payload(pmap, theta, traj, 200, np.zeros(3))
+    mass, com, izz = CEPHEUS_PAYLOAD
+    for h in ([0, 0, 0], None):
+        est = identify_payload(pmap, log, "link2", h, noise=spaceid.Noise())
+        np.testing.assert_allclose(est.values, [mass, *com, izz], rtol=1e-8, atol=1e-12)
+        assert abs(est.momentum[2]) < 1e-12
+    assert est.settings["momentum_estimated"]
+
+
+@pytest.mark.slow
+def test_noisy_spread_agrees_with_the_standard_errors(cepheus):
+    pmap, _, _, log = cepheus
+    truth = np.array([CEPHEUS_PAYLOAD[0], *CEPHEUS_PAYLOAD[1], CEPHEUS_PAYLOAD[2]])
+    runs = [identify_payload(pmap, add_noise(log, angle=1e-4, rate=1e-4, seed=s), "link2", [0, 0, 0.05], noise=NOISE)
+            for s in range(80)]
+    values = np.array([r.values for r in runs])
+    std = np.mean([r.std for r in runs], 0)
+    # 80 runs: the sample std is within ~16 % (2 sigma) of the true one
+    np.testing.assert_allclose(values.std(0) / std, 1.0, atol=0.2)
+    assert np.all(np.abs(values.mean(0) - truth) < 3 * std / np.sqrt(len(runs)) + 0.1 * std)
+    assert all(r.settings["seed"] == 0 and r.settings["noise"]["angle"] == 1e-4 for r in runs)
+
+
+def test_projection_of_an_inconsistent_optimum():
+    # principal moments 1, 1, 3: the triangle rule fails (3 > 1 + 1), although the tensor is positive definite
+    theta = inertial_vector(2.0, [0.1, 0.0, 0.0], np.diag([1.0, 1.0, 3.0]))
+    cov = np.diag([1e-2, *[1e-4] * 3, *[1e-2] * 6])
+    assert np.linalg.eigvalsh(pseudo_inertia(theta))[0] < 0
+    near, distance = project_consistent(theta, cov, planar=False)
+    assert np.linalg.eigvalsh(pseudo_inertia(near))[0] > 0 and distance > 0
+    # nearest in the covariance metric: no consistent point on random rays from it is nearer
+    metric = np.linalg.inv(cov)
+    d_near = np.sqrt((near - theta) @ metric @ (near - theta))
+    assert d_near == pytest.approx(distance, rel=1e-6)
+    rng = np.random.default_rng(0)
+    for _ in range(200):
+        trial = near + 0.05 * np.sqrt(np.diag(cov)) * rng.standard_normal(10)
+        if np.linalg.eigvalsh(pseudo_inertia(trial))[0] > 0:
+            assert np.sqrt((trial - theta) @ metric @ (trial - theta)) >= d_near * (1 - 1e-6)
+    consistent = inertial_vector(2.0, [0.1, 0.0, 0.0], np.diag([1.0, 1.5, 2.0]))
+    assert project_consistent(consistent, cov, planar=False) == (pytest.approx(consistent), 0.0)
+
+
+def test_a_noisy_point_mass_is_projected_to_a_consistent_estimate(cepheus):
+    pmap, traj, _, _ = cepheus
+    theta = _planar_theta(0.3, [0.05, 0.01], 1e-7)  # nearly a point mass: Izz about the CoM ~ 0
+    log = _log_with_payload(pmap, theta, traj, 200, np.array([0, 0, 0.05]))
+    projected = []
+    for seed in range(6):
+        est = identify_payload(pmap, add_noise(log, angle=1e-4, rate=1e-4, seed=seed), "link2", [0, 0, 0.05],
+                               noise=NOISE)
+        assert est.mass > 0 and est.values[3] > 0
+        assert np.linalg.eigvalsh(np.array(_lmi(est.standard[[0, 1, 2, 9]], True), float))[0] > 0
+        if est.settings["consistency"]["projected"]:
+            projected.append(est)
+            assert est.settings["consistency"]["unconstrained"]["Izz"] < 0
+    assert projected  # Izz std ~2e-5 against 1e-7: about half the runs come out negative
+
+
+@pytest.mark.slow
+def test_spatial_noisy_spread_agrees_with_the_standard_errors(satellite):
+    pmap, traj = satellite
+    h = np.array([0.5, -1.0, 2.0])
+    log = _log_with_payload(pmap, inertial_vector(*SAT_PAYLOAD), traj, 120, h)
+    noise = spaceid.Noise(angle=1e-5, rate=1e-5, base_rate=1e-5, attitude=1e-5)
+    runs = [identify_payload(pmap, add_noise(log, angle=1e-5, rate=1e-5, seed=s), "arm_ee", h, noise=noise)
+            for s in range(30)]
+    ratio = np.array([r.values for r in runs]).std(0) / np.mean([r.std for r in runs], 0)
+    np.testing.assert_allclose(ratio, 1.0, atol=0.3)  # 30 runs: the sample std is within ~26 % (2 sigma)
+
+
+def test_drift_is_estimated_with_the_payload(cepheus):
+    pmap, traj, theta, _ = cepheus
+    h = np.array([0, 0, 0.05])
+    log = spaceid.simulate(pmap.param, pmap.pi(theta), traj, np.linspace(0, traj.duration, 200), h,
+                           model=pmap.model(theta), drift={"torque": 2e-4, "viscous": 1e-4})
+    est = identify_payload(pmap, log, "link2", h, noise=spaceid.Noise(), drift=("torque", "viscous"))
+    np.testing.assert_allclose(est.values, [CEPHEUS_PAYLOAD[0], *CEPHEUS_PAYLOAD[1], CEPHEUS_PAYLOAD[2]], rtol=1e-6)
+    assert [d["name"] for d in est.drift] == ["torque_z", "viscous"]
+    np.testing.assert_allclose([d["value"] for d in est.drift], [2e-4, 1e-4], rtol=1e-5)
+    # without the drift terms the fit is off: the test can fail
+    off = identify_payload(pmap, log, "link2", h, noise=spaceid.Noise())
+    assert abs(off.mass - CEPHEUS_PAYLOAD[0]) > 1e-4
+
+
+def test_links_from_a_urdf_file_and_unknown_links(satellite, tmp_path):
+    from importlib import resources
+
+    path = tmp_path / "servicer.urdf"
+    path.write_text(resources.files("spaceid.models.presets").joinpath("satellite-7dof.urdf").read_text())
+    pmap = payload_map(path, "arm_ee")
+    assert pmap.body == satellite[0].body and np.allclose(pmap.transform, satellite[0].transform)
+    assert not np.allclose(pmap.transform, payload_map(path, pmap.param.model.bodies[pmap.body].name).transform)
+    with pytest.raises(spaceid.SpaceidError, match="--link: 'gripper' is not a link"):
+        payload_map("satellite-7dof", "gripper")
+    with pytest.raises(spaceid.SpaceidError, match="differs from the payload map's link"):
+        identify_payload(pmap, None, "other", [0, 0, 0])
+
+
+def test_cli_payload_end_to_end(cepheus, tmp_path, capsys):
+    log = cepheus[3]
+    path = tmp_path / "after.csv"
+    write_log(path, add_noise(log, angle=1e-5, rate=1e-5, seed=3))
+    out = tmp_path / "payload.json"
+    args = ["payload", "cepheus", str(path), "--link", "link2", "--momentum", "0.05", "--noise-angle", "1e-5",
+            "--noise-rate", "1e-5", "--noise-base-rate", "1e-5", "-o", str(out)]
+    assert main(args) == 0
+    data = json.loads(out.read_text())
+    mass, com, izz = CEPHEUS_PAYLOAD
+    assert abs(data["mass"] - mass) < 4 * data["std"]["mass"]
+    assert abs(data["com"][0] - com[0]) < 4 * data["std"]["com"][0] and data["com"][2] is None
+    assert abs(data["inertia"][2][2] - izz) < 4 * data["std"]["inertia"][2][2]
+    assert data["link"] == "link2" and "Ixx" in data["not_identifiable"] and data["settings"]["seed"] == 0
+    assert len(data["covariance"]["matrix"]) == 4 and data["units"]["inertia"] == "kg m^2"
+    assert "not identifiable from planar motion" in capsys.readouterr().out
+    assert main(args[:3] + ["--link", "nowhere"] + args[5:]) == 2
+    assert "error: --link: 'nowhere'" in capsys.readouterr().err
+    # the design reads it back as its nominal payload
+    std = data["standard_parameters"]
+    np.testing.assert_allclose(nominal_payload(out, planar=True), [std["m"], std["mcx"], std["mcy"], std["Izz"]])
+    (tmp_path / "empty.json").write_text("{}")
+    with pytest.raises(spaceid.SpaceidError, match="no standard_parameters"):
+        nominal_payload(tmp_path / "empty.json", planar=True)
+    assert main(["design", "cepheus", "--duration", "5", "--harmonics", "1", "--samples", "20", "--momentum", "0",
+                 "--payload-nominal", str(out), "-o", str(tmp_path / "t.json")]) == 2
+    assert "--payload-nominal needs --payload-link" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_design_for_the_payload_and_its_bound(cepheus, tmp_path, capsys):
+    pmap, _, theta, _ = cepheus
+    param = spaceid.minimal_parameters(spaceid.load_model("cepheus"))
+    noise = spaceid.Noise(angle=1e-4, rate=1e-4, base_rate=1e-4)
+    h = np.array([0, 0, 0.05])
+    res = spaceid.design_excitation(param, duration=10.0, harmonics=2, samples=40, momentum=h, criterion="crb",
+                                    noise=noise, payload_link="link2", payload=theta, n_starts=2, seed=0)
+    meta = res.trajectory.meta
+    assert meta["payload_link"] == "link2" and set(meta["payload_crb_std"]) == {"m", "mcx", "mcy", "Izz"}
+    # the criterion is the relative bound's trace, on the payload's scaled unknowns
+    q, qd, _ = res.trajectory.evaluate(sample_times(10.0, 40))
+    reg = payload_regressor(pmap, h, noise, theta)
+    assert res.value == pytest.approx(np.trace(reg.crb(q, qd) / np.outer(reg.scale, reg.scale)), rel=1e-6)
+    # within the joint limits
+    assert np.all(np.abs(q) <= pmap.param.model.joint_limits("upper") + 1e-9)
+    # the bound is what identification on that motion then reports (the mass is m in both)
+    log = _log_with_payload(pmap, theta, res.trajectory, 40, h)
+    runs = [identify_payload(pmap, add_noise(log, angle=1e-4, rate=1e-4, seed=s), "link2", h, noise=noise)
+            for s in range(3)]
+    assert np.mean([r.std[0] for r in runs]) == pytest.approx(meta["payload_crb_std"]["m"], rel=0.1)
+    traj = tmp_path / "traj.json"
+    assert main(["design", "cepheus", "--duration", "10", "--harmonics", "2", "--samples", "40", "--momentum", "0.05",
+                 "--payload-link", "link2", "--noise-angle", "1e-4", "--noise-rate", "1e-4", "--noise-base-rate",
+                 "1e-4", "--starts", "1", "-o", str(traj)]) == 0
+    assert "predicted payload CRB std" in capsys.readouterr().err
+    assert json.loads(traj.read_text())["meta"]["payload_link"] == "link2"
