@@ -78,6 +78,7 @@ def dask_cluster(tmp_path):
             proc.wait(timeout=30)
 
 
+@pytest.mark.slow  # Dask workers are spawned and import spaceid: seconds each
 def test_same_numbers_on_every_scheduler(param, dask_cluster, monkeypatch):
     one = study(param)
     _assert_same(one, study(param, jobs=2))

@@ -80,14 +80,13 @@ def _init_process(shared):
     _SHARED = shared
 
 
-def _call_shared(function, *args):
-    with _controller().limit(limits=1):
-        return function(_SHARED, *args)
-
-
 def _call_with(function, shared, *args):  # a Dask task: shared arrives as a scattered future's value
     with _controller().limit(limits=1):
         return function(shared, *args)
+
+
+def _call_shared(function, *args):  # a process-pool task
+    return _call_with(function, _SHARED, *args)
 
 
 @dataclass
@@ -95,7 +94,7 @@ class Workers:
     """Workers of an open scheduler: :meth:`submit` runs ``function(shared, *args)`` on one of
     ``n`` worker threads and returns a future (``concurrent.futures`` or ``distributed``);
     ``wait_first(pending)`` returns the set of those done (at least one); ``in_flight`` tasks
-    at once keep every worker busy (none in this process: a task runs as it is submitted)."""
+    at once keep every worker busy (one in this process, where a task runs as it is submitted)."""
 
     n: int
     submit_call: object

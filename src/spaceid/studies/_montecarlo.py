@@ -174,9 +174,10 @@ def _plan_chunks(states) -> dict:
 
 
 def _campaign_fingerprint(study: _Study, trajectory: dict, seed: int, runs: int) -> str:
-    """What the task results of a study folder must belong to for ``resume``."""
+    """What the task results of a study folder must belong to for ``resume`` (the trajectory without
+    its ``meta``: a design's wall time changes from call to call; the motion is in the arrays)."""
     settings = {"model": study.param.model.source or study.param.model.name, "names": list(study.param.names),
-                "trajectory": trajectory, "momentum": study.momentum.tolist(), "noise": study.noise.to_dict(),
+                "trajectory": {k: v for k, v in trajectory.items() if k != "meta"}, "momentum": study.momentum.tolist(), "noise": study.noise.to_dict(),
                 "estimators": list(study.estimators), "angles_only": study.angles_only,
                 "differentiate": study.differentiate, "seed": seed, "runs": runs}  # fmt: skip
     clean = study.clean
@@ -364,7 +365,8 @@ def run_montecarlo(
         (n,) and results (n, n_joints) [rad, rad/s], a named trajectory or file (see
         :func:`spaceid.motion.load_trajectory`), or ``"designed"``: designed now by
         :func:`spaceid.motion.design_excitation` with ``duration``, ``samples``, ``seed``, ``noise``
-        and the options in ``design`` (default 3 harmonics, criterion ``cond``).
+        and the options in ``design`` (default 3 harmonics, criterion ``cond``), its searches on
+        the study's ``jobs`` and ``scheduler``.
     momentum : array_like of shape (3,)
         Inertial angular momentum [N m s], nonzero (known to the estimators).
     noise : Noise
@@ -428,7 +430,8 @@ def run_montecarlo(
         raise SpaceidError("differentiate: options given without angles_only (--angles-only): the rates are measured")
     momentum = _check_momentum(momentum)
     traj, traj_record = _trajectory(param, trajectory, duration=duration, samples=samples, momentum=momentum,
-                                    noise=noise, seed=seed, design=design, progress=progress)  # fmt: skip
+                                    noise=noise, seed=seed, progress=progress,
+                                    design={"n_jobs": jobs, "scheduler": scheduler, **dict(design or {})})  # fmt: skip
     motion, times = _motion_and_times(traj, duration, samples, times)
 
     with threadpool_limits(1):
