@@ -16,7 +16,7 @@ from click.testing import CliRunner
 import spaceid
 from spaceid import SpaceidError
 from spaceid._campaign import resolve_scheduler, task_seeds
-from spaceid.cli import app
+from spaceid.cli import app, main
 from spaceid.dynamics import excitation_regressor, minimal_parameters
 from spaceid.motion import (
     FourierTrajectory,
@@ -172,3 +172,10 @@ def test_sweep_on_a_small_grid_matches_direct_calls(param, tmp_path):
     csv = (tmp_path / "sweep.csv").read_text().splitlines()
     assert csv[0].startswith("duration,harmonics,samples,seed,cond") and len(csv) == 3
     assert (tmp_path / "sweep.png").stat().st_size > 10_000
+
+
+def test_design_cli_names_a_bad_scheduler(tmp_path, capsys):
+    code = main(["design", "cepheus", "--duration", "5", "--harmonics", "2", "--samples", "35", "--momentum",
+                 "0.4934", "--starts", "2", "--scheduler", "threads", "-o", str(tmp_path / "t.json")])  # fmt: skip
+    err = capsys.readouterr().err
+    assert code == 2 and err.startswith("error: --scheduler: 'threads'") and not (tmp_path / "t.json").exists()
