@@ -52,6 +52,7 @@ _HOME = {
     "run_demo": "studies",
     "run_experiment": "studies",
     "run_montecarlo": "studies",
+    "run_sweep": "studies",
 }
 
 __all__ = ["SpaceidError", *_HOME]
