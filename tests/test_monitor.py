@@ -226,3 +226,15 @@ def test_errors_name_the_option(tmp_path, steady, capsys):
     assert "--false-alarm-rate" in capsys.readouterr().err
     assert main(base + ["--follow", "--joint-topic", "/j"]) == 2
     assert "bag options" in capsys.readouterr().err
+    at_rest = [a if a != "0.5" else "0" for a in base]
+    assert main(at_rest + ["--noise-rate", "1e-3"]) == 2  # zero momentum and no anchor: an error at the start
+    assert "--known NAME=VALUE" in capsys.readouterr().err
+
+
+def test_cli_defaults_are_the_library_ones():
+    from spaceid.cli import monitor as command
+    from spaceid.estimation._monitor import CHANGE_RATIO, FALSE_ALARM_RATE, WARMUP
+
+    defaults = {p.name: p.default for p in command.params}
+    assert (defaults["false_alarm_rate"], defaults["change_ratio"]) == (FALSE_ALARM_RATE, CHANGE_RATIO)
+    assert f"max({WARMUP}," in next(p.help for p in command.params if p.name == "warmup")

@@ -6,9 +6,10 @@ Samples arrive one by one (or in chunks). Each segment between changes starts wi
 the linearisation point at which the equation-error covariances ``S_n``
 (:mod:`spaceid.estimation._noise`) are evaluated for the rest of the segment. Then every sample
 
-1. is whitened by ``S_n``, and its innovation (the momentum residual of the estimate from the
-   samples before it) is normalised by its predicted covariance ``I + a_n P a_n^T``: under no
-   change ``nu_n ~ N(0, I)``, independent from sample to sample;
+1. is whitened by ``L_n`` (``S_n = L_n L_n^T`` there), and its innovation (the momentum residual
+   of the estimate from the samples before it) is normalised by its predicted covariance
+   ``L_n^-1 S_n(estimate) L_n^-T + a_n P a_n^T``: under no change ``nu_n ~ N(0, I)``,
+   independent from sample to sample;
 2. feeds a CUSUM of the log-likelihood ratio of an innovation inflated ``change_ratio`` times in
    variance against none; its threshold gives the requested false-alarm rate (one alarm per
    ``1 / false_alarm_rate`` samples on average, :func:`cusum_threshold`);
@@ -16,8 +17,8 @@ the linearisation point at which the equation-error covariances ``S_n``
    forgetting (:func:`~spaceid.estimation._estimators._accumulate_factor`): O(p^2) work per
    sample whatever the log's length.
 
-An alarm closes the segment where the CUSUM last left zero (the estimated change time) and
-starts a new one there; once the new segment's warm-up is identified, the event reports the
+An alarm closes the segment at the estimated change time (within the CUSUM's last excursion
+above zero, :meth:`Monitor._change_time`) and starts a new one there; once the new segment's warm-up is identified, the event reports the
 z-scores of the change (:func:`~spaceid.estimation.compare`). Each closed segment is re-identified
 in batch from at most ``max_segment`` of its samples (evenly thinned), so memory stays bounded.
 """
@@ -150,7 +151,8 @@ class MonitorEvent:
     index : int
         Events in order, from 0.
     time : float
-        Estimated change time [s]: the first sample after the CUSUM last left zero.
+        Estimated change time [s]: the sample within the CUSUM's last excursion from which on
+        the innovations are most likely inflated (:meth:`Monitor._change_time`).
     detected_at : float
         Time of the sample at which the statistic crossed the threshold [s].
     delay : int
