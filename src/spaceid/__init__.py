@@ -35,6 +35,8 @@ _HOME = {
     "identify": "estimation",
     "cramer_rao": "estimation",
     "cramer_rao_angles": "estimation",
+    "monitor": "estimation",
+    "Monitor": "estimation",
     "load_result": ("identified", "load_identified"),  # the controller-ready model of a RESULT.json
     "IdentifiedModel": "identified",
     "identify_com": "identified",

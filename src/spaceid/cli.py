@@ -945,6 +945,87 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
     err.print(f"sweep.json, sweep.csv, table and figure written to {folder}/ ({res.settings['wall_time_s']:.1f} s)")
 
 
+@app.command(short_help="Detect parameter changes (a capture, a payload release) on a running log.")
+@MODEL
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
+@PLANAR
+@MOMENTUM
+@click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid identify': "
+              "anchors the scale when the momentum is zero; repeatable.")
+@noise_options
+@click.option("--false-alarm-rate", type=float, default=1e-5, show_default=True, help="False alarms per sample when "
+              "nothing changes (one per 1/RATE samples on average): sets the CUSUM threshold.")
+@click.option("--change-ratio", type=float, default=4.0, show_default=True, help="Innovation variance ratio the test "
+              "is tuned to (a change that doubles the momentum residual's std is 4).")
+@click.option("--forgetting", type=float, default=1.0, show_default=True, help="Forgetting factor of the recursive "
+              "estimate, in (0, 1]; 1: each segment's estimate is its batch weighted least squares.")
+@click.option("--warmup", type=int, help="Samples of each segment identified in batch before its test starts "
+              "[default: max(200, 4 (p + 1) / rows)].")
+@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES[:-1]), default="ml", show_default=True,
+              help="Estimator of the batch identifications of the segments (see 'spaceid identify').")
+@click.option("--follow", is_flag=True, help="LOG is a CSV being written: keep reading appended rows until "
+              "interrupted (Ctrl-C) or --follow-timeout seconds pass without a new row.")
+@click.option("--follow-timeout", type=float, default=10.0, show_default=True, metavar="SECONDS",
+              help="With --follow: the log counts as finished after this many seconds without a new row.")
+@bag_options
+@output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
+def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rate, change_ratio, forgetting, warmup,
+            estimator, follow, follow_timeout, output, bag):
+    """Follow a log sample by sample (LOG.csv, a ROS bag, or with --follow a CSV being written): a
+    recursive estimate of the parameters on the momentum equations and a CUSUM test on its
+    normalised residual; each detected change is printed and written to EVENTS.json with its
+    time, test statistic and the parameters that changed, and each segment between changes is
+    identified in batch. Noise levels not given are estimated from the first samples."""
+    from .data import follow_log, read_log, write_json
+    from .estimation import Monitor, parse_known
+
+    param = _param(model_src, planar)
+    h = _momentum(momentum, param.model.planar)
+    m = param.model
+    if follow:
+        if any(v is not None for v in bag.values()):
+            raise SpaceidError("--follow reads a CSV being written: the bag options do not apply")
+        chunks = follow_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, timeout=follow_timeout)
+    else:
+        from .estimation._monitor import _chunks
+
+        chunks = _chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
+    mon = Monitor(param, h, known=parse_known(known), noise=noise, false_alarm_rate=false_alarm_rate,
+                  change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
+                  where=str(log_path))
+    err.print(f"CUSUM threshold {mon.threshold:.4g} for {false_alarm_rate:g} false alarms per sample; expected "
+              f"delay {mon.expected_delay:.3g} samples for a change of ratio {change_ratio:g}", highlight=False)
+    with _warnings_to_stderr():
+        try:
+            for chunk in chunks:
+                for event in mon.update(chunk):
+                    _print_event(event)
+                    write_json(output, mon.record())
+        except KeyboardInterrupt:
+            err.print("interrupted: closing the last segment")
+        printed = len(mon.events)
+        record = mon.finish()
+    for event in mon.events[printed:]:  # a change too close to the end for the next warm-up
+        _print_event(event)
+    for event in record["events"]:
+        if event["segments"] is not None:
+            out.print(f"change {event['index']}, whole segments compared: changed "
+                      f"{', '.join(event['segments']['changed']) or 'none'}", highlight=False)
+    write_json(output, record)
+    out.print(f"{len(record['events'])} change(s) in {record['n_samples']} samples; {len(record['segments'])} "
+              f"segment(s) identified; written to {output}", highlight=False)
+
+
+def _print_event(event):
+    """One line for a detected change."""
+    from .estimation._monitor import Z_CHANGED
+
+    changed = ", ".join(event.changed) or f"none beyond {Z_CHANGED:g} standard errors"
+    out.print(f"change {event.index} at t = {event.time:.6g} s (detected at {event.detected_at:.6g} s, "
+              f"{event.delay} samples; statistic {event.statistic:.4g} > {event.threshold:.4g}); changed: {changed}",
+              highlight=False)
+
+
 def _model_joints(ident):
     from .models import load_model
 
