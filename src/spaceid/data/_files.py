@@ -22,7 +22,11 @@ Unit heuristics (a log in degrees is the commonest mistake, and silently wrong i
   taken to be in degrees and is an error; reaction wheels (``wheels=``) are exempt since their
   angle grows without bound;
 - a rate above 100 rad/s (1000 rad/s for a reaction wheel, which may spin at ~300 rad/s) only
-  warns, as fast rates are unusual rather than impossible.
+  warns, as fast rates are unusual rather than impossible; above 1e6 rad/s it is an error.
+
+Plausibility checks (:func:`spaceid.data._signal_checks.plausibility_warnings`) then compare each
+angle's change with its rate's integral: stamps in ms, rates in deg/s, swapped columns or a
+quaternion stored x, y, z, w give a warning naming the columns (stamps in ns an error).
 """
 
 from __future__ import annotations

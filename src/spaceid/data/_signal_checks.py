@@ -1,7 +1,10 @@
-"""Input checks of the differentiators: sample series, stamps, gaps, numbers and integers.
+"""Input checks of the differentiators (sample series, stamps, gaps, numbers and integers), and
+the plausibility checks of a log as read (:func:`plausibility_warnings`: stamps, rates and angle
+columns that read but disagree with each other).
 
 Each check turns a defect into a one-line :class:`~spaceid.SpaceidError` that names the signal
-(``name``, e.g. ``"q_left_elbow"``) and the fix.
+(``name``, e.g. ``"q_left_elbow"``) and the fix, or a warning that names the columns and the
+likely cause.
 """
 
 from __future__ import annotations

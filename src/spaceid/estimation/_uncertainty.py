@@ -185,8 +185,9 @@ def _noise_model_warning(chi2, checks, log: Log, estimated: bool) -> str:
         if "differentiation" in log.meta:
             cause += " (here the rates were differentiated: levels estimated from them understate their error)"
         elif estimated and chi2 > POOR_FIT_CHI2:  # levels from the log itself: the data or equations are wrong
-            cause = (f"the residuals are {np.sqrt(chi2):.0f} times the noise: the fit is poor, likely wrong data (swapped "
-                     "or mislabelled columns, units: see the log's warnings), a wrong momentum or model; else " + cause)
+            cause = (f"the residuals are {np.sqrt(chi2):.0f} times the noise: the fit is poor, likely wrong data "
+                     "(swapped or mislabelled columns, units: see the log's warnings), a wrong momentum or model; else "
+                     + cause)
     return (f"chi2_dof = {chi2:.3g}, outside [{lo:.3g}, {hi:.3g}] at significance {SIGNIFICANCE:g}: the residuals "
             f"contradict the noise model: {cause}; the standard errors follow the residuals instead")
 
