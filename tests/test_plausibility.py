@@ -123,6 +123,7 @@ def test_nanosecond_stamps_are_refused(logs, tmp_path, capsys):
                      "like nanoseconds or microseconds: convert t to seconds"]
 
 
+@pytest.mark.slow  # two identifications and two validations: ~9 s
 def test_validate_against_a_model_1000_times_off_warns(logs, tmp_path, capsys):
     assert main(["identify", "cepheus", str(logs / "log.csv"), "--momentum", H, "-o", str(tmp_path / "r.json")]) == 0
     result = json.loads((tmp_path / "r.json").read_text())
@@ -149,13 +150,13 @@ def test_clean_simulated_logs_raise_no_flag(logs, tmp_path, capsys):
 
 @pytest.fixture(scope="module")
 def spatial_log(tmp_path_factory):
-    """A noisy satellite-7dof log (quaternion attitude), 200 samples over 20 s."""
+    """A noisy satellite-7dof log (quaternion attitude), 100 samples over 10 s."""
     model = spaceid.load_model("satellite-7dof")
     param = minimal_parameters(model)
     rng = np.random.default_rng(0)
-    traj = FourierTrajectory(model.joints, 20.0, rng.uniform(-0.3, 0.3, (7, 5)), rng.uniform(-0.3, 0.3, (7, 5)))
+    traj = FourierTrajectory(model.joints, 10.0, rng.uniform(-0.3, 0.3, (7, 3)), rng.uniform(-0.3, 0.3, (7, 3)))
     quat0 = np.array([0.9, 0.1, 0.3, 0.3]) / np.linalg.norm([0.9, 0.1, 0.3, 0.3])
-    log = simulate(param, param.true_values, lambda t: traj.evaluate(t)[:2], np.linspace(0, 20, 200),
+    log = simulate(param, param.true_values, lambda t: traj.evaluate(t)[:2], np.linspace(0, 10, 100),
                    np.array([0.5, 0.2, 0.1]), initial_quat=quat0, model=model)
     path = tmp_path_factory.mktemp("spatial") / "sat.csv"
     write_log(path, add_noise(log, angle=1e-4, rate=1e-4, seed=3))
