@@ -23,12 +23,62 @@ from ._errors import SpaceidError
 out = Console()
 err = Console(stderr=True)
 
+
+class _Number(click.ParamType):
+    """A number option checked before any work starts: finite (no nan, inf), an integer when
+    ``integer`` (``1e3`` is accepted as 1000), at least ``minimum``, above ``above``, at most
+    ``maximum``. A bad value raises :class:`spaceid.SpaceidError` naming the option and ``fix``
+    (one ``error:`` line, exit code 2), like the library's own checks."""
+
+    def __init__(self, *, integer=False, minimum=None, above=None, maximum=None, fix=""):
+        self.integer, self.minimum, self.above, self.maximum, self.fix = integer, minimum, above, maximum, fix
+        self.name = "integer" if integer else "float"
+
+    def _expected(self):
+        bounds = [f">= {self.minimum:.12g}" if self.minimum is not None else "",
+                  f"> {self.above:.12g}" if self.above is not None else "",
+                  f"<= {self.maximum:.12g}" if self.maximum is not None else ""]
+        return " and ".join(filter(None, [" ".join(["an integer" if self.integer else "a finite number",
+                                                        bounds[0] or bounds[1]]).strip(), bounds[2]]))
+
+    def convert(self, value, param, ctx):
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            number = value
+        else:
+            try:
+                number = float(str(value).strip())
+            except ValueError:
+                number = None
+        ok = number is not None and np.isfinite(number) and (not self.integer or float(number).is_integer())
+        ok = ok and (self.minimum is None or number >= self.minimum) and (self.above is None or number > self.above)
+        if not ok or self.maximum is not None and number > self.maximum:
+            option = param.opts[-1] if param is not None else "value"
+            raise SpaceidError(f"{option}: {value} is not {self._expected()}: {self.fix}".rstrip(": "))
+        return int(number) if self.integer else float(number)
+
+
+SEED_VALUE = _Number(integer=True, minimum=0, maximum=2**32 - 1, fix="give a non-negative integer (below 2^32)")
+NOISE_LEVEL = _Number(minimum=0, fix="give a standard deviation >= 0 (0: no noise)")
+RATE = _Number(above=0, fix="give a sample rate in Hz (e.g. 100)")
+SAMPLES = _Number(integer=True, minimum=2, fix="give 2 or more samples")
+SECONDS = _Number(above=0, fix="give a positive time in seconds")
+POSITIVE = _Number(above=0, fix="give a positive number")
+FINITE = _Number(fix="give a finite number")
+HARMONICS = _Number(integer=True, minimum=1, maximum=50, fix="give 1 to 50 Fourier harmonics (3-5 are usual)")
+STARTS = _Number(integer=True, minimum=1, maximum=10_000, fix="give 1 to 10000 starts")
+RUNS = _Number(integer=True, minimum=2, maximum=100_000,
+               fix="give 2 to 100000 noise draws (200 or more for stable statistics)")
+JOBS = _Number(integer=True, minimum=1, maximum=1024, fix="give 1 or more worker processes")
+PROBABILITY = _Number(above=0, maximum=0.999999, fix="give a probability between 0 and 1, e.g. 0.95")
+CHANGE_RATIO = _Number(above=1, fix="give a variance ratio above 1, e.g. 4")
+FORGETTING = _Number(above=0, maximum=1, fix="give a forgetting factor in (0, 1], e.g. 0.999 (1: none)")
+
 MODEL = click.argument("model_src", metavar="MODEL")
 PLANAR = click.option("--planar/--spatial", default=None, help="Force planar (x, y, yaw) or spatial mode; default: the model's.")
 MOMENTUM_METAVAR = "H|HX,HY,HZ"
 MOMENTUM = click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR, help="Angular momentum of the whole "
                         "system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest.")
-SEED = click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random choice (recorded in the output).")
+SEED = click.option("--seed", type=SEED_VALUE, default=0, show_default=True, help="Seed of every random choice (recorded in the output).")
 SCHEDULER = click.option("--scheduler", metavar="SCHEDULER", help="Where the tasks run: processes (a local process "
                          "pool of --jobs), dask (a Dask LocalCluster of --jobs workers) or tcp://HOST:PORT (a running "
                          "'dask scheduler' and its workers); the numbers do not depend on it [default: "
@@ -36,8 +86,8 @@ SCHEDULER = click.option("--scheduler", metavar="SCHEDULER", help="Where the tas
 RESUME = click.option("--resume", is_flag=True, help="Keep the task results an interrupted run of the same settings "
                       "left in --out and run only the others (without it they are removed).")
 NOISE = [
-    click.option("--noise-angle", type=float, default=0.0, help="White noise on angles [rad]."),
-    click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
+    click.option("--noise-angle", type=NOISE_LEVEL, default=0.0, help="White noise on angles [rad]."),
+    click.option("--noise-rate", type=NOISE_LEVEL, default=0.0, help="White noise on rates [rad/s]."),
 ]
 ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
 KNOT_SPACING = 0.05  # [s] spaceid.estimation.KNOT_SPACING, likewise
@@ -89,10 +139,10 @@ def noise_options(f):
         return f(*args, noise=noise, **kwargs)
 
     return _options(
-        click.option("--noise-angle", type=float, help="Noise std of the joint angles [rad]."),
-        click.option("--noise-rate", type=float, help="Noise std of the joint rates [rad/s]."),
-        click.option("--noise-base-rate", type=float, help="Noise std of the base angular velocity, per axis [rad/s]."),
-        click.option("--noise-attitude", type=float, help="Noise std of the base attitude, per axis [rad] (spatial)."),
+        click.option("--noise-angle", type=NOISE_LEVEL, help="Noise std of the joint angles [rad]."),
+        click.option("--noise-rate", type=NOISE_LEVEL, help="Noise std of the joint rates [rad/s]."),
+        click.option("--noise-base-rate", type=NOISE_LEVEL, help="Noise std of the base angular velocity, per axis [rad/s]."),
+        click.option("--noise-attitude", type=NOISE_LEVEL, help="Noise std of the base attitude, per axis [rad] (spatial)."),
     )(command)
 
 
@@ -298,9 +348,9 @@ def _write_definitions(path, info, model_src):
 @app.command(short_help="Optimal exciting trajectory (min cond(Y) or predicted error) under joint limits.")
 @MODEL
 @PLANAR
-@click.option("--duration", type=float, required=True, metavar="TF", help="Trajectory duration tf [s].")
-@click.option("--harmonics", type=int, required=True, metavar="NF", help="Fourier harmonics Nf.")
-@click.option("--samples", type=int, required=True, metavar="N", help="Samples N, equally spaced over [0, tf].")
+@click.option("--duration", type=SECONDS, required=True, metavar="TF", help="Trajectory duration tf [s].")
+@click.option("--harmonics", type=HARMONICS, required=True, metavar="NF", help="Fourier harmonics Nf.")
+@click.option("--samples", type=SAMPLES, required=True, metavar="N", help="Samples N, equally spaced over [0, tf].")
 @click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR, help="Angular momentum of the whole system "
               "[N m s]: h (planar) or hx,hy,hz (inertial axes); nonzero (with zero momentum Y pi = 0: no "
               "condition number to minimise).")
@@ -309,11 +359,11 @@ def _write_definitions(path, info, model_src):
               help="cond (condition number), logdet (scaled columns), or with the --noise-* options: dopt (max "
               "log det of the Fisher information), crb (min trace of the relative Cramer-Rao bound).")
 @noise_options
-@click.option("--q-max", type=float, help="Joint angle limit, largest abs(q) [rad] (default: model limits).")
-@click.option("--qd-max", type=float, help="Joint rate limit, largest abs(qd) [rad/s] (default: model limits).")
-@click.option("--qdd-max", type=float, help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
-@click.option("--starts", type=int, default=64, show_default=True, help="Local starts of the global search.")
-@click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
+@click.option("--q-max", type=POSITIVE, help="Joint angle limit, largest abs(q) [rad] (default: model limits).")
+@click.option("--qd-max", type=POSITIVE, help="Joint rate limit, largest abs(qd) [rad/s] (default: model limits).")
+@click.option("--qdd-max", type=POSITIVE, help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
+@click.option("--starts", type=STARTS, default=64, show_default=True, help="Local starts of the global search.")
+@click.option("--time-budget", type=SECONDS, help="Stop the search after this wall time [s] (then the result also "
               "depends on the machine's speed).")
 @click.option("--payload-link", metavar="LINK", help="Design for the parameters of a payload held by LINK (see "
               "'spaceid payload') instead of the minimal parameters (--momentum 0 allowed: the known servicer "
@@ -321,7 +371,7 @@ def _write_definitions(path, info, model_src):
               "Cramer-Rao standard deviations.")
 @click.option("--payload-nominal", type=click.Path(path_type=Path), metavar="PAYLOAD.json", help="With "
               "--payload-link: the nominal payload (a 'spaceid payload' output; default none, zero mass).")
-@click.option("--jobs", type=int, help="Worker processes [default: one per core].")
+@click.option("--jobs", type=JOBS, help="Worker processes [default: one per core].")
 @SCHEDULER
 @output("Trajectory JSON to write (for simulate, predict, identify --instruments).")
 def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max,
@@ -340,6 +390,7 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
         from .identified import nominal_payload
 
         nominal = nominal_payload(payload_nominal, planar=param.model.planar)
+    _require_sample_memory(f"--samples {samples}", samples, param.model)
     with _progress("designing") as progress:
         res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
@@ -363,8 +414,8 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 @PLANAR
 @click.option("--trajectory", required=True, help="File from 'design' or a named trajectory (paper-table2).")
 @MOMENTUM
-@click.option("--samples", type=int, help="N samples equally spaced over [0, tf] [default: the design's N].")
-@click.option("--rate", type=float, help="Sample rate [Hz] (instead of --samples).")
+@click.option("--samples", type=SAMPLES, help="N samples equally spaced over [0, tf] [default: the design's N].")
+@click.option("--rate", type=RATE, help="Sample rate [Hz] (instead of --samples).")
 @_options(*NOISE)
 @DRIFT_VALUES
 @click.option("--base-position", is_flag=True, help="Also write the base position (base_x, base_y or base_px, "
@@ -383,7 +434,7 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     h = _momentum(momentum, param.model.planar)
     terms = parse_drift(drift, planar=param.model.planar, values=True)
     traj = load_trajectory(trajectory, joints=param.model.joints)
-    times = _trajectory_times(traj, samples, rate, "simulate")
+    times = _trajectory_times(traj, samples, rate, "simulate", param.model)
     log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model, drift=terms,
               base_position=base_position)
     log.meta.update(trajectory=trajectory, seed=seed)
@@ -411,8 +462,8 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @noise_options
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
-@click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
-@click.option("--knot-spacing", type=float, default=KNOT_SPACING, show_default=True, help="--estimator angles: knot spacing "
+@click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
+@click.option("--knot-spacing", type=SECONDS, default=KNOT_SPACING, show_default=True, help="--estimator angles: knot spacing "
               "of the joint-path splines [s]; at least two samples per span.")
 @click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
               "estimated with the parameters: torque (constant torque [N m]), viscous (base friction -c w0, c in "
@@ -436,6 +487,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     from .data import write_json
     from .studies import drift_lines, parameter_table
 
+    known = parse_known(known)  # option values first: before the model and the log are read
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     kinds = parse_drift(drift, planar=param.model.planar, values=False)
@@ -453,7 +505,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
                                f"{list(param.model.joints)}: give the trajectory that was commanded on this model")
         reference = traj.evaluate(log.t - log.t[0])[:2]
     with _warnings_to_stderr():
-        ident = run(param, log, h, estimator=estimator, known=parse_known(known), noise=noise, instruments=reference,
+        ident = run(param, log, h, estimator=estimator, known=known, noise=noise, instruments=reference,
                     where=str(log_path), knot_spacing=knot_spacing, drift=kinds)
     if with_com:
         ident = _identify_com(ident, log)
@@ -513,10 +565,10 @@ def _identify_com(ident, log):
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
 @click.argument("trajectory", metavar="TRAJ", type=click.Path(path_type=Path))
 @MOMENTUM
-@click.option("--samples", type=int, help="TRAJ from 'design': N samples equally spaced over [0, tf] [default: "
+@click.option("--samples", type=SAMPLES, help="TRAJ from 'design': N samples equally spaced over [0, tf] [default: "
               "the design's N].")
-@click.option("--rate", type=float, help="TRAJ from 'design': sample rate [Hz] (instead of --samples).")
-@click.option("--initial-yaw", type=float, help="Base yaw at t0 [rad] (planar; default 0).")
+@click.option("--rate", type=RATE, help="TRAJ from 'design': sample rate [Hz] (instead of --samples).")
+@click.option("--initial-yaw", type=FINITE, help="Base yaw at t0 [rad] (planar; default 0).")
 @click.option("--initial-quat", help="Base attitude at t0 as w,x,y,z (spatial; default 1,0,0,0).")
 @click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="Drift terms replacing those of RESULT.json "
               "(used by default): torque=TAU, viscous=C, coulomb=MU, as for 'spaceid simulate'.")
@@ -533,7 +585,8 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
     ident = load_result(result)
     h = _momentum(momentum, ident.planar)
     terms = parse_drift(drift, planar=ident.planar, values=True)
-    joints = _model_joints(ident)
+    model = _result_model(ident)
+    joints = model.joints
     if trajectory.suffix.lower() == ".csv":
         if samples is not None or rate is not None:
             raise SpaceidError(f"{trajectory}: a CSV gives its own samples: --samples and --rate are for a "
@@ -543,8 +596,10 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
         from .motion import load_trajectory
 
         traj = load_trajectory(trajectory, joints=joints)
-        t = _trajectory_times(traj, samples, rate, "predict")
+        t = _trajectory_times(traj, samples, rate, "predict", model)
         q, qd, _ = traj.evaluate(t)
+    if initial_quat is not None and initial_yaw is not None:
+        raise SpaceidError("--initial-yaw and --initial-quat both give the initial attitude: give one")
     if initial_quat is not None:
         try:
             quat0 = np.array([float(v) for v in initial_quat.split(",")])
@@ -559,9 +614,10 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
     err.print(f"{log.n_samples} predicted samples written to {output}")
 
 
-def _trajectory_times(traj, samples, rate, command):
+def _trajectory_times(traj, samples, rate, command, model):
     """Sample times [s] of a designed trajectory: ``--samples N`` or ``--rate HZ``, else the N it
-    was designed with; shape (n,)."""
+    was designed with; shape (n,). Refused when ``model``'s simulation of them would not fit in
+    memory."""
     from .motion import sample_times
 
     if samples is not None and rate is not None:
@@ -570,9 +626,27 @@ def _trajectory_times(traj, samples, rate, command):
         samples = traj.meta.get("samples")
         if samples is None:
             raise SpaceidError(f"{command}: the trajectory records no sample count: give --samples N or --rate HZ")
-    if samples is not None and samples < 2 or rate is not None and not rate > 0:
-        raise SpaceidError(f"{command}: --samples must be at least 2 and --rate positive")
-    return sample_times(traj.duration, samples) if samples else np.arange(0, traj.duration + 1e-12, 1 / rate)
+    if rate is not None:
+        n = np.floor(traj.duration * rate * (1 + 1e-12)) + 1  # as np.arange below, without allocating first
+        if n < 2:
+            raise SpaceidError(f"--rate {rate:g}: 1 sample over the trajectory's {traj.duration:g} s: give a rate "
+                               f"above {1 / traj.duration:.3g} Hz")
+        _require_sample_memory(f"--rate {rate:g}: {n:.3g} samples", n, model)
+        return np.arange(0, traj.duration + 1e-12, 1 / rate)
+    _require_sample_memory(f"--samples {samples}", samples, model)
+    return sample_times(traj.duration, samples)
+
+
+def _require_sample_memory(what, n, model):
+    """Refuse ``n`` samples of ``model`` that would not fit in the available memory, before any
+    work. Simulating evaluates the regressor of every full parameter on a grid 8 times denser than
+    the samples: about 8 x 8 x (joints + 6) x (full parameters) bytes a sample (cepheus: estimate
+    32 kB, measured peak 22 kB a sample; design and identification take less)."""
+    from ._memory import require_memory
+    from .dynamics import full_parameter_names
+
+    per_sample = 8 * 8 * (len(model.joints) + 6) * len(full_parameter_names(model))
+    require_memory(float(n) * per_sample, what, "give fewer samples" + (" or a lower --rate" if "rate" in what else ""))
 
 
 @app.command(short_help="Re-simulate an identified model against a log: metrics and plots.")
@@ -584,7 +658,7 @@ def _trajectory_times(traj, samples, rate, command):
               "momentum at the log's first sample.")
 @click.option("--torques", is_flag=True, help="Also drive the identified model's forward dynamics with the log's "
               "joint torques (columns tau_J [N m]) and compare the motion: torque_*.csv/json/png.")
-@click.option("--horizon", type=float, metavar="SECONDS", help="With --torques: restart from the measured state "
+@click.option("--horizon", type=SECONDS, metavar="SECONDS", help="With --torques: restart from the measured state "
               "every SECONDS [s] (default: one run over the whole log).")
 @bag_options
 @output("Folder to write predicted.csv, metrics.json and validation.png into.")
@@ -662,8 +736,8 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
 @app.command(short_help="The paper's Cepheus experiment on the digital twin, through a ROS bag.")
 @click.argument("model_src", metavar="[MODEL]", default="cepheus")
 @click.option("--trajectory", default="designed", show_default=True, help="designed, paper-table2 or a file from 'design'.")
-@click.option("--wheel-speed", type=float, default=170.0, show_default=True, help="Wheel speed relative to the base [rad/s].")
-@click.option("--samples", type=int, default=29, show_default=True, help="N, the samples identification uses.")
+@click.option("--wheel-speed", type=FINITE, default=170.0, show_default=True, help="Wheel speed relative to the base [rad/s].")
+@click.option("--samples", type=SAMPLES, default=29, show_default=True, help="N, the samples identification uses.")
 @click.option("--format", "bag_format", type=click.Choice(["ros1", "ros2", "mcap"]), default="ros1", show_default=True,
               help="Bag the twin records: ros1 (ROS 1 .bag file), ros2 (ROS 2 bag folder, sqlite3 storage), mcap "
               "(ROS 2 bag folder, MCAP storage).")
@@ -758,22 +832,22 @@ def compare(before, after, as_json, show_all):
 @click.option("--trajectory", default="paper-table2", show_default=True, help="File from 'design', a named "
               "trajectory (paper-table2), or 'designed' (designed now: --duration, --samples, --harmonics, "
               "--criterion, --seed).")
-@click.option("--duration", type=float, help="Sampled span [s] (default: the trajectory's; required for 'designed').")
-@click.option("--samples", type=int, default=35, show_default=True, help="N samples equally spaced over the duration "
+@click.option("--duration", type=SECONDS, help="Sampled span [s] (default: the trajectory's; required for 'designed').")
+@click.option("--samples", type=SAMPLES, default=35, show_default=True, help="N samples equally spaced over the duration "
               "(501 over 5 s is 100 Hz, e.g. for --angles-only).")
-@click.option("--harmonics", type=int, default=3, show_default=True,
+@click.option("--harmonics", type=HARMONICS, default=3, show_default=True,
               help="Fourier harmonics of a 'designed' trajectory.")
 @click.option("--criterion", default="cond", show_default=True, help="Design criterion of a 'designed' trajectory "
               "(cond, logdet, dopt, crb; see 'spaceid design').")
 @MOMENTUM
-@click.option("--runs", type=int, default=200, show_default=True, help="Noise draws.")
+@click.option("--runs", type=RUNS, default=200, show_default=True, help="Noise draws.")
 @click.option("--estimator", "estimators", multiple=True, metavar="[" + "|".join(ESTIMATOR_CHOICES) + "]",
               help="Estimator to study, repeatable [default: ml and ols]. " + ESTIMATOR_HELP)
 @noise_options
 @click.option("--angles-only", is_flag=True, help="Noise on joint angles and base attitude only, rates differentiated "
               "from them (Savitzky-Golay, automatic window).")
 @SEED
-@click.option("--jobs", type=int, help="Worker processes [default: all cores].")
+@click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
 @click.option("--out", "folder", type=click.Path(path_type=Path), help="Folder for table.txt, montecarlo.json and "
               "montecarlo.png, and tasks/ (each chunk of runs as it completes, for --resume).")
@@ -790,6 +864,7 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
+    _require_sample_memory(f"--samples {samples}", samples, param.model)
     with _progress("designing, then runs" if trajectory == "designed" else "runs") as progress:
         res = run_montecarlo(param, trajectory, momentum=h, noise=noise or DEFAULT_NOISE, duration=duration,
                              samples=samples, runs=runs, estimators=estimators or ("ml", "ols"), seed=seed, jobs=jobs,
@@ -811,7 +886,7 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
 @click.option("--prior", "prior_src", required=True, metavar="MODEL", help="Prior model (preset, URDF or YAML) with "
               "the identified model's joints: it gives the output's kinematics, names, limits and visuals, and the "
               "guess the data refine (masses, CoMs, inertias).")
-@click.option("--region", type=float, metavar="P", help="Search the P confidence ellipsoid of the identified "
+@click.option("--region", type=PROBABILITY, metavar="P", help="Search the P confidence ellipsoid of the identified "
               "parameters (e.g. 0.95; anchored ones stay exact) instead of reproducing them exactly: for noisy "
               "results that no physical model reproduces.")
 @click.option("--format", "fmt", type=click.Choice(["urdf", "yaml"]), default="urdf", show_default=True,
@@ -863,7 +938,7 @@ def export(result, prior_src, region, fmt, output):
 @noise_options
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
-@click.option("--quantum", type=float, help="Encoder resolution [rad per count], for --differentiate.")
+@click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
 @click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
               "estimated with the payload: torque, viscous, coulomb (as for 'spaceid identify').")
 @SEED
@@ -916,10 +991,10 @@ def _number_list(value, option, kind):
 @click.option("--samples", required=True, metavar="N[,N...]", help="Samples over each duration, comma-separated.")
 @click.option("--criterion", type=click.Choice(["cond", "logdet", "dopt", "crb"]), default="cond", show_default=True,
               help="Design criterion of every setting (see 'spaceid design').")
-@click.option("--starts", type=int, default=8, show_default=True, help="Local searches of each setting's design.")
+@click.option("--starts", type=STARTS, default=8, show_default=True, help="Local searches of each setting's design.")
 @noise_options
 @SEED
-@click.option("--jobs", type=int, help="Worker processes [default: all cores].")
+@click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
 @click.option("--out", "folder", type=click.Path(path_type=Path), required=True, help="Folder for sweep.json, "
               "sweep.csv, table.txt, sweep.png, and tasks/ (each setting as it completes, for --resume).")
@@ -953,19 +1028,19 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid identify': "
               "anchors the scale when the momentum is zero; repeatable.")
 @noise_options
-@click.option("--false-alarm-rate", type=float, default=1e-5, show_default=True, help="False alarms per sample when "
+@click.option("--false-alarm-rate", type=PROBABILITY, default=1e-5, show_default=True, help="False alarms per sample when "
               "nothing changes (one per 1/RATE samples on average): sets the CUSUM threshold.")
-@click.option("--change-ratio", type=float, default=4.0, show_default=True, help="Innovation variance ratio the test "
+@click.option("--change-ratio", type=CHANGE_RATIO, default=4.0, show_default=True, help="Innovation variance ratio the test "
               "is tuned to (a change that doubles the momentum residual's std is 4).")
-@click.option("--forgetting", type=float, default=1.0, show_default=True, help="Forgetting factor of the recursive "
+@click.option("--forgetting", type=FORGETTING, default=1.0, show_default=True, help="Forgetting factor of the recursive "
               "estimate, in (0, 1]; 1: each segment's estimate is its batch weighted least squares.")
-@click.option("--warmup", type=int, help="Samples of each segment identified in batch before its test starts "
+@click.option("--warmup", type=SAMPLES, help="Samples of each segment identified in batch before its test starts "
               "[default: max(200, 4 (p + 1) / rows)].")
 @click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES[:-1]), default="ml", show_default=True,
               help="Estimator of the batch identifications of the segments (see 'spaceid identify').")
 @click.option("--follow", is_flag=True, help="LOG is a CSV being written: keep reading appended rows until "
               "interrupted (Ctrl-C) or --follow-timeout seconds pass without a new row.")
-@click.option("--follow-timeout", type=float, default=10.0, show_default=True, metavar="SECONDS",
+@click.option("--follow-timeout", type=SECONDS, default=10.0, show_default=True, metavar="SECONDS",
               help="With --follow: the log counts as finished after this many seconds without a new row.")
 @bag_options
 @output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
@@ -1026,10 +1101,11 @@ def _print_event(event):
               highlight=False)
 
 
-def _model_joints(ident):
+def _result_model(ident):
+    """The model an identification was made on (its joints, wheels and parameters)."""
     from .models import load_model
 
-    return load_model(ident.model, planar=ident.planar).joints
+    return load_model(ident.model, planar=ident.planar)
 
 
 def main(argv=None) -> int:

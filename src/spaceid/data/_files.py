@@ -22,13 +22,18 @@ Unit heuristics (a log in degrees is the commonest mistake, and silently wrong i
   taken to be in degrees and is an error; reaction wheels (``wheels=``) are exempt since their
   angle grows without bound;
 - a rate above 100 rad/s (1000 rad/s for a reaction wheel, which may spin at ~300 rad/s) only
-  warns, as fast rates are unusual rather than impossible.
+  warns, as fast rates are unusual rather than impossible; above 1e6 rad/s it is an error.
+
+Plausibility checks (:func:`spaceid.data._signal_checks.plausibility_warnings`) then compare each
+angle's change with its rate's integral: stamps in ms, rates in deg/s, swapped columns or a
+quaternion stored x, y, z, w give a warning naming the columns (stamps in ns an error).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -37,6 +42,7 @@ from .._atomic import atomic_path, write_text_atomic
 from .._errors import SpaceidError
 from . import _bags as bags
 from ._tables import _read_text, _read_csv, _check_joint_columns, _require, _column, _check_time, _check_angles, _check_rates, _unit_quaternions, _stack, _is_rate, _PLANAR_BASE, _SPATIAL_BASE
+from ._signal_checks import plausibility_warnings
 from ._timeseries import Log, yaw_to_quat
 
 __all__ = ["read_log", "write_log", "read_joint_trajectory", "write_json", "read_json"]
@@ -69,8 +75,9 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
         ``t`` of shape (n_samples,) [s]; ``q``, ``qd`` of shape (n_samples, n_joints);
         ``base_quat`` (n_samples, 4) scalar first; ``base_w`` (n_samples, 3) [rad/s] in base
         axes (``[0, 0, wz]`` for a planar log, all NaN if the base rate is missing).
-        ``meta`` holds ``source`` (the path), ``columns`` (the header) and, when rates are
-        missing, ``rates = "missing"`` and ``missing_rates`` (the absent columns).
+        ``meta`` holds ``source`` (the path), ``columns`` (the header), ``plausibility`` (the
+        warnings of :func:`spaceid.data._signal_checks.plausibility_warnings`, also issued) and,
+        when rates are missing, ``rates = "missing"`` and ``missing_rates`` (the absent columns).
 
     Raises
     ------
@@ -78,13 +85,16 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
         Missing or unreadable file; empty file or no data rows; missing required columns;
         a ``q_X``/``qd_X`` column for a joint X the model lacks; non-numeric, NaN or infinite
         cells; time stamps not strictly increasing; angles apparently in degrees; a base
-        quaternion whose norm departs from 1 by more than 1e-2.
+        quaternion whose norm departs from 1 by more than 1e-2; a median time step above a day
+        (stamps in ns or us).
 
     Warns
     -----
     UserWarning
-        A base quaternion whose norm departs from 1 by more than 1e-6 (it is normalised), or
-        implausibly fast rates.
+        A base quaternion whose norm departs from 1 by more than 1e-6 (it is normalised),
+        implausibly fast rates, or a plausibility warning: stamps that look like milliseconds, an
+        angle column that does not follow its rate column (swapped or mislabelled columns, a
+        quaternion stored x, y, z, w) or follows it only after a telling factor (deg/s, degrees).
     """
     if bags.is_bag(path):
         return bags.read_bag_log(path, joints=joints, planar=planar, wheels=wheels, **(bag_options or {}))
@@ -128,7 +138,7 @@ def _table_log(table, joints: tuple, planar: bool, require_rates: bool, wheels) 
     else:
         base_quat = _unit_quaternions(table, _stack(values, base_angles, n))
         base_w = _stack(values, base_rates, n, fill=nan)
-    return Log(
+    log = Log(
         **_optional_columns(table, joints, planar, n),
         t=values["t"],
         joints=joints,
@@ -139,6 +149,10 @@ def _table_log(table, joints: tuple, planar: bool, require_rates: bool, wheels) 
         planar=bool(planar),
         meta=meta,
     )
+    meta["plausibility"] = plausibility_warnings(log, str(path), wheels)
+    for text in meta["plausibility"]:
+        warnings.warn(text, stacklevel=2)
+    return log
 
 
 def write_log(path, log: Log) -> None:

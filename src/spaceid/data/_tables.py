@@ -23,6 +23,7 @@ _MAX_ANGLE = 20 * math.pi  # [rad]; ten turns over a run means the column is in 
 _MAX_RATE = 100.0  # [rad/s]; arm joints and the base; above it the column is likely deg/s
 _GAP = 10.0  # a step this many times the median one is a gap (dropped samples), worth a warning
 _MAX_WHEEL_RATE = 1000.0  # [rad/s]; reaction wheels spin at a few hundred rad/s
+_IMPOSSIBLE_RATE = 1e6  # [rad/s or m/s]; beyond any rotor or actuator: an error
 _QUAT_WARN = 1e-6  # |norm - 1| above which a quaternion is renormalised, with a warning
 _QUAT_FAIL = 1e-2  # |norm - 1| above which it is not a unit quaternion at all
 
@@ -188,6 +189,9 @@ def _check_rates(table, values, base_rates, joints, wheels):
     limits |= {f"qd_{j}": _MAX_WHEEL_RATE if j in wheels else _MAX_RATE for j in joints}
     for name, limit in limits.items():
         peak = np.abs(values[name]).max() if name in values else 0.0
+        if peak > _IMPOSSIBLE_RATE:  # it would overflow the equations (inf noise levels, LinAlgError)
+            raise SpaceidError(f"{table.path}: column '{name}' reaches {peak:.4g}, beyond the {_IMPOSSIBLE_RATE:g} "
+                               "rad/s (or m/s) no robot reaches: check the column's units and values")
         if peak > limit:
             warnings.warn(
                 f"{table.path}: column '{name}' reaches {peak:.4g} rad/s, "

@@ -56,7 +56,7 @@ def resolve_anchors(param: Parameterization, known: dict, where: str) -> dict:
     ------
     SpaceidError
         A name in ``known`` is neither a minimal parameter nor a physical parameter that one
-        equals alone; the message lists those that are.
+        equals alone (the message lists those that are), or two names set the same parameter.
     """
     out = {}
     for joint in param.model.wheels:
@@ -64,6 +64,7 @@ def resolve_anchors(param: Parameterization, known: dict, where: str) -> dict:
         for i, d in enumerate(param.definitions):
             if all(s.endswith(f"_{body}") for s in _symbols(d)):
                 out[i] = (float(param.true_values[i]), f"reaction wheel {joint} (model)")
+    given = {}  # index: the name it was given by
     alone = {d.strip(): i for i, d in enumerate(param.definitions) if re.fullmatch(r"\s*[A-Za-z_][A-Za-z_0-9]*\s*", d)}
     for name, value in known.items():
         i = param.names.index(name) if name in param.names else alone.get(name)
@@ -73,6 +74,10 @@ def resolve_anchors(param: Parameterization, known: dict, where: str) -> dict:
                 f"{where}: --known {name}: not a minimal parameter ({param.names[0]}..{param.names[-1]}) nor a "
                 f"physical parameter that one equals alone (those are: {hint}); see 'spaceid model' for the definitions"
             )
+        if i in given:
+            raise SpaceidError(f"{where}: --known {given[i]} and --known {name} both set {param.names[i]} "
+                               f"(= {param.definitions[i].strip()}): give it once")
+        given[i] = name
         out[i] = (float(value), "given")
     return out
 

@@ -14,8 +14,9 @@ __all__ = ["parse_momentum", "parse_known", "parse_drift"]
 def parse_momentum(value, *, planar: bool):
     """Inertial angular momentum as a 3-vector [N m s] from a number or ``"hx,hy,hz"``.
 
-    A planar system takes a scalar ``h`` (about the inertial z axis); a spatial one takes
-    ``0`` for ``0,0,0`` (a system that started at rest). ``"unknown"`` (or None) gives None: a
+    A planar system takes a scalar ``h`` (about the inertial z axis; ``0,0,h`` too, but nonzero
+    ``hx, hy`` are refused, as its equations cannot use them); a spatial one takes ``0`` for
+    ``0,0,0`` (a system that started at rest). ``"unknown"`` (or None) gives None: a
     constant momentum estimated with the parameters.
     """
     if value is None or str(value).strip().lower() == "unknown":
@@ -29,11 +30,14 @@ def parse_momentum(value, *, planar: bool):
     if len(parts) != 3 or not np.all(np.isfinite(parts)):
         single = "h or " if planar else "0 or "
         raise SpaceidError(f"--momentum: expected {single}hx,hy,hz (finite, N m s), got '{value}'")
+    if planar and any(parts[:2]):  # they would be ignored by the equations, yet kept in the result
+        raise SpaceidError(f"--momentum: '{value}' has in-plane components hx, hy, but a planar model carries only "
+                           f"the momentum about z: give --momentum {parts[2]:g}")
     return np.array(parts)
 
 
 def parse_known(items) -> dict:
-    """``NAME=VALUE`` strings (``--known``) as ``{name: value}``."""
+    """``NAME=VALUE`` strings (``--known``) as ``{name: value}``; a name given twice is refused."""
     known = {}
     for item in items or ():
         name, sep, value = str(item).partition("=")
@@ -43,6 +47,9 @@ def parse_known(items) -> dict:
             number = np.nan
         if not sep or not name.strip() or not np.isfinite(number):
             raise SpaceidError(f"--known: '{item}' is not NAME=VALUE with a finite number (e.g. Iczz_wheel=0.00197)")
+        if name.strip() in known:
+            raise SpaceidError(f"--known: {name.strip()} is given twice ({known[name.strip()]:g} and {number:g}): "
+                               "give each anchor once")
         known[name.strip()] = number
     return known
 

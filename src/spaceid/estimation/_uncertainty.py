@@ -162,6 +162,12 @@ def _hac_bandwidth(rho1, n):
     return int(np.ceil(1.1447 * (4 * rho1**2 / (1 - rho1**2) ** 2 * n) ** (1 / 3)))
 
 
+POOR_FIT_CHI2 = 100.0
+"""A ``chi2_dof`` above this (residuals 10 times the noise) with noise levels estimated from the
+log and measured rates is a poor fit, not a noise-level error (given levels may be wrong; rates
+differentiated from the angles reach it on clean logs, their estimated levels understated)."""
+
+
 def _noise_model_warning(chi2, checks, log: Log, estimated: bool) -> str:
     """What a ``chi2_dof`` far from 1 means, or ``""``: the test rejects the noise model and the
     standard errors it implies would be off by more than ~40 % (``chi2_dof`` outside [0.5, 2]).
@@ -178,6 +184,10 @@ def _noise_model_warning(chi2, checks, log: Log, estimated: bool) -> str:
                  "differentiator, a wrong momentum or model")  # fmt: skip
         if "differentiation" in log.meta:
             cause += " (here the rates were differentiated: levels estimated from them understate their error)"
+        elif estimated and chi2 > POOR_FIT_CHI2:  # levels from the log itself: the data or equations are wrong
+            cause = (f"the residuals are {np.sqrt(chi2):.0f} times the noise: the fit is poor, likely wrong data "
+                     "(swapped or mislabelled columns, units: see the log's warnings), a wrong momentum or model; else "
+                     + cause)
     return (f"chi2_dof = {chi2:.3g}, outside [{lo:.3g}, {hi:.3g}] at significance {SIGNIFICANCE:g}: the residuals "
             f"contradict the noise model: {cause}; the standard errors follow the residuals instead")
 

@@ -56,6 +56,11 @@ def attitude_error_angle(a, b) -> np.ndarray:
     return 2 * np.arctan2(np.linalg.norm(v, axis=1), np.abs(c))
 
 
+POOR_VALIDATION = 0.5
+"""A normalised base-rate RMS error (``base_w_nrms``) above this warns: the model does not predict
+the log (validations of a right model stay at a few per cent)."""
+
+
 def validation_metrics(measured: Log, predicted: Log) -> dict:
     """RMS, normalised RMS and largest errors of the predicted base motion.
 
@@ -98,7 +103,8 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
 
     A ``UserWarning`` when ``log`` is the log ``ident`` was identified from (its
     ``settings["log_fingerprint"]``, :func:`spaceid.data.log_fingerprint`): a fit follows its own
-    data, so only a different motion tests the model.
+    data, so only a different motion tests the model; another when the base-rate error exceeds
+    :data:`POOR_VALIDATION` of the measured rate (the model does not predict the log).
 
     Returns
     -------
@@ -109,4 +115,11 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
     _warn_if_fitting_log(ident, log, where)
     predicted = predict(ident, log.t, log.q, log.qd, momentum=momentum, initial_quat=log.base_quat[0], where=where,
                         drift=drift)
-    return predicted, validation_metrics(log, predicted)
+    metrics = validation_metrics(log, predicted)
+    if metrics["base_w_nrms"] > POOR_VALIDATION:
+        warnings.warn(
+            f"{where}: the predicted base rate misses the measured one by {100 * metrics['base_w_nrms']:.3g} % "
+            f"(RMS, above {100 * POOR_VALIDATION:.0f} %): the model does not predict this log: a result of another "
+            "robot or payload, a wrong --momentum, or a unit error in the log or the model (parameters 1000 times "
+            "off give ~100 %)", UserWarning, stacklevel=2)
+    return predicted, metrics
