@@ -131,3 +131,33 @@ def test_regressor_derivative_along_a_direction(rng, tree):
     contracted = param.contracted_tangent(*x, d, u, step=1e-5)
     np.testing.assert_allclose(contracted, np.einsum("nrk,nr->k", tangent, u), rtol=0,
                                atol=1e-12 * np.abs(contracted).max())  # fmt: skip
+
+
+def test_equations_linearised_and_contracted(rng):
+    """The stacked equations with a known parameter and the momentum estimated (attitude columns):
+    linearised derivative against Richardson differences of ``phi``, and its contraction."""
+    from spaceid.data import quat_to_matrix
+    from spaceid.estimation._equations import _Equations
+
+    model = random_tree(rng, [0, 1, 1], planar=False, prismatic=(2,))
+    param = minimal_parameters(model)
+    n, k = 200, param.n_params
+    quat = rng.standard_normal((n, 4))
+    eq = _Equations(param, quat_to_matrix(quat / np.linalg.norm(quat, axis=1, keepdims=True)), np.arange(1, k),
+                    np.array([0]), param.true_values[:1], None)  # fmt: skip
+    x = np.hstack([*random_states(rng, model, n), 0.1 * rng.standard_normal((n, 3))])
+    v = 1e-2 * rng.standard_normal(x.shape)
+    tangent = eq.linearized(x, v, primal=False)
+    h = 1e-1
+
+    def central(s):
+        return (eq.phi(x + s * v) - eq.phi(x - s * v)) / (2 * s)
+
+    ref = (4 * central(h / 2) - central(h)) / 3
+    assert np.abs(tangent - ref).max() < 1e-8 * np.abs(ref).max()
+    phi = eq.phi(x)
+    np.testing.assert_allclose(eq.linearized(x, v) - tangent, phi, rtol=0, atol=1e-13 * np.abs(phi).max())
+    u = rng.standard_normal((n, 3))
+    contracted = eq.contracted_dphi(x, v, u)
+    np.testing.assert_allclose(contracted, np.einsum("nrp,nr->p", tangent[..., :-1], u), rtol=0,
+                               atol=1e-12 * np.abs(contracted).max())  # fmt: skip

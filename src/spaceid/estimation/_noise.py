@@ -23,7 +23,7 @@ from ..dynamics import Parameterization, momentum_jacobian, skew
 
 __all__ = ["Noise", "noise_from_log", "signal_sigma", "signal_jacobian", "equation_covariance", "FD_STEP"]
 
-FD_STEP = 1e-5  # [rad]: central differences of the regressor; truncation ~1e-10, round-off ~1e-11 relative
+FD_STEP = 1e-5  # [rad]: central differences of the kinematics; truncation ~1e-10, round-off ~1e-11 relative
 
 
 @dataclass(frozen=True)
