@@ -35,7 +35,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 
 from .._errors import SpaceidError
-from .._threads import blas_threads
+from .._threads import blas_threads, one_blas_thread
 from ._definitions import column_definitions, planar_definitions
 from ._kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
@@ -221,24 +221,39 @@ _BLOCKS = 16
 """Blocks per kinematics call: amortises the per-joint Python cost of the tree recursion."""
 
 
-def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=None):
+def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=None, direction=None, step=None,
+               primal=True, out=None):  # fmt: skip
     """Regressor columns over any leading shape: ``(..., 3, n_cols)`` or, for the energy,
     ``(..., n_cols)``; with ``weights (n_cols,)`` their weighted sum, ``(..., 3)`` or ``(...)``,
-    formed block by block in cache (the columns are never stored).
+    formed block by block in cache (the columns are never stored). With ``direction``
+    ``(dq, dqd, dw0)`` (momentum only), the columns' derivative along it, plus the columns when
+    ``primal`` (:func:`_tangent_frames`, central differences of step ``step``). ``out`` (a view
+    is fine) receives the columns, shape ``(n_samples, 3, n_cols)``.
 
     Groups of ``_BLOCK * _BLOCKS`` samples go to threads (NumPy releases the GIL in the long
     array operations); each group writes its own rows."""
     lead, flat = _flatten_states(q, qd, w0)
+    if direction is not None:
+        flat += [np.broadcast_to(np.asarray(a, float), lead + b.shape[-1:]).reshape(b.shape)
+                 for a, b in zip(direction, flat)]  # fmt: skip
     n = len(flat[0])
-    out = np.empty((n,) + (() if energy else (3,)) + (() if weights is not None else (plan.n_cols,)))
+    if out is None:
+        out = np.empty((n,) + (() if energy else (3,)) + (() if weights is not None else (plan.n_cols,)))
     block = max(1, min(_BLOCK, n))
     evaluate = _energy_blocks if energy else _momentum_blocks
+
+    def blocks(group):
+        if direction is None:
+            yield from evaluate(frame_table(model, *group, block), plan)
+            return
+        for first, second in zip(*(evaluate(f, plan) for f in _tangent_frames(model, group, block, step, primal))):
+            first += second  # the bilinear forms of the two tables, summed in cache
+            yield first
 
     def run(starts):
         for start in starts:
             stop = min(start + block * _BLOCKS, n)
-            frames = frame_table(model, *(a[start:stop] for a in flat), block)
-            for i, y in enumerate(evaluate(frames, plan)):
+            for i, y in enumerate(blocks([a[start:stop] for a in flat])):
                 rows = slice(start + i * block, min(start + (i + 1) * block, stop))
                 out[rows] = np.moveaxis(y if weights is None else weights @ y, -1, 0)[: rows.stop - rows.start]
 
@@ -250,6 +265,77 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
     else:
         run(starts)
     return out.reshape(lead + out.shape[1:])
+
+
+def _frame_derivative(model: Model, states, block: int, step: float):
+    """The frame table of ``states = [q, qd, w0, dq, dqd, dw0]`` (each ``(m, .)``) at ``(q, qd, w0)``
+    and the derivatives of its table and body-axes rates along ``(dq, dqd, dw0)``, by central
+    differences of step ``step`` in the largest component of each sample's direction."""
+    x, d = states[:3], states[3:]
+    size = np.max([np.abs(a).max(-1) for a in d], axis=0)
+    eps = step / np.where(size > 0, size, 1.0)
+    plus, minus = (frame_table(model, *(a + sign * eps[:, None] * b for a, b in zip(x, d)), block) for sign in (1, -1))
+    frames = frame_table(model, *x, block)
+    n_blocks = frames.table.shape[0]
+    padded = np.ones(n_blocks * block)
+    padded[: len(eps)] = 2 * eps
+    two_eps = padded.reshape(n_blocks, block)
+    d_table = (plus.table - minus.table) / two_eps[:, None, None, None, None]
+    return frames, d_table, (plus.omega_body - minus.omega_body) / two_eps[:, None, None]
+
+
+def _tangent_frames(model: Model, states, block: int, step: float, primal: bool):
+    """Two frame tables whose momentum columns sum to the columns' derivative along a direction.
+
+    Every momentum column is bilinear in the pose rows ``S`` (with the body axes) and the rate
+    rows ``U`` (with the body-axes rates ``wb``), so its derivative is the column of
+    ``(S, dU, dwb)`` plus that of ``(dS, U, wb)``; with ``primal`` the first is
+    ``(S, U + dU, wb + dwb)`` and the columns come with it (:func:`_frame_derivative`: the
+    kinematics are differenced, the columns never)."""
+    frames, d_table, d_spin = _frame_derivative(model, states, block, step)
+    rate = frames.table.copy()
+    rate[:, :, 1] = d_table[:, :, 1] + (frames.table[:, :, 1] if primal else 0)
+    pose = frames.table.copy()
+    pose[:, :, 0] = d_table[:, :, 0]
+    return (FrameTable(rate, frames.omega, d_spin + (frames.omega_body if primal else 0)),
+            FrameTable(pose, frames.omega, frames.omega_body))
+
+
+def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights, step: float, group: int = 1024):
+    """``sum_n weights_n . d(columns)(x_n)[direction_n]``, shape ``(n_cols,)``, without the columns.
+
+    A pair column is ``T_i x T_j`` summed over two pairs of table rows, so its contracted
+    derivative is ``G_ij - G_ji`` with ``G = sum_n dT (T x u)^T`` over components and samples
+    (``u`` the weights, ``u . (dT_i x T_j) = dT_i . (T_j x u)``): one matrix product over all the
+    samples for every column. An inertia column ``T_a wb_s`` (plus its mirror) contracts to
+    ``sum_n (u . dT_a) wb_s + (u . T_a) dwb_s``, two more products.
+
+    Parameters
+    ----------
+    q, qd, w0 : ndarray of shape (n, .)
+    direction : tuple of ndarray
+        ``(dq, dqd, dw0)``, shaped as the states.
+    weights : ndarray of shape (n, 3)
+    """
+    nb = len(model.bodies)
+    G, P = np.zeros((8 * nb, 8 * nb)), np.zeros((8 * nb, 3 * nb))
+    with one_blas_thread():  # small products: threads only wait on busy cores
+        for start in range(0, len(q), group):
+            part = slice(start, start + group)
+            states = [np.asarray(a, float)[part] for a in (q, qd, w0, *direction)]
+            m = len(states[0])
+            frames, d_table, d_spin = _frame_derivative(model, states, m, step)
+            t, dt = frames.table[0].reshape(3, 8 * nb, m), d_table[0].reshape(3, 8 * nb, m)
+            u = np.asarray(weights, float)[part].T[:, None]  # (3, 1, m)
+            for r in range(3):
+                G += dt[r] @ (t[(r + 1) % 3] * u[(r + 2) % 3] - t[(r + 2) % 3] * u[(r + 1) % 3]).T  # dT . (T x u)
+            P += (u * dt).sum(0) @ frames.omega_body[0].reshape(3 * nb, m).T
+            P += (u * t).sum(0) @ d_spin[0].reshape(3 * nb, m).T
+    rows = plan.gather[:, : plan.n_cols]  # component x: the table rows of X1, Y1, X2, Y2
+    out = (G - G.T)[rows[0], rows[1]] + (G - G.T)[rows[2], rows[3]]
+    axis1, axis2, spin1, spin2 = plan.inertia
+    out[plan.inertia_at] = P[axis1, spin2] + P[axis2, spin1]
+    return out
 
 
 def _inertia_columns(frames: FrameTable, plan: _Plan, *, energy: bool):
@@ -460,6 +546,14 @@ def _planar_functions(model: Model, terms, q, qd, w0):
 # ------------------------------------------------------------------ the minimal set -----------
 
 
+def _into(out, y):
+    """``y``, copied into ``out`` when one is given."""
+    if out is None:
+        return y
+    out[...] = y
+    return out
+
+
 @dataclass(frozen=True)
 class Parameterization:
     """The minimal (identifiable) parameter set of a model and its regressor.
@@ -511,17 +605,63 @@ class Parameterization:
         """``pi`` of the model's own inertial parameters, shape ``(k,)``."""
         return self.projection @ full_values(self.model)
 
-    def regressor(self, q, qd, w0) -> np.ndarray:
+    def regressor(self, q, qd, w0, *, out=None) -> np.ndarray:
         """Minimal regressor in base axes, shape ``(..., rows, k)``.
 
         ``regressor(q, qd, w0) @ pi`` is the angular momentum about the system CM in base axes
-        (its z component only, for planar systems).
+        (its z component only, for planar systems). ``out`` (a view is fine), of shape
+        ``(n_samples, rows, k)`` for states ``(n_samples, .)``, receives it (spatial systems
+        write into it directly: no copy of the largest array of an identification).
         """
         kind, data, weights = self._eval
         if kind == "planar":
-            return (_planar_functions(self.model, data, q, qd, w0) @ weights)[..., None, :]
-        y = _regressor(self.model, q, qd, w0, data, energy=False)  # the independent columns
-        return y[..., 2:3, :] if self.model.planar else y
+            return _into(out, (_planar_functions(self.model, data, q, qd, w0) @ weights)[..., None, :])
+        if not self.model.planar:
+            return _regressor(self.model, q, qd, w0, data, energy=False, out=out)  # the independent columns
+        return _into(out, _regressor(self.model, q, qd, w0, data, energy=False)[..., 2:3, :])
+
+    def linearized_regressor(self, q, qd, w0, direction, *, step: float, primal: bool = True, out=None) -> np.ndarray:
+        """``regressor(x) + d regressor(x)[direction]`` (or the derivative alone, without
+        ``primal``), shape ``(..., rows, k)``: the regressor linearised at ``x = (q, qd, w0)``.
+
+        Parameters
+        ----------
+        q, qd, w0 : array_like
+            As for :meth:`regressor`.
+        direction : tuple of array_like
+            ``(dq, dqd, dw0)``, shaped as ``(q, qd, w0)``.
+        step : float
+            Central differences of the kinematics of this step in the largest component of each
+            sample's direction (the columns are bilinear in the kinematics, so they are formed
+            once, not differenced; the planar basis differences its functions).
+        out : ndarray, optional
+            As for :meth:`regressor`.
+        """
+        kind, data, _ = self._eval
+        if kind == "planar":
+            x, d = [np.asarray(a, float) for a in (q, qd, w0)], [np.asarray(a, float) for a in direction]
+            size = np.max([np.abs(a).max(-1) for a in d], axis=0)[..., None]
+            eps = step / np.where(size > 0, size, 1.0)
+            plus, minus = (self.regressor(*(a + sign * eps * b for a, b in zip(x, d))) for sign in (1, -1))
+            tangent = (plus - minus) / (2 * eps[..., None])
+            return _into(out, tangent + self.regressor(*x) if primal else tangent)
+        args = dict(energy=False, direction=direction, step=step, primal=primal)
+        if not self.model.planar:
+            return _regressor(self.model, q, qd, w0, data, out=out, **args)
+        return _into(out, _regressor(self.model, q, qd, w0, data, **args)[..., 2:3, :])
+
+    def contracted_tangent(self, q, qd, w0, direction, weights, *, step: float) -> np.ndarray:
+        """``sum_n weights_n . d regressor(x_n)[direction_n]``, shape ``(k,)``: the derivative of
+        :meth:`linearized_regressor` contracted with ``weights (n, rows)`` over the samples and
+        rows, formed without the derivative (spatial trees: a few matrix products over the
+        samples; the planar basis contracts its differenced functions). States ``(n, .)``."""
+        kind, data, _ = self._eval
+        if kind == "planar":
+            tangent = self.linearized_regressor(q, qd, w0, direction, step=step, primal=False)
+            return np.einsum("nrk,nr->k", tangent, weights)
+        u = np.zeros((len(weights), 3))
+        u[:, slice(2, 3) if self.model.planar else slice(None)] = np.asarray(weights, float).reshape(len(u), -1)
+        return _contracted_tangent(self.model, data, q, qd, w0, direction, u, step)
 
     def momentum(self, q, qd, w0, pi) -> np.ndarray:
         """``regressor(q, qd, w0) @ pi`` without storing the regressor: the angular momentum

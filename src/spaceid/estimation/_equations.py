@@ -169,33 +169,69 @@ class _Equations:
     def phi(self, x) -> np.ndarray:
         """``[A | -b]`` of every sample: ``(n, rows, p + 1)``."""
         q, qd, w, rot = self.unpack(x)
-        y = self.param.regressor(q, qd, w)
-        rows = slice(2, 3) if self.planar else slice(None)
-        rot_t = np.swapaxes(rot, -1, -2)[:, rows]  # R0^T, the rows of the equations
-        out = np.empty(y.shape[:-1] + (self.p + 1,))
-        # the free columns as contiguous runs: slice copies, several times faster than a gather
-        runs = np.split(self.free, np.flatnonzero(np.diff(self.free) > 1) + 1)
-        at = 0
-        for run in runs:
-            if len(run):
+        return self._stack(lambda out: self.param.regressor(q, qd, w, out=out), np.swapaxes(rot, -1, -2))
+
+    def _stack(self, regressor, rot_t) -> np.ndarray:
+        """``[A | -b]`` from the regressor, ``regressor(out)`` of shape ``(n, rows, k)`` (written
+        into ``out`` when that is not None), and the transposed base rotations ``rot_t (n, 3, 3)``:
+        linear in the pair, so derivatives of both give that of :meth:`phi`."""
+        rot_t = rot_t[:, 2:3] if self.planar else rot_t  # R0^T, the rows of the equations
+        out = np.empty((len(rot_t), self.param.rows, self.p + 1))
+        if not len(self.known):  # every parameter free: the regressor is written in place
+            y, at = regressor(out[..., : self.param.n_params]), self.param.n_params
+        else:  # the free columns as contiguous runs: slice copies, several times faster than a gather
+            y, at = regressor(None), 0
+            for run in np.split(self.free, np.flatnonzero(np.diff(self.free) > 1) + 1):
                 out[..., at : at + len(run)] = y[..., run[0] : run[-1] + 1]
                 at += len(run)
         b = -(y[..., self.known] @ self.known_values)
-        if self.momentum is None:
-            out[..., at : at + self.n_h] = -rot_t[..., self.axes]
-        else:
+        if self.momentum is not None:
             b = b + rot_t @ self.momentum
-        if self.drift:  # the momentum change, in base axes, per unit drift coefficient
-            out[..., at + self.n_h : -1] = -np.einsum("nri,nki->nrk", rot_t, self.basis)
+        out[..., at:-1] = self._attitude_columns(rot_t)
         out[..., -1] = -b
         return out
 
-    def dphi(self, x, v) -> np.ndarray:
-        """Directional derivative of :meth:`phi` along ``v (n, n_x)``, by central differences
-        with a step of ``FD_STEP`` in the largest component of each sample's ``v``."""
-        scale = np.max(np.abs(v), axis=1, keepdims=True)
+    def _attitude_columns(self, rot_t):
+        """The columns of the unknown momentum and of the drift, ``(n, rows, n_h + n_d)``, from
+        the rows ``rot_t`` of ``R0^T``: minus the momentum's components in base axes, per unit."""
+        columns = [-rot_t[..., self.axes]] if self.momentum is None else []
+        if self.drift:  # the momentum change, in base axes, per unit drift coefficient
+            columns.append(-np.einsum("nri,nki->nrk", rot_t, self.basis))
+        return np.concatenate(columns, -1) if columns else np.zeros(rot_t.shape[:-1] + (0,))
+
+    def _rotation_derivative(self, x, v):
+        """Derivative of ``R0^T (n, 3, 3)`` along ``v``: central differences of step ``FD_STEP``
+        in the largest component of each sample's ``v`` (zero for planar systems)."""
+        if self.planar:
+            return np.zeros_like(self.rot)
+        scale = np.max(np.abs(v), axis=1)
         step = FD_STEP / np.where(scale > 0, scale, 1.0)
-        return (self.phi(x + step * v) - self.phi(x - step * v)) / (2 * step[..., None])
+        turned = [self.unpack(x + sign * step[:, None] * v)[3] for sign in (1, -1)]
+        return np.swapaxes(turned[0] - turned[1], -1, -2) / (2 * step[:, None, None])
+
+    def linearized(self, x, v, *, primal=True) -> np.ndarray:
+        """:meth:`phi` linearised at ``x`` and evaluated at ``x + v`` (``v (n, n_x)``), or without
+        ``primal`` its directional derivative along ``v``: the regressor's by
+        :meth:`~spaceid.dynamics.Parameterization.linearized_regressor`, the attitude's by central
+        differences, each of step ``FD_STEP`` in the largest component of a sample's ``v``."""
+        q, qd, w, rot = self.unpack(x)
+        direction = self.unpack(v)[:3]
+
+        def regressor(out):
+            return self.param.linearized_regressor(q, qd, w, direction, step=FD_STEP, primal=primal, out=out)
+
+        d_rot_t = self._rotation_derivative(x, v)
+        return self._stack(regressor, np.swapaxes(rot, -1, -2) + d_rot_t if primal else d_rot_t)
+
+    def contracted_dphi(self, x, v, u) -> np.ndarray:
+        """``sum_n u_n^T dA_n[v_n]``, shape ``(p,)``: the derivative along ``v (n, n_x)`` of the
+        columns ``A`` of :meth:`phi`, contracted with ``u (n, rows)``, without forming it
+        (:meth:`~spaceid.dynamics.Parameterization.contracted_tangent`)."""
+        q, qd, w, _ = self.unpack(x)
+        y = self.param.contracted_tangent(q, qd, w, self.unpack(v)[:3], u, step=FD_STEP)
+        d_rot_t = self._rotation_derivative(x, v)
+        extra = self._attitude_columns(d_rot_t[:, 2:3] if self.planar else d_rot_t)
+        return np.concatenate([y[self.free], np.einsum("nrk,nr->k", extra, u)])
 
     def jacobian(self, x, theta) -> np.ndarray:
         """``d(Phi theta_bar)/dx``: ``(n, rows, n_x)`` (see :func:`spaceid.estimation.signal_jacobian`)."""

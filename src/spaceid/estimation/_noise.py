@@ -19,12 +19,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from .._errors import SpaceidError
-from ..dynamics import skew
-from ..dynamics import Parameterization
+from ..dynamics import Parameterization, momentum_jacobian, skew
 
 __all__ = ["Noise", "noise_from_log", "signal_sigma", "signal_jacobian", "equation_covariance", "FD_STEP"]
 
-FD_STEP = 1e-5  # [rad]: central differences in q; truncation ~1e-10, round-off ~1e-11 relative
+FD_STEP = 1e-5  # [rad]: central differences of the kinematics; truncation ~1e-10, round-off ~1e-11 relative
 
 
 @dataclass(frozen=True)
@@ -81,7 +80,7 @@ def signal_sigma(param: Parameterization, noise: Noise) -> np.ndarray:
     ])  # fmt: skip
 
 
-def signal_jacobian(param: Parameterization, pi, q, qd, w0, h_base=None, *, chunk: int = 256) -> np.ndarray:
+def signal_jacobian(param: Parameterization, pi, q, qd, w0, h_base=None) -> np.ndarray:
     """Derivative of the equation error ``g = Y(q, qd, w0) pi - h_base`` w.r.t. the signals.
 
     Parameters
@@ -99,32 +98,13 @@ def signal_jacobian(param: Parameterization, pi, q, qd, w0, h_base=None, *, chun
     Returns
     -------
     ndarray of shape (n, rows, n_x)
-        Columns ordered as :func:`signal_sigma`. Exact in qd and w0 (the momentum is linear in
-        the velocities), central differences of step ``FD_STEP`` in q.
+        Columns ordered as :func:`signal_sigma`. Analytic
+        (:func:`spaceid.dynamics.momentum_jacobian`: one kinematics evaluation per sample).
     """
-    pi = np.asarray(pi, float)
-    q, qd, w0 = (np.asarray(a, float) for a in (q, qd, w0))
-    n, nj = q.shape
-    axes = _axes(param)
-    eye = np.eye(nj)
-    units_w = np.zeros((len(axes), 1, 3))
-    units_w[np.arange(len(axes)), 0, axes] = 1.0
-    out = []
-    for s in range(0, n, chunk):
-        qc, qdc, wc = q[s : s + chunk], qd[s : s + chunk], w0[s : s + chunk]
-        m = len(qc)
-        # one batched call: q +/- step per joint (at the measured rates), then unit joint
-        # rates and unit base rates (the momentum is linear in them, so these are exact)
-        step = FD_STEP * eye[:, None, :]
-        qs = np.concatenate([qc + step, qc - step, np.broadcast_to(qc, (nj + len(axes), m, nj))])
-        qds = np.concatenate([np.broadcast_to(qdc, (2 * nj, m, nj)), np.broadcast_to(eye[:, None, :], (nj, m, nj)),
-                              np.zeros((len(axes), m, nj))])  # fmt: skip
-        ws = np.concatenate([np.broadcast_to(wc, (2 * nj, m, 3)), np.zeros((nj, m, 3)), np.broadcast_to(units_w, (len(axes), m, 3))])
-        g = param.momentum(qs, qds, ws, pi)  # (3 nj + n_axes, m, rows)
-        dq = (g[:nj] - g[nj : 2 * nj]) / (2 * FD_STEP)
-        out.append(np.moveaxis(np.concatenate([dq, g[2 * nj :]], 0), 0, -1))
-    jac = np.concatenate(out, 0)
+    q = np.asarray(q, float)
+    jac = momentum_jacobian(param, q, qd, w0, pi)
     if not param.model.planar:
+        n = len(q)
         hb = np.zeros((n, 3)) if h_base is None else np.broadcast_to(np.asarray(h_base, float), (n, 3))
         # R0 -> R0 exp([d]x) turns R0^T h into hb + hb x d, so dg/dd = -[hb]x
         jac = np.concatenate([jac, -skew(hb)], -1)

@@ -63,7 +63,7 @@ def _covariance_terms(eq, x, phi, sigma, theta, estimator, info):
     from the residuals' scores ``g_n = M_n^T r_n`` (:func:`_newey_west`)."""
     xl = info.get("corrected", x)
     if "corrected" in info:  # ML: linearised at the corrected signals, evaluated at the measured
-        phi = eq.phi(xl) + eq.dphi(xl, x - xl)
+        phi = eq.linearized(xl, x - xl)
     A = phi[..., :-1]
     r = phi @ np.append(theta, 1.0)
     if estimator == "ols":

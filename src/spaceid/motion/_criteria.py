@@ -284,11 +284,11 @@ class whitened_regressor:  # noqa: N801 - used like a function; a class so it pi
     ----------
     fd_step : float
         Step [rad, rad/s] of the design's central differences of this callable (see
-        ``_ExcitationProblem.linearize_regressor``). ``S_n`` holds central differences in q of
-        step ``noise.FD_STEP``, whose round-off (about 1e-11 relative) the design's default step
-        of 1e-6 turns into errors of 4e-5 in ``dYw/dq`` and 2e-6 in the gradients of ``crb``
-        and ``dopt`` (cepheus, against 5-point differences of step 1e-3); a step of 1e-4
-        gives 3e-7 and 1e-7 (tests/test_design.py checks it).
+        ``_ExcitationProblem.linearize_regressor``). When ``S_n`` held central differences in q
+        of step ``noise.FD_STEP`` (it is analytic now), their round-off (about 1e-11 relative)
+        and the design's default step of 1e-6 gave errors of 4e-5 in ``dYw/dq`` and 2e-6 in the
+        gradients of ``crb`` and ``dopt`` (cepheus, against 5-point differences of step 1e-3);
+        a step of 1e-4 gives 3e-7 and 1e-7 (tests/test_design.py checks it).
     """
 
     fd_step = 1e-4

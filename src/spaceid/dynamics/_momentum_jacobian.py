@@ -1,0 +1,155 @@
+"""Analytic derivative of the momentum ``h = Y(q, qd, w0) pi`` w.r.t. the state, for any tree.
+
+Every regressor column is a symmetric bilinear form of the rows of the pose table ``S`` (body
+origins ``p_b`` and axes ``R_b e_k``) and of its inertial rate ``U = D S`` (:class:`FrameTable`),
+plus the rotor terms ``R_b K_b R_b^T w_b``. Weighted by ``pi`` the momentum is
+
+    h = sum_ac W_ac S_a x U_c + sum_b I_b w_b,      I_b = R_b K_b R_b^T,
+
+with ``W`` symmetric over the table rows (:func:`_weights`). The velocities enter ``U = D S``
+linearly, ``D S_a = w0 x S_a + sum_j qd_j d_j S_a``, and joint ``j`` moves the rows of its subtree:
+``d_j S_a = a_j x (S_a - delta_a o_j)`` for a revolute joint (axis ``a_j`` through the origin
+``o_j`` of its child body; ``delta_a`` is 1 on origin rows, 0 on axis rows), ``delta_a a_j`` for
+a prismatic one. Derivatives in q commute with ``D`` (its coefficients are velocities), so
+``d_j U_a = D(d_j S_a)``, with ``D a_j = w_parent x a_j`` and ``D o_j = v_child``. With
+``Z = W S`` and ``V = W U`` the derivative is ``d_j h = sum_a d_j S_a x V_a + Z_a x d_j U_a``
+plus the rotor terms; the triple products separate into a few per-body sums (``S V^T``,
+``S Z^T``, ``U Z^T``, ``I_b``, ``I_b w_b`` and the origin rows of ``V`` and ``Z``) that are
+summed over each joint's subtree by the path matrix. One kinematics evaluation per sample gives
+all ``2 n_joints + 3`` columns; ``tests/test_momentum_jacobian.py`` checks them against
+Richardson-extrapolated central differences of the momentum.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._threads import one_blas_thread
+from ._kinematics import _constants, _flatten_states, _Geometry, frame_table
+from ._regressor import Parameterization, _plan
+
+__all__ = ["momentum_jacobian"]
+
+
+def _weights(param: Parameterization, pi):
+    """``W (4 n_bodies, 4 n_bodies)`` and ``K (n_bodies, 3, 3)`` of the momentum of ``pi``.
+
+    The columns basis weights its plan's columns by ``pi``; the planar basis is the full
+    regressor's z row times ``pinv(projection)`` (its functions fit the full columns exactly),
+    so its momentum is that of the full columns weighted by ``pinv(projection) @ pi``."""
+    kind, data, _ = param._eval
+    model = param.model
+    if kind == "planar":
+        plan, weights = _plan(model, None), np.linalg.pinv(param.projection) @ pi
+    else:
+        plan, weights = data, pi
+    nb = len(model.bodies)
+    W = np.zeros((4 * nb, 4 * nb))
+    a, c = plan.pair_rows
+    w = plan.pair_weight * weights[plan.pair_at]
+    np.add.at(W, (a, c), w)
+    np.add.at(W, (c, a), w)
+    K = np.zeros((nb, 3, 3))
+    _, _, spin1, spin2 = plan.inertia
+    body, m1, m2 = spin1 % nb, spin1 // nb, spin2 // nb
+    k = weights[plan.inertia_at]
+    np.add.at(K, (body, m1, m2), k)
+    np.add.at(K, (body[m1 != m2], m2[m1 != m2], m1[m1 != m2]), k[m1 != m2])
+    return W, K
+
+
+def _dot(a, b):
+    return np.einsum("x...,x...->...", a, b)
+
+
+def _matvec(m, v):
+    return np.einsum("xy...,y...->x...", m, v)
+
+
+def _products(a, b):
+    """``sum_f a_f b_f^T`` over the four rows of each body: ``(n_bodies, 9, m)`` (entry ``3 x + y``)
+    from ``(n_bodies, 4, 3, m)`` tables."""
+    return np.stack([(a[:, :, x] * b[:, :, y]).sum(1) for x in range(3) for y in range(3)], 1)
+
+
+def _chunk_jacobian(model, steps, path, W, K, q, qd, w0):
+    """:func:`momentum_jacobian` of ``m`` samples: ``(m, 3, 2 n_joints + 3)``."""
+    nb, nj, m = len(model.bodies), len(steps), len(q)
+    ft = frame_table(model, q, qd, w0, max(m, 1))
+    # rows first, (2, 4 nb, 3 m): one matrix product gives Z = W S and V = W U
+    table = np.ascontiguousarray(ft.table[0].transpose(1, 2, 3, 0, 4)).reshape(2, 4 * nb, 3 * m)
+    S, U = table.reshape(2, nb, 4, 3, m)
+    Z, V = (W @ table).reshape(2, nb, 4, 3, m)
+    rot = S[:, 1:]  # (nb, 3 axes, 3, m): R_b e_k
+    inertia = np.einsum("bkxm,bkl,blym->bxym", rot, K, rot)  # I_b in base axes
+    omega = ft.omega[0].transpose(1, 0, 2)  # (nb, 3, m)
+    features = np.concatenate([_products(S, V), _products(S, Z), _products(U, Z), inertia.reshape(nb, 9, m),
+                               np.einsum("bxym,bym->bxm", inertia, omega), V[:, 0], Z[:, 0]], 1)  # fmt: skip
+    summed = (path.T @ features.reshape(nb, -1)).reshape(nj, -1, m)  # over each joint's subtree
+    sub = dict(zip(("SV", "SZ", "UZ", "I"), np.moveaxis(summed[:, :36].reshape(nj, 4, 3, 3, m), 0, -2)))
+    sub.update(zip(("Iw", "V0", "Z0"), np.moveaxis(summed[:, 36:].reshape(nj, 3, 3, m), 0, -2)))
+    total = {"SZ": features[:, 9:18].sum(0).reshape(3, 3, m), "I": features[:, 27:36].sum(0).reshape(3, 3, m)}
+    parents = [s[0] for s in steps]
+    local = np.array([s[2][10] for s in steps])  # joint axes in parent axes
+    a = np.einsum("jkxm,jk->xjm", rot[parents], local)  # joint axes, base axes (3, nj, m)
+    a_rate = np.cross(ft.omega[0][:, parents], a, axis=0)  # D a_j = w_parent x a_j
+    o, v_o = S[1:, 0].transpose(1, 0, 2), U[1:, 0].transpose(1, 0, 2)  # child origins and their rates
+    jac = np.empty((m, 3, 2 * nj + 3))
+    revolute = np.array([s[1] for s in steps])
+    zs = np.trace(sub["SZ"]) - _dot(o, sub["Z0"])  # sum Z . (S - delta o)
+    zt = np.trace(sub["UZ"]) - _dot(v_o, sub["Z0"])  # sum Z . (U - delta v_o)
+    vs = np.trace(sub["SV"]) - _dot(o, sub["V0"])  # sum V . (S - delta o)
+
+    def s_z(d):  # sum (S - delta o) Z^T d
+        return _matvec(sub["SZ"], d) - o * _dot(sub["Z0"], d)
+
+    d_q = (_matvec(sub["SV"], a) - o * _dot(sub["V0"], a) - a * vs + a_rate * zs - s_z(a_rate) + a * zt
+           - _matvec(sub["UZ"], a) + v_o * _dot(sub["Z0"], a) + np.cross(a, sub["Iw"], axis=0)
+           + _matvec(sub["I"], a_rate))  # fmt: skip
+    d_qd = a * zs - s_z(a) + _matvec(sub["I"], a)
+    if not revolute.all():  # prismatic joints translate their subtree along a_j
+        slide = ~revolute
+        d_q[:, slide] = (np.cross(a, sub["V0"], axis=0) + np.cross(sub["Z0"], a_rate, axis=0))[:, slide]
+        d_qd[:, slide] = np.cross(sub["Z0"], a, axis=0)[:, slide]
+    jac[:, :, :nj], jac[:, :, nj : 2 * nj] = d_q.transpose(2, 0, 1), d_qd.transpose(2, 0, 1)
+    base = np.trace(total["SZ"])[None, None] * np.eye(3)[:, :, None] - total["SZ"] + total["I"]
+    jac[:, :, 2 * nj :] = base.transpose(2, 0, 1)
+    return jac
+
+
+def momentum_jacobian(param: Parameterization, q, qd, w0, pi, *, chunk: int = 2048) -> np.ndarray:
+    """Derivative of the momentum ``regressor(q, qd, w0) @ pi`` w.r.t. ``[q, qd, w0]``.
+
+    Exact (analytic), from one kinematics evaluation per sample; the velocity columns are the
+    momentum matrix (the momentum is linear in ``qd`` and ``w0``).
+
+    Parameters
+    ----------
+    param : Parameterization
+    q, qd : array_like of shape (..., n_joints)
+        Joint positions [rad or m] and rates [rad/s or m/s].
+    w0 : array_like of shape (..., 3)
+        Base angular velocity in base axes [rad/s].
+    pi : array_like of shape (k,)
+        Minimal parameters.
+    chunk : int
+        Samples per kinematics call (bounds the memory to ~100 kB per body and 1,000 samples).
+
+    Returns
+    -------
+    ndarray of shape (..., rows, 2 n_joints + 3)
+        Base-axes momentum rows by ``[q, qd, w0]`` [N m s per rad, m, rad/s or m/s]; for planar
+        systems ``h_z`` by ``[q, qd, w0_z]``, shape ``(..., 1, 2 n_joints + 1)``.
+    """
+    model = param.model
+    lead, (q, qd, w0) = _flatten_states(q, qd, w0)
+    steps, path = _constants(_Geometry(model))
+    W, K = _weights(param, np.asarray(pi, float))
+    jac = np.empty((len(q), 3, 2 * len(steps) + 3))
+    with one_blas_thread():  # small products: threads only wait on busy cores
+        for s in range(0, len(q), chunk):
+            jac[s : s + chunk] = _chunk_jacobian(model, steps, path, W, K, q[s : s + chunk], qd[s : s + chunk],
+                                                 w0[s : s + chunk])  # fmt: skip
+    if model.planar:  # h_z, and w0 along z only (the planar regressor's domain)
+        jac = np.delete(jac[:, 2:3], [2 * len(steps), 2 * len(steps) + 1], -1)
+    return jac.reshape(lead + jac.shape[1:])
