@@ -223,6 +223,10 @@ class _Equations:
         d_rot_t = self._rotation_derivative(x, v)
         return self._stack(regressor, np.swapaxes(rot, -1, -2) + d_rot_t if primal else d_rot_t)
 
+    def dphi(self, x, v) -> np.ndarray:
+        """Directional derivative of :meth:`phi` along ``v (n, n_x)`` (:meth:`linearized`)."""
+        return self.linearized(x, v, primal=False)
+
     def contracted_dphi(self, x, v, u) -> np.ndarray:
         """``sum_n u_n^T dA_n[v_n]``, shape ``(p,)``: the derivative along ``v (n, n_x)`` of the
         columns ``A`` of :meth:`phi`, contracted with ``u (n, rows)``, without forming it
