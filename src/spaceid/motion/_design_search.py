@@ -27,7 +27,7 @@ import contextlib
 import pickle
 import time
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, wait
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -36,6 +36,7 @@ from scipy.optimize import Bounds, minimize
 from threadpoolctl import threadpool_limits
 
 from .._errors import SpaceidError
+from .._threads import process_pool
 from ._criteria import CRITERIA
 from ._design_problem import _ExcitationProblem
 
@@ -388,9 +389,7 @@ def _multistart_search(problem, method, *, seed, n_starts, n_jobs, progress, tim
         stack.enter_context(threadpool_limits(1))
         pool = None
         if n_jobs > 1 and _picklable(problem.regressor):
-            pool = stack.enter_context(
-                ProcessPoolExecutor(n_jobs, initializer=_init_worker, initargs=(problem,))
-            )
+            pool = stack.enter_context(process_pool(n_jobs, _init_worker, (problem,)))  # an interrupt stops it
         run, workers = partial(_run_calls, problem, pool, n_jobs), (n_jobs if pool else 1)
         if method == "slsqp":
             _slsqp_multistart(problem, tally, run, workers, seed=seed, n_starts=n_starts,

@@ -31,7 +31,8 @@ Seeds. Run ``i`` draws its noise from ``np.random.SeedSequence(seed).spawn(runs)
 depends on ``(seed, i)`` alone: the numbers do not depend on ``jobs`` or on the order in which
 runs finish. The root seed is recorded.
 
-Parallelism. Chunks of runs go to a :class:`concurrent.futures.ProcessPoolExecutor`, each
+Parallelism. Chunks of runs go to a process pool (:func:`spaceid._threads.process_pool`: an
+interrupt cancels the queued chunks and terminates the workers at once), each
 worker limited to one BLAS thread (``threadpoolctl``; the small factorisations gain nothing
 from more, and threads spinning on busy cores slow every process down); ``jobs=1`` runs in the
 calling process, with the same single-thread limit, so that its numbers equal the parallel
@@ -44,7 +45,7 @@ import io
 import os
 import time
 from collections import Counter
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -52,6 +53,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .._errors import SpaceidError
+from .._threads import process_pool
 from ..dynamics import Parameterization
 from ..estimation import ESTIMATORS, Noise, cramer_rao, identify
 from ..motion import FourierTrajectory, load_trajectory, sample_times, simulate
@@ -201,7 +203,7 @@ def _execute(study: _Study, states, jobs: int, progress) -> list:
             for task in tasks:
                 completed(study.chunk(*task))
         else:
-            with ProcessPoolExecutor(min(jobs, len(tasks)), initializer=_init_worker, initargs=(study,)) as pool:
+            with process_pool(min(jobs, len(tasks)), _init_worker, (study,)) as pool:
                 for future in as_completed([pool.submit(_run_chunk, *task) for task in tasks]):
                     completed(future.result())
     return sorted(outputs, key=lambda r: r["first"])
@@ -477,7 +479,8 @@ def write_montecarlo(result: MonteCarloResult, folder) -> dict:
     paths = {"json": folder / "montecarlo.json", "table": folder / "table.txt", "figure": folder / "montecarlo.png"}
     write_json(paths["json"], result.to_dict())
     buffer = io.StringIO()
-    Console(file=buffer, width=100, color_system=None, force_terminal=False).print(montecarlo_table(result))
+    Console(file=buffer, width=100, color_system=None, force_terminal=False, markup=False, emoji=False).print(
+        montecarlo_table(result))
     write_text_atomic(paths["table"], buffer.getvalue())
     plot_montecarlo(result, paths["figure"])
     return paths
