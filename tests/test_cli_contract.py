@@ -174,6 +174,21 @@ def test_an_output_folder_that_is_a_file_is_refused_before_work(work, capsys, mo
     _refused(capsys, [*args, option, path], f"error: {option} {path} is an existing file: give a folder name", work)
 
 
+@pytest.mark.parametrize("command", ["design", "validate", "experiment"])
+def test_an_output_under_an_existing_file_is_one_line(work, capsys, command):
+    """-o taken/x.json or --out taken/report, where 'taken' is a file: one line before the work."""
+    taken = work / "taken"
+    taken.write_text("a user's file\n")
+    target = taken / ("x.json" if command == "design" else "report")
+    args = {"design": ["design", "cepheus", "--duration", 2, "--harmonics", 1, "--samples", 10, "--momentum",
+                       MOMENTUM],
+            "validate": ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM],
+            "experiment": ["experiment"]}[command]
+    option = "--out" if command == "experiment" else "-o"
+    _refused(capsys, [*args, option, target], f"error: {option} {target}: cannot write into {taken} (not a writable "
+             "folder): choose another place", work)
+
+
 @pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only folders")
 @pytest.mark.parametrize("command", ["design", "validate"])
 def test_a_read_only_output_folder_is_one_line(work, capsys, command):
@@ -193,8 +208,11 @@ def test_a_read_only_output_folder_is_one_line(work, capsys, command):
         ro.chmod(0o755)
 
 
-def test_a_failed_run_leaves_the_old_folder(work, monkeypatch):
-    """An error while the report is written: the earlier report stays as it was, no temporary left."""
+@pytest.mark.parametrize("failure, code, line", [(spaceid.SpaceidError("plot failed"), 2, "error: plot failed"),
+                                                 (KeyboardInterrupt(), 130, "interrupted")])
+def test_a_failed_or_interrupted_run_leaves_the_old_folder(work, capsys, monkeypatch, failure, code, line):
+    """validate failing or interrupted while its report is written: the earlier report stays as
+    it was, no temporary left."""
     import spaceid.studies._figures
 
     folder = work / "v"
@@ -202,12 +220,32 @@ def test_a_failed_run_leaves_the_old_folder(work, monkeypatch):
     assert run(*args) == 0
     before = _snapshot(folder)
 
-    def fail(*a, **k):
-        raise spaceid.SpaceidError("plot failed")
+    def fail(log, predicted, path, **k):
+        Path(path).write_bytes(b"half a figure")
+        raise failure
 
     monkeypatch.setattr(spaceid.studies._figures, "plot_validation", fail)
-    assert run(*args) == 2
+    capsys.readouterr()
+    assert run(*args) == code
+    assert capsys.readouterr().err.strip().splitlines()[-1] == line
     assert _snapshot(folder) == before and not _temporaries(work)
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_identify_interrupted_writes_nothing(work, capsys, monkeypatch, signum):
+    """A signal during identify: 'interrupted', exit 130 (SIGINT) / 143 (SIGTERM), no result file."""
+    import spaceid.estimation
+
+    def interrupted(*a, **k):
+        os.kill(os.getpid(), signum)
+        time.sleep(5)  # the signal arrives before this ends
+        pytest.fail("the signal did not interrupt")
+
+    monkeypatch.setattr(spaceid.estimation, "identify", interrupted)
+    before = _snapshot(work)
+    assert run("identify", "cepheus", work / "log.csv", "--momentum", MOMENTUM, "-o", work / "r.json") == 128 + signum
+    assert capsys.readouterr().err.strip() == "interrupted"
+    assert _snapshot(work) == before and not _temporaries(work)
 
 
 # --- errors ------------------------------------------------------------------------------------------
