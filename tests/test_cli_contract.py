@@ -406,3 +406,57 @@ def test_concurrent_runs_into_one_folder_never_corrupt_it(files, tmp_path):
     assert json.loads((tmp_path / "result.json").read_text())["parameters"]
     assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "result.json"]  # no temporaries
     assert _snapshot(files) == inputs
+
+
+# --- the atomic report folder itself -------------------------------------------------------------------
+
+
+def _report(folder, files, **options):
+    from spaceid._atomic import atomic_folder
+
+    with atomic_folder(folder, command="test", **options) as tmp:
+        for name, text in files.items():
+            (tmp / name).parent.mkdir(parents=True, exist_ok=True)
+            (tmp / name).write_text(text)
+
+
+@pytest.mark.parametrize("exchange", [True, False], ids=["renameat2", "two renames"])
+def test_atomic_folder_replaces_its_own_folder_whole(tmp_path, monkeypatch, exchange):
+    import spaceid._atomic
+
+    if not exchange:
+        monkeypatch.setattr(spaceid._atomic, "_exchange", lambda a, b: False)
+    folder = tmp_path / "r"
+    _report(folder, {"a.txt": "1", "sub/b.txt": "2"})
+    _report(folder, {"a.txt": "3"})
+    assert _snapshot(folder) == {"a.txt": b"3", MANIFEST: (folder / MANIFEST).read_bytes()}
+    assert json.loads((folder / MANIFEST).read_text()) == {"written_by": "spaceid", "command": "test",
+                                                           "files": ["a.txt"]}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
+def test_atomic_folder_beside_the_users_files(tmp_path):
+    """overwrite: new files replace their namesakes, the user's stay, the manifest lists spaceid's."""
+    folder = tmp_path / "r"
+    folder.mkdir()
+    (folder / "mine.csv").write_text("user")
+    (folder / "a.txt").write_text("old")
+    _report(folder, {"a.txt": "new", "b.txt": "b"}, overwrite=True)
+    assert (folder / "mine.csv").read_text() == "user" and (folder / "a.txt").read_text() == "new"
+    assert json.loads((folder / MANIFEST).read_text())["files"] == ["a.txt", "b.txt"]
+    with pytest.raises(spaceid.SpaceidError, match=r"mine\.csv is the input LOG; choose another folder"):
+        _report(folder, {"mine.csv": "x"}, overwrite=True, inputs=[("LOG", folder / "mine.csv")])
+    assert (folder / "mine.csv").read_text() == "user"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["r"]
+
+
+def test_atomic_folder_interrupted_leaves_the_old_state(tmp_path):
+    folder = tmp_path / "r"
+    _report(folder, {"a.txt": "1"})
+    before = _snapshot(folder)
+    from spaceid._atomic import atomic_folder
+
+    with pytest.raises(KeyboardInterrupt), atomic_folder(folder, command="test") as tmp:
+        (tmp / "a.txt").write_text("2")
+        raise KeyboardInterrupt
+    assert _snapshot(folder) == before and sorted(p.name for p in tmp_path.iterdir()) == ["r"]

@@ -29,7 +29,7 @@ from ._errors import SpaceidError, one_line, shown_name
 # No markup, no emoji codes: file, joint and topic names like 'a[/b].csv' print as they are
 out = Console(markup=False, emoji=False)
 err = Console(stderr=True, markup=False, emoji=False)
-ISSUES = "https://github.com/spaceid/spaceid/issues"
+ISSUES = "the spaceid issue tracker"  # where internal errors are to be reported (the project publishes no URL yet)
 
 MODEL = click.argument("model_src", metavar="MODEL")
 PLANAR = click.option("--planar/--spatial", default=None, help="Force planar (x, y, yaw) or spatial mode; default: the model's.")
@@ -85,6 +85,7 @@ class _Command(click.Command):
         return super().collect_usage_pieces(ctx) + required
 
     def invoke(self, ctx):
+        """Check the outputs against the inputs (recorded in ``ctx.meta``), then run the command."""
         from ._atomic import check_output_file, check_output_folder
 
         outputs = [p for p in self.get_params(ctx) if isinstance(p.type, _OutputPath) and ctx.params.get(p.name)]
