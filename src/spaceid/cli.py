@@ -249,7 +249,7 @@ def _warnings_to_stderr():
         warnings.simplefilter("always")
         yield
     for w in caught:
-        err.print(f"warning: {w.message}", markup=False, highlight=False, soft_wrap=True)  # one line each
+        err.print(f"warning: {one_line(w.message)}", highlight=False, soft_wrap=True)  # one line each
 
 
 def _print_joint_rates(log) -> None:
@@ -262,7 +262,7 @@ def _print_joint_rates(log) -> None:
     other = "velocity" if policy == "differentiate" else "differentiate"
     sources = ", ".join(f"{joint} {source}" for joint, source in log.meta["joint_rates"].items())
     out.print(f"joint rates: '{policy}'{' (default)' if policy == JOINT_RATE_POLICY else ''}: {sources}; "
-              f"--joint-rates {other} for the other", markup=False, highlight=False)
+              f"--joint-rates {other} for the other", highlight=False)
 
 
 @contextlib.contextmanager
@@ -463,7 +463,8 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     write_log(output, log)
     balance = log.meta.get("momentum_balance_error")
     balance = "" if balance is None else f", momentum balance with the drift {balance:.1e}"
-    err.print(f"{log.n_samples} samples written to {shown_name(output)} (momentum error {log.meta['momentum_rel_error']:.1e} "
+    err.print(f"{log.n_samples} samples written to {shown_name(output)} (momentum error "
+              f"{log.meta['momentum_rel_error']:.1e} "
               f"relative{balance})")
 
 
@@ -688,7 +689,8 @@ def validate(result, log_path, momentum, drift, torques, horizon, output, overwr
 
 
 def _validate_torques(ident, log, h, horizon, output, where):
-    """``validate --torques``: the torque-driven prediction, its metrics and figure in ``output``; returns the metrics."""
+    """``validate --torques``: the torque-driven prediction, its metrics and figure in ``output``;
+    returns the metrics."""
     from .data import write_json, write_log
     from .studies import TORQUE_VALIDATION_TITLE, plot_validation, validate_torques
 
