@@ -271,7 +271,8 @@ def test_an_internal_error_is_one_line_and_exit_1(work, capsys, monkeypatch):
 
 
 def test_a_numerical_failure_names_the_log(work, capsys, monkeypatch):
-    """A Cholesky failure on an ill-conditioned log: an error naming the log, exit 2."""
+    """identify: a Cholesky failure on an ill-conditioned log (here in the covariance) is an
+    error naming the log, exit 2."""
     import spaceid.estimation._identify as module
 
     def cholesky_fails(*a, **k):
@@ -280,8 +281,23 @@ def test_a_numerical_failure_names_the_log(work, capsys, monkeypatch):
     monkeypatch.setattr(module, "_full_covariance", cholesky_fails)
     log = work / "log.csv"
     _refused(capsys, ["identify", "cepheus", log, "--momentum", MOMENTUM, "-o", work / "r.json"],
-             f"error: numerical failure on LOG {log} (Matrix is not positive definite): the data are "
-             "too ill-conditioned for this computation: check their excitation, noise and units", work)
+             f"error: {log}: estimator 'ml' met a singular or non-finite linear system (Matrix is not positive "
+             "definite): check the log for NaN or frozen signals and use an exciting trajectory (spaceid design), or "
+             "try --estimator ols", work)
+
+
+def test_any_numerical_failure_names_the_inputs(work, capsys, monkeypatch):
+    """validate: a LinAlgError from any step is an error naming the command's inputs, exit 2."""
+    import spaceid.studies
+
+    def singular(*a, **k):
+        return np.linalg.solve(np.zeros((2, 2)), np.ones(2))
+
+    monkeypatch.setattr(spaceid.studies, "validate", singular)
+    result, log = work / "result.json", work / "log.csv"
+    _refused(capsys, ["validate", result, log, "--momentum", MOMENTUM, "-o", work / "v"],
+             f"error: numerical failure on RESULT.json {result}, LOG {log} (Singular matrix): the data are too "
+             "ill-conditioned for this computation: check their excitation, noise and units", work)
 
 
 # --- markup and odd names ---------------------------------------------------------------------------
