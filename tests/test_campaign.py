@@ -15,7 +15,7 @@ from click.testing import CliRunner
 
 import spaceid
 from spaceid import SpaceidError
-from spaceid._campaign import resolve_scheduler, task_seeds
+from spaceid._campaign import resolve_scheduler, task_folder, task_seeds
 from spaceid.cli import app, main
 from spaceid.dynamics import excitation_regressor, minimal_parameters
 from spaceid.motion import (
@@ -104,7 +104,7 @@ def test_a_resumed_campaign_equals_an_uninterrupted_one(param, tmp_path, monkeyp
 
     with pytest.raises(KeyboardInterrupt):
         study(param, folder=tmp_path, progress=interrupt)
-    assert len(list((tmp_path / "tasks").glob("*.pkl"))) == 2  # written as they completed
+    assert len(list(task_folder(tmp_path).glob("*.pkl"))) == 2  # written as they completed, beside the folder
     chunk, ran = _Study.chunk, []
     monkeypatch.setattr(_Study, "chunk", lambda self, first, states: ran.append(first) or chunk(self, first, states))
     resumed = study(param, folder=tmp_path, resume=True)

@@ -147,7 +147,7 @@ def test_model_of_a_large_system_is_a_summary(tmp_path, capsys):
     assert name == "pi153" and sp.sympify(definition).free_symbols
     before = urdf.read_bytes()
     assert run("model", urdf, "--definitions", urdf) == 2  # never over an input
-    assert urdf.read_bytes() == before and "that is the model file" in capsys.readouterr().err
+    assert urdf.read_bytes() == before and "is the input MODEL; choose another output file" in capsys.readouterr().err
 
 
 def _log_with(workdir, tmp_path, edit):

@@ -22,7 +22,8 @@ import logging
 import os
 import pickle
 import re
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor
+import shutil
+from concurrent.futures import FIRST_COMPLETED, Future
 from concurrent.futures import wait as wait_futures
 from dataclasses import dataclass
 from pathlib import Path
@@ -31,7 +32,7 @@ import numpy as np
 
 from ._atomic import atomic_path
 from ._errors import SpaceidError
-from ._threads import _controller
+from ._threads import _controller, process_pool
 
 __all__ = ["SCHEDULERS", "Workers", "fingerprint", "open_workers", "resolve_scheduler", "run_campaign", "task_seeds"]
 
@@ -39,7 +40,7 @@ SCHEDULERS = ("processes", "dask")
 """Scheduler names; any other scheduler is a ``dask scheduler`` address."""
 
 _ADDRESS = re.compile(r"^(tcp|tls|ws|wss|inproc|ucx)://\S+$")
-_TASKS = "tasks"  # the sub-folder of the per-task results
+_TASKS = ".tasks"  # the suffix of the hidden sibling folder of the per-task results
 _CONNECT_TIMEOUT = "20s"
 
 
@@ -152,7 +153,7 @@ def open_workers(scheduler: str, jobs: int, shared):
     if scheduler == "processes" and jobs == 1:
         yield _in_process(shared)
     elif scheduler == "processes":
-        with ProcessPoolExecutor(jobs, initializer=_init_process, initargs=(shared,)) as pool:
+        with process_pool(jobs, _init_process, (shared,)) as pool:  # an interrupt stops the workers
             yield Workers(jobs, lambda function, *args: pool.submit(_call_shared, function, *args), _first_done, 2 * jobs)
     else:
         import distributed
@@ -169,11 +170,24 @@ def open_workers(scheduler: str, jobs: int, shared):
 # --- campaigns ----------------------------------------------------------------------------------
 
 
+def task_folder(folder) -> Path:
+    """Where a campaign whose study folder is ``folder`` keeps its task results: the hidden sibling
+    ``.NAME.tasks/``, outside the report folder (which is replaced whole when its report is
+    written, :func:`spaceid._atomic.atomic_folder`), until :func:`discard_tasks` removes it."""
+    folder = Path(os.path.realpath(folder))
+    return folder.parent / f".{folder.name}{_TASKS}"
+
+
+def discard_tasks(folder) -> None:
+    """Remove the task results of ``folder``'s campaign (once its report is written)."""
+    shutil.rmtree(task_folder(folder), ignore_errors=True)
+
+
 class _TaskStore:
-    """Per-task results in ``folder/tasks/KEY.pkl``, each tagged with the campaign's fingerprint."""
+    """Per-task results in :func:`task_folder` ``/KEY.pkl``, each tagged with the campaign's fingerprint."""
 
     def __init__(self, folder, campaign: str):
-        self.folder, self.campaign = Path(folder) / _TASKS, campaign
+        self.folder, self.campaign = task_folder(folder), campaign
 
     def path(self, key: str) -> Path:
         return self.folder / f"{key}.pkl"
@@ -219,7 +233,7 @@ def run_campaign(function, shared, tasks: dict, *, scheduler=None, jobs: int = 1
     jobs : int
         Local worker processes (``processes``, ``dask``); an address brings its own workers.
     folder : path, optional
-        Study folder: each result is written to ``folder/tasks/KEY.pkl`` as it completes.
+        Study folder: each result is written to :func:`task_folder` as it completes.
     campaign : str
         The campaign's :func:`fingerprint`, stored with every result.
     resume : bool

@@ -2,10 +2,11 @@
 numeric array fields that raises it, and the short form of a value that messages quote."""
 
 import reprlib
+import unicodedata
 
 import numpy as np
 
-__all__ = ["SpaceidError", "finite_array", "shown"]
+__all__ = ["SpaceidError", "finite_array", "one_line", "shown", "shown_name"]
 
 
 class SpaceidError(ValueError):
@@ -26,6 +27,22 @@ def shown(value) -> str:
     cut at 3 levels): a hostile input is never expanded or repr()'d whole into a message."""
     text = _SHOWN.repr(value).replace("\n", " ")
     return text if len(text) <= _SHOWN_CHARS else text[: _SHOWN_CHARS - 3] + "..."
+
+
+_UNSAFE = {"Cc", "Cf", "Cs", "Co", "Cn", "Zl", "Zp", "So"}  # controls, format, unassigned, separators, emoji
+
+
+def shown_name(name) -> str:
+    """A user-given name (file, joint, topic) as it is echoed: itself when every character
+    is an ordinary letter, digit, mark, punctuation, symbol or space, else its ``ascii()`` repr
+    (a newline, a terminal escape or an emoji never reaches the terminal raw)."""
+    text = str(name)
+    return text if all(unicodedata.category(c) not in _UNSAFE for c in text) else ascii(text)
+
+
+def one_line(text: str) -> str:
+    """``text`` with its control characters (newlines, escapes) shown as escapes: one line."""
+    return "".join(c if c.isprintable() or c == " " else ascii(c)[1:-1] for c in str(text))
 
 
 def _has_bool(value) -> bool:

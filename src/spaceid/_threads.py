@@ -1,9 +1,12 @@
-"""Thread use: how many threads array work may take, and single-threaded BLAS for small dense
-linear algebra."""
+"""Thread and process use: how many threads array work may take, single-threaded BLAS for small
+dense linear algebra, and process pools that an interrupt stops at once."""
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import signal
+from concurrent.futures import ProcessPoolExecutor
 
 from threadpoolctl import ThreadpoolController
 
@@ -24,3 +27,35 @@ def one_blas_thread():
     Threads gain little at these sizes, and when the cores are busy OpenBLAS's waiting threads
     made an eigendecomposition of 496 x 496 take 1.3 s instead of 10 ms (measured)."""
     return _controller().limit(limits=1, user_api="blas")
+
+
+def _start_worker(initializer, initargs):
+    """A pool worker's start: signals left to the parent, then ``initializer(*initargs)``.
+
+    Ctrl-C reaches the whole process group: the workers ignore it, and the parent, which gets
+    it too, stops them (see :func:`process_pool`). SIGTERM kills a worker outright (a forked
+    worker would otherwise inherit the command line's handler, which turns it into an
+    exception that the pool's task loop catches and carries on)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    initializer(*initargs)
+
+
+@contextlib.contextmanager
+def process_pool(workers: int, initializer, initargs=()):
+    """A :class:`~concurrent.futures.ProcessPoolExecutor` of ``workers`` processes, each started
+    by ``initializer(*initargs)``, that an exception in the block (a Ctrl-C, a SIGTERM turned
+    into an exception, an error) ends at once: pending tasks cancelled, workers terminated and
+    reaped. Leaving the block normally waits for the tasks, as the executor does."""
+    pool = ProcessPoolExecutor(workers, initializer=functools.partial(_start_worker, initializer, initargs))
+    try:
+        yield pool
+    except BaseException:
+        processes = list((pool._processes or {}).values())  # the executor has no public terminate (Python < 3.14)
+        pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.terminate()
+        for process in processes:
+            process.join(timeout=5)
+        raise
+    pool.shutdown(wait=True)

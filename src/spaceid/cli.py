@@ -1,7 +1,10 @@
 """The ``spaceid`` command: thin commands, each one library call.
 
-Bad input raises :class:`spaceid.SpaceidError` in the library; here, and only here, it becomes
-a one-line ``error: ...`` on stderr and exit code 2.
+Bad input raises :class:`spaceid.SpaceidError` in the library; here, and only here (``_Group``),
+it becomes a one-line ``error: ...`` on stderr and exit code 2; any other exception is an internal
+error (exit code 1), an interrupt ends the command with exit code 130 (SIGINT) or 143 (SIGTERM).
+Before a command starts, ``_Command`` checks that no output goes over an input and that output
+folders are spaceid's (``spaceid._atomic``). The consoles never read user text as markup.
 """
 
 from __future__ import annotations
@@ -10,7 +13,10 @@ import contextlib
 import dataclasses
 import functools
 import json
+import os
+import signal
 import sys
+import traceback
 import warnings
 from pathlib import Path
 import click
@@ -18,10 +24,12 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ._errors import SpaceidError
+from ._errors import SpaceidError, one_line, shown_name
 
-out = Console()
-err = Console(stderr=True)
+# No markup, no emoji codes: file, joint and topic names like 'a[/b].csv' print as they are
+out = Console(markup=False, emoji=False)
+err = Console(stderr=True, markup=False, emoji=False)
+ISSUES = "the spaceid issue tracker"  # where internal errors are to be reported (the project publishes no URL yet)
 
 
 class _Number(click.ParamType):
@@ -84,7 +92,7 @@ SCHEDULER = click.option("--scheduler", metavar="SCHEDULER", help="Where the tas
                          "'dask scheduler' and its workers); the numbers do not depend on it [default: "
                          "DASK_SCHEDULER_ADDRESS if set, else processes].")
 RESUME = click.option("--resume", is_flag=True, help="Keep the task results an interrupted run of the same settings "
-                      "left in --out and run only the others (without it they are removed).")
+                      "left beside --out (in .FOLDER.tasks/) and run only the others (without it they are removed).")
 NOISE = [
     click.option("--noise-angle", type=NOISE_LEVEL, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=NOISE_LEVEL, default=0.0, help="White noise on rates [rad/s]."),
@@ -103,23 +111,128 @@ ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, effici
                   "likelihood on the joint angles and base yaw alone, no rates (planar, >= 40 Hz).")
 
 
-def output(help_text):
-    """The required ``-o/--output FILE`` option, with what the command writes there."""
-    return click.option("-o", "--output", type=click.Path(path_type=Path), required=True, metavar="PATH",
+class _OutputPath(click.Path):
+    """The type of an option naming an output, a file or (``folder``) a report folder: the
+    command checks it against its inputs before it starts (:meth:`_Command.invoke`)."""
+
+    def __init__(self, folder: bool = False):
+        super().__init__(path_type=Path)
+        self.folder = folder
+
+
+def output(help_text, folder=False):
+    """The required ``-o/--output`` option (a file, or a report ``folder``), with what the command writes there."""
+    return click.option("-o", "--output", type=_OutputPath(folder), required=True, metavar="DIR" if folder else "PATH",
                         help=help_text)
 
 
+OVERWRITE = click.option("--overwrite", is_flag=True, help="Write into an output folder that holds files spaceid did "
+                         "not write (beside them; same names replaced); without it such a folder is refused.")
+
+
 class _Command(click.Command):
-    """A command whose usage line also lists its required options (click leaves them in [OPTIONS])."""
+    """A command whose usage line also lists its required options (click leaves them in [OPTIONS]),
+    and whose outputs are checked before it starts: never over an input, never into a folder of
+    someone else's files (unless --overwrite), never into a read-only place."""
 
     def collect_usage_pieces(self, ctx):
         required = [f"{p.opts[-1]} {p.make_metavar(ctx)}" for p in self.get_params(ctx)
                     if isinstance(p, click.Option) and p.required]
         return super().collect_usage_pieces(ctx) + required
 
+    def invoke(self, ctx):
+        """Check the outputs against the inputs (recorded in ``ctx.meta``), then run the command."""
+        from ._atomic import check_output_file, check_output_folder
+
+        outputs = [p for p in self.get_params(ctx) if isinstance(p.type, _OutputPath) and ctx.params.get(p.name)]
+        inputs = [(_label(p), Path(v)) for p in self.get_params(ctx) if p not in outputs
+                  for v in _values(ctx.params.get(p.name)) if os.path.exists(v)]
+        ctx.meta["spaceid.inputs"] = inputs
+        for p in outputs:
+            option = min(p.opts, key=len)
+            if p.type.folder:
+                check_output_folder(ctx.params[p.name], option, overwrite=ctx.params.get("overwrite", False),
+                                    inputs=inputs)
+            else:
+                check_output_file(ctx.params[p.name], option, inputs)
+        return super().invoke(ctx)
+
+
+def _label(param) -> str:
+    """How messages name a parameter: an argument by its metavar (LOG), an option by its long flag."""
+    if isinstance(param, click.Argument):
+        return (param.metavar or param.name.upper()).strip("[]")
+    return max(param.opts, key=len)
+
+
+def _values(value) -> list:
+    """The strings among a parameter's value(s) that may name a file."""
+    values = value if isinstance(value, (tuple, list)) else [value]
+    return [str(v) for v in values if isinstance(v, (str, Path)) and str(v)]
+
+
+@contextlib.contextmanager
+def _report_folder(folder, overwrite):
+    """The temporary folder to write the command's report into; on success it becomes ``folder``
+    (``spaceid._atomic.atomic_folder``), on an error or interrupt it is removed."""
+    from ._atomic import atomic_folder
+
+    ctx = click.get_current_context()
+    with atomic_folder(folder, command=ctx.command_path, overwrite=overwrite,
+                       inputs=ctx.meta.get("spaceid.inputs", ())) as tmp:
+        yield tmp
+
+
+class _Terminated(BaseException):
+    """SIGTERM, raised in the main thread so that the command unwinds (outputs removed, workers stopped)."""
+
+
+def _on_sigterm(signum, frame):
+    raise _Terminated
+
 
 class _Group(click.Group):
+    """The command group; every exception escaping a command ends in :meth:`invoke`."""
+
     command_class = _Command
+
+    def invoke(self, ctx):
+        """Run the command; turn what escapes it into one line on stderr and an exit code:
+        ``error: ...`` (2) for a SpaceidError, a numerical failure or a file-system error,
+        ``interrupted`` (130 for SIGINT, 143 for SIGTERM), ``internal error: ...`` (1) for
+        anything else; ``--debug`` prints the traceback first."""
+        try:
+            return super().invoke(ctx)
+        except (click.ClickException, click.exceptions.Exit, click.Abort):
+            raise
+        except BaseException as exc:  # noqa: B036 -- the one place that ends every command
+            if ctx.params.get("debug"):
+                traceback.print_exc()
+            line, code = _failure(exc, ctx)
+            print(one_line(line), file=sys.stderr)  # one line, never wrapped
+            raise click.exceptions.Exit(code) from None
+
+
+def _failure(exc, ctx) -> tuple:
+    """The line and exit code of an exception that escaped a command (see :meth:`_Group.invoke`)."""
+    if isinstance(exc, KeyboardInterrupt):
+        return "interrupted", 130
+    if isinstance(exc, _Terminated):
+        return "interrupted", 143
+    if isinstance(exc, SpaceidError):
+        return f"error: {exc}", 2
+    if isinstance(exc, np.linalg.LinAlgError):  # NumPy's and SciPy's: an ill-conditioned input, not a bug
+        inputs = ctx.meta.get("spaceid.inputs", [])  # click shares meta between a group and its command
+        inputs = ", ".join(f"{label} {shown_name(path)}" for label, path in inputs) or "the input"
+        return (f"error: numerical failure on {inputs} ({exc}): the data are too ill-conditioned for this "
+                "computation: check their excitation, noise and units"), 2
+    if isinstance(exc, OSError) and exc.strerror:
+        where = f"{shown_name(exc.filename)}: " if exc.filename else ""
+        return f"error: {where}{exc.strerror}: check the path, its permissions and the free space", 2
+    if isinstance(exc, Exception):
+        return (f"internal error: {type(exc).__name__}: {exc} (please report this at {ISSUES}; rerun with --debug "
+                "for the traceback)"), 1
+    raise exc
 
 
 def noise_options(f):
@@ -180,7 +293,8 @@ def bag_options(f):
 
 
 @click.group(cls=_Group, context_settings={"help_option_names": ["-h", "--help"]})
-def app():
+@click.option("--debug", is_flag=True, help="Print the traceback of an error (for a report).")
+def app(debug):
     """Identify free-floating space manipulators from angular-momentum conservation."""
 
 
@@ -191,7 +305,7 @@ def _warnings_to_stderr():
         warnings.simplefilter("always")
         yield
     for w in caught:
-        err.print(f"warning: {w.message}", markup=False, highlight=False, soft_wrap=True)  # one line each
+        err.print(f"warning: {one_line(w.message)}", highlight=False, soft_wrap=True)  # one line each
 
 
 def _print_joint_rates(log) -> None:
@@ -204,7 +318,7 @@ def _print_joint_rates(log) -> None:
     other = "velocity" if policy == "differentiate" else "differentiate"
     sources = ", ".join(f"{joint} {source}" for joint, source in log.meta["joint_rates"].items())
     out.print(f"joint rates: '{policy}'{' (default)' if policy == JOINT_RATE_POLICY else ''}: {sources}; "
-              f"--joint-rates {other} for the other", markup=False, highlight=False)
+              f"--joint-rates {other} for the other", highlight=False)
 
 
 @contextlib.contextmanager
@@ -258,7 +372,7 @@ per identifiability list unless ``--all``: the servicer's 496 definitions fill t
               "instead of tables.")
 @click.option("--all", "show_all", is_flag=True, help=f"Every parameter and definition in full (default: a summary, "
               f"the first {SUMMARY_ROWS} cut to a line).")
-@click.option("--definitions", "definitions_file", type=click.Path(path_type=Path), metavar="FILE",
+@click.option("--definitions", "definitions_file", type=_OutputPath(), metavar="FILE",
               help="Also write every definition to FILE, one 'name = definition  # [unit]' line each.")
 def model(model_src, planar, as_json, show_all, definitions_file):
     """Identifiability report: bodies, joints, standard and minimal parameters."""
@@ -289,26 +403,24 @@ def model(model_src, planar, as_json, show_all, definitions_file):
         return
     _print_model(info, show_all)
     if definitions_file is not None:
-        err.print(f"{param.n_params} definitions written to {definitions_file}")
+        err.print(f"{param.n_params} definitions written to {shown_name(definitions_file)}")
 
 
 def _print_model(info, show_all):
     """The terminal report of ``spaceid model``: ``info`` is its JSON, summarised unless ``show_all``."""
-    from rich.markup import escape
     from rich.table import Table
     from rich.text import Text
 
-    out.print(f"[bold]{info['model']}[/]  ({info['source']}), {'planar' if info['planar'] else 'spatial'}, "
-              f"total mass {info['mass']:.6g} kg")
-    bodies = Table("body", "parent", "joint", "type", escape("mass [kg]"), title="Bodies")
+    out.print(Text.assemble((info["model"], "bold"), f"  ({info['source']}), "
+                            f"{'planar' if info['planar'] else 'spatial'}, total mass {info['mass']:.6g} kg"))
+    bodies = Table("body", "parent", "joint", "type", "mass [kg]", title="Bodies")
     for b in info["bodies"]:
         bodies.add_row(b["name"], b["parent"] or "-", b["joint"] or "(floating base)", b["type"], f"{b['mass']:.6g}")
     out.print(bodies)
-    out.print(
+    out.print(Text.assemble(
         f"standard parameters: {info['n_standard_parameters']} (10 per body); with lumped products: "
-        f"{info['n_full_parameters']}; minimal identifiable set: [bold]{info['n_minimal_parameters']}[/] "
-        f"(basis '{info['basis']}', rank tolerance {info['rank_tol']:g}, seed {info['seed']})"
-    )
+        f"{info['n_full_parameters']}; minimal identifiable set: ", (str(info["n_minimal_parameters"]), "bold"),
+        f" (basis '{info['basis']}', rank tolerance {info['rank_tol']:g}, seed {info['seed']})"))
     params = info["parameters"]
     cut = not show_all and len(params) > SUMMARY_ROWS
     table = Table("", "unit", "value", "definition", title="Minimal parameters (model values)")
@@ -334,12 +446,10 @@ def _print_model(info, show_all):
 
 
 def _write_definitions(path, info, model_src):
-    """The minimal parameters' definitions as text at ``path`` (atomically), never over the model file."""
+    """The minimal parameters' definitions as text at ``path`` (atomically; never over the model
+    file: ``_Command`` checks)."""
     from ._atomic import write_text_atomic
 
-    source = Path(model_src)
-    if source.is_file() and Path(path).resolve() == source.resolve():
-        raise SpaceidError(f"--definitions {path}: that is the model file: give another file name")
     lines = [f"# minimal parameters of {info['model']} ({info['source']}): name = definition  # [unit], model value"]
     lines += [f"{p['name']} = {p['definition']}  # [{p['unit']}], {p['value']:.6g}" for p in info["parameters"]]
     write_text_atomic(path, "\n".join(lines) + "\n")
@@ -397,7 +507,7 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
                          noise=noise, n_starts=starts, time_budget=time_budget, payload_link=payload_link,
                          payload=nominal, n_jobs=jobs, scheduler=scheduler)
     res.trajectory.save(output)
-    err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {output}")
+    err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {shown_name(output)}")
     rel = {k: v for k, v in res.trajectory.meta.get("crb_relative_std", {}).items() if v is not None}
     if payload_link is not None:
         bound = res.trajectory.meta.get("payload_crb_std")
@@ -443,7 +553,8 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     write_log(output, log)
     balance = log.meta.get("momentum_balance_error")
     balance = "" if balance is None else f", momentum balance with the drift {balance:.1e}"
-    err.print(f"{log.n_samples} samples written to {output} (momentum error {log.meta['momentum_rel_error']:.1e} "
+    err.print(f"{log.n_samples} samples written to {shown_name(output)} (momentum error "
+              f"{log.meta['momentum_rel_error']:.1e} "
               f"relative{balance})")
 
 
@@ -525,7 +636,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
               f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
-              f"result written to {output}")
+              f"result written to {shown_name(output)}")
 
 
 def _measured_log(model, log_path, differentiate, quantum, bag, *, angles_only=False):
@@ -611,7 +722,7 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
         quat0 = yaw_to_quat(initial_yaw or 0.0)
     log = run(ident, t, q, qd, momentum=h, initial_quat=quat0, where=str(result), drift=terms)
     write_log(output, log)
-    err.print(f"{log.n_samples} predicted samples written to {output}")
+    err.print(f"{log.n_samples} predicted samples written to {shown_name(output)}")
 
 
 def _trajectory_times(traj, samples, rate, command, model):
@@ -661,8 +772,9 @@ def _require_sample_memory(what, n, model):
 @click.option("--horizon", type=SECONDS, metavar="SECONDS", help="With --torques: restart from the measured state "
               "every SECONDS [s] (default: one run over the whole log).")
 @bag_options
-@output("Folder to write predicted.csv, metrics.json and validation.png into.")
-def validate(result, log_path, momentum, drift, torques, horizon, output, bag):
+@output("Report folder to write predicted.csv, metrics.json and validation.png into.", folder=True)
+@OVERWRITE
+def validate(result, log_path, momentum, drift, torques, horizon, output, overwrite, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     if horizon is not None and not torques:
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
@@ -682,44 +794,54 @@ def validate(result, log_path, momentum, drift, torques, horizon, output, bag):
     _print_joint_rates(log)
     with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
         predicted, metrics = run(ident, log, momentum=h, where=str(result), drift=terms)
-    output.mkdir(parents=True, exist_ok=True)
-    write_log(output / "predicted.csv", predicted)
-    write_json(output / "metrics.json", metrics)
-    plot_validation(log, predicted, output / "validation.png")
+    with _report_folder(output, overwrite) as folder:
+        write_log(folder / "predicted.csv", predicted)
+        write_json(folder / "metrics.json", metrics)
+        plot_validation(log, predicted, folder / "validation.png")
+        if torques:
+            torque_metrics = _validate_torques(ident, log, h, horizon, folder, str(result))
     for key, value in metrics.items():
-        out.print(f"{metric_label(key)} = {value:.4g}", markup=False, highlight=False)
+        out.print(f"{metric_label(key)} = {value:.4g}", highlight=False)
     if torques:
-        _validate_torques(ident, log, h, horizon, output, str(result))
-    err.print(f"plots and metrics written to {output}/")
+        from .studies import TORQUE_METRIC_LABELS
+
+        for key, value in torque_metrics.items():
+            out.print(f"{TORQUE_METRIC_LABELS[key]} = {value:.4g}", highlight=False)
+    err.print(f"plots and metrics written to {shown_name(output)}/")
 
 
 def _validate_torques(ident, log, h, horizon, output, where):
-    """``validate --torques``: the torque-driven prediction, its metrics and figure in ``output``."""
+    """``validate --torques``: the torque-driven prediction, its metrics and figure in ``output``;
+    returns the metrics."""
     from .data import write_json, write_log
-    from .studies import TORQUE_METRIC_LABELS, TORQUE_VALIDATION_TITLE, plot_validation, validate_torques
+    from .studies import TORQUE_VALIDATION_TITLE, plot_validation, validate_torques
 
     predicted, metrics = validate_torques(ident, log, horizon=horizon, momentum=h, where=where)
     write_log(output / "torque_predicted.csv", predicted)
     write_json(output / "torque_metrics.json", metrics)
     restarts = f"(restarted from the measured state every {metrics['horizon']:.3g} s)"
     plot_validation(log, predicted, output / "torque_validation.png", title=f"{TORQUE_VALIDATION_TITLE}\n{restarts}")
-    for key, value in metrics.items():
-        out.print(f"{TORQUE_METRIC_LABELS[key]} = {value:.4g}", markup=False, highlight=False)
+    return metrics
 
 
 @app.command(short_help="The paper's simulation study on the built-in Cepheus model.")
 @click.option("--trajectory", default="designed", show_default=True, help="designed, paper-table2 or a file from 'design'.")
 @_options(*NOISE)
 @SEED
-@click.option("--out", "folder", type=click.Path(path_type=Path), default="spaceid-report", show_default=True, help="Report folder.")
+@click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-report", show_default=True,
+              help="Report folder.")
+@OVERWRITE
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of tables.")
-def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
+def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
     """The paper's simulation study on the built-in Cepheus model (Tables 1-3)."""
     from .studies import PAPER_TABLE3, run_demo
     from .studies import parameter_table
 
-    with _progress("designing the exciting trajectory", enabled=not as_json and trajectory == "designed") as progress:
-        res = run_demo(trajectory=trajectory, noise_angle=noise_angle, noise_rate=noise_rate, seed=seed, out=folder, progress=progress)
+    with (_progress("designing the exciting trajectory", enabled=not as_json and trajectory == "designed") as progress,
+          _report_folder(folder, overwrite) as tmp):
+        res = run_demo(trajectory=trajectory, noise_angle=noise_angle, noise_rate=noise_rate, seed=seed, out=tmp,
+                       progress=progress)
+    res = dataclasses.replace(res, folder=folder)  # where the report now is
     if as_json:
         print(json.dumps(res.to_dict(), indent=2))
         return
@@ -730,7 +852,7 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
         f"with N = {res.ident.n_samples}; validation base-rate RMS error {res.metrics['base_w_rms']:.3g} rad/s "
         f"({100 * res.metrics['base_w_nrms']:.3g} %)"
     )
-    out.print(f"report written to {folder}/report.md")
+    out.print(f"report written to {shown_name(folder)}/report.md")
 
 
 @app.command(short_help="The paper's Cepheus experiment on the digital twin, through a ROS bag.")
@@ -756,10 +878,11 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
               help="Rehearsals of the excitation at most, each refining the arm's reference by the encoder error "
               "(iterative learning control); they stop at 5 mrad RMS.")
 @SEED
-@click.option("--out", "folder", type=click.Path(path_type=Path), default="spaceid-experiment", show_default=True,
+@click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-experiment", show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
+@OVERWRITE
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift, feedforward,
-               rehearsals, seed, folder):
+               rehearsals, seed, folder, overwrite):
     """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
     identify from the recorded bag (N samples and all of the excitation), validate the identified
     model on the held-out motion (Fig. 6).
@@ -774,9 +897,11 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     model = {"cepheus": "cepheus-rw"}.get(model_src, model_src)
     settings = TwinSettings(model=model)
     settings = settings.without_effects() if ideal else settings
-    with _progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress:
+    with (_progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress,
+          _report_folder(folder, overwrite) as tmp):
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
-                             bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=folder,
+                             bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=tmp,
+                             out_name=folder,
                              progress=progress, drift=parse_drift(drift, planar=True, values=False),
                              feedforward=feedforward, rehearsals=rehearsals)
     out.print(parameter_table(res.ident, true=res.true))
@@ -790,7 +915,7 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     out.print(f"validation on the held-out motion ({res.settings['validation trajectory']}): base-rate RMS error "
               f"{res.metrics['base_w_rms']:.3g} rad/s ({100 * res.metrics['base_w_nrms']:.3g} %); on the fitting "
               f"log, which checks only the fit: {100 * res.fit_metrics['base_w_nrms']:.3g} %", highlight=False)
-    out.print(f"report written to {folder}/report.md")
+    out.print(f"report written to {shown_name(folder)}/report.md")
 
 
 @app.command(short_help="How the parameters changed between two identifications.")
@@ -849,16 +974,19 @@ def compare(before, after, as_json, show_all):
 @SEED
 @click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
-@click.option("--out", "folder", type=click.Path(path_type=Path), help="Folder for table.txt, montecarlo.json and "
-              "montecarlo.png, and tasks/ (each chunk of runs as it completes, for --resume).")
+@click.option("--out", "folder", type=_OutputPath(folder=True), help="Folder for table.txt, montecarlo.json and "
+              "montecarlo.png (each chunk of runs kept beside it in .FOLDER.tasks/ as it completes, for --resume, "
+              "until they are written).")
 @RESUME
+@OVERWRITE
 def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
-               noise, angles_only, seed, jobs, scheduler, folder, resume):
+               noise, angles_only, seed, jobs, scheduler, folder, resume, overwrite):
     """Monte Carlo study: simulate once, identify under fresh noise RUNS times, and report per
     estimator and parameter the bias, RMSE, predicted vs actual spread and RMSE / CRB. The
     momentum of the simulated motion (--momentum) is required. Noise levels default to 1e-4
     (rad, rad/s) on every signal when no --noise-* option is given (otherwise the ones not
     given are zero)."""
+    from ._campaign import discard_tasks
     from .studies import DEFAULT_NOISE, run_montecarlo, write_montecarlo
     from .studies import montecarlo_table
 
@@ -877,8 +1005,10 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
                   f"{w['rmse_crb']:.2f}, |bias|/std {w['abs_bias_std']:.2f}; {w['runs_ok']}/{res.runs} runs",
                   highlight=False)
     if folder is not None:
-        write_montecarlo(res, folder)
-        err.print(f"table, JSON and figure written to {folder}/ ({res.settings['wall_time_s']:.1f} s)")
+        with _report_folder(folder, overwrite) as tmp:
+            write_montecarlo(res, tmp)
+        discard_tasks(folder)
+        err.print(f"table, JSON and figure written to {shown_name(folder)}/ ({res.settings['wall_time_s']:.1f} s)")
 
 
 @app.command(short_help="A physically consistent URDF of an identified model, closest to a prior.")
@@ -899,7 +1029,6 @@ def export(result, prior_src, region, fmt, output):
     parameters (or lie within their --region P ellipsoid), with every body's pseudo-inertia positive
     definite, closest to the prior in the log-det divergence; written as URDF (or YAML). Prints per
     body what changed and which standard parameters the data set."""
-    from rich.markup import escape
     from rich.table import Table
 
     from .estimation import load_result
@@ -909,7 +1038,7 @@ def export(result, prior_src, region, fmt, output):
     res = export_model(ident, prior_src, region=region, where=str(result), prior_name=str(prior_src))
     write_export(res, output, fmt=fmt, inputs=(result, prior_src),
                  note=f"inertial parameters identified by spaceid export from {Path(result).name}, prior {prior_src}")
-    table = Table("body", escape("mass [kg]"), escape("dm [%]"), escape("dCoM [mm]"), escape("dI [%]"),
+    table = Table("body", "mass [kg]", "dm [%]", "dCoM [mm]", "dI [%]",
                   "set by the data", title="Exported inertials against the prior",
                   caption="dI: change of the inertia about the CoM (relative Frobenius norm)")
     for c in res.changes():
@@ -923,7 +1052,7 @@ def export(result, prior_src, region, fmt, output):
         error = np.abs(res.values - ident.values) / np.maximum(np.abs(ident.values), 1e-300)
         fit = f"exact (largest relative error {error.max():.1e})"
     out.print(f"fit {fit}; log-det divergence from the prior {res.divergence:.4g}; {res.steps} convex "
-              f"step{'s' * (res.steps != 1)}; written to {output}", highlight=False)
+              f"step{'s' * (res.steps != 1)}; written to {shown_name(output)}", highlight=False)
 
 
 @app.command(short_help="Mass, CoM and inertia of a payload held by a known servicer, from a log.")
@@ -996,15 +1125,18 @@ def _number_list(value, option, kind):
 @SEED
 @click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
-@click.option("--out", "folder", type=click.Path(path_type=Path), required=True, help="Folder for sweep.json, "
-              "sweep.csv, table.txt, sweep.png, and tasks/ (each setting as it completes, for --resume).")
+@click.option("--out", "folder", type=_OutputPath(folder=True), required=True, help="Folder for sweep.json, "
+              "sweep.csv, table.txt and sweep.png (each setting kept beside it in .FOLDER.tasks/ as it completes, "
+              "for --resume, until they are written).")
 @RESUME
+@OVERWRITE
 def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion, starts, noise, seed, jobs, scheduler,
-          folder, resume):
+          folder, resume, overwrite):
     """Design study: an excitation designed for every setting of the grid durations x harmonics
     x samples, and per setting the condition number of its regressor and the predicted
     Cramer-Rao standard deviation relative to the nominal parameters (worst parameter), for
     the noise given (default 1e-4 rad, rad/s on every signal)."""
+    from ._campaign import discard_tasks
     from .studies import DEFAULT_NOISE, run_sweep, sweep_table, write_sweep
 
     param = _param(model_src, planar)
@@ -1016,8 +1148,11 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
         res = run_sweep(param, momentum=h, **grid, noise=noise or DEFAULT_NOISE, criterion=criterion, n_starts=starts,
                         seed=seed, scheduler=scheduler, jobs=jobs, folder=folder, resume=resume, progress=progress)
     out.print(sweep_table(res))
-    write_sweep(res, folder)
-    err.print(f"sweep.json, sweep.csv, table and figure written to {folder}/ ({res.settings['wall_time_s']:.1f} s)")
+    with _report_folder(folder, overwrite) as tmp:
+        write_sweep(res, tmp)
+    discard_tasks(folder)
+    err.print(f"sweep.json, sweep.csv, table and figure written to {shown_name(folder)}/ "
+              f"({res.settings['wall_time_s']:.1f} s)")
 
 
 @app.command(short_help="Detect parameter changes (a capture, a payload release) on a running log.")
@@ -1109,20 +1244,21 @@ def _result_model(ident):
 
 
 def main(argv=None) -> int:
-    """Entry point: run the app, turn library errors into one line and exit code 2."""
+    """Entry point: run the app and return its exit code (see :meth:`_Group.invoke`); SIGTERM
+    unwinds the command like Ctrl-C does."""
     warnings.simplefilter("default")
-    warnings.showwarning = lambda msg, *a, **k: print(f"warning: {msg}", file=sys.stderr)
+    warnings.showwarning = lambda msg, *a, **k: print(f"warning: {one_line(msg)}", file=sys.stderr)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
-        app.main(args=argv, prog_name="spaceid", standalone_mode=False)
-    except SpaceidError as exc:
-        print(f"error: {exc}", file=sys.stderr)  # one line, never wrapped
-        return 2
+        code = app.main(args=argv, prog_name="spaceid", standalone_mode=False)
     except click.ClickException as exc:  # usage errors: click's own message, exit code 2
         exc.show()
         return exc.exit_code
-    except click.Abort:
-        return 1
-    return 0
+    except click.Abort:  # an interrupt before the command started
+        return 130
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    return code if isinstance(code, int) else 0
 
 
 if __name__ == "__main__":

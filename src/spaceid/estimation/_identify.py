@@ -313,6 +313,12 @@ def identify(
         theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, estimator, estimated)
         s = _singular_values(factor)
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where)
+        pi, h = eq.full(theta)
+        if history is not None and drift:  # the momentum at the log's first sample
+            h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])
+        cov, h_std, d_std = _full_covariance(eq, cov_t, param.n_params)
+        implausible = _implausible(param, pi, np.sqrt(np.diag(cov)), where)
+        correlation, collinear = _drift_collinear(eq, cov_t, where)
     except np.linalg.LinAlgError as exc:  # singular or non-finite systems, at any step: one line, not a traceback
         raise SpaceidError(
             f"{where}: estimator '{estimator}' met a singular or non-finite linear system ({exc}): check the log for "
@@ -323,12 +329,6 @@ def identify(
         warnings.warn(f"{where}: maximum likelihood failed, the estimate reported is {info['fallback']}", stacklevel=2)
     if uncertainty["noise_model_warning"]:
         warnings.warn(f"{where}: {uncertainty['noise_model_warning']}", stacklevel=2)
-    pi, h = eq.full(theta)
-    if history is not None and drift:  # the momentum at the log's first sample
-        h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])
-    cov, h_std, d_std = _full_covariance(eq, cov_t, param.n_params)
-    implausible = _implausible(param, pi, np.sqrt(np.diag(cov)), where)
-    correlation, collinear = _drift_collinear(eq, cov_t, where)
     for warning in (implausible, drift_warning, collinear):
         if warning:
             warnings.warn(warning, stacklevel=2)

@@ -128,7 +128,8 @@ def _write_report(result: DemoResult, log, fine, predicted) -> None:
     traj.save(folder / "trajectory.json")
     write_log(folder / "log.csv", log)
     write_json(folder / "result.json", result.ident.to_dict())
-    write_json(folder / "demo.json", result.to_dict())
+    # "report": the folder itself, which the command line writes under a temporary name and then renames
+    write_json(folder / "demo.json", {**result.to_dict(), "report": "."})
     grid = np.linspace(0, traj.duration, 501)
     q, qd, qdd = traj.evaluate(grid)
     model = load_model("cepheus")

@@ -138,23 +138,27 @@ def _excitation(full: Log, start: float, duration: float) -> Log:
     return replace(full.select(window), meta=dict(full.meta, window=[start, start + duration]))
 
 
-def _held_out_log(run, traj: FourierTrajectory, folder: Path, bag_format: str, model, settings, joint_rates) -> Log:
+def _held_out_log(run, traj: FourierTrajectory, folder: Path, bag_format: str, model, settings, joint_rates,
+                  name: Path) -> Log:
     """The held-out phase ``run`` recorded as a second bag in ``folder`` (``validation.bag``, ...:
     a recording of its own, so that reading it leaves the identification bag's differentiation
-    as it was), read back as the excitation's and cut to ``traj``'s window."""
+    as it was), read back as the excitation's (its source named in ``name``) and cut to ``traj``'s
+    window."""
     bag = folder / BAG_NAMES[bag_format].replace("run", "validation", 1)
     write_bag(bag, run.recording, format=bag_format)
-    full = _read_bag(bag, model, settings, joint_rates)
+    full = _read_bag(bag, model, settings, joint_rates, name / bag.name)
     start = run.truth.t[0] - full.meta["time_origin_ns"] / 1e9  # the reader's times start at a whole second
     return _excitation(full, start, traj.duration)
 
 
-def _read_bag(bag: Path, model, settings: TwinSettings, joint_rates: str) -> Log:
-    """A bag of the twin read as a lab recording, whole; ``spaceid identify BAG --mapping
-    mapping.yaml`` reads it the same way (:func:`_write_mapping`)."""
+def _read_bag(bag: Path, model, settings: TwinSettings, joint_rates: str, source: Path) -> Log:
+    """A bag of the twin read as a lab recording, whole, its source recorded as ``source``;
+    ``spaceid identify BAG --mapping mapping.yaml`` reads it the same way (:func:`_write_mapping`)."""
     # the lab knows its motion-capture latency (calibrated); the pose stamps lag by it
-    return read_bag_log(bag, joints=model.joints, planar=True, wheels=model.wheels, joint_rates=joint_rates,
-                        pose_latency=settings.mocap.latency)
+    log = read_bag_log(bag, joints=model.joints, planar=True, wheels=model.wheels, joint_rates=joint_rates,
+                       pose_latency=settings.mocap.latency)
+    log.meta["source"] = str(source)
+    return log
 
 
 def _held_out_validation(ident: Identification, log: Log, held_out: Log, momentum, where: str) -> tuple:
@@ -219,6 +223,7 @@ def run_experiment(
     validation=None,
     seed: int = 0,
     out=None,
+    out_name=None,
     progress=None,
     drift=(),
     feedforward: bool = True,
@@ -256,6 +261,9 @@ def run_experiment(
         Report folder: the bags of the excitation and of the held-out motion (``validation.bag``,
         ...), ``mapping.yaml`` (how to read them), the aligned log CSVs, results, figures and
         ``report.md``.
+    out_name : path-like, optional
+        The report folder as messages and records name it (the bags' sources), default ``out``:
+        the command line writes into a temporary folder that it renames to this one at the end.
     progress : callable, optional
         ``progress(done, total)`` for the design.
     drift : iterable of {"torque", "viscous", "coulomb"}
@@ -314,10 +322,12 @@ def run_experiment(
         folder.mkdir(parents=True, exist_ok=True)
         folder_bag = folder
     bag = folder_bag / BAG_NAMES[bag_format]
+    named = Path(out_name) if out_name is not None and folder is not None else folder_bag
+    where = str(named / bag.name)  # the bag as messages and the results name it
     try:
         write_bag(bag, run.recording, format=bag_format)
-        full = _read_bag(bag, model, settings, joint_rates)
-        held_out = _held_out_log(c, vtraj, folder_bag, bag_format, model, settings, joint_rates)
+        full = _read_bag(bag, model, settings, joint_rates, named / bag.name)
+        held_out = _held_out_log(c, vtraj, folder_bag, bag_format, model, settings, joint_rates, named)
     finally:
         if scratch is not None:
             scratch.cleanup()
@@ -325,12 +335,12 @@ def run_experiment(
     chosen = _nearest(log.t, start + sample_times(traj.duration, int(samples)))
     zero = np.zeros(3)  # started at rest: the whole system, wheel included, carries no momentum
     rest = full.select(full.t <= start + traj.duration + 1e-9) if drift else None  # friction acts from rest on
-    ident = identify(param, log.select(chosen), zero, estimator=estimator, where=str(bag), drift=drift, history=rest)
-    ident_all = identify(param, log, zero, estimator=estimator, where=str(bag), drift=drift, history=rest)
-    predicted, metrics, fit_metrics = _held_out_validation(ident, log, held_out, None if drift else zero, str(bag))
+    ident = identify(param, log.select(chosen), zero, estimator=estimator, where=where, drift=drift, history=rest)
+    ident_all = identify(param, log, zero, estimator=estimator, where=where, drift=drift, history=rest)
+    predicted, metrics, fit_metrics = _held_out_validation(ident, log, held_out, None if drift else zero, where)
     if held_out.tau is not None:  # the twin's joint efforts: the torque level beside, restarted every second
         try:
-            metrics |= validate_torques(ident, held_out, horizon=1.0, where=str(bag),
+            metrics |= validate_torques(ident, held_out, horizon=1.0, where=where,
                                         momentum=_initial_momentum(ident, held_out) if drift else zero)[1]
         except SpaceidError as exc:  # an inconsistent identified model (H* not positive definite)
             metrics["torque_validation"] = str(exc)

@@ -403,7 +403,7 @@ def run_montecarlo(
         address ``tcp://HOST:PORT``; default ``DASK_SCHEDULER_ADDRESS`` if set, else
         ``processes``. The results do not depend on it.
     folder : path, optional
-        Study folder: each chunk of runs is written to ``folder/tasks/`` as it completes.
+        Study folder: each chunk of runs is written beside it (:func:`spaceid._campaign.task_folder`) as it completes.
     resume : bool
         Use the chunks in ``folder`` (they must be of the same settings) and run the others.
 
@@ -481,7 +481,8 @@ def write_montecarlo(result: MonteCarloResult, folder) -> dict:
     paths = {"json": folder / "montecarlo.json", "table": folder / "table.txt", "figure": folder / "montecarlo.png"}
     write_json(paths["json"], result.to_dict())
     buffer = io.StringIO()
-    Console(file=buffer, width=100, color_system=None, force_terminal=False).print(montecarlo_table(result))
+    Console(file=buffer, width=100, color_system=None, force_terminal=False, markup=False, emoji=False).print(
+        montecarlo_table(result))
     write_text_atomic(paths["table"], buffer.getvalue())
     plot_montecarlo(result, paths["figure"])
     return paths
