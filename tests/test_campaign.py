@@ -179,3 +179,14 @@ def test_design_cli_names_a_bad_scheduler(tmp_path, capsys):
                  "0.4934", "--starts", "2", "--scheduler", "threads", "-o", str(tmp_path / "t.json")])  # fmt: skip
     err = capsys.readouterr().err
     assert code == 2 and err.startswith("error: --scheduler: 'threads'") and not (tmp_path / "t.json").exists()
+
+
+def test_a_finished_study_folder_holds_the_report_and_no_task_results(tmp_path):
+    """The task results live beside --out only while the study runs: the finished report
+    folder is spaceid's (manifest) and nothing is left beside it."""
+    out = tmp_path / "mc"
+    args = ["montecarlo", "cepheus", "--momentum", "0.4934", "--trajectory", "paper-table2", "--runs", "4",
+            "--jobs", "1", "--estimator", "ols", "--out", str(out)]
+    assert main(args) == 0
+    assert (out / "montecarlo.json").is_file() and (out / "spaceid-manifest.json").is_file()
+    assert not task_folder(out).exists() and sorted(p.name for p in tmp_path.iterdir()) == ["mc"]
