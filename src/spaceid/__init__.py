@@ -35,6 +35,8 @@ _HOME = {
     "identify": "estimation",
     "cramer_rao": "estimation",
     "cramer_rao_angles": "estimation",
+    "monitor": "estimation",
+    "Monitor": "estimation",
     "load_result": ("identified", "load_identified"),  # the controller-ready model of a RESULT.json
     "IdentifiedModel": "identified",
     "identify_com": "identified",
@@ -52,6 +54,7 @@ _HOME = {
     "run_demo": "studies",
     "run_experiment": "studies",
     "run_montecarlo": "studies",
+    "run_sweep": "studies",
 }
 
 __all__ = ["SpaceidError", *_HOME]

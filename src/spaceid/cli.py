@@ -29,6 +29,12 @@ MOMENTUM_METAVAR = "H|HX,HY,HZ"
 MOMENTUM = click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR, help="Angular momentum of the whole "
                         "system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest.")
 SEED = click.option("--seed", type=int, default=0, show_default=True, help="Seed of every random choice (recorded in the output).")
+SCHEDULER = click.option("--scheduler", metavar="SCHEDULER", help="Where the tasks run: processes (a local process "
+                         "pool of --jobs), dask (a Dask LocalCluster of --jobs workers) or tcp://HOST:PORT (a running "
+                         "'dask scheduler' and its workers); the numbers do not depend on it [default: "
+                         "DASK_SCHEDULER_ADDRESS if set, else processes].")
+RESUME = click.option("--resume", is_flag=True, help="Keep the task results an interrupted run of the same settings "
+                      "left in --out and run only the others (without it they are removed).")
 NOISE = [
     click.option("--noise-angle", type=float, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=float, default=0.0, help="White noise on rates [rad/s]."),
@@ -153,9 +159,21 @@ def _print_joint_rates(log) -> None:
 
 @contextlib.contextmanager
 def _progress(label: str, enabled: bool = True):
-    """A rich progress bar fed through a ``progress(done, total)`` callback."""
+    """A rich progress bar fed through a ``progress(done, total)`` callback; when stderr is not a
+    terminal (a log), a plain line at every tenth of the work instead."""
     if not enabled:
         yield None
+        return
+    if not err.is_terminal:
+        printed = [None]
+
+        def line(done, total):
+            step = (10 * done // total, done == total) if total else None
+            if step != printed[0]:
+                printed[0] = step
+                print(f"{label}: {done}/{total}" if total else f"{label}: {done}", file=sys.stderr, flush=True)
+
+        yield line
         return
     with Progress(TextColumn(label), BarColumn(), TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn(), console=err, transient=True) as bar:
         task = bar.add_task(label, total=None)
@@ -299,13 +317,15 @@ def _write_definitions(path, info, model_src):
               "depends on the machine's speed).")
 @click.option("--payload-link", metavar="LINK", help="Design for the parameters of a payload held by LINK (see "
               "'spaceid payload') instead of the minimal parameters (--momentum 0 allowed: the known servicer "
-              "fixes the scale); with the --noise-* options the trajectory records the payload's predicted Cramer-Rao standard "
-              "deviations.")
+              "fixes the scale); with the --noise-* options the trajectory records the payload's predicted "
+              "Cramer-Rao standard deviations.")
 @click.option("--payload-nominal", type=click.Path(path_type=Path), metavar="PAYLOAD.json", help="With "
               "--payload-link: the nominal payload (a 'spaceid payload' output; default none, zero mass).")
+@click.option("--jobs", type=int, help="Worker processes [default: one per core].")
+@SCHEDULER
 @output("Trajectory JSON to write (for simulate, predict, identify --instruments).")
-def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max, starts, time_budget, output,
-           payload_link=None, payload_nominal=None):
+def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max,
+           starts, time_budget, payload_link, payload_nominal, jobs, scheduler, output):
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
     standard deviations are recorded in the trajectory."""
@@ -324,7 +344,7 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
         res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
                          noise=noise, n_starts=starts, time_budget=time_budget, payload_link=payload_link,
-                         payload=nominal)
+                         payload=nominal, n_jobs=jobs, scheduler=scheduler)
     res.trajectory.save(output)
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {output}")
     rel = {k: v for k, v in res.trajectory.meta.get("crb_relative_std", {}).items() if v is not None}
@@ -783,10 +803,12 @@ def compare(before, after, as_json, show_all):
               "from them (Savitzky-Golay, automatic window).")
 @SEED
 @click.option("--jobs", type=int, help="Worker processes [default: all cores].")
+@SCHEDULER
 @click.option("--out", "folder", type=click.Path(path_type=Path), help="Folder for table.txt, montecarlo.json and "
-              "montecarlo.png.")
+              "montecarlo.png, and tasks/ (each chunk of runs as it completes, for --resume).")
+@RESUME
 def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
-               noise, angles_only, seed, jobs, folder):
+               noise, angles_only, seed, jobs, scheduler, folder, resume):
     """Monte Carlo study: simulate once, identify under fresh noise RUNS times, and report per
     estimator and parameter the bias, RMSE, predicted vs actual spread and RMSE / CRB. The
     momentum of the simulated motion (--momentum) is required. Noise levels default to 1e-4
@@ -800,8 +822,8 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
     with _progress("designing, then runs" if trajectory == "designed" else "runs") as progress:
         res = run_montecarlo(param, trajectory, momentum=h, noise=noise or DEFAULT_NOISE, duration=duration,
                              samples=samples, runs=runs, estimators=estimators or ("ml", "ols"), seed=seed, jobs=jobs,
-                             progress=progress, angles_only=angles_only,
-                             design={"harmonics": harmonics, "criterion": criterion})
+                             progress=progress, angles_only=angles_only, scheduler=scheduler, folder=folder,
+                             resume=resume, design={"harmonics": harmonics, "criterion": criterion})
     out.print(montecarlo_table(res))
     for e in res.estimators:
         w = res.summary(e)
@@ -903,6 +925,134 @@ def payload(model_src, log_path, planar, link, momentum, noise, differentiate, q
     chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g}; "
     out.print(f"{s['estimator']}: {s['gauss_newton_steps']} steps; residual RMS {s['residual_rms']:.3g} N m s; {chi2}"
               f"{log.n_samples} samples{projected}; written to {output}", highlight=False)
+
+
+def _number_list(value, option, kind):
+    """A comma-separated list of numbers of ``kind``, e.g. ``5,10,20``."""
+    try:
+        return [kind(v) for v in value.split(",") if v.strip()]
+    except ValueError:
+        raise SpaceidError(f"{option}: {value!r} is not a comma-separated list of {kind.__name__} values, "
+                           f"e.g. {option} {'5,10' if kind is float else '2,3'}") from None
+
+
+@app.command(short_help="Design study: cond(Y) and predicted relative CRB over durations, harmonics and samples.")
+@MODEL
+@PLANAR
+@MOMENTUM
+@click.option("--durations", required=True, metavar="TF[,TF...]", help="Trajectory durations [s], comma-separated.")
+@click.option("--harmonics", required=True, metavar="NF[,NF...]", help="Fourier harmonics, comma-separated.")
+@click.option("--samples", required=True, metavar="N[,N...]", help="Samples over each duration, comma-separated.")
+@click.option("--criterion", type=click.Choice(["cond", "logdet", "dopt", "crb"]), default="cond", show_default=True,
+              help="Design criterion of every setting (see 'spaceid design').")
+@click.option("--starts", type=int, default=8, show_default=True, help="Local searches of each setting's design.")
+@noise_options
+@SEED
+@click.option("--jobs", type=int, help="Worker processes [default: all cores].")
+@SCHEDULER
+@click.option("--out", "folder", type=click.Path(path_type=Path), required=True, help="Folder for sweep.json, "
+              "sweep.csv, table.txt, sweep.png, and tasks/ (each setting as it completes, for --resume).")
+@RESUME
+def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion, starts, noise, seed, jobs, scheduler,
+          folder, resume):
+    """Design study: an excitation designed for every setting of the grid durations x harmonics
+    x samples, and per setting the condition number of its regressor and the predicted
+    Cramer-Rao standard deviation relative to the nominal parameters (worst parameter), for
+    the noise given (default 1e-4 rad, rad/s on every signal)."""
+    from .studies import DEFAULT_NOISE, run_sweep, sweep_table, write_sweep
+
+    param = _param(model_src, planar)
+    h = _momentum(momentum, param.model.planar)
+    grid = {"durations": _number_list(durations, "--durations", float),
+            "harmonics": _number_list(harmonics, "--harmonics", int),
+            "samples": _number_list(samples, "--samples", int)}  # fmt: skip
+    with _progress("settings") as progress:
+        res = run_sweep(param, momentum=h, **grid, noise=noise or DEFAULT_NOISE, criterion=criterion, n_starts=starts,
+                        seed=seed, scheduler=scheduler, jobs=jobs, folder=folder, resume=resume, progress=progress)
+    out.print(sweep_table(res))
+    write_sweep(res, folder)
+    err.print(f"sweep.json, sweep.csv, table and figure written to {folder}/ ({res.settings['wall_time_s']:.1f} s)")
+
+
+@app.command(short_help="Detect parameter changes (a capture, a payload release) on a running log.")
+@MODEL
+@click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
+@PLANAR
+@MOMENTUM
+@click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid identify': "
+              "anchors the scale when the momentum is zero; repeatable.")
+@noise_options
+@click.option("--false-alarm-rate", type=float, default=1e-5, show_default=True, help="False alarms per sample when "
+              "nothing changes (one per 1/RATE samples on average): sets the CUSUM threshold.")
+@click.option("--change-ratio", type=float, default=4.0, show_default=True, help="Innovation variance ratio the test "
+              "is tuned to (a change that doubles the momentum residual's std is 4).")
+@click.option("--forgetting", type=float, default=1.0, show_default=True, help="Forgetting factor of the recursive "
+              "estimate, in (0, 1]; 1: each segment's estimate is its batch weighted least squares.")
+@click.option("--warmup", type=int, help="Samples of each segment identified in batch before its test starts "
+              "[default: max(200, 4 (p + 1) / rows)].")
+@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES[:-1]), default="ml", show_default=True,
+              help="Estimator of the batch identifications of the segments (see 'spaceid identify').")
+@click.option("--follow", is_flag=True, help="LOG is a CSV being written: keep reading appended rows until "
+              "interrupted (Ctrl-C) or --follow-timeout seconds pass without a new row.")
+@click.option("--follow-timeout", type=float, default=10.0, show_default=True, metavar="SECONDS",
+              help="With --follow: the log counts as finished after this many seconds without a new row.")
+@bag_options
+@output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
+def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rate, change_ratio, forgetting, warmup,
+            estimator, follow, follow_timeout, output, bag):
+    """Follow a log sample by sample (LOG.csv, a ROS bag, or with --follow a CSV being written): a
+    recursive estimate of the parameters on the momentum equations and a CUSUM test on its
+    normalised residual; each detected change is printed and written to EVENTS.json with its
+    time, test statistic and the parameters that changed, and each segment between changes is
+    identified in batch. Noise levels not given are estimated from the first samples."""
+    from .data import follow_log, read_log, write_json
+    from .estimation import Monitor, parse_known
+
+    param = _param(model_src, planar)
+    h = _momentum(momentum, param.model.planar)
+    m = param.model
+    if follow:
+        if any(v is not None for v in bag.values()):
+            raise SpaceidError("--follow reads a CSV being written: the bag options do not apply")
+        chunks = follow_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, timeout=follow_timeout)
+    else:
+        from .estimation._monitor import _chunks
+
+        chunks = _chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
+    mon = Monitor(param, h, known=parse_known(known), noise=noise, false_alarm_rate=false_alarm_rate,
+                  change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
+                  where=str(log_path))
+    err.print(f"CUSUM threshold {mon.threshold:.4g} for {false_alarm_rate:g} false alarms per sample; expected "
+              f"delay {mon.expected_delay:.3g} samples for a change of ratio {change_ratio:g}", highlight=False)
+    with _warnings_to_stderr():
+        try:
+            for chunk in chunks:
+                for event in mon.update(chunk):
+                    _print_event(event)
+                    write_json(output, mon.record())
+        except KeyboardInterrupt:
+            err.print("interrupted: closing the last segment")
+        printed = len(mon.events)
+        record = mon.finish()
+    for event in mon.events[printed:]:  # a change too close to the end for the next warm-up
+        _print_event(event)
+    for event in record["events"]:
+        if event["segments"] is not None:
+            out.print(f"change {event['index']}, whole segments compared: changed "
+                      f"{', '.join(event['segments']['changed']) or 'none'}", highlight=False)
+    write_json(output, record)
+    out.print(f"{len(record['events'])} change(s) in {record['n_samples']} samples; {len(record['segments'])} "
+              f"segment(s) identified; written to {output}", highlight=False)
+
+
+def _print_event(event):
+    """One line for a detected change."""
+    from .estimation._monitor import Z_CHANGED
+
+    changed = ", ".join(event.changed) or f"none beyond {Z_CHANGED:g} standard errors"
+    out.print(f"change {event.index} at t = {event.time:.6g} s (detected at {event.detected_at:.6g} s, "
+              f"{event.delay} samples; statistic {event.statistic:.4g} > {event.threshold:.4g}); changed: {changed}",
+              highlight=False)
 
 
 def _model_joints(ident):

@@ -94,8 +94,12 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
             f"{path}: {', '.join(given)} apply to ROS bags, but this is a CSV log: drop them or give a bag "
             "(.bag, .mcap or a ROS 2 bag folder)"
         )
-    joints = tuple(joints)
-    table = _read_csv(path, what="log")
+    return _table_log(_read_csv(path, what="log"), tuple(joints), planar, require_rates, wheels)
+
+
+def _table_log(table, joints: tuple, planar: bool, require_rates: bool, wheels) -> Log:
+    """The :class:`Log` of a log CSV's ``table``, every column checked (see :func:`read_log`)."""
+    path = table.path
     _check_joint_columns(table, joints)
     base_angles, base_rates = _PLANAR_BASE if planar else _SPATIAL_BASE
     angles = ("t", *base_angles, *(f"q_{j}" for j in joints))

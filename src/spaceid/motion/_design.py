@@ -122,6 +122,7 @@ def optimize_excitation(
     method="auto",
     max_steps=40,
     n_screen=64,
+    scheduler=None,
 ):
     """Design an exciting trajectory (paper Eq. 12) by a seeded multi-start search.
 
@@ -193,6 +194,11 @@ def optimize_excitation(
         Trust region: random starts on the limits (start i drawn from ``(seed, i)``) whose
         surrogate is evaluated; the ``n_starts`` best are searched from (so a larger
         ``n_starts`` adds the next best).
+    scheduler : str, optional
+        Where the local searches run: ``processes`` (``n_jobs`` local processes), ``dask``
+        (a Dask LocalCluster of ``n_jobs`` workers) or a ``dask scheduler`` address
+        ``tcp://HOST:PORT`` (its workers); default ``DASK_SCHEDULER_ADDRESS`` if set, else
+        ``processes`` (docs/campaigns.md).
 
     Returns
     -------
@@ -234,7 +240,8 @@ def optimize_excitation(
     n_jobs = min(os.cpu_count() or 1, n_starts) if n_jobs is None else int(n_jobs)
     tally = _multistart_search(problem, method, seed=seed, n_starts=n_starts, n_jobs=n_jobs,
                                progress=progress, time_budget=time_budget, z_initial=z_initial,
-                               max_steps=max_steps, n_screen=n_screen, t_start=t_start)  # fmt: skip
+                               max_steps=max_steps, n_screen=n_screen, t_start=t_start,
+                               scheduler=scheduler)  # fmt: skip
 
     f, i_best, z = tally.best
     if not np.isfinite(f):

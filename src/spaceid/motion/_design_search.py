@@ -17,8 +17,9 @@ Two local searches (``method``):
   evaluation, no regressor call) in a trust region. Many screened starts get a few steps, the
   best few the rest (successive halving), each continuing where its first round ended.
 
-The multi-start search (:func:`_multistart_search`) runs one of them from every start, in
-worker processes that each receive the problem once, and keeps the best result.
+The multi-start search (:func:`_multistart_search`) runs one of them from every start, on the
+workers of a campaign scheduler (local processes or Dask, :mod:`spaceid._campaign`) that each
+receive the problem once, and keeps the best result.
 """
 
 from __future__ import annotations
@@ -27,7 +28,6 @@ import contextlib
 import pickle
 import time
 from collections.abc import Callable
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from functools import partial
 
@@ -35,6 +35,7 @@ import numpy as np
 from scipy.optimize import Bounds, minimize
 from threadpoolctl import threadpool_limits
 
+from .._campaign import open_workers, resolve_scheduler
 from .._errors import SpaceidError
 from ._criteria import CRITERIA
 from ._design_problem import _ExcitationProblem
@@ -285,29 +286,15 @@ def _screened_starts(problem, run, workers, seed, n_starts, n_screen, z_initial)
 
 # -- the multi-start search -----------------------------------------------------------------------
 
-_WORKER_PROBLEM = None
-
-
-def _init_worker(problem):
-    threadpool_limits(1)  # see _multistart_search
-    global _WORKER_PROBLEM
-    _WORKER_PROBLEM = problem
-
-
-def _call_in_worker(function, *args):
-    """``function(problem, *args)`` in a worker process, on the problem it received at start-up."""
-    return function(_WORKER_PROBLEM, *args)
-
-
-def _run_calls(problem, pool, n_jobs, calls, *, stop):
+def _run_calls(problem, workers, calls, *, stop):
     """Run ``function(problem, *args)`` for ``calls``, an iterable of ``(key, function, args)``.
 
-    Yields ``(key, result)`` in completion order, from ``pool`` (at most ``n_jobs`` calls at
-    once) or from this process when ``pool`` is None. No call starts once ``stop()`` is true;
-    started calls finish.
+    Yields ``(key, result)`` in completion order, from the campaign ``workers`` (at most
+    ``workers.n`` calls at once; see :func:`spaceid._campaign.open_workers`) or from this process
+    when ``workers`` is None. No call starts once ``stop()`` is true; started calls finish.
     """
     calls = iter(calls)
-    if pool is None:
+    if workers is None:
         for key, function, args in calls:
             if stop():
                 return
@@ -315,16 +302,15 @@ def _run_calls(problem, pool, n_jobs, calls, *, stop):
         return
     pending = {}
     while True:
-        while len(pending) < n_jobs and not stop():
+        while len(pending) < workers.n and not stop():
             call = next(calls, None)
             if call is None:
                 break
             key, function, args = call
-            pending[pool.submit(_call_in_worker, function, *args)] = key
+            pending[workers.submit(function, *args)] = key
         if not pending:
             return
-        done, _ = wait(pending, return_when=FIRST_COMPLETED)
-        for future in done:
+        for future in workers.wait_first(set(pending)):
             yield pending.pop(future), future.result()
 
 
@@ -376,22 +362,22 @@ class _Tally:
 
 
 def _multistart_search(problem, method, *, seed, n_starts, n_jobs, progress, time_budget, z_initial,
-                       max_steps, n_screen, t_start):
-    """Local searches by ``method`` ("slsqp" or "trust-region") from seeded random starts, in
-    ``n_jobs`` worker processes (this process if 1 or the regressor does not pickle); options as
-    for :func:`~spaceid.motion.optimize_excitation`, ``t_start`` its time.perf_counter() at start.
+                       max_steps, n_screen, t_start, scheduler=None):
+    """Local searches by ``method`` ("slsqp" or "trust-region") from seeded random starts, on
+    ``scheduler`` (:func:`spaceid._campaign.open_workers`; ``processes``: ``n_jobs`` worker
+    processes, this process if 1 or the regressor does not pickle); options as for
+    :func:`~spaceid.motion.optimize_excitation`, ``t_start`` its time.perf_counter() at start.
     Returns the :class:`_Tally`."""
     tally = _Tally(CRITERIA[problem.criterion].report, t_start, progress)
+    scheduler = resolve_scheduler(scheduler)
     with contextlib.ExitStack() as stack:
         # One BLAS thread per process: SLSQP's small LAPACK calls gain nothing from more, and
         # OpenBLAS threads spinning on busy cores make it up to 30 times slower.
         stack.enter_context(threadpool_limits(1))
         pool = None
-        if n_jobs > 1 and _picklable(problem.regressor):
-            pool = stack.enter_context(
-                ProcessPoolExecutor(n_jobs, initializer=_init_worker, initargs=(problem,))
-            )
-        run, workers = partial(_run_calls, problem, pool, n_jobs), (n_jobs if pool else 1)
+        if (n_jobs > 1 or scheduler != "processes") and _picklable(problem.regressor):
+            pool = stack.enter_context(open_workers(scheduler, n_jobs, problem))
+        run, workers = partial(_run_calls, problem, pool), (pool.n if pool else 1)
         if method == "slsqp":
             _slsqp_multistart(problem, tally, run, workers, seed=seed, n_starts=n_starts,
                               z_initial=z_initial, time_budget=time_budget)  # fmt: skip

@@ -31,11 +31,14 @@ Seeds. Run ``i`` draws its noise from ``np.random.SeedSequence(seed).spawn(runs)
 depends on ``(seed, i)`` alone: the numbers do not depend on ``jobs`` or on the order in which
 runs finish. The root seed is recorded.
 
-Parallelism. Chunks of runs go to a :class:`concurrent.futures.ProcessPoolExecutor`, each
-worker limited to one BLAS thread (``threadpoolctl``; the small factorisations gain nothing
-from more, and threads spinning on busy cores slow every process down); ``jobs=1`` runs in the
-calling process, with the same single-thread limit, so that its numbers equal the parallel
-ones exactly.
+Parallelism. Chunks of runs (about runs / 64 each, whatever the workers) are the tasks of a
+campaign (:func:`spaceid._campaign.run_campaign`): on a local process pool, a Dask
+``LocalCluster`` or a running ``dask scheduler`` (``scheduler``), every worker limited to one
+BLAS thread (the small factorisations gain nothing from more, and threads spinning on busy cores
+slow every process down); one local job runs in the calling process, with the same limit, so
+that its numbers equal the parallel ones exactly. With a study folder each chunk's output is
+written there as it completes, and ``resume`` runs only the chunks whose output is missing
+(docs/campaigns.md).
 """
 
 from __future__ import annotations
@@ -44,13 +47,13 @@ import io
 import os
 import time
 from collections import Counter
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from .._campaign import fingerprint, resolve_scheduler, run_campaign
 from .._errors import SpaceidError
 from ..dynamics import Parameterization
 from ..estimation import ESTIMATORS, Noise, cramer_rao, identify
@@ -152,20 +155,7 @@ class MonteCarloResult:
         }
 
 
-# --- the runs in worker processes ---------------------------------------------------------------
-
-
-_WORKER_STUDY = None
-
-
-def _init_worker(study):
-    threadpool_limits(1)  # see the module docstring
-    global _WORKER_STUDY
-    _WORKER_STUDY = study
-
-
-def _run_chunk(first, states):
-    return _WORKER_STUDY.chunk(first, states)
+# --- the runs as campaign tasks -----------------------------------------------------------------
 
 
 def _noise_states(seed: int, runs: int) -> np.ndarray:
@@ -174,37 +164,34 @@ def _noise_states(seed: int, runs: int) -> np.ndarray:
     return np.array([s.generate_state(2) for s in np.random.SeedSequence(seed).spawn(runs)])
 
 
-def _plan_chunks(states, jobs: int) -> list:
-    """Tasks ``(first run, states)``: about four chunks per worker, at most ``_MAX_CHUNK`` runs each."""
+def _plan_chunks(states) -> dict:
+    """Tasks ``{key: (first run, states)}`` of about ``runs / 64`` runs each (at most
+    ``_MAX_CHUNK``), whatever the workers, so that a campaign resumes on any scheduler."""
     runs = len(states)
-    size = max(1, min(_MAX_CHUNK, -(-runs // (4 * jobs))))
-    return [(first, states[first : first + size]) for first in range(0, runs, size)]
+    size = max(1, min(_MAX_CHUNK, -(-runs // 64)))
+    return {f"runs-{first:07d}-{min(first + size, runs) - 1:07d}": (first, states[first : first + size])
+            for first in range(0, runs, size)}  # fmt: skip
 
 
-def _execute(study: _Study, states, jobs: int, progress) -> list:
-    """All runs, in chunks, in ``jobs`` processes (or in this one); chunk outputs by first run."""
-    runs = len(states)
-    tasks = _plan_chunks(states, jobs)
-    done, outputs = 0, []
+def _campaign_fingerprint(study: _Study, trajectory: dict, seed: int, runs: int) -> str:
+    """What the task results of a study folder must belong to for ``resume`` (the trajectory without
+    its ``meta``: a design's wall time changes from call to call; the motion is in the arrays)."""
+    settings = {"model": study.param.model.source or study.param.model.name, "names": list(study.param.names),
+                "trajectory": {k: v for k, v in trajectory.items() if k != "meta"}, "momentum": study.momentum.tolist(), "noise": study.noise.to_dict(),
+                "estimators": list(study.estimators), "angles_only": study.angles_only,
+                "differentiate": study.differentiate, "seed": seed, "runs": runs}  # fmt: skip
+    clean = study.clean
+    return fingerprint(settings, study.param.true_values, clean.t, clean.q, clean.qd, clean.base_w)
 
-    def completed(result):
-        nonlocal done
-        outputs.append(result)
-        done += len(result["estimates"][study.estimators[0]])
-        if progress is not None:
-            progress(done, runs)
 
-    if progress is not None:
-        progress(0, runs)
-    with threadpool_limits(1):
-        if jobs == 1:
-            for task in tasks:
-                completed(study.chunk(*task))
-        else:
-            with ProcessPoolExecutor(min(jobs, len(tasks)), initializer=_init_worker, initargs=(study,)) as pool:
-                for future in as_completed([pool.submit(_run_chunk, *task) for task in tasks]):
-                    completed(future.result())
-    return sorted(outputs, key=lambda r: r["first"])
+def _execute(study: _Study, states, *, scheduler, jobs, folder, campaign, resume, progress) -> list:
+    """All runs, in chunks, as campaign tasks (see :func:`spaceid._campaign.run_campaign`);
+    chunk outputs in run order."""
+    tasks = _plan_chunks(states)
+    sizes = {key: len(task[1]) for key, task in tasks.items()}
+    outputs = run_campaign(_Study.chunk, study, tasks, scheduler=scheduler, jobs=jobs, folder=folder,
+                           campaign=campaign, resume=resume, progress=progress, sizes=sizes)  # fmt: skip
+    return list(outputs.values())
 
 
 # --- the options --------------------------------------------------------------------------------
@@ -312,7 +299,7 @@ def _motion_and_times(traj, duration, samples, times) -> tuple:
 
 
 def _settings(study: _Study, trajectory: dict, times, differentiation, *, runs, seed, failures, warned, jobs,
-              wall_time) -> dict:
+              scheduler, wall_time) -> dict:
     """Everything needed to reproduce the study (:attr:`MonteCarloResult.settings`)."""
     param, angles_only = study.param, study.angles_only
     return {
@@ -341,6 +328,7 @@ def _settings(study: _Study, trajectory: dict, times, differentiation, *, runs, 
         "failures": {"count": len(failures), "reasons": dict(Counter(f["reason"] for f in failures))},
         "warnings": {"count": len(warned), "messages": dict(Counter(w["warning"] for w in warned))},
         "jobs": jobs,
+        "scheduler": scheduler,
         "wall_time_s": wall_time,
     }  # fmt: skip
 
@@ -362,6 +350,9 @@ def run_montecarlo(
     angles_only: bool = False,
     differentiate: dict | None = None,
     design: dict | None = None,
+    scheduler: str | None = None,
+    folder=None,
+    resume: bool = False,
 ) -> MonteCarloResult:
     """Repeat simulate-and-identify with fresh noise; statistics against the truth and the CRB.
 
@@ -374,7 +365,8 @@ def run_montecarlo(
         (n,) and results (n, n_joints) [rad, rad/s], a named trajectory or file (see
         :func:`spaceid.motion.load_trajectory`), or ``"designed"``: designed now by
         :func:`spaceid.motion.design_excitation` with ``duration``, ``samples``, ``seed``, ``noise``
-        and the options in ``design`` (default 3 harmonics, criterion ``cond``).
+        and the options in ``design`` (default 3 harmonics, criterion ``cond``), its searches on
+        the study's ``jobs`` and ``scheduler``.
     momentum : array_like of shape (3,)
         Inertial angular momentum [N m s], nonzero (known to the estimators).
     noise : Noise
@@ -406,6 +398,14 @@ def run_montecarlo(
     design : dict, optional
         Options of :func:`spaceid.motion.design_excitation` for ``"designed"`` (``harmonics``,
         ``criterion``, ``n_starts``, ...).
+    scheduler : str, optional
+        ``processes``, ``dask`` (a LocalCluster of ``jobs`` workers) or a ``dask scheduler``
+        address ``tcp://HOST:PORT``; default ``DASK_SCHEDULER_ADDRESS`` if set, else
+        ``processes``. The results do not depend on it.
+    folder : path, optional
+        Study folder: each chunk of runs is written to ``folder/tasks/`` as it completes.
+    resume : bool
+        Use the chunks in ``folder`` (they must be of the same settings) and run the others.
 
     Returns
     -------
@@ -421,6 +421,7 @@ def run_montecarlo(
     runs = _check_int(runs, "--runs", 2, "the spread needs at least 2 noise draws (200 or more for stable statistics)")
     seed = _check_int(seed, "--seed", 0, "give a non-negative integer")
     jobs = _cores() if jobs is None else _check_int(jobs, "--jobs", 1, "give 1 or more worker processes")
+    scheduler = resolve_scheduler(scheduler)
     estimators = _check_estimators(estimators)
     _check_noise(noise, angles_only)
     samples = _check_sampling(samples, times, duration)
@@ -429,7 +430,8 @@ def run_montecarlo(
         raise SpaceidError("differentiate: options given without angles_only (--angles-only): the rates are measured")
     momentum = _check_momentum(momentum)
     traj, traj_record = _trajectory(param, trajectory, duration=duration, samples=samples, momentum=momentum,
-                                    noise=noise, seed=seed, design=design, progress=progress)  # fmt: skip
+                                    noise=noise, seed=seed, progress=progress,
+                                    design={"n_jobs": jobs, "scheduler": scheduler, **dict(design or {})})  # fmt: skip
     motion, times = _motion_and_times(traj, duration, samples, times)
 
     with threadpool_limits(1):
@@ -437,7 +439,8 @@ def run_montecarlo(
         # a noise-free identification first: rank deficiency and a zero momentum fail here, once
         identify(param, clean, momentum, estimator="ols", noise=noise, where=_WHERE)
     study = _Study(param, clean, momentum, noise, estimators, bool(angles_only), diff_options)
-    outputs = _execute(study, _noise_states(seed, runs), jobs, progress)
+    outputs = _execute(study, _noise_states(seed, runs), scheduler=scheduler, jobs=jobs, folder=folder, resume=resume,
+                       campaign=_campaign_fingerprint(study, traj_record, seed, runs), progress=progress)  # fmt: skip
     estimates, predicted, failures, warned = _merge_chunks(outputs, estimators, runs, param.n_params)
 
     model_noise, diff_record = _differentiation_summary(outputs, diff_options) if angles_only else (noise, None)
@@ -447,7 +450,8 @@ def run_montecarlo(
     true = np.asarray(param.true_values, float)
     stats = {e: _statistics(estimates[e], predicted[e], true, crb_std) for e in estimators}
     settings = _settings(study, traj_record, times, diff_record, runs=runs, seed=seed, failures=failures,
-                         warned=warned, jobs=jobs, wall_time=time.perf_counter() - t_start)  # fmt: skip
+                         warned=warned, jobs=jobs, scheduler=scheduler,
+                         wall_time=time.perf_counter() - t_start)  # fmt: skip
     return MonteCarloResult(param.names, param.definitions, true, estimators, estimates, predicted, crb_cov, crb_std,
                             stats, failures, warned, settings)  # fmt: skip
 

@@ -1,0 +1,558 @@
+"""Change detection on a running log: a recursive estimator on the momentum equations and a
+CUSUM test on its normalised innovations (docs/theory/monitor.md).
+
+Samples arrive one by one (or in chunks). Each segment between changes starts with a warm-up of
+``warmup`` samples, identified in batch (:func:`~spaceid.estimation.identify`): its estimate is
+the linearisation point at which the equation-error covariances ``S_n``
+(:mod:`spaceid.estimation._noise`) are evaluated for the rest of the segment. Then every sample
+
+1. is whitened by ``L_n`` (``S_n = L_n L_n^T`` there), and its innovation (the momentum residual
+   of the estimate from the samples before it) is normalised by its predicted covariance
+   ``L_n^-1 S_n(estimate) L_n^-T + a_n P a_n^T``: under no change ``nu_n ~ N(0, I)``,
+   independent from sample to sample;
+2. feeds a CUSUM of the log-likelihood ratio of an innovation inflated ``change_ratio`` times in
+   variance against none; its threshold gives the requested false-alarm rate (one alarm per
+   ``1 / false_alarm_rate`` samples on average, :func:`cusum_threshold`);
+3. updates the square-root information factor of recursive weighted least squares with
+   forgetting (:func:`~spaceid.estimation._estimators._accumulate_factor`): O(p^2) work per
+   sample whatever the log's length.
+
+An alarm closes the segment at the estimated change time (within the CUSUM's last excursion
+above zero, :meth:`Monitor._change_time`) and starts a new one there; once the new segment's warm-up is identified, the event reports the
+z-scores of the change (:func:`~spaceid.estimation.compare`). Each closed segment is re-identified
+in batch from at most ``max_segment`` of its samples (evenly thinned), so memory stays bounded.
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import math
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.linalg import lapack, solve_triangular
+from scipy.optimize import brentq
+from scipy.stats import chi2
+
+from .._errors import SpaceidError
+from .._threads import one_blas_thread
+from ..data import Log, quat_to_matrix
+from ..dynamics import Parameterization
+from ._equations import _equations
+from ._estimators import _accumulate_factor, _column_scale, _whiten
+from ._identify import identify
+from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
+from ._result import Identification, compare
+
+__all__ = ["Monitor", "MonitorEvent", "monitor", "cusum_threshold", "cusum_run_length"]
+
+FALSE_ALARM_RATE = 1e-5
+"""Default false alarms per sample under no change (one per 10^5 samples: 17 min at 100 Hz)."""
+CHANGE_RATIO = 4.0
+"""Default innovation variance ratio the CUSUM is tuned to (innovations twice their predicted std)."""
+Z_CHANGED = 3.0
+"""A parameter changed when its z-score (change / combined standard error) exceeds this in magnitude."""
+CHUNK = 256
+"""Samples of a whole :class:`~spaceid.data.Log` fed to the monitor at a time (the regressor is vectorised)."""
+WARMUP = 200
+"""Least samples of a segment's warm-up by default (2 s at 100 Hz): shorter ones leave the estimate
+too loose for the normalisation of the residuals that follow (false alarms early in a segment)."""
+NOISE_SAMPLES = 500
+"""Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
+
+
+def _increment(rows: int, ratio: float):
+    """Scale ``c`` and offset ``d`` of the CUSUM increment ``c nu^T nu - d``: the log-likelihood
+    ratio of ``nu ~ N(0, ratio I)`` against ``N(0, I)`` for ``rows`` components."""
+    return (1 - 1 / ratio) / 2, rows / 2 * math.log(ratio)
+
+
+def cusum_run_length(threshold: float, rows: int, ratio: float = CHANGE_RATIO, *, actual: float = 1.0,
+                     cells: int = 200) -> float:
+    """Average run length [samples] of the chi-square CUSUM until it exceeds ``threshold``.
+
+    The CUSUM ``g_n = max(0, g_{n-1} + c nu_n^T nu_n - d)`` (:func:`_increment`) starts at zero;
+    ``nu_n ~ N(0, actual I)`` with ``rows`` components, independent. The run length is that of the
+    Markov chain on ``cells`` cells of ``[0, threshold]`` (Brook and Evans, 1972).
+
+    Parameters
+    ----------
+    threshold : float
+        CUSUM threshold ``h`` (> 0), dimensionless (log-likelihood).
+    rows : int
+        Equations per sample (1 planar, 3 spatial).
+    ratio : float
+        Innovation variance ratio the increment is tuned to (> 1).
+    actual : float
+        Actual variance ratio of the innovations: 1 gives the run length between false alarms,
+        ``ratio`` the detection delay of a change of the tuned size.
+    cells : int
+        Cells of the discretisation.
+
+    Returns
+    -------
+    float
+        Expected samples until the first alarm.
+    """
+    c, d = _increment(rows, ratio)
+    width = threshold / cells
+    start = np.r_[0.0, (np.arange(1, cells + 1) - 0.5) * width]  # the atom at zero, then the cell midpoints
+    edges = np.arange(cells + 1) * width  # upper edges of the cells below them
+    cdf = lambda x: chi2.cdf(np.maximum((x + d) / (c * actual), 0), rows)  # noqa: E731  P(increment <= x)
+    to = cdf(edges[None, :] - start[:, None])  # (cells + 1 states, cells + 1 edges)
+    Q = np.empty((cells + 1, cells + 1))
+    Q[:, 0] = to[:, 0]  # back to zero
+    Q[:, 1:] = np.diff(to, axis=1)
+    with one_blas_thread():
+        return float(np.linalg.solve(np.eye(cells + 1) - Q, np.ones(cells + 1))[0])
+
+
+def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RATIO) -> float:
+    """The CUSUM threshold whose run length between false alarms is ``1 / false_alarm_rate``.
+
+    Parameters
+    ----------
+    false_alarm_rate : float
+        False alarms per sample under no change, in (0, 0.5).
+    rows : int
+        Equations per sample (1 planar, 3 spatial).
+    ratio : float
+        Innovation variance ratio the CUSUM is tuned to (> 1).
+
+    Returns
+    -------
+    float
+        The threshold ``h``; at most ``ln(1 / false_alarm_rate)`` (Lorden's bound, ARL >= e^h).
+
+    Raises
+    ------
+    SpaceidError
+        ``false_alarm_rate`` outside (0, 0.5) or ``ratio`` not above 1.
+    """
+    if not 0 < false_alarm_rate < 0.5:
+        raise SpaceidError(f"--false-alarm-rate {false_alarm_rate!r}: give false alarms per sample in (0, 0.5), "
+                           f"e.g. {FALSE_ALARM_RATE:g}")
+    if not ratio > 1:
+        raise SpaceidError(f"--change-ratio {ratio!r}: give an innovation variance ratio above 1, "
+                           f"e.g. {CHANGE_RATIO:g}")
+    target = math.log(1 / false_alarm_rate)
+    gap = lambda h: math.log(cusum_run_length(h, rows, ratio)) - target  # noqa: E731
+    return float(brentq(gap, 1e-6, target + 1.0, xtol=1e-6))
+
+
+@dataclass(frozen=True)
+class MonitorEvent:
+    """A detected change.
+
+    Attributes
+    ----------
+    index : int
+        Events in order, from 0.
+    time : float
+        Estimated change time [s]: the sample within the CUSUM's last excursion from which on
+        the innovations are most likely inflated (:meth:`Monitor._change_time`).
+    detected_at : float
+        Time of the sample at which the statistic crossed the threshold [s].
+    delay : int
+        Samples from the estimated change to the detection.
+    statistic, threshold : float
+        CUSUM statistic at the detection and its threshold (log-likelihood ratio).
+    changed : tuple of str
+        Parameters whose change has a z-score above ``Z_CHANGED`` in magnitude.
+    parameters : tuple of dict
+        Per parameter ``name``, ``before``, ``after``, ``change``, ``relative_change``, ``z``:
+        the segment before against the new segment's warm-up, both identified in batch.
+    """
+
+    index: int
+    time: float
+    detected_at: float
+    delay: int
+    statistic: float
+    threshold: float
+    changed: tuple
+    parameters: tuple = field(repr=False)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self) | {"changed": list(self.changed), "parameters": list(self.parameters)}
+
+
+class _Thinned:
+    """At most ``size`` samples of a segment, evenly spaced: when full, every other one is dropped
+    and the stride doubles (bounded memory, O(1) amortised work a sample)."""
+
+    def __init__(self, size: int):
+        self.size, self.stride, self.seen, self.rows = size, 1, 0, []
+
+    def add(self, row):
+        if self.seen % self.stride == 0:
+            self.rows.append(row)
+            if len(self.rows) > self.size:
+                self.rows, self.stride = self.rows[::2], 2 * self.stride
+        self.seen += 1
+
+    def until(self, t: float):
+        """Drop the samples at or after ``t`` [s] (those after an estimated change)."""
+        self.rows = [r for r in self.rows if r[0] < t]
+
+
+def _rows(log: Log) -> list:
+    """The samples of ``log`` as ``(t, q, qd, base_quat, base_w)`` tuples."""
+    return list(zip(log.t, log.q, log.qd, log.base_quat, log.base_w))
+
+
+def _log(rows: list, model, source: str) -> Log:
+    """The log of ``_rows`` tuples of ``model``'s joints."""
+    t, q, qd, quat, w = (np.array(c) for c in zip(*rows))
+    return Log(t, tuple(model.joints), q, qd, quat, w, planar=model.planar, meta={"source": source})
+
+
+class Monitor:
+    """Change detection on the momentum equations, one sample at a time (module docstring).
+
+    Parameters
+    ----------
+    param : Parameterization
+        Minimal parameter set of the model.
+    momentum : array_like of shape (3,)
+        Inertial angular momentum of the whole system [N m s], conserved through the changes
+        (a capture from rest adds none); zero needs ``known`` anchors (or a reaction wheel).
+    known : dict, optional
+        Known parameter values ``{name: value}``, as :func:`~spaceid.estimation.identify` takes them.
+    noise : Noise, optional
+        Signal noise levels; estimated from the first warm-up (then at least ``NOISE_SAMPLES``
+        long) when omitted: give them for the stated false-alarm rate (the rate is sensitive to
+        the levels: innovations 10 % larger in variance double it). Must not be all zero.
+    false_alarm_rate : float
+        False alarms per sample under no change (the threshold's design value).
+    change_ratio : float
+        Innovation variance ratio the CUSUM is tuned to: larger detects large changes faster and
+        small ones slower.
+    forgetting : float
+        Exponential forgetting factor of the recursive estimate, in (0, 1]; 1: the recursive
+        estimate of a segment is its batch weighted least-squares estimate.
+    warmup : int, optional
+        Samples of each segment identified in batch before its test starts (default
+        ``max(WARMUP, 4 (p + 1) / rows)``).
+    estimator : str
+        Estimator of the batch identifications (:data:`~spaceid.estimation.ESTIMATORS`, not ``angles``).
+    max_segment : int
+        Most samples of a segment kept for its batch identification (evenly thinned beyond it).
+    where : str
+        Name of the data source, for error messages.
+    """
+
+    def __init__(self, param: Parameterization, momentum, *, known=None, noise: Noise | None = None,
+                 false_alarm_rate: float = FALSE_ALARM_RATE, change_ratio: float = CHANGE_RATIO,
+                 forgetting: float = 1.0, warmup: int | None = None, estimator: str = "ml",
+                 max_segment: int = 4000, where: str = "log"):
+        if not 0 < forgetting <= 1:
+            raise SpaceidError(f"--forgetting {forgetting!r}: give a factor in (0, 1], 1 for no forgetting")
+        if estimator == "angles":
+            raise SpaceidError("--estimator angles: the monitor needs per-sample momentum equations: use another one")
+        if noise is not None and noise.is_zero:
+            raise SpaceidError("--noise-*: all zero: the test normalises the residuals by the noise, give its levels "
+                               "(or none, to estimate them from the first samples)")
+        self.param, self.where = param, where
+        self.momentum = np.asarray(momentum, float)
+        self.known, self.noise, self.estimator = dict(known or {}), noise, estimator
+        self.false_alarm_rate, self.change_ratio, self.forgetting = false_alarm_rate, change_ratio, forgetting
+        self.threshold = cusum_threshold(false_alarm_rate, param.rows, change_ratio)
+        self.expected_delay = cusum_run_length(self.threshold, param.rows, change_ratio, actual=change_ratio)
+        self._increment = _increment(param.rows, change_ratio)
+        nj = len(param.model.joints)
+        rest = Log(np.zeros(1), param.model.joints, np.zeros((1, nj)), np.zeros((1, nj)), np.array([[1.0, 0, 0, 0]]),
+                   np.zeros((1, 3)), planar=param.model.planar)
+        self._eq = _equations(param, rest, self.momentum, self.known, where)[0]  # a missing anchor: an error now
+        p = len(self._eq.free)
+        self.warmup = int(warmup) if warmup is not None else max(WARMUP, -(-4 * (p + 1) // param.rows))
+        if self.warmup < p + 1:
+            raise SpaceidError(f"--warmup {self.warmup}: at least {p + 1} samples are needed to identify a segment")
+        self.max_segment = max(int(max_segment), 2 * self.warmup)
+        n_x = 2 * nj + (1 if param.model.planar else 6)
+        self._block = max(1, 2**22 // (param.rows * (p + 1) * n_x))  # samples whitened at once: 32 MB of derivatives
+        self.events, self.segments = [], []
+        self.n_samples = self.n_tested = 0
+        self._recent = collections.deque(maxlen=self.warmup)  # samples an alarm may hand to the next segment
+        self._pending = None  # an alarm whose comparison waits for the next warm-up
+        self._open(start=None)
+        if noise is None:
+            self._target = max(self.warmup, NOISE_SAMPLES)
+
+    # --- segments ----------------------------------------------------------------------------
+
+    def _open(self, start):
+        self._warm, self._thinned, self._R, self._g = [], _Thinned(self.max_segment), None, 0.0
+        self._start, self._count, self._ident, self._target = start, 0, None, self.warmup
+        self._excursion = collections.deque(maxlen=self.warmup)  # (t, nu^T nu) since the CUSUM last left zero
+
+    def _identify(self, rows, label) -> Identification:
+        log = _log(rows, self.param.model, f"{self.where} {label}")
+        with warnings.catch_warnings():  # short windows trip the residual checks; the events say what matters
+            warnings.simplefilter("ignore")
+            return identify(self.param, log, self.momentum, estimator=self.estimator, known=self.known,
+                            noise=self.noise, where=f"{self.where} ({label})")
+
+    def _begin_testing(self) -> list:
+        """Identify the warm-up, set the linearisation point, start the recursion on the warm-up
+        samples; returns the pending event, now with its comparison."""
+        rows = self._warm
+        if self.noise is None:
+            self.noise = dataclasses.replace(noise_from_log(_log(rows, self.param.model, self.where)),
+                                             source=f"estimated from the first {len(rows)} samples")
+            if self.noise.is_zero:
+                raise SpaceidError(f"{self.where}: the first {len(rows)} samples show no noise: give the noise levels "
+                                   "(--noise-*)")
+        try:
+            self._ident = self._identify(rows, f"segment {len(self.segments)} warm-up")
+        except SpaceidError:
+            if self._target + self.warmup > self.max_segment:
+                raise
+            self._target += self.warmup  # not excited yet (e.g. the arm at rest): wait for more samples
+            return []
+        self._theta_ref = self._ident.values[self._eq.free]
+        self._sigma = signal_sigma(self.param, self.noise)
+        block = self._whitened(_log(rows, self.param.model, self.where))[0]
+        block = block.reshape(-1, block.shape[-1])
+        self._scale = _column_scale(block[:, :-1])
+        self._R = _accumulate_factor(None, np.asfortranarray(block / np.r_[self._scale, 1.0]))
+        for row in rows:
+            self._thinned.add(row)
+            self._recent.append(row)
+        self._warm = []
+        return self._complete_pending()
+
+    def _whitened(self, log: Log, derivatives: bool = False) -> tuple:
+        """``log``'s equations ``[A | b]`` whitened by ``S_n`` at the linearisation point, ``(n, rows,
+        p + 1)``, the Cholesky factors ``L_n (n, rows, rows)`` of ``S_n`` and, if ``derivatives``, those
+        of the equations ``[A | -b]`` in each signal, ``(n, rows, p + 1, n_x)`` (the equation error's
+        Jacobian at any estimate is their product with ``[theta; 1]``)."""
+        eq = dataclasses.replace(self._eq, rot=quat_to_matrix(log.base_quat))
+        x = eq.signals(log)
+        L = _whiten(equation_covariance(eq.jacobian(x, self._theta_ref), self._sigma))
+        white = np.linalg.solve(L, eq.phi(x))
+        white[..., -1] *= -1
+        if not derivatives:
+            return white, L, None
+        n, n_x = x.shape  # every signal direction in one call: the regressor's cost is mostly per call
+        tiled = dataclasses.replace(eq, rot=np.tile(eq.rot, (n_x, 1, 1)))
+        D = tiled.dphi(np.tile(x, (n_x, 1)), np.repeat(np.eye(n_x), n, axis=0))
+        return white, L, np.moveaxis(D.reshape((n_x, n) + D.shape[1:]), 0, -1)
+
+    def _complete_pending(self) -> list:
+        if self._pending is None:
+            return []
+        before = self.segments[-1]["identification"]
+        res = compare(before, self._ident, where=self.where)["parameters"]
+        event = MonitorEvent(**self._pending, changed=tuple(p["name"] for p in res if abs(p["z"]) > Z_CHANGED),
+                             parameters=tuple(res))
+        self._pending = None
+        self.events.append(event)
+        return [event]
+
+    def _close(self, end):
+        """Close the running segment at ``end`` [s] (None: the last sample) and identify it."""
+        if end is not None:
+            self._thinned.until(end)
+        rows = self._thinned.rows or self._warm
+        record = {"index": len(self.segments), "start": self._start, "end": end, "n_samples": self._count,
+                  "n_identified": len(rows), "identification": None, "recursive": self.estimate()}
+        if rows and self.noise is not None:
+            try:
+                record["identification"] = self._identify(rows, f"segment {len(self.segments)}")
+            except SpaceidError:  # too short or not excited: the record says so by its None
+                pass
+        self.segments.append(record)
+
+    # --- samples -----------------------------------------------------------------------------
+
+    def estimate(self) -> dict | None:
+        """The recursive estimate of the running segment: ``values`` (all minimal parameters),
+        ``std`` and the ``linearization`` point (the warm-up's batch estimate), each ``(k,)``; None
+        during the warm-up. With forgetting 1 it is the weighted
+        least-squares estimate of the segment's samples (weights at the linearisation point)."""
+        if self._R is None:
+            return None
+        p = len(self._scale)
+        r = self._R[:p, :p]
+        theta = solve_triangular(r, self._R[:p, p]) / self._scale
+        r_inv = solve_triangular(r, np.eye(p))
+        std = np.sqrt(np.einsum("ij,ij->i", r_inv, r_inv)) / self._scale
+        values, stds = self._ident.values.copy(), np.zeros(self.param.n_params)
+        values[self._eq.free], stds[self._eq.free] = theta, std
+        return {"values": values, "std": stds, "linearization": self._ident.values}
+
+    def _step(self, row, white, L, D) -> bool:
+        """Test one sample, then add it; True on an alarm. ``white``, ``L``, ``D``: the sample's
+        whitened equations, their whitener and derivatives (:meth:`_whitened`)."""
+        p = len(self._scale)
+        a, b = white[:, :-1] / self._scale, white[:, -1]
+        r = self._R[:p, :p]
+        theta = lapack.dtrtrs(r, self._R[:p, p])[0]
+        e = b - a @ theta
+        u = lapack.dtrtrs(r, a.T, trans=1)[0]  # r^-T a^T: u^T u is the estimate's share of the innovation
+        # the equation error's covariance at the estimate so far (the weights stay at the linearisation point)
+        J = np.einsum("rcx,c->rx", D, np.append(theta / self._scale, 1.0))
+        Li = np.linalg.inv(L)
+        C = Li @ equation_covariance(J[None], self._sigma)[0] @ Li.T + u.T @ u
+        c, d = self._increment
+        stat = float(e @ np.linalg.solve(C, e))
+        self._g = max(0.0, self._g + c * stat - d)
+        self._excursion.append((row[0], stat))
+        self.n_tested += 1
+        if self._g > self.threshold:
+            return True
+        if self._g == 0:
+            self._excursion.clear()
+        if self.forgetting < 1:
+            self._R *= math.sqrt(self.forgetting)
+        self._R = _accumulate_factor(self._R, np.asfortranarray(np.column_stack([a, b])))
+        self._thinned.add(row)
+        self._recent.append(row)
+        self._count += 1
+        return False
+
+    def _change_time(self) -> tuple:
+        """The estimated change time [s] and the samples from it to the alarm: the start of the
+        excursion's tail that maximises the likelihood ratio of an innovation variance ratio
+        estimated from that tail (the CUSUM's own start, tuned to one ratio, often includes a
+        sample or two before a large change)."""
+        t, stat = np.array(self._excursion).T
+        n = np.arange(len(stat), 0, -1) * self.param.rows
+        ratio = np.maximum(np.cumsum(stat[::-1])[::-1] / n, 1.0)
+        i = int(np.argmax(n / 2 * (ratio - 1 - np.log(ratio))))
+        return float(t[i]), len(stat) - i
+
+    def _alarm(self, row):
+        """Close the segment at the estimated change and open the next one with the samples since."""
+        onset, delay = self._change_time()
+        self._pending = {"index": len(self.events), "time": onset, "detected_at": float(row[0]),
+                         "delay": delay, "statistic": float(self._g), "threshold": self.threshold}
+        self._close(onset)
+        handed = [r for r in self._recent if r[0] >= onset] + [row]
+        self._recent.clear()
+        self._open(start=float(onset))
+        self._warm, self._count = handed, len(handed)
+
+    def update(self, samples: Log) -> list:
+        """Feed new samples (a :class:`~spaceid.data.Log` of one or more rows, after those fed
+        before); returns the events they complete, in order (often none)."""
+        rows, events, i = _rows(samples), [], 0
+        if self._start is None and rows:
+            self._start = float(rows[0][0])
+        self.n_samples += len(rows)
+        while True:
+            if self._R is None and len(self._warm) >= self._target:
+                events += self._begin_testing()
+                continue
+            if i >= len(rows):
+                break
+            if self._R is None:  # warming up
+                take = min(len(rows) - i, self._target - len(self._warm))
+                self._warm += rows[i : i + take]
+                self._count += take
+                i += take
+                continue
+            end = min(len(rows), i + self._block)
+            white, L, D = self._whitened(samples.select(slice(i, end)), derivatives=True)
+            for k in range(len(white)):
+                if self._step(rows[i + k], white[k], L[k], D[k]):
+                    self._alarm(rows[i + k])
+                    end = i + k + 1
+                    break
+            i = end
+        return events
+
+    def finish(self) -> dict:
+        """Close the last segment and return the record of the run (``EVENTS.json``, see
+        docs/formats/events-json.md), with each segment's batch identification."""
+        self._close(None)
+        if self._pending is not None:  # an alarm too close to the end for a warm-up: compare with what there is
+            before, after = (s["identification"] for s in self.segments[-2:])
+            res = compare(before, after, where=self.where)["parameters"] if before and after else []
+            self.events.append(MonitorEvent(**self._pending, parameters=tuple(res),
+                                            changed=tuple(p["name"] for p in res if abs(p["z"]) > Z_CHANGED)))
+            self._pending = None
+        return self.record()
+
+    def _segment_change(self, k: int) -> dict | None:
+        """The change across event ``k`` from the batch identifications of the whole segments on
+        either side (None until both are closed and identified): ``changed`` and ``parameters``
+        as in :class:`MonitorEvent`."""
+        pair = self.segments[k : k + 2]
+        if len(pair) < 2 or None in (pair[0]["identification"], pair[1]["identification"]):
+            return None
+        res = compare(pair[0]["identification"], pair[1]["identification"], where=self.where)["parameters"]
+        return {"changed": [q["name"] for q in res if abs(q["z"]) > Z_CHANGED], "parameters": res}
+
+    def record(self) -> dict:
+        """The JSON-ready record of the events and closed segments so far."""
+        names = list(self.param.names)
+
+        def segment(s):
+            ident, rec = s["identification"], s["recursive"]
+            return {k: s[k] for k in ("index", "start", "end", "n_samples", "n_identified")} | {
+                "parameters": None if ident is None else [
+                    {"name": n, "value": float(v), "std": float(e)} for n, v, e in zip(names, ident.values, ident.std)],
+                "chi2_dof": None if ident is None else ident.settings.get("chi2_dof"),
+                "recursive": None if rec is None else {k: v.tolist() for k, v in rec.items()},
+            }
+
+        return {
+            "model": self.param.model.source or self.param.model.name,
+            "planar": self.param.model.planar,
+            "momentum": self.momentum.tolist(),
+            "n_samples": self.n_samples,
+            "n_tested": self.n_tested,
+            "settings": {
+                "test": "CUSUM of the chi-square log-likelihood ratio of the normalised innovations",
+                "false_alarm_rate": self.false_alarm_rate, "change_ratio": self.change_ratio,
+                "threshold": self.threshold, "expected_delay": self.expected_delay,
+                "forgetting": self.forgetting, "warmup": self.warmup, "estimator": self.estimator,
+                "max_segment": self.max_segment, "known": self.known, "z_changed": Z_CHANGED,
+                "noise": None if self.noise is None else self.noise.to_dict(), "parameter_names": names,
+            },
+            "events": [e.to_dict() | {"segments": self._segment_change(e.index)} for e in self.events],
+            "segments": [segment(s) for s in self.segments],
+        }
+
+
+def _chunks(samples):
+    """``samples`` as an iterable of logs: a whole :class:`~spaceid.data.Log` in ``CHUNK`` rows."""
+    if isinstance(samples, Log):
+        return (samples.select(slice(i, i + CHUNK)) for i in range(0, samples.n_samples, CHUNK))
+    return samples
+
+
+def monitor(param: Parameterization, samples, momentum, **options):
+    """Yield the changes of a running log as its samples arrive.
+
+    Parameters
+    ----------
+    param : Parameterization
+        Minimal parameter set of the model.
+    samples : Log or iterable of Log
+        The samples, in time order: a whole log, or logs of one or more new rows each (a growing
+        file, :func:`spaceid.data.follow_log`).
+    momentum : array_like of shape (3,)
+        Inertial angular momentum of the whole system [N m s].
+    **options
+        Keywords of :class:`Monitor` (``known``, ``noise``, ``false_alarm_rate``, ``change_ratio``,
+        ``forgetting``, ``warmup``, ``estimator``, ``max_segment``, ``where``).
+
+    Yields
+    ------
+    MonitorEvent
+        Each change, once the segment after it has its warm-up identified (or at the end of the
+        samples). The generator's return value (``StopIteration.value``) is the run's record,
+        :meth:`Monitor.finish`.
+    """
+    mon = Monitor(param, momentum, **options)
+    for chunk in _chunks(samples):
+        yield from mon.update(chunk)
+    seen = len(mon.events)
+    record = mon.finish()
+    yield from mon.events[seen:]
+    return record

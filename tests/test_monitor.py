@@ -1,0 +1,265 @@
+"""Change detection on a running log (spaceid.estimation.monitor, spaceid monitor): the CUSUM's
+threshold, the recursive estimate against the batch one, a capture found where it happened, the
+false-alarm rate, the generator against the CLI, and a file that grows while it is followed."""
+
+import dataclasses
+import json
+import threading
+import time
+
+import numpy as np
+import pytest
+from conftest import random_tree
+
+from spaceid.cli import main
+from spaceid.data import Log, write_log
+from spaceid.dynamics import minimal_parameters
+from spaceid.estimation import Monitor, Noise, cusum_run_length, cusum_threshold, equation_covariance, monitor
+from spaceid.estimation import signal_sigma
+from spaceid.estimation._equations import _equations
+from spaceid.estimation._monitor import _increment
+from spaceid.models import load_model
+from spaceid.models._model import inertial_vector
+from spaceid.motion import add_noise, simulate
+
+RATE = 100.0  # [Hz]
+H = np.array([0.0, 0.0, 0.5])  # [N m s]
+T_CAPTURE = 6.0  # [s]
+NOISE = Noise(angle=1e-4, rate=1e-3, base_rate=1e-3, attitude=1e-4)
+FREQ, PHASE = np.array([0.31, 0.47]), np.array([0.3, 1.1])  # a motion that excites every parameter, for any length
+
+
+def _motion(t):
+    arg = 2 * np.pi * FREQ * np.asarray(t)[:, None] + PHASE
+    return 0.5 * np.sin(arg), 0.5 * 2 * np.pi * FREQ * np.cos(arg)
+
+
+def _with_payload(model, body, mass, point):
+    """``model`` with a point mass [kg] at ``point`` [m, body frame] fixed to ``body``."""
+    bodies = [dataclasses.replace(b, inertial=b.inertial + inertial_vector(mass, point, np.zeros((3, 3))))
+              if b.name == body else b for b in model.bodies]
+    return dataclasses.replace(model, bodies=tuple(bodies))
+
+
+@pytest.fixture(scope="module")
+def cepheus():
+    model = load_model("cepheus")
+    return model, minimal_parameters(model)
+
+
+def _concatenate(a: Log, b: Log) -> Log:
+    return Log(np.r_[a.t, b.t], a.joints, np.r_[a.q, b.q], np.r_[a.qd, b.qd], np.r_[a.base_quat, b.base_quat],
+               np.r_[a.base_w, b.base_w], planar=a.planar)
+
+
+@pytest.fixture(scope="module")
+def capture(cepheus):
+    """Cepheus grasping 0.1 kg at 0.2 m along link2 at T_CAPTURE, from rest relative to the table:
+    the momentum carries over, the simulation continues from the same attitude. Noise-free log, the
+    captured parameters."""
+    model, param = cepheus
+    captured = minimal_parameters(_with_payload(model, "link2", 0.1, [0.2, 0, 0]))
+    t = np.arange(1200) / RATE
+    before = simulate(param, param.true_values, _motion, t[t <= T_CAPTURE], H, model=model)
+    after = simulate(param, captured.true_values, _motion, t[t >= T_CAPTURE], H, initial_quat=before.base_quat[-1])
+    return _concatenate(before.select(slice(0, -1)), after), captured.true_values
+
+
+@pytest.fixture(scope="module")
+def steady(cepheus):
+    model, param = cepheus
+    return simulate(param, param.true_values, _motion, np.arange(2000) / RATE, H, model=model)
+
+
+def _noisy(log, seed):
+    return add_noise(log, angle=NOISE.angle, rate=NOISE.rate, seed=seed)
+
+
+@pytest.mark.parametrize("rows", [1, 3])
+def test_threshold_gives_the_stated_run_length(rows):
+    alpha = 1e-2
+    h = cusum_threshold(alpha, rows)
+    assert 0 < h <= np.log(1 / alpha)  # Lorden: ARL >= e^h
+    c, d = _increment(rows, 4.0)
+    x = (c * np.random.default_rng(rows).chisquare(rows, 400_000) - d).tolist()
+    g, alarms = 0.0, 0
+    for v in x:  # the CUSUM itself, restarted after each alarm
+        g = max(0.0, g + v)
+        if g > h:
+            alarms, g = alarms + 1, 0.0
+    assert alarms / len(x) == pytest.approx(alpha, rel=0.1)  # ~4000 alarms: 1.6 % counting error
+    assert cusum_run_length(h, rows, actual=4.0) < cusum_run_length(h, rows) / 10  # a change shortens it
+
+
+def test_recursive_estimate_equals_batch_weighted_least_squares(cepheus, steady):
+    _, param = cepheus
+    log = _noisy(steady, 3)
+    mon = Monitor(param, H, noise=NOISE, false_alarm_rate=1e-9)
+    for i in range(0, log.n_samples, 97):  # chunks of any size: the same recursion
+        mon.update(log.select(slice(i, i + 97)))
+    assert not mon.events
+    rec = mon.estimate()
+    eq, _ = _equations(param, log, H, {}, "log")
+    x = eq.signals(log)
+    S = equation_covariance(eq.jacobian(x, rec["linearization"]), signal_sigma(param, NOISE))
+    white = np.linalg.solve(np.linalg.cholesky(S), eq.phi(x)).reshape(-1, param.n_params + 1)
+    batch, *_ = np.linalg.lstsq(white[:, :-1], -white[:, -1], rcond=None)
+    assert np.max(np.abs(rec["values"] - batch) / np.abs(batch)) < 1e-10
+    cov = np.linalg.inv(white[:, :-1].T @ white[:, :-1])
+    np.testing.assert_allclose(rec["std"], np.sqrt(np.diag(cov)), rtol=1e-8)
+    z = (rec["values"] - param.true_values) / rec["std"]
+    assert np.all(np.abs(z) < 5)  # the noisy estimate within its predicted errors
+
+
+def test_finds_the_capture_within_a_few_samples(capture):
+    log, truth = capture
+    param = minimal_parameters(load_model("cepheus"))
+    events = list(monitor(param, _noisy(log, 1), H, noise=NOISE))
+    assert len(events) == 1
+    (event,) = events
+    assert abs(event.time - T_CAPTURE) <= 2 / RATE and event.detected_at - T_CAPTURE <= 3 / RATE
+    assert event.statistic > event.threshold
+
+
+@pytest.mark.slow
+def test_segments_reidentified_on_either_side_of_the_capture(capture, cepheus):
+    log, truth = capture
+    _, param = cepheus
+    mon = Monitor(param, H, noise=NOISE)
+    mon.update(_noisy(log, 2))
+    record = mon.finish()
+    assert len(record["events"]) == 1 and len(record["segments"]) == 2
+    for segment, pi in zip(mon.segments, (param.true_values, truth)):
+        ident = segment["identification"]
+        assert np.all(np.abs(ident.values - pi) < 5 * ident.std)
+    change = record["events"][0]["segments"]
+    moved = np.abs(truth - param.true_values) / param.true_values > 0.1
+    assert set(change["changed"]) >= {n for n, m in zip(param.names, moved) if m}
+
+
+@pytest.mark.parametrize("forgetting", [1.0, 0.99])
+def test_no_event_without_a_change(cepheus, steady, forgetting):
+    _, param = cepheus
+    mon = Monitor(param, H, noise=NOISE, forgetting=forgetting)
+    mon.update(_noisy(steady, 4))
+    rec = mon.estimate()
+    assert mon.finish()["events"] == []
+    assert np.all(np.abs(rec["values"] - param.true_values) < 5 * rec["std"])  # forgetting: a looser estimate
+
+
+@pytest.mark.slow
+def test_false_alarm_rate_as_stated(cepheus, steady):
+    """At 1e-3 false alarms per sample, 12 seeded 2000-sample logs without a change: the count of
+    alarms (~20 expected) within three Poisson standard deviations of the stated rate."""
+    _, param = cepheus
+    alarms = tested = 0
+    for seed in range(12):
+        mon = Monitor(param, H, noise=NOISE, false_alarm_rate=1e-3, estimator="wls")
+        mon.update(_noisy(steady, 100 + seed))
+        record = mon.finish()
+        alarms, tested = alarms + len(record["events"]), tested + record["n_tested"]
+    expected = 1e-3 * tested
+    assert abs(alarms - expected) < 3 * np.sqrt(expected), (alarms, expected)
+
+
+def _cli_events(tmp_path, log_path, *extra):
+    out = tmp_path / "events.json"
+    code = main(["monitor", "cepheus", str(log_path), "--momentum", "0.5", "--noise-angle", "1e-4", "--noise-rate",
+                 "1e-3", "--noise-base-rate", "1e-3", "-o", str(out), *extra])
+    assert code == 0
+    return json.loads(out.read_text())
+
+
+def _same_events(a, b):
+    assert [(e["time"], e["detected_at"], e["delay"], e["changed"]) for e in a] == \
+        [(e["time"], e["detected_at"], e["delay"], e["changed"]) for e in b]
+    for x, y in zip(a, b):
+        assert x["statistic"] == pytest.approx(y["statistic"], rel=1e-9)
+
+
+@pytest.mark.slow
+def test_generator_yields_the_events_of_the_cli(capture, cepheus, tmp_path):
+    log, _ = capture
+    _, param = cepheus
+    noisy = _noisy(log, 5)
+    write_log(tmp_path / "log.csv", noisy)
+    cuts = np.cumsum(np.resize([1, 1, 1, 7, 31, 2], noisy.n_samples))  # one sample at a time, and bursts
+    arriving = (noisy.select(slice(a, b)) for a, b in zip(np.r_[0, cuts], cuts) if a < noisy.n_samples)
+    events = [e.to_dict() for e in monitor(param, arriving, H, noise=NOISE)]
+    record = _cli_events(tmp_path, tmp_path / "log.csv")
+    assert len(events) == 1
+    _same_events(events, record["events"])
+
+
+@pytest.mark.slow
+def test_follow_reads_a_growing_file(capture, tmp_path):
+    log, _ = capture
+    noisy = _noisy(log, 6)
+    write_log(tmp_path / "whole.csv", noisy)
+    lines = (tmp_path / "whole.csv").read_text().splitlines(keepends=True)
+    growing = tmp_path / "growing.csv"
+
+    def writer():  # the header, then rows in bursts, a burst ending halfway through a line
+        with open(growing, "w") as f:
+            f.write(lines[0])
+            f.flush()
+            for start in range(1, len(lines), 150):
+                burst = "".join(lines[start : start + 150])
+                f.write(burst[:-7])
+                f.flush()
+                time.sleep(0.05)
+                f.write(burst[-7:])
+                f.flush()
+
+    thread = threading.Thread(target=writer)
+    thread.start()
+    followed = _cli_events(tmp_path, growing, "--follow", "--follow-timeout", "2")
+    thread.join()
+    whole = _cli_events(tmp_path, tmp_path / "whole.csv")
+    assert followed["n_samples"] == whole["n_samples"] == noisy.n_samples
+    _same_events(followed["events"], whole["events"])
+    assert len(whole["events"]) == 1
+
+
+def test_errors_name_the_option(tmp_path, steady, capsys):
+    write_log(tmp_path / "log.csv", steady)
+    base = ["monitor", "cepheus", str(tmp_path / "log.csv"), "--momentum", "0.5", "-o", str(tmp_path / "e.json")]
+    assert main(base + ["--noise-rate", "0"]) == 2
+    assert "--noise-*: all zero" in capsys.readouterr().err
+    assert main(base + ["--false-alarm-rate", "2"]) == 2
+    assert "--false-alarm-rate" in capsys.readouterr().err
+    assert main(base + ["--follow", "--joint-topic", "/j"]) == 2
+    assert "bag options" in capsys.readouterr().err
+    at_rest = [a if a != "0.5" else "0" for a in base]
+    assert main(at_rest + ["--noise-rate", "1e-3"]) == 2  # zero momentum and no anchor: an error at the start
+    assert "--known NAME=VALUE" in capsys.readouterr().err
+
+
+def test_cli_defaults_are_the_library_ones():
+    from spaceid.cli import monitor as command
+    from spaceid.estimation._monitor import CHANGE_RATIO, FALSE_ALARM_RATE, WARMUP
+
+    defaults = {p.name: p.default for p in command.params}
+    assert (defaults["false_alarm_rate"], defaults["change_ratio"]) == (FALSE_ALARM_RATE, CHANGE_RATIO)
+    assert f"max({WARMUP}," in next(p.help for p in command.params if p.name == "warmup")
+
+
+@pytest.mark.slow
+def test_finds_a_capture_on_a_spatial_tree():
+    """A random spatial three-body tree (28 parameters, three equations a sample) grasping 0.3 kg on
+    its last body half-way through a 50 Hz log."""
+    model = random_tree(np.random.default_rng(1), [0, 1], planar=False)
+    param = minimal_parameters(model)
+    freq, phase = np.array([0.27, 0.41]), np.array([0.5, 2.0])
+
+    def motion(t):
+        arg = 2 * np.pi * freq * np.asarray(t)[:, None] + phase
+        return 0.8 * np.sin(arg), 0.8 * 2 * np.pi * freq * np.cos(arg)
+
+    h, t = np.array([0.5, -0.4, 0.8]), np.arange(1500) / 50
+    captured = minimal_parameters(_with_payload(model, model.bodies[-1].name, 0.3, [0.1, -0.05, 0.02]))
+    before = simulate(param, param.true_values, motion, t[t <= 15.0], h, model=model)
+    after = simulate(param, captured.true_values, motion, t[t >= 15.0], h, initial_quat=before.base_quat[-1])
+    log = _noisy(_concatenate(before.select(slice(0, -1)), after), 7)
+    events = list(monitor(param, log, h, noise=NOISE))
+    assert len(events) == 1 and abs(events[0].time - 15.0) <= 2 / 50
