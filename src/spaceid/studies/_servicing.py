@@ -35,7 +35,7 @@ from .._inputs import MiB, read_input_text
 from .._yaml import parse_yaml
 from ..data import Log, write_bag, write_json, write_log
 from ..dynamics import minimal_parameters
-from ..estimation import Identification, Noise
+from ..estimation import Identification, Monitor, Noise
 from ..identified import identify_payload
 from ..motion import FourierTrajectory
 from ..twin import Capture, drained_model, join_runs, place_payload, run_twin
@@ -192,8 +192,6 @@ def _monitor(model, log: Log, before: Identification, seed: int) -> dict:
     """The monitor's record over ``log`` (momentum zero: the system started at rest, the wheel
     measured), the structure of the servicer before the grasp, the noise levels of ``before``
     scaled to its chi2/dof = 1 (the equation-error covariance is quadratic in them)."""
-    from ..estimation import Monitor  # noqa: PLC0415 (the monitor lands from another branch; import at the top then)
-
     levels = before.settings["noise"]
     scale = np.sqrt(before.settings.get("chi2_dof") or 1.0)
     noise = Noise(**{k: levels[k] * scale for k in ("angle", "rate", "base_rate", "attitude")},
