@@ -615,10 +615,10 @@ def plot_tracking(t, designed, executed, joints, path, *, samples=None, title=No
 
 
 @_styled
-def _draw_capture_monitor(log: Log, scores: dict) -> Figure:
+def _draw_capture_monitor(log: Log, scores: dict, joints) -> Figure:
     """The figure of :func:`plot_capture_monitor`."""
     t = log.t - scores["grasp time [s]"]
-    arm = [j for j in log.joints if "wheel" not in j]
+    arm = list(joints)
     fig = _new_figure((7.2, 5.2))
     top, bottom = fig.subplots(2, 1, sharex=True)
     for j, name in enumerate(arm):
@@ -647,7 +647,7 @@ def _draw_capture_monitor(log: Log, scores: dict) -> Figure:
     return fig
 
 
-def plot_capture_monitor(log: Log, scores: dict, path) -> Path:
+def plot_capture_monitor(log: Log, scores: dict, path, *, joints) -> Path:
     """The servicing recording with the grasp, the detected change and the alarm marked.
 
     Parameters
@@ -660,12 +660,14 @@ def plot_capture_monitor(log: Log, scores: dict, path) -> Path:
         times on ``log``'s clock.
     path : path-like
         Output PNG.
+    joints : sequence of str
+        The joints whose angles are drawn (the arm's).
 
     Returns
     -------
     Path
     """
-    return _save(_draw_capture_monitor(log, scores), path)
+    return _save(_draw_capture_monitor(log, scores, joints), path)
 
 
 @_styled

@@ -249,7 +249,7 @@ def write_servicing(folder: Path, result: ServicingResult) -> tuple:
     write_log(folder / "capture_truth.csv", result.run.truth)
     result.trajectory.save(folder / "capture_trajectory.json")
     s = result.scores
-    plot_capture_monitor(result.log, s, folder / "capture.png")
+    plot_capture_monitor(result.log, s, folder / "capture.png", joints=result.trajectory.joints)
     plot_payload(s["payload"], folder / "payload.png", link=result.truth["link"])
     units = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"}
     rows = [(p["name"], units.get(p["name"], "kg m^2"), f"{p['true']:.6g}", f"{p['estimate']:.6g}", f"{p['std']:.2g}",
