@@ -48,6 +48,9 @@ MONITOR_WARMUP = 100
 """Samples of each monitored segment identified before its test starts (2 s at the bag's 50 Hz):
 the 5 s held-out motion then leaves 3 s tested before the grasp. The monitor's default, 200,
 leaves 1 s, and a false alarm then starts a segment whose warm-up covers the grasp."""
+EARLY = 0.5
+"""How long before the grasp [s] an event still counts as the grasp's: the differentiated rates
+see the motion that starts at the grasp up to half the differentiator's window earlier."""
 SETTINGS_KEYS = ("mass", "com", "inertia", "velocity", "rate", "link", "offset", "yaw")
 
 
@@ -170,10 +173,8 @@ def run_servicing(held_out_run, protocol: CaptureProtocol, trajectory: FourierTr
                    settings=replace(settings, capture=capture), seed=seed)  # fmt: skip
     truth = run.meta["capture"]
     write_bag(bag, join_runs(held_out_run, run).recording, format=_bag_format(bag))
-    full = read_bag(bag)
-    origin = full.meta["time_origin_ns"] / 1e9  # the reader's times start at a whole second
-    grasp = truth["time"] - origin
-    log = replace(full, meta=dict(full.meta, grasp_time=grasp))
+    log = read_bag(bag)
+    grasp = truth["time"] - log.meta["time_origin_ns"] / 1e9  # the reader's times start at a whole second
     events = _monitor(model, log, before, seed)
     after = (log.t > grasp + 1e-9) & (log.t <= grasp + trajectory.duration + 1e-9)
     window = replace(log.select(after), meta=dict(log.meta, window=[grasp, grasp + trajectory.duration]))
@@ -203,14 +204,15 @@ def _monitor(model, log: Log, before: Identification, seed: int) -> dict:
 
 
 def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict:
-    """The payload against its truth (z-scores) and the first change at or after the held-out
-    motion's warm-up against the grasp, in seconds and in samples of ``log``."""
+    """The payload against its truth (z-scores), and the first event from ``EARLY`` before the
+    grasp on against the grasp, in seconds and in samples of ``log`` (earlier events: false alarms)."""
     payload = truth["payload"]
     true = {"m": payload["mass"], "cx": payload["com"][0], "cy": payload["com"][1], "cz": payload["com"][2]}
-    true |= dict(zip(("Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"), np.asarray(payload["inertia"])[np.triu_indices(3)]))
+    inertia = np.asarray(payload["inertia"])
+    true |= dict(zip(("Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"), inertia[[0, 0, 1, 0, 1, 2], [0, 1, 1, 2, 2, 2]]))
     true = np.array([true[n] for n in estimate.names])
     dt = float(np.median(np.diff(log.t)))
-    found = [e for e in events["events"] if e["time"] >= grasp - 0.5]  # a change near the grasp; earlier: false
+    found = [e for e in events["events"] if e["time"] >= grasp - EARLY]
     first = found[0] if found else None
     return {
         "payload": [{"name": n, "true": float(t), "estimate": float(v), "std": float(e),
