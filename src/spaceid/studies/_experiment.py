@@ -402,9 +402,11 @@ def _capture_trajectory(choice, traj: FourierTrajectory, capture: CaptureProtoco
         return load_trajectory(choice, joints=ARM_JOINTS)
     from ..motion import design_excitation
 
-    arm = minimal_parameters(load_model("cepheus"))  # the arm with the wheel locked, as for the excitation
-    return design_excitation(arm, duration=traj.duration, harmonics=3, samples=samples, momentum=[0.0, 0.0, momentum],
-                             seed=seed + 2, progress=progress, payload_link=capture.payload.link or "link2").trajectory
+    locked = load_model("cepheus")  # the arm with the wheel locked, as for the excitation
+    link = capture.payload.link or locked.bodies[-1].name  # the Capture default: the last body
+    return design_excitation(minimal_parameters(locked), duration=traj.duration, harmonics=3, samples=samples,
+                             momentum=[0.0, 0.0, momentum], seed=seed + 2, progress=progress,
+                             payload_link=link).trajectory  # fmt: skip
 
 
 def _capture_record(capture: CaptureProtocol, servicing, choice, bag_format: str) -> dict:
