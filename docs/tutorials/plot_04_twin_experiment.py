@@ -14,6 +14,10 @@ records a ROS bag, and identifies and validates from the bag as from a real run.
 
     spaceid experiment --trajectory paper-table2 --out spaceid-experiment
     spaceid experiment --trajectory paper-table2 --ideal      # friction, thrusters, limits, tank off
+    spaceid experiment --ideal --capture   # then grasp a payload, detect the change, identify it
+
+(``--capture``, the servicing sequence, is described with its measured output in
+:doc:`/theory/capture`.)
 
 (The motion-capture noise of the second experiment below is a library setting,
 :class:`spaceid.twin.MotionCapture`, not a command-line option.)

@@ -877,12 +877,20 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--rehearsals", type=click.IntRange(min=0), default=0, show_default=True,
               help="Rehearsals of the excitation at most, each refining the arm's reference by the encoder error "
               "(iterative learning control); they stop at 5 mrad RMS.")
+@click.option("--capture", is_flag=True, help="After the held-out motion, grasp a free-floating payload and run the "
+              "servicing sequence: post-capture excitation, change detection over the recording, the payload "
+              "identified with the twin's servicer and scored against the truth.")
+@click.option("--capture-mass", type=float, help="With --capture: the payload's mass [kg] (default 0.5).")
+@click.option("--capture-settings", type=click.Path(path_type=Path), help="With --capture: a YAML or JSON file of "
+              "the payload: mass, com, inertia, velocity, rate, link, offset, yaw (docs: theory/capture).")
+@click.option("--capture-trajectory", default="same", show_default=True, help="With --capture: the post-capture "
+              "excitation: same (the identification excitation), designed (for the payload) or a file from 'design'.")
 @SEED
 @click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-experiment", show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
 @OVERWRITE
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift, feedforward,
-               rehearsals, seed, folder, overwrite):
+               rehearsals, capture, capture_mass, capture_settings, capture_trajectory, seed, folder, overwrite):
     """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
     identify from the recorded bag (N samples and all of the excitation), validate the identified
     model on the held-out motion (Fig. 6).
@@ -890,20 +898,24 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default.
     """
     from .estimation import parse_drift
-    from .studies import run_experiment
+    from .studies import capture_protocol, run_experiment
     from .studies import parameter_table
     from .twin import TwinSettings
 
     model = {"cepheus": "cepheus-rw"}.get(model_src, model_src)
     settings = TwinSettings(model=model)
     settings = settings.without_effects() if ideal else settings
+    if not capture and (capture_mass is not None or capture_settings is not None or capture_trajectory != "same"):
+        raise SpaceidError("--capture-mass, --capture-settings and --capture-trajectory need --capture")
+    protocol = capture_protocol(capture_settings, mass=capture_mass) if capture else None
     with (_progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress,
           _report_folder(folder, overwrite) as tmp):
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
                              bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=tmp,
                              out_name=folder,
                              progress=progress, drift=parse_drift(drift, planar=True, values=False),
-                             feedforward=feedforward, rehearsals=rehearsals)
+                             feedforward=feedforward, rehearsals=rehearsals, capture=protocol,
+                             capture_trajectory=capture_trajectory)
     out.print(parameter_table(res.ident, true=res.true))
     track = res.settings["tracking RMS, encoders vs design [rad]"]
     out.print(f"tracking RMS (encoders vs design): {', '.join(f'{j} {v:.3g}' for j, v in track.items())} rad")
@@ -915,7 +927,24 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     out.print(f"validation on the held-out motion ({res.settings['validation trajectory']}): base-rate RMS error "
               f"{res.metrics['base_w_rms']:.3g} rad/s ({100 * res.metrics['base_w_nrms']:.3g} %); on the fitting "
               f"log, which checks only the fit: {100 * res.fit_metrics['base_w_nrms']:.3g} %", highlight=False)
+    if res.servicing is not None:
+        _print_servicing(res.servicing.scores)
     out.print(f"report written to {shown_name(folder)}/report.md")
+
+
+def _print_servicing(scores: dict) -> None:
+    """The payload against its truth and the detected change against the grasp, as printed."""
+    for p in scores["payload"]:
+        z = "" if p["z"] is None else f", z = {p['z']:+.2f}"
+        out.print(f"payload {p['name']:>3s} = {p['estimate']:.5g} +/- {p['std']:.2g} (truth {p['true']:.5g}{z})",
+                  highlight=False)
+    if scores["detected change time [s]"] is None:
+        out.print(f"change detection: no change found near the grasp ({scores['events']} events)")
+        return
+    out.print(f"change detected {scores['change time error [s]']:+.3g} s from the grasp "
+              f"({scores['change time error [samples]']:+g} samples), alarm at "
+              f"{scores['alarm time from the grasp [s]']:+.3g} s from it; "
+              f"{scores['events before the grasp (false alarms)']} false alarms before it", highlight=False)
 
 
 @app.command(short_help="How the parameters changed between two identifications.")

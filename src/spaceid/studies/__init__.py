@@ -2,7 +2,7 @@
 level), the paper's demo, the twin experiment, Monte Carlo, design sweeps, figures and reports.
 """
 
-from . import _validate, _torque_validation, _figures, _tables, _report, _demo, _experiment
+from . import _validate, _torque_validation, _figures, _tables, _report, _demo, _servicing, _experiment
 from . import _montecarlo, _montecarlo_runs, _montecarlo_stats, _sweep
 from ._validate import *  # noqa: F403
 from ._torque_validation import *  # noqa: F403
@@ -10,6 +10,7 @@ from ._figures import *  # noqa: F403
 from ._tables import *  # noqa: F403
 from ._report import *  # noqa: F403
 from ._demo import *  # noqa: F403
+from ._servicing import *  # noqa: F403
 from ._experiment import *  # noqa: F403
 from ._montecarlo import *  # noqa: F403
 from ._montecarlo_runs import *  # noqa: F403
@@ -18,6 +19,6 @@ from ._sweep import *  # noqa: F403
 
 __all__ = (
     _validate.__all__ + _torque_validation.__all__ + _figures.__all__ + _tables.__all__ + _report.__all__
-    + _demo.__all__ + _experiment.__all__
+    + _demo.__all__ + _servicing.__all__ + _experiment.__all__
     + _montecarlo.__all__ + _montecarlo_runs.__all__ + _montecarlo_stats.__all__ + _sweep.__all__
 )  # fmt: skip

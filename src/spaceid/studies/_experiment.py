@@ -40,6 +40,7 @@ from ..models import load_model
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin
 from ._tracking import check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings
+from ._servicing import CaptureProtocol, run_servicing, write_servicing
 from ._torque_validation import validate_torques
 from ._validate import validate
 
@@ -76,6 +77,9 @@ class ExperimentResult:
     settings : dict
         Protocol, twin settings, seeds, bag.
     folder : Path or None
+    servicing : ServicingResult or None
+        With ``capture``: the grasp, change detection and payload identification
+        (:mod:`~spaceid.studies._servicing`).
     """
 
     ident: Identification
@@ -90,6 +94,7 @@ class ExperimentResult:
     fit_metrics: dict
     settings: dict
     folder: Path | None = None
+    servicing: object = None
 
     def to_dict(self) -> dict:
         def errors(ident):
@@ -102,7 +107,7 @@ class ExperimentResult:
             "relative_error_percent_all_samples": errors(self.ident_all),
             "validation": self.metrics,
             "validation_fit_log": self.fit_metrics,
-        }
+        } | ({} if self.servicing is None else {"capture": self.servicing.scores})
 
 
 def _trajectory(trajectory, *, momentum, samples, seed, progress):
@@ -228,6 +233,8 @@ def run_experiment(
     drift=(),
     feedforward: bool = True,
     rehearsals: int = 0,
+    capture: CaptureProtocol | None = None,
+    capture_trajectory="same",
 ) -> ExperimentResult:
     """Rehearse the Cepheus identification experiment on the twin.
 
@@ -256,7 +263,8 @@ def run_experiment(
     seed : int
         Seeds the design, the spin-up phase (seed), the excitation phase (seed + 1), the hold
         at the start pose (seed + 2), rehearsal k (seed + 3 + k), the validation design
-        (seed + 1) and the held-out phase (seed + 3 + rehearsals).
+        (seed + 1), the held-out phase (seed + 3 + rehearsals), and with ``capture`` the
+        post-capture design (seed + 2) and phase (seed + 4 + rehearsals).
     out : path-like, optional
         Report folder: the bags of the excitation and of the held-out motion (``validation.bag``,
         ...), ``mapping.yaml`` (how to read them), the aligned log CSVs, results, figures and
@@ -279,6 +287,15 @@ def run_experiment(
         Rehearsals of the excitation at most before the recorded run, each refining the arm's
         reference by what the encoders showed (iterative learning control); they stop once the
         tracking error is within 5 mrad RMS.
+    capture : CaptureProtocol, optional
+        After the held-out motion, grasp this payload and run the servicing sequence
+        (:mod:`~spaceid.studies._servicing`): post-capture excitation, change detection over the
+        recording from the held-out motion on, the payload identified and scored against the
+        twin's truth; the report gains a capture section.
+    capture_trajectory : {"same", "designed"} or path or FourierTrajectory
+        The post-capture excitation: ``same``, the identification excitation again; ``designed``,
+        designed for the payload's parameters (``design_excitation(..., payload_link=...)``,
+        seed + 2); or a trajectory file.
 
     The settings record how the excitation was executed, the tracking error (encoders against
     the design) and cond(Y) of the designed and the executed motion at the same instants.
@@ -328,15 +345,22 @@ def run_experiment(
         write_bag(bag, run.recording, format=bag_format)
         full = _read_bag(bag, model, settings, joint_rates, named / bag.name)
         held_out = _held_out_log(c, vtraj, folder_bag, bag_format, model, settings, joint_rates, named)
+        log = _excitation(full, start, traj.duration)
+        chosen = _nearest(log.t, start + sample_times(traj.duration, int(samples)))
+        zero = np.zeros(3)  # started at rest: the whole system, wheel included, carries no momentum
+        rest = full.select(full.t <= start + traj.duration + 1e-9) if drift else None  # friction acts from rest on
+        ident = identify(param, log.select(chosen), zero, estimator=estimator, where=where, drift=drift, history=rest)
+        ident_all = identify(param, log, zero, estimator=estimator, where=where, drift=drift, history=rest)
+        capture_bag = folder_bag / BAG_NAMES[bag_format].replace("run", "capture", 1)
+        servicing = None if capture is None else run_servicing(
+            c, capture, _capture_trajectory(capture_trajectory, traj, capture, momentum=rotor * wheel_speed,
+                                            samples=int(samples), seed=seed, progress=progress),
+            settings=settings, model=model, before=ident_all, drift=drift, seed=seed + 4 + rehearsals,
+            read_bag=lambda path: _read_bag(path, model, settings, joint_rates, named / path.name),
+            bag=capture_bag)  # fmt: skip
     finally:
         if scratch is not None:
             scratch.cleanup()
-    log = _excitation(full, start, traj.duration)
-    chosen = _nearest(log.t, start + sample_times(traj.duration, int(samples)))
-    zero = np.zeros(3)  # started at rest: the whole system, wheel included, carries no momentum
-    rest = full.select(full.t <= start + traj.duration + 1e-9) if drift else None  # friction acts from rest on
-    ident = identify(param, log.select(chosen), zero, estimator=estimator, where=where, drift=drift, history=rest)
-    ident_all = identify(param, log, zero, estimator=estimator, where=where, drift=drift, history=rest)
     predicted, metrics, fit_metrics = _held_out_validation(ident, log, held_out, None if drift else zero, where)
     if held_out.tau is not None:  # the twin's joint efforts: the torque level beside, restarted every second
         try:
@@ -368,11 +392,51 @@ def run_experiment(
         **_execution_record(execution, param, traj, log, chosen, start, (ident, ident_all), wheel_speed),
     }
     protocol |= _validation_protocol(vtraj, vname, held_out, _held_out_seed(seed, rehearsals))
+    if capture is not None:
+        protocol |= _capture_record(capture, servicing, capture_trajectory, bag_format)
     result = ExperimentResult(ident, ident_all, true, log, predicted, metrics, traj, held_out, vtraj, fit_metrics,
-                              dict(protocol, twin=settings.to_dict()), folder)  # fmt: skip
+                              dict(protocol, twin=settings.to_dict()), folder, servicing)  # fmt: skip
     if folder is not None:
         _write_report(result, run, c)
     return result
+
+
+def _capture_trajectory(choice, traj: FourierTrajectory, capture: CaptureProtocol, *, momentum, samples, seed,
+                        progress) -> FourierTrajectory:
+    """The post-capture excitation of ``run_experiment(capture_trajectory=choice)``."""
+    if isinstance(choice, FourierTrajectory):
+        return choice
+    if str(choice) == "same":
+        return traj
+    if str(choice) != "designed":
+        return load_trajectory(choice, joints=ARM_JOINTS)
+    from ..motion import design_excitation
+
+    locked = load_model("cepheus")  # the arm with the wheel locked, as for the excitation
+    link = capture.payload.link or locked.bodies[-1].name  # the Capture default: the last body
+    return design_excitation(minimal_parameters(locked), duration=traj.duration, harmonics=3, samples=samples,
+                             momentum=[0.0, 0.0, momentum], seed=seed + 2, progress=progress,
+                             payload_link=link).trajectory  # fmt: skip
+
+
+def _capture_record(capture: CaptureProtocol, servicing, choice, bag_format: str) -> dict:
+    """The capture's entries of the experiment's settings."""
+    truth, traj = servicing.truth, servicing.trajectory
+    return {
+        "capture payload mass [kg]": capture.payload.mass,
+        "capture payload CoM in its frame [m]": list(capture.payload.com),
+        "capture payload inertia about its CoM [kg m^2]": [list(r) for r in capture.payload.inertia],
+        "capture payload velocity [m/s], rate [rad/s]": [*capture.payload.velocity, capture.payload.rate],
+        "capture link": truth["link"],
+        "capture offset in the link [m], yaw [rad]": [*capture.offset, capture.yaw],
+        "capture time (twin clock) [s]": truth["time"],
+        "capture trajectory": traj.meta.get("name", str(choice) if not isinstance(choice, FourierTrajectory)
+                                            else "given"),
+        "capture trajectory seed": traj.meta.get("seed"),
+        "capture bag": f"{BAG_NAMES[bag_format].replace('run', 'capture', 1)} ({bag_format})",
+        "capture phase seed": servicing.scores["phase seed"],
+        "capture payload servicer model": "the twin's (CAD) servicer, tank as at the grasp",
+    }  # fmt: skip
 
 
 def _execution_record(execution, param, traj, log, chosen, start, idents, wheel_speed) -> dict:
@@ -440,9 +504,14 @@ def _write_report(result: ExperimentResult, run, held_out_run) -> None:
     settings["worst relative error, all samples [%]"] = round(worst_all, 4)
     effects = {k: v.get("enabled") for k, v in result.settings["twin"].items() if isinstance(v, dict) and "enabled" in v}
     settings["twin effects"] = ", ".join(f"{k} {'on' if on else 'off'}" for k, on in effects.items())
+    sections = {}
+    if result.servicing is not None:
+        lines, capture_figures = write_servicing(folder, result.servicing)
+        sections["Capture: change detection and the payload"] = lines
+        figures |= capture_figures
     write_markdown_report(
         folder, title="spaceid: the Cepheus experiment on the digital twin", ident=result.ident, settings=settings,
-        figures=figures, true=result.true, metrics=_labelled_metrics(result),
+        figures=figures, true=result.true, metrics=_labelled_metrics(result), sections=sections,
     )
 
 

@@ -25,7 +25,7 @@ from ._tables import _per_param, _relative_errors
 from ._validate import attitude_error_angle
 
 __all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_tracking", "plot_trajectory",
-           "plot_validation"]
+           "plot_validation", "plot_capture_monitor", "plot_payload"]
 
 DPI = 150
 _STYLE = {
@@ -609,3 +609,100 @@ def plot_tracking(t, designed, executed, joints, path, *, samples=None, title=No
     Path
     """
     return _save(_draw_tracking(t, designed, executed, joints, samples, title), path)
+
+
+# --- capture: change detection and the payload ---------------------------------------------------
+
+
+@_styled
+def _draw_capture_monitor(log: Log, scores: dict, joints) -> Figure:
+    """The figure of :func:`plot_capture_monitor`."""
+    t = log.t - scores["grasp time [s]"]
+    arm = list(joints)
+    fig = _new_figure((7.2, 5.2))
+    top, bottom = fig.subplots(2, 1, sharex=True)
+    for j, name in enumerate(arm):
+        top.plot(t, log.q[:, log.joints.index(name)], color=(_MEASURED, _ANCHOR)[j % 2], label=f"{name} (encoders)")
+    bottom.plot(t, log.base_w[:, -1], color=_MEASURED, label="base yaw rate (motion capture)")
+    detected = scores["detected change time [s]"]
+    for ax in (top, bottom):
+        ax.axvline(0.0, color=_TRUE, linewidth=2.0, label="grasp (twin's truth)")
+        if detected is not None:
+            ax.axvline(detected - scores["grasp time [s]"], color=_MODEL, linestyle="--", label="detected change")
+            ax.axvline(scores["detected at [s]"] - scores["grasp time [s]"], color=_LIMIT, linestyle=":",
+                       label="alarm (threshold crossed)")  # fmt: skip
+    top.set_ylabel("joint angle $q$ [rad]")
+    bottom.set_ylabel(r"base yaw rate $\omega_z$ [rad/s]")
+    bottom.set_xlabel("time since the grasp $t - t_g$ [s]")
+    entries = {}
+    for ax in (top, bottom):
+        entries.update(zip(*reversed(ax.get_legend_handles_labels())))
+    fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncols=3)
+    found = "no change detected" if detected is None else (
+        f"change at {scores['change time error [s]']:+.3g} s from the grasp "
+        f"({scores['change time error [samples]']:+g} samples), alarm at "
+        f"{scores['detected at [s]'] - scores['grasp time [s]']:+.3g} s")
+    fig.suptitle(f"Change detection over the servicing recording (held-out motion, grasp, post-capture "
+                 f"excitation)\n{found}")
+    return fig
+
+
+def plot_capture_monitor(log: Log, scores: dict, path, *, joints) -> Path:
+    """The servicing recording with the grasp, the detected change and the alarm marked.
+
+    Parameters
+    ----------
+    log : Log
+        The recording (held-out motion, grasp, post-capture excitation).
+    scores : dict
+        The keys ``grasp time [s]``, ``detected change time [s]``, ``detected at [s]``,
+        ``change time error [s]`` and ``change time error [samples]`` (None: no change found),
+        times on ``log``'s clock.
+    path : path-like
+        Output PNG.
+    joints : sequence of str
+        The joints whose angles are drawn (the arm's).
+
+    Returns
+    -------
+    Path
+    """
+    return _save(_draw_capture_monitor(log, scores, joints), path)
+
+
+@_styled
+def _draw_payload(rows, link: str) -> Figure:
+    """The figure of :func:`plot_payload`."""
+    units = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"}
+    fig = _new_figure((2.0 * len(rows) + 0.6, 3.0))
+    axes = fig.subplots(1, len(rows), squeeze=False)[0]
+    for ax, row in zip(axes, rows):
+        ax.errorbar([0], [row["estimate"]], yerr=[row["std"]], fmt="o", color=_MODEL, label="estimate, 1 std")
+        ax.axhline(row["true"], color=_TRUE, label="truth (twin)")
+        ax.set_xticks([])
+        ax.set_xlim(-1, 1)
+        ax.set_title(f"{_tex_name(row['name'])} [{_tex_unit(units.get(row['name'], 'kg m^2'))}]", loc="left")
+        if row["z"] is not None:
+            ax.set_title(f"z = {row['z']:+.2f}", loc="right", fontsize=8, color="0.35")
+    _figure_legend(fig, axes)
+    fig.suptitle(f"The payload held by {link}: estimate against truth (CoM and inertia in {link}'s frame)")
+    return fig
+
+
+def plot_payload(rows, path, *, link: str) -> Path:
+    """The payload's parameters, estimate with one standard error against the truth, a panel each.
+
+    Parameters
+    ----------
+    rows : list of dict
+        Per parameter ``name``, ``true``, ``estimate``, ``std`` [kg, m, kg m^2] and ``z`` (or None).
+    path : path-like
+        Output PNG.
+    link : str
+        The link that holds the payload (the frame of the CoM and inertia).
+
+    Returns
+    -------
+    Path
+    """
+    return _save(_draw_payload(rows, link), path)

@@ -67,8 +67,10 @@ def write_markdown_report(
     metrics: dict | None = None,
     reference_true=None,
     reference_label: str = "paper",
+    sections: dict | None = None,
 ) -> Path:
-    """Write ``folder/report.md``: settings, parameter table, fit quality, validation, figures.
+    """Write ``folder/report.md``: settings, parameter table, fit quality, validation, further
+    sections, figures.
 
     Parameters
     ----------
@@ -85,6 +87,8 @@ def write_markdown_report(
         As in :func:`parameter_table`.
     metrics : dict, optional
         Validation metrics, e.g. from ``spaceid.studies.validation_metrics``.
+    sections : dict of str to list of str, optional
+        Further sections before the figures: heading -> Markdown lines.
 
     Returns
     -------
@@ -127,6 +131,8 @@ def write_markdown_report(
     if metrics:
         lines += ["", "## Validation", ""]
         lines += _md_table(["metric", "value"], [(_md(metric_label(k)), _md_value(v)) for k, v in metrics.items()])
+    for heading, body in (sections or {}).items():
+        lines += ["", f"## {_md(heading)}", "", *body]
     if links:
         lines += ["", "## Figures"]
         for caption, link in links:

@@ -1,0 +1,270 @@
+"""The servicing sequence after the Cepheus experiment on the twin (``spaceid experiment --capture``).
+
+After the identification excitation and the held-out motion (:mod:`~spaceid.studies._experiment`),
+the end effector grasps a free-floating payload at rest on the table, at the gripper, the instant
+the held-out phase ends (the arm then holds still); from that instant the arm runs a post-capture
+excitation holding the payload. The held-out motion, the grasp and the post-capture excitation are
+recorded as one bag (``capture.bag``, ...), read back as a lab recording; then
+
+1. the change monitor (:class:`~spaceid.estimation.Monitor`, the servicer's minimal parameters as
+   its structure) runs over it sample by sample and reports the change it detects, scored against
+   the twin's grasp tick. Its noise levels are those of the excitation's log, scaled so that the
+   identification before fits it with chi2/dof = 1: the levels estimated from a log understate
+   the error of differentiated rates (chi2/dof about 30 on the ideal twin), and the CUSUM's
+   false-alarm rate holds only for the true levels;
+2. the payload is identified from the post-capture excitation (:func:`~spaceid.identified.identify_payload`)
+   with the twin's servicer model (the CAD model with the tank as it was at the grasp): the known
+   servicer of a servicing mission, and on the twin the truth, so that the z-scores against the
+   payload's truth test the payload's estimate and its standard errors alone. The servicer
+   identified before matches it only within its own errors, which would bias the payload by an
+   amount its standard errors do not include.
+
+Only the phases from the grasp on carry the capture: the rehearsals, the excitation and the
+held-out motion run on the servicer alone.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from .._errors import SpaceidError
+from .._inputs import MiB, read_input_text
+from .._yaml import parse_yaml
+from ..data import Log, write_bag, write_json, write_log
+from ..dynamics import minimal_parameters
+from ..estimation import Identification, Monitor, Noise
+from ..identified import identify_payload
+from ..motion import FourierTrajectory
+from ..twin import Capture, drained_model, join_runs, place_payload, run_twin
+
+__all__ = ["CaptureProtocol", "ServicingResult", "capture_protocol", "run_servicing", "write_servicing"]
+
+CAPTURE_OFFSET = (0.04, 0.0)
+"""Default payload frame origin in the grasping link's frame at the grasp [m]: at the gripper."""
+MONITOR_WARMUP = 100
+"""Samples of each monitored segment identified before its test starts (2 s at the bag's 50 Hz):
+the 5 s held-out motion then leaves 3 s tested before the grasp. The monitor's default, 200,
+leaves 1 s, and a false alarm then starts a segment whose warm-up covers the grasp."""
+EARLY = 0.5
+"""How long before the grasp [s] an event still counts as the grasp's: the differentiated rates
+see the motion that starts at the grasp up to half the differentiator's window earlier."""
+SETTINGS_KEYS = ("mass", "com", "inertia", "velocity", "rate", "link", "offset", "yaw")
+
+
+@dataclass(frozen=True)
+class CaptureProtocol:
+    """What the servicer grasps and how (``spaceid experiment --capture``; docs/theory/capture.md).
+
+    Attributes
+    ----------
+    payload : Capture
+        The payload: mass [kg], CoM in its frame [m], inertia about the CoM [kg m^2], its velocity
+        [m/s] and rate [rad/s], the grasping link; its time and pose are set at the grasp. Default
+        :class:`~spaceid.twin.Capture`'s: a 0.5 kg cylinder at rest, grasped by ``link2``.
+    offset : tuple of 2 floats
+        Payload frame origin in the grasping link's frame at the grasp [m].
+    yaw : float
+        Payload frame turned from the link's axes [rad].
+    """
+
+    payload: Capture
+    offset: tuple = CAPTURE_OFFSET
+    yaw: float = 0.0
+
+
+def capture_protocol(path=None, *, mass: float | None = None) -> CaptureProtocol:
+    """The capture of a YAML/JSON settings file ``path`` (keys ``SETTINGS_KEYS``, all optional), with
+    ``mass`` [kg] overriding its mass; neither: the defaults of :class:`CaptureProtocol`.
+
+    Raises
+    ------
+    SpaceidError
+        Not a mapping, an unknown key, or a value the twin refuses (the message names the key).
+    """
+    values = {}
+    if path is not None:
+        values = parse_yaml(read_input_text(path, "capture settings file", MiB), str(path)) or {}
+        if not isinstance(values, dict):
+            raise SpaceidError(f"{path}: capture settings must be a mapping of {', '.join(SETTINGS_KEYS)}")
+        unknown = sorted(set(values) - set(SETTINGS_KEYS))
+        if unknown:
+            raise SpaceidError(f"{path}: unknown capture setting(s) {', '.join(map(str, unknown))}: use "
+                               f"{', '.join(SETTINGS_KEYS)}")  # fmt: skip
+    if mass is not None:
+        values["mass"] = mass
+    offset = values.get("offset", CAPTURE_OFFSET)
+    if not (isinstance(offset, (list, tuple)) and len(offset) == 2 and all(np.isfinite(np.asarray(offset, float)))):
+        raise SpaceidError(f"capture offset must be 2 finite numbers (x, y) [m], got {offset!r}")
+    payload = {k: v for k, v in values.items() if k not in ("offset", "yaw")}
+    return CaptureProtocol(Capture(time=0.0, **payload), tuple(float(v) for v in offset),
+                           float(values.get("yaw", 0.0)))  # fmt: skip
+
+
+@dataclass(frozen=True)
+class ServicingResult:
+    """Outcome of :func:`run_servicing`.
+
+    Attributes
+    ----------
+    payload : PayloadEstimate
+        The payload identified from the post-capture excitation.
+    truth : dict
+        The twin's grasp record (:mod:`spaceid.twin._capture`): grasp tick, payload in the link frame, ...
+    events : dict
+        The monitor's record (``EVENTS.json``).
+    log : Log
+        The servicing recording read back: the held-out motion, the grasp, the post-capture excitation.
+    window : Log
+        The post-capture excitation of ``log``, which the payload is identified from.
+    trajectory : FourierTrajectory
+        The post-capture excitation.
+    scores : dict
+        Payload estimate against truth (z-scores) and the detected change time against the grasp.
+    run : TwinRun
+        The post-capture phase on the twin (its ``truth`` is written beside the report).
+    """
+
+    payload: object
+    truth: dict
+    events: dict
+    log: Log
+    window: Log
+    trajectory: FourierTrajectory
+    scores: dict
+    run: object
+
+
+def run_servicing(held_out_run, protocol: CaptureProtocol, trajectory: FourierTrajectory, *, settings, model,
+                  before: Identification, read_bag, bag: Path, drift=(), seed: int = 0) -> ServicingResult:
+    """Grasp, post-capture excitation, recording, change detection and payload identification.
+
+    Parameters
+    ----------
+    held_out_run : TwinRun
+        The held-out phase: the monitor's recording starts with it, and the grasp is at its end.
+    protocol : CaptureProtocol
+    trajectory : FourierTrajectory
+        The post-capture excitation (run for its duration and one second of hold).
+    settings : TwinSettings
+        The twin without a capture (it is set here for the post-capture phase only).
+    model : Model
+        The twin's model (the servicer).
+    before : Identification
+        The identification before the grasp (all samples of the excitation): its noise levels,
+        scaled by its chi2/dof, are the monitor's.
+    read_bag : callable
+        ``read_bag(path) -> Log``: how the experiment reads its bags.
+    bag : Path
+        Where the servicing bag is written (its format from the suffix the experiment chose).
+    drift : tuple of str
+        Drift terms estimated with the payload (its momentum is then estimated too).
+    seed : int
+        Seed of the post-capture phase; the minimal sets' seed.
+
+    Returns
+    -------
+    ServicingResult
+    """
+    capture = place_payload(protocol.payload, model, held_out_run.state, offset=protocol.offset, yaw=protocol.yaw)
+    run = run_twin(trajectory, duration=trajectory.duration + 1.0, state=held_out_run.state,
+                   settings=replace(settings, capture=capture), seed=seed)  # fmt: skip
+    truth = run.meta["capture"]
+    write_bag(bag, join_runs(held_out_run, run).recording, format=_bag_format(bag))
+    log = read_bag(bag)
+    grasp = truth["time"] - log.meta["time_origin_ns"] / 1e9  # the reader's times start at a whole second
+    events = _monitor(model, log, before, seed)
+    after = (log.t > grasp + 1e-9) & (log.t <= grasp + trajectory.duration + 1e-9)
+    window = replace(log.select(after), meta=dict(log.meta, window=[grasp, grasp + trajectory.duration]))
+    servicer = drained_model(model, settings.tank, truth["co2_mass"]) if settings.tank.enabled else model
+    estimate = identify_payload(servicer, window, truth["link"], None if drift else np.zeros(3), drift=drift, seed=seed,
+                                where=f"{bag} (post-capture excitation)")  # fmt: skip
+    scores = _scores(estimate, truth, events, log, grasp)
+    return ServicingResult(estimate, truth, events, log, window, trajectory, scores | {"phase seed": seed}, run)
+
+
+def _bag_format(bag: Path) -> str:
+    return {".bag": "ros1", ".mcap": "mcap"}.get(bag.suffix, "ros2")
+
+
+def _monitor(model, log: Log, before: Identification, seed: int) -> dict:
+    """The monitor's record over ``log`` (momentum zero: the system started at rest, the wheel
+    measured), the structure of the servicer before the grasp, the noise levels of ``before``
+    scaled to its chi2/dof = 1 (the equation-error covariance is quadratic in them)."""
+    levels = before.settings["noise"]
+    scale = np.sqrt(before.settings.get("chi2_dof") or 1.0)
+    noise = Noise(**{k: levels[k] * scale for k in ("angle", "rate", "base_rate", "attitude")},
+                  source=f"{levels['source']}, scaled by sqrt(chi2/dof) = {scale:.3g} of the identification before")
+    mon = Monitor(minimal_parameters(model, seed=seed), np.zeros(3), noise=noise, warmup=MONITOR_WARMUP,
+                  where=str(log.meta.get("source", "log")))
+    mon.update(log)
+    return mon.finish()
+
+
+def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict:
+    """The payload against its truth (z-scores), and the first event from ``EARLY`` before the
+    grasp on against the grasp, in seconds and in samples of ``log`` (earlier events: false alarms)."""
+    payload = truth["payload"]
+    true = {"m": payload["mass"], "cx": payload["com"][0], "cy": payload["com"][1], "cz": payload["com"][2]}
+    inertia = np.asarray(payload["inertia"])
+    true |= dict(zip(("Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"), inertia[[0, 0, 1, 0, 1, 2], [0, 1, 1, 2, 2, 2]]))
+    true = np.array([true[n] for n in estimate.names])
+    dt = float(np.median(np.diff(log.t)))
+    found = [e for e in events["events"] if e["time"] >= grasp - EARLY]
+    first = found[0] if found else None
+    return {
+        "payload": [{"name": n, "true": float(t), "estimate": float(v), "std": float(e),
+                     "z": float((v - t) / e) if e > 0 else None}
+                    for n, t, v, e in zip(estimate.names, true, estimate.values, estimate.std)],
+        "not identifiable": list(estimate.not_identifiable),
+        "grasp time [s]": grasp,
+        "detected change time [s]": None if first is None else first["time"],
+        "detected at [s]": None if first is None else first["detected_at"],
+        "change time error [s]": None if first is None else first["time"] - grasp,
+        "change time error [samples]": None if first is None else round((first["time"] - grasp) / dt, 1),
+        "alarm time from the grasp [s]": None if first is None else first["detected_at"] - grasp,
+        "events before the grasp (false alarms)": len(events["events"]) - len(found),
+        "events": len(events["events"]),
+        "sample period [s]": dt,
+    }
+
+
+def write_servicing(folder: Path, result: ServicingResult) -> tuple:
+    """The servicing files in ``folder`` (payload.json, events.json, capture_log.csv, capture_truth.csv
+    of the post-capture phase, capture_trajectory.json, capture.png, payload.png).
+
+    Returns
+    -------
+    lines : list of str
+        The report's capture section (Markdown).
+    figures : dict
+        Its figures, caption -> file name.
+    """
+    from ._figures import plot_capture_monitor, plot_payload
+    from ._report import _md_table
+
+    write_json(folder / "payload.json", result.payload.to_dict())
+    write_json(folder / "events.json", result.events)
+    write_log(folder / "capture_log.csv", result.log)
+    write_log(folder / "capture_truth.csv", result.run.truth)
+    result.trajectory.save(folder / "capture_trajectory.json")
+    s = result.scores
+    plot_capture_monitor(result.log, s, folder / "capture.png", joints=result.trajectory.joints)
+    plot_payload(s["payload"], folder / "payload.png", link=result.truth["link"])
+    units = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"}
+    rows = [(p["name"], units.get(p["name"], "kg m^2"), f"{p['true']:.6g}", f"{p['estimate']:.6g}", f"{p['std']:.2g}",
+             "" if p["z"] is None else f"{p['z']:+.2f}") for p in s["payload"]]  # fmt: skip
+    lines = [f"The payload grasped by `{result.truth['link']}` (mass, CoM and inertia about the CoM in its frame), "
+             "identified from the post-capture excitation with the twin's servicer model, against the twin's truth:",
+             "", *_md_table(["parameter", "unit", "true", "estimate", "std", "z"], rows), ""]  # fmt: skip
+    if s["not identifiable"]:
+        lines += [f"Not identifiable from planar motion: {', '.join(s['not identifiable'])}.", ""]
+    timing = [(k, "none" if v is None else f"{v:.4g}" if isinstance(v, float) else str(v)) for k, v in s.items()
+              if k not in ("payload", "not identifiable")]  # fmt: skip
+    lines += ["Change detection over the servicing recording (held-out motion, grasp, post-capture excitation):", "",
+              *_md_table(["", "value"], timing)]  # fmt: skip
+    figures = {"Change detection: the servicing recording, the grasp and the detected change": "capture.png",
+               "The payload: estimate against truth, with one standard error": "payload.png"}
+    return lines, figures
