@@ -39,7 +39,7 @@ from scipy.linalg import solve_triangular
 
 from .._cache import cache_key, read_cached, write_cached
 from .._errors import SpaceidError
-from .._threads import blas_threads
+from .._threads import work_threads
 from ._definitions import column_definitions, planar_definitions
 from ._kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
@@ -248,7 +248,7 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
                 out[rows] = np.moveaxis(y if weights is None else weights @ y, -1, 0)[: rows.stop - rows.start]
 
     starts = range(0, n, block * _BLOCKS)
-    threads = min(len(starts), blas_threads())
+    threads = min(len(starts), work_threads())
     if threads > 1:  # a pool per call: no idle threads left behind for forked workers to inherit
         with ThreadPoolExecutor(threads) as pool:
             list(pool.map(run, [starts[i::threads] for i in range(threads)]))
