@@ -107,3 +107,26 @@ def test_bad_chunk_is_refused(spatial, estimator, chunk, match):
     param, log, h = spatial
     with pytest.raises(SpaceidError, match=f"--chunk: .*{match}"):
         identify(param, log, h, estimator=estimator, noise=NOISE, chunk=chunk)
+
+
+def test_cli_identify_streamed(tmp_path, capsys):
+    """``spaceid identify --chunk`` writes the in-memory result (to round-off); a bad chunk is a one-line error."""
+    import json
+
+    from spaceid.cli import main
+
+    log = tmp_path / "log.csv"
+    assert main(["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.4934", "--samples", "300",
+                 "--noise-angle", "1e-4", "--noise-rate", "1e-4", "-o", str(log)]) == 0  # fmt: skip
+    results = []
+    for extra in ([], ["--chunk", "64"]):
+        out = tmp_path / f"r{len(extra)}.json"
+        assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "--estimator", "wls", "-o", str(out),
+                     *extra]) == 0  # fmt: skip
+        results.append(json.loads(out.read_text()))
+    values = [np.array([p["value"] for p in r["parameters"]]) for r in results]
+    assert np.abs(values[1] - values[0]).max() <= 1e-12 * np.abs(values[0]).max()
+    capsys.readouterr()
+    assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "--chunk", "64", "-o",
+                 str(tmp_path / "x.json")]) == 2  # fmt: skip
+    assert "error: --chunk: estimator 'ml' runs in memory only" in capsys.readouterr().err
