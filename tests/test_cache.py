@@ -31,7 +31,7 @@ def _same(a, b, model, rng):
     assert np.array_equal(a.regressor(q, qd, w0), b.regressor(q, qd, w0))
 
 
-@pytest.mark.parametrize("planar", [True, False])
+@pytest.mark.parametrize("planar", [pytest.param(True, marks=pytest.mark.slow), False])  # planar: SymPy definitions
 def test_cached_set_is_the_derived_one(rng, monkeypatch, tmp_path, planar):
     """Written on the first derivation, read back (no derivation) identical to it, for the planar
     basis and the columns basis."""

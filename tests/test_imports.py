@@ -3,6 +3,8 @@
 import subprocess
 import sys
 
+import pytest
+
 
 def _imports_matplotlib(code):
     """Whether running ``code`` in a fresh interpreter imports matplotlib (its ``code`` asserts its own work)."""
@@ -11,6 +13,7 @@ def _imports_matplotlib(code):
     return out.stdout.strip().splitlines()[-1] == "True"
 
 
+@pytest.mark.slow  # a fresh interpreter simulating and identifying: seconds
 def test_identify_does_not_import_matplotlib(tmp_path):
     log, result = tmp_path / "log.csv", tmp_path / "result.json"
     code = (f"from spaceid.cli import main\n"
@@ -26,6 +29,7 @@ def test_help_and_the_studies_package_do_not_import_matplotlib():
     assert not _imports_matplotlib("import spaceid.studies, spaceid.cli")
 
 
+@pytest.mark.slow
 def test_figures_still_import_it(tmp_path):
     """The probe can fail: drawing a figure imports matplotlib."""
     code = ("import numpy as np\nfrom spaceid.studies import plot_trajectory\n"
