@@ -97,3 +97,12 @@ def pinocchio_momentum(pmodel, q, qd, w0):
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _cache_dir(tmp_path_factory):
+    """The on-disk cache of minimal sets in a fresh directory (not the user's), for every test and
+    the CLI runs they start."""
+    import os
+
+    os.environ["SPACEID_CACHE_DIR"] = str(tmp_path_factory.mktemp("cache"))

@@ -247,7 +247,7 @@ def test_blocks_do_not_show(rng, monkeypatch):
     one_by_one = np.stack([param.regressor(q[n], qd[n], w0[n]) for n in range(len(q))])
     monkeypatch.setattr(regressor, "_BLOCK", 4)
     monkeypatch.setattr(regressor, "_BLOCKS", 3)  # several kinematics calls, the last block padded
-    monkeypatch.setattr(regressor, "blas_threads", lambda: 2)  # three groups on two threads
+    monkeypatch.setattr(regressor, "work_threads", lambda: 2)  # three groups on two threads
     h = whole @ param.true_values
     for got, ref in ((param.regressor(q, qd, w0), whole), (one_by_one, whole), (energy_regressor(model, q, qd, w0), energy),
                      (param.momentum(q, qd, w0, param.true_values), h)):
@@ -267,6 +267,25 @@ def test_blas_thread_limit_is_scoped():
         with one_blas_thread():
             assert blas_threads() == 1
         assert blas_threads() == 2
+
+
+def test_work_threads_leave_busy_cores_alone(monkeypatch):
+    """Block-parallel work takes the BLAS limit on idle cores, one thread on a loaded machine."""
+    import os
+
+    from threadpoolctl import threadpool_limits
+
+    from spaceid._threads import work_threads
+
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    with threadpool_limits(2, user_api="blas"):
+        monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.0, 0.0))
+        assert work_threads() == 2
+        monkeypatch.setattr(os, "getloadavg", lambda: (14.0, 8.0, 4.0))
+        assert work_threads() == 1
+    with threadpool_limits(1, user_api="blas"):
+        monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+        assert work_threads() == 1
 
 
 def test_one_naming_scheme_for_inertial_parameters():

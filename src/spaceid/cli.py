@@ -584,10 +584,13 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "the data show a drift.")
 @click.option("--com", "with_com", is_flag=True, help="Also identify the system-CM terms from the log's base position "
               "(base_x, base_y or base_px, base_py, base_pz [m]; zero linear momentum): RESULT.json field 'com'.")
+@click.option("--chunk", type=int, help="Stream the identification (--estimator ols, wls or iv): build the equations "
+              "this many samples at a time, so that memory does not grow with the regressor (e.g. 4096 for long logs "
+              "of large robots); the result agrees with the in-memory one to round-off; no drift residual test.")
 @bag_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
-             knot_spacing, drift, with_com, output, bag):
+             knot_spacing, drift, with_com, chunk, output, bag):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -617,7 +620,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         reference = traj.evaluate(log.t - log.t[0])[:2]
     with _warnings_to_stderr():
         ident = run(param, log, h, estimator=estimator, known=known, noise=noise, instruments=reference,
-                    where=str(log_path), knot_spacing=knot_spacing, drift=kinds)
+                    where=str(log_path), knot_spacing=knot_spacing, drift=kinds, chunk=chunk)
     if with_com:
         ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())

@@ -75,7 +75,7 @@ import numpy as np
 from scipy.linalg import cho_solve, lapack, solve_triangular
 from scipy.optimize import brentq
 
-from .._threads import blas_threads, one_blas_thread
+from .._threads import one_blas_thread, work_threads
 from ..dynamics import base_rate
 from ._equations import _split
 from ._noise import FD_STEP, equation_covariance
@@ -164,7 +164,7 @@ def _accumulate_gram(G, block):
 def _blockwise(A, b, scale, accumulate, combine):
     """``accumulate`` over the blocks of ``ROW_BLOCK`` rows of ``[A / scale | b]`` (``A (rows, p)``,
     ``b (rows,)``), as ``acc = accumulate(acc, block)`` from ``acc = None``: interleaved over
-    ``blas_threads()`` threads (LAPACK and BLAS release the GIL), whose results ``combine(acc, acc)``
+    ``work_threads()`` threads (LAPACK and BLAS release the GIL), whose results ``combine(acc, acc)``
     joins. BLAS runs on one thread meanwhile."""
     rows = max(ROW_BLOCK, 4 * (A.shape[1] + 1))
     starts = range(0, len(A), rows)
@@ -178,7 +178,7 @@ def _blockwise(A, b, scale, accumulate, combine):
             acc = accumulate(acc, block)
         return acc
 
-    threads = min(len(starts), blas_threads())
+    threads = min(len(starts), work_threads())
     with one_blas_thread():
         if threads > 1:  # a pool per call, as for the regressor: no idle threads left for forked workers
             with ThreadPoolExecutor(threads) as pool:

@@ -26,10 +26,11 @@ from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
-from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _triangular_factor
+from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
 from ._residuals import drift_test
 from ._result import Identification
+from ._stream import check_chunk, streamed_covariance, streamed_estimate, streamed_ols_factor
 from ._uncertainty import _reported_covariance
 
 __all__ = ["identify"]
@@ -66,13 +67,23 @@ def _check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
     and the condition number of the column-scaled regressor; raises when the right-hand side
     vanishes or the condition number reaches ``cond_limit`` (naming the parameters not excited)."""
     A, b = _split(phi)
-    if not np.any(b):
-        raise SpaceidError(f"{where}: the right-hand side is zero (no momentum and the anchored parameters' columns "
-                           "vanish, e.g. a reaction wheel at rest): spin the wheel or give the momentum")
+    _check_right_hand_side(np.any(b), where)
     # Columns scaled to unit norm: the scaled condition number decides excitation (it does not
     # depend on units). R is formed once: excitation check, singular values and the OLS solution.
     scale = _column_scale(A)
-    R = _triangular_factor(A, b, scale)
+    return _check_factor((scale, _triangular_factor(A, b, scale)), names, cond_limit, where)
+
+
+def _check_right_hand_side(nonzero: bool, where: str) -> None:
+    if not nonzero:
+        raise SpaceidError(f"{where}: the right-hand side is zero (no momentum and the anchored parameters' columns "
+                           "vanish, e.g. a reaction wheel at rest): spin the wheel or give the momentum")
+
+
+def _check_factor(factor, names, cond_limit: float, where: str) -> tuple:
+    """``factor`` and the scaled condition number of the regressor it factors, as
+    :func:`_check_excitation` returns them; raises when the condition number reaches ``cond_limit``."""
+    scale, R = factor
     with one_blas_thread():
         sv = np.linalg.svd(R[:-1, :-1], compute_uv=False)  # those of A / scale, to eps * sv[0]
     cond_scaled = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
@@ -84,7 +95,7 @@ def _check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
                "use an exciting trajectory (spaceid design) that moves every joint")
         raise SpaceidError(f"{where}: the regressor is rank-deficient (scaled cond {cond_scaled:.3g}); not excited: "
                            f"{', '.join(bad) or 'unclear'}: {fix}")
-    return (scale, R), cond_scaled
+    return factor, cond_scaled
 
 
 def _instrument_context(log: Log, instruments, where: str) -> dict:
@@ -113,6 +124,8 @@ def _full_covariance(eq, cov_t, k: int) -> tuple:
         h_std[eq.axes] = std[len(eq.free) : len(eq.free) + eq.n_h]
     return cov, h_std, std[len(std) - len(eq.drift) :]
 
+
+_STREAMED_DRIFT = {"run": False, "reason": "not run on a streamed identification (chunk=): run it in memory"}
 
 DRIFT_CORRELATION = 0.99
 """Drift coefficients whose estimates correlate beyond this are told apart by the log only weakly."""
@@ -164,20 +177,30 @@ def _singular_values(factor) -> np.ndarray:
         return np.linalg.svd(R[:-1, :-1] * scale, compute_uv=False)
 
 
-def _estimate(eq, x, log: Log, sigma, ctx: dict, estimator: str, estimated: bool) -> tuple:
+def _estimate(eq, x, log: Log, sigma, ctx: dict, estimator: str, estimated: bool, chunk=None) -> tuple:
     """``theta``, the estimator's record and :func:`_reported_covariance`'s ``(cov, rms,
-    record)``, from the OLS start; raises ``LinAlgError`` when the estimate is not finite (as the
+    record)``, from the OLS start, streamed over chunks of ``chunk`` samples when given
+    (:mod:`spaceid.estimation._stream`); raises ``LinAlgError`` when the estimate is not finite (as the
     factorisations do on singular systems), which :func:`identify` turns into a ``SpaceidError``."""
-    theta, info = _ols(eq, x, sigma, None, ctx)
+    if chunk:
+        theta, ginv = _solve_factor(*ctx["factor"][::-1])
+        info = {"ginv": ginv}
+    else:
+        theta, info = _ols(eq, x, sigma, None, ctx)
     if estimator != "ols":
         ols_info = info
-        theta, info = _KERNELS[estimator](eq, x, sigma, theta, ctx)
+        theta, info = (streamed_estimate(eq, x, sigma, theta, estimator, ctx, chunk) if chunk else
+                       _KERNELS[estimator](eq, x, sigma, theta, ctx))  # fmt: skip
         fallback = str(info.get("fallback")).split(":")[0]  # ML failed: WLS or OLS, with their covariance
         if fallback in ("wls", "ols"):
             estimator, info = fallback, info | (ols_info if fallback == "ols" else {})
     if not np.all(np.isfinite(theta)):
         raise np.linalg.LinAlgError("the estimate is not finite")
-    reported = _reported_covariance(eq, x, ctx["phi"], sigma, theta, estimator, info, log, estimated)
+    if chunk:
+        reported = streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimated, chunk)
+        info["chunk"] = chunk
+    else:
+        reported = _reported_covariance(eq, x, ctx["phi"], sigma, theta, estimator, info, log, estimated)
     info.pop("corrected", None)
     return theta, info, reported
 
@@ -227,6 +250,7 @@ def identify(
     knot_spacing: float = KNOT_SPACING,
     drift=(),
     history: Log | None = None,
+    chunk: int | None = None,
 ) -> Identification:
     """Estimate the minimal parameters from a measured motion.
 
@@ -271,6 +295,11 @@ def identify(
         the drift is integrated, ``momentum`` being the momentum there (e.g. a rest before the
         log: friction acted in between). The result's ``momentum`` is still the one at the
         log's first sample.
+    chunk : int, optional
+        Stream the identification (``ols``, ``wls``, ``iv``): the equations are built a chunk of
+        this many samples at a time and never held whole, so memory does not grow with the
+        regressor (:mod:`spaceid.estimation._stream`); the result agrees with the in-memory one
+        to round-off. The residual test for an unmodelled drift is not run then. Default: in memory.
 
     Returns
     -------
@@ -303,16 +332,26 @@ def identify(
     x = eq.signals(log)
     estimated = noise is None and estimator != "ols"  # ols needs no noise model
     noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
-    phi, ctx = _angle_context(eq, log, noise, where, knot_spacing) if estimator == "angles" else (eq.phi(x), {})
+    chunk = None if chunk is None else check_chunk(chunk, estimator)
+    if chunk:
+        phi, ctx = None, {}
+    else:
+        phi, ctx = _angle_context(eq, log, noise, where, knot_spacing) if estimator == "angles" else (eq.phi(x), {})
     try:
-        factor, cond_scaled = _check_excitation(phi, eq.names(), cond_limit, where)
+        if chunk:
+            factor, nonzero = streamed_ols_factor(eq, x, chunk)
+            _check_right_hand_side(nonzero, where)
+            factor, cond_scaled = _check_factor(factor, eq.names(), cond_limit, where)
+        else:
+            factor, cond_scaled = _check_excitation(phi, eq.names(), cond_limit, where)
         ctx |= {"phi": phi, "factor": factor}
         if estimator == "iv":
             ctx |= _instrument_context(log, instruments, where)
         sigma = signal_sigma(param, noise)
-        theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, estimator, estimated)
+        theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk)
         s = _singular_values(factor)
-        drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where)
+        drift_record, drift_warning = ((_STREAMED_DRIFT, "") if chunk else
+                                       _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where))
         pi, h = eq.full(theta)
         if history is not None and drift:  # the momentum at the log's first sample
             h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])

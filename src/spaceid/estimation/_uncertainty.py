@@ -79,18 +79,35 @@ def _newey_west(bread, M, r, bandwidth, p):
     scaled by ``n / (n - p)`` and, for a bandwidth ``b n``, by ``1 / (1 - b + b^2 / 3)``: the mean of
     the Bartlett estimate from residuals is that fraction of the truth when the bandwidth is not
     small against the log (Kiefer and Vogelsang's fixed-b result; on Cepheus at 501 samples and a
-    50-sample bandwidth it moved 2-sigma coverage from 0.94 to 0.95). Formed from the mapped
-    scores ``bread g_n``, so that at lag 0 it is a Gram matrix: no negative variances from
-    round-off when the residuals vanish. BLAS on one thread: on busy cores threaded BLAS took
-    these products (10,000 scores of 496 parameters) from 0.15 s to 0.5 s (measured)."""
+    50-sample bandwidth it moved 2-sigma coverage from 0.94 to 0.95). See :func:`_hac`."""
+    return _hac([_mapped_scores(bread, M, r)], bandwidth, p)
+
+
+def _mapped_scores(bread, M, r):
+    """The scores ``g_n = M_n^T r_n`` mapped by ``bread``: ``(n, p)`` rows ``bread g_n``."""
     with one_blas_thread():
-        x = np.einsum("nrp,nr->np", M, r) @ bread.T
-        cov = x.T @ x
-        for lag in range(1, min(bandwidth, len(x) - 1) + 1):
-            c = x[lag:].T @ x[:-lag]
-            cov += (1 - lag / (bandwidth + 1)) * (c + c.T)
-    b = min(bandwidth / len(x), 1.0)
-    return cov * len(x) / max(len(x) - p, 1) / (1 - b + b * b / 3)
+        return np.einsum("nrp,nr->np", M, r) @ bread.T
+
+
+def _hac(chunks, bandwidth, p):
+    """:func:`_newey_west` from the mapped scores ``bread g_n`` given as consecutive chunks
+    ``(n_c, p)`` in time order (one, or a stream of them: the lags reach back across chunks).
+
+    Formed from the mapped scores, so that at lag 0 it is a Gram matrix: no negative variances
+    from round-off when the residuals vanish. BLAS on one thread: on busy cores threaded BLAS took
+    these products (10,000 scores of 496 parameters) from 0.15 s to 0.5 s (measured)."""
+    cov, tail, n = 0.0, np.zeros((0, p)), 0
+    with one_blas_thread():
+        for x in chunks:
+            both = np.vstack([tail, x]) if len(tail) else x
+            cov = cov + x.T @ x
+            for lag in range(1, min(bandwidth, len(both) - 1) + 1):  # pairs (i, i - lag) with i in this chunk
+                first = max(len(tail), lag)
+                c = both[first:].T @ both[first - lag : len(both) - lag]
+                cov += (1 - lag / (bandwidth + 1)) * (c + c.T)
+            tail, n = both[max(len(both) - bandwidth, 0) :] if bandwidth else tail, n + len(x)
+    b = min(bandwidth / max(n, 1), 1.0)
+    return cov * n / max(n - p, 1) / (1 - b + b * b / 3)
 
 
 def _window_spans(node):
@@ -219,7 +236,27 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
         return _own_covariance(*info.pop("covariance"), estimated)
     t = _covariance_terms(eq, x, phi, sigma, theta, estimator, info)
     r, white = t["r"], t["white"]
-    rms = float(np.sqrt(np.mean(r**2)))
+    chi2, checks, choice = _covariance_choice(eq, r, white, estimator, log, estimated)
+    bandwidth, follows, factor = choice["bandwidth"], choice["covariance_from_residuals"], choice["variance_factor"]
+    if follows:
+        cov_t = _newey_west(t["bread"], t["M"], r, bandwidth, eq.p)
+    else:
+        cov_t = _sandwich(t["bread"], t["M"], t["L"]) * factor
+    return cov_t, float(np.sqrt(np.mean(r**2))), _covariance_record(chi2, checks, choice, log, estimated)
+
+
+def _covariance_record(chi2, checks, choice, log, estimated):
+    """The record of :func:`_reported_covariance` for the result's settings."""
+    return {"chi2_dof": chi2, "variance_factor": choice["variance_factor"], "covariance": choice["covariance"],
+            "covariance_from_residuals": choice["covariance_from_residuals"], "residual_checks": checks,
+            "noise_model_warning": _noise_model_warning(chi2, checks, log, estimated)}  # fmt: skip
+
+
+def _covariance_choice(eq, r, white, estimator, log, estimated):
+    """``chi2_dof`` (None without a noise model), the residual checks and the covariance chosen
+    from the residuals ``r (n, rows)`` and, with a noise model, their whitened form: a dict of
+    ``bandwidth`` (Newey-West lags, 0 for White), ``covariance_from_residuals``, ``variance_factor``
+    and ``covariance`` (how, in words); see :func:`_reported_covariance`."""
     dof = max(r.size - eq.p, 1)
     chi2 = None if white is None else float(np.sum(white**2) / dof)
     checks = _residual_checks(r if white is None else white, dof, chi2)
@@ -246,14 +283,8 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
             if estimated:  # levels from the log are rough (sparse logs mix signal into them): let the
                 factor = chi2  # residuals set the overall scale (a posteriori variance factor)
                 how = "noise model (levels estimated from the log) times the variance factor chi2_dof"
-    if follows:
-        cov_t = _newey_west(t["bread"], t["M"], r, bandwidth, eq.p)
-    else:
-        cov_t = _sandwich(t["bread"], t["M"], t["L"]) * factor
-    record = {"chi2_dof": chi2, "variance_factor": factor, "covariance": how, "covariance_from_residuals": follows,
-              "residual_checks": checks,
-              "noise_model_warning": _noise_model_warning(chi2, checks, log, estimated)}  # fmt: skip
-    return cov_t, rms, record  # chi2_dof None for ols
+    return chi2, checks, {"bandwidth": bandwidth, "covariance_from_residuals": follows, "variance_factor": factor,
+                          "covariance": how}  # fmt: skip
 
 
 def cramer_rao(param: Parameterization, log: Log, momentum, noise: Noise, *, known=None, estimate_momentum=False,

@@ -1,0 +1,158 @@
+"""Streaming identification and the fixed costs of a call, measured in one run.
+
+Streaming: ``identify(..., chunk=N)`` on servicer-dual logs (14 joints, 496 parameters) of
+random joint states whose base rate conserves h = [1, -2, 3] N m s, with 1e-3 noise on every
+signal, against the in-memory identification of the same log: wall time per sample and the peak
+memory of the call (tracemalloc, NumPy's arrays included) and of its process (peak RSS), each
+run in a fresh process. Fixed costs: the minimal-set derivation against a read of its on-disk
+cache; the Gram product ``A^T A`` of 10,000 servicer samples (30,000 x 496) with BLAS on 2
+threads and on 1, and through the blockwise accumulation the estimators use (2 Python threads
+over one-threaded BLAS, and 1); the imports of ``spaceid identify`` (matplotlib or not). Prints
+only, never fails on timings.
+
+    python benchmarks/bench_stream.py [--samples 10000 100000 1000000] [--estimators ols wls]
+        [--chunk 4096] [--memory-up-to 100000] [--parts stream fixed]
+"""
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+import tracemalloc
+import warnings
+
+import numpy as np
+
+
+def child(n, estimator, chunk):
+    """One identification in this process; prints its figures as JSON."""
+    import spaceid
+    from spaceid.data import Log
+    from spaceid.dynamics import base_rate
+    from spaceid.dynamics._regressor import _random_states
+    from spaceid.estimation import Noise, identify
+
+    model = spaceid.load_model("servicer-dual")
+    param = spaceid.minimal_parameters(model)
+    h = np.array([1.0, -2.0, 3.0])
+    q, qd, _ = _random_states(model, n, seed=1)
+    w = np.concatenate([base_rate(param, param.true_values, q[s : s + 10_000], qd[s : s + 10_000], h)
+                        for s in range(0, n, 10_000)])  # fmt: skip
+    rng = np.random.default_rng(2)
+    q, qd, w = (a + 1e-3 * rng.standard_normal(a.shape) for a in (q, qd, w))
+    log = Log(np.arange(n) * 1e-3, model.joints, q, qd, np.tile([1.0, 0, 0, 0], (n, 1)), w, False)
+    del q, qd, w
+    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    tracemalloc.start()
+    start = time.perf_counter()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = identify(param, log, h, estimator=estimator, noise=Noise(angle=1e-3, rate=1e-3, base_rate=1e-3),
+                          chunk=chunk or None)  # fmt: skip
+    wall = time.perf_counter() - start
+    peak = tracemalloc.get_traced_memory()[1] / 2**20
+    tracemalloc.stop()
+    z = np.abs(result.values - param.true_values) / result.std
+    print(json.dumps({"wall": wall, "traced_mb": peak, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+                      / 1024, "rss_before_mb": rss_before, "z_max": float(z.max()),
+                      "values": result.values[:3].tolist()}))  # fmt: skip
+
+
+def run_child(n, estimator, chunk):
+    out = subprocess.run([sys.executable, __file__, "--child", str(n), estimator, str(chunk)], capture_output=True,
+                         text=True)  # fmt: skip
+    if out.returncode:
+        return {"error": out.stderr.strip().splitlines()[-1]}
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def streaming(args):
+    print(f"servicer-dual, 1e-3 noise; streamed in chunks of {args.chunk} samples vs in memory (fresh process each)")
+    print(f"{'samples':>9} {'estimator':>9} {'mode':>9} {'wall s':>8} {'us/sample':>10} {'call peak MB':>12} "
+          f"{'RSS MB':>8} {'max z':>6}")
+    for n in args.samples:
+        for estimator in args.estimators:
+            modes = [("streamed", args.chunk)] + ([("memory", 0)] if n <= args.memory_up_to else [])
+            for mode, chunk in modes:
+                r = run_child(n, estimator, chunk)
+                if "error" in r:
+                    print(f"{n:>9} {estimator:>9} {mode:>9} failed: {r['error']}")
+                    continue
+                print(f"{n:>9} {estimator:>9} {mode:>9} {r['wall']:8.1f} {1e6 * r['wall'] / n:10.1f} "
+                      f"{r['traced_mb']:12.0f} {r['rss_mb']:8.0f} {r['z_max']:6.2f}", flush=True)
+
+
+def median_time(fn, repeats=5):
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return float(np.median(times))
+
+
+def fixed_costs():
+    import spaceid
+    from threadpoolctl import threadpool_limits
+
+    from spaceid.dynamics import _regressor
+    from spaceid.dynamics._kinematics import _Geometry
+    from spaceid.estimation import _estimators as E
+
+    model = spaceid.load_model("servicer-dual")
+    with tempfile.TemporaryDirectory() as cache:
+        os.environ["SPACEID_CACHE_DIR"] = cache
+        geometry = _Geometry(model)
+        derive = median_time(lambda: _regressor._derive_minimal(geometry, 1e-9, 0), 1)
+        _regressor._minimal_cached.__wrapped__(geometry, 1e-9, 0)  # written
+        cached = median_time(lambda: _regressor._minimal_cached.__wrapped__(geometry, 1e-9, 0), 3)
+    print(f"\nminimal set of servicer-dual: derived {derive:.2f} s, from the disk cache {cached:.3f} s")
+
+    rng = np.random.default_rng(0)
+    A, b, ones = rng.standard_normal((30_000, 496)), rng.standard_normal(30_000), np.ones(496)
+    res = {"BLAS 2 threads": [], "BLAS 1 thread": [], "blockwise, 2 threads": [], "blockwise, 1 thread": []}
+    for _ in range(5):  # alternated, so that a load change hits all
+        for threads in (2, 1):
+            with threadpool_limits(threads, user_api="blas"):
+                res[f"BLAS {threads} thread{'s' * (threads > 1)}"].append(median_time(lambda: A.T @ A, 1))
+                res[f"blockwise, {threads} thread{'s' * (threads > 1)}"].append(
+                    median_time(lambda: E._blockwise(A, b, ones, E._accumulate_gram, np.add), 1))
+    print(f"Gram product of 30,000 x 496 (10,000 servicer samples), median of 5; load {os.getloadavg()[0]:.1f} "
+          f"on {os.cpu_count()} cores")
+    for key, times in res.items():
+        print(f"  {key:22} {np.median(times):6.3f} s")
+
+    for name, code in (("import spaceid.studies (identify's imports)", "import spaceid.studies, spaceid.estimation"),):
+        out = subprocess.run([sys.executable, "-X", "importtime", "-c", code + "; import sys; "
+                              "print('matplotlib' in sys.modules)"], capture_output=True, text=True)  # fmt: skip
+        total = [line for line in out.stderr.splitlines() if line.rstrip().endswith("| spaceid.studies")]
+        mpl = [line for line in out.stderr.splitlines() if line.rstrip().endswith("| matplotlib")]
+        cost = lambda lines: int(lines[-1].split("|")[1]) / 1e6 if lines else 0.0  # noqa: E731
+        print(f"{name}: {cost(total):.2f} s, matplotlib imported: {out.stdout.strip()} ({cost(mpl):.2f} s)")
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, nargs="+", default=[10_000, 100_000])
+    parser.add_argument("--estimators", nargs="+", default=["ols"])
+    parser.add_argument("--chunk", type=int, default=4096)
+    parser.add_argument("--memory-up-to", type=int, default=100_000, help="in-memory runs up to this many samples")
+    parser.add_argument("--parts", nargs="+", default=["stream", "fixed"], choices=["stream", "fixed"])
+    parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.child:
+        return child(int(args.child[0]), args.child[1], int(args.child[2]))
+    os.environ.setdefault("SPACEID_CACHE_DIR", tempfile.mkdtemp(prefix="spaceid-bench-"))  # the children share it
+    if "fixed" in args.parts:
+        fixed_costs()
+    if "stream" in args.parts:
+        print()
+        streaming(args)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,59 @@
+"""The on-disk cache of derived data (the minimal parameter sets): arrays in ``.npz`` files named by
+a key, under ``$SPACEID_CACHE_DIR``, else ``$XDG_CACHE_HOME/spaceid``, else ``~/.cache/spaceid``.
+
+An entry records its key: a file that does not load, or holds another key, is ignored (and the
+caller's rewrite replaces it). Writes are atomic; a cache that cannot be written is skipped.
+Deleting the directory clears it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import zipfile
+from pathlib import Path
+
+import numpy as np
+
+from ._atomic import atomic_path
+
+__all__ = ["cache_dir", "cache_key", "read_cached", "write_cached"]
+
+
+def cache_dir() -> Path:
+    """The cache directory (not created): ``$SPACEID_CACHE_DIR``, ``$XDG_CACHE_HOME/spaceid`` or
+    ``~/.cache/spaceid``."""
+    if os.environ.get("SPACEID_CACHE_DIR"):
+        return Path(os.environ["SPACEID_CACHE_DIR"]).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base).expanduser() / "spaceid"
+
+
+def cache_key(*parts) -> str:
+    """Hex SHA-256 of the ``repr`` of ``parts`` (give them in a deterministic form: no sets)."""
+    return hashlib.sha256(repr(parts).encode()).hexdigest()
+
+
+def _path(kind: str, key: str) -> Path:
+    return cache_dir() / kind / f"{key}.npz"
+
+
+def read_cached(kind: str, key: str) -> dict | None:
+    """The arrays stored under ``kind``/``key``, or None when there is no such entry, or it does
+    not load or holds another key (corrupt or stale)."""
+    try:
+        with np.load(_path(kind, key), allow_pickle=False) as stored:
+            arrays = {name: stored[name] for name in stored.files}
+    except (OSError, ValueError, EOFError, KeyError, zipfile.BadZipFile):  # absent, truncated, damaged
+        return None
+    return arrays if str(arrays.pop("_key", "")) == key else None
+
+
+def write_cached(kind: str, key: str, arrays: dict) -> None:
+    """Store ``arrays`` (name to array, no objects) under ``kind``/``key``, atomically; a cache
+    that cannot be written (read-only home, full disk) is left alone."""
+    try:
+        with atomic_path(_path(kind, key)) as tmp, open(tmp, "wb") as out:
+            np.savez(out, _key=np.array(key), **arrays)
+    except OSError:
+        pass

@@ -1,0 +1,181 @@
+"""Streaming identification: the momentum equations of a log built, used and dropped a chunk of
+samples at a time (``identify(..., chunk=N)``), so that memory does not grow with the regressor.
+
+What the estimators need from all samples is accumulated over the chunks in passes over the log,
+each pass rebuilding the chunk's equations ``[A | -b]`` (``N x rows x (p + 1)``):
+
+- the least-squares factor (:func:`_streamed_factor`): the unscaled ``R`` of ``[A | b]`` by blocked
+  Householder QR (TSQR, :func:`~spaceid.estimation._estimators._accumulate_factor`), column-wise
+  backward stable in one pass; the column scales are its column norms (``A^T A = R^T R``), so the
+  scaled factor of :func:`~spaceid.estimation._estimators._triangular_factor` follows without a
+  pass for the norms. (The in-memory path's Cholesky of the Gram matrix would need one more pass
+  per refinement step.)
+- ``wls``: one factor pass per iteration, the whitening recomputed per chunk;
+- ``iv``: per iteration, the instruments' factor ``R_Z`` and the cross products ``Z^T A``, ``Z^T b``
+  (column-scaled), from which the least squares in the instruments' orthonormal basis
+  ``Q_Z = Z R_Z^-1`` is formed;
+- the covariance: a pass for the per-sample residuals (``n x rows``, kept: the residual checks
+  and the choice of covariance need them all) and the whiteners (``n x rows x rows``), then a
+  pass for the sandwich or the Newey-West sum of the scores, whose lags reach back across chunks
+  (:func:`~spaceid.estimation._uncertainty._hac`).
+
+Kept for the whole log: the signals ``x (n, n_x)``, the attitudes, the residuals and the whiteners,
+``O(n (n_x + 12))`` values; never the ``n x rows x p`` regressor. Time is linear in the samples.
+The maximum-likelihood iteration, the total least squares (an SVD of the whole regressor) and the
+angles estimator are in memory only.
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .._errors import SpaceidError
+from .._threads import one_blas_thread
+from ._equations import _split
+from ._estimators import (_accumulate_factor, _blockwise, _equation_whitener, _instrument_rows, _inverse_times,
+                          _sandwich, _solve_factor, _whitened)  # fmt: skip
+from ._uncertainty import _covariance_choice, _covariance_record, _hac, _mapped_scores
+
+__all__ = ["STREAMED"]
+
+STREAMED = ("ols", "wls", "iv")
+"""The estimators that ``identify(..., chunk=N)`` streams."""
+
+
+def check_chunk(chunk, estimator: str) -> int:
+    """``chunk`` as a positive number of samples, or a SpaceidError naming the option and the fix."""
+    if estimator not in STREAMED:
+        raise SpaceidError(f"--chunk: estimator '{estimator}' runs in memory only; streaming is available for "
+                           f"{', '.join(STREAMED)}: use one of those, or drop --chunk")
+    if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
+        raise SpaceidError(f"--chunk: {chunk!r} is not a positive whole number of samples per chunk: give e.g. 4096")
+    return int(chunk)
+
+
+def _chunks(eq, x, chunk):
+    """``(rows, eq_c, x_c)`` for consecutive chunks of ``chunk`` samples: the slice, the equations of
+    those samples (their attitudes and drift basis) and their signals."""
+    for start in range(0, len(x), chunk):
+        rows = slice(start, min(start + chunk, len(x)))
+        yield rows, replace(eq, rot=eq.rot[rows], basis=None if eq.basis is None else eq.basis[rows]), x[rows]
+
+
+def _accumulated_factor(blocks):
+    """Upper triangular ``R (c + 1, c + 1)`` of the stacked rows ``[M_c | b_c]`` of the blocks
+    ``(M_c (m, c), b_c (m,))``, by blocked Householder QR (``R^T R`` their Gram matrix)."""
+    R = None
+    for M, b in blocks:
+        part = _blockwise(M, b, np.ones(M.shape[1]), _accumulate_factor, _accumulate_factor)
+        R = part if R is None else _accumulate_factor(R, np.asfortranarray(part))
+    if not np.all(np.isfinite(R)):
+        raise np.linalg.LinAlgError("the equations hold non-finite values")
+    return R
+
+
+def _streamed_factor(blocks, p):
+    """``(scale (p,), R (p + 1, p + 1))`` of :func:`~spaceid.estimation._estimators._triangular_factor`
+    for the rows of the blocks ``(A_c (m, p), b_c (m,))``: :func:`_accumulated_factor` of the unscaled
+    rows, scaled by the column norms of ``A`` read from ``R``."""
+    R = _accumulated_factor(blocks)
+    scale = np.linalg.norm(R[:, :p], axis=0)
+    scale[scale == 0] = 1.0
+    return scale, R / np.append(scale, 1.0)
+
+
+def streamed_ols_factor(eq, x, chunk) -> tuple:
+    """The factor ``(scale, R)`` of the equations of ``x``, a chunk at a time, and whether their
+    right-hand side is nonzero anywhere."""
+    nonzero = []
+
+    def blocks():
+        for _, e, xc in _chunks(eq, x, chunk):
+            A, b = _split(e.phi(xc))
+            nonzero.append(bool(np.any(b)))
+            yield A, b
+
+    return _streamed_factor(blocks(), eq.p), any(nonzero)
+
+
+def _streamed_wls(eq, x, sigma, theta, chunk, iterations=2):
+    """:func:`~spaceid.estimation._estimators._wls`, one factor pass per iteration."""
+    for _ in range(iterations):
+        blocks = (_split(_whitened(_equation_whitener(e, xc, theta, sigma), e.phi(xc)))
+                  for _, e, xc in _chunks(eq, x, chunk))  # fmt: skip
+        theta = _solve_factor(*_streamed_factor(blocks, eq.p)[::-1])[0]
+    return theta, {"iterations": iterations}
+
+
+def _streamed_iv(eq, x, theta, ctx, chunk, iterations=2):
+    """:func:`~spaceid.estimation._estimators._iv`: least squares of the column-scaled ``A`` in the
+    orthonormal basis ``Q_Z`` of the scaled instruments ``Z_s``, read from the factor of
+    ``[Z_s | A_s | b]``, whose blocks right of ``R_ZZ`` are ``Q_Z^T A_s`` and ``Q_Z^T b`` (as
+    accurate as the in-memory products with ``Q_Z``)."""
+    scale, p = ctx["factor"][0], eq.p
+    q, qd = ctx["reference"]
+
+    def blocks(theta):
+        for rows, e, xc in _chunks(eq, x, chunk):
+            A, b = _split(e.phi(xc))
+            yield np.hstack([_instrument_rows(e, xc, theta, (q[rows], qd[rows])), A]) / np.append(scale, scale), b
+
+    for _ in range(iterations):
+        R = _accumulated_factor(blocks(theta))
+        with one_blas_thread():
+            theta_z, theta = theta, np.linalg.lstsq(R[:p, p:-1], R[:p, -1], rcond=None)[0] / scale
+            cross = R[:p, :p].T @ R[:p, p:-1]  # Z_s^T A_s, the bread of the covariance
+    return theta, {"iterations": iterations, "instruments": ctx["instruments"], "cross": cross, "theta_z": theta_z}
+
+
+def streamed_estimate(eq, x, sigma, theta, estimator, ctx, chunk):
+    """``theta`` and the estimator's record of ``estimator`` (``wls`` or ``iv``) from the OLS ``theta``."""
+    if estimator == "wls":
+        return _streamed_wls(eq, x, sigma, theta, chunk)
+    return _streamed_iv(eq, x, theta, ctx, chunk)
+
+
+def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimated, chunk):
+    """:func:`~spaceid.estimation._uncertainty._reported_covariance` in two passes: the residuals
+    (and whiteners and, for ``wls``, the whitened factor that gives the bread), then the sandwich or
+    the Newey-West sum of the scores."""
+    n, rows = len(x), eq.param.rows
+    r = np.empty((n, rows))
+    white = None if estimator == "ols" else np.empty((n, rows))
+    L = None if estimator == "ols" else np.empty((n, rows, rows))
+
+    def residual_pass():
+        for sl, e, xc in _chunks(eq, x, chunk):
+            phi = e.phi(xc)
+            r[sl] = phi @ np.append(theta, 1.0)
+            if L is not None:
+                L[sl] = _equation_whitener(e, xc, theta, sigma)
+                white[sl] = _whitened(L[sl], r[sl][..., None])[..., 0]
+            if estimator == "wls":
+                yield _split(_whitened(L[sl], phi))
+
+    if estimator == "wls":
+        bread = _solve_factor(*_streamed_factor(residual_pass(), eq.p)[::-1])[1]
+    else:
+        for _ in residual_pass():
+            pass
+        scale = ctx["factor"][0]
+        bread = (info.pop("ginv") if estimator == "ols" else
+                 np.linalg.inv(info.pop("cross")) / np.outer(scale, scale))  # fmt: skip
+    chi2, checks, choice = _covariance_choice(eq, r, white, estimator, log, estimated)
+    q, qd = ctx.get("reference", (None, None))
+    theta_z = info.pop("theta_z", None)
+
+    def influence():  # M_c of each chunk (see _covariance_terms)
+        for sl, e, xc in _chunks(eq, x, chunk):
+            if estimator == "iv":
+                yield sl, _instrument_rows(e, xc, theta_z, (q[sl], qd[sl])).reshape(-1, rows, eq.p)
+            else:
+                A = e.phi(xc)[..., :-1]
+                yield sl, A if estimator == "ols" else _inverse_times(L[sl], A)
+
+    if choice["covariance_from_residuals"]:
+        cov_t = _hac((_mapped_scores(bread, M, r[sl]) for sl, M in influence()), choice["bandwidth"], eq.p)
+    else:
+        cov_t = sum(_sandwich(bread, M, L[sl]) for sl, M in influence()) * choice["variance_factor"]
+    return cov_t, float(np.sqrt(np.mean(r**2))), _covariance_record(chi2, checks, choice, log, estimated)

@@ -1,0 +1,118 @@
+"""The on-disk cache of minimal parameter sets: where it lives, and that a cached set is the derived one."""
+
+import numpy as np
+import pytest
+
+import spaceid
+from spaceid import _cache
+from spaceid.dynamics import _regressor
+from spaceid.dynamics._kinematics import _Geometry
+
+from conftest import random_states, random_tree
+
+
+def test_cache_dir_follows_the_environment(monkeypatch, tmp_path):
+    monkeypatch.delenv("SPACEID_CACHE_DIR")
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    assert _cache.cache_dir() == tmp_path / "xdg" / "spaceid"
+    monkeypatch.delenv("XDG_CACHE_HOME")
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    assert _cache.cache_dir() == tmp_path / "home" / ".cache" / "spaceid"
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path / "mine"))
+    assert _cache.cache_dir() == tmp_path / "mine"
+
+
+def _same(a, b, model, rng):
+    """Two parameterizations alike in every field and in the regressor they evaluate."""
+    assert (a.names, a.definitions, a.units, a.basis, a.rank_tol, a.seed, a.n_states) == (
+        b.names, b.definitions, b.units, b.basis, b.rank_tol, b.seed, b.n_states)
+    assert np.array_equal(a.projection, b.projection)
+    q, qd, w0 = random_states(rng, model, 20)
+    assert np.array_equal(a.regressor(q, qd, w0), b.regressor(q, qd, w0))
+
+
+@pytest.mark.parametrize("planar", [pytest.param(True, marks=pytest.mark.slow), False])  # planar: SymPy definitions
+def test_cached_set_is_the_derived_one(rng, monkeypatch, tmp_path, planar):
+    """Written on the first derivation, read back (no derivation) identical to it, for the planar
+    basis and the columns basis."""
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path))
+    model = random_tree(rng, [0, 1, 1], planar=planar)
+    geometry = _Geometry(model)
+    derived = _regressor._derive_minimal(geometry, 1e-9, 0)
+    first = _regressor._minimal_cached.__wrapped__(geometry, 1e-9, 0)
+    assert len(list((tmp_path / "minimal-set").glob("*.npz"))) == 1
+    _same(first, derived, model, rng)
+
+    def no_derivation(*args):
+        raise AssertionError("derived although cached")
+
+    monkeypatch.setattr(_regressor, "_derive_minimal", no_derivation)
+    cached = _regressor._minimal_cached.__wrapped__(geometry, 1e-9, 0)
+    assert cached.basis == ("planar" if planar else "columns")
+    _same(cached, derived, model, rng)
+
+
+def test_cache_keyed_by_geometry_not_inertia(rng):
+    """Another mass: the same key; another joint axis, tolerance or seed: another key."""
+    model = random_tree(rng, [0, 1], planar=False)
+    key = _regressor._set_key(_Geometry(model), 1e-9, 0)
+    inertials = np.array([b.inertial for b in model.bodies])
+    heavier = model.with_inertials(inertials * 1.5)
+    assert _regressor._set_key(_Geometry(heavier), 1e-9, 0) == key
+    assert _regressor._set_key(_Geometry(model), 1e-8, 0) != key
+    assert _regressor._set_key(_Geometry(model), 1e-9, 1) != key
+    other = random_tree(np.random.default_rng(1), [0, 1], planar=False)
+    assert _regressor._set_key(_Geometry(other), 1e-9, 0) != key
+
+
+@pytest.mark.parametrize("damage", ["truncated", "garbage", "stale", "other layout"])
+def test_damaged_or_stale_entry_is_ignored_and_rewritten(rng, monkeypatch, tmp_path, damage):
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path))
+    model = random_tree(rng, [0, 1], planar=False)
+    geometry = _Geometry(model)
+    derived = _regressor._minimal_cached.__wrapped__(geometry, 1e-9, 0)
+    key = _regressor._set_key(geometry, 1e-9, 0)
+    path = tmp_path / "minimal-set" / f"{key}.npz"
+    good = path.read_bytes()
+    if damage == "truncated":
+        path.write_bytes(good[: len(good) // 2])
+    elif damage == "garbage":
+        path.write_bytes(b"not a cache entry")
+    elif damage == "stale":  # an entry written under another key (e.g. by other derivation code)
+        _cache.write_cached("minimal-set", "another", _regressor._to_stored(derived))
+        (tmp_path / "minimal-set" / "another.npz").replace(path)
+    else:
+        stored = _regressor._to_stored(derived)
+        stored["projection_shape"] = np.array([3, 2])
+        _cache.write_cached("minimal-set", key, stored)
+    calls = []
+    original = _regressor._derive_minimal
+    monkeypatch.setattr(_regressor, "_derive_minimal", lambda *a: calls.append(1) or original(*a))
+    again = _regressor._minimal_cached.__wrapped__(geometry, 1e-9, 0)
+    assert calls == [1]  # derived again ...
+    _same(again, derived, model, rng)
+    rewritten = _cache.read_cached("minimal-set", key)  # ... and rewritten
+    expected = _regressor._to_stored(derived)
+    assert rewritten.keys() == expected.keys() and all(np.array_equal(rewritten[k], expected[k]) for k in expected)
+
+
+def test_unwritable_cache_is_skipped(rng, monkeypatch, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("a file where the directory would be")
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(blocker))
+    model = random_tree(rng, [0], planar=True)
+    param = _regressor._minimal_cached.__wrapped__(_Geometry(model), 1e-9, 0)
+    assert param.n_params > 0
+
+
+def test_minimal_parameters_of_a_preset_from_the_cache(monkeypatch, tmp_path):
+    """Through the public call: a preset's set, cached in one process and read in the next
+    (simulated by clearing the in-memory cache), is the derived one."""
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path))
+    model = spaceid.load_model("cepheus")
+    _regressor._minimal_cached.cache_clear()
+    first = spaceid.minimal_parameters(model)
+    _regressor._minimal_cached.cache_clear()
+    second = spaceid.minimal_parameters(model)
+    _same(first, second, model, np.random.default_rng(0))
+    _regressor._minimal_cached.cache_clear()

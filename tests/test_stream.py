@@ -1,0 +1,136 @@
+"""Streaming identification (``identify(..., chunk=N)``): the same result as in memory, a chunk at a time."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import spaceid
+from spaceid import SpaceidError, add_noise
+from spaceid.data import Log, differentiate_log
+from spaceid.dynamics import base_rate, minimal_parameters
+from spaceid.estimation import Noise, identify
+from spaceid.estimation._equations import _Equations
+from spaceid.motion import load_trajectory, simulate
+
+from conftest import random_states, random_tree
+
+NOISE = Noise(angle=1e-3, rate=1e-3, base_rate=1e-3)
+
+
+@pytest.fixture(scope="module")
+def planar():
+    param = minimal_parameters(spaceid.load_model("cepheus"))
+    trajectory = load_trajectory("paper-table2")
+    h = np.array([0.0, 0.0, 0.4934])
+    log = simulate(param, param.true_values, lambda t: trajectory.evaluate(t)[:2], np.linspace(0, 5, 1201), h)
+    return param, log, h
+
+
+@pytest.fixture(scope="module")
+def spatial():
+    model = random_tree(np.random.default_rng(4), [0, 1, 1], planar=False)
+    param = minimal_parameters(model)
+    q, qd, _ = random_states(np.random.default_rng(5), model, 1500)
+    h = np.array([0.3, -0.2, 0.5])
+    w = base_rate(param, param.true_values, q, qd, h)
+    log = Log(np.arange(len(q)) * 0.01, model.joints, q, qd, np.tile([1.0, 0, 0, 0], (len(q), 1)), w, False)
+    return param, log, h
+
+
+def _both(param, log, h, estimator, noise, chunk):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the same warnings either way: compared through the settings
+        return (identify(param, log, h, estimator=estimator, noise=noise),
+                identify(param, log, h, estimator=estimator, noise=noise, chunk=chunk))
+
+
+SLOW = pytest.mark.slow  # seconds each: the spatial noise model's Jacobian
+
+
+@pytest.mark.parametrize("system, estimator", [("planar", "ols"), ("planar", "wls"), ("planar", "iv"),
+                                               ("spatial", "ols"), pytest.param("spatial", "wls", marks=SLOW),
+                                               pytest.param("spatial", "iv", marks=SLOW)])
+@pytest.mark.parametrize("noisy", [False, True])
+def test_streamed_equals_in_memory(request, system, estimator, noisy):
+    """Every streamed estimator, planar and spatial, noise-free and noisy, in chunks that do not
+    divide the log: the estimate to 1e-12 of the largest parameter (the truth to round-off when
+    noise-free), the covariance to the accuracy of the in-memory one (eps cond^2: 1e-9) and the
+    same covariance choice and residual checks."""
+    param, log, h = request.getfixturevalue(system)
+    log = add_noise(log, angle=1e-3, rate=1e-3, seed=3) if noisy else log
+    memory, streamed = _both(param, log, h, estimator, NOISE, chunk=337)
+    size = np.abs(memory.values).max()
+    assert np.abs(streamed.values - memory.values).max() <= 1e-12 * size
+    if not noisy:
+        assert np.abs(streamed.values - param.true_values).max() <= 1e-11 * size
+        return  # the covariance of round-off residuals is round-off
+    assert streamed.std == pytest.approx(memory.std, rel=1e-9)
+    for key in ("covariance", "covariance_from_residuals"):
+        assert streamed.settings[key] == memory.settings[key]
+    assert streamed.residual_rms == pytest.approx(memory.residual_rms, rel=1e-9)
+    assert streamed.settings["estimator_info"]["chunk"] == 337
+    if estimator != "ols":
+        assert streamed.settings["chi2_dof"] == pytest.approx(memory.settings["chi2_dof"], rel=1e-9)
+
+
+@pytest.mark.parametrize("estimator", ["ols", "wls"])
+def test_newey_west_lags_reach_across_chunks(planar, estimator):
+    """Differentiated rates: Newey-West over the differentiator's half window, longer than a chunk."""
+    param, log, h = planar
+    log = differentiate_log(add_noise(log, angle=1e-4, seed=1), window=101, order=5)
+    memory, streamed = _both(param, log, h, estimator, None, chunk=29)
+    assert "Newey-West" in memory.settings["covariance"] and "over 50 samples" in memory.settings["covariance"]
+    assert streamed.settings["covariance"] == memory.settings["covariance"]
+    assert np.abs(streamed.values - memory.values).max() <= 1e-12 * np.abs(memory.values).max()
+    assert streamed.std == pytest.approx(memory.std, rel=1e-9)
+
+
+def test_the_regressor_is_never_built_for_more_than_a_chunk(spatial, monkeypatch):
+    param, log, h = spatial
+    sizes = []
+    phi = _Equations.phi
+    monkeypatch.setattr(_Equations, "phi", lambda self, x: sizes.append(len(x)) or phi(self, x))
+    identify(param, add_noise(log, angle=1e-3, rate=1e-3, seed=2), h, estimator="ols", chunk=200)
+    assert sizes and max(sizes) <= 200
+    sizes.clear()
+    identify(param, log, h, estimator="ols")
+    assert max(sizes) == log.n_samples  # in memory: all at once
+
+
+def test_streamed_drift_test_is_not_run(spatial):
+    param, log, h = spatial
+    result = identify(param, log, h, estimator="ols", chunk=500)
+    assert result.settings["drift_test"]["run"] is False and "streamed" in result.settings["drift_test"]["reason"]
+
+
+@pytest.mark.parametrize("estimator, chunk, match", [("ml", 100, "in memory only"), ("tls", 100, "in memory only"),
+                                                      ("ols", 0, "positive whole number"),
+                                                      ("ols", 2.5, "positive whole number")])
+def test_bad_chunk_is_refused(spatial, estimator, chunk, match):
+    param, log, h = spatial
+    with pytest.raises(SpaceidError, match=f"--chunk: .*{match}"):
+        identify(param, log, h, estimator=estimator, noise=NOISE, chunk=chunk)
+
+
+def test_cli_identify_streamed(tmp_path, capsys):
+    """``spaceid identify --chunk`` writes the in-memory result (to round-off); a bad chunk is a one-line error."""
+    import json
+
+    from spaceid.cli import main
+
+    log = tmp_path / "log.csv"
+    assert main(["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.4934", "--samples", "300",
+                 "--noise-angle", "1e-4", "--noise-rate", "1e-4", "-o", str(log)]) == 0  # fmt: skip
+    results = []
+    for extra in ([], ["--chunk", "64"]):
+        out = tmp_path / f"r{len(extra)}.json"
+        assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "--estimator", "wls", "-o", str(out),
+                     *extra]) == 0  # fmt: skip
+        results.append(json.loads(out.read_text()))
+    values = [np.array([p["value"] for p in r["parameters"]]) for r in results]
+    assert np.abs(values[1] - values[0]).max() <= 1e-12 * np.abs(values[0]).max()
+    capsys.readouterr()
+    assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "--chunk", "64", "-o",
+                 str(tmp_path / "x.json")]) == 2  # fmt: skip
+    assert "error: --chunk: estimator 'ml' runs in memory only" in capsys.readouterr().err
