@@ -11,6 +11,7 @@ import dataclasses
 import functools
 import json
 import sys
+import time
 import warnings
 from pathlib import Path
 import click
@@ -162,6 +163,19 @@ def _progress(label: str, enabled: bool = True):
         yield lambda done, total: bar.update(task, completed=done, total=total)
 
 
+def _every(seconds, call):
+    """``call`` that lets through its first call and then at most one every ``seconds`` [s]."""
+    last = [-float("inf")]
+
+    def throttled(*args):
+        now = time.monotonic()
+        if now - last[0] >= seconds:
+            last[0] = now
+            call(*args)
+
+    return throttled
+
+
 def _param(model_src, planar):
     from .models import load_model
     from .dynamics import minimal_parameters
@@ -294,9 +308,10 @@ def _write_definitions(path, info, model_src):
 @click.option("--q-max", type=float, help="Joint angle limit, largest abs(q) [rad] (default: model limits).")
 @click.option("--qd-max", type=float, help="Joint rate limit, largest abs(qd) [rad/s] (default: model limits).")
 @click.option("--qdd-max", type=float, help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
-@click.option("--starts", type=int, default=64, show_default=True, help="Local starts of the global search.")
-@click.option("--time-budget", type=float, help="Stop the search after this wall time [s] (then the result also "
-              "depends on the machine's speed).")
+@click.option("--starts", type=int, help="Local starts of the global search [default: by the problem's size, 64 for "
+              "cepheus]; the search also stops once 8 starts in a row improve the best by under 0.1 %.")
+@click.option("--time-budget", type=float, help="Hard limit on the search's wall time [s]: the best trajectory so far "
+              "is returned (then the result also depends on the machine's speed).")
 @output("Trajectory JSON to write (for simulate, predict, identify --instruments).")
 def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max, starts, time_budget, output):
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
@@ -306,12 +321,15 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
-    with _progress("designing") as progress:
+    with _progress("designing", enabled=err.is_terminal) as progress:
         res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
-                         noise=noise, n_starts=starts, time_budget=time_budget)
+                         noise=noise, n_starts=starts, time_budget=time_budget,
+                         status=None if err.is_terminal else _every(5.0, lambda line: err.print(f"design: {line}",
+                                                                                                highlight=False)))
     res.trajectory.save(output)
-    err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {output}")
+    err.print(f"{criterion} = {res.value:.6g} (seed {seed}, {res.n_starts} starts, stopped: "
+              f"{res.trajectory.meta['stop']}); trajectory written to {output}")
     rel = {k: v for k, v in res.trajectory.meta.get("crb_relative_std", {}).items() if v is not None}
     if rel:
         worst = max(rel, key=rel.get)
