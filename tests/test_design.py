@@ -190,10 +190,11 @@ def test_budget_stops_a_search_inside_its_iterations(monkeypatch):
 
 def test_convergence_stops_the_search():
     """patience=2: the search stops at the first start after which two starts in a row gained
-    less than 1e-3 in log cond, and records why; without it every start runs."""
+    less than 1e-3 in log cond, and records why; with fewer starts than the patience every
+    start runs."""
     result = design(seed=0, n_starts=40, patience=2)
     assert result.trajectory.meta["stop"] == "converged" and 3 <= result.n_starts < 40
-    every = design(seed=0, n_starts=4, patience=None)
+    every = design(seed=0, n_starts=4)  # default patience: 8
     assert every.trajectory.meta["stop"] == "starts" and every.n_starts == 4
 
 

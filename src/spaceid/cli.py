@@ -309,7 +309,8 @@ def _write_definitions(path, info, model_src):
 @click.option("--qd-max", type=float, help="Joint rate limit, largest abs(qd) [rad/s] (default: model limits).")
 @click.option("--qdd-max", type=float, help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
 @click.option("--starts", type=int, help="Local starts of the global search [default: by the problem's size, 64 for "
-              "cepheus]; the search also stops once 8 starts in a row improve the best by under 0.1 %.")
+              "cepheus]; the search also stops once half of them (at least 8) in a row improve the best by under "
+              "0.1 %.")
 @click.option("--time-budget", type=float, help="Hard limit on the search's wall time [s]: the best trajectory so far "
               "is returned (then the result also depends on the machine's speed).")
 @output("Trajectory JSON to write (for simulate, predict, identify --instruments).")

@@ -159,7 +159,8 @@ def _slsqp_search(problem, z0, deadline=None, *, ftol=1e-3):
     """One SLSQP search from ``z0`` (n,): coarse grid, then the fine-grid peaks too, then
     scaled into the limits; on the subsampled problem if it has one, with forward differences
     (the polish refines the best). Returns ``(z, objective)`` with the objective on all
-    samples; past ``deadline`` (time.monotonic()) it stops with its last iterate."""
+    samples; past ``deadline`` (time.monotonic()) it stops with its last iterate (or the
+    start, if better)."""
     search = problem.subsampled or problem
     z = _slsqp_epigraph(search, z0, _coarse_grid_mask(search), ftol=ftol, central=False,
                         deadline=deadline)  # fmt: skip
@@ -167,8 +168,10 @@ def _slsqp_search(problem, z0, deadline=None, *, ftol=1e-3):
         _check_clock(deadline)
         mask = _coarse_grid_mask(search) | _near_peaks(search, z, threshold=0.8)
         z = _slsqp_epigraph(search, z, mask, ftol=ftol, near=True, central=False, deadline=deadline)
-    z = problem.shrink_into_limits(z)
-    return z, float(problem.objective(z[None])[0])
+    # the start itself where the search, cut short by the deadline, left a worse point
+    Z = problem.shrink_into_limits(np.stack([z, z0]))
+    f = problem.objective(Z)
+    return Z[np.argmin(f)], float(f.min())
 
 
 def _slsqp_polish(problem, z, deadline=None, *, rounds=4):
@@ -541,6 +544,8 @@ def _slsqp_multistart(problem, tally, run, workers, *, seed, n_starts, z_initial
 
     tally.add(run(searches(), stop=stop), n_starts)
     found = sorted(tally.found, key=lambda c: c[:2])  # by value, then start index: independent of timing
+    if t_end is not None and time.monotonic() > t_end:  # no time left to polish
+        return
     polish = ((i, _slsqp_polish, (z, t_end)) for _, i, z in _distinct_best(found, _N_POLISH))
     for i, (z, f) in sorted(run(polish, stop=lambda: False), key=lambda r: r[0]):
         tally.consider(f, i, z)
@@ -606,7 +611,7 @@ def _trust_region_multistart(tally, run, workers, starts, *, max_steps, t_end):
     tally.add(kept(run(round_one, stop=stop)), total)
     converged, tally.stop = tally.stop, None if tally.stop == "converged" else tally.stop
     found = sorted(tally.found, key=lambda c: c[:2])
-    chosen = [(i, z) for _, i, z in _distinct_best(found, keep)]
+    chosen = [(i, z) for _, i, z in _distinct_best(found, keep)] if keep else []
     for i, (z, f, _) in run(searches(chosen, max_steps - first, 0), stop=stop):
         tally.consider(f, i, z)
         tally.tick(total)
