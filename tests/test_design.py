@@ -519,3 +519,15 @@ def test_cli_design_prints_progress_lines_when_not_on_a_terminal(tmp_path, capsy
     assert err.startswith("design: start 1/3, best cond ")  # the first at once, then one every 5 s
     assert "3 starts, stopped: starts" in " ".join(err.split())  # rich wraps long lines
     assert load_trajectory(tmp_path / "traj.json").meta["stop"] == "starts"
+
+
+def test_results_done_after_the_budget_ran_out_are_taken():
+    """Start 1 completes before start 0 and the budget ends the search meanwhile: start 0's
+    result, done later, is still taken (a search that ran is never lost)."""
+    from spaceid.motion._design_search import _Tally
+
+    tally, z = _Tally(np.exp, 0.0, None, patience=8), np.zeros(1)
+    tally.add([(1, (z, 2.0))], 2)
+    tally.stop = "budget"
+    tally.add([(0, (z, 3.0))], 2)
+    assert [c[1] for c in tally.found] == [0, 1] and tally.best[:2] == (2.0, 1)
