@@ -1,17 +1,36 @@
-"""Excitation design on the Cepheus case: condition number reached against wall time.
+"""Excitation design: condition number reached against wall time (Cepheus), the time budget
+kept, the defaults on a 4-joint planar tree, and the 14-DOF servicer within 60 s.
 
-Uses spaceid's own regressor of the ``cepheus`` preset (or, with ``--regressor closed-form``,
-the closed form of docs/theory/cepheus.md in tests/cepheus_closed_form.py). Prints, for a few seeds,
-the best condition number found by each wall time (the paper's Table 2 trajectory beside it),
-the median over seeds, the time to come within 5 % of the best known value (about 36), and
-the default run (64 starts, no budget). Prints only; never fails on timings.
+Parts (``--parts``, all by default):
 
-    python benchmarks/bench_design.py [--seeds 5] [--budget 10] [--regressor spaceid|closed-form]
+* ``cepheus``: spaceid's own regressor of the ``cepheus`` preset (or, with ``--regressor
+  closed-form``, the closed form of docs/theory/cepheus.md in tests/cepheus_closed_form.py); for
+  a few seeds, the best condition number found by each wall time (the paper's Table 2
+  trajectory beside it), the median over seeds, the time to come within 5 % of the best known
+  value (about 36), and the default run (no budget).
+* ``budget``: budget against the measured wall time of the call (overrun %), Cepheus at 3500
+  samples (SLSQP) and the servicer (trust region), with what ended the search.
+* ``tree``: ``design_excitation`` with its defaults on a 4-joint planar tree
+  (benchmarks/tree4-planar.yaml, 25 parameters, tf = 10 s, Nf = 5, N = 200): wall time, starts,
+  cond, stop reason.
+* ``servicer``: servicer-dual (496 parameters; tf = 120 s, Nf = 12, N = 400, |qdd| <= 0.5),
+  a 60 s budget, seed 0: this code against ``--baseline-src`` (a ``src`` folder of older
+  spaceid code, run in a subprocess in the same run): cond and the predicted relative
+  Cramer-Rao std (noise 1e-4 rad, rad/s, rad/s; median and worst over the parameters).
+
+Prints only; never fails on timings.
+
+    python benchmarks/bench_design.py [--parts cepheus budget tree servicer] [--seeds 5] [--budget 10]
+                                      [--regressor spaceid|closed-form] [--baseline-src DIR]
 """
 
 import argparse
+import json
 import os
+import subprocess
 import sys
+import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
@@ -20,7 +39,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 from cepheus_closed_form import cepheus_regressor  # noqa: E402
 
 import spaceid  # noqa: E402
-from spaceid.motion import optimize_excitation  # noqa: E402
+from spaceid.estimation import Noise  # noqa: E402
+from spaceid.motion import design_excitation, optimize_excitation, whitened_regressor  # noqa: E402
 from spaceid.dynamics import minimal_parameters  # noqa: E402
 from spaceid.dynamics import excitation_regressor  # noqa: E402
 from spaceid.motion import load_trajectory, sample_times  # noqa: E402
@@ -29,6 +49,10 @@ CEPHEUS = dict(duration=5.0, harmonics=3, samples=35, q_max=1.5, qd_max=1.5, qdd
 JOINTS = ("left_shoulder", "left_elbow")
 TARGET = 1.05 * 36  # within 5 % of the best known condition number
 CHECKPOINTS = (0.25, 0.5, 1, 2, 5, 10, 20, 60)
+HERE = Path(__file__).resolve().parent
+TREE = dict(duration=10.0, harmonics=5, samples=200, momentum=[0, 0, 0.5])
+SERVICER = dict(duration=120.0, harmonics=12, samples=400, momentum=[1.0, -2.0, 3.0], qdd_max=0.5)
+NOISE = Noise(angle=1e-4, rate=1e-4, base_rate=1e-4)
 
 
 def best_by(history, t):
@@ -37,12 +61,97 @@ def best_by(history, t):
     return min(values) if values else np.nan
 
 
+def servicer_param():
+    urdf = Path(spaceid.__file__).parent / "models" / "presets" / "servicer-dual.urdf"
+    return minimal_parameters(spaceid.load_model(str(urdf)))
+
+
+def timed(function, *args, **kwargs):
+    """``function(*args, **kwargs)`` and its wall time [s]."""
+    t = time.perf_counter()
+    out = function(*args, **kwargs)
+    return out, time.perf_counter() - t
+
+
+def budget_part():
+    print("time budget: budget against the measured wall time of the call")
+    print(f"{'case':<28}{'budget [s]':>11}{'wall [s]':>10}{'overrun':>9}{'starts':>8}  stop")
+    param = minimal_parameters(spaceid.load_model("cepheus"))
+    cases = [("cepheus N = 3500 (slsqp)", param, dict(duration=5.0, harmonics=3, samples=3500, momentum=[0, 0, 0.4934]),
+              (5.0, 20.0)),
+             ("servicer (trust region)", servicer_param(), SERVICER, (30.0,))]  # fmt: skip
+    for name, p, settings, budgets in cases:
+        for budget in budgets:
+            res, wall = timed(design_excitation, p, **settings, seed=0, n_starts=64, time_budget=budget,
+                              patience=10**9)  # the budget, not convergence, ends it
+            print(f"{name:<28}{budget:11g}{wall:10.1f}{100 * (wall / budget - 1):8.1f}%{res.n_starts:8d}  "
+                  f"{res.trajectory.meta.get('stop')}")
+    print()
+
+
+def tree_part():
+    param = minimal_parameters(spaceid.load_model(str(HERE / "tree4-planar.yaml")))
+    res, wall = timed(design_excitation, param, **TREE, seed=0)
+    print(f"4-joint planar tree ({len(param.names)} parameters, N = {TREE['samples']}, Nf = {TREE['harmonics']}), "
+          f"defaults: wall {wall:.1f} s, {res.n_starts} starts, cond {res.value:.4g}, "
+          f"stop {res.trajectory.meta['stop']}\n")
+
+
+def servicer_design(out, budget):
+    """Design the servicer within ``budget`` [s] (this process's spaceid), write the trajectory
+    to ``out`` and the wall time beside it (``out.wall``)."""
+    res, wall = timed(design_excitation, servicer_param(), **SERVICER, seed=0, time_budget=budget)
+    res.trajectory.save(out)
+    Path(f"{out}.wall").write_text(json.dumps({"wall": wall, "starts": res.n_starts}))
+
+
+def servicer_part(baseline_src, budget=60.0):
+    param = servicer_param()
+    bound = whitened_regressor(param, param.true_values, SERVICER["momentum"], NOISE, relative=False)
+    base = excitation_regressor(param, param.true_values, SERVICER["momentum"])
+    pi = np.abs(param.true_values)
+    print(f"servicer-dual, {budget:g} s budget, seed 0 (cond; predicted relative CRB std, noise 1e-4)")
+    print(f"{'code':<10}{'wall [s]':>9}{'starts':>7}{'cond':>11}{'median':>10}{'worst':>10}  stop")
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = [("new", None)] + ([("baseline", baseline_src)] if baseline_src else [])
+        for name, src in runs:
+            out = Path(tmp) / f"{name}.json"
+            env = {**os.environ, "PYTHONPATH": str(src or Path(spaceid.__file__).parents[1])}
+            subprocess.run([sys.executable, __file__, "--servicer-run", str(out), "--budget", str(budget)], env=env,
+                           check=True)  # fmt: skip
+            traj, info = load_trajectory(out), json.loads(Path(f"{out}.wall").read_text())
+            q, qd, _ = traj.evaluate(sample_times(SERVICER["duration"], SERVICER["samples"]))
+            cond = np.linalg.cond(base(q, qd))
+            rel = np.sqrt(np.diag(bound.crb(q, qd)))[pi > 0] / pi[pi > 0]
+            print(f"{name:<10}{info['wall']:9.1f}{info['starts']:7d}{cond:11.3e}{np.median(rel):10.3g}"
+                  f"{rel.max():10.3g}  {traj.meta.get('stop', '-')}")
+    print()
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--parts", nargs="+", choices=("cepheus", "budget", "tree", "servicer"),
+                        default=["cepheus", "budget", "tree", "servicer"])
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--budget", type=float, default=10.0, help="wall time per seed [s]")
     parser.add_argument("--regressor", choices=("spaceid", "closed-form"), default="spaceid")
+    parser.add_argument("--baseline-src", help="src folder of the spaceid to compare on the servicer")
+    parser.add_argument("--servicer-run", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.servicer_run:
+        return servicer_design(args.servicer_run, args.budget)
+    print(f"{os.cpu_count()} cores\n")
+    if "budget" in args.parts:
+        budget_part()
+    if "tree" in args.parts:
+        tree_part()
+    if "servicer" in args.parts:
+        servicer_part(args.baseline_src)
+    if "cepheus" in args.parts:
+        cepheus_part(args)
+
+
+def cepheus_part(args):
     if args.regressor == "spaceid":
         param = minimal_parameters(spaceid.load_model("cepheus"))
         regressor = excitation_regressor(param, param.true_values, [0, 0, 0.4934])
@@ -64,6 +173,7 @@ def main():
             seed=seed,
             n_starts=100_000,
             time_budget=args.budget,
+            patience=10**9,  # every start until the budget: the best by wall time
         )
         for seed in seeds
     ]
@@ -82,7 +192,7 @@ def main():
           + f"{np.median(reach):9.2f}  [s]")  # fmt: skip
     print(f"paper / final (median): {paper / np.median([r.value for r in runs]):.1f}\n")
 
-    print("default run: 64 starts, no budget")
+    print("default run: default starts (64) and patience, no budget")
     defaults = [
         optimize_excitation(regressor, JOINTS, **CEPHEUS, seed=seed) for seed in seeds
     ]

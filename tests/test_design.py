@@ -6,6 +6,7 @@ wall-clock assertions: timings live in benchmarks/bench_design.py,
 benchmarks/bench_design_spatial.py and benchmarks/bench_design_noise.py."""
 
 import json
+import time
 
 import numpy as np
 import pytest
@@ -153,11 +154,62 @@ def test_gradients_match_finite_differences(criterion):
 
 
 def test_progress_and_time_budget():
-    calls = []
-    result = design(seed=0, n_starts=40, time_budget=1e-3, progress=lambda *a: calls.append(a))
+    calls, lines = [], []
+    result = design(seed=0, n_starts=40, time_budget=1e-3, progress=lambda *a: calls.append(a), status=lines.append)
     assert 1 <= result.n_starts < 40  # the budget stops it after the first task
     assert calls[-1] == (result.n_starts, 40)
+    assert result.trajectory.meta["stop"] == "budget"
+    assert lines[-1].startswith(f"start {result.n_starts}/40, best cond ")
     assert peak_ratio(result.trajectory, 1001).max() <= 1 + 1e-9
+
+
+def test_budget_stops_a_search_inside_its_iterations(monkeypatch):
+    """A fake clock that ticks one second at every look: a budget of 30 ticks ends the
+    search inside the first local searches' iterations (a search looks hundreds of times); the
+    result is inside the limits and says the budget ended it."""
+    import spaceid.motion._design_problem as problem_module
+    import spaceid.motion._design_search as search_module
+
+    class Clock:
+        now = 0.0
+        perf_counter = staticmethod(time.perf_counter)
+
+        @classmethod
+        def time(cls):  # the deadline's clock
+            cls.now += 1.0
+            return cls.now
+
+    for module in (problem_module, search_module):
+        monkeypatch.setattr(module, "time", Clock)
+    result = design(seed=0, n_starts=40, time_budget=30.0)
+    assert result.trajectory.meta["stop"] == "budget" and 1 <= result.n_starts < 40
+    assert Clock.now < 60  # the searches and the polish stopped soon after the end
+    assert peak_ratio(result.trajectory, 1001).max() <= 1 + 1e-9
+    assert result.value == pytest.approx(cond(result.trajectory), rel=1e-9)
+
+
+def test_convergence_stops_the_search():
+    """patience=2: the search stops at the first start after which two starts in a row gained
+    less than 1e-3 in log cond, and records why; with fewer starts than the patience every
+    start runs."""
+    result = design(seed=0, n_starts=40, patience=2)
+    assert result.trajectory.meta["stop"] == "converged" and 3 <= result.n_starts < 40
+    every = design(seed=0, n_starts=4)  # default patience: 8
+    assert every.trajectory.meta["stop"] == "starts" and every.n_starts == 4
+
+
+def test_convergence_takes_results_in_start_order():
+    """Results arriving out of order are taken in start order, so the convergence test and the
+    best do not depend on timing; those after convergence are left out."""
+    from spaceid.motion._design_search import _Tally
+
+    z = np.zeros(1)
+    values = {0: 5.0, 1: 3.0, 2: 3.0005, 3: 2.9999, 4: 1.0, 5: 4.0}
+    for order in ([0, 1, 2, 3, 4, 5], [4, 2, 0, 5, 3, 1]):
+        tally = _Tally(np.exp, 0.0, None, patience=2)
+        tally.add([(i, (z, values[i])) for i in order], 6)
+        assert tally.stop == "converged" and [c[1] for c in tally.found] == [0, 1, 2, 3]
+        assert tally.best[:2] == (2.9999, 3)  # start 4 (1.0) completes after convergence: left out
 
 
 def test_unpicklable_regressor_runs_in_this_process():
@@ -288,7 +340,8 @@ def test_trust_region_progress_and_time_budget(chain):
     calls = []
     result = spatial_design(chain, n_starts=3, time_budget=1e-3, progress=lambda *a: calls.append(a))
     assert 1 <= result.n_starts < 3  # the budget stops it after the first search
-    assert calls[-1][1] == 3 + 2  # three starts, the best two continued
+    assert result.trajectory.meta["stop"] == "budget"
+    assert calls[-1][1] == 1  # the budget affords one search a worker: no second round
     assert spatial_peaks(result.trajectory, 501).max() <= 1 + 1e-9
 
 
@@ -456,3 +509,25 @@ def test_cli_design_with_noise(tmp_path, capsys):
     assert "predicted CRB: worst relative std" in capsys.readouterr().err
     meta = load_trajectory(tmp_path / "traj.json").meta
     assert meta["criterion"] == "crb" and meta["noise"] == NOISE.to_dict()
+
+
+def test_cli_design_prints_progress_lines_when_not_on_a_terminal(tmp_path, capsys):
+    args = ["design", "cepheus", "--duration", "5", "--harmonics", "3", "--samples", "35",
+            "--momentum", "0.4934", "--starts", "3", "-o", str(tmp_path / "traj.json")]  # fmt: skip
+    assert main(args) == 0  # pytest's captured stderr is not a terminal
+    err = capsys.readouterr().err
+    assert err.startswith("design: start 1/3, best cond ")  # the first at once, then one every 5 s
+    assert "3 starts, stopped: starts" in " ".join(err.split())  # rich wraps long lines
+    assert load_trajectory(tmp_path / "traj.json").meta["stop"] == "starts"
+
+
+def test_results_done_after_the_budget_ran_out_are_taken():
+    """Start 1 completes before start 0 and the budget ends the search meanwhile: start 0's
+    result, done later, is still taken (a search that ran is never lost)."""
+    from spaceid.motion._design_search import _Tally
+
+    tally, z = _Tally(np.exp, 0.0, None, patience=8), np.zeros(1)
+    tally.add([(1, (z, 2.0))], 2)
+    tally.stop = "budget"
+    tally.add([(0, (z, 3.0))], 2)
+    assert [c[1] for c in tally.found] == [0, 1] and tally.best[:2] == (2.0, 1)

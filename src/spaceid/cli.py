@@ -17,6 +17,7 @@ import os
 import signal
 import sys
 import traceback
+import time
 import warnings
 from pathlib import Path
 import click
@@ -344,6 +345,19 @@ def _progress(label: str, enabled: bool = True):
         yield lambda done, total: bar.update(task, completed=done, total=total)
 
 
+def _every(seconds, call):
+    """``call`` that lets through its first call and then at most one every ``seconds`` [s]."""
+    last = [-float("inf")]
+
+    def throttled(*args):
+        now = time.monotonic()
+        if now - last[0] >= seconds:
+            last[0] = now
+            call(*args)
+
+    return throttled
+
+
 def _param(model_src, planar):
     from .models import load_model
     from .dynamics import minimal_parameters
@@ -472,9 +486,11 @@ def _write_definitions(path, info, model_src):
 @click.option("--q-max", type=POSITIVE, help="Joint angle limit, largest abs(q) [rad] (default: model limits).")
 @click.option("--qd-max", type=POSITIVE, help="Joint rate limit, largest abs(qd) [rad/s] (default: model limits).")
 @click.option("--qdd-max", type=POSITIVE, help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
-@click.option("--starts", type=STARTS, default=64, show_default=True, help="Local starts of the global search.")
-@click.option("--time-budget", type=SECONDS, help="Stop the search after this wall time [s] (then the result also "
-              "depends on the machine's speed).")
+@click.option("--starts", type=STARTS, help="Local starts of the global search [default: by the problem's size, 64 for "
+              "cepheus]; the search also stops once half of them (at least 8) in a row improve the best by under "
+              "0.1 %.")
+@click.option("--time-budget", type=SECONDS, help="Hard limit on the search's wall time [s]: the best trajectory "
+              "so far is returned (then the result also depends on the machine's speed).")
 @click.option("--payload-link", metavar="LINK", help="Design for the parameters of a payload held by LINK (see "
               "'spaceid payload') instead of the minimal parameters (--momentum 0 allowed: the known servicer "
               "fixes the scale); with the --noise-* options the trajectory records the payload's predicted "
@@ -501,13 +517,16 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 
         nominal = nominal_payload(payload_nominal, planar=param.model.planar)
     _require_sample_memory(f"--samples {samples}", samples, param.model)
-    with _progress("designing") as progress:
+    with _progress("designing", enabled=err.is_terminal) as progress:
         res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
                          noise=noise, n_starts=starts, time_budget=time_budget, payload_link=payload_link,
-                         payload=nominal, n_jobs=jobs, scheduler=scheduler)
+                         payload=nominal, n_jobs=jobs, scheduler=scheduler,
+                         status=None if err.is_terminal else _every(5.0, lambda line: err.print(f"design: {line}",
+                                                                                                highlight=False)))
     res.trajectory.save(output)
-    err.print(f"{criterion} = {res.value:.6g} (seed {seed}); trajectory written to {shown_name(output)}")
+    err.print(f"{criterion} = {res.value:.6g} (seed {seed}, {res.n_starts} starts, stopped: "
+              f"{res.trajectory.meta['stop']}); trajectory written to {shown_name(output)}")
     rel = {k: v for k, v in res.trajectory.meta.get("crb_relative_std", {}).items() if v is not None}
     if payload_link is not None:
         bound = res.trajectory.meta.get("payload_crb_std")

@@ -29,6 +29,7 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from .._errors import SpaceidError
 from ..estimation import Noise
@@ -41,6 +42,7 @@ from ._design_problem import (
     _limit_array,
     _set_up_problem,
     _warm_start_coefficients,
+    _with_search_subsample,
 )
 from ._design_search import _METHODS, _choose_method, _multistart_search
 from ._trajectory import BOUNDARY_FIELDS, FourierTrajectory, sample_times
@@ -100,6 +102,10 @@ class DesignResult:
 
 
 
+# One BLAS thread for the whole design, set-up and final evaluations too (the search's workers
+# limit theirs): threads spinning on busy cores made the servicer's rank check on 8 starts take
+# 65 s, and a 30 s budget 120 s
+@threadpool_limits.wrap(limits=1)
 def optimize_excitation(
     regressor,
     joints,
@@ -112,7 +118,7 @@ def optimize_excitation(
     qdd_max,
     criterion="cond",
     seed=0,
-    n_starts=64,
+    n_starts=None,
     n_jobs=None,
     progress=None,
     boundary=None,
@@ -123,6 +129,8 @@ def optimize_excitation(
     max_steps=40,
     n_screen=64,
     scheduler=None,
+    patience=None,
+    status=None,
 ):
     """Design an exciting trajectory (paper Eq. 12) by a seeded multi-start search.
 
@@ -155,8 +163,10 @@ def optimize_excitation(
         Seed (an integer >= 0) of the random start points. The same seed gives the same
         result, whatever ``n_jobs``, unless ``time_budget`` cuts the search short; a larger
         ``n_starts`` adds starts to those of a smaller one.
-    n_starts : int
-        Number of local searches (an upper bound when ``time_budget`` is given).
+    n_starts : int, optional
+        Number of local searches (an upper bound when ``time_budget`` or ``patience`` ends the
+        search earlier). Default: by the problem's size (``_default_starts``), 64 for
+        Cepheus, fewer where a search costs more.
     n_jobs : int, optional
         Worker processes; default: one per core. 1 runs in this process.
     progress : callable, optional
@@ -166,10 +176,15 @@ def optimize_excitation(
         Boundary values ``q0, qd0, qdd0, qf, qdf, qddf`` (keys), arrays (n_joints,) [rad,
         rad/s, rad/s^2]; missing ones are zero. The quintic through them must keep the limits.
     time_budget : float, optional
-        Wall time [s]. SLSQP: local searches stop early enough, by an estimate from those
-        done, to finish and polish within it. Trust region: each search, as it starts, gets a
-        share of the time left in proportion to its steps, and stops at its end with its best
-        point. At least one search runs. The result then depends on the machine's speed.
+        Wall time [s] of the design from its call, a hard limit: every local search (in
+        every worker) checks the clock inside its iterations and stops at the end of the
+        budget with its best point, which is then scaled into the limits. SLSQP: no search
+        starts once those done tell that it and the polish would not finish in time. Trust
+        region: screening takes at most a tenth of the budget; only as many starts are
+        searched as the budget affords steps for (at least one a worker, then each runs to
+        the end of the budget), each, as it starts, getting a share of the time left in
+        proportion to its steps. At least one search runs. The result then depends on the
+        machine's speed, and ``meta["stop"]`` is ``"budget"`` if the budget ended it.
     initial : FourierTrajectory, optional
         Warm start: used as the first start point, scaled down if it breaks a limit (trust
         region: each joint scaled onto its limits).
@@ -199,12 +214,25 @@ def optimize_excitation(
         (a Dask LocalCluster of ``n_jobs`` workers) or a ``dask scheduler`` address
         ``tcp://HOST:PORT`` (its workers); default ``DASK_SCHEDULER_ADDRESS`` if set, else
         ``processes`` (docs/campaigns.md).
+    patience : int, optional
+        Convergence of the multi-start search: it stops when the last ``patience`` starts
+        (taken in start order, whatever the order in which they complete) improved the best
+        objective by less than 1e-3 (the objective is log cond for ``cond`` and log of the
+        trace for ``crb``, so 0.1 % relative; log det for ``logdet`` and ``dopt``). Default:
+        half the starts, at least 8 (on Cepheus, seed 1: 35.76 after 50 of the 64 starts, as
+        from all 64; a patience of 8 stopped after 11 at 37.07). ``patience >= n_starts`` runs
+        every start. Trust region: this applies to the first round.
+    status : callable, optional
+        ``status(line)``, called with a one-line summary as local searches complete, such as
+        ``"start 12/64, best cond 41.2, 18 s"``.
 
     Returns
     -------
     DesignResult
-        The trajectory's ``meta`` also records ``method`` and ``start_value``, the criterion
-        at the start of the search that found it.
+        The trajectory's ``meta`` also records ``method``, ``start_value`` (the criterion at
+        the start of the search that found it) and ``stop``, what ended the search:
+        ``"converged"`` (``patience``), ``"budget"`` (``time_budget``) or ``"starts"`` (all
+        ``n_starts`` searched).
 
     Raises
     ------
@@ -220,8 +248,9 @@ def optimize_excitation(
     t_start = time.perf_counter()
     joints = tuple(joints)
     _check_options(criterion, duration, time_budget, harmonics=harmonics, samples=samples,
-                   n_starts=n_starts, n_grid=n_grid, seed=seed, max_steps=max_steps,
-                   n_screen=n_screen)  # fmt: skip
+                   n_grid=n_grid, seed=seed, max_steps=max_steps, n_screen=n_screen,
+                   **({} if n_starts is None else {"n_starts": n_starts}),
+                   **({} if patience is None else {"patience": patience}))  # fmt: skip
     if method not in _METHODS:
         raise SpaceidError(f"method must be one of {', '.join(_METHODS)}, got {method!r}")
     limits = _limit_array(joints, q_max, qd_max, qdd_max)
@@ -229,8 +258,12 @@ def optimize_excitation(
     problem = _set_up_problem(regressor, criterion, duration=float(duration),
                               harmonics=harmonics, samples=samples, limits=limits, boundary=bc,
                               n_grid=n_grid)  # fmt: skip
-    k = _checked_regressor_columns(problem, len(joints), samples)
+    k, rows = _checked_regressor_columns(problem, len(joints), samples)
     method = _choose_method(method, criterion, k)
+    if method == "slsqp":
+        problem = _with_search_subsample(problem, harmonics=harmonics, n_min_samples=-(-k // rows))
+    if n_starts is None:
+        n_starts = _default_starts((problem.subsampled or problem).B_samples.shape[1], len(joints), k)
     draw = problem.random_on_limits if method == "trust-region" else problem.random_inside_limits
     _check_rank(problem, draw(np.random.default_rng(seed), 8))
     z_initial = None
@@ -238,10 +271,11 @@ def optimize_excitation(
         z0 = _warm_start_coefficients(problem, initial, joints, duration, harmonics, bc)
         z_initial = problem.shrink_into_limits(z0)
     n_jobs = min(os.cpu_count() or 1, n_starts) if n_jobs is None else int(n_jobs)
+    patience = max(8, n_starts // 2) if patience is None else patience
     tally = _multistart_search(problem, method, seed=seed, n_starts=n_starts, n_jobs=n_jobs,
                                progress=progress, time_budget=time_budget, z_initial=z_initial,
                                max_steps=max_steps, n_screen=n_screen, t_start=t_start,
-                               scheduler=scheduler)  # fmt: skip
+                               scheduler=scheduler, patience=patience, status=status)  # fmt: skip
 
     f, i_best, z = tally.best
     if not np.isfinite(f):
@@ -264,6 +298,7 @@ def optimize_excitation(
         "limits": dict(zip(("q_max", "qd_max", "qdd_max"), limits.tolist())),
         "method": method,
         "start_value": float(report(problem.objective(tally.starts[i_best][None])[0])),
+        "stop": tally.stop,
     }
     trajectory = FourierTrajectory(
         joints, duration, X[:, :harmonics], X[:, harmonics:], **dict(zip(BOUNDARY_FIELDS, bc)),
@@ -273,11 +308,29 @@ def optimize_excitation(
                         tuple(tally.history))
 
 
+# Default number of starts: this many samples x joints x columns of search a design, so that
+# Cepheus (35 x 2 x 8) keeps 64 starts and a 4-joint planar tree at 200 samples (a 60-sample
+# search, 25 columns) gets 6
+_DEFAULT_START_WORK = 40_000
+
+
+def _default_starts(samples, n_joints, n_columns):
+    """The default number of local searches for a search on ``samples`` samples of a regressor
+    of ``n_joints`` joints and ``n_columns`` columns: ``_DEFAULT_START_WORK / (samples
+    n_joints n_columns)``, between 4 and 64.
+
+    A search's cost is its iterations (growing with the coefficients, n_joints Nf) times a
+    linearisation (1 + 2 n_joints trajectories of ``samples`` samples, a regressor whose cost
+    a sample grows with the columns, and an SVD of their rows): a fixed amount of work split
+    into starts keeps the default design to about a minute on two cores."""
+    return int(np.clip(_DEFAULT_START_WORK // (samples * n_joints * n_columns), 4, 64))
+
+
 def _check_options(criterion, duration, time_budget, **integers):
     """The options of :func:`optimize_excitation` other than limits, boundary and method."""
     _criterion_named(criterion)
     low = {"harmonics": 1, "samples": 2, "n_starts": 1, "n_grid": 100, "seed": 0, "max_steps": 1,
-           "n_screen": 1}
+           "n_screen": 1, "patience": 1}
     for name, value in integers.items():
         if not isinstance(value, (int, np.integer)) or value < low[name]:
             raise SpaceidError(f"{name} must be an integer >= {low[name]}, got {value!r}")

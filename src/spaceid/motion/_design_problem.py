@@ -23,8 +23,9 @@ coefficients. A criterion supplies its gradient in ``Y``, never ``dY`` along eac
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 
 import numpy as np
@@ -36,6 +37,19 @@ from ._trajectory import BOUNDARY_FIELDS, boundary_quintic, fourier_basis, sampl
 # Samples a regressor call of the search: larger calls run out of cache (3 to 4 times slower a
 # sample for 169 x 120 samples of a 7-joint arm)
 _CALL_SAMPLES = 512
+# The SLSQP search phase works on a subsample of at least this many samples a period of the top
+# harmonic (and twice as many equations as columns); the polish and the result use them all
+_SEARCH_SAMPLES_PER_PERIOD = 12
+
+
+class _OutOfTime(Exception):
+    """Raised inside a local search when its deadline has passed (caught by the search)."""
+
+
+def _check_clock(deadline):
+    """Raise :class:`_OutOfTime` if ``deadline`` (time.time(), or None) has passed."""
+    if deadline is not None and time.time() > deadline:
+        raise _OutOfTime
 
 
 @dataclass(frozen=True)
@@ -63,6 +77,8 @@ class _ExcitationProblem:
     # The smooth room used is this norm of the room used over the fine grid: it exceeds the
     # max by a few % (a few points near a peak)
     room_norm: float = 64.0
+    # the same problem on fewer samples, for the SLSQP search phase (None: the samples are few)
+    subsampled: _ExcitationProblem | None = None
 
     @property
     def n(self):
@@ -106,15 +122,16 @@ class _ExcitationProblem:
             f = CRITERIA[self.criterion].smoothed_value(Y, p)
         return np.where(np.isnan(f), np.inf, f)
 
-    def linearize_regressor(self, z, Y0=None, *, central=True):
+    def linearize_regressor(self, z, Y0=None, *, central=True, deadline=None):
         """Y at ``z`` (n_rows, k) and its derivatives along the joint signals at every sample,
         ``dY`` (n_samples, m k, 2 n_joints): ``dY[t, :, (d, j)]`` is d(rows of sample t) / d q_j
         (d = 0) or d qd_j (d = 1), flattened.
 
         Sample t's rows of Y depend on q(t), qd(t) alone, so perturbing joint j's signal at all
         samples at once gives them all: 4 n_joints central differences, or 2 n_joints forward
-        ones (error O(step), for the trust-region model). ``Y0``, Y at ``z`` if known, saves
-        its evaluation.
+        ones (error O(step), for the trust-region model and the SLSQP search phase). ``Y0``, Y
+        at ``z`` if known, saves its evaluation. Raises :class:`_OutOfTime` between regressor
+        calls once ``deadline`` (time.time()) has passed.
         """
         x = np.einsum("dtk,jk->dtj", self.B_samples, self.coefficients(z)) + self.P_samples  # q, qd
         nj, n_s = self.S.shape[0], x.shape[1]
@@ -123,6 +140,7 @@ class _ExcitationProblem:
         group = max(1, _CALL_SAMPLES // (len(signs) * n_s))
         dY = None
         for c in range(0, 2 * nj, group):
+            _check_clock(deadline)
             # Y at z rides with the first call: for small models the per-call cost dominates
             lead = [x[None]] if Y0 is None else []
             X = np.concatenate(lead + [x + sign * E[c : c + group] for sign in signs])
@@ -147,11 +165,11 @@ class _ExcitationProblem:
         w = (W.reshape(n_s, 1, -1) @ dY).reshape(n_s, 2, -1)  # <W_t, dY_t/d(q|qd)_j>
         return (np.einsum("tdj,dtk->jk", w, self.B_samples) * self.S).ravel()
 
-    def linearize_criterion(self, z):
+    def linearize_criterion(self, z, *, central=True, deadline=None):
         """Pieces at ``z`` and their gradients (n_pieces, n), from one batched regressor call
-        of 1 + 4 n_joints trajectories (see :meth:`linearize_regressor`,
-        :meth:`coefficient_gradient`)."""
-        Y, dY = self.linearize_regressor(z)
+        of 1 + 4 n_joints trajectories (1 + 2 n_joints unless ``central``; see
+        :meth:`linearize_regressor`, :meth:`coefficient_gradient`)."""
+        Y, dY = self.linearize_regressor(z, central=central, deadline=deadline)
         crit = CRITERIA[self.criterion]
         if crit.adjoint is not None:
             pieces, W = crit.adjoint(Y)
@@ -355,6 +373,23 @@ def _set_up_problem(regressor, criterion, *, duration, harmonics, samples, limit
     return problem
 
 
+def _with_search_subsample(problem, *, harmonics, n_min_samples):
+    """``problem`` holding, as ``subsampled``, a copy on fewer equally spaced samples for the
+    SLSQP search phase: ``_SEARCH_SAMPLES_PER_PERIOD`` a period of the top harmonic, and at
+    least ``2 n_min_samples`` (the fewest samples whose equations outnumber the columns);
+    unchanged if it has no more samples than that. The criteria are sums over samples of
+    smooth signals, so a subsample this dense ranks trajectories as all the samples do, at a
+    fraction of the cost; the polish and the result use all of them."""
+    n_samples, T = problem.B_samples.shape[1], problem.duration
+    n_search = max(_SEARCH_SAMPLES_PER_PERIOD * harmonics, 2 * n_min_samples)
+    if n_search >= n_samples:
+        return problem
+    t = sample_times(T, n_search)
+    sub = replace(problem, B_samples=fourier_basis(t, duration=T, harmonics=harmonics)[:2],
+                  P_samples=boundary_quintic(t, duration=T, boundary=problem.boundary)[:2])  # fmt: skip
+    return replace(problem, subsampled=sub)
+
+
 def _limit_array(joints, q_max, qd_max, qdd_max):
     """Limits as an array (3, n_joints): rows |q| [rad], |qd| [rad/s], |qdd| [rad/s^2]."""
     rows = []
@@ -407,7 +442,8 @@ def _warm_start_coefficients(problem, initial, joints, duration, harmonics, bc):
 
 
 def _checked_regressor_columns(problem, n_joints, samples):
-    """The regressor's number of columns k, after checking its output shape."""
+    """The regressor's number of columns k and rows a sample m, after checking its output
+    shape."""
     zeros = np.zeros((1, samples, n_joints))
     shape = np.shape(problem.regressor(zeros, zeros))
     if len(shape) != 3 or shape[0] != 1 or shape[1] % samples:
@@ -420,7 +456,7 @@ def _checked_regressor_columns(problem, n_joints, samples):
             f"samples={samples} give {shape[1]} equations for {shape[2]} parameters; "
             f"use at least {-(-shape[2] * samples // shape[1])} samples"
         )
-    return shape[2]
+    return shape[2], shape[1] // samples
 
 
 def _check_rank(problem, Z0):
