@@ -54,7 +54,7 @@ def _arm_reference(seed, duration):
 
 def _tracking_rms(model, reference, duration, settings=IDEAL, seed=0):
     """RMS of the true arm joint errors [rad] (2,) when ``computed_torque`` of ``model`` drives the twin."""
-    times = np.arange(int(round(duration * settings.controllers.rate)) + 1) / settings.controllers.rate
+    times = np.arange(round(duration * settings.controllers.rate) + 1) / settings.controllers.rate
     law = computed_torque(model, reference, times, kp=[0.0, KP, KP], kd=2 * np.sqrt(KP))
     run = spaceid.run_twin(lambda t: tuple(x[:, 1:] for x in reference(t)), duration=duration, settings=settings,
                            seed=seed, controller=law)  # fmt: skip

@@ -161,7 +161,8 @@ assert z.max() < 5
 tool = np.array([0.3, 0.0, 0.0])  # [m] in link2 axes
 times = log.t
 window = (excite.truth.t >= start) & (excite.truth.t <= start + excitation.duration)
-true_path = replace(excite.truth.select(window), base_position=np.c_[excite.base_position[window], np.zeros(window.sum())])
+true_xy = excite.base_position[window]
+true_path = replace(excite.truth.select(window), base_position=np.c_[true_xy, np.zeros(len(true_xy))])
 models["true"] = identify_com(models["true"], true_path)
 
 
@@ -224,7 +225,8 @@ models["exported URDF"] = identified.with_values(export.values)
 ticks = np.arange(int(duration * settings.controllers.rate) + 1) / settings.controllers.rate
 errors, rms = {}, {}
 for name in ("true", "identified", "exported URDF", "CAD prior", "PD only"):
-    law = None if name == "PD only" else computed_torque(models[name], reference, ticks, kp=[0.0, 400.0, 400.0], kd=40.0)
+    gains = {"kp": [0.0, 400.0, 400.0], "kd": 40.0}  # [1/s^2], [1/s]; the wheel's angle does not matter
+    law = None if name == "PD only" else computed_torque(models[name], reference, ticks, **gains)
     run = spaceid.run_twin(lambda t: tuple(x[:, 1:] for x in reference(t)), duration=duration, settings=settings,
                            seed=7, controller=law)  # fmt: skip
     errors[name] = run.truth.q[:, 1:] - reference(run.truth.t)[0][:, 1:]

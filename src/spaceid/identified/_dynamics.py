@@ -162,7 +162,7 @@ class IdentifiedModel:
         """The estimate of ``pi``, shape ``(k,)``."""
         return self.identification.values
 
-    def with_values(self, pi) -> "IdentifiedModel":
+    def with_values(self, pi) -> IdentifiedModel:
         """The same model with the minimal parameters ``pi`` (k,) in place of the estimate: e.g.
         the true values, or a CAD prior's (``minimal_parameters(cad).true_values`` for a model
         with the same joints), to compare controllers built on each."""
