@@ -22,7 +22,7 @@ discrete Fourier series of degree two) or a central difference.
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.linalg import qr
@@ -161,6 +161,16 @@ class IdentifiedModel:
     def values(self) -> np.ndarray:
         """The estimate of ``pi``, shape ``(k,)``."""
         return self.identification.values
+
+    def with_values(self, pi) -> IdentifiedModel:
+        """The same model with the minimal parameters ``pi`` (k,) in place of the estimate: e.g.
+        the true values, or a CAD prior's (``minimal_parameters(cad).true_values`` for a model
+        with the same joints), to compare controllers built on each."""
+        pi = np.asarray(pi, float)
+        if pi.shape != self.values.shape:
+            raise SpaceidError(f"with_values: pi has shape {pi.shape}, expected {self.values.shape} "
+                               f"(the parameters {', '.join(self.names)})")  # fmt: skip
+        return IdentifiedModel(replace(self.identification, values=pi), self.param, self.where)
 
     @property
     def cov(self) -> np.ndarray:

@@ -24,14 +24,20 @@ Everything is a free function or a frozen dataclass::
     c = run_twin(load_trajectory("paper-table2"), duration=6.0, settings=grasping, state=a.state)
     c.meta["capture"]  # the truth: payload in the link's frame, grasp time, parameters before/after
 
-* :func:`run_twin` ``(reference=None, *, duration, wheel_speed=None, settings, state, seed, effort)``
-  runs one phase from ``state`` (default: at rest at the origin, full tank); ``reference``
-  drives the position-controlled joints, ``wheel_speed`` [rad/s] the velocity-controlled ones,
-  ``effort`` adds feed-forward efforts to the position loops.
+* :func:`run_twin` ``(reference=None, *, duration, wheel_speed=None, settings, state, seed, effort,
+  controller)`` runs one phase from ``state`` (default: at rest at the origin, full tank);
+  ``reference`` drives the position-controlled joints, ``wheel_speed`` [rad/s] the
+  velocity-controlled ones, ``effort`` adds feed-forward efforts to the position loops, and
+  ``controller(t, q, qd, base_yaw, base_wz) -> efforts`` replaces the effort controllers with a
+  state-feedback law called every control tick (encoder readings, their one-tick difference,
+  the true base yaw and rate; efforts of every joint, saturated and held over the tick).
 * :func:`spin_up` ramps the wheel set point to ``speed`` and lets it settle, arm holding.
 * :func:`join_runs` concatenates consecutive phases into one run.
 * :func:`planned_feedforward` plans feed-forward efforts offline from a model (no state read),
   for ``run_twin(..., effort=...)``.
+* :func:`computed_torque` is a joint computed-torque law through the free-floating ``H*`` and
+  bias torque of any model (an identified one, the true or a CAD prior's ``pi``), for
+  ``run_twin(..., controller=...)`` (docs/theory/control.md).
 * :func:`planar_pinocchio` builds the Pinocchio model (root PX, PY, RZ) and
   :func:`drained_model` the :class:`~spaceid.models.Model` with a partly empty CO2 tank.
 * ``TwinSettings(capture=Capture(time, ...))`` makes the end effector grasp a free-floating
@@ -51,7 +57,8 @@ the settings parametrise them all.
 * ``_plant``: the planar Pinocchio model, the base inertia as the tank drains, the RK4 step of
   the articulated-body algorithm; the coordinates and integration accuracy.
 * ``_controllers``: set points from the reference and wheel speed, the PD/PI effort controllers,
-  the optional inverse-dynamics feed-forward and the feed-forward planned offline.
+  the optional inverse-dynamics feed-forward, the feed-forward planned offline and the
+  computed-torque law for the controller hook.
 * ``_sensors``: encoder quantisation and ``/joint_states``, motion capture with noise, latency
   and dropped frames; time stamps.
 * ``_effects``: joint and air-bearing friction, torque limits, thrusters and the CO2 tank, table

@@ -270,11 +270,12 @@ def _tick_laws(setup: _Setup, settings: TwinSettings, dt) -> _Laws:
 
 
 def _integrate(setup: _Setup, settings: TwinSettings, state: TwinState, command, rate, accel, valves, dt,
-               planned=None):
+               planned=None, feedback=None):
     """The hardware loop and RK4 integration over ``len(command) - 1`` steps.
 
     Per tick: read the encoders, run the controllers (plus the ``planned`` feed-forward efforts
-    (n_steps + 1, n) [N m] of the tick, if any), saturate, evaluate friction and thrust at
+    (n_steps + 1, n) [N m] of the tick, if any; a ``feedback`` law of :func:`run_twin` instead
+    of both), saturate, evaluate friction and thrust at
     the start of the step, then one RK4 step of ``pin.aba`` with all of them held. The loop is
     scalar Python over the (few) joints, and the RK4 stages are small matrix products on the
     rows ``[q, v, a1..a4]``: ~25-35 us per step on one core (``benchmarks/bench_twin.py``).
@@ -321,12 +322,15 @@ def _integrate(setup: _Setup, settings: TwinSettings, state: TwinState, command,
         if k == n_steps:
             EFF.append(EFF[-1] if k else [0.0] * nj)
             break
-        effort = control(qm, prev, commands[k], rates[k], i_term)
+        if feedback is not None:  # the hook replaces the controllers and the feed-forward
+            effort = _feedback_efforts(feedback, state.t + k * dt, qm, prev, dt, ql[2], vl[2], nj)
+        else:
+            effort = control(qm, prev, commands[k], rates[k], i_term)
+            if feedforward:
+                effort = [u + f for u, f in zip(effort, feedforward(W[0], W[1], command[k], rate[k], accel[k]))]
+            if planned is not None:
+                effort = [u + f for u, f in zip(effort, planned[k])]
         prev = qm
-        if feedforward:
-            effort = [u + f for u, f in zip(effort, feedforward(W[0], W[1], command[k], rate[k], accel[k]))]
-        if planned is not None:
-            effort = [u + f for u, f in zip(effort, planned[k])]
         effort = saturate(effort)
         EFF.append(effort)
         # joint friction (internal torques), held over the step like the effort
@@ -347,6 +351,22 @@ def _integrate(setup: _Setup, settings: TwinSettings, state: TwinState, command,
             CO2[k + 1] = co2
     X = np.array(X)
     return X[:, 0], X[:, 1], np.array(QM, float), np.array(EFF, float), CO2, np.array(i_term)
+
+
+def _feedback_efforts(feedback, t, qm, prev, dt, yaw, wz, n) -> list:
+    """Efforts (list of n) [N m] of a state-feedback law at tick time ``t`` [s]: ``feedback(t, q,
+    qd, base_yaw, base_wz)`` with the encoder readings ``qm``, their finite difference from
+    ``prev`` over ``dt`` and the true base yaw [rad] and yaw rate [rad/s]."""
+    q = np.array(qm)
+    out = feedback(t, q, (q - prev) * (1.0 / dt), yaw, wz)
+    try:
+        out = np.asarray(out, float).reshape(n)
+    except (TypeError, ValueError):
+        raise SpaceidError(f"controller(t, q, qd, base_yaw, base_wz) must return {n} efforts (one per joint, "
+                           f"model order), got {np.shape(out)}") from None  # fmt: skip
+    if not np.all(np.isfinite(out)):
+        raise SpaceidError(f"controller: the efforts at t = {t:g} s contain NaN or infinite values")
+    return out.tolist()
 
 
 def _grasp_tick(capture, state: TwinState, times, dt) -> int | None:
@@ -371,7 +391,7 @@ def _state_at(t, q_pin, v_pin, co2, command, i_term, encoder_prev, grasp) -> Twi
 
 
 def _integrate_phase(setup: _Setup, settings: TwinSettings, state: TwinState, times, command, rate, accel, valves,
-                     dt, planned):
+                     dt, planned, feedback=None):
     """:func:`_integrate` over a phase, split at the grasp tick if ``settings.capture`` grasps in it.
 
     Returns the histories of :func:`_integrate` (at the grasp tick the state just before the
@@ -380,18 +400,20 @@ def _integrate_phase(setup: _Setup, settings: TwinSettings, state: TwinState, ti
     (or None)."""
     k = _grasp_tick(settings.capture, state, times, dt)
     if k is None:
-        return *_integrate(setup, settings, state, command, rate, accel, valves, dt, planned), state.grasp, None
+        return (*_integrate(setup, settings, state, command, rate, accel, valves, dt, planned, feedback), state.grasp,
+                None)
 
     def inputs(ticks):
         return command[ticks], rate[ticks], accel[ticks], valves[ticks], None if planned is None else planned[ticks]
 
     c1, r1, a1, w1, p1 = inputs(slice(None, k + 1))
-    Q1, V1, QM1, EFF1, CO21, i_term = _integrate(setup, settings, state, c1, r1, a1, w1, dt, p1)
+    Q1, V1, QM1, EFF1, CO21, i_term = _integrate(setup, settings, state, c1, r1, a1, w1, dt, p1, feedback)
     v_after, grasp = _grasp(setup.model, settings, Q1[-1], V1[-1], times[k], CO21[-1])
     prev = QM1[-2] if k else state.encoder_prev
     held = _state_at(times[k], Q1[-1], v_after, CO21[-1], command[k], i_term, prev, grasp)
     c2, r2, a2, w2, p2 = inputs(slice(k, None))
-    Q2, V2, QM2, EFF2, CO22, i_term = _integrate(_setup(settings, grasp), settings, held, c2, r2, a2, w2, dt, p2)
+    Q2, V2, QM2, EFF2, CO22, i_term = _integrate(_setup(settings, grasp), settings, held, c2, r2, a2, w2, dt, p2,
+                                           feedback)
     return (np.concatenate([Q1, Q2[1:]]), np.concatenate([V1, V2[1:]]), np.concatenate([QM1, QM2[1:]]),
             np.concatenate([EFF1[:-1], EFF2]), np.concatenate([CO21, CO22[1:]]), i_term, grasp, (k, v_after))
 
@@ -408,6 +430,7 @@ def run_twin(
     state: TwinState | None = None,
     seed: int = 0,
     effort=None,
+    controller=None,
 ) -> TwinRun:
     """Run the twin for one phase.
 
@@ -436,6 +459,18 @@ def run_twin(
         n_position_joints)`` [N m] of the phase time, added to the controllers' output before
         saturation (e.g. :func:`~spaceid.twin.planned_feedforward`, computed offline; unlike
         ``Controllers(feedforward=True)`` it reads no state of the twin).
+    controller : callable, optional
+        A state-feedback law in place of the twin's effort controllers (and of ``effort`` and
+        the feed-forward), called at every control tick as ``controller(t, q, qd, base_yaw,
+        base_wz) -> efforts``: ``t`` the absolute tick time [s], ``q`` (n_joints,) the encoder
+        readings [rad] and ``qd`` (n_joints,) their finite difference over the last period
+        [rad/s] (what the hardware interface gives the controllers), ``base_yaw`` [rad] and
+        ``base_wz`` [rad/s] the true base attitude and rate (an ideal attitude sensor: the
+        motion capture is slower and late); it returns the efforts of every joint (n_joints,)
+        [N m] in model order, the reaction wheel's included, which the twin saturates at the
+        torque limits and holds over the period like its own controllers' (e.g.
+        :func:`~spaceid.twin.computed_torque`). ``reference`` and ``wheel_speed`` then only
+        set the recorded commands and ``meta["tracking_rms"]``.
 
     Returns
     -------
@@ -456,8 +491,11 @@ def run_twin(
     command, rate, accel = _setpoints(setup.gains, joints, reference, wheel_speed, times - t0, state.command)
     planned = _effort_setpoints(setup.gains, effort, times - t0)
     valves = _valves(settings.thrusters, times, dt)
+    if controller is not None and not callable(controller):
+        raise SpaceidError(f"controller must be a callable (t, q, qd, base_yaw, base_wz) -> efforts (e.g. "
+                           f"computed_torque) or None, got {type(controller).__name__}")  # fmt: skip
     Q, V, QM, EFF, CO2, i_term, grasp, jump = _integrate_phase(setup, settings, state, times, command, rate, accel,
-                                                               valves, dt, planned)
+                                                               valves, dt, planned, controller)
     rates = _hardware_rates(QM, state.encoder_prev, dt)
     joint_states = _publish_joint_states(settings.encoders, joints, times, dt, QM, rates, EFF)
     poses, n_frames, n_dropped = _capture_poses(settings.mocap, times, Q, V, seed, jump)
