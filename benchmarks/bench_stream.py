@@ -26,6 +26,7 @@ import tracemalloc
 import warnings
 
 import numpy as np
+from bench_regressor import median_time  # the benchmarks' folder is on the path when run as a script
 
 
 def child(n, estimator, chunk):
@@ -84,15 +85,6 @@ def streaming(args):
                     continue
                 print(f"{n:>9} {estimator:>9} {mode:>9} {r['wall']:8.1f} {1e6 * r['wall'] / n:10.1f} "
                       f"{r['traced_mb']:12.0f} {r['rss_mb']:8.0f} {r['z_max']:6.2f}", flush=True)
-
-
-def median_time(fn, repeats=5):
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return float(np.median(times))
 
 
 def fixed_costs():
