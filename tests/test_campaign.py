@@ -133,6 +133,7 @@ def test_scheduler_names_and_seeds():
     assert len(set(seeds.tolist())) == 4
 
 
+@pytest.mark.slow  # a Monte Carlo study through the CLI (seconds)
 def test_montecarlo_cli_resumes(tmp_path):
     args = ["montecarlo", "cepheus", "--momentum", "0.4934", "--runs", "4", "--estimator", "ols", "--jobs", "1",
             "--scheduler", "processes", "--out", str(tmp_path)]
@@ -181,6 +182,7 @@ def test_design_cli_names_a_bad_scheduler(tmp_path, capsys):
     assert code == 2 and err.startswith("error: --scheduler: 'threads'") and not (tmp_path / "t.json").exists()
 
 
+@pytest.mark.slow  # a Monte Carlo study through the CLI (seconds)
 def test_a_finished_study_folder_holds_the_report_and_no_task_results(tmp_path):
     """The task results live beside --out only while the study runs: the finished report
     folder is spaceid's (manifest) and nothing is left beside it."""
