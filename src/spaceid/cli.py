@@ -748,7 +748,8 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, as_json):
               "--trajectory is paper-table2].")
 @click.option("--drift", metavar="KIND[,KIND...]", help="Drift terms to identify with the parameters (torque, "
               "viscous, coulomb; see 'spaceid identify --drift'): the table's friction, integrated from the rest "
-              "at the bag's start.")
+              "at the bag's start. Default: viscous while the table's friction acts, none with --ideal; "
+              "--drift none: no drift terms.")
 @click.option("--feedforward/--no-feedforward", default=True, show_default=True,
               help="Add the arm's inverse dynamics planned from the prior model to the PD loops (after holding the "
               "start pose); --no-feedforward: the published PD loops alone.")
@@ -777,7 +778,8 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     with _progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress:
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
                              bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=folder,
-                             progress=progress, drift=parse_drift(drift, planar=True, values=False),
+                             progress=progress, drift=None if drift is None else
+                             () if drift.strip().lower() == "none" else parse_drift(drift, planar=True, values=False),
                              feedforward=feedforward, rehearsals=rehearsals)
     out.print(parameter_table(res.ident, true=res.true))
     track = res.settings["tracking RMS, encoders vs design [rad]"]

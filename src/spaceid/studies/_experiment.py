@@ -47,6 +47,8 @@ __all__ = ["ExperimentResult", "run_experiment", "BAG_NAMES"]
 
 BAG_NAMES = {"ros1": "run.bag", "ros2": "run_ros2", "mcap": "run.mcap"}
 ARM_JOINTS = ("left_shoulder", "left_elbow")
+# the drift terms identified by default while the table's air-bearing friction acts (benchmarks/bench_experiment.py)
+EXPERIMENT_DRIFT = ("viscous",)
 
 
 @dataclass(frozen=True)
@@ -207,6 +209,14 @@ def _nearest(t, times):
     return np.unique(idx)
 
 
+def _experiment_drift(drift, settings: TwinSettings) -> tuple:
+    """The drift kinds the experiment identifies: ``drift`` as given, or for None
+    ``EXPERIMENT_DRIFT`` while the twin's air-bearing friction acts and none without it."""
+    if drift is not None:
+        return tuple(drift)
+    return EXPERIMENT_DRIFT if settings.bearing_friction.enabled else ()
+
+
 def run_experiment(
     *,
     trajectory="designed",
@@ -220,7 +230,7 @@ def run_experiment(
     seed: int = 0,
     out=None,
     progress=None,
-    drift=(),
+    drift=None,
     feedforward: bool = True,
     rehearsals: int = 0,
 ) -> ExperimentResult:
@@ -258,9 +268,11 @@ def run_experiment(
         ``report.md``.
     progress : callable, optional
         ``progress(done, total)`` for the design.
-    drift : iterable of {"torque", "viscous", "coulomb"}
+    drift : iterable of {"torque", "viscous", "coulomb"}, optional
         Drift terms identified with the parameters (the table's friction; see
-        :func:`spaceid.estimation.identify`). Friction also acts during the spin-up, so the
+        :func:`spaceid.estimation.identify`); None (default): ``EXPERIMENT_DRIFT`` while the
+        twin's air-bearing friction is on, none without it (``--ideal``); ``()``: none.
+        Friction also acts during the spin-up, so the
         drift is integrated from rest (the bag's first sample, zero momentum) to each sample of
         the window; validation uses the identified drift and momentum at the window's start.
     feedforward : bool
@@ -285,6 +297,7 @@ def run_experiment(
         raise SpaceidError(f"--samples {samples}: identification of Cepheus needs at least 10 samples")
     rehearsals = check_rehearsals(rehearsals)
     settings = TwinSettings() if settings is None else settings
+    drift = _experiment_drift(drift, settings)
     model = load_model(settings.model) if not hasattr(settings.model, "bodies") else settings.model
     if not model.wheels:
         raise SpaceidError(f"{model.name}: the experiment needs a model with a reaction wheel (e.g. cepheus-rw)")
