@@ -5,12 +5,12 @@ air-bearing and joint friction, torque limits, thrusters, CO2 tank, encoder quan
 motion-capture noise and latency): design, spin-up, excitation, ROS bag, reading back,
 identification (N samples and all samples), held-out validation. Per parameter over the seeds:
 bias and RMSE relative to the truth [%], RMSE / median predicted std, fraction within 2 sigma,
-largest |z|; per configuration: cond(Y) as designed and as executed (medians). Configurations:
-without drift terms, and with ``--drift`` terms (default ``viscous``: on this protocol the base
-turns one way at a steady rate, so the terms are nearly collinear and one of them is what the
-data can carry).
+largest |z|; per configuration: cond(Y) as designed and as executed (medians). Configurations
+(``--drift``, one per argument): ``none``, ``default`` (the experiment's default: ``viscous``
+while the table's friction acts) or drift kinds (on this protocol the base turns one way at a
+steady rate, so the terms are nearly collinear and one of them is what the data can carry).
 
-    python benchmarks/bench_experiment.py [--seeds 20] [--jobs 2] [--drift viscous [torque,viscous ...]]
+    python benchmarks/bench_experiment.py [--seeds 20] [--jobs 2] [--drift none default [torque,viscous ...]]
 """
 
 import argparse
@@ -65,14 +65,23 @@ def summarise(label, runs):
     return worst, ratio[free].max(), within
 
 
+def _kinds(drift):
+    """The ``drift`` argument of :func:`spaceid.run_experiment` for one ``--drift`` argument."""
+    return {"none": (), "default": None}.get(drift, tuple(drift.split(",")))
+
+
+def _label(drift):
+    return {"none": "--drift none", "default": "default drift terms"}.get(drift, f"--drift {drift}")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
     parser.add_argument("--jobs", type=int, default=os.cpu_count())
-    parser.add_argument("--drift", nargs="+", default=["viscous"], help="drift terms of the further configurations, "
-                        "one configuration per argument (e.g. viscous torque,viscous)")
+    parser.add_argument("--drift", nargs="+", default=["none", "default"], help="drift terms, one configuration per "
+                        "argument: none, default (the experiment's default) or kinds (e.g. viscous torque,viscous)")
     args = parser.parse_args()
-    configs = {"no drift terms": ()} | {f"--drift {d}": tuple(d.split(",")) for d in args.drift}
+    configs = {_label(d): _kinds(d) for d in args.drift}
     seeds = range(args.seeds)
     with ProcessPoolExecutor(args.jobs) as pool:
         results = {label: list(pool.map(one_run, seeds, [drift] * len(seeds))) for label, drift in configs.items()}

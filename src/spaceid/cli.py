@@ -892,7 +892,8 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
               "--trajectory is paper-table2].")
 @click.option("--drift", metavar="KIND[,KIND...]", help="Drift terms to identify with the parameters (torque, "
               "viscous, coulomb; see 'spaceid identify --drift'): the table's friction, integrated from the rest "
-              "at the bag's start.")
+              "at the bag's start. Default: viscous while the table's friction acts, none with --ideal; "
+              "--drift none: no drift terms.")
 @click.option("--feedforward/--no-feedforward", default=True, show_default=True,
               help="Add the arm's inverse dynamics planned from the prior model to the PD loops (after holding the "
               "start pose); --no-feedforward: the published PD loops alone.")
@@ -934,8 +935,8 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
           _report_folder(folder, overwrite) as tmp):
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
                              bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=tmp,
-                             out_name=folder,
-                             progress=progress, drift=parse_drift(drift, planar=True, values=False),
+                             out_name=folder, progress=progress, drift=None if drift is None else
+                             () if drift.strip().lower() == "none" else parse_drift(drift, planar=True, values=False),
                              feedforward=feedforward, rehearsals=rehearsals, capture=protocol,
                              capture_trajectory=capture_trajectory)
     out.print(parameter_table(res.ident, true=res.true))

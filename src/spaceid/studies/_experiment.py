@@ -39,7 +39,8 @@ from ..identified import parameterization_of
 from ..models import load_model
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin
-from ._tracking import check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings
+from ._tracking import (check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings,
+                        regressor_condition_number)
 from ._servicing import CaptureProtocol, run_servicing, write_servicing
 from ._torque_validation import validate_torques
 from ._validate import validate
@@ -48,6 +49,8 @@ __all__ = ["ExperimentResult", "run_experiment", "BAG_NAMES"]
 
 BAG_NAMES = {"ros1": "run.bag", "ros2": "run_ros2", "mcap": "run.mcap"}
 ARM_JOINTS = ("left_shoulder", "left_elbow")
+# the drift terms identified by default while the table's air-bearing friction acts (benchmarks/bench_experiment.py)
+EXPERIMENT_DRIFT = ("viscous",)
 
 
 @dataclass(frozen=True)
@@ -216,6 +219,14 @@ def _nearest(t, times):
     return np.unique(idx)
 
 
+def _experiment_drift(drift, settings: TwinSettings) -> tuple:
+    """The drift kinds the experiment identifies: ``drift`` as given, or for None
+    ``EXPERIMENT_DRIFT`` while the twin's air-bearing friction acts and none without it."""
+    if drift is not None:
+        return tuple(drift)
+    return EXPERIMENT_DRIFT if settings.bearing_friction.enabled else ()
+
+
 def run_experiment(
     *,
     trajectory="designed",
@@ -230,7 +241,7 @@ def run_experiment(
     out=None,
     out_name=None,
     progress=None,
-    drift=(),
+    drift=None,
     feedforward: bool = True,
     rehearsals: int = 0,
     capture: CaptureProtocol | None = None,
@@ -274,9 +285,11 @@ def run_experiment(
         the command line writes into a temporary folder that it renames to this one at the end.
     progress : callable, optional
         ``progress(done, total)`` for the design.
-    drift : iterable of {"torque", "viscous", "coulomb"}
+    drift : iterable of {"torque", "viscous", "coulomb"}, optional
         Drift terms identified with the parameters (the table's friction; see
-        :func:`spaceid.estimation.identify`). Friction also acts during the spin-up, so the
+        :func:`spaceid.estimation.identify`); None (default): ``EXPERIMENT_DRIFT`` while the
+        twin's air-bearing friction is on, none without it (``--ideal``); ``()``: none.
+        Friction also acts during the spin-up, so the
         drift is integrated from rest (the bag's first sample, zero momentum) to each sample of
         the window; validation uses the identified drift and momentum at the window's start.
     feedforward : bool
@@ -310,6 +323,7 @@ def run_experiment(
         raise SpaceidError(f"--samples {samples}: identification of Cepheus needs at least 10 samples")
     rehearsals = check_rehearsals(rehearsals)
     settings = TwinSettings() if settings is None else settings
+    drift = _experiment_drift(drift, settings)
     model = load_model(settings.model) if not hasattr(settings.model, "bodies") else settings.model
     if not model.wheels:
         raise SpaceidError(f"{model.name}: the experiment needs a model with a reaction wheel (e.g. cepheus-rw)")
@@ -444,11 +458,12 @@ def _execution_record(execution, param, traj, log, chosen, start, idents, wheel_
     executed motion (``idents``: from N samples and all) at the same instants, and their ratio."""
     times = [log.t[chosen] - start, log.t - start]
     designed = designed_condition_numbers(param, traj, times, wheel_speed=wheel_speed)
+    executed = [i.condition_number if not i.drift else regressor_condition_number(param, part, "the executed motion")
+                for i, part in zip(idents, (log.select(chosen), log))]  # fmt: skip
     record = dict(execution)
-    for label, d, ident in zip(("N samples", "all samples"), designed, idents):
-        record[f"cond(Y) designed / executed, {label}"] = [d, ident.condition_number]
-    record["cond(Y) executed / designed, N and all samples"] = [i.condition_number / d
-                                                                for d, i in zip(designed, idents)]
+    for label, d, e in zip(("N samples", "all samples"), designed, executed):
+        record[f"cond(Y) designed / executed, {label}"] = [d, e]
+    record["cond(Y) executed / designed, N and all samples"] = [e / d for d, e in zip(designed, executed)]
     return record
 
 
