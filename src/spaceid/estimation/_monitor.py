@@ -10,6 +10,8 @@ the linearisation point at which the equation-error covariances ``S_n``
    of the estimate from the samples before it) is normalised by its predicted covariance
    ``L_n^-1 S_n(estimate) L_n^-T + a_n P a_n^T``: under no change ``nu_n ~ N(0, I)``,
    independent from sample to sample;
+   when the warm-up's residuals are autocorrelated (differentiated rates), an AR filter fitted
+   to them prewhitens the innovations (:meth:`Monitor._set_prewhitening`);
 2. feeds a CUSUM of the log-likelihood ratio of an innovation inflated ``change_ratio`` times in
    variance against none; its threshold gives the requested false-alarm rate (one alarm per
    ``1 / false_alarm_rate`` samples on average, :func:`cusum_threshold`);
@@ -45,6 +47,7 @@ from ._estimators import _accumulate_factor, _column_scale, _whiten
 from ._identify import identify
 from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
+from ._uncertainty import SIGNIFICANCE, _correlation_length, _residual_checks
 
 __all__ = ["Monitor", "MonitorEvent", "monitor", "cusum_threshold", "cusum_run_length"]
 
@@ -61,6 +64,23 @@ WARMUP = 200
 too loose for the normalisation of the residuals that follow (false alarms early in a segment)."""
 NOISE_SAMPLES = 500
 """Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
+AR_ORDER = 3
+"""Order of the autoregressive filter that prewhitens correlated innovations (differentiated rates)."""
+
+
+def _ar_fit(res: np.ndarray, order: int, p: int) -> tuple:
+    """Autoregressive coefficients ``(order,)`` of the whitened residuals ``res (n, rows)`` (the rows
+    as separate series with common coefficients, least squares) and the std of what the filter leaves, its variance
+    scaled by ``m / (m - p)`` for the ``p`` unknowns fitted to the ``m`` equations (the residuals
+    are smaller than the innovations by the fit's share)."""
+    n = len(res)
+    lags = np.stack([res[order - k : n - k] for k in range(1, order + 1)], axis=-1).reshape(-1, order)
+    now = res[order:].reshape(-1)
+    coef = np.linalg.lstsq(lags, now, rcond=None)[0]
+    left = now - lags @ coef
+    m = res.size
+    scale = math.sqrt(np.sum(left**2) / max(left.size - order, 1) * m / max(m - p, 1))
+    return coef, scale
 
 
 def _increment(rows: int, ratio: float):
@@ -277,6 +297,9 @@ class Monitor:
         self.n_samples = self.n_tested = 0
         self._recent = collections.deque(maxlen=self.warmup)  # samples an alarm may hand to the next segment
         self._pending = None  # an alarm whose comparison waits for the next warm-up
+        self._meta = None  # the first samples' meta: its differentiation record
+        self._window = None  # the differentiator's window [samples] (:meth:`_set_prewhitening`)
+        self._skip = 0  # samples still to drop after an alarm
         self._open(start=None)
         if noise is None:
             self._target = max(self.warmup, NOISE_SAMPLES)
@@ -286,6 +309,7 @@ class Monitor:
     def _open(self, start):
         self._warm, self._thinned, self._R, self._g = [], _Thinned(self.max_segment), None, 0.0
         self._start, self._count, self._ident, self._target = start, 0, None, self.warmup
+        self._prewhitening = None
         self._excursion = collections.deque(maxlen=self.warmup)  # (t, nu^T nu) since the CUSUM last left zero
 
     def _identify(self, rows, label) -> Identification:
@@ -318,11 +342,30 @@ class Monitor:
         block = block.reshape(-1, block.shape[-1])
         self._scale = _column_scale(block[:, :-1])
         self._R = _accumulate_factor(None, np.asfortranarray(block / np.r_[self._scale, 1.0]))
+        self._set_prewhitening(block, rows)
         for row in rows:
             self._thinned.add(row)
             self._recent.append(row)
         self._warm = []
         return self._complete_pending()
+
+    def _set_prewhitening(self, block, rows):
+        """The segment's prewhitening filter from the warm-up's whitened residuals at its batch
+        estimate: an AR(``AR_ORDER``) filter and the std it leaves when the rates were
+        differentiated or the residuals are autocorrelated (Ljung-Box at ``SIGNIFICANCE``, as the
+        identification's covariance choice), else none (the innovations are independent)."""
+        res = (block[:, -1] - block[:, :-1] @ self._theta_ref).reshape(len(rows), self.param.rows)
+        checks = _residual_checks(res, res.size, None)
+        if self._window is None:  # the first warm-up: its samples with the log's record of differentiation
+            self._window = _correlation_length(dataclasses.replace(_log(rows, self.param.model, ""), meta=self._meta))
+        window = self._window
+        order = AR_ORDER if (window or checks["ljung_box_p"] < SIGNIFICANCE) and len(rows) > 4 * AR_ORDER else 0
+        coef, scale = _ar_fit(res, order, len(self._theta_ref)) if order else (np.zeros(0), 1.0)
+        self._ar, self._ar_scale = coef, scale
+        self._history = collections.deque(list(res[len(res) - order :]), maxlen=order)  # the lags of the first test
+        self._prewhitening = {"order": order, "coefficients": coef.tolist(), "scale": scale,
+                              "lag1_autocorrelation": checks["lag1_autocorrelation"],
+                              "ljung_box_p": checks["ljung_box_p"], "differentiator_window": window}
 
     def _whitened(self, log: Log, derivatives: bool = False) -> tuple:
         """``log``'s equations ``[A | b]`` whitened by ``S_n`` at the linearisation point, ``(n, rows,
@@ -358,7 +401,8 @@ class Monitor:
             self._thinned.until(end)
         rows = self._thinned.rows or self._warm
         record = {"index": len(self.segments), "start": self._start, "end": end, "n_samples": self._count,
-                  "n_identified": len(rows), "identification": None, "recursive": self.estimate()}
+                  "n_identified": len(rows), "identification": None, "recursive": self.estimate(),
+                  "prewhitening": self._prewhitening}
         if rows and self.noise is not None:
             try:
                 record["identification"] = self._identify(rows, f"segment {len(self.segments)}")
@@ -397,8 +441,13 @@ class Monitor:
         J = np.einsum("rcx,c->rx", D, np.append(theta / self._scale, 1.0))
         Li = np.linalg.inv(L)
         C = Li @ equation_covariance(J[None], self._sigma)[0] @ Li.T + u.T @ u
+        nu = solve_triangular(np.linalg.cholesky(C), e, lower=True)
+        if len(self._ar):  # prewhitened: what the AR filter of the past innovations does not predict
+            past = np.array(self._history)[::-1]  # lag 1 first
+            self._history.append(nu)
+            nu = (nu - self._ar @ past) / self._ar_scale
         c, d = self._increment
-        stat = float(e @ np.linalg.solve(C, e))
+        stat = float(nu @ nu)
         self._g = max(0.0, self._g + c * stat - d)
         self._excursion.append((row[0], stat))
         self.n_tested += 1
@@ -434,6 +483,9 @@ class Monitor:
         handed = [r for r in self._recent if r[0] >= onset] + [row]
         self._recent.clear()
         self._open(start=float(onset))
+        # a differentiator blends the samples within its window of the change: they fit neither segment
+        self._skip = max(0, (self._window or 0) - len(handed))
+        handed = handed[self._window or 0 :]
         self._warm, self._count = handed, len(handed)
 
     def update(self, samples: Log) -> list:
@@ -443,12 +495,18 @@ class Monitor:
         if self._start is None and rows:
             self._start = float(rows[0][0])
         self.n_samples += len(rows)
+        if self._meta is None:
+            self._meta = samples.meta
         while True:
             if self._R is None and len(self._warm) >= self._target:
                 events += self._begin_testing()
                 continue
             if i >= len(rows):
                 break
+            if self._skip:  # samples blended across a change (:meth:`_alarm`)
+                drop = min(self._skip, len(rows) - i)
+                i, self._skip = i + drop, self._skip - drop
+                continue
             if self._R is None:  # warming up
                 take = min(len(rows) - i, self._target - len(self._warm))
                 self._warm += rows[i : i + take]
@@ -493,7 +551,7 @@ class Monitor:
 
         def segment(s):
             ident, rec = s["identification"], s["recursive"]
-            return {k: s[k] for k in ("index", "start", "end", "n_samples", "n_identified")} | {
+            return {k: s[k] for k in ("index", "start", "end", "n_samples", "n_identified", "prewhitening")} | {
                 "parameters": None if ident is None else [
                     {"name": n, "value": float(v), "std": float(e)} for n, v, e in zip(names, ident.values, ident.std)],
                 "chi2_dof": None if ident is None else ident.settings.get("chi2_dof"),
