@@ -274,7 +274,7 @@ def test_cli_writes_the_urdf_and_refuses_its_inputs(cepheus, tmp_path, capsys):
     before = prior.read_text(), result.read_text()
     assert main(["export", str(result), "--prior", str(prior), "-o", str(prior)]) == 2
     assert main(["export", str(result), "--prior", str(prior), "-o", str(result)]) == 2
-    assert capsys.readouterr().err.count("input file") == 2 and (prior.read_text(), result.read_text()) == before
+    assert capsys.readouterr().err.count("is the input") == 2 and (prior.read_text(), result.read_text()) == before
     out = tmp_path / "identified.urdf"
     assert main(["export", str(result), "--prior", str(prior), "-o", str(out)]) == 0
     printed = capsys.readouterr().out
