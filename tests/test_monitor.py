@@ -152,14 +152,21 @@ def test_false_alarm_rate_as_stated(cepheus, steady):
     """At 1e-3 false alarms per sample, 12 seeded 2000-sample logs without a change: the count of
     alarms (~20 expected) within three Poisson standard deviations of the stated rate."""
     _, param = cepheus
-    alarms = tested = 0
-    for seed in range(12):
-        mon = Monitor(param, H, noise=NOISE, false_alarm_rate=1e-3, estimator="wls")
-        mon.update(_noisy(steady, 100 + seed))
-        record = mon.finish()
-        alarms, tested = alarms + len(record["events"]), tested + record["n_tested"]
-    expected = 1e-3 * tested
+    _assert_false_alarm_rate(param, [_noisy(steady, 100 + seed) for seed in range(12)], NOISE)
+
+
+def _assert_false_alarm_rate(param, logs, noise, rate=1e-3) -> list:
+    """Monitor each of ``logs`` (no change in them) at ``rate`` false alarms per sample: the count
+    of alarms within three Poisson standard deviations of the stated rate; the run records."""
+    records = []
+    for log in logs:
+        mon = Monitor(param, H, noise=noise, false_alarm_rate=rate, estimator="wls")
+        mon.update(log)
+        records.append(mon.finish())
+    alarms, tested = sum(len(r["events"]) for r in records), sum(r["n_tested"] for r in records)
+    expected = rate * tested
     assert abs(alarms - expected) < 3 * np.sqrt(expected), (alarms, expected)
+    return records
 
 
 def _differentiated(log, seed):
@@ -175,16 +182,9 @@ def test_false_alarm_rate_as_stated_with_differentiated_rates(cepheus, steady, n
     (~24 expected) within three Poisson standard deviations (without the filter, noise levels
     estimated from the log gave 48 alarms on 6 logs where 0.13 were expected)."""
     _, param = cepheus
-    alarms = tested = 0
-    for seed in range(12):
-        mon = Monitor(param, H, noise=noise, false_alarm_rate=1e-3, estimator="wls")
-        mon.update(_differentiated(steady, 200 + seed))
-        record = mon.finish()
-        alarms, tested = alarms + len(record["events"]), tested + record["n_tested"]
+    for record in _assert_false_alarm_rate(param, [_differentiated(steady, 200 + seed) for seed in range(12)], noise):
         white = record["segments"][0]["prewhitening"]
         assert white["order"] > 0 and white["lag1_autocorrelation"] > 0.5 and white["differentiator_window"] == 30
-    expected = 1e-3 * tested
-    assert abs(alarms - expected) < 3 * np.sqrt(expected), (alarms, expected)
 
 
 def test_white_innovations_are_not_prewhitened(cepheus, steady):
