@@ -1249,9 +1249,9 @@ def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rat
             raise SpaceidError("--follow reads a CSV being written: the bag options do not apply")
         chunks = follow_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, timeout=follow_timeout)
     else:
-        from .estimation._monitor import _chunks
+        from .estimation import log_chunks
 
-        chunks = _chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
+        chunks = log_chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
     mon = Monitor(param, h, known=parse_known(known), noise=noise, false_alarm_rate=false_alarm_rate,
                   change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
                   where=str(log_path))
@@ -1280,7 +1280,7 @@ def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rat
 
 def _print_event(event):
     """One line for a detected change."""
-    from .estimation._monitor import Z_CHANGED
+    from .estimation import Z_CHANGED
 
     changed = ", ".join(event.changed) or f"none beyond {Z_CHANGED:g} standard errors"
     out.print(f"change {event.index} at t = {event.time:.6g} s (detected at {event.detected_at:.6g} s, "

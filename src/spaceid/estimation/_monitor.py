@@ -49,7 +49,7 @@ from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
 from ._uncertainty import SIGNIFICANCE, _correlation_length, _residual_checks
 
-__all__ = ["Monitor", "MonitorEvent", "monitor", "cusum_threshold", "cusum_run_length"]
+__all__ = ["Monitor", "MonitorEvent", "monitor", "cusum_threshold", "cusum_run_length", "log_chunks", "Z_CHANGED"]
 
 FALSE_ALARM_RATE = 1e-5
 """Default false alarms per sample under no change (one per 10^5 samples: 17 min at 100 Hz)."""
@@ -577,7 +577,7 @@ class Monitor:
         }
 
 
-def _chunks(samples):
+def log_chunks(samples):
     """``samples`` as an iterable of logs: a whole :class:`~spaceid.data.Log` in ``CHUNK`` rows."""
     if isinstance(samples, Log):
         return (samples.select(slice(i, i + CHUNK)) for i in range(0, samples.n_samples, CHUNK))
@@ -608,7 +608,7 @@ def monitor(param: Parameterization, samples, momentum, **options):
         :meth:`Monitor.finish`.
     """
     mon = Monitor(param, momentum, **options)
-    for chunk in _chunks(samples):
+    for chunk in log_chunks(samples):
         yield from mon.update(chunk)
     seen = len(mon.events)
     record = mon.finish()
