@@ -13,12 +13,32 @@ import numpy as np
 
 from ._regressor import Parameterization
 
-__all__ = ["base_rate", "excitation_regressor"]
+__all__ = ["base_rate", "excitation_regressor", "rate_pieces"]
 
 
-def _rate_pieces(param: Parameterization, q, qd, evaluate):
-    """``evaluate(q, qd, w0)`` (the regressor, or the momentum of some ``pi``) split by linearity
-    in the base rate: ``free + sum_i w0_i unit[i]``, ``unit`` over z only for planar systems."""
+def rate_pieces(param: Parameterization, q, qd, evaluate):
+    """``evaluate(q, qd, w0)`` split by linearity in the base rate ``w0``.
+
+    Parameters
+    ----------
+    param : Parameterization
+    q, qd : array_like of shape (..., n_joints)
+        Joint positions [rad or m] and rates [rad/s or m/s].
+    evaluate : callable
+        ``evaluate(q, qd, w0)``, linear in ``w0 (..., 3)``: the regressor
+        (``param.regressor``), or the momentum of some ``pi``
+        (``functools.partial(param.momentum, pi=pi)``).
+
+    Returns
+    -------
+    free : ndarray
+        ``evaluate`` at zero base rate (the joints' own contribution).
+    unit : list of ndarray
+        ``evaluate`` per unit base rate about each axis in ``axes``, joint rates zero (for the
+        momentum: the columns of the locked inertia).
+    axes : list of int
+        The base-rate axes: ``[2]`` for planar systems, ``[0, 1, 2]`` otherwise.
+    """
     q, qd = np.asarray(q, float), np.asarray(qd, float)
     lead = q.shape[:-1]
     free = evaluate(q, qd, np.zeros(lead + (3,)))
@@ -55,7 +75,7 @@ def base_rate(param: Parameterization, pi, q, qd, h_base) -> np.ndarray:
     ndarray of shape (..., 3)
         Base angular velocity in base axes [rad/s] (x, y zero for planar systems).
     """
-    return _solve_rate(param, *_rate_pieces(param, q, qd, functools.partial(param.momentum, pi=pi)), h_base)
+    return _solve_rate(param, *rate_pieces(param, q, qd, functools.partial(param.momentum, pi=pi)), h_base)
 
 
 class excitation_regressor:  # noqa: N801 - used like a function; a class so it pickles
@@ -78,6 +98,6 @@ class excitation_regressor:  # noqa: N801 - used like a function; a class so it 
         """Per-sample regressor ``(..., n_samples, rows, k)`` and the base rate it holds,
         ``w0 (..., n_samples, 3)`` in base axes [rad/s] (for the noise-aware design, which
         needs the signals the equations are built from)."""
-        free, unit, axes = _rate_pieces(self.param, q, qd, self.param.regressor)
+        free, unit, axes = rate_pieces(self.param, q, qd, self.param.regressor)
         w0 = _solve_rate(self.param, free @ self.pi, [u @ self.pi for u in unit], axes, self.momentum)
         return free + sum(w0[..., i, None, None] * u for i, u in zip(axes, unit)), w0

@@ -18,7 +18,7 @@ from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from .._errors import SpaceidError
 from ..dynamics import angular_momentum, system_com
-from ..dynamics._base_rate import _rate_pieces, base_rate
+from ..dynamics import base_rate, rate_pieces
 from ..dynamics import Parameterization
 from ..data import Log, quat_to_matrix, yaw_to_quat
 from ..estimation import drift_basis, drift_terms, drift_vector
@@ -144,9 +144,7 @@ def simulate(
         # w0 = A(t)^-1 (R0^T h - b(t)): the locked inertia A and free momentum b depend on the
         # joint motion only, so they are evaluated once on a dense grid (batched) and splined;
         # the output rates are then solved exactly at the samples, so momentum holds there.
-        grid = np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
-        free, unit, _ = _rate_pieces(param, *motion(grid), functools.partial(param.momentum, pi=pi))
-        locked, offset = CubicSpline(grid, np.stack(unit, -1)), CubicSpline(grid, free)
+        locked, offset = _rate_splines(param, pi, motion, times)
 
         def rhs(t, quat):
             h_base = quat_to_matrix(quat / np.linalg.norm(quat)).T @ momentum
@@ -181,7 +179,7 @@ def _rate_splines(param, pi, motion, times):
     motion on a grid 8 times denser than ``times`` (the output times among its nodes): the base
     rate for a momentum ``h_base`` in base axes is ``locked^-1 (h_base[rows] - offset)``."""
     grid = np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
-    free, unit, _ = _rate_pieces(param, *motion(grid), functools.partial(param.momentum, pi=pi))
+    free, unit, _ = rate_pieces(param, *motion(grid), functools.partial(param.momentum, pi=pi))
     return CubicSpline(grid, np.stack(unit, -1)), CubicSpline(grid, free)
 
 
