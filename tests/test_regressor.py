@@ -246,7 +246,7 @@ def test_blocks_do_not_show(rng, monkeypatch):
     whole, energy = param.regressor(q, qd, w0), energy_regressor(model, q, qd, w0)
     one_by_one = np.stack([param.regressor(q[n], qd[n], w0[n]) for n in range(len(q))])
     monkeypatch.setattr(regressor, "_BLOCK", 4)
-    monkeypatch.setattr(regressor, "_BLOCKS", 3)  # several kinematics calls, the last block padded
+    monkeypatch.setattr(regressor, "_GROUP", 12)  # several kinematics calls, the last block padded
     monkeypatch.setattr(regressor, "work_threads", lambda: 2)  # three groups on two threads
     h = whole @ param.true_values
     for got, ref in ((param.regressor(q, qd, w0), whole), (one_by_one, whole), (energy_regressor(model, q, qd, w0), energy),
