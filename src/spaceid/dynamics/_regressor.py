@@ -6,6 +6,11 @@ ones (masses and first moments), once zero linear momentum has eliminated the ba
 
     h = sum_i [ I_i w_i + m_i s_i x u_i ] - (1/M) (sum_i m_i s_i) x (sum_j m_j u_j)
 
+Every column is a sum of two cross products of rows of the batched kinematics (body origins,
+axes, their rates, and the axes times the body-axes rates for the inertias), formed for blocks
+of samples with one gather and a few array operations for all columns at once and written
+straight into the time-first output (:class:`_Plan`).
+
 The minimal set ``pi = P @ [theta, phi]`` is found numerically from the regressor stacked at
 seeded random states, with a recorded rank tolerance. Two bases are offered for it:
 
@@ -267,7 +272,9 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
         if direction is not None:
             return _tangent_tables(model, states, size, step, primal, block)
         frames = frame_table(model, *states, size)
-        return [_energy_columns(frames, plan, block) if energy else _extended_table(frames.table, frames.omega_body, block)]
+        if energy:
+            return [_energy_columns(frames, plan, block)]
+        return [_extended_table(frames.table, frames.omega_body, block)]
 
     def run(starts):
         buffers = np.empty((4, 3, plan.n_cols, block))  # this thread's scratch
