@@ -235,14 +235,14 @@ def _plan(model: Model, columns) -> _Plan:
                  np.array(inertia_at, dtype=int), inertia, cols)
 
 
-_BLOCK = 16
+_BLOCK = 32
 """Samples per block of the column evaluation: its buffers (four of 3 values per column and
-sample, 0.8 MB for the servicer's 496 columns) stay in the caches. Measured on the servicer:
-16 faster than 32, 64 slower still."""
-_GROUP = 512
+sample, 1.5 MB for the servicer's 496 columns) stay in the caches. Measured on the servicer
+(whole regressor, one thread): 32 about 5 % faster than 16, 8 and 64 slower."""
+_GROUP = 256
 """Samples per kinematics call (and per task of a thread): long enough to amortise the
 per-joint Python cost of the tree recursion, short enough for its arrays to stay in cache
-(measured on the servicer: 512 faster than 256 and 1024)."""
+(measured on the servicer: 256 and 512 alike, 128 and 1024 a few per cent slower)."""
 
 
 def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=None, direction=None, step=None,
