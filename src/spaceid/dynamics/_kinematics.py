@@ -72,7 +72,8 @@ class FrameTable:
     """The body frames of many samples, samples last, in blocks.
 
     Sample ``i * block + j`` sits at index ``[i, ..., j]``, so each block of samples is one
-    contiguous slab (the regressor gathers its rows block by block, in cache).
+    contiguous slab. (The regressor asks for one long block, for long array operations in the
+    recursion, and cuts the table it builds from it into short blocks that stay in cache.)
 
     Attributes
     ----------
