@@ -132,8 +132,9 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
           f"parameters (derived in {derive:.2f} s)")
     print(f"{n} samples, medians of {args.repeats} alternating runs and of the per-run ratios; load average "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
-    print(f"  spaceid minimal regressor      {per_sample('regressor'):8.2f} us/sample  ({_regressor.work_threads()} "
-          f"threads now) = {ratio('regressor', 'pinocchio'):.2f} x pinocchio (target <= 3), "
+    threads = _regressor.work_threads()
+    print(f"  spaceid minimal regressor      {per_sample('regressor'):8.2f} us/sample  ({threads} thread"
+          f"{'s' if threads > 1 else ''} now) = {ratio('regressor', 'pinocchio'):.2f} x pinocchio (target <= 3), "
           f"{ratio('regressor', 'floor'):.1f} x the floor")
     print(f"    on one thread                {per_sample('one thread'):8.2f} us/sample  = "
           f"{ratio('one thread', 'pinocchio'):.2f} x pinocchio, {ratio('one thread', 'floor'):.1f} x the floor")
