@@ -1,22 +1,33 @@
-"""Spatial regressor speed on the dual-arm servicer, next to Pinocchio, in one run.
+"""Spatial regressor speed on the dual-arm servicer, next to Pinocchio and the memory floor, in one run.
 
 Builds the minimal momentum regressor for 10,000 random states of the dual-arm servicer
-(14 joints, 496 parameters) and prints its per-sample cost beside the per-sample cost of
-``pinocchio.computeCentroidalMomentum`` on the same model (called once per sample, as from
-Python), then the wall time of identification from 10,000 samples (regressor and solve):
+(14 joints, 496 parameters) into a preallocated output, as identification does, and prints its
+per-sample cost beside the per-sample cost of ``pinocchio.computeCentroidalMomentum`` on the same
+model (called once per sample, as from Python) and beside the memory-bandwidth floor of writing
+the regressor: its bytes a sample (3 x 496 doubles) over the write bandwidth measured by filling
+the same output array. The regressor runs on the threads the library takes (``work_threads``:
+both cores when they are idle) and on one thread; Pinocchio and the fill run on one.
+``--baseline FILE`` times another ``_regressor.py`` (for example ``/work/main/src/spaceid/
+dynamics/_regressor.py``, the code before a change; it runs on this tree's kinematics) in the same
+repeats, and prints how far its regressor is from this one.
+
+Then the wall time of identification from 10,000 samples (regressor and solve):
 least squares (``ols``, the target) on exact data, beside the same with the former factor
 (Householder QR at any conditioning), the factorisation of ``[A | b]`` alone (Cholesky of the
 Gram matrix with refinement, Householder QR, normal equations), and one run of the default
 errors-in-variables maximum likelihood (``ml``) on data with 1e-3 noise on every signal.
-The two are timed alternately, repeat by repeat, so that a load change on a shared machine
-hits both; medians of the repeats and the median of the per-repeat ratios. Prints only,
+Compared timings run alternately, repeat by repeat, so that a load change on a shared machine
+hits all of them; medians of the repeats and the median of the per-repeat ratios. Prints only,
 never fails on timings.
 
-    python benchmarks/bench_regressor.py [--samples 10000] [--repeats 5] [--no-ml]
+    python benchmarks/bench_regressor.py [--samples 10000] [--repeats 5] [--no-ml] [--baseline FILE]
 """
 
 import argparse
 import contextlib
+import importlib.util
+import os
+import sys
 import time
 from pathlib import Path
 
@@ -27,6 +38,7 @@ from scipy.linalg import cho_factor, cho_solve
 import spaceid
 from spaceid.estimation import identify
 from spaceid.estimation import Noise
+from spaceid.dynamics import _regressor
 from spaceid.dynamics._regressor import _random_states, minimal_parameters
 from spaceid.dynamics import base_rate
 from spaceid.data import Log
@@ -69,11 +81,82 @@ def median_time(fn, repeats):
     return float(np.median(times))
 
 
+def load_baseline(path):
+    """The module of another ``_regressor.py``, run as a sibling of this tree's (its relative imports)."""
+    spec = importlib.util.spec_from_file_location("spaceid.dynamics._regressor_baseline", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
+def regressor_speed(args, model, param, states, pinocchio_loop, derive):
+    """Print the regressor's cost a sample beside Pinocchio's and the write floor, timed alternately."""
+    n = len(states[0])
+    out = np.empty((n, 3, param.n_params))
+    written = out[0].nbytes  # bytes of regressor a sample
+
+    def one_thread(module, call):
+        def run():
+            with patched(module, "work_threads", lambda: 1):
+                call()
+        return run
+
+    def into_out(p):
+        return lambda: p.regressor(*states, out=out)
+
+    timed = {"regressor": into_out(param), "one thread": one_thread(_regressor, into_out(param)),
+             "allocating": lambda: param.regressor(*states), "pinocchio": pinocchio_loop,
+             "floor": lambda: out.fill(1.0)}  # fmt: skip
+    if args.baseline:
+        base = load_baseline(args.baseline)
+        base_param = base.minimal_parameters(model)
+        y = param.regressor(*states)
+        gap = np.abs(base_param.regressor(*states) - y).max() / np.abs(y).max()
+        timed |= {"baseline": into_out(base_param), "baseline one thread": one_thread(base, into_out(base_param))}
+    for fn in timed.values():  # untimed: caches and lazy initialisation
+        fn()
+    times = {k: [] for k in timed}
+    for _ in range(args.repeats):
+        for k, fn in timed.items():
+            times[k].append(median_time(fn, 1))
+    times = {k: np.array(v) for k, v in times.items()}
+
+    def per_sample(k):
+        return float(np.median(times[k])) / n * 1e6
+
+    def ratio(k, to):
+        return float(np.median(times[k] / times[to]))
+
+    print(f"dual-arm servicer: {model.n_joints} joints, {len(model.bodies)} bodies, {param.n_params} minimal "
+          f"parameters (derived in {derive:.2f} s)")
+    print(f"{n} samples, medians of {args.repeats} alternating runs and of the per-run ratios; load average "
+          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
+    threads = _regressor.work_threads()
+    print(f"  spaceid minimal regressor      {per_sample('regressor'):8.2f} us/sample  ({threads} thread"
+          f"{'s' if threads > 1 else ''} now) = {ratio('regressor', 'pinocchio'):.2f} x pinocchio (target <= 3), "
+          f"{ratio('regressor', 'floor'):.1f} x the floor")
+    print(f"    on one thread                {per_sample('one thread'):8.2f} us/sample  = "
+          f"{ratio('one thread', 'pinocchio'):.2f} x pinocchio, {ratio('one thread', 'floor'):.1f} x the floor")
+    print(f"    allocating its output        {per_sample('allocating'):8.2f} us/sample  = "
+          f"{ratio('allocating', 'pinocchio'):.2f} x pinocchio")
+    print(f"  pinocchio computeCentroidal... {per_sample('pinocchio'):8.2f} us/sample")
+    print(f"  memory floor                   {per_sample('floor'):8.2f} us/sample  ({written} bytes a sample over "
+          f"{written / per_sample('floor') / 1e3:.1f} GB/s, the rate of filling the output)")
+    if args.baseline:
+        print(f"  baseline {args.baseline}: max |difference| {gap:.1e} of max |Y|")
+        print(f"    its regressor                {per_sample('baseline'):8.2f} us/sample  (this one "
+              f"{ratio('regressor', 'baseline'):.2f} x it)")
+        print(f"    on one thread                {per_sample('baseline one thread'):8.2f} us/sample  (this one "
+              f"{ratio('one thread', 'baseline one thread'):.2f} x it)")
+
+
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, default=10_000)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--no-ml", action="store_true", help="skip the (slow) maximum-likelihood run")
+    parser.add_argument("--baseline", type=Path, help="another _regressor.py to time beside this one")
     args = parser.parse_args()
     n = args.samples
 
@@ -93,13 +176,7 @@ def main():
         for c, v in zip(configs, velocities):
             pin.computeCentroidalMomentum(pmodel, data, c, v)
 
-    def regressor():
-        param.regressor(q, qd, w0)
-
-    regressor(), pinocchio_loop()  # untimed: caches and lazy initialisation
-    pairs = [(median_time(regressor, 1), median_time(pinocchio_loop, 1)) for _ in range(args.repeats)]
-    t_reg, t_pin = np.median(pairs, axis=0)
-    ratio = float(np.median([a / b for a, b in pairs]))
+    regressor_speed(args, model, param, (q, qd, w0), pinocchio_loop, derive)
 
     # identification from n samples: states that satisfy momentum conservation sample by sample
     # (random joint states, base rate from h = [1, -2, 3] N m s at identity attitude)
@@ -135,12 +212,6 @@ def main():
                                    median_time(householder, 1), median_time(lambda: normal_equations(A, b), 1))
                                   for _ in range(args.repeats)], axis=0)  # fmt: skip
 
-    print(f"dual-arm servicer: {model.n_joints} joints, {len(model.bodies)} bodies, {param.n_params} minimal parameters "
-          f"(derived in {derive:.2f} s)")
-    print(f"{n} samples, median of {args.repeats} runs")
-    print(f"  spaceid minimal regressor      {t_reg / n * 1e6:8.2f} us/sample  ({t_reg:.3f} s)")
-    print(f"  pinocchio computeCentroidal... {t_pin / n * 1e6:8.2f} us/sample  ({t_pin:.3f} s)")
-    print(f"  ratio                          {ratio:8.1f}  (target <= 10; median of per-repeat ratios)")
     print(f"  identify(ols) from {n} samples {t_id:8.3f} s  (target < 1 s); max error {err:.1e} of max |pi|")
     print(f"    with Householder QR only     {t_id_hh:8.3f} s  (the former factor); max error {err_hh:.1e}")
     print(f"  factor of [A | b]              {t_ls:8.3f} s  (Cholesky of the Gram matrix, refined; blocked "

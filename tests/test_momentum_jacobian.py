@@ -129,8 +129,10 @@ def test_regressor_derivative_along_a_direction(rng, tree):
     np.testing.assert_allclose(linear - tangent, param.regressor(*x), rtol=0, atol=1e-13 * np.abs(linear).max())
     u = rng.standard_normal((300, param.rows))
     contracted = param.contracted_tangent(*x, d, u, step=1e-5)
+    # the two difference the inertia terms differently (the tangent R e_m wb as R e_(m+1) x R e_(m+2) wb,
+    # the contraction directly): they agree to the round-off of differences of step 1e-5, ~1e-11
     np.testing.assert_allclose(contracted, np.einsum("nrk,nr->k", tangent, u), rtol=0,
-                               atol=1e-12 * np.abs(contracted).max())  # fmt: skip
+                               atol=1e-9 * np.abs(contracted).max())  # fmt: skip
 
 
 def test_equations_linearised_and_contracted(rng):
@@ -160,4 +162,4 @@ def test_equations_linearised_and_contracted(rng):
     u = rng.standard_normal((n, 3))
     contracted = eq.contracted_dphi(x, v, u)
     np.testing.assert_allclose(contracted, np.einsum("nrp,nr->p", tangent[..., :-1], u), rtol=0,
-                               atol=1e-12 * np.abs(contracted).max())  # fmt: skip
+                               atol=1e-9 * np.abs(contracted).max())  # fmt: skip  (round-off, as above)

@@ -68,6 +68,30 @@ def test_spatial_regressor_equals_pinocchio(rng):
     assert np.abs(param.momentum(q, qd, w0, param.true_values) - ref).max() < 1e-11 * scale
 
 
+def test_spatial_columns_equal_their_definitions(rng):
+    """Spatial tree with a prismatic joint: the full regressor times the full values is the direct
+    rigid-body momentum, and every inertia column is ``R e_m1 wb_m2 + R e_m2 wb_m1`` (halved on the
+    diagonal) from the body poses, column by column (the regressor forms them as cross products)."""
+    from spaceid.dynamics import body_states
+    from spaceid.dynamics._regressor import _INERTIA_ENTRIES, _layout
+
+    model = random_tree(rng, [0, 1, 1], planar=False, prismatic=(2,))
+    q, qd, w0 = random_states(rng, model, 40)
+    q[:, 1] = rng.uniform(-0.5, 0.5, 40)
+    y = full_regressor(model, q, qd, w0)
+    direct = angular_momentum(model, q, qd, w0)
+    assert np.abs(y @ full_values(model) - direct).max() < 1e-13 * np.abs(direct).max()
+    st = body_states(model, q, qd, w0)
+    wb = np.einsum("nbkr,nbk->nbr", st.rotation, st.omega)  # body-axes rates
+    for c, (body, k) in enumerate(_layout(model)[0]):
+        if k < 4:
+            continue
+        m1, m2 = _INERTIA_ENTRIES[k - 4]
+        ref = st.rotation[:, body, :, m1] * wb[:, body, m2, None]
+        ref = ref + st.rotation[:, body, :, m2] * wb[:, body, m1, None] if m1 != m2 else ref
+        assert np.abs(y[:, :, c] - ref).max() < 1e-14 * np.abs(ref).max()
+
+
 def test_prismatic_planar_tree_uses_column_basis(rng):
     model = random_tree(rng, [0, 1], prismatic=(2,))
     param = minimal_parameters(model)
@@ -246,7 +270,7 @@ def test_blocks_do_not_show(rng, monkeypatch):
     whole, energy = param.regressor(q, qd, w0), energy_regressor(model, q, qd, w0)
     one_by_one = np.stack([param.regressor(q[n], qd[n], w0[n]) for n in range(len(q))])
     monkeypatch.setattr(regressor, "_BLOCK", 4)
-    monkeypatch.setattr(regressor, "_BLOCKS", 3)  # several kinematics calls, the last block padded
+    monkeypatch.setattr(regressor, "_GROUP", 12)  # several kinematics calls, the last block padded
     monkeypatch.setattr(regressor, "work_threads", lambda: 2)  # three groups on two threads
     h = whole @ param.true_values
     for got, ref in ((param.regressor(q, qd, w0), whole), (one_by_one, whole), (energy_regressor(model, q, qd, w0), energy),

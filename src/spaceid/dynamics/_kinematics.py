@@ -72,7 +72,8 @@ class FrameTable:
     """The body frames of many samples, samples last, in blocks.
 
     Sample ``i * block + j`` sits at index ``[i, ..., j]``, so each block of samples is one
-    contiguous slab (the regressor gathers its rows block by block, in cache).
+    contiguous slab. (The regressor asks for one long block, for long array operations in the
+    recursion, and cuts the table it builds from it into short blocks that stay in cache.)
 
     Attributes
     ----------
@@ -168,22 +169,17 @@ def frame_table(model: Model, q, qd, w0, block: int) -> FrameTable:
     inputs[: len(q)] = np.concatenate([q, qd, w0], -1)
     inputs = np.ascontiguousarray(inputs.reshape(n, block, 2 * nj + 3).transpose(0, 2, 1))
     q, qd, w0 = inputs[:, :nj], inputs[:, nj : 2 * nj], inputs[:, 2 * nj :]
-    cos, sin = np.cos(q)[:, :, None, None], np.sin(q)[:, :, None, None]
+    rodrigues = np.stack([np.ones_like(q), np.cos(q), np.sin(q)], 2)  # (n, nj, 3, block): 1, cos, sin
     table = np.empty((n, 3, 2, nb, 4, block))
     rot, pos, vel, rate = table[:, :, 0, :, 1:], table[:, :, 0, :, 0], table[:, :, 1, :, 0], table[:, :, 1, :, 1:]
     rot[:, :, 0] = np.eye(3)[None, :, :, None]
     joint = np.empty((n, 3, 2, nj, block))  # offset from the parent's origin and axis, base axes
     # the recursion over the tree runs on rotations only (one BLAS product and a few array
     # operations per joint); positions and velocities are path sums over all joints at once
-    for j, (parent, revolute, c) in enumerate(steps):
+    for j, (parent, _, c) in enumerate(steps):
         g = np.matmul(c, rot[:, :, parent])  # (n, 3, 11, block): R_parent [C0, C1, C2, t, a]
-        r = rot[:, :, j + 1]
-        if revolute:
-            np.multiply(g[:, :, 3:6], cos[:, j], out=r)
-            r += g[:, :, :3]
-            r += g[:, :, 6:9] * sin[:, j]
-        else:
-            r[...] = g[:, :, :3]
+        # R_parent (C0 + cos C1 + sin C2) in one pass (C1 = C2 = 0 for a prismatic joint)
+        np.einsum("nrcab,ncb->nrab", g[:, :, :9].reshape(n, 3, 3, 3, block), rodrigues[:, j], out=rot[:, :, j + 1])
         joint[:, :, :, j] = g[:, :, 9:]
     offset, axis = joint[:, :, 0], joint[:, :, 1]
     rates = axis * qd[:, None]  # joint velocity directions times rates

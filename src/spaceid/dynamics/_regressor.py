@@ -6,6 +6,11 @@ ones (masses and first moments), once zero linear momentum has eliminated the ba
 
     h = sum_i [ I_i w_i + m_i s_i x u_i ] - (1/M) (sum_i m_i s_i) x (sum_j m_j u_j)
 
+Every column is a sum of two cross products of rows of the batched kinematics (body origins,
+axes, their rates, and the axes times the body-axes rates for the inertias), formed for blocks
+of samples with one gather and a few array operations for all columns at once and written
+straight into the time-first output (:class:`_Plan`).
+
 The minimal set ``pi = P @ [theta, phi]`` is found numerically from the regressor stacked at
 seeded random states, with a recorded rank tolerance. Two bases are offered for it:
 
@@ -170,14 +175,16 @@ class _Plan:
       ``R e_m1 wb_m2 + R e_m2 wb_m1``, energy ``wb_m1 wb_m2``, halved on the diagonal (``wb``
       the body-axes angular velocity; on the diagonal the momentum's second term is dropped).
 
-    The momentum is evaluated as ``X1 x Y1 + X2 x Y2`` over all columns in output order: the
-    weights are folded into the choice of rows (``U x S = -S x U``; ``|w| = 1/2`` only when
-    ``a == c``, where the second term is the first one again and is replaced by the zero row,
-    the base origin). The inertia columns get zero rows there and are written over afterwards.
+    The momentum of every column is evaluated as ``X1 x Y1 + X2 x Y2``, rows of the extended
+    table (:func:`_extended_table`): the weights are folded into the choice of rows
+    (``U x S = -S x U``; ``|w| = 1/2`` only when ``a == c``, where the second term is the first
+    one again and is replaced by the zero row, the base origin), and an inertia term
+    ``R e_m wb_n`` is ``R e_(m+1) x (R e_(m+2) wb_n)`` (a rotation's axes are right-handed), the
+    second factor a row ``R e_k wb_n`` that the extended table appends.
     """
 
     n_cols: int
-    gather: np.ndarray  # (4, 3 * n_cols): flattened-table rows of X1, Y1, X2, Y2, components x y z
+    gather: np.ndarray  # (4, 3 * n_cols): extended-table rows of X1, Y1, X2, Y2, components x y z
     pair_at: np.ndarray  # output positions of the first-order columns
     pair_rows: np.ndarray  # (2, n_pair): rows a, c of the pose (or rate) table
     pair_weight: np.ndarray  # (n_pair,): w
@@ -210,20 +217,32 @@ def _plan(model: Model, columns) -> _Plan:
     for (a, c, w), n in zip(pair, pair_at):
         x1, y1, x2, y2 = (a, rate + c, c, rate + a) if w > 0 else (rate + c, a, rate + a, c)
         rows[:, n] = (x1, y1, x2, y2) if a != c else (x1, y1, zero, zero)
-    gather = (np.arange(3)[None, :, None] * (8 * nb) + rows[:, None, :]).reshape(4, -1)  # 8 nb rows a component
-    a, c, w = np.array(pair, dtype=float).reshape(-1, 3).T
     body, m1, m2 = np.array(inertia, dtype=int).reshape(-1, 3).T
-    inertia = np.array([4 * body + 1 + m1, np.where(m1 == m2, zero, 4 * body + 1 + m2), m1 * nb + body, m2 * nb + body])
+
+    def axis(m):  # the pose row R e_m
+        return 4 * body + 1 + m % 3
+
+    def spun(k, m):  # the extended row R e_k wb_m
+        return 8 * nb + 9 * body + 3 * (k % 3) + m
+
+    diagonal = m1 == m2
+    rows[:, inertia_at] = [axis(m1 + 1), spun(m1 + 2, m2), np.where(diagonal, zero, axis(m2 + 1)),
+                           np.where(diagonal, zero, spun(m2 + 2, m1))]  # fmt: skip
+    gather = (np.arange(3)[None, :, None] * (17 * nb) + rows[:, None, :]).reshape(4, -1)  # 17 nb rows a component
+    a, c, w = np.array(pair, dtype=float).reshape(-1, 3).T
+    inertia = np.array([axis(m1), np.where(diagonal, zero, axis(m2)), m1 * nb + body, m2 * nb + body])
     return _Plan(len(cols), gather, np.array(pair_at, dtype=int), np.array([a, c], dtype=int), w,
                  np.array(inertia_at, dtype=int), inertia, cols)
 
 
-_BLOCK = 64
-"""Samples per block of the column evaluation. Its four buffers of 3 values per column and
-sample (3 MB for the servicer's 496 columns) stay in the caches, and the transpose into the
-time-first output stays cheap. Measured on the servicer: 32 to 64 alike, 128 slower."""
-_BLOCKS = 16
-"""Blocks per kinematics call: amortises the per-joint Python cost of the tree recursion."""
+_BLOCK = 32
+"""Samples per block of the column evaluation: its buffers (four of 3 values per column and
+sample, 1.5 MB for the servicer's 496 columns) stay in the caches. Measured on the servicer
+(whole regressor, one thread): 32 about 5 % faster than 16, 8 and 64 slower."""
+_GROUP = 256
+"""Samples per kinematics call (and per task of a thread): long enough to amortise the
+per-joint Python cost of the tree recursion, short enough for its arrays to stay in cache
+(measured on the servicer: 256 and 512 alike, 128 and 1024 a few per cent slower)."""
 
 
 def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=None, direction=None, step=None,
@@ -232,11 +251,11 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
     ``(..., n_cols)``; with ``weights (n_cols,)`` their weighted sum, ``(..., 3)`` or ``(...)``,
     formed block by block in cache (the columns are never stored). With ``direction``
     ``(dq, dqd, dw0)`` (momentum only), the columns' derivative along it, plus the columns when
-    ``primal`` (:func:`_tangent_frames`, central differences of step ``step``). ``out`` (a view
+    ``primal`` (:func:`_tangent_tables`, central differences of step ``step``). ``out`` (a view
     is fine) receives the columns, shape ``(n_samples, 3, n_cols)``.
 
-    Groups of ``_BLOCK * _BLOCKS`` samples go to threads (NumPy releases the GIL in the long
-    array operations); each group writes its own rows."""
+    Groups of ``_GROUP`` samples go to threads (NumPy releases the GIL in the long array
+    operations); each group writes its own rows, the columns straight into ``out``."""
     lead, flat = _flatten_states(q, qd, w0)
     if direction is not None:
         flat += [np.broadcast_to(np.asarray(a, float), lead + b.shape[-1:]).reshape(b.shape)
@@ -245,24 +264,33 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
     if out is None:
         out = np.empty((n,) + (() if energy else (3,)) + (() if weights is not None else (plan.n_cols,)))
     block = max(1, min(_BLOCK, n))
-    evaluate = _energy_blocks if energy else _momentum_blocks
+    group = block * max(1, _GROUP // block)
+    evaluate = _energy_block if energy else _momentum_block
 
-    def blocks(group):
-        if direction is None:
-            yield from evaluate(frame_table(model, *group, block), plan)
-            return
-        for first, second in zip(*(evaluate(f, plan) for f in _tangent_frames(model, group, block, step, primal))):
-            first += second  # the bilinear forms of the two tables, summed in cache
-            yield first
+    def tables(states):  # the tables of the group's blocks whose columns sum to the result
+        size = block * -(-len(states[0]) // block)  # one kinematics block, padded to whole blocks
+        if direction is not None:
+            return _tangent_tables(model, states, size, step, primal, block)
+        frames = frame_table(model, *states, size)
+        if energy:
+            return [_energy_columns(frames, plan, block)]
+        return [_extended_table(frames.table, frames.omega_body, block)]
 
     def run(starts):
+        buffers = np.empty((4, 3, plan.n_cols, block))  # this thread's scratch
+        columns = None if weights is None else np.empty((() if energy else (3,)) + (plan.n_cols, block))
         for start in starts:
-            stop = min(start + block * _BLOCKS, n)
-            for i, y in enumerate(blocks([a[start:stop] for a in flat])):
-                rows = slice(start + i * block, min(start + (i + 1) * block, stop))
-                out[rows] = np.moveaxis(y if weights is None else weights @ y, -1, 0)[: rows.stop - rows.start]
+            stop = min(start + group, n)
+            prepared = tables([a[start:stop] for a in flat])
+            for row in range(start, stop, block):
+                rows = slice(row, min(row + block, stop))
+                target = np.moveaxis(out[rows], 0, -1) if weights is None else columns[..., : rows.stop - row]
+                for k, table in enumerate(prepared):
+                    evaluate(table, (row - start) // block, plan, buffers, target, add=k > 0)
+                if weights is not None:
+                    out[rows] = np.moveaxis(weights @ target, -1, 0)
 
-    starts = range(0, n, block * _BLOCKS)
+    starts = range(0, n, group)
     threads = min(len(starts), work_threads())
     if threads > 1:  # a pool per call: no idle threads left behind for forked workers to inherit
         with ThreadPoolExecutor(threads) as pool:
@@ -289,21 +317,25 @@ def _frame_derivative(model: Model, states, block: int, step: float):
     return frames, d_table, (plus.omega_body - minus.omega_body) / two_eps[:, None, None]
 
 
-def _tangent_frames(model: Model, states, block: int, step: float, primal: bool):
-    """Two frame tables whose momentum columns sum to the columns' derivative along a direction.
+def _tangent_tables(model: Model, states, size: int, step: float, primal: bool, block: int):
+    """Two extended tables (:func:`_extended_table`, blocks of ``block``) whose momentum columns
+    sum to the columns' derivative along a direction; the kinematics in one block of ``size``.
 
-    Every momentum column is bilinear in the pose rows ``S`` (with the body axes) and the rate
-    rows ``U`` (with the body-axes rates ``wb``), so its derivative is the column of
-    ``(S, dU, dwb)`` plus that of ``(dS, U, wb)``; with ``primal`` the first is
-    ``(S, U + dU, wb + dwb)`` and the columns come with it (:func:`_frame_derivative`: the
-    kinematics are differenced, the columns never)."""
-    frames, d_table, d_spin = _frame_derivative(model, states, block, step)
-    rate = frames.table.copy()
-    rate[:, :, 1] = d_table[:, :, 1] + (frames.table[:, :, 1] if primal else 0)
-    pose = frames.table.copy()
-    pose[:, :, 0] = d_table[:, :, 0]
-    return (FrameTable(rate, frames.omega, d_spin + (frames.omega_body if primal else 0)),
-            FrameTable(pose, frames.omega, frames.omega_body))
+    Every momentum column is ``X x Y`` summed over row pairs, ``X`` a pose row ``S`` (an origin
+    or axis) and ``Y`` a rate row ``U`` or an extended row ``Q = R e_k wb_m``, so its derivative
+    is the column of ``(S, dU, dQ)`` plus that of ``(dS, U, Q)``; with ``primal`` the first is
+    ``(S, U + dU, Q + dQ)`` and the columns come with it (:func:`_frame_derivative`: the
+    kinematics are differenced, the columns never; ``dQ = dR e_k wb_m + R e_k dwb_m``)."""
+    frames, d_table, d_spin = _frame_derivative(model, states, size, step)
+    nb = len(model.bodies)
+    table = _extended_table(frames.table, frames.omega_body, block)
+    d = _extended_table(d_table, frames.omega_body, block)  # the pose and rate rows' derivatives, dR e_k wb_m
+    d[:, :, 8 * nb :] += _extended_table(frames.table, d_spin, block)[:, :, 8 * nb :]  # + R e_k dwb_m
+    rate = table.copy()
+    rate[:, :, 4 * nb :] = d[:, :, 4 * nb :] + (table[:, :, 4 * nb :] if primal else 0)
+    pose = table
+    pose[:, :, : 4 * nb] = d[:, :, : 4 * nb]
+    return rate, pose
 
 
 def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights, step: float, group: int = 1024):
@@ -336,61 +368,79 @@ def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights
                 G += dt[r] @ (t[(r + 1) % 3] * u[(r + 2) % 3] - t[(r + 2) % 3] * u[(r + 1) % 3]).T  # dT . (T x u)
             P += (u * dt).sum(0) @ frames.omega_body[0].reshape(3 * nb, m).T
             P += (u * t).sum(0) @ d_spin[0].reshape(3 * nb, m).T
-    rows = plan.gather[:, : plan.n_cols]  # component x: the table rows of X1, Y1, X2, Y2
-    out = (G - G.T)[rows[0], rows[1]] + (G - G.T)[rows[2], rows[3]]
+    rows = plan.gather[:, plan.pair_at]  # component x: the table rows of X1, Y1, X2, Y2
+    out = np.empty(plan.n_cols)
+    out[plan.pair_at] = (G - G.T)[rows[0], rows[1]] + (G - G.T)[rows[2], rows[3]]
     axis1, axis2, spin1, spin2 = plan.inertia
     out[plan.inertia_at] = P[axis1, spin2] + P[axis2, spin1]
     return out
 
 
-def _inertia_columns(frames: FrameTable, plan: _Plan, *, energy: bool):
-    """Inertia columns of all blocks: ``(n_blocks, 3, n_inertia, block)`` (momentum) or
-    ``(n_blocks, n_inertia, block)`` (energy)."""
-    n_blocks, block = frames.table.shape[0], frames.table.shape[-1]
-    axis1, axis2, spin1, spin2 = plan.inertia
-    spin = frames.omega_body.reshape(n_blocks, -1, block)
-    wb1, wb2 = np.take(spin, spin1, axis=1), np.take(spin, spin2, axis=1)
-    if energy:
-        return np.where(spin1 == spin2, 0.5, 1.0)[:, None] * wb1 * wb2
-    table = frames.table.reshape(n_blocks, 3, -1, block)
-    return np.take(table, axis1, axis=2) * wb2[:, None] + np.take(table, axis2, axis=2) * wb1[:, None]
+def _extended_table(table: np.ndarray, spin: np.ndarray, block: int) -> np.ndarray:
+    """A frame table of one block (:class:`FrameTable`'s ``table`` and ``omega_body``, or their
+    derivatives) with the rows ``R e_k wb_m`` of every body appended (:class:`_Plan`), in blocks
+    of ``block`` samples: ``(n_blocks, 3, 17 n_bodies, block)``, row ``8 nb + 9 b + 3 k + m`` of a
+    component for body b. The kinematics run on long blocks, the columns on short ones."""
+    _, _, _, nb, _, size = table.shape
+    n_blocks = size // block
+    ext = np.empty((n_blocks, 3, 17 * nb, block))
+    rows = ext.transpose(1, 2, 0, 3)  # (3, 17 nb, n_blocks, block): the samples in order
+    rows[:, : 8 * nb] = table.reshape(3, 8 * nb, n_blocks, block)
+    axes = table[0, :, 0, :, 1:, None].reshape(3, nb, 3, 1, n_blocks, block)  # R e_k
+    spin = spin[0].reshape(3, nb, n_blocks, block).transpose(1, 0, 2, 3)[None, :, None]  # wb_m
+    np.multiply(axes, spin, out=rows[:, 8 * nb :].reshape(3, nb, 3, 3, n_blocks, block))
+    return ext
 
 
-def _momentum_blocks(frames: FrameTable, plan: _Plan):
-    """Momentum columns block by block, each ``(3, n_cols, block)`` (one buffer, reused):
-    gather the rows of ``X1, Y1`` (then ``X2, Y2``) for all columns and form ``X x Y``
-    component by component, each operation one long loop over columns and samples."""
-    n_blocks, block = frames.table.shape[0], frames.table.shape[-1]
-    inertia = _inertia_columns(frames, plan, energy=False) if len(plan.inertia_at) else None
-    x, y, y_out, tmp = np.empty((4, 3, plan.n_cols, block))
-    for i in range(n_blocks):
-        table = frames.table[i].reshape(-1, block)
-        for t in (0, 2):
-            # mode="clip" (the indices are valid by construction): "raise" buffers ``out``
-            np.take(table, plan.gather[t], axis=0, out=x.reshape(-1, block), mode="clip")
-            np.take(table, plan.gather[t + 1], axis=0, out=y.reshape(-1, block), mode="clip")
-            for r in range(3):
-                j, k = (r + 1) % 3, (r + 2) % 3
-                if t == 0:
-                    np.multiply(x[j], y[k], out=y_out[r])
-                else:
-                    y_out[r] += np.multiply(x[j], y[k], out=tmp[r])
-                y_out[r] -= np.multiply(x[k], y[j], out=tmp[r])
-        if inertia is not None:
-            y_out[:, plan.inertia_at] = inertia[i]
-        yield y_out
+def _momentum_block(ext: np.ndarray, i: int, plan: _Plan, buffers: np.ndarray, target: np.ndarray, add: bool):
+    """Momentum columns of block ``i`` of an extended table into ``target (3, n_cols, m)`` (any
+    strides, ``m`` up to the block's samples; added to it with ``add``): gather the rows of
+    ``X1, Y1`` (then ``X2, Y2``) for all columns and form ``X x Y`` component by component, each
+    operation one long loop over columns and samples. The last operation of each component
+    writes ``target``, so the columns reach a time-first output without a transposing copy.
+
+    ``buffers (4, 3, n_cols, block)``: scratch, any content."""
+    x, y, acc, tmp = buffers
+    table, m = ext[i].reshape(-1, ext.shape[-1]), target.shape[-1]
+    for t in (0, 2):
+        # mode="clip" (the indices are valid by construction): "raise" buffers ``out``
+        np.take(table, plan.gather[t], axis=0, out=x.reshape(-1, table.shape[-1]), mode="clip")
+        np.take(table, plan.gather[t + 1], axis=0, out=y.reshape(-1, table.shape[-1]), mode="clip")
+        for r in range(3):
+            j, k = (r + 1) % 3, (r + 2) % 3
+            if t == 0:
+                np.multiply(x[j], y[k], out=acc[r])
+                acc[r] -= np.multiply(x[k], y[j], out=tmp[r])
+                continue
+            acc[r] += np.multiply(x[j], y[k], out=tmp[r])
+            np.multiply(x[k, :, :m], y[j, :, :m], out=tmp[r, :, :m])
+            if add:
+                target[r] += acc[r, :, :m]
+                target[r] -= tmp[r, :, :m]
+            else:
+                np.subtract(acc[r, :, :m], tmp[r, :, :m], out=target[r])
 
 
-def _energy_blocks(frames: FrameTable, plan: _Plan):
-    """Energy columns block by block, each ``(n_cols, block)``."""
-    n_blocks, block = frames.table.shape[0], frames.table.shape[-1]
-    rate = frames.table[:, :, 1].reshape(n_blocks, 3, -1, block)
+def _energy_columns(frames: FrameTable, plan: _Plan, block: int) -> np.ndarray:
+    """Energy columns of a frame table of one block, in blocks of ``block`` samples:
+    ``(n_blocks, n_cols, block)``."""
+    rate = frames.table[0, :, 1].reshape(3, -1, frames.table.shape[-1])
     a, c = plan.pair_rows
-    y = np.empty((n_blocks, plan.n_cols, block))
-    y[:, plan.pair_at] = plan.pair_weight[:, None] * np.einsum("nrkc,nrkc->nkc", rate[:, :, a], rate[:, :, c])
+    y = np.empty((plan.n_cols, rate.shape[-1]))
+    y[plan.pair_at] = plan.pair_weight[:, None] * np.einsum("rkc,rkc->kc", rate[:, a], rate[:, c])
     if len(plan.inertia_at):
-        y[:, plan.inertia_at] = _inertia_columns(frames, plan, energy=True)
-    yield from y
+        _, _, spin1, spin2 = plan.inertia
+        spin = frames.omega_body[0].reshape(-1, rate.shape[-1])
+        y[plan.inertia_at] = np.where(spin1 == spin2, 0.5, 1.0)[:, None] * spin[spin1] * spin[spin2]
+    return y.reshape(plan.n_cols, -1, block).transpose(1, 0, 2)
+
+
+def _energy_block(columns: np.ndarray, i: int, plan: _Plan, buffers, target: np.ndarray, add: bool):
+    """Block ``i`` of :func:`_energy_columns` into ``target (n_cols, m)``, as :func:`_momentum_block`."""
+    if add:
+        target += columns[i, :, : target.shape[-1]]
+    else:
+        target[...] = columns[i, :, : target.shape[-1]]
 
 
 def full_regressor(model: Model, q, qd, w0, *, columns=None) -> np.ndarray:
