@@ -202,6 +202,9 @@ def test_finds_the_capture_with_differentiated_rates(capture, cepheus):
     assert len(events) == 1  # the samples the differentiator blends across the grasp are skipped, not a 2nd event
     (event,) = events  # the smoothed rates show the grasp up to half a window (15 samples) before it
     assert abs(event.time - T_CAPTURE) <= 17 / RATE and event.detected_at - T_CAPTURE <= 3 / RATE
+    # the event says so: the change lies between its time and half the window (30 samples) later
+    assert event.lead == pytest.approx(15 / RATE) and event.time <= T_CAPTURE + 1e-9 <= event.time + event.lead + 2 / RATE
+    assert next(monitor(param, _noisy(log, 9), H, noise=NOISE)).lead == 0.0  # measured rates: no lead
 
 
 def _cli_events(tmp_path, log_path, *extra):

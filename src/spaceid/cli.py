@@ -964,8 +964,10 @@ def _print_servicing(scores: dict) -> None:
     if scores["detected change time [s]"] is None:
         out.print(f"change detection: no change found near the grasp ({scores['events']} events)")
         return
+    lead = scores["change time lead [s]"]
     out.print(f"change detected {scores['change time error [s]']:+.3g} s from the grasp "
-              f"({scores['change time error [samples]']:+g} samples), alarm at "
+              f"({scores['change time error [samples]']:+g} samples; the differentiated rates show it up to "
+              f"{lead:.3g} s early), alarm at "
               f"{scores['alarm time from the grasp [s]']:+.3g} s from it; "
               f"{scores['events before the grasp (false alarms)']} false alarms before it", highlight=False)
 
@@ -1288,7 +1290,8 @@ def _print_event(event):
     from .estimation import Z_CHANGED
 
     changed = ", ".join(event.changed) or f"none beyond {Z_CHANGED:g} standard errors"
-    out.print(f"change {event.index} at t = {event.time:.6g} s (detected at {event.detected_at:.6g} s, "
+    lead = f" (differentiated rates: the change up to {event.lead:.3g} s later)" if event.lead else ""
+    out.print(f"change {event.index} at t = {event.time:.6g} s{lead} (detected at {event.detected_at:.6g} s, "
               f"{event.delay} samples; statistic {event.statistic:.4g} > {event.threshold:.4g}); changed: {changed}",
               highlight=False)
 

@@ -268,6 +268,7 @@ def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict
         "detected at [s]": None if first is None else first["detected_at"],
         "change time error [s]": None if first is None else first["time"] - grasp,
         "change time error [samples]": None if first is None else round((first["time"] - grasp) / dt, 1),
+        "change time lead [s]": None if first is None else first["lead"],
         "alarm time from the grasp [s]": None if first is None else first["detected_at"] - grasp,
         "events before the grasp (false alarms)": len(events["events"]) - len(found),
         "events": len(events["events"]),
