@@ -17,7 +17,9 @@ recorded as one bag (``capture.bag``, ...), read back as a lab recording; then
    servicer of a servicing mission, and on the twin the truth, so that the z-scores against the
    payload's truth test the payload's estimate and its standard errors alone. The servicer
    identified before matches it only within its own errors, which would bias the payload by an
-   amount its standard errors do not include.
+   amount its standard errors do not include. The window leaves out the samples whose
+   differentiated rates blend the grasp, and with drift terms the momentum is the servicer's
+   over the hold before the grasp (:func:`_payload`).
 
 Only the phases from the grasp on carry the capture: the rehearsals, the excitation and the
 held-out motion run on the servicer alone.
