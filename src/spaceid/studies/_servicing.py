@@ -56,6 +56,8 @@ EARLY = 0.5
 see the motion that starts at the grasp up to half the differentiator's window earlier."""
 HOLD = 1.0
 """How long [s] the arm holds still at the end of the held-out phase, before the grasp."""
+HOLD_SAMPLES = 5
+"""Fewest samples of the hold that the momentum before the grasp is averaged over."""
 SETTINGS_KEYS = ("mass", "com", "inertia", "velocity", "rate", "link", "offset", "yaw")
 
 
@@ -208,9 +210,9 @@ def _payload(servicer, log: Log, link: str, grasp: float, duration: float, drift
     window = replace(log.select(after), meta=dict(log.meta, window=[grasp + margin, grasp + duration]))
     history, momentum = None, np.zeros(3)
     if drift:
-        hold = (log.t > grasp - HOLD + margin) & (log.t < grasp - margin)
-        if not hold.any():  # a differentiator window longer than the hold: its middle sample
-            hold = np.arange(log.n_samples) == np.argmin(np.abs(log.t - (grasp - HOLD / 2)))
+        hold = np.flatnonzero((log.t > grasp - HOLD + margin) & (log.t < grasp - margin))
+        if hold.size < HOLD_SAMPLES:  # a differentiator window about as long as the hold: its middle samples
+            hold = np.sort(np.argsort(np.abs(log.t - (grasp - HOLD / 2)))[:HOLD_SAMPLES])
         still = log.select(hold)
         param = minimal_parameters(servicer, seed=seed)
         momentum = mean_momentum(param, param.true_values, still)
