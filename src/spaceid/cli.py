@@ -1237,10 +1237,11 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
 def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rate, change_ratio, forgetting, warmup,
             estimator, follow, follow_timeout, output, bag):
     """Follow a log sample by sample (LOG.csv; a ROS bag, read part by part as its messages come;
-    or with --follow a CSV being written): a recursive estimate of the parameters on the momentum equations and a CUSUM test on its
-    normalised residual; each detected change is printed and written to EVENTS.json with its
-    time, test statistic and the parameters that changed, and each segment between changes is
-    identified in batch. Noise levels not given are estimated from the first samples."""
+    or with --follow a CSV being written): a recursive estimate of the parameters on the
+    momentum equations and a CUSUM test on its normalised residual; each detected change is
+    printed and written to EVENTS.json with its time, test statistic and the parameters that
+    changed, and each segment between changes is identified in batch. Noise levels not given are
+    estimated from the first samples."""
     from .data import bag_chunks, follow_log, is_bag, read_log, write_json
     from .estimation import Monitor, log_chunks, parse_known
 
@@ -1249,9 +1250,9 @@ def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rat
     m = param.model
     if follow:
         if is_bag(log_path):
-            raise SpaceidError(f"{log_path}: --follow reads a CSV being written; a bag cannot be read while it is "
-                               "recorded (ROS 1 writes its index, MCAP its footer and ROS 2 its metadata.yaml when "
-                               "the recording closes): monitor the bag once closed, or log a CSV to follow")  # fmt: skip
+            raise SpaceidError(f"{log_path}: --follow reads a CSV being written; a bag cannot be read while it "
+                               "is recorded (ROS 1 writes its index, MCAP its footer and ROS 2 its metadata.yaml "
+                               "when the recording closes): monitor the bag once closed, or log a CSV to follow")
         if any(v is not None for v in bag.values()):
             raise SpaceidError("--follow reads a CSV being written: the bag options do not apply")
         chunks = follow_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, timeout=follow_timeout)

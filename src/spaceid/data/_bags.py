@@ -141,7 +141,7 @@ def bag_chunks(path, *, joints, planar, wheels=(), mapping=None, joint_topic=Non
 def _settled(log: Log) -> float:
     """How long [s] before its last stamp the samples of ``log`` stop depending on messages to
     come: half the widest differentiator window it records, plus one sample step."""
-    spans = [w for info in (log.meta["differentiation"]["base"], *(log.meta["differentiation"]["joints"] or {}).values())
-             for w in (info.get("window_s") or [])]  # fmt: skip
+    record = log.meta["differentiation"]
+    spans = [w for info in (record["base"], *(record["joints"] or {}).values()) for w in (info.get("window_s") or [])]
     step = float(np.median(np.diff(log.t))) if log.n_samples > 1 else 0.0
     return max(spans, default=0.0) / 2 + step
