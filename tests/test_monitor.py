@@ -202,6 +202,10 @@ def test_finds_the_capture_with_differentiated_rates(capture, cepheus):
     assert len(events) == 1  # the samples the differentiator blends across the grasp are skipped, not a 2nd event
     (event,) = events  # the smoothed rates show the grasp up to half a window (15 samples) before it
     assert abs(event.time - T_CAPTURE) <= 17 / RATE and event.detected_at - T_CAPTURE <= 3 / RATE
+    # the event says so: the change lies between its time and half the window (30 samples) later
+    assert event.lead == pytest.approx(15 / RATE)
+    assert event.time <= T_CAPTURE + 1e-9 <= event.time + event.lead + 2 / RATE
+    assert next(monitor(param, _noisy(log, 9), H, noise=NOISE)).lead == 0.0  # measured rates: no lead
 
 
 def _cli_events(tmp_path, log_path, *extra):
@@ -305,3 +309,75 @@ def test_finds_a_capture_on_a_spatial_tree():
     log = _noisy(_concatenate(before.select(slice(0, -1)), after), 7)
     events = list(monitor(param, log, h, noise=NOISE))
     assert len(events) == 1 and abs(events[0].time - 15.0) <= 2 / 50
+
+
+@pytest.fixture(scope="module")
+def capture_bag(tmp_path_factory):
+    """A bag of the ideal Cepheus twin grasping 0.5 kg at 4 s of a 9 s motion (encoders at 50 Hz,
+    motion capture at 100 Hz), and the grasp time on the reader's clock."""
+    from spaceid.motion import load_trajectory
+    from spaceid.twin import Capture, TwinSettings, place_payload, run_twin, spin_up
+    from spaceid.data import write_bag
+
+    ideal = TwinSettings().without_effects()
+    start = spin_up(170.0, settings=ideal, seed=1)
+    before = run_twin(load_trajectory("paper-table2"), duration=4.0, settings=ideal, state=start.state, seed=2)
+    grasp = place_payload(Capture(time=0.0), "cepheus-rw", before.state, offset=(0.04, 0.0))
+    run = run_twin(load_trajectory("paper-table2"), duration=9.0, settings=dataclasses.replace(ideal, capture=grasp),
+                   state=start.state, seed=2)  # fmt: skip
+    bag = tmp_path_factory.mktemp("bag") / "capture.mcap"
+    write_bag(bag, run.recording, format="mcap")
+    return bag, run.meta["capture"]["time"]
+
+
+def _bag_options():
+    m = load_model("cepheus-rw")
+    return {"joints": m.joints, "planar": True, "wheels": m.wheels, "pose_latency": 0.005}
+
+
+def test_a_bag_is_read_in_parts_of_bounded_size(capture_bag, monkeypatch):
+    import spaceid.data._bags as bags
+    from spaceid.data import bag_chunks, read_bag_log
+
+    bag, _ = capture_bag
+    sizes, to_log = [], bags.to_log
+    monkeypatch.setattr(bags, "to_log", lambda rec, **kw: sizes.append(rec.joints.t.size) or to_log(rec, **kw))
+    parts = list(bag_chunks(bag, block=2.0, **_bag_options()))
+    monkeypatch.undo()
+    whole = read_bag_log(bag, **_bag_options())
+    assert len(parts) >= 5 and np.array_equal(np.concatenate([p.t for p in parts]), whole.t)
+    # each part aligned about 2 s of new joint states and a differentiator window before them: not the whole bag
+    assert max(sizes) < (2.0 + 3.0) * 50 < whole.n_samples, sizes
+    # each part's differentiator has its own window: rates as the whole read's within about their noise
+    qd = np.concatenate([p.qd for p in parts])
+    q = np.concatenate([p.q for p in parts])
+    assert np.sqrt(np.mean((qd - whole.qd) ** 2)) < 5e-3 and np.abs(q - whole.q).max() < 3e-3
+
+
+def test_monitor_on_a_bag_reads_it_in_parts(capture_bag, tmp_path, capsys):
+    from spaceid.data import read_bag_log
+
+    bag, grasp = capture_bag
+    out = tmp_path / "events.json"
+    args = ["monitor", "cepheus-rw", str(bag), "--momentum", "0", "--known", f"Iczz_wheel={_rotor()!r}",
+            "--warmup", "100", "--noise-angle", "1e-3", "--noise-rate", "1e-2", "--noise-base-rate", "1e-2",
+            "-o", str(out)]  # fmt: skip
+    assert main(args) == 0
+    (event,) = json.loads(out.read_text())["events"]
+    whole = read_bag_log(bag, **_bag_options())
+    grasp -= whole.meta["time_origin_ns"] / 1e9
+    # found where the whole log read at once finds it: within half the differentiator's window before the grasp
+    param = minimal_parameters(load_model("cepheus-rw"))
+    (expected,) = monitor(param, whole, np.zeros(3), known={"Iczz_wheel": _rotor()}, warmup=100,
+                          noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
+    assert abs(event["time"] - expected.time) <= 0.04 and -0.5 < event["time"] - grasp <= 0.02, (event, grasp)
+    assert main(args + ["--follow"]) == 2
+    assert "a bag cannot be read while it is recorded" in capsys.readouterr().err
+
+
+def _rotor():
+    from spaceid.estimation import resolve_anchors
+
+    param = minimal_parameters(load_model("cepheus-rw"))
+    ((value, _),) = resolve_anchors(param, {}, "cepheus-rw").values()
+    return value

@@ -205,6 +205,38 @@ def test_drift_is_estimated_with_the_payload(cepheus):
     assert abs(off.mass - CEPHEUS_PAYLOAD[0]) > 1e-4
 
 
+def test_drift_integrated_over_a_history_from_a_known_momentum(cepheus):
+    """A window cut from a longer record: the momentum is known at the record's start (before the
+    window) and the drift is integrated from there, as after a grasp (docs/theory/capture.md)."""
+    pmap, traj, theta, _ = cepheus
+    h = np.array([0, 0, 0.05])
+    record = spaceid.simulate(pmap.param, pmap.pi(theta), traj, np.linspace(0, traj.duration, 200), h,
+                              model=pmap.model(theta), drift={"viscous": 1e-4})  # fmt: skip
+    window = record.select(record.t > 6.0)
+    est = identify_payload(pmap, window, "link2", h, noise=spaceid.Noise(), drift=("viscous",), history=record)
+    np.testing.assert_allclose(est.values, [CEPHEUS_PAYLOAD[0], *CEPHEUS_PAYLOAD[1], CEPHEUS_PAYLOAD[2]], rtol=1e-6)
+    np.testing.assert_allclose(est.drift[0]["value"], 1e-4, rtol=1e-5)
+    # the same momentum taken at the window's start instead is wrong by the drift before it: off
+    off = identify_payload(pmap, window, "link2", h, noise=spaceid.Noise(), drift=("viscous",))
+    assert abs(off.mass - CEPHEUS_PAYLOAD[0]) > 1e-4
+
+
+@pytest.mark.slow
+def test_differentiated_rates_spread_agrees_with_the_newey_west_errors(cepheus):
+    """Rates differentiated from noisy angles have errors correlated over the differentiator's
+    window: the standard errors follow the residuals (Newey-West) and cover the spread."""
+    from spaceid.data import differentiate_log
+
+    pmap, traj, theta, _ = cepheus
+    log = _log_with_payload(pmap, theta, traj, 1000, np.array([0, 0, 0.05]))
+    truth = np.array([CEPHEUS_PAYLOAD[0], *CEPHEUS_PAYLOAD[1], CEPHEUS_PAYLOAD[2]])
+    runs = [identify_payload(pmap, differentiate_log(add_noise(log, angle=1e-3, seed=s)), "link2", [0, 0, 0.05])
+            for s in range(40)]  # fmt: skip
+    assert "Newey-West" in runs[0].settings["covariance"]
+    z = (np.array([r.values for r in runs]) - truth) / np.array([r.std for r in runs])
+    assert np.all(np.sqrt((z**2).mean(0)) < 1.2) and np.abs(z).max() < 4, z  # old (Fisher x chi2): RMS z 1.37-1.70
+
+
 def test_links_from_a_urdf_file_and_unknown_links(satellite, tmp_path):
     from importlib import resources
 
@@ -213,7 +245,7 @@ def test_links_from_a_urdf_file_and_unknown_links(satellite, tmp_path):
     pmap = payload_map(path, "arm_ee")
     assert pmap.body == satellite[0].body and np.allclose(pmap.transform, satellite[0].transform)
     assert not np.allclose(pmap.transform, payload_map(path, pmap.param.model.bodies[pmap.body].name).transform)
-    with pytest.raises(spaceid.SpaceidError, match="--link: 'gripper' is not a link"):
+    with pytest.raises(spaceid.SpaceidError, match="--link names 'gripper', which is not a body"):
         payload_map("satellite-7dof", "gripper")
     with pytest.raises(spaceid.SpaceidError, match="differs from the payload map's link"):
         identify_payload(pmap, None, "other", [0, 0, 0])
@@ -236,7 +268,7 @@ def test_cli_payload_end_to_end(cepheus, tmp_path, capsys):
     assert len(data["covariance"]["matrix"]) == 4 and data["units"]["inertia"] == "kg m^2"
     assert "not identifiable from planar motion" in capsys.readouterr().out
     assert main(args[:3] + ["--link", "nowhere"] + args[5:]) == 2
-    assert "error: --link: 'nowhere'" in capsys.readouterr().err
+    assert "error: --link names 'nowhere', which is not a body of model cepheus" in capsys.readouterr().err
     # the design reads it back as its nominal payload
     std = data["standard_parameters"]
     np.testing.assert_allclose(nominal_payload(out, planar=True), [std["m"], std["mcx"], std["mcy"], std["Izz"]])

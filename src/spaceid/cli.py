@@ -964,8 +964,10 @@ def _print_servicing(scores: dict) -> None:
     if scores["detected change time [s]"] is None:
         out.print(f"change detection: no change found near the grasp ({scores['events']} events)")
         return
+    lead = scores["change time lead [s]"]
     out.print(f"change detected {scores['change time error [s]']:+.3g} s from the grasp "
-              f"({scores['change time error [samples]']:+g} samples), alarm at "
+              f"({scores['change time error [samples]']:+g} samples; the differentiated rates show it up to "
+              f"{lead:.3g} s early), alarm at "
               f"{scores['alarm time from the grasp [s]']:+.3g} s from it; "
               f"{scores['events before the grasp (false alarms)']} false alarms before it", highlight=False)
 
@@ -1226,31 +1228,37 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
 @click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES[:-1]), default="ml", show_default=True,
               help="Estimator of the batch identifications of the segments (see 'spaceid identify').")
 @click.option("--follow", is_flag=True, help="LOG is a CSV being written: keep reading appended rows until "
-              "interrupted (Ctrl-C) or --follow-timeout seconds pass without a new row.")
+              "interrupted (Ctrl-C) or --follow-timeout seconds pass without a new row (a bag cannot be read until "
+              "its recording closes).")
 @click.option("--follow-timeout", type=SECONDS, default=10.0, show_default=True, metavar="SECONDS",
               help="With --follow: the log counts as finished after this many seconds without a new row.")
 @bag_options
 @output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
 def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rate, change_ratio, forgetting, warmup,
             estimator, follow, follow_timeout, output, bag):
-    """Follow a log sample by sample (LOG.csv, a ROS bag, or with --follow a CSV being written): a
-    recursive estimate of the parameters on the momentum equations and a CUSUM test on its
-    normalised residual; each detected change is printed and written to EVENTS.json with its
-    time, test statistic and the parameters that changed, and each segment between changes is
-    identified in batch. Noise levels not given are estimated from the first samples."""
-    from .data import follow_log, read_log, write_json
-    from .estimation import Monitor, parse_known
+    """Follow a log sample by sample (LOG.csv; a ROS bag, read part by part as its messages come;
+    or with --follow a CSV being written): a recursive estimate of the parameters on the
+    momentum equations and a CUSUM test on its normalised residual; each detected change is
+    printed and written to EVENTS.json with its time, test statistic and the parameters that
+    changed, and each segment between changes is identified in batch. Noise levels not given are
+    estimated from the first samples."""
+    from .data import bag_chunks, follow_log, is_bag, read_log, write_json
+    from .estimation import Monitor, log_chunks, parse_known
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
     m = param.model
     if follow:
+        if is_bag(log_path):
+            raise SpaceidError(f"{log_path}: --follow reads a CSV being written; a bag cannot be read while it "
+                               "is recorded (ROS 1 writes its index, MCAP its footer and ROS 2 its metadata.yaml "
+                               "when the recording closes): monitor the bag once closed, or log a CSV to follow")
         if any(v is not None for v in bag.values()):
             raise SpaceidError("--follow reads a CSV being written: the bag options do not apply")
         chunks = follow_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, timeout=follow_timeout)
+    elif is_bag(log_path):  # read part by part: events as the messages are read, memory bounded
+        chunks = bag_chunks(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, **bag)
     else:
-        from .estimation import log_chunks
-
         chunks = log_chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
     mon = Monitor(param, h, known=parse_known(known), noise=noise, false_alarm_rate=false_alarm_rate,
                   change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
@@ -1283,7 +1291,8 @@ def _print_event(event):
     from .estimation import Z_CHANGED
 
     changed = ", ".join(event.changed) or f"none beyond {Z_CHANGED:g} standard errors"
-    out.print(f"change {event.index} at t = {event.time:.6g} s (detected at {event.detected_at:.6g} s, "
+    lead = f" (differentiated rates: the change up to {event.lead:.3g} s later)" if event.lead else ""
+    out.print(f"change {event.index} at t = {event.time:.6g} s{lead} (detected at {event.detected_at:.6g} s, "
               f"{event.delay} samples; statistic {event.statistic:.4g} > {event.threshold:.4g}); changed: {changed}",
               highlight=False)
 

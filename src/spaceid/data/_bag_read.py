@@ -84,10 +84,15 @@ def read_recording(
         not in the bag or two names renamed to one.
     """
     path = Path(path)
-    where = str(path)
     joint_msgs, pose_msgs, joint_publishers = _read_messages(path, joint_topic, pose_topic)
-    kind = "ros1" if path.suffix.lower() == ".bag" else _ros2_format(path)
+    return _recording(path, joint_msgs, pose_msgs, joint_publishers, joint_topic, pose_topic, rename, time_origin_ns)
 
+
+def _recording(path, joint_msgs, pose_msgs, joint_publishers, joint_topic, pose_topic, rename, time_origin_ns):
+    """The :class:`Recording` of a bag's deserialised JointState and PoseStamped messages (all of
+    them, or a block of a bag read in parts), as :func:`read_recording` returns it."""
+    where = str(path)
+    kind = "ros1" if path.suffix.lower() == ".bag" else _ros2_format(path)
     joint_ns, names, position, velocity, effort = _merge_joint_states(joint_msgs, f"{where}: {joint_topic}")
     pose_ns, pose_position, quat, frame = _poses(pose_msgs, f"{where}: {pose_topic}")
     if time_origin_ns is None:
@@ -118,6 +123,18 @@ def read_recording(
 def _read_messages(path, joint_topic, pose_topic):
     """The deserialised JointState and PoseStamped messages of a bag, in bag order, and the
     number of publishers (connections) of the joint topic."""
+    joint_msgs, pose_msgs = [], []
+    with _bag_messages(path, joint_topic, pose_topic) as (messages, publishers):
+        for topic, msg in messages:
+            (joint_msgs if topic == joint_topic else pose_msgs).append(msg)
+    return joint_msgs, pose_msgs, publishers
+
+
+@contextlib.contextmanager
+def _bag_messages(path, joint_topic, pose_topic):
+    """``(messages, publishers)``: an iterator over the ``(topic, message)`` pairs of the joint
+    and pose topics, deserialised one at a time in bag order, and the number of publishers of the
+    joint topic."""
     where = str(path)
     with _open_bag(path) as reader:
         connections = {
@@ -127,16 +144,17 @@ def _read_messages(path, joint_topic, pose_topic):
                 (pose_topic, POSE_STAMPED, "pose_topic (--pose-topic)"),
             )
         }
-        joint_msgs, pose_msgs = [], []
-        try:
-            for connection, _, raw in reader.messages(connections=[c for cs in connections.values() for c in cs]):
-                msg = reader.deserialize(raw, connection.msgtype)
-                (joint_msgs if connection.topic == joint_topic else pose_msgs).append(msg)
-        except _damaged() as err:
-            raise SpaceidError(
-                f"{where}: cannot read the messages ({_text(err)}): the bag is damaged; re-record or repair it"
-            ) from None
-    return joint_msgs, pose_msgs, len(connections[joint_topic])
+
+        def messages():
+            try:
+                for connection, _, raw in reader.messages(connections=[c for cs in connections.values() for c in cs]):
+                    yield connection.topic, reader.deserialize(raw, connection.msgtype)
+            except _damaged() as err:
+                raise SpaceidError(
+                    f"{where}: cannot read the messages ({_text(err)}): the bag is damaged; re-record or repair it"
+                ) from None
+
+        yield messages(), len(connections[joint_topic])
 
 
 def _ros2_format(path):

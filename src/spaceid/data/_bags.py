@@ -10,12 +10,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ._bag_format import _BAG_SUFFIXES, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC
-from ._bag_read import read_mapping, read_recording
+import numpy as np
+
+from .._errors import SpaceidError
+from ._bag_format import _BAG_SUFFIXES, _NS, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC
+from ._bag_read import _bag_messages, _recording, _stamp, read_mapping, read_recording
 from ._bag_to_log import to_log
 from ._timeseries import Log
 
-__all__ = ["is_bag", "read_bag_log"]
+__all__ = ["is_bag", "read_bag_log", "bag_chunks"]
+
+BLOCK = 10.0
+"""Seconds of joint states that :func:`bag_chunks` aligns at a time."""
 
 
 def is_bag(path) -> bool:
@@ -49,16 +55,93 @@ def read_bag_log(path, *, joints, planar, wheels=(), mapping=None, joint_topic=N
     Log
         As :func:`to_log`; ``meta["mapping"]`` names the mapping file when one was given.
     """
-    settings = read_mapping(mapping) if isinstance(mapping, (str, Path)) else dict(mapping or {})
-    recording = read_recording(
-        path,
-        joint_topic=joint_topic or settings.get("joint_topic", DEFAULT_JOINT_TOPIC),
-        pose_topic=pose_topic or settings.get("pose_topic", DEFAULT_POSE_TOPIC),
-        rename=settings.get("joints"),
-    )
-    keywords = {k: settings[k] for k in ("rate", "pose_latency", "max_gap", "max_tilt") if k in settings}
-    keywords |= {k: v for k, v in options.items() if v is not None}
-    log = to_log(recording, joints=joints, planar=planar, wheels=wheels, **keywords)
+    topics, keywords = _bag_settings(mapping, joint_topic, pose_topic, options)
+    log = to_log(read_recording(path, **topics), joints=joints, planar=planar, wheels=wheels, **keywords)
     if isinstance(mapping, (str, Path)):
         log.meta["mapping"] = str(mapping)
     return log
+
+
+def _bag_settings(mapping, joint_topic, pose_topic, options) -> tuple:
+    """``(topics, keywords)``: the topics and renaming of :func:`read_recording` and the
+    :func:`to_log` keywords of a mapping (file or dict), the topics given and further options."""
+    settings = read_mapping(mapping) if isinstance(mapping, (str, Path)) else dict(mapping or {})
+    topics = {"joint_topic": joint_topic or settings.get("joint_topic", DEFAULT_JOINT_TOPIC),
+              "pose_topic": pose_topic or settings.get("pose_topic", DEFAULT_POSE_TOPIC),
+              "rename": settings.get("joints")}  # fmt: skip
+    keywords = {k: settings[k] for k in ("rate", "pose_latency", "max_gap", "max_tilt") if k in settings}
+    return topics, keywords | {k: v for k, v in options.items() if v is not None}
+
+
+def bag_chunks(path, *, joints, planar, wheels=(), mapping=None, joint_topic=None, pose_topic=None, block=BLOCK,
+               **options):
+    """Yield the log of a bag in parts as its messages are read: bounded memory, samples early.
+
+    The messages are read one at a time; each time ``block`` seconds of joint states have
+    gathered, the messages held are aligned and differentiated as :func:`read_bag_log` does a
+    whole bag, and the samples that no later message can change are yielded: those more than half
+    the widest differentiator window (plus one joint-state step) before the last stamp held. The
+    messages that the next part's differentiator still needs (that half window again, before the
+    first sample not yet yielded) are kept, the rest dropped, so memory holds about ``block`` plus
+    one differentiator window of messages however long the bag. The rest is yielded at the end.
+
+    Each part's differentiator chooses its window from its own samples, so the smoothed angles and
+    the rates can differ from those of a whole-bag read by about their noise; the stamps are the same.
+
+    Parameters
+    ----------
+    path, joints, planar, wheels, mapping, joint_topic, pose_topic, **options
+        As :func:`read_bag_log`.
+    block : float
+        Seconds of joint states [s] aligned at a time (default ``BLOCK``); at least 4
+        differentiator windows make the windows of the parts those of the whole.
+
+    Yields
+    ------
+    Log
+        Consecutive samples (stamps increasing strictly across yields, after one time origin:
+        ``meta["time_origin_ns"]``), each part's ``meta`` as :func:`to_log` records it.
+
+    Raises
+    ------
+    SpaceidError
+        As :func:`read_bag_log`; ``block`` not a positive number of seconds.
+    """
+    if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
+        raise SpaceidError(f"block = {block!r}: give the seconds of messages aligned at a time, a number > 0")
+    path = Path(path)
+    topics, keywords = _bag_settings(mapping, joint_topic, pose_topic, options)
+    held, done, origin, due = {topics["joint_topic"]: [], topics["pose_topic"]: []}, -np.inf, None, None
+    with _bag_messages(path, topics["joint_topic"], topics["pose_topic"]) as (messages, publishers):
+        for topic, msg in messages:
+            held[topic].append(msg)
+            joint_msgs, pose_msgs = held.values()
+            due = due if due is not None or topic != topics["joint_topic"] else _stamp(msg) + int(block * 1e9)
+            if not (pose_msgs and len(joint_msgs) > 1 and _stamp(joint_msgs[-1]) > due):
+                continue
+            due = _stamp(joint_msgs[-1]) + int(block * 1e9)  # the next part: ``block`` more seconds of joint states
+            origin = origin if origin is not None else min(_stamp(joint_msgs[0]), _stamp(pose_msgs[0])) // _NS * _NS
+            log = to_log(_recording(path, joint_msgs, pose_msgs, publishers, **topics, time_origin_ns=origin),
+                         joints=joints, planar=planar, wheels=wheels, **keywords)  # fmt: skip
+            half = _settled(log)
+            part = log.select((log.t > done) & (log.t <= log.t[-1] - half))
+            if part.n_samples:
+                done = float(part.t[-1])
+                yield part
+            keep = origin + int((done - half) * 1e9)  # the left half window of the next part's first sample
+            held = {t: [m for m in msgs if _stamp(m) >= keep] for t, msgs in held.items()}
+        joint_msgs, pose_msgs = held.values()  # the rest (origin None: a bag shorter than one block)
+        log = to_log(_recording(path, joint_msgs, pose_msgs, publishers, **topics, time_origin_ns=origin),
+                     joints=joints, planar=planar, wheels=wheels, **keywords)  # fmt: skip
+        part = log.select(log.t > done)
+        if part.n_samples:
+            yield part
+
+
+def _settled(log: Log) -> float:
+    """How long [s] before its last stamp the samples of ``log`` stop depending on messages to
+    come: half the widest differentiator window it records, plus one sample step."""
+    record = log.meta["differentiation"]
+    spans = [w for info in (record["base"], *(record["joints"] or {}).values()) for w in (info.get("window_s") or [])]
+    step = float(np.median(np.diff(log.t))) if log.n_samples > 1 else 0.0
+    return max(spans, default=0.0) / 2 + step

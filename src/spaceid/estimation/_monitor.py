@@ -184,6 +184,10 @@ class MonitorEvent:
     parameters : tuple of dict
         Per parameter ``name``, ``before``, ``after``, ``change``, ``relative_change``, ``z``:
         the segment before against the new segment's warm-up, both identified in batch.
+    lead : float
+        How much earlier than the change ``time`` can be [s]: half the differentiator's window
+        when the rates were differentiated (a centred window shows a change in the smoothed rates
+        up to that long before it), else 0. The change lies between ``time`` and ``time + lead``.
     """
 
     index: int
@@ -194,6 +198,7 @@ class MonitorEvent:
     threshold: float
     changed: tuple
     parameters: tuple = field(repr=False)
+    lead: float = 0.0
 
     def to_dict(self) -> dict:
         return dataclasses.asdict(self) | {"changed": list(self.changed), "parameters": list(self.parameters)}
@@ -299,6 +304,7 @@ class Monitor:
         self._pending = None  # an alarm whose comparison waits for the next warm-up
         self._meta = None  # the first samples' meta: its differentiation record
         self._window = None  # the differentiator's window [samples] (:meth:`_set_prewhitening`)
+        self._step_s = 0.0  # the sample step [s], set with it
         self._skip = 0  # samples still to drop after an alarm
         self._open(start=None)
         if noise is None:
@@ -358,6 +364,7 @@ class Monitor:
         checks = _residual_checks(res, res.size, None)
         if self._window is None:  # the first warm-up: its samples with the log's record of differentiation
             self._window = _correlation_length(dataclasses.replace(_log(rows, self.param.model, ""), meta=self._meta))
+            self._step_s = float(np.median(np.diff([r[0] for r in rows])))  # the sample step [s]
         window = self._window
         order = AR_ORDER if (window or checks["ljung_box_p"] < SIGNIFICANCE) and len(rows) > 4 * AR_ORDER else 0
         coef, scale = _ar_fit(res, order, len(self._theta_ref)) if order else (np.zeros(0), 1.0)
@@ -478,7 +485,8 @@ class Monitor:
         """Close the segment at the estimated change and open the next one with the samples since."""
         onset, delay = self._change_time()
         self._pending = {"index": len(self.events), "time": onset, "detected_at": float(row[0]),
-                         "delay": delay, "statistic": float(self._g), "threshold": self.threshold}
+                         "delay": delay, "statistic": float(self._g), "threshold": self.threshold,
+                         "lead": (self._window or 0) / 2 * self._step_s}  # fmt: skip
         self._close(onset)
         handed = [r for r in self._recent if r[0] >= onset] + [row]
         self._recent.clear()

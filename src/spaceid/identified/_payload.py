@@ -20,8 +20,6 @@ Clarabel).
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from importlib import resources
-from pathlib import Path
 
 import numpy as np
 
@@ -39,8 +37,9 @@ from ..estimation import Noise, equation_covariance, noise_from_log, signal_sigm
 from ..estimation._drift import check_drift_kinds, drift_names
 from ..estimation._equations import _drift_basis, _Equations
 from ..estimation._identify import _check_excitation
-from ..models import INERTIAL_NAMES, PRESETS, Model, load_model
-from ..models._model import symbol_suffix
+from ..estimation._uncertainty import _correlation_length, _newey_west
+from ..models import INERTIAL_NAMES, Model, link_frame, load_model
+from ..models._model import add_to_body, symbol_suffix
 from ._export import _CLARABEL, MARGIN, inertial_from_pseudo, pseudo_inertia
 
 __all__ = ["PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent", "nominal_payload"]
@@ -59,37 +58,6 @@ STEP_TOL = 1e-12
 
 
 # ---------------------------------------------------------------- the link and the map --------
-
-
-def _urdf_text(model: Model) -> str | None:
-    """The URDF text of ``model``'s source (a preset or a file), or None for YAML models."""
-    source = str(model.source)
-    if source in PRESETS:
-        files = resources.files("spaceid.models.presets")
-        return files.joinpath(f"{source}.urdf").read_text() if files.joinpath(f"{source}.urdf").is_file() else None
-    path = Path(source)
-    if path.suffix.lower() == ".urdf" and path.is_file():
-        return path.read_text()
-    return None
-
-
-def _link_frame(model: Model, link: str) -> tuple:
-    """The body that carries ``link`` and the link frame's placement in it: ``(index, R (3, 3),
-    p (3,))``. A body of the model is its own frame; a URDF link on fixed joints below a body (a
-    tool link) is found in the URDF the model was read from."""
-    names = [b.name for b in model.bodies]
-    if link in names:
-        return names.index(link), np.eye(3), np.zeros(3)
-    text = _urdf_text(model)
-    if text is not None:
-        import pinocchio as pin
-
-        pmodel = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
-        for frame in pmodel.frames:
-            if frame.name == link and str(frame.type) == "BODY":  # a model body is joint j's, body j - 1
-                return frame.parentJoint - 1, np.array(frame.placement.rotation), np.array(frame.placement.translation)
-    raise SpaceidError(f"--link: '{link}' is not a link of model '{model.name}' (bodies: {', '.join(names)}; a URDF "
-                       "model also accepts links on fixed joints below them): name the link that holds the payload")
 
 
 def _frame_transform(rotation, translation) -> np.ndarray:
@@ -134,10 +102,8 @@ class PayloadMap:
         return self.transform.shape[1]
 
     def model(self, theta) -> Model:
-        """The servicer holding the payload ``theta (n,)``."""
-        inertials = np.array([b.inertial for b in self.param.model.bodies])
-        inertials[self.body] += self.transform @ np.asarray(theta, float)
-        return self.param.model.with_inertials(inertials)
+        """The servicer holding the payload ``theta (n,)`` (zero too: no payload)."""
+        return add_to_body(self.param.model, self.body, self.transform @ np.asarray(theta, float))
 
     def pi(self, theta) -> np.ndarray:
         """Minimal parameters ``(k,)`` of the servicer holding the payload ``theta``."""
@@ -172,7 +138,7 @@ def payload_map(model, link: str, *, seed: int = 0) -> PayloadMap:
         ``link`` is not a link of the model, or (planar) its z axis is not the base z axis.
     """
     model = load_model(model)
-    body, rotation, translation = _link_frame(model, link)
+    body, rotation, translation = link_frame(model, link, "--link")
     if model.planar and not abs(rotation[2, 2] - 1) < 1e-9:
         raise SpaceidError(f"--link: the frame of '{link}' is tilted out of the plane: a planar payload needs its z "
                            "axis along the base z axis (identify it spatially, --spatial)")
@@ -360,13 +326,15 @@ class PayloadEstimate:
         }
 
 
-def _equations(pmap: PayloadMap, log: Log, momentum, drift, where) -> _Equations:
+def _equations(pmap: PayloadMap, log: Log, momentum, drift, where, history=None) -> _Equations:
     """The servicer's momentum equations of ``log`` with every minimal parameter known (their
-    values, the payload's, set per step), the momentum and drift as the other unknowns."""
+    values, the payload's, set per step), the momentum and drift as the other unknowns (the drift
+    integrated over ``history`` when given)."""
     names = drift_names(drift, pmap.planar)[0]
     k = pmap.param.n_params
+    basis = _drift_basis(log, drift, history, where) if names else None
     return _Equations(pmap.param, quat_to_matrix(log.base_quat), np.array([], int), np.arange(k),
-                      pmap.pi(np.zeros(pmap.n)), momentum, names, _drift_basis(log, drift, None, where) if names else None)
+                      pmap.pi(np.zeros(pmap.n)), momentum, names, basis)
 
 
 def _affine_momentum(eq: _Equations, p: int) -> tuple:
@@ -423,24 +391,32 @@ def _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where) -> tuple:
     return theta, r, a, step
 
 
-def _covariance(r, a, weighted: bool, estimated: bool) -> tuple:
-    """Covariance of the unknowns and chi2/dof: the inverse Fisher information (given noise), scaled
-    by chi2/dof (noise estimated from the log), or, unweighted, the sandwich of the per-sample
-    residuals (heteroscedastic errors)."""
+def _covariance(r, a, weighted: bool, estimated: bool, window: int) -> tuple:
+    """Covariance of the unknowns, chi2/dof (weighted fits) and how the covariance was obtained.
+
+    Rates from a differentiator (``window`` > 0, its window in samples) have errors correlated
+    over the window, which the noise model's independent samples understate: the covariance is
+    then the Newey-West estimate from the (whitened) residuals, Bartlett weights over half the
+    window, as :func:`spaceid.estimation.identify` reports it. Otherwise the inverse Fisher
+    information (given noise), scaled by chi2/dof (noise estimated from the log), or, unweighted,
+    the sandwich of the per-sample residuals (heteroscedastic errors)."""
     n, rows, p = a.shape
     flat = a.reshape(-1, p)
     with one_blas_thread():
         bread = np.linalg.pinv(flat.T @ flat)
-    dof = max(n * rows - p, 1)
-    chi2 = float(r.ravel() @ r.ravel()) / dof
+    chi2 = float(r.ravel() @ r.ravel()) / max(n * rows - p, 1) if weighted else None
+    if window:
+        bandwidth = max(1, window // 2)
+        how = f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (differentiated rates)"
+        return _newey_west(bread, a, r, bandwidth, p), chi2, how
     if weighted:
-        return bread * (chi2 if estimated else 1.0), chi2
-    scores = np.einsum("nrp,nr->np", a, r)
-    return bread @ (scores.T @ scores) @ bread * (n / max(n - p, 1)), None
+        return (bread * (chi2 if estimated else 1.0), chi2,
+                "inverse Fisher information" + (" scaled by chi2/dof" if estimated else ""))
+    return _newey_west(bread, a, r, 0, p), None, "sandwich of the per-sample residuals"
 
 
-def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | None = None, drift=(), seed: int = 0,
-                     where: str = "log", cond_limit: float = 1e10) -> PayloadEstimate:
+def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | None = None, drift=(), history=None,
+                     seed: int = 0, where: str = "log", cond_limit: float = 1e10) -> PayloadEstimate:
     """Identify the inertial parameters of a payload held rigidly by a known servicer.
 
     Parameters
@@ -453,13 +429,17 @@ def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | Non
         The link that holds the payload: a body, or (URDF) a link on fixed joints below one.
     momentum : array_like of shape (3,) or None
         Inertial angular momentum of the whole system [N m s] (zero for a capture from rest; at
-        the first sample with ``drift``); None: estimated with the payload.
+        the first sample with ``drift``, or of ``history``); None: estimated with the payload.
     noise : Noise, optional
         Measurement noise levels (the equations are whitened by them and the covariance is their
         Fisher information); estimated from the log when omitted; all zero: unweighted least
         squares with a residual-based (sandwich) covariance.
     drift : iterable of {"torque", "viscous", "coulomb"}
         External torques estimated with the payload (as ``spaceid.identify``).
+    history : Log, optional
+        With ``drift``: a record that starts before ``log`` and spans it (e.g. the same recording
+        from before the grasp), over which the drift is integrated; ``momentum`` is then the
+        momentum at its first sample (as ``spaceid.identify``'s ``history``).
     seed : int
         Seed of the minimal set's random states (recorded).
     where : str
@@ -486,7 +466,7 @@ def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | Non
     momentum = None if momentum is None else np.asarray(momentum, float)
     estimated = noise is None
     noise = noise_from_log(log) if estimated else noise
-    fit = _fit(pmap, log, momentum, drift, noise, estimated, where, cond_limit)
+    fit = _fit(pmap, log, momentum, drift, history, noise, estimated, where, cond_limit)
     eq, theta, cov_all = fit["equations"], fit["theta"], fit["cov"]
     n = pmap.n
     standard, cov_std = theta[:n], cov_all[:n, :n]
@@ -523,10 +503,10 @@ def identify_payload(model, log: Log, link: str, momentum, *, noise: Noise | Non
                            terms, settings)
 
 
-def _fit(pmap, log, momentum, drift, noise, estimated, where, cond_limit) -> dict:
+def _fit(pmap, log, momentum, drift, history, noise, estimated, where, cond_limit) -> dict:
     """The unconstrained fit of ``[payload, momentum, drift]``: the equations, the estimate, its
     covariance and the record of how they were obtained (see :func:`identify_payload`)."""
-    eq = _equations(pmap, log, momentum, drift, where)
+    eq = _equations(pmap, log, momentum, drift, where, history)
     p = pmap.n + eq.p
     if log.n_samples * pmap.param.rows < p + 1:
         raise SpaceidError(f"{where}: {log.n_samples} samples give too few equations for {p} unknowns: record more")
@@ -539,14 +519,12 @@ def _fit(pmap, log, momentum, drift, noise, estimated, where, cond_limit) -> dic
     _, cond = _check_excitation(np.concatenate([a0, r0[..., None]], -1), names, cond_limit, where)
     sigma = None if noise.is_zero else signal_sigma(pmap.param, noise)
     theta, r, a, steps = _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where)
-    cov, chi2 = _covariance(r, a, sigma is not None, estimated)
-    weighted = sigma is not None
+    cov, chi2, how = _covariance(r, a, sigma is not None, estimated, _correlation_length(log))
     return {
         "equations": eq, "theta": theta, "cov": cov, "chi2_dof": chi2, "steps": steps, "cond": cond,
         "residual_rms": float(np.sqrt(np.mean(_whitened(pmap, eq, x, y, rhs, None, theta)[0] ** 2))),
-        "estimator": "wls (Gauss-Newton, errors-in-variables weights)" if weighted else "ols (Gauss-Newton)",
-        "covariance": ("inverse Fisher information" + (" scaled by chi2/dof" if estimated else "") if weighted
-                       else "sandwich of the per-sample residuals"),
+        "estimator": "wls (Gauss-Newton, errors-in-variables weights)" if sigma is not None else "ols (Gauss-Newton)",
+        "covariance": how,
     }  # fmt: skip
 
 

@@ -37,6 +37,7 @@ __all__ = [
     "to_pinocchio",
     "attach_payload",
     "body_index",
+    "link_frame",
     "check_rigid_inertia",
 ]
 
@@ -265,13 +266,50 @@ def check_rigid_inertia(what: str, inertia_com):
 
 def body_index(model: Model, name: str, where: str = "link") -> int:
     """Index in ``model.bodies`` of the body ``name``, or a SpaceidError naming ``where``."""
+    return link_frame(model, name, where, tool_links=False)[0]
+
+
+def link_frame(model: Model, name: str, where: str = "link", *, tool_links: bool = True) -> tuple:
+    """The body that carries the link ``name`` and the link frame's placement in it.
+
+    A body of the model is its own frame. With ``tool_links``, a link on fixed joints below a
+    body (a tool or gripper link, merged into that body when the model was read) is looked up in
+    the URDF the model came from (a URDF preset or file).
+
+    Returns
+    -------
+    (int, ndarray of shape (3, 3), ndarray of shape (3,))
+        Index in ``model.bodies``, rotation and translation [m] of the link frame in the body frame.
+
+    Raises
+    ------
+    SpaceidError
+        ``name`` is none of these; the message names ``where`` and lists the bodies.
+    """
     names = [b.name for b in model.bodies]
-    if name not in names:
-        raise SpaceidError(
-            f"{where} names '{name}', which is not a body of model {model.name} "
-            f"(bodies: {', '.join(names)}): use one of these names"
-        )
-    return names.index(name)
+    if name in names:
+        return names.index(name), np.eye(3), np.zeros(3)
+    text = _urdf_text(model) if tool_links else None
+    if text is not None:
+        import pinocchio as pin
+
+        pmodel = pin.buildModelFromXML(text, pin.JointModelFreeFlyer())
+        for frame in pmodel.frames:
+            if frame.name == name and str(frame.type) == "BODY":  # a model body is joint j's, body j - 1
+                return frame.parentJoint - 1, np.array(frame.placement.rotation), np.array(frame.placement.translation)
+    tools = " (a URDF model also accepts links on fixed joints below them)" if tool_links else ""
+    raise SpaceidError(f"{where} names '{name}', which is not a body of model {model.name} "
+                       f"(bodies: {', '.join(names)}{tools}): use one of these names")  # fmt: skip
+
+
+def _urdf_text(model: Model) -> str | None:
+    """The URDF text of ``model``'s source (a preset or a file), or None for YAML models."""
+    source = str(model.source)
+    if source in PRESETS:
+        file = resources.files("spaceid.models.presets").joinpath(f"{source}.urdf")
+        return file.read_text() if file.is_file() else None
+    path = Path(source)
+    return path.read_text() if path.suffix.lower() == ".urdf" and path.is_file() else None
 
 
 def attach_payload(model: Model, link: str, inertial, *, where: str = "link") -> Model:
@@ -304,10 +342,17 @@ def attach_payload(model: Model, link: str, inertial, *, where: str = "link") ->
         raise SpaceidError(
             f"{where}: the payload needs 10 finite inertial parameters with a positive mass, got {shown(inertial)}"
         )
-    body = model.bodies[i]
-    broken = {n for n, value in zip(INERTIAL_NAMES, payload) if value != 0}
-    new = replace(body, inertial=body.inertial + payload, known_zero=frozenset(body.known_zero - broken))
-    return replace(model, bodies=model.bodies[:i] + (new,) + model.bodies[i + 1 :])
+    return add_to_body(model, i, payload)
+
+
+def add_to_body(model: Model, index: int, inertial) -> Model:
+    """``model`` with ``inertial`` (10,) added to the parameters of body ``index``, unchecked (a
+    trial or zero payload too, as an estimator needs): :func:`attach_payload` without its checks.
+    The structural zeros (``known_zero``) that it makes nonzero are dropped."""
+    body = model.bodies[index]
+    broken = {n for n, value in zip(INERTIAL_NAMES, inertial) if value != 0}
+    new = replace(body, inertial=body.inertial + inertial, known_zero=frozenset(body.known_zero - broken))
+    return replace(model, bodies=model.bodies[:index] + (new,) + model.bodies[index + 1 :])
 
 
 def _skew(v):

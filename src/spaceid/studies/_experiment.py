@@ -32,7 +32,7 @@ import numpy as np
 
 from .._atomic import write_text_atomic
 from .._errors import SpaceidError
-from ..data import JOINT_RATE_POLICY, Log, quat_to_matrix, read_bag_log, write_bag, write_json, write_log
+from ..data import JOINT_RATE_POLICY, Log, read_bag_log, write_bag, write_json, write_log
 from ..dynamics import minimal_parameters
 from ..estimation import Identification, identify, resolve_anchors
 from ..identified import parameterization_of
@@ -41,7 +41,7 @@ from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin
 from ._tracking import (check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings,
                         regressor_condition_number)
-from ._servicing import CaptureProtocol, run_servicing, write_servicing
+from ._servicing import HOLD, CaptureProtocol, mean_momentum, run_servicing, write_servicing
 from ._torque_validation import validate_torques
 from ._validate import validate
 
@@ -186,10 +186,7 @@ def _initial_momentum(ident: Identification, log: Log, samples: int = 10) -> np.
     """The inertial angular momentum [N m s] (3,) of the identified model over the first
     ``samples`` samples of ``log``, their mean (from the measured joint and base rates)."""
     first = log.select(np.arange(min(samples, log.n_samples)))
-    h_base = np.zeros((first.n_samples, 3))
-    rows = [2] if ident.planar else [0, 1, 2]
-    h_base[:, rows] = parameterization_of(ident).momentum(first.q, first.qd, first.base_w, ident.values)
-    return np.einsum("nij,nj->ni", quat_to_matrix(first.base_quat), h_base).mean(axis=0)
+    return mean_momentum(parameterization_of(ident), ident.values, first)
 
 
 def _held_out_seed(seed: int, rehearsals: int) -> int:
@@ -337,7 +334,7 @@ def run_experiment(
     phases, execution = execute_excitation(traj, settings, model, feedforward=feedforward, rehearsals=rehearsals,
                                            wheel_speed=wheel_speed, seed=seed)  # fmt: skip
     a = phases[0]
-    c = run_twin(vtraj, duration=vtraj.duration + 1.0, state=phases[-1].state, settings=settings,
+    c = run_twin(vtraj, duration=vtraj.duration + HOLD, state=phases[-1].state, settings=settings,
                  seed=_held_out_seed(seed, rehearsals))  # the held-out motion
     run = join_runs(*phases)
     start = phases[-1].truth.t[0]
@@ -365,13 +362,11 @@ def run_experiment(
         rest = full.select(full.t <= start + traj.duration + 1e-9) if drift else None  # friction acts from rest on
         ident = identify(param, log.select(chosen), zero, estimator=estimator, where=where, drift=drift, history=rest)
         ident_all = identify(param, log, zero, estimator=estimator, where=where, drift=drift, history=rest)
-        capture_bag = folder_bag / BAG_NAMES[bag_format].replace("run", "capture", 1)
-        servicing = None if capture is None else run_servicing(
-            c, capture, _capture_trajectory(capture_trajectory, traj, capture, momentum=rotor * wheel_speed,
-                                            samples=int(samples), seed=seed, progress=progress),
-            settings=settings, model=model, before=ident_all, drift=drift, seed=seed + 4 + rehearsals,
+        servicing = None if capture is None else _servicing_phase(
+            capture, capture_trajectory, c, traj, ident_all, settings=settings, model=model, drift=drift,
             read_bag=lambda path: _read_bag(path, model, settings, joint_rates, named / path.name),
-            bag=capture_bag)  # fmt: skip
+            bag=folder_bag / BAG_NAMES[bag_format].replace("run", "capture", 1), momentum=rotor * wheel_speed,
+            samples=int(samples), seed=seed, rehearsals=rehearsals, progress=progress)  # fmt: skip
     finally:
         if scratch is not None:
             scratch.cleanup()
@@ -413,6 +408,17 @@ def run_experiment(
     if folder is not None:
         _write_report(result, run, c)
     return result
+
+
+def _servicing_phase(capture: CaptureProtocol, choice, held_out_run, traj: FourierTrajectory, before: Identification,
+                     *, settings, model, drift, read_bag, bag: Path, momentum, samples, seed, rehearsals, progress):
+    """The servicing sequence of ``run_experiment(capture=...)`` after the held-out run
+    (:func:`~spaceid.studies._servicing.run_servicing`): the post-capture excitation ``choice``
+    (:func:`_capture_trajectory`), the phase seeded ``seed + 4 + rehearsals``."""
+    trajectory = _capture_trajectory(choice, traj, capture, momentum=momentum, samples=samples, seed=seed,
+                                     progress=progress)  # fmt: skip
+    return run_servicing(held_out_run, capture, trajectory, settings=settings, model=model, before=before,
+                         read_bag=read_bag, bag=bag, drift=drift, seed=seed + 4 + rehearsals)  # fmt: skip
 
 
 def _capture_trajectory(choice, traj: FourierTrajectory, capture: CaptureProtocol, *, momentum, samples, seed,
