@@ -76,13 +76,17 @@ def differentiated_series(log: Log) -> list | None:
 def _filter(record: dict, t: np.ndarray):
     """The Savitzky-Golay filter of one series at the log's stamps ``t (n,)``: the grid indices
     ``(n, window)`` and the value and rate weights ``(n, window)``, on a uniform grid at the
-    series' step (see the module's description)."""
+    series' step (see the module's description). On a uniform grid a row's weights depend only on
+    its place in its window (centred, or shifted inwards at the ends): one fit per place."""
     step, window = record["step"], record["window"]
     whole = t[-1] - t[0] >= (record["n_samples"] - 1.5) * step  # the log is the whole record
     pad = 0 if whole else window // 2
-    count = int(round((t[-1] - t[0]) / step)) + 1 + 2 * pad
+    count = max(int(round((t[-1] - t[0]) / step)) + 1 + 2 * pad, window)
     rows = np.clip(np.rint((t - t[0]) / step).astype(int) + pad, 0, count - 1)
-    return savgol_weights(t[0] + step * (np.arange(count) - pad), rows, window, record["order"])
+    first = np.clip(rows - window // 2, 0, count - window)  # each row's window, as the differentiator's
+    places, which = np.unique(rows - first, return_inverse=True)
+    _, smooth, rate = savgol_weights(step * np.arange(window), places, window, record["order"])
+    return first[:, None] + np.arange(window), smooth[which], rate[which]
 
 
 def _series_scores(record, value, rate, t, M, J):
