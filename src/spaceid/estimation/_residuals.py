@@ -9,8 +9,9 @@ attitude change (base friction), and they are correlated from sample to sample. 
   zero, with the heteroscedasticity-consistent covariance of the residuals scaled by their
   leverage (the jackknife's, HC3; Newey-West over the differentiator's window when rates were
   differentiated, whose errors are correlated) and the F distribution of ``Wald / q`` for ``q``
-  coefficients and the residual degrees of freedom; it decides, at the significance level ``DRIFT_ALPHA``, and only when the fitted drift also changes the momentum
-  by more than ``DRIFT_FLOOR`` of the right-hand side (round-off of a noise-free log is not a drift);
+  coefficients and the residual degrees of freedom; it decides, at the significance level
+  ``DRIFT_ALPHA``, and only when the fitted drift also changes the momentum by more than
+  ``DRIFT_FLOOR`` of the right-hand side (round-off of a noise-free log is not a drift);
 - whiteness: the lag-1 autocorrelation ``rho`` of the whitened residuals in time order, with
   the Durbin-Watson statistic (about ``2 (1 - rho)``: 2 for white residuals) and the one-sided
   p-value of ``rho sqrt(n)`` (normal under white residuals), recorded as supporting evidence
