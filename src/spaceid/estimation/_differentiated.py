@@ -31,9 +31,10 @@ from ..data import Log, savgol_weights
 
 def _channels(info) -> list:
     """The per-channel records of one ``differentiate`` record: a list of dicts with ``window``,
-    ``order``, ``noise``, ``step`` [s] and ``n_samples``; None when a channel is not Savitzky-Golay."""
-    if info.get("method") != "savgol" or not info.get("window"):
-        return None
+    ``order``, ``noise``, ``step`` [s] and ``n_samples``; None when the channels are not Savitzky-Golay."""
+    if info.get("method") != "savgol" or not all(info.get(k) for k in ("window", "order", "noise", "window_s",
+                                                                          "n_samples")):
+        return None  # another differentiator, or a record without the filter (written by an older version)
     return [{"window": int(w), "order": int(p), "noise": float(s), "step": float(span) / (int(w) - 1),
              "n_samples": int(info["n_samples"])}
             for w, p, s, span in zip(info["window"], info["order"], info["noise"], info["window_s"])]  # fmt: skip
