@@ -1,8 +1,8 @@
 """Coverage of the reported standard errors: over 30 noisy logs with known truth, the errors lie
 within two reported standard deviations about as often as a Gaussian's (at least 85 %, 95.4 %
 expected) and never beyond 4.5, for ols, wls and ml, on Cepheus with measured rates, on Cepheus
-with rates differentiated from the angles (Newey-West over the differentiator's window) and on
-a spatial two-link arm."""
+with rates differentiated from the angles (the angle noise propagated through the differentiator:
+at least 95 %, none beyond 3) and on a spatial two-link arm."""
 
 import warnings
 
@@ -62,5 +62,6 @@ def test_two_sigma_coverage(case, estimator):
     z = np.array([(r.values - param.true_values) / r.std for r in runs])
     assert np.mean(np.abs(z) <= 2) >= 0.85, (name, np.mean(np.abs(z) <= 2))
     assert np.abs(z).max() <= 4.5, (name, np.abs(z).max())
-    if name == "cepheus differentiated":
-        assert all("Newey-West" in r.settings["covariance"] for r in runs)
+    if name == "cepheus differentiated":  # Newey-West from the residuals alone: 94 %, |z| up to 3.8
+        assert all("propagated" in r.settings["covariance"] for r in runs)
+        assert np.mean(np.abs(z) <= 2) >= 0.95 and np.abs(z).max() <= 3.0, (np.mean(np.abs(z) <= 2), np.abs(z).max())

@@ -237,15 +237,18 @@ def test_default_drift_terms_follow_the_table_friction():
 def test_realistic_experiment_error_bars_cover_the_errors_with_drift():
     """The realistic twin (air-bearing friction on): with the friction modelled as a drift term (the
     experiment's default there) the standard errors cover the actual errors (the code before drift
-    terms gave |z| up to 16).
-    Over 20 seeds (benchmarks/bench_experiment.py) 91 % of |z| <= 2 and none beyond 4 were measured."""
+    terms gave |z| up to 16). Seeds 7 and 12 are those of the 20-seed benchmark
+    (benchmarks/bench_experiment.py) where the Newey-West error bars of the differentiated rates fell
+    shortest: |z| up to 3.6 and 11 of 16 within two standard errors; with the angle noise propagated
+    through the differentiator every |z| is below 2.4 and 15 of 16 are within two (seed 0: all)."""
     z = []
-    for seed in (0, 1, 2):
+    for seed in (0, 7, 12):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             res = run_experiment(seed=seed)
         free = res.ident_all.std > 0
         z.append((res.ident_all.values[free] - res.true[free]) / res.ident_all.std[free])
         assert res.ident_all.drift[0]["name"] == "viscous" and res.ident_all.drift[0]["value"] > 0
+        assert "propagated" in res.ident_all.settings["covariance"]
     z = np.abs(np.concatenate(z))
-    assert z.max() < 4.0 and np.mean(z <= 2) >= 0.8, z
+    assert z.max() < 3.0 and np.mean(z <= 2) >= 0.9, z

@@ -110,8 +110,9 @@ ax.set_title("Base angular velocity differentiated from the poses, minus the tru
 # Identifying
 # -----------
 # The log from the bag identifies like any other. Its rates came from a differentiator, whose
-# errors are correlated over its window; the standard errors are then the Newey-West estimate
-# from the residuals (:doc:`/theory/noise`), as ``settings.covariance`` says.
+# errors are correlated over its window; the standard errors are then the angle noise propagated
+# through the differentiator, or the Newey-West estimate from the residuals where that is larger
+# (:doc:`/theory/noise`), as ``settings.covariance`` says.
 
 result = spaceid.identify(param, log, h)
 rel = (result.values - param.true_values) / param.true_values

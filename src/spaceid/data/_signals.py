@@ -51,11 +51,12 @@ import numpy as np
 from .._errors import SpaceidError
 from ._signal_checks import _check_gaps, _check_int, _check_quantum, _check_series, _finite_number, _require_samples
 from ._signal_noise import _NOISE_DIFFERENCE, _check_resolution, _noise
-from ._signal_savgol import _AUTO_ORDERS, _PILOT_EXTRA, _savgol, _savgol_gains, _select_savgol
+from ._signal_savgol import _AUTO_ORDERS, _PILOT_EXTRA, _local_fits, _savgol, _savgol_gains, _select_savgol
 from ._signal_spline import _PROBES, _spline
 from ._timeseries import quat_to_yaw, yaw_to_quat
 
-__all__ = ["METHODS", "AUTO_METHOD", "differentiate", "differentiate_quaternion", "differentiate_log", "noise_gains"]
+__all__ = ["METHODS", "AUTO_METHOD", "differentiate", "differentiate_quaternion", "differentiate_log", "noise_gains",
+           "savgol_weights"]
 
 METHODS = ("auto", "savgol", "spline")
 """Values accepted by ``method``."""
@@ -425,6 +426,31 @@ def noise_gains(t, method: str, *, window=None, order=None, smoothing=None):
         _GAINS.clear()
     _GAINS[key] = (smooth, rate)
     return smooth, rate
+
+
+def savgol_weights(t, rows, window: int, order: int):
+    """The Savitzky-Golay weights that give the smoothed values and derivatives at ``rows``.
+
+    Parameters
+    ----------
+    t : ndarray of shape (n,)
+        The stamps of the samples differentiated [s].
+    rows : ndarray of shape (r,)
+        The samples (indices into ``t``) whose weights are wanted.
+    window, order : int
+        The setting :func:`differentiate` recorded for the channel.
+
+    Returns
+    -------
+    idx : ndarray of shape (r, window)
+        The samples in each row's window (shifted inwards at the ends, as :func:`differentiate` does).
+    smooth, rate : ndarray of shape (r, window)
+        Weights [-] and [1/s]: the smoothed value at ``rows[i]`` is ``smooth[i] @ x[idx[i]]``, its
+        derivative ``rate[i] @ x[idx[i]]``; with white noise of std ``sigma`` on ``x``, the errors of
+        two rows' derivatives have covariance ``sigma^2`` times the overlap of their weights.
+    """
+    idx, _, pinv, scale = _local_fits(np.asarray(t, float), np.asarray(rows), int(window), int(order))
+    return idx, pinv[:, 0], pinv[:, 1] / scale[:, None]
 
 
 def differentiate_log(log, *, method: str = "auto", window=None, order=None, smoothing=None, quantum=None):

@@ -6,10 +6,12 @@ attitude change (base friction), and they are correlated from sample to sample. 
 
 - trend: the whitened equations are refitted with the ``torque`` and ``viscous`` drift columns
   added (:mod:`spaceid.estimation._drift`), and a Wald test asks whether their coefficients are
-  zero, with the heteroscedasticity-consistent covariance (Newey-West over the differentiator's
-  window when rates were differentiated, whose errors are correlated); it decides, at the
-  significance level ``DRIFT_ALPHA``, and only when the fitted drift also changes the momentum
-  by more than ``DRIFT_FLOOR`` of the right-hand side (round-off of a noise-free log is not a drift);
+  zero, with the heteroscedasticity-consistent covariance of the residuals scaled by their
+  leverage (the jackknife's, HC3; Newey-West over the differentiator's window when rates were
+  differentiated, whose errors are correlated) and the F distribution of ``Wald / q`` for ``q``
+  coefficients and the residual degrees of freedom; it decides, at the significance level
+  ``DRIFT_ALPHA``, and only when the fitted drift also changes the momentum by more than
+  ``DRIFT_FLOOR`` of the right-hand side (round-off of a noise-free log is not a drift);
 - whiteness: the lag-1 autocorrelation ``rho`` of the whitened residuals in time order, with
   the Durbin-Watson statistic (about ``2 (1 - rho)``: 2 for white residuals) and the one-sided
   p-value of ``rho sqrt(n)`` (normal under white residuals), recorded as supporting evidence
@@ -19,7 +21,8 @@ attitude change (base friction), and they are correlated from sample to sample. 
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import chi2, norm
+from scipy.stats import f as f_dist
+from scipy.stats import norm
 
 from ._drift import drift_basis, drift_names
 from ._equations import _split
@@ -39,6 +42,16 @@ def _lag1(white):
     """Lag-1 autocorrelation of residuals ``(n, rows)`` in time order (rows pooled)."""
     den = float(np.sum(white**2))
     return float(np.sum(white[1:] * white[:-1]) / den) if den > 0 else 0.0
+
+
+def _leverage_adjusted(M, ginv, r):
+    """Residuals ``r (n, rows)`` of the least-squares fit of ``M (n, rows, p)`` (``ginv`` its inverse
+    Gram matrix) divided by one minus their leverage, ``(I - M_n ginv M_n^T)^-1 r_n``: the scores of
+    these make White's covariance the jackknife's (HC3), whose tests keep their level on short logs,
+    where each sample's own fit shrinks its residual (35 samples for 10 unknowns: 6 of 400 clean logs
+    fired at 1e-3 with the plain residuals, 1 with these)."""
+    H = np.einsum("nrp,pq,nsq->nrs", M, ginv, M)
+    return np.einsum("nrs,ns->nr", np.linalg.pinv(np.eye(M.shape[1]) - H), r)  # pinv: a sample fitted exactly
 
 
 def drift_test(eq, x, phi, sigma, theta, estimator, log) -> dict:
@@ -76,10 +89,11 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log) -> dict:
     A, b = _split(full)
     est, ginv = _solve(A, b)
     r = full @ np.append(est, 1.0)
-    cov = _newey_west(ginv, full[..., :-1], r, _correlation_length(log), len(est))
+    M = full[..., :-1]
+    cov = _newey_west(ginv, M, _leverage_adjusted(M, ginv, r), _correlation_length(log), len(est), dof_scale=False)
     d, cdd = est[eq.p :], cov[eq.p :, eq.p :]
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
-    p_value = float(chi2.sf(wald, len(d)))
+    p_value = float(f_dist.sf(wald / len(d), len(d), max(r.size - len(est), 1)))
     b_raw = _split(phi)[1]
     change = np.abs(cols @ d).max() / max(float(np.sqrt(np.mean(b_raw**2))), 1e-300)
     rho = _lag1(white)

@@ -7,9 +7,11 @@ noise model (``chi2_dof`` within its chi-square band and no significant autocorr
 are trusted, levels estimated from the log fix only the relative weights and the residuals the
 overall scale (times ``chi2_dof``). When the residuals contradict the model the covariance
 follows them: the sandwich of the residuals' scores (White), or the Newey-West
-(heteroscedasticity and autocorrelation consistent) estimate when they are correlated, as the
-errors of rates from a differentiator are over its window; a ``chi2_dof`` far from 1 also
-brings a warning that says what it means (:func:`_noise_model_warning`).
+(heteroscedasticity and autocorrelation consistent) estimate when they are correlated; a
+``chi2_dof`` far from 1 also brings a warning that says what it means (:func:`_noise_model_warning`).
+Rates from a Savitzky-Golay differentiator are a known linear filter of the angles: their
+covariance is the angle noise propagated through it (:mod:`spaceid.estimation._differentiated`),
+or the Newey-West estimate in the directions where the residuals show more (:func:`_larger_of`).
 
 References
 ----------
@@ -30,6 +32,7 @@ from scipy import stats
 from .._threads import one_blas_thread
 from ..data import Log
 from ..dynamics import Parameterization
+from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import drift_vector
 from ._equations import _equations, _split
 from ._estimators import _column_scale, _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
@@ -73,14 +76,15 @@ def _covariance_terms(eq, x, phi, sigma, theta, estimator, info):
     return {"M": M, "bread": bread, "L": L, "r": r, "white": _whitened(L, r[..., None])[..., 0]}
 
 
-def _newey_west(bread, M, r, bandwidth, p):
+def _newey_west(bread, M, r, bandwidth, p, dof_scale=True):
     """``bread Omega bread^T`` with ``Omega`` the Bartlett-weighted autocovariance of the scores
     ``g_n = M_n^T r_n`` up to lag ``bandwidth`` (0: White's heteroscedasticity-consistent form),
     scaled by ``n / (n - p)`` and, for a bandwidth ``b n``, by ``1 / (1 - b + b^2 / 3)``: the mean of
     the Bartlett estimate from residuals is that fraction of the truth when the bandwidth is not
     small against the log (Kiefer and Vogelsang's fixed-b result; on Cepheus at 501 samples and a
-    50-sample bandwidth it moved 2-sigma coverage from 0.94 to 0.95). See :func:`_hac`."""
-    return _hac([_mapped_scores(bread, M, r)], bandwidth, p)
+    50-sample bandwidth it moved 2-sigma coverage from 0.94 to 0.95). ``dof_scale`` False: without
+    the ``n / (n - p)`` (residuals already scaled by their leverage). See :func:`_hac`."""
+    return _hac([_mapped_scores(bread, M, r)], bandwidth, p, dof_scale)
 
 
 def _mapped_scores(bread, M, r):
@@ -89,7 +93,7 @@ def _mapped_scores(bread, M, r):
         return np.einsum("nrp,nr->np", M, r) @ bread.T
 
 
-def _hac(chunks, bandwidth, p):
+def _hac(chunks, bandwidth, p, dof_scale=True):
     """:func:`_newey_west` from the mapped scores ``bread g_n`` given as consecutive chunks
     ``(n_c, p)`` in time order (one, or a stream of them: the lags reach back across chunks).
 
@@ -107,7 +111,7 @@ def _hac(chunks, bandwidth, p):
                 cov += (1 - lag / (bandwidth + 1)) * (c + c.T)
             tail, n = both[max(len(both) - bandwidth, 0) :] if bandwidth else tail, n + len(x)
     b = min(bandwidth / max(n, 1), 1.0)
-    return cov * n / max(n - p, 1) / (1 - b + b * b / 3)
+    return cov * (n / max(n - p, 1) if dof_scale else 1.0) / (1 - b + b * b / 3)
 
 
 def _window_spans(node):
@@ -227,8 +231,10 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     ``residual_checks`` and ``noise_model_warning``). ``estimated``: the noise levels came from the log.
 
     The noise model's covariance is reported only while the residuals agree with it; otherwise
-    the covariance follows the residuals: Newey-West over the differentiator's window when rates
-    were differentiated, Newey-West with Andrews' bandwidth when the residuals are autocorrelated
+    the covariance follows the residuals: for rates differentiated by Savitzky-Golay, the angle
+    noise propagated through the filters, or Newey-West over half the differentiator's window in
+    the directions where that is larger (Newey-West alone for other differentiators), Newey-West
+    with Andrews' bandwidth when the residuals are autocorrelated
     (Ljung-Box), the sandwich of the residuals' scores (White) when ``chi2_dof`` is off at
     ``SIGNIFICANCE``; ols, which has no noise model, always follows the residuals. The angles
     estimator brings its own covariance (:func:`_own_covariance`)."""
@@ -240,9 +246,47 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     bandwidth, follows, factor = choice["bandwidth"], choice["covariance_from_residuals"], choice["variance_factor"]
     if follows:
         cov_t = _newey_west(t["bread"], t["M"], r, bandwidth, eq.p)
+        series = differentiated_series(log)
+        if series is not None:  # the differentiator's own correlation, unless the residuals show more
+            J = eq.jacobian(info.get("corrected", x), theta)
+            cov_t, larger = _larger_of(propagated_covariance(series, log.t, t["M"], J, t["bread"], sigma), cov_t)
+            choice["covariance"] = _propagated_how(series, larger, eq.p, bandwidth)
     else:
         cov_t = _sandwich(t["bread"], t["M"], t["L"]) * factor
     return cov_t, float(np.sqrt(np.mean(r**2))), _covariance_record(chi2, checks, choice, log, estimated)
+
+
+def _larger_of(base, other) -> tuple:
+    """The covariance ``(p, p)`` that is ``base`` in every direction of parameter space where
+    ``other`` is not larger, and ``other`` where it is, and how many of the ``p`` directions that is.
+
+    In the frame where ``base`` is the identity (``base = L L^T``, columns scaled to unit
+    variance first), ``L^-1 other L^-T = V diag(lam) V^T``; the result is ``L V diag(max(lam, 1))
+    V^T L^T``: at least ``base`` and ``other`` (Loewner order), and equal to the larger where one
+    dominates."""
+    scale = np.sqrt(np.diag(base))
+    if not np.all(scale > 0):  # a parameter without angle noise (noise-free channels): the residuals decide
+        return other, len(scale)
+    try:
+        with one_blas_thread():
+            L = np.linalg.cholesky(base / np.outer(scale, scale))
+    except np.linalg.LinAlgError:
+        return other, len(scale)
+    with one_blas_thread():
+        Li = np.linalg.inv(L)
+        lam, V = np.linalg.eigh(Li @ (other / np.outer(scale, scale)) @ Li.T)
+        half = (L @ V) * np.sqrt(np.maximum(lam, 1.0))
+        return half @ half.T * np.outer(scale, scale), int(np.sum(lam > 1.0))
+
+
+def _propagated_how(series, larger: int, p: int, bandwidth: int) -> str:
+    """``settings.covariance`` for the covariance of :func:`_larger_of` with the propagated one."""
+    how = (f"the angle noise of {len(series)} differentiated series propagated through their Savitzky-Golay "
+           "filters (its correlation over the windows)")
+    if larger:
+        how += (f"; in {larger} of {p} directions the Newey-West estimate from the residuals (Bartlett weights over "
+                f"{bandwidth} samples) is larger and is taken there")
+    return how
 
 
 def _covariance_record(chi2, checks, choice, log, estimated):
