@@ -41,7 +41,7 @@ def _lag1(white):
     return float(np.sum(white[1:] * white[:-1]) / den) if den > 0 else 0.0
 
 
-def drift_test(eq, x, phi, sigma, theta, estimator, log) -> dict:
+def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
     """Whether the residuals of a drift-free identification show an unmodelled drift.
 
     Parameters
@@ -56,6 +56,9 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log) -> dict:
         The estimate.
     estimator : str
     log : Log
+    whitener : ndarray of shape (n, rows, rows), optional
+        Cholesky factors of the equation-error covariances to whiten by (the estimator's own: ML's at
+        the corrected signals); default: at the measured signals and ``theta``.
 
     Returns
     -------
@@ -70,7 +73,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log) -> dict:
     cols = -np.einsum("nri,nki->nrk", rot_t, drift_basis(log, _CANDIDATES))  # (n, rows, q)
     full = np.concatenate([phi[..., :-1], cols, phi[..., -1:]], -1)
     if estimator != "ols":
-        L = _equation_whitener(eq, x, theta, sigma)
+        L = _equation_whitener(eq, x, theta, sigma) if whitener is None else whitener
         full = _whitened(L, full)
     white = full[..., : eq.p] @ theta + full[..., -1]  # whitened residuals of the drift-free fit
     A, b = _split(full)
