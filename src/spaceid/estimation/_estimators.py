@@ -193,33 +193,44 @@ def _blockwise(A, b, scale, accumulate, combine):
 
 def _gram_factor(A, b, scale):
     """The factor of :func:`_triangular_factor` from the Cholesky factor of the Gram matrix of
-    ``[A / scale | b]``, or None when that Cholesky fails or the scaled condition number
-    (estimated) exceeds ``GRAM_COND``, or the refinement does not settle.
+    ``[A / scale | b]`` (:func:`_cholesky_factor`, the solution refined on the data), or None."""
+
+    def refine(x):  # the residual formed first: its rounding maps to eps cond
+        residual = b - A @ (x / scale)
+        return (residual @ A) / scale, np.linalg.norm(residual)
+
+    return _cholesky_factor(_blockwise(A, b, scale, _accumulate_gram, np.add), refine)
+
+
+def _cholesky_factor(G, refine=None):
+    """The factor of :func:`_triangular_factor` from the Gram matrix ``G (p + 1, p + 1)`` of
+    ``[A_s | b]`` (``A_s`` the column-scaled regressor), or None when its Cholesky fails or the scaled
+    condition number (estimated) exceeds ``GRAM_COND``, or the refinement does not settle.
 
     The Gram matrix holds ``A``'s information to ``eps cond^2``, so its solution is refined on
-    the data: ``x += G^-1 A^T (b - A x)``, the residual formed first (its rounding maps to
-    ``eps cond``, as in an orthogonal factorisation), until a step no longer shrinks the
-    correction. The factor returned is ``[[r, r x], [0, |b - A x|]]``, ``r^T r`` the Gram
-    matrix of ``A / scale``: :func:`_solve_factor` reads the refined ``x`` from it."""
-    p = A.shape[1]
-    G = _blockwise(A, b, scale, _accumulate_gram, np.add)
+    the data, ``refine(x) = (A_s^T (b - A_s x), |b - A_s x|)``: ``x += G^-1 A_s^T (b - A_s x)`` until a
+    step no longer shrinks the correction. The factor returned is ``[[r, r x], [0, |b - A_s x|]]``,
+    ``r^T r`` the Gram matrix of ``A_s``: :func:`_solve_factor` reads the refined ``x`` from it.
+    Without ``refine``, ``x`` is the normal equations' (enough where only ``r`` is used)."""
+    p = len(G) - 1
     with one_blas_thread():
         r, info = lapack.dpotrf(G[:p, :p])
         if info != 0 or not lapack.dtrcon(r)[0] * GRAM_COND >= 1:
             return None
         x = cho_solve((r, False), G[:p, p])
+        residual = np.sqrt(max(G[p, p] - np.sum((r @ x) ** 2), 0.0))
         size = np.inf
-        for _ in range(REFINE_STEPS):
-            residual = b - A @ (x / scale)
-            step = cho_solve((r, False), (residual @ A) / scale)
+        for _ in range(REFINE_STEPS if refine else 0):
+            correlation, residual = refine(x)
+            step = cho_solve((r, False), correlation)
             x += step
             previous, size = size, np.linalg.norm(step)
             if not size > 1e-15 * np.linalg.norm(x) or size > 0.5 * previous:  # at the rounding floor
                 break
-        if not size <= 1e-6 * np.linalg.norm(x):
+        if refine and not size <= 1e-6 * np.linalg.norm(x):
             return None
     R = np.zeros((p + 1, p + 1))
-    R[:p, :p], R[:p, p], R[p, p] = r, r @ x, np.linalg.norm(residual)
+    R[:p, :p], R[:p, p], R[p, p] = r, r @ x, residual
     return R
 
 

@@ -38,8 +38,9 @@ import numpy as np
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ._equations import _split
-from ._estimators import (_accumulate_factor, _blockwise, _equation_whitener, _instrument_rows, _inverse_times,
-                          _ml_evaluate, _ml_fit, _sandwich, _solve_factor, _whitened)  # fmt: skip
+from ._estimators import (_accumulate_factor, _accumulate_gram, _blockwise, _cholesky_factor, _equation_whitener,
+                          _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich, _solve_factor,
+                          _whitened)  # fmt: skip
 from ._uncertainty import _covariance_choice, _covariance_record, _hac, _mapped_scores
 
 __all__ = ["STREAMED"]
@@ -78,14 +79,36 @@ def _accumulated_factor(blocks):
     return R
 
 
-def _streamed_factor(blocks, p):
+def _streamed_factor(blocks, p, refined=True):
     """``(scale (p,), R (p + 1, p + 1))`` of :func:`~spaceid.estimation._estimators._triangular_factor`
-    for the rows of the blocks ``(A_c (m, p), b_c (m,))``: :func:`_accumulated_factor` of the unscaled
-    rows, scaled by the column norms of ``A`` read from ``R``."""
-    R = _accumulated_factor(blocks)
-    scale = np.linalg.norm(R[:, :p], axis=0)
+    for the rows of the blocks ``(A_c (m, p), b_c (m,))`` that ``blocks()`` yields anew at each pass.
+
+    As in memory: from the Gram matrix (a pass; the column scales are the square roots of its
+    diagonal) by :func:`~spaceid.estimation._estimators._cholesky_factor`, the solution refined on the
+    data (a pass per step, two to four) when ``refined``; when the scaled condition number is
+    above ``GRAM_COND``, by TSQR of the unscaled rows (:func:`_accumulated_factor`, a pass), scaled
+    by the column norms of ``A`` read from ``R``."""
+    G = sum(_blockwise(A, b, np.ones(p), _accumulate_gram, np.add) for A, b in blocks())
+    if not np.all(np.isfinite(G)):
+        raise np.linalg.LinAlgError("the equations hold non-finite values")
+    scale = np.sqrt(np.diag(G)[:p])
     scale[scale == 0] = 1.0
-    return scale, R / np.append(scale, 1.0)
+    both = np.append(scale, 1.0)
+
+    def refine(x):
+        correlation, square = 0.0, 0.0
+        for A, b in blocks():
+            residual = b - A @ (x / scale)
+            correlation, square = correlation + (residual @ A) / scale, square + residual @ residual
+        return correlation, np.sqrt(square)
+
+    R = _cholesky_factor(G / np.outer(both, both), refine if refined else None)
+    if R is None:
+        R = _accumulated_factor(blocks())
+        scale = np.linalg.norm(R[:, :p], axis=0)
+        scale[scale == 0] = 1.0
+        R = R / np.append(scale, 1.0)
+    return scale, R
 
 
 def streamed_ols_factor(eq, x, chunk) -> tuple:
@@ -99,14 +122,16 @@ def streamed_ols_factor(eq, x, chunk) -> tuple:
             nonzero.append(bool(np.any(b)))
             yield A, b
 
-    return _streamed_factor(blocks(), eq.p), any(nonzero)
+    return _streamed_factor(blocks, eq.p), any(nonzero)
 
 
 def _streamed_wls(eq, x, sigma, theta, chunk, iterations=2):
-    """:func:`~spaceid.estimation._estimators._wls`, one factor pass per iteration."""
+    """:func:`~spaceid.estimation._estimators._wls`, a factor per iteration."""
     for _ in range(iterations):
-        blocks = (_split(_whitened(_equation_whitener(e, xc, theta, sigma), e.phi(xc)))
-                  for _, e, xc in _chunks(eq, x, chunk))  # fmt: skip
+        def blocks(theta=theta):
+            return (_split(_whitened(_equation_whitener(e, xc, theta, sigma), e.phi(xc))) for _, e, xc in
+                    _chunks(eq, x, chunk))  # fmt: skip
+
         theta = _solve_factor(*_streamed_factor(blocks, eq.p)[::-1])[0]
     return theta, {"iterations": iterations}
 
@@ -140,8 +165,9 @@ def _streamed_ml(eq, x, sigma, theta, chunk):
         return _ml_evaluate(eq, x, estimate, sigma, chunk, lambda rows, e, xc: e.phi(xc)[..., :-1], previous, gradient,
                             keep_jacobian=False)  # fmt: skip
 
-    def factor(L):
-        return _streamed_factor((_split(_whitened(L[rows], e.phi(xc))) for rows, e, xc in _chunks(eq, x, chunk)), eq.p)
+    def factor(L):  # the preconditioner and the bread: the Gram matrix's factor, no refined solution
+        return _streamed_factor(lambda: (_split(_whitened(L[rows], e.phi(xc))) for rows, e, xc in _chunks(eq, x, chunk)),
+                                eq.p, refined=False)  # fmt: skip
 
     return _ml_fit(x, theta, evaluate, factor, lambda: _streamed_wls(eq, x, sigma, theta, chunk)[0])
 
@@ -171,8 +197,8 @@ def _residual_pass(eq, x, sigma, theta, estimator, info, ctx, chunk) -> tuple:
             if estimator == "wls":
                 yield _split(_whitened(L[sl], phi))
 
-    if estimator == "wls":
-        return r, L, _solve_factor(*_streamed_factor(blocks(), eq.p)[::-1])[1]
+    if estimator == "wls":  # the first pass fills r and L; a fallback to TSQR passes again
+        return r, L, _solve_factor(*_streamed_factor(blocks, eq.p, refined=False)[::-1])[1]
     for _ in blocks():
         pass
     scale = ctx["factor"][0]
