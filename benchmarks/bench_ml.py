@@ -58,17 +58,16 @@ def parts(param, log, h, noise):
     x, sigma = eq.signals(log), signal_sigma(param, noise)
     phi = eq.phi(x)
     theta = estimate._solve(*_split(phi))[0]
-    columns = lambda rows, e, xe: phi[rows, :, :-1]  # noqa: E731
-    first = estimate._ml_evaluate(eq, x, theta, sigma, estimate.ML_PART, columns)
+    equations = lambda rows, e, xe: phi[rows]  # noqa: E731
+    first = estimate._ml_evaluate(eq, x, theta, sigma, estimate.ML_PART, equations)
     previous = (theta, first["xh"], first["r"], first["L"], first["J"])
     xh, n = first["xh"], len(x)
     out = {
-        "ML evaluation (_ml_evaluate)": lambda: estimate._ml_evaluate(eq, x, theta, sigma, estimate.ML_PART, columns,
+        "ML evaluation (_ml_evaluate)": lambda: estimate._ml_evaluate(eq, x, theta, sigma, estimate.ML_PART, equations,
                                                                      previous),  # fmt: skip
         "  signal Jacobian": lambda: eq.jacobian(xh, theta),
         "  weights' derivative (contracted)": lambda: eq.contracted_dphi(xh, x - xh, np.ones((n, param.rows))),
-        "whitened factorisation": lambda: estimate._triangular_factor(*_split(estimate._whitened(first["L"], phi)),
-                                                                      estimate._column_scale(_split(phi)[0])),  # fmt: skip
+        "whitened factorisation": lambda: estimate._gram_matrix_factor(estimate._whitened_gram(first["L"], phi)),
     }
     return {key: timed(fn)[0] for key, fn in out.items()}
 

@@ -106,13 +106,42 @@ def _whitened(L, m):
     """``L^-1 m`` sample by sample, ``m (n, rows, c)``: equations of unit error covariance. By the
     inverses of the small factors and a product: five times faster than a batched solve on the
     servicer's 497 columns (measured), as accurate (``eps cond(L_n)``)."""
-    return np.einsum("nrs,nsc->nrc", np.linalg.inv(L), m)
+    return np.linalg.inv(L) @ m
 
 
 def _inverse_times(L, m):
     """``S^-1 m = L^-T L^-1 m`` sample by sample, ``m (n, rows, c)``."""
     inverse = np.linalg.inv(L)
-    return np.einsum("nsr,nsc->nrc", inverse, np.einsum("nrs,nsc->nrc", inverse, m))
+    return np.swapaxes(inverse, -1, -2) @ (inverse @ m)
+
+
+def _whitened_gram(L, phi):
+    """The Gram matrix ``(p + 1, p + 1)`` of ``[A | b]`` whitened by ``L (n, rows, rows)``, from the
+    equations ``phi = [A | -b] (n, rows, p + 1)``: blocks of samples on threads, summed in order; no
+    whitened copy of the equations is formed."""
+    size = max(ROW_BLOCK // phi.shape[1], 1)
+
+    def part(rows):
+        white = _whitened(L[rows], phi[rows]).reshape(-1, phi.shape[-1])
+        return white.T @ white
+
+    G = functools.reduce(np.add, (g for _, g in _parts(part, len(phi), size)))
+    G[-1, :-1] *= -1
+    G[:-1, -1] *= -1
+    return G
+
+
+def _gram_matrix_factor(G):
+    """``(scale, R)`` of :func:`_triangular_factor` from the Gram matrix ``G (p + 1, p + 1)`` of
+    ``[A | b]``: the column scales the square roots of its diagonal, ``R`` by
+    :func:`_cholesky_factor` without refinement (the solution is the normal equations'), or None."""
+    if not np.all(np.isfinite(G)):
+        raise np.linalg.LinAlgError("the equations hold non-finite values")
+    scale = np.sqrt(np.diag(G)[:-1])
+    scale[scale == 0] = 1.0
+    both = np.append(scale, 1.0)
+    R = _cholesky_factor(G / np.outer(both, both))
+    return None if R is None else (scale, R)
 
 
 ROW_BLOCK = 4096
@@ -168,14 +197,17 @@ def _blockwise(A, b, scale, accumulate, combine):
     """``accumulate`` over the blocks of ``ROW_BLOCK`` rows of ``[A / scale | b]`` (``A (rows, p)``,
     ``b (rows,)``), as ``acc = accumulate(acc, block)`` from ``acc = None``: interleaved over
     ``work_threads()`` threads (LAPACK and BLAS release the GIL), whose results ``combine(acc, acc)``
-    joins. BLAS runs on one thread meanwhile."""
+    joins. BLAS runs on one thread meanwhile. The blocks are in LAPACK's column-major layout for the
+    QR (:func:`_accumulate_factor`), row-major for the Gram matrix: copying the row-major ``A`` into
+    a column-major block took longer than its product (servicer, measured)."""
     rows = max(ROW_BLOCK, 4 * (A.shape[1] + 1))
     starts = range(0, len(A), rows)
+    order = "F" if accumulate is _accumulate_factor else "C"
 
     def run(part):
         acc = None
         for start in part:
-            block = np.empty((len(A[start : start + rows]), A.shape[1] + 1), order="F")  # LAPACK's layout: one copy
+            block = np.empty((len(A[start : start + rows]), A.shape[1] + 1), order=order)  # one copy
             np.divide(A[start : start + rows], scale, out=block[:, :-1])
             block[:, -1] = b[start : start + rows]
             acc = accumulate(acc, block)
@@ -379,7 +411,7 @@ def _parts(fn, n, size):
                 yield from zip(slices[start : start + threads], pool.map(fn, slices[start : start + threads]))
 
 
-def _ml_part(eq, x, theta, sigma, columns, previous=None, gradient=True) -> dict:
+def _ml_part(eq, x, theta, sigma, equations, previous=None, gradient=True) -> dict:
     """One part's share of a maximum-likelihood evaluation at ``theta``, the constraint linearised
     at the corrected signals ``xh`` and evaluated at the measured ``x (n, n_x)``.
 
@@ -387,7 +419,7 @@ def _ml_part(eq, x, theta, sigma, columns, previous=None, gradient=True) -> dict
     accepted evaluation's linearisation, ``previous = (theta_0, xh_0, r_0, L_0, J_0)`` (its signal
     Jacobian ``J_0`` recomputed when None): ``x - Sigma J_0^T S_0^-1 (r_0 + A (theta - theta_0))``, the
     projection onto that linearised constraint (:func:`_ml_fit` compares objectives of evaluations
-    linearised alike). ``columns()`` gives the columns ``A (n, rows, p)`` of the equations.
+    linearised alike). ``equations()`` gives the equations ``[A | -b] (n, rows, p + 1)`` at ``x``.
 
     Returns the objective ``f = sum_n r_n^T S_n^-1 r_n`` (the whitened signal corrections that
     satisfy the linearised constraint), the linearisation point ``xh``, the residuals
@@ -396,12 +428,12 @@ def _ml_part(eq, x, theta, sigma, columns, previous=None, gradient=True) -> dict
     signal Jacobian at ``xh``: no regressor) and, with ``gradient``, the half-gradient of ``f``:
     ``A^T u - sum_n u_n^T dA_n[v_n]``, ``u = S^-1 r``, ``v = Sigma J^T u`` (the second term is the
     weights' derivative, formed without the derivative of ``A``)."""
-    A = columns() if gradient or previous is not None else None
+    phi = equations() if gradient or previous is not None else None
     xh = x
     if previous is not None:
         theta_0, xh_0, r_0, L_0, J_0 = previous
         J_0 = eq.jacobian(xh_0, theta_0) if J_0 is None else J_0
-        u_0 = _inverse_times(L_0, (r_0 + A @ (theta - theta_0))[..., None])[..., 0]
+        u_0 = _inverse_times(L_0, (r_0 + phi @ np.append(theta - theta_0, 0.0))[..., None])[..., 0]
         xh = x - sigma**2 * np.einsum("nrx,nr->nx", J_0, u_0)
     J = eq.jacobian(xh, theta)
     r = eq.error(xh, theta, J) + np.einsum("nrx,nx->nr", J, x - xh)
@@ -412,15 +444,16 @@ def _ml_part(eq, x, theta, sigma, columns, previous=None, gradient=True) -> dict
     if gradient:
         u = np.einsum("nsr,ns->nr", inverse, white)
         v = sigma**2 * np.einsum("nrx,nr->nx", J, u)
-        part["grad"] = np.einsum("nrp,nr->p", A, u) - (eq.contracted_dphi((x + xh) / 2, v, u) if np.any(v) else 0.0)
+        part["grad"] = (u.ravel() @ phi.reshape(len(u.ravel()), -1))[:-1] - (eq.contracted_dphi((x + xh) / 2, v, u)
+                                                                             if np.any(v) else 0.0)  # fmt: skip
     return part
 
 
-def _ml_evaluate(eq, x, theta, sigma, size, columns, previous=None, gradient=True, keep_jacobian=True) -> dict:
+def _ml_evaluate(eq, x, theta, sigma, size, equations, previous=None, gradient=True, keep_jacobian=True) -> dict:
     """:func:`_ml_part` over the parts of ``size`` samples, joined: the sums added in order, the
     per-sample arrays stacked (``J`` only with ``keep_jacobian``; ``previous`` too holds whole-log
-    arrays, its ``J_0`` None when not kept). ``columns(rows, eq_part, x_part)`` gives the columns of
-    those samples."""
+    arrays, its ``J_0`` None when not kept). ``equations(rows, eq_part, x_part)`` gives the equations
+    of those samples."""
     n, rows = len(x), eq.param.rows
     out = {"f": 0.0, "grad": 0.0, "xh": np.empty_like(x), "L": np.empty((n, rows, rows)), "r": np.empty((n, rows)),
            "J": np.empty((n, rows, x.shape[1])) if keep_jacobian else None}  # fmt: skip
@@ -428,7 +461,7 @@ def _ml_evaluate(eq, x, theta, sigma, size, columns, previous=None, gradient=Tru
     def part(sl):
         e = eq.select(sl)
         before = None if previous is None else [None if a is None else a[sl] for a in previous[1:]]
-        return _ml_part(e, x[sl], theta, sigma, lambda: columns(sl, e, x[sl]),
+        return _ml_part(e, x[sl], theta, sigma, lambda: equations(sl, e, x[sl]),
                         None if previous is None else (previous[0], *before), gradient)  # fmt: skip
 
     for sl, one in _parts(part, n, size):
@@ -544,13 +577,15 @@ def _ml(eq, x, sigma, theta, ctx, **options):
     the covariance's terms at the estimate (:func:`spaceid.estimation._uncertainty._covariance_terms`)."""
     phi = ctx["phi"]
 
-    def factor(L):
-        A, b = _split(_whitened(L, phi))
-        scale = _column_scale(A)
-        return scale, _triangular_factor(A, b, scale)
+    def factor(L):  # the preconditioner and the bread: no refined solution needed
+        scaled = _gram_matrix_factor(_whitened_gram(L, phi))
+        if scaled is None:  # conditioned beyond GRAM_COND: by QR
+            A, b = _split(_whitened(L, phi))
+            scaled = _column_scale(A), _triangular_factor(A, b, _column_scale(A))
+        return scaled
 
     def evaluate(estimate, previous, gradient):
-        return _ml_evaluate(eq, x, estimate, sigma, ML_PART, lambda rows, e, xe: phi[rows, :, :-1], previous, gradient)
+        return _ml_evaluate(eq, x, estimate, sigma, ML_PART, lambda rows, e, xe: phi[rows], previous, gradient)
 
     estimate, info = _ml_fit(x, theta, evaluate, factor, lambda: _wls(eq, x, sigma, theta, ctx)[0], **options)
     if "factor" in info:

@@ -33,14 +33,16 @@ whole regressor) and the angles estimator are in memory only.
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ._equations import _split
 from ._estimators import (_accumulate_factor, _accumulate_gram, _blockwise, _cholesky_factor, _equation_whitener,
-                          _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich, _solve_factor,
-                          _whitened)  # fmt: skip
+                          _gram_matrix_factor, _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich,
+                          _solve_factor, _whitened, _whitened_gram)  # fmt: skip
 from ._uncertainty import _covariance_choice, _covariance_record, _hac, _mapped_scores
 
 __all__ = ["STREAMED"]
@@ -162,12 +164,16 @@ def _streamed_ml(eq, x, sigma, theta, chunk):
     each chunk's columns are built for its part of the gradient and dropped."""
 
     def evaluate(estimate, previous, gradient):  # the signal Jacobians are recomputed, not kept
-        return _ml_evaluate(eq, x, estimate, sigma, chunk, lambda rows, e, xc: e.phi(xc)[..., :-1], previous, gradient,
-                            keep_jacobian=False)  # fmt: skip
+        return _ml_evaluate(eq, x, estimate, sigma, chunk, lambda rows, e, xc: e.phi(xc), previous, gradient,
+                            keep_jacobian=False)
 
-    def factor(L):  # the preconditioner and the bread: the Gram matrix's factor, no refined solution
-        return _streamed_factor(lambda: (_split(_whitened(L[rows], e.phi(xc))) for rows, e, xc in _chunks(eq, x, chunk)),
-                                eq.p, refined=False)  # fmt: skip
+    def factor(L):  # the preconditioner and the bread, as in memory: no refined solution needed
+        G = functools.reduce(np.add, (_whitened_gram(L[rows], e.phi(xc)) for rows, e, xc in _chunks(eq, x, chunk)))
+        scaled = _gram_matrix_factor(G)
+        if scaled is None:  # conditioned beyond GRAM_COND: by TSQR
+            scaled = _streamed_factor(lambda: (_split(_whitened(L[rows], e.phi(xc))) for rows, e, xc in
+                                               _chunks(eq, x, chunk)), eq.p)  # fmt: skip
+        return scaled
 
     return _ml_fit(x, theta, evaluate, factor, lambda: _streamed_wls(eq, x, sigma, theta, chunk)[0])
 
