@@ -3,7 +3,8 @@
 Streaming: ``identify(..., chunk=N)`` on servicer-dual logs (14 joints, 496 parameters) of
 random joint states whose base rate conserves h = [1, -2, 3] N m s, with 1e-3 noise on every
 signal, for ``ols`` and ``ml`` at 10^4, 10^5 (and, given, 10^6) samples, and in memory up to
-``--memory-up-to`` samples: wall time per sample, and the peak memory of the process (its maximum
+``--memory-up-to`` samples: wall and CPU time per sample (the CPU time of the process, all its
+threads: less sensitive than the wall time to the load of a shared machine), and the peak memory of the process (its maximum
 resident set size, ``resource.getrusage``), each case in a fresh process that synthesizes its log
 in memory first (the log, 36 floats a sample, counts in the peak; the resident size after the
 synthesis is printed too). Fixed costs: the minimal-set derivation against a read of its on-disk
@@ -49,15 +50,16 @@ def child(n, estimator, chunk):
     log = Log(np.arange(n) * 1e-3, model.joints, q, qd, np.tile([1.0, 0, 0, 0], (n, 1)), w, False)
     del q, qd, w
     rss_log = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    cpu = time.process_time()
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = identify(param, log, h, estimator=estimator, noise=Noise(angle=1e-3, rate=1e-3, base_rate=1e-3),
                           chunk=chunk or None)  # fmt: skip
-    wall = time.perf_counter() - start
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     z = np.abs(result.values - param.true_values) / result.std
     info = result.settings["estimator_info"]
-    print(json.dumps({"wall": wall, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    print(json.dumps({"wall": wall, "cpu": cpu, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                       "rss_log_mb": rss_log, "z_max": float(z.max()), "load": os.getloadavg()[0],
                       "iterations": info.get("iterations", 0)}))  # fmt: skip
 
@@ -73,8 +75,8 @@ def run_child(n, estimator, chunk):
 def streaming(args):
     print(f"servicer-dual, 1e-3 noise; streamed in chunks of {args.chunk} samples, and in memory up to "
           f"{args.memory_up_to} samples (fresh process each; peak RSS of the process, log synthesis included)")
-    print(f"{'samples':>9} {'estimator':>9} {'mode':>9} {'wall s':>8} {'us/sample':>10} {'peak RSS MB':>11} "
-          f"{'log RSS MB':>10} {'iter':>5} {'max z':>6} {'load':>5}")
+    print(f"{'samples':>9} {'estimator':>9} {'mode':>9} {'wall s':>8} {'us/sample':>10} {'CPU us/sample':>13} "
+          f"{'peak RSS MB':>11} {'log RSS MB':>10} {'iter':>5} {'max z':>6} {'load':>5}")
     for n in args.samples:
         for estimator in args.estimators:
             modes = [("streamed", args.chunk)] + ([("memory", 0)] if n <= args.memory_up_to else [])
@@ -84,7 +86,7 @@ def streaming(args):
                     print(f"{n:>9} {estimator:>9} {mode:>9} failed: {r['error']}")
                     continue
                 print(f"{n:>9} {estimator:>9} {mode:>9} {r['wall']:8.1f} {1e6 * r['wall'] / n:10.1f} "
-                      f"{r['rss_mb']:11.0f} {r['rss_log_mb']:10.0f} {r['iterations']:5d} {r['z_max']:6.2f} "
+                      f"{1e6 * r['cpu'] / n:13.1f} {r['rss_mb']:11.0f} {r['rss_log_mb']:10.0f} {r['iterations']:5d} {r['z_max']:6.2f} "
                       f"{r['load']:5.1f}", flush=True)  # fmt: skip
 
 
