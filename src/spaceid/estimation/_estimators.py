@@ -523,8 +523,10 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     When it does not converge (``max_iter`` reached, or the line search stalls) the iterates are
     not reported, whatever their objective: with a wrong noise model the objective can keep
     falling while the parameters run off to infinity (its infimum lies there; measured on Cepheus
-    with rates differentiated at 3e-2 rad noise: objective 6e7 to 3e6 while the error grew to 100
-    times the parameters). The estimate is then WLS when its objective is below the OLS start's,
+    with rates differentiated at 3e-2 rad noise, levels estimated: the unaccelerated scheme's
+    error grew to 100 times the parameters; accelerated, it converges there to a local minimum, 9
+    times the parameters, which the noise-model and plausibility warnings of
+    :func:`spaceid.estimation.identify` flag). The estimate is then WLS when its objective is below the OLS start's,
     else OLS: ``info["fallback"]`` says which and why, and the objective is never worse than the
     start's. Converged, ``info`` holds the factor of the equations whitened at the estimate, the
     whitener and the residuals (``factor``, ``whitener``, ``residuals``: the covariance's terms)."""
