@@ -133,16 +133,23 @@ def _whitened_gram(L, phi):
     return G
 
 
-def _gram_matrix_factor(G):
+def _gram_matrix_factor(G, refine=None):
     """``(scale, R)`` of :func:`_triangular_factor` from the Gram matrix ``G (p + 1, p + 1)`` of
     ``[A | b]``: the column scales the square roots of its diagonal, ``R`` by
-    :func:`_cholesky_factor` without refinement (the solution is the normal equations'), or None."""
+    :func:`_cholesky_factor`, the solution refined by ``refine(y) = (A^T (b - A y), |b - A y|)``
+    (unscaled) or, without it, the normal equations'; None when the Cholesky factor is not
+    accurate enough."""
     if not np.all(np.isfinite(G)):
         raise np.linalg.LinAlgError("the equations hold non-finite values")
     scale = np.sqrt(np.diag(G)[:-1])
     scale[scale == 0] = 1.0
     both = np.append(scale, 1.0)
-    R = _cholesky_factor(G / np.outer(both, both))
+
+    def scaled(x):
+        correlation, norm = refine(x / scale)
+        return correlation / scale, norm
+
+    R = _cholesky_factor(G / np.outer(both, both), scaled if refine else None)
     return None if R is None else (scale, R)
 
 

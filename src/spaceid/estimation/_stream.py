@@ -40,10 +40,10 @@ import numpy as np
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ._equations import _split
-from ._estimators import (_accumulate_factor, _accumulate_gram, _blockwise, _cholesky_factor, _equation_whitener,
-                          _gram_matrix_factor, _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich,
-                          _solve_factor, _whitened, _whitened_gram)  # fmt: skip
-from ._uncertainty import _covariance_choice, _covariance_record, _hac, _mapped_scores
+from ._estimators import (_accumulate_factor, _accumulate_gram, _blockwise, _equation_whitener, _gram_matrix_factor,
+                          _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich, _solve_factor,
+                          _whitened, _whitened_gram)  # fmt: skip
+from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores
 
 __all__ = ["STREAMED"]
 
@@ -81,36 +81,32 @@ def _accumulated_factor(blocks):
     return R
 
 
-def _streamed_factor(blocks, p, refined=True):
+def _streamed_factor(blocks, p, refined=True, gram=None):
     """``(scale (p,), R (p + 1, p + 1))`` of :func:`~spaceid.estimation._estimators._triangular_factor`
     for the rows of the blocks ``(A_c (m, p), b_c (m,))`` that ``blocks()`` yields anew at each pass.
 
-    As in memory: from the Gram matrix (a pass; the column scales are the square roots of its
-    diagonal) by :func:`~spaceid.estimation._estimators._cholesky_factor`, the solution refined on the
-    data (a pass per step, two to four) when ``refined``; when the scaled condition number is
-    above ``GRAM_COND``, by TSQR of the unscaled rows (:func:`_accumulated_factor`, a pass), scaled
-    by the column norms of ``A`` read from ``R``."""
-    G = sum(_blockwise(A, b, np.ones(p), _accumulate_gram, np.add) for A, b in blocks())
-    if not np.all(np.isfinite(G)):
-        raise np.linalg.LinAlgError("the equations hold non-finite values")
-    scale = np.sqrt(np.diag(G)[:p])
-    scale[scale == 0] = 1.0
-    both = np.append(scale, 1.0)
+    As in memory: from their Gram matrix (a pass, or ``gram`` when given) by
+    :func:`~spaceid.estimation._estimators._gram_matrix_factor`, the solution refined on the data (a
+    pass per step, two to four) when ``refined``; when the scaled condition number is above
+    ``GRAM_COND``, by TSQR of the unscaled rows (:func:`_accumulated_factor`, a pass), scaled by the
+    column norms of ``A`` read from ``R``."""
 
-    def refine(x):
+    def refine(y):
         correlation, square = 0.0, 0.0
         for A, b in blocks():
-            residual = b - A @ (x / scale)
-            correlation, square = correlation + (residual @ A) / scale, square + residual @ residual
+            residual = b - A @ y
+            correlation, square = correlation + residual @ A, square + residual @ residual
         return correlation, np.sqrt(square)
 
-    R = _cholesky_factor(G / np.outer(both, both), refine if refined else None)
-    if R is None:
-        R = _accumulated_factor(blocks())
-        scale = np.linalg.norm(R[:, :p], axis=0)
-        scale[scale == 0] = 1.0
-        R = R / np.append(scale, 1.0)
-    return scale, R
+    if gram is None:
+        gram = sum(_blockwise(A, b, np.ones(p), _accumulate_gram, np.add) for A, b in blocks())
+    scaled = _gram_matrix_factor(gram, refine if refined else None)
+    if scaled is not None:
+        return scaled
+    R = _accumulated_factor(blocks())
+    scale = np.linalg.norm(R[:, :p], axis=0)
+    scale[scale == 0] = 1.0
+    return scale, R / np.append(scale, 1.0)
 
 
 def streamed_ols_factor(eq, x, chunk) -> tuple:
@@ -169,11 +165,8 @@ def _streamed_ml(eq, x, sigma, theta, chunk):
 
     def factor(L):  # the preconditioner and the bread, as in memory: no refined solution needed
         G = functools.reduce(np.add, (_whitened_gram(L[rows], e.phi(xc)) for rows, e, xc in _chunks(eq, x, chunk)))
-        scaled = _gram_matrix_factor(G)
-        if scaled is None:  # conditioned beyond GRAM_COND: by TSQR
-            scaled = _streamed_factor(lambda: (_split(_whitened(L[rows], e.phi(xc))) for rows, e, xc in
-                                               _chunks(eq, x, chunk)), eq.p)  # fmt: skip
-        return scaled
+        blocks = lambda: (_split(_whitened(L[rows], e.phi(xc))) for rows, e, xc in _chunks(eq, x, chunk))  # noqa: E731
+        return _streamed_factor(blocks, eq.p, refined=False, gram=G)
 
     return _ml_fit(x, theta, evaluate, factor, lambda: _streamed_wls(eq, x, sigma, theta, chunk)[0])
 
@@ -235,9 +228,9 @@ def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimate
                 yield sl, e.phi(xc)[..., :-1]
 
     if choice["covariance_from_residuals"]:
-        scored = _inverse_times(L, r[..., None])[..., 0] if estimator in ("wls", "ml") else r
+        scored = _inverse_times(L, r[..., None])[..., 0] if estimator in WEIGHTED else r
         cov_t = _hac((_mapped_scores(bread, M, scored[sl]) for sl, M in influence()), choice["bandwidth"], eq.p)
-    elif estimator in ("wls", "ml"):  # the noise model's sandwich is the bread (_model_covariance)
+    elif estimator in WEIGHTED:  # the noise model's sandwich is the bread (_model_covariance)
         cov_t = bread * choice["variance_factor"]
     else:
         cov_t = sum(_sandwich(bread, M, L[sl]) for sl, M in influence()) * choice["variance_factor"]

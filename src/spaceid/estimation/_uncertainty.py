@@ -37,11 +37,15 @@ from ._noise import Noise, signal_sigma
 
 __all__ = ["cramer_rao"]
 
+WEIGHTED = ("wls", "ml")
+"""The estimators weighted by the inverse equation-error covariances (``M_n = A_n``, ``W_n = S_n^-1``
+in :func:`_covariance_terms`)."""
+
 
 def _influence(estimator, A, phi, L, info):
     """``M (n, rows, p)`` and ``bread (p, p)`` of ``estimator``'s first-order error (see
     :func:`_covariance_terms`)."""
-    if estimator in ("wls", "ml"):
+    if estimator in WEIGHTED:
         return A, _solve(*_split(_whitened(L, phi)))[1]
     if estimator == "iv":
         M = info.pop("Z").reshape(A.shape)
@@ -72,7 +76,7 @@ def _covariance_terms(eq, x, phi, sigma, theta, estimator, info):
         return {"M": A, "bread": info.pop("ginv"), "L": None, "r": r, "scored": r, "white": None}
     L = _equation_whitener(eq, x, theta, sigma)
     M, bread = _influence(estimator, A, phi, L, info)
-    scored = _inverse_times(L, r[..., None])[..., 0] if estimator in ("wls", "ml") else r
+    scored = _inverse_times(L, r[..., None])[..., 0] if estimator in WEIGHTED else r
     return {"M": M, "bread": bread, "L": L, "r": r, "scored": scored, "white": _whitened(L, r[..., None])[..., 0]}
 
 
@@ -253,7 +257,7 @@ def _model_covariance(estimator, bread, M, L):
     for ``wls`` and ``ml`` (weights ``S_n^-1``, ``bread`` the inverse of ``sum_n A_n^T S_n^-1 A_n``)
     that is ``bread`` itself, taken as it is: exact, and two products of the regressor's size fewer
     (1.6 s of 10,000 servicer samples, measured)."""
-    return bread if estimator in ("wls", "ml") else _sandwich(bread, M, L)
+    return bread if estimator in WEIGHTED else _sandwich(bread, M, L)
 
 
 def _covariance_record(chi2, checks, choice, log, estimated):
