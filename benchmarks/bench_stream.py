@@ -4,9 +4,9 @@ Streaming: ``identify(..., chunk=N)`` on servicer-dual logs (14 joints, 496 para
 random joint states whose base rate conserves h = [1, -2, 3] N m s, with 1e-3 noise on every
 signal, for ``ols`` and ``ml`` at 10^4, 10^5 (and, given, 10^6) samples, and in memory up to
 ``--memory-up-to`` samples: wall and CPU time per sample (the CPU time of the process, all its
-threads: less sensitive than the wall time to the load of a shared machine), and the peak memory of the process (its maximum
-resident set size, ``resource.getrusage``), each case in a fresh process that synthesizes its log
-in memory first (the log, 36 floats a sample, counts in the peak; the resident size after the
+threads: less sensitive than the wall time to the load of a shared machine), and the peak
+memory of the process (its maximum resident set size, ``resource.getrusage``), each case in a
+fresh process that synthesizes its log in memory first (the log, 36 floats a sample, counts in the peak; the resident size after the
 synthesis is printed too). Fixed costs: the minimal-set derivation against a read of its on-disk
 cache; the Gram product ``A^T A`` of 10,000 servicer samples (30,000 x 496) with BLAS on 2
 threads and on 1, and through the blockwise accumulation the estimators use (2 Python threads
@@ -86,8 +86,8 @@ def streaming(args):
                     print(f"{n:>9} {estimator:>9} {mode:>9} failed: {r['error']}")
                     continue
                 print(f"{n:>9} {estimator:>9} {mode:>9} {r['wall']:8.1f} {1e6 * r['wall'] / n:10.1f} "
-                      f"{1e6 * r['cpu'] / n:13.1f} {r['rss_mb']:11.0f} {r['rss_log_mb']:10.0f} {r['iterations']:5d} {r['z_max']:6.2f} "
-                      f"{r['load']:5.1f}", flush=True)  # fmt: skip
+                      f"{1e6 * r['cpu'] / n:13.1f} {r['rss_mb']:11.0f} {r['rss_log_mb']:10.0f} {r['iterations']:5d} "
+                      f"{r['z_max']:6.2f} {r['load']:5.1f}", flush=True)  # fmt: skip
 
 
 def fixed_costs():
