@@ -7,11 +7,11 @@ signal, for ``ols`` and ``ml`` at 10^4, 10^5 (and, given, 10^6) samples, and in 
 threads: less sensitive than the wall time to the load of a shared machine), and the peak
 memory of the process (its maximum resident set size, ``resource.getrusage``), each case in a
 fresh process that synthesizes its log in memory first (the log, 36 floats a sample, counts in
-the peak; the resident size after the synthesis is printed too). Fixed costs: the minimal-set derivation against a read of its on-disk
-cache; the Gram product ``A^T A`` of 10,000 servicer samples (30,000 x 496) with BLAS on 2
-threads and on 1, and through the blockwise accumulation the estimators use (2 Python threads
-over one-threaded BLAS, and 1); the imports of ``spaceid identify`` (matplotlib or not). Prints
-only, never fails on timings.
+the peak; the resident size after the synthesis is printed too). Fixed costs: the minimal-set
+derivation against a read of its on-disk cache; the Gram product ``A^T A`` of 10,000 servicer
+samples (30,000 x 496) with BLAS on 2 threads and on 1, and through the blockwise accumulation
+the estimators use (2 Python threads over one-threaded BLAS, and 1); the imports of ``spaceid
+identify`` (matplotlib or not). Prints only, never fails on timings.
 
     python benchmarks/bench_stream.py [--samples 10000 100000 1000000] [--estimators ols ml]
         [--chunk 4096] [--memory-up-to 10000] [--parts stream fixed]
