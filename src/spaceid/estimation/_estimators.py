@@ -540,7 +540,6 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     start_theta = theta
     now = evaluate(theta, None, True)
     f, start, scaled = now["f"], now["f"], factor(now["L"])
-    std = np.sqrt(np.maximum(np.diag(_solve_factor(scaled[1], scaled[0])[1]), 1e-300))
     target = theta - _gram_solve(scaled, now["grad"])  # the fundamental numerical scheme's first update
     history, small, reason, damping = [], False, None, 1.0
     for it in range(1, max_iter + 1):
@@ -548,8 +547,9 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
         new = evaluate(trial, (theta, now["xh"], now["r"], now["L"], now["J"]), True)
         if new["f"] <= f * (1 + ftol):  # accepted
             change, f, theta, now, damping = f - new["f"], new["f"], trial, new, 1.0
-            if it == 1:  # the weights of the first update's estimate: closer to the fixed point's than the start's
+            if not history:  # the weights of the first accepted estimate: closer to the fixed point's than the start's
                 scaled = factor(now["L"])
+                std = np.sqrt(np.maximum(np.diag(_solve_factor(scaled[1], scaled[0])[1]), 1e-300))  # for the tolerance
             update = -_gram_solve(scaled, now["grad"])
             small = (np.abs(update) / std).max() < tol or np.abs(update).max() <= 1e-9 * np.abs(theta + update).max()
             if small and abs(change) <= ftol * f:
