@@ -533,9 +533,9 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     with rates differentiated at 3e-2 rad noise, levels estimated: the unaccelerated scheme's
     error grew to 100 times the parameters; accelerated, it converges there to a local minimum, 9
     times the parameters, which the noise-model and plausibility warnings of
-    :func:`spaceid.estimation.identify` flag). The estimate is then WLS when its objective is below the OLS start's,
-    else OLS: ``info["fallback"]`` says which and why, and the objective is never worse than the
-    start's. Converged, ``info`` holds the factor of the equations whitened at the estimate, the
+    :func:`spaceid.estimation.identify` flag). The estimate is then WLS when its objective is below
+    the OLS start's, else OLS: ``info["fallback"]`` says which and why, and the objective is never
+    worse than the start's. Converged, ``info`` holds the factor of the equations whitened at the estimate, the
     whitener and the residuals (``factor``, ``whitener``, ``residuals``: the covariance's terms)."""
     start_theta = theta
     now = evaluate(theta, None, True)
@@ -586,16 +586,19 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
 def _ml(eq, x, sigma, theta, ctx, **options):
     """Maximum likelihood in memory (:func:`_ml_fit`, ``options`` its own): the columns of the
     equations ``ctx["phi"]`` are built once, at the measured signals; the corrected signals enter
-    through the residuals and the weights (the columns' own change is of second order in the
-    corrections, a millionth of a standard error at 1e-3 noise). Converged, ``info["terms"]`` holds
-    the covariance's terms at the estimate (:func:`spaceid.estimation._uncertainty._covariance_terms`)."""
+    through the residuals, the weights and the weights' derivative, taken halfway between measured
+    and corrected signals: that cancels the columns' own change to second order in the corrections
+    (docs/theory/scale.md; the fixed point is that of re-linearised columns to 4e-8 standard errors
+    on the servicer at 1e-3 noise). Converged, ``info["terms"]`` holds the covariance's terms at the
+    estimate (:func:`spaceid.estimation._uncertainty._covariance_terms`)."""
     phi = ctx["phi"]
 
     def factor(L):  # the preconditioner and the bread: no refined solution needed
         scaled = _gram_matrix_factor(_whitened_gram(L, phi))
         if scaled is None:  # conditioned beyond GRAM_COND: by QR
             A, b = _split(_whitened(L, phi))
-            scaled = _column_scale(A), _triangular_factor(A, b, _column_scale(A))
+            scale = _column_scale(A)
+            scaled = scale, _triangular_factor(A, b, scale)
         return scaled
 
     def evaluate(estimate, previous, gradient):
