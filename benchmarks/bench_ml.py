@@ -1,18 +1,20 @@
 """Maximum likelihood against least squares on the dual-arm servicer, side by side, in one run.
 
 10,000 samples of the 14-DOF servicer (496 parameters) at random states that conserve the
-momentum, 1e-3 noise on every joint angle, joint rate and base rate. Times, alternately repeat by
-repeat so that a load change on a shared machine hits all of them: ``identify(ols)``, one
-maximum-likelihood iteration (``_ml_step`` from the OLS estimate, with corrected signals that
-differ from the measured ones, as in every iteration after the first), its parts (the stacked
-equations, their directional derivatives, the signal Jacobian, the least-squares solve), and,
-once, the whole ``identify(ml)``. Prints the medians and the ratio of one ML iteration to
-``ols`` (target <= 3). Prints only, never fails on timings.
+momentum, 1e-3 noise on every joint angle, joint rate and base rate. Times the whole
+``identify(ml)`` and ``identify(ols)`` calls alternately, repeat by repeat, so that a load change
+on a shared machine hits both, and prints their medians and the median of the per-repeat ratios
+(target <= 3). Then, once each, the parts of the ML call: one evaluation of the iteration
+(:func:`~spaceid.estimation._estimators._ml_evaluate`: the signal Jacobian, the residuals, the
+weights' derivative, the gradient), the signal Jacobian and the weights' derivative alone, and the
+factorisation of the whitened equations (twice per call: the preconditioner and the covariance).
+Prints only, never fails on timings.
 
-    python benchmarks/bench_ml.py [--samples 10000] [--repeats 3] [--no-full]
+    python benchmarks/bench_ml.py [--samples 10000] [--repeats 3] [--no-parts]
 """
 
 import argparse
+import os
 import time
 import warnings
 from pathlib import Path
@@ -32,19 +34,12 @@ URDF = Path(spaceid.__file__).parent / "models" / "presets" / "servicer-dual.urd
 
 def timed(fn):
     start = time.perf_counter()
-    fn()
-    return time.perf_counter() - start
+    out = fn()
+    return time.perf_counter() - start, out
 
 
-def main():
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--samples", type=int, default=10_000)
-    parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--no-full", action="store_true", help="skip the whole identify(ml) run")
-    args = parser.parse_args()
-    n, level = args.samples, 1e-3
-    warnings.simplefilter("ignore")  # random states in time order trip the drift check; timings only
-
+def servicer_log(n, level):
+    """``(param, log, h, noise)``: ``n`` noisy servicer samples whose base rate conserves ``h``."""
     model = spaceid.load_model(URDF)
     param = minimal_parameters(model)
     q, qd, _ = _random_states(model, n, seed=1)
@@ -54,56 +49,58 @@ def main():
     log = Log(np.arange(n) * 0.01, model.joints, q + level * rng.standard_normal(q.shape),
               qd + level * rng.standard_normal(qd.shape), np.tile([1.0, 0, 0, 0], (n, 1)),
               w + level * rng.standard_normal(w.shape), False)  # fmt: skip
-    noise = Noise(angle=level, rate=level, base_rate=level)
+    return param, log, h, Noise(angle=level, rate=level, base_rate=level)
+
+
+def parts(param, log, h, noise):
+    """Times of the parts of one ML call, each once."""
     eq, _ = _equations(param, log, h, None, "bench")
     x, sigma = eq.signals(log), signal_sigma(param, noise)
-    theta = identify(param, log, h, estimator="ols").values[eq.free]
-    xh = estimate._ml_step(eq, x, x, theta, sigma)[4]  # the corrected signals of the first iteration
-    phi = eq.phi(xh)
-    A, b = _split(phi)
-
-    parts = {
-        "identify(ols)": lambda: identify(param, log, h, estimator="ols"),
-        "ML iteration (_ml_step)": lambda: estimate._ml_step(eq, x, xh, theta, sigma),
-        "  stacked equations (phi)": lambda: eq.phi(xh),
-        "  linearised equations": lambda: eq.linearized(xh, x - xh),
-        "  contracted derivative": lambda: eq.contracted_dphi(xh, x - xh, np.ones((n, 3))),
+    phi = eq.phi(x)
+    theta = estimate._solve(*_split(phi))[0]
+    equations = lambda rows, e, xe: phi[rows]  # noqa: E731
+    first = estimate._ml_evaluate(eq, x, theta, sigma, estimate.ML_PART, equations)
+    previous = (theta, first["xh"], first["r"], first["L"], first["J"])
+    xh, n = first["xh"], len(x)
+    out = {
+        "ML evaluation (_ml_evaluate)": lambda: estimate._ml_evaluate(eq, x, theta, sigma, estimate.ML_PART, equations,
+                                                                     previous),  # fmt: skip
         "  signal Jacobian": lambda: eq.jacobian(xh, theta),
-        "  least-squares solve": lambda: estimate._solve(A, b),
+        "  weights' derivative (contracted)": lambda: eq.contracted_dphi(xh, x - xh, np.ones((n, param.rows))),
+        "whitened factorisation": lambda: estimate._gram_matrix_factor(estimate._whitened_gram(first["L"], phi)),
     }
-    times = {k: [] for k in parts}
+    return {key: timed(fn)[0] for key, fn in out.items()}
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--samples", type=int, default=10_000)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--no-parts", action="store_true", help="skip the timing of the ML call's parts")
+    args = parser.parse_args()
+    level = 1e-3
+    warnings.simplefilter("ignore")  # random states in time order trip the drift check; timings only
+    param, log, h, noise = servicer_log(args.samples, level)
+    identify(param, log, h, estimator="ols")  # warm-up: caches, imports
+    times, result = {"identify(ols)": [], "identify(ml)": []}, None
     for _ in range(args.repeats):
-        for key, fn in parts.items():
-            times[key].append(timed(fn))
-    med = {k: float(np.median(v)) for k, v in times.items()}
-    ratio = float(np.median(np.array(times["ML iteration (_ml_step)"]) / np.array(times["identify(ols)"])))
-    print(f"dual-arm servicer: {model.n_joints} joints, {param.n_params} minimal parameters; {n} samples, "
-          f"noise {level:g} on q, qd, w0; medians of {args.repeats} alternating repeats")
-    for key, value in med.items():
-        print(f"  {key:30s} {value:8.3f} s")
-    print(f"  one ML iteration / ols         {ratio:8.2f}  (target <= 3; median of per-repeat ratios)")
-    if args.no_full:
-        return
-    steps = []
-    step = estimate._ml_step
-
-    def counted(*a):
-        steps.append(1)
-        return step(*a)
-
-    estimate._ml_step = counted
-    try:
-        start = time.perf_counter()
-        r = identify(param, log, h, estimator="ml", noise=noise)
-        t_ml = time.perf_counter() - start
-    finally:
-        estimate._ml_step = step
-    t_ols = timed(parts["identify(ols)"])
-    info = r.settings["estimator_info"]
-    z = np.abs(r.values - param.true_values) / r.std
-    print(f"  identify(ml)                   {t_ml:8.3f} s  (one run: {info['iterations']} iterations, {len(steps)} "
-          f"steps with the line search, converged {info['converged']}; max |error| / std {z.max():.2f})")
-    print(f"  identify(ml) / identify(ols)   {t_ml / t_ols:8.2f}  (ols {t_ols:.3f} s just after)")
+        times["identify(ols)"].append(timed(lambda: identify(param, log, h, estimator="ols"))[0])
+        elapsed, result = timed(lambda: identify(param, log, h, estimator="ml", noise=noise))
+        times["identify(ml)"].append(elapsed)
+    ratio = float(np.median(np.array(times["identify(ml)"]) / np.array(times["identify(ols)"])))
+    info = result.settings["estimator_info"]
+    z = np.abs(result.values - param.true_values) / result.std
+    print(f"dual-arm servicer: {param.model.n_joints} joints, {param.n_params} minimal parameters; {args.samples} "
+          f"samples, noise {level:g} on q, qd, w0; medians of {args.repeats} alternating repeats; load "
+          f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")  # fmt: skip
+    for key, values in times.items():
+        print(f"  {key:36s} {np.median(values):8.3f} s")
+    print(f"  identify(ml) / identify(ols)         {ratio:8.2f}  (target <= 3; median of the per-repeat ratios)")
+    print(f"  ML: {info['iterations']} iterations after the start, converged {info['converged']}, fallback "
+          f"{info['fallback']}; max |error| / std {z.max():.2f}")
+    if not args.no_parts:
+        for key, value in parts(param, log, h, noise).items():
+            print(f"  {key:36s} {value:8.3f} s")
 
 
 if __name__ == "__main__":

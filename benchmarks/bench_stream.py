@@ -2,16 +2,19 @@
 
 Streaming: ``identify(..., chunk=N)`` on servicer-dual logs (14 joints, 496 parameters) of
 random joint states whose base rate conserves h = [1, -2, 3] N m s, with 1e-3 noise on every
-signal, against the in-memory identification of the same log: wall time per sample and the peak
-memory of the call (tracemalloc, NumPy's arrays included) and of its process (peak RSS), each
-run in a fresh process. Fixed costs: the minimal-set derivation against a read of its on-disk
-cache; the Gram product ``A^T A`` of 10,000 servicer samples (30,000 x 496) with BLAS on 2
-threads and on 1, and through the blockwise accumulation the estimators use (2 Python threads
-over one-threaded BLAS, and 1); the imports of ``spaceid identify`` (matplotlib or not). Prints
-only, never fails on timings.
+signal, for ``ols`` and ``ml`` at 10^4, 10^5 (and, given, 10^6) samples, and in memory up to
+``--memory-up-to`` samples: wall and CPU time per sample (the CPU time of the process, all its
+threads: less sensitive than the wall time to the load of a shared machine), and the peak
+memory of the process (its maximum resident set size, ``resource.getrusage``), each case in a
+fresh process that synthesizes its log in memory first (the log, 36 floats a sample, counts in
+the peak; the resident size after the synthesis is printed too). Fixed costs: the minimal-set
+derivation against a read of its on-disk cache; the Gram product ``A^T A`` of 10,000 servicer
+samples (30,000 x 496) with BLAS on 2 threads and on 1, and through the blockwise accumulation
+the estimators use (2 Python threads over one-threaded BLAS, and 1); the imports of ``spaceid
+identify`` (matplotlib or not). Prints only, never fails on timings.
 
-    python benchmarks/bench_stream.py [--samples 10000 100000 1000000] [--estimators ols wls]
-        [--chunk 4096] [--memory-up-to 100000] [--parts stream fixed]
+    python benchmarks/bench_stream.py [--samples 10000 100000 1000000] [--estimators ols ml]
+        [--chunk 4096] [--memory-up-to 10000] [--parts stream fixed]
 """
 
 import argparse
@@ -22,7 +25,6 @@ import subprocess
 import sys
 import tempfile
 import time
-import tracemalloc
 import warnings
 
 import numpy as np
@@ -47,20 +49,19 @@ def child(n, estimator, chunk):
     q, qd, w = (a + 1e-3 * rng.standard_normal(a.shape) for a in (q, qd, w))
     log = Log(np.arange(n) * 1e-3, model.joints, q, qd, np.tile([1.0, 0, 0, 0], (n, 1)), w, False)
     del q, qd, w
-    rss_before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    tracemalloc.start()
+    rss_log = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    cpu = time.process_time()
     start = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = identify(param, log, h, estimator=estimator, noise=Noise(angle=1e-3, rate=1e-3, base_rate=1e-3),
                           chunk=chunk or None)  # fmt: skip
-    wall = time.perf_counter() - start
-    peak = tracemalloc.get_traced_memory()[1] / 2**20
-    tracemalloc.stop()
+    wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     z = np.abs(result.values - param.true_values) / result.std
-    print(json.dumps({"wall": wall, "traced_mb": peak, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
-                      / 1024, "rss_before_mb": rss_before, "z_max": float(z.max()),
-                      "values": result.values[:3].tolist()}))  # fmt: skip
+    info = result.settings["estimator_info"]
+    print(json.dumps({"wall": wall, "cpu": cpu, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+                      "rss_log_mb": rss_log, "z_max": float(z.max()), "load": os.getloadavg()[0],
+                      "iterations": info.get("iterations", 0)}))  # fmt: skip
 
 
 def run_child(n, estimator, chunk):
@@ -72,9 +73,10 @@ def run_child(n, estimator, chunk):
 
 
 def streaming(args):
-    print(f"servicer-dual, 1e-3 noise; streamed in chunks of {args.chunk} samples vs in memory (fresh process each)")
-    print(f"{'samples':>9} {'estimator':>9} {'mode':>9} {'wall s':>8} {'us/sample':>10} {'call peak MB':>12} "
-          f"{'RSS MB':>8} {'max z':>6}")
+    print(f"servicer-dual, 1e-3 noise; streamed in chunks of {args.chunk} samples, and in memory up to "
+          f"{args.memory_up_to} samples (fresh process each; peak RSS of the process, log synthesis included)")
+    print(f"{'samples':>9} {'estimator':>9} {'mode':>9} {'wall s':>8} {'us/sample':>10} {'CPU us/sample':>13} "
+          f"{'peak RSS MB':>11} {'log RSS MB':>10} {'iter':>5} {'max z':>6} {'load':>5}")
     for n in args.samples:
         for estimator in args.estimators:
             modes = [("streamed", args.chunk)] + ([("memory", 0)] if n <= args.memory_up_to else [])
@@ -84,7 +86,8 @@ def streaming(args):
                     print(f"{n:>9} {estimator:>9} {mode:>9} failed: {r['error']}")
                     continue
                 print(f"{n:>9} {estimator:>9} {mode:>9} {r['wall']:8.1f} {1e6 * r['wall'] / n:10.1f} "
-                      f"{r['traced_mb']:12.0f} {r['rss_mb']:8.0f} {r['z_max']:6.2f}", flush=True)
+                      f"{1e6 * r['cpu'] / n:13.1f} {r['rss_mb']:11.0f} {r['rss_log_mb']:10.0f} {r['iterations']:5d} "
+                      f"{r['z_max']:6.2f} {r['load']:5.1f}", flush=True)  # fmt: skip
 
 
 def fixed_costs():
@@ -130,9 +133,9 @@ def fixed_costs():
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--samples", type=int, nargs="+", default=[10_000, 100_000])
-    parser.add_argument("--estimators", nargs="+", default=["ols"])
+    parser.add_argument("--estimators", nargs="+", default=["ols", "ml"])
     parser.add_argument("--chunk", type=int, default=4096)
-    parser.add_argument("--memory-up-to", type=int, default=100_000, help="in-memory runs up to this many samples")
+    parser.add_argument("--memory-up-to", type=int, default=10_000, help="in-memory runs up to this many samples")
     parser.add_argument("--parts", nargs="+", default=["stream", "fixed"], choices=["stream", "fixed"])
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()

@@ -49,9 +49,9 @@ def _both(param, log, h, estimator, noise, chunk):
 SLOW = pytest.mark.slow  # seconds each: the spatial noise model's Jacobian
 
 
-@pytest.mark.parametrize("system, estimator", [("planar", "ols"), ("planar", "wls"), ("planar", "iv"),
+@pytest.mark.parametrize("system, estimator", [("planar", "ols"), ("planar", "wls"), ("planar", "iv"), ("planar", "ml"),
                                                ("spatial", "ols"), pytest.param("spatial", "wls", marks=SLOW),
-                                               pytest.param("spatial", "iv", marks=SLOW)])
+                                               pytest.param("spatial", "iv", marks=SLOW), ("spatial", "ml")])
 @pytest.mark.parametrize("noisy", [False, True])
 def test_streamed_equals_in_memory(request, system, estimator, noisy):
     """Every streamed estimator, planar and spatial, noise-free and noisy, in chunks that do not
@@ -71,11 +71,14 @@ def test_streamed_equals_in_memory(request, system, estimator, noisy):
         assert streamed.settings[key] == memory.settings[key]
     assert streamed.residual_rms == pytest.approx(memory.residual_rms, rel=1e-9)
     assert streamed.settings["estimator_info"]["chunk"] == 337
+    if estimator == "ml":
+        assert streamed.settings["estimator_info"]["iterations"] == memory.settings["estimator_info"]["iterations"]
+        assert streamed.settings["estimator_info"]["converged"] and memory.settings["estimator_info"]["converged"]
     if estimator != "ols":
         assert streamed.settings["chi2_dof"] == pytest.approx(memory.settings["chi2_dof"], rel=1e-9)
 
 
-@pytest.mark.parametrize("estimator", ["ols", "wls"])
+@pytest.mark.parametrize("estimator", ["ols", "wls", "ml"])
 def test_newey_west_lags_reach_across_chunks(planar, estimator, monkeypatch):
     """Differentiated rates: Newey-West over the differentiator's half window, longer than a chunk.
     A streamed identification keeps that estimate (in memory, the angle noise propagated through the
@@ -91,15 +94,20 @@ def test_newey_west_lags_reach_across_chunks(planar, estimator, monkeypatch):
     assert streamed.std == pytest.approx(memory.std, rel=1e-9)
 
 
-def test_the_regressor_is_never_built_for_more_than_a_chunk(spatial, monkeypatch):
+@pytest.mark.parametrize("estimator", ["ols", "ml"])
+def test_the_regressor_is_never_built_for_more_than_a_chunk(spatial, monkeypatch, estimator):
+    """Neither the equations nor their linearisation, whose columns are the regressor's."""
     param, log, h = spatial
     sizes = []
-    phi = _Equations.phi
-    monkeypatch.setattr(_Equations, "phi", lambda self, x: sizes.append(len(x)) or phi(self, x))
-    identify(param, add_noise(log, angle=1e-3, rate=1e-3, seed=2), h, estimator="ols", chunk=200)
-    assert sizes and max(sizes) <= 200
+    for name in ("phi", "linearized"):
+        built = getattr(_Equations, name)
+        monkeypatch.setattr(_Equations, name, lambda self, x, *a, _built=built, **k: sizes.append(len(x))
+                            or _built(self, x, *a, **k))  # fmt: skip
+    noisy = add_noise(log, angle=1e-3, rate=1e-3, seed=2)
+    streamed = identify(param, noisy, h, estimator=estimator, noise=NOISE, chunk=200)
+    assert sizes and max(sizes) <= 200 and streamed.estimator == estimator
     sizes.clear()
-    identify(param, log, h, estimator="ols")
+    identify(param, noisy, h, estimator=estimator, noise=NOISE)
     assert max(sizes) == log.n_samples  # in memory: all at once
 
 
@@ -109,7 +117,7 @@ def test_streamed_drift_test_is_not_run(spatial):
     assert result.settings["drift_test"]["run"] is False and "streamed" in result.settings["drift_test"]["reason"]
 
 
-@pytest.mark.parametrize("estimator, chunk, match", [("ml", 100, "in memory only"), ("tls", 100, "in memory only"),
+@pytest.mark.parametrize("estimator, chunk, match", [("angles", 100, "in memory only"), ("tls", 100, "in memory only"),
                                                       ("ols", 0, "positive whole number"),
                                                       ("ols", 2.5, "positive whole number")])
 def test_bad_chunk_is_refused(spatial, estimator, chunk, match):
@@ -119,7 +127,8 @@ def test_bad_chunk_is_refused(spatial, estimator, chunk, match):
 
 
 def test_cli_identify_streamed(tmp_path, capsys):
-    """``spaceid identify --chunk`` writes the in-memory result (to round-off); a bad chunk is a one-line error."""
+    """``spaceid identify --chunk`` (the default estimator, ml) writes the in-memory result (to round-off); a bad
+    chunk is a one-line error."""
     import json
 
     from spaceid.cli import main
@@ -130,12 +139,11 @@ def test_cli_identify_streamed(tmp_path, capsys):
     results = []
     for extra in ([], ["--chunk", "64"]):
         out = tmp_path / f"r{len(extra)}.json"
-        assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "--estimator", "wls", "-o", str(out),
-                     *extra]) == 0  # fmt: skip
+        assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "-o", str(out), *extra]) == 0
         results.append(json.loads(out.read_text()))
     values = [np.array([p["value"] for p in r["parameters"]]) for r in results]
     assert np.abs(values[1] - values[0]).max() <= 1e-12 * np.abs(values[0]).max()
     capsys.readouterr()
-    assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "--chunk", "64", "-o",
+    assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "--estimator", "tls", "--chunk", "64", "-o",
                  str(tmp_path / "x.json")]) == 2  # fmt: skip
-    assert "error: --chunk: estimator 'ml' runs in memory only" in capsys.readouterr().err
+    assert "error: --chunk: estimator 'tls' runs in memory only" in capsys.readouterr().err

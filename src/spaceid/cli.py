@@ -603,9 +603,10 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "the data show a drift.")
 @click.option("--com", "with_com", is_flag=True, help="Also identify the system-CM terms from the log's base position "
               "(base_x, base_y or base_px, base_py, base_pz [m]; zero linear momentum): RESULT.json field 'com'.")
-@click.option("--chunk", type=int, help="Stream the identification (--estimator ols, wls or iv): build the equations "
-              "this many samples at a time, so that memory does not grow with the regressor (e.g. 4096 for long logs "
-              "of large robots); the result agrees with the in-memory one to round-off; no drift residual test.")
+@click.option("--chunk", type=int, help="Stream the identification (--estimator ml, wls, iv or ols): build the "
+              "equations this many samples at a time, so that memory does not grow with the regressor (e.g. 4096 for "
+              "long logs of large robots); the result agrees with the in-memory one to round-off; no drift residual "
+              "test.")
 @bag_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,

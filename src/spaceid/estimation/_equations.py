@@ -13,7 +13,7 @@ parameter the model gives (CAD) and whose columns therefore move to the right-ha
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -241,6 +241,19 @@ class _Equations:
         """``d(Phi theta_bar)/dx``: ``(n, rows, n_x)`` (see :func:`spaceid.estimation.signal_jacobian`)."""
         q, qd, w, rot = self.unpack(x)
         return signal_jacobian(self.param, self.full(theta)[0], q, qd, w, self.base_momentum(theta, rot))
+
+    def error(self, x, theta, jac) -> np.ndarray:
+        """``Phi(x) [theta; 1]``, the equation error of every sample ``(n, rows)`` [N m s], from the
+        signal Jacobian ``jac = self.jacobian(x, theta)`` and without the regressor: the momentum is
+        linear in the rates, so the rate columns of ``jac`` times the rates are the momentum."""
+        nj = len(self.param.model.joints)
+        rates = slice(nj, 2 * nj + len(self.axes))
+        h = self.base_momentum(theta, self.unpack(x)[3])
+        return np.einsum("nrx,nx->nr", jac[..., rates], x[:, rates]) - (h[:, 2:3] if self.planar else h)
+
+    def select(self, rows: slice) -> "_Equations":
+        """The equations of the samples ``rows`` (their attitudes and drift basis)."""
+        return replace(self, rot=self.rot[rows], basis=None if self.basis is None else self.basis[rows])
 
 
 def _split(phi):

@@ -151,14 +151,15 @@ def _drift_collinear(eq, cov_t, where) -> tuple:
                    "errors and the parameters'; keep one of them (--drift) unless the motion can tell them apart")
 
 
-def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where) -> tuple:
-    """The record of the residual test for an unmodelled drift (:func:`spaceid.estimation._residuals.drift_test`)
-    and its warning (``""`` when silent); not run when drift terms are modelled."""
+def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None) -> tuple:
+    """The record of the residual test for an unmodelled drift (:func:`spaceid.estimation._residuals.drift_test`,
+    ``whitener`` the estimator's own, if any) and its warning (``""`` when silent); not run when drift terms
+    are modelled."""
     if drift:
         return {"run": False, "reason": f"drift terms modelled: {', '.join(drift)}"}, ""
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
         return {"run": False, "reason": "not defined for the angles estimator"}, ""
-    test = dict(drift_test(eq, x, phi, sigma, theta, estimator, log), run=True)
+    test = dict(drift_test(eq, x, phi, sigma, theta, estimator, log, whitener), run=True)
     if not test["drift"]:
         return test, ""
     white = "" if test["whiteness_p_value"] >= test["alpha"] else (
@@ -201,7 +202,6 @@ def _estimate(eq, x, log: Log, sigma, ctx: dict, estimator: str, estimated: bool
         info["chunk"] = chunk
     else:
         reported = _reported_covariance(eq, x, ctx["phi"], sigma, theta, estimator, info, log, estimated)
-    info.pop("corrected", None)
     return theta, info, reported
 
 
@@ -351,7 +351,8 @@ def identify(
         theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk)
         s = _singular_values(factor)
         drift_record, drift_warning = ((_STREAMED_DRIFT, "") if chunk else
-                                       _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where))
+                                       _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
+                                                    info.pop("whitener", None)))
         pi, h = eq.full(theta)
         if history is not None and drift:  # the momentum at the log's first sample
             h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])

@@ -14,33 +14,40 @@ each pass rebuilding the chunk's equations ``[A | -b]`` (``N x rows x (p + 1)``)
 - ``iv``: per iteration, the instruments' factor ``R_Z`` and the cross products ``Z^T A``, ``Z^T b``
   (column-scaled), from which the least squares in the instruments' orthonormal basis
   ``Q_Z = Z R_Z^-1`` is formed;
+- ``ml``: the in-memory iteration itself (:func:`~spaceid.estimation._estimators._ml_fit`), whose
+  evaluations are sums over parts of samples already: one pass per evaluation (the chunk's columns
+  for the gradient ``A^T S^-1 r``; the signal Jacobian, the residuals and the weights' derivative
+  need no regressor), and a factor pass for the preconditioner at the start and for the
+  covariance at the estimate;
 - the covariance: a pass for the per-sample residuals (``n x rows``, kept: the residual checks
-  and the choice of covariance need them all) and the whiteners (``n x rows x rows``), then a
-  pass for the sandwich or the Newey-West sum of the scores, whose lags reach back across chunks
+  and the choice of covariance need them all) and the whiteners (``n x rows x rows``; ML brings
+  both from its last evaluation), then, when the covariance follows the residuals, a pass for the
+  sandwich or the Newey-West sum of the scores, whose lags reach back across chunks
   (:func:`~spaceid.estimation._uncertainty._hac`).
 
 Kept for the whole log: the signals ``x (n, n_x)``, the attitudes, the residuals and the whiteners,
-``O(n (n_x + 12))`` values; never the ``n x rows x p`` regressor. Time is linear in the samples.
-The maximum-likelihood iteration, the total least squares (an SVD of the whole regressor) and the
-angles estimator are in memory only.
+``O(n (n_x + 12))`` values, and for ML the corrected signals of two estimates; never the
+``n x rows x p`` regressor. Time is linear in the samples. The total least squares (an SVD of the
+whole regressor) and the angles estimator are in memory only.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+import functools
 
 import numpy as np
 
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ._equations import _split
-from ._estimators import (_accumulate_factor, _blockwise, _equation_whitener, _instrument_rows, _inverse_times,
-                          _sandwich, _solve_factor, _whitened)  # fmt: skip
-from ._uncertainty import _covariance_choice, _covariance_record, _hac, _mapped_scores
+from ._estimators import (_accumulate_factor, _accumulate_gram, _blockwise, _equation_whitener, _gram_matrix_factor,
+                          _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich, _solve_factor,
+                          _whitened, _whitened_gram)  # fmt: skip
+from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores
 
 __all__ = ["STREAMED"]
 
-STREAMED = ("ols", "wls", "iv")
+STREAMED = ("ols", "wls", "iv", "ml")
 """The estimators that ``identify(..., chunk=N)`` streams."""
 
 
@@ -59,7 +66,7 @@ def _chunks(eq, x, chunk):
     those samples (their attitudes and drift basis) and their signals."""
     for start in range(0, len(x), chunk):
         rows = slice(start, min(start + chunk, len(x)))
-        yield rows, replace(eq, rot=eq.rot[rows], basis=None if eq.basis is None else eq.basis[rows]), x[rows]
+        yield rows, eq.select(rows), x[rows]
 
 
 def _accumulated_factor(blocks):
@@ -74,11 +81,29 @@ def _accumulated_factor(blocks):
     return R
 
 
-def _streamed_factor(blocks, p):
+def _streamed_factor(blocks, p, refined=True, gram=None):
     """``(scale (p,), R (p + 1, p + 1))`` of :func:`~spaceid.estimation._estimators._triangular_factor`
-    for the rows of the blocks ``(A_c (m, p), b_c (m,))``: :func:`_accumulated_factor` of the unscaled
-    rows, scaled by the column norms of ``A`` read from ``R``."""
-    R = _accumulated_factor(blocks)
+    for the rows of the blocks ``(A_c (m, p), b_c (m,))`` that ``blocks()`` yields anew at each pass.
+
+    As in memory: from their Gram matrix (a pass, or ``gram`` when given) by
+    :func:`~spaceid.estimation._estimators._gram_matrix_factor`, the solution refined on the data (a
+    pass per step, two to four) when ``refined``; when the scaled condition number is above
+    ``GRAM_COND``, by TSQR of the unscaled rows (:func:`_accumulated_factor`, a pass), scaled by the
+    column norms of ``A`` read from ``R``."""
+
+    def refine(y):
+        correlation, square = 0.0, 0.0
+        for A, b in blocks():
+            residual = b - A @ y
+            correlation, square = correlation + residual @ A, square + residual @ residual
+        return correlation, np.sqrt(square)
+
+    if gram is None:
+        gram = sum(_blockwise(A, b, np.ones(p), _accumulate_gram, np.add) for A, b in blocks())
+    scaled = _gram_matrix_factor(gram, refine if refined else None)
+    if scaled is not None:
+        return scaled
+    R = _accumulated_factor(blocks())
     scale = np.linalg.norm(R[:, :p], axis=0)
     scale[scale == 0] = 1.0
     return scale, R / np.append(scale, 1.0)
@@ -95,14 +120,16 @@ def streamed_ols_factor(eq, x, chunk) -> tuple:
             nonzero.append(bool(np.any(b)))
             yield A, b
 
-    return _streamed_factor(blocks(), eq.p), any(nonzero)
+    return _streamed_factor(blocks, eq.p), any(nonzero)
 
 
 def _streamed_wls(eq, x, sigma, theta, chunk, iterations=2):
-    """:func:`~spaceid.estimation._estimators._wls`, one factor pass per iteration."""
+    """:func:`~spaceid.estimation._estimators._wls`, a factor per iteration."""
     for _ in range(iterations):
-        blocks = (_split(_whitened(_equation_whitener(e, xc, theta, sigma), e.phi(xc)))
-                  for _, e, xc in _chunks(eq, x, chunk))  # fmt: skip
+        def blocks(theta=theta):
+            return (_split(_whitened(_equation_whitener(e, xc, theta, sigma), e.phi(xc))) for _, e, xc in
+                    _chunks(eq, x, chunk))  # fmt: skip
+
         theta = _solve_factor(*_streamed_factor(blocks, eq.p)[::-1])[0]
     return theta, {"iterations": iterations}
 
@@ -128,54 +155,83 @@ def _streamed_iv(eq, x, theta, ctx, chunk, iterations=2):
     return theta, {"iterations": iterations, "instruments": ctx["instruments"], "cross": cross, "theta_z": theta_z}
 
 
+def _streamed_ml(eq, x, sigma, theta, chunk):
+    """:func:`~spaceid.estimation._estimators._ml_fit` with every evaluation a pass over the chunks:
+    each chunk's columns are built for its part of the gradient and dropped."""
+
+    def evaluate(estimate, previous, gradient):  # the signal Jacobians are recomputed, not kept
+        return _ml_evaluate(eq, x, estimate, sigma, chunk, lambda rows, e, xc: e.phi(xc), previous, gradient,
+                            keep_jacobian=False)
+
+    def factor(L):  # the preconditioner and the bread, as in memory: no refined solution needed
+        G = functools.reduce(np.add, (_whitened_gram(L[rows], e.phi(xc)) for rows, e, xc in _chunks(eq, x, chunk)))
+        blocks = lambda: (_split(_whitened(L[rows], e.phi(xc))) for rows, e, xc in _chunks(eq, x, chunk))  # noqa: E731
+        return _streamed_factor(blocks, eq.p, refined=False, gram=G)
+
+    return _ml_fit(x, theta, evaluate, factor, lambda: _streamed_wls(eq, x, sigma, theta, chunk)[0])
+
+
 def streamed_estimate(eq, x, sigma, theta, estimator, ctx, chunk):
-    """``theta`` and the estimator's record of ``estimator`` (``wls`` or ``iv``) from the OLS ``theta``."""
+    """``theta`` and the estimator's record of ``estimator`` (``wls``, ``iv`` or ``ml``) from the OLS ``theta``."""
     if estimator == "wls":
         return _streamed_wls(eq, x, sigma, theta, chunk)
+    if estimator == "ml":
+        return _streamed_ml(eq, x, sigma, theta, chunk)
     return _streamed_iv(eq, x, theta, ctx, chunk)
 
 
-def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimated, chunk):
-    """:func:`~spaceid.estimation._uncertainty._reported_covariance` in two passes: the residuals
-    (and whiteners and, for ``wls``, the whitened factor that gives the bread), then the sandwich or
-    the Newey-West sum of the scores."""
+def _residual_pass(eq, x, sigma, theta, estimator, info, ctx, chunk) -> tuple:
+    """The residuals ``r (n, rows)``, the whiteners ``L (n, rows, rows)`` (None for ``ols``) and the
+    bread of the covariance, in one pass (for ``wls`` with the factor of its whitened equations)."""
     n, rows = len(x), eq.param.rows
     r = np.empty((n, rows))
-    white = None if estimator == "ols" else np.empty((n, rows))
     L = None if estimator == "ols" else np.empty((n, rows, rows))
 
-    def residual_pass():
+    def blocks():
         for sl, e, xc in _chunks(eq, x, chunk):
             phi = e.phi(xc)
             r[sl] = phi @ np.append(theta, 1.0)
             if L is not None:
                 L[sl] = _equation_whitener(e, xc, theta, sigma)
-                white[sl] = _whitened(L[sl], r[sl][..., None])[..., 0]
             if estimator == "wls":
                 yield _split(_whitened(L[sl], phi))
 
-    if estimator == "wls":
-        bread = _solve_factor(*_streamed_factor(residual_pass(), eq.p)[::-1])[1]
+    if estimator == "wls":  # the first pass fills r and L; a fallback to TSQR passes again
+        return r, L, _solve_factor(*_streamed_factor(blocks, eq.p, refined=False)[::-1])[1]
+    for _ in blocks():
+        pass
+    scale = ctx["factor"][0]
+    return r, L, (info.pop("ginv") if estimator == "ols" else np.linalg.inv(info.pop("cross")) / np.outer(scale, scale))
+
+
+def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimated, chunk):
+    """:func:`~spaceid.estimation._uncertainty._reported_covariance` from the residuals and whiteners
+    (a pass, :func:`_residual_pass`; ML brings them and the factor of its whitened equations from its
+    last evaluation) and, when the covariance follows the residuals or is the instruments' sandwich,
+    a pass for the Newey-West sum of the scores or the sandwich (see
+    :func:`~spaceid.estimation._uncertainty._covariance_terms` for ``M`` and the scored residuals)."""
+    if estimator == "ml":
+        L, r = info.pop("whitener"), info.pop("residuals")
+        bread = _solve_factor(*info.pop("factor")[::-1])[1]
     else:
-        for _ in residual_pass():
-            pass
-        scale = ctx["factor"][0]
-        bread = (info.pop("ginv") if estimator == "ols" else
-                 np.linalg.inv(info.pop("cross")) / np.outer(scale, scale))  # fmt: skip
+        r, L, bread = _residual_pass(eq, x, sigma, theta, estimator, info, ctx, chunk)
+    white = None if L is None else _whitened(L, r[..., None])[..., 0]
     chi2, checks, choice = _covariance_choice(eq, r, white, estimator, log, estimated)
     q, qd = ctx.get("reference", (None, None))
     theta_z = info.pop("theta_z", None)
 
-    def influence():  # M_c of each chunk (see _covariance_terms)
+    def influence():  # M_c of each chunk
         for sl, e, xc in _chunks(eq, x, chunk):
             if estimator == "iv":
-                yield sl, _instrument_rows(e, xc, theta_z, (q[sl], qd[sl])).reshape(-1, rows, eq.p)
+                yield sl, _instrument_rows(e, xc, theta_z, (q[sl], qd[sl])).reshape(-1, eq.param.rows, eq.p)
             else:
-                A = e.phi(xc)[..., :-1]
-                yield sl, A if estimator == "ols" else _inverse_times(L[sl], A)
+                yield sl, e.phi(xc)[..., :-1]
 
     if choice["covariance_from_residuals"]:
-        cov_t = _hac((_mapped_scores(bread, M, r[sl]) for sl, M in influence()), choice["bandwidth"], eq.p)
+        scored = _inverse_times(L, r[..., None])[..., 0] if estimator in WEIGHTED else r
+        cov_t = _hac((_mapped_scores(bread, M, scored[sl]) for sl, M in influence()), choice["bandwidth"], eq.p)
+    elif estimator in WEIGHTED:  # the noise model's sandwich is the bread (_model_covariance)
+        cov_t = bread * choice["variance_factor"]
     else:
         cov_t = sum(_sandwich(bread, M, L[sl]) for sl, M in influence()) * choice["variance_factor"]
     return cov_t, float(np.sqrt(np.mean(r**2))), _covariance_record(chi2, checks, choice, log, estimated)
