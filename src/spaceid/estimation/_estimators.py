@@ -532,8 +532,8 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     falling while the parameters run off to infinity (its infimum lies there; measured on Cepheus
     with rates differentiated at 3e-2 rad noise, levels estimated: the unaccelerated scheme's
     error grew to 100 times the parameters; accelerated, it converges there to a local minimum, 9
-    times the parameters, which the noise-model and plausibility warnings of
-    :func:`spaceid.estimation.identify` flag). The estimate is then WLS when its objective is below
+    times the parameters, one negative: :func:`spaceid.estimation.identify` then reports WLS's
+    estimate when that one is physically possible). The estimate is then WLS when its objective is below
     the OLS start's, else OLS: ``info["fallback"]`` says which and why, and the objective is never
     worse than the start's. Converged, ``info`` holds the factor of the equations whitened at the estimate, the
     whitener and the residuals (``factor``, ``whitener``, ``residuals``: the covariance's terms)."""

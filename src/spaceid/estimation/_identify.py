@@ -236,6 +236,21 @@ def _implausible(param: Parameterization, pi: np.ndarray, std: np.ndarray, where
             "reaction-wheel inertia)")
 
 
+def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml, where):
+    """ML's ``(theta, info, cov_t, rms, uncertainty, implausible)`` when its converged estimate is
+    physically impossible: WLS's instead when WLS's is not (with a wrong noise model the likelihood
+    can have a local minimum far from the truth, e.g. rates differentiated from noisy angles, levels
+    estimated), ``info["fallback"]`` saying so; else ML's, whose warning then stands."""
+    theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, "wls", estimated, chunk)
+    cov = _full_covariance(eq, cov_t, eq.param.n_params)[0]
+    if _implausible(eq.param, eq.full(theta)[0], np.sqrt(np.diag(cov)), where):
+        return ml
+    ml_info = {k: v for k, v in ml[1].items() if k != "whitener"}  # ML's weights are not WLS's
+    info = ml_info | {"fallback": (f"wls: the maximum-likelihood estimate converged to physically impossible "
+                                   f"parameters (objective {ml_info['objective_end']:.4g}); WLS's are not")}
+    return theta, info, cov_t, rms, uncertainty, ""
+
+
 def identify(
     param: Parameterization,
     log: Log,
@@ -349,6 +364,11 @@ def identify(
             ctx |= _instrument_context(log, instruments, where)
         sigma = signal_sigma(param, noise)
         theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk)
+        cov = _full_covariance(eq, cov_t, param.n_params)[0]
+        implausible = _implausible(param, eq.full(theta)[0], np.sqrt(np.diag(cov)), where)
+        if implausible and estimator == "ml" and not info.get("fallback"):
+            theta, info, cov_t, rms, uncertainty, implausible = _plausible_fallback(
+                eq, x, log, sigma, ctx, estimated, chunk, (theta, info, cov_t, rms, uncertainty, implausible), where)
         s = _singular_values(factor)
         drift_record, drift_warning = ((_STREAMED_DRIFT, "") if chunk else
                                        _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
@@ -357,7 +377,6 @@ def identify(
         if history is not None and drift:  # the momentum at the log's first sample
             h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])
         cov, h_std, d_std = _full_covariance(eq, cov_t, param.n_params)
-        implausible = _implausible(param, pi, np.sqrt(np.diag(cov)), where)
         correlation, collinear = _drift_collinear(eq, cov_t, where)
     except np.linalg.LinAlgError as exc:  # singular or non-finite systems, at any step: one line, not a traceback
         raise SpaceidError(
