@@ -12,16 +12,18 @@ Parts (``--parts``, all by default):
   samples (SLSQP) and the servicer (trust region), with what ended the search.
 * ``tree``: ``design_excitation`` with its defaults on a 4-joint planar tree
   (benchmarks/tree4-planar.yaml, 25 parameters, tf = 10 s, Nf = 5, N = 200): wall time, starts,
-  cond, stop reason.
+  cond, predicted relative Cramer-Rao std, stop reason.
 * ``servicer``: servicer-dual (496 parameters; tf = 120 s, Nf = 12, N = 400, |qdd| <= 0.5),
   a 60 s budget, seed 0: this code against ``--baseline-src`` (a ``src`` folder of older
-  spaceid code, run in a subprocess in the same run): cond and the predicted relative
-  Cramer-Rao std (noise 1e-4 rad, rad/s, rad/s; median and worst over the parameters).
+  spaceid code), each in a subprocess, alternating ``--repeats`` times in the same run: wall
+  time, overrun, starts, cond and the predicted relative Cramer-Rao std (noise 1e-4 rad,
+  rad/s, rad/s; median and worst over the parameters), stop reason; then the medians.
 
-Prints only; never fails on timings.
+Every row ends with the 1-minute load average when it finished (wall times on a loaded machine
+are inflated, and a budgeted design then reaches less). Prints only; never fails on timings.
 
     python benchmarks/bench_design.py [--parts cepheus budget tree servicer] [--seeds 5] [--budget 10]
-                                      [--regressor spaceid|closed-form] [--baseline-src DIR]
+                                      [--regressor spaceid|closed-form] [--baseline-src DIR] [--repeats 1]
 """
 
 import argparse
@@ -73,9 +75,24 @@ def timed(function, *args, **kwargs):
     return out, time.perf_counter() - t
 
 
+def load():
+    """The 1-minute load average."""
+    return os.getloadavg()[0]
+
+
+def relative_crb(param, traj, settings):
+    """Predicted relative Cramer-Rao std of ``param``'s nonzero parameters (noise ``NOISE``) on
+    ``traj`` at the samples of ``settings``: (median, worst)."""
+    bound = whitened_regressor(param, param.true_values, settings["momentum"], NOISE, relative=False)
+    q, qd, _ = traj.evaluate(sample_times(settings["duration"], settings["samples"]))
+    pi = np.abs(param.true_values)
+    rel = np.sqrt(np.diag(bound.crb(q, qd)))[pi > 0] / pi[pi > 0]
+    return np.median(rel), rel.max()
+
+
 def budget_part():
     print("time budget: budget against the measured wall time of the call")
-    print(f"{'case':<28}{'budget [s]':>11}{'wall [s]':>10}{'overrun':>9}{'starts':>8}  stop")
+    print(f"{'case':<28}{'budget [s]':>11}{'wall [s]':>10}{'overrun':>9}{'starts':>8}  {'stop':<10}{'load':>6}")
     param = minimal_parameters(spaceid.load_model("cepheus"))
     cases = [("cepheus N = 3500 (slsqp)", param, dict(duration=5.0, harmonics=3, samples=3500, momentum=[0, 0, 0.4934]),
               (5.0, 20.0)),
@@ -85,16 +102,17 @@ def budget_part():
             res, wall = timed(design_excitation, p, **settings, seed=0, n_starts=64, time_budget=budget,
                               patience=10**9)  # the budget, not convergence, ends it
             print(f"{name:<28}{budget:11g}{wall:10.1f}{100 * (wall / budget - 1):8.1f}%{res.n_starts:8d}  "
-                  f"{res.trajectory.meta.get('stop')}")
+                  f"{res.trajectory.meta.get('stop'):<10}{load():6.1f}")
     print()
 
 
 def tree_part():
     param = minimal_parameters(spaceid.load_model(str(HERE / "tree4-planar.yaml")))
     res, wall = timed(design_excitation, param, **TREE, seed=0)
+    median, worst = relative_crb(param, res.trajectory, TREE)
     print(f"4-joint planar tree ({len(param.names)} parameters, N = {TREE['samples']}, Nf = {TREE['harmonics']}), "
-          f"defaults: wall {wall:.1f} s, {res.n_starts} starts, cond {res.value:.4g}, "
-          f"stop {res.trajectory.meta['stop']}\n")
+          f"defaults: wall {wall:.1f} s, {res.n_starts} starts, cond {res.value:.4g}, relative CRB std median "
+          f"{median:.3g}, worst {worst:.3g}, stop {res.trajectory.meta['stop']}, load {load():.1f}\n")
 
 
 def servicer_design(out, budget):
@@ -105,26 +123,32 @@ def servicer_design(out, budget):
     Path(f"{out}.wall").write_text(json.dumps({"wall": wall, "starts": res.n_starts}))
 
 
-def servicer_part(baseline_src, budget=60.0):
+def servicer_part(baseline_src, budget=60.0, repeats=1):
     param = servicer_param()
-    bound = whitened_regressor(param, param.true_values, SERVICER["momentum"], NOISE, relative=False)
     base = excitation_regressor(param, param.true_values, SERVICER["momentum"])
-    pi = np.abs(param.true_values)
     print(f"servicer-dual, {budget:g} s budget, seed 0 (cond; predicted relative CRB std, noise 1e-4)")
-    print(f"{'code':<10}{'wall [s]':>9}{'starts':>7}{'cond':>11}{'median':>10}{'worst':>10}  stop")
+    print(f"{'code':<10}{'wall [s]':>9}{'overrun':>9}{'starts':>7}{'cond':>11}{'median':>10}{'worst':>10}  "
+          f"{'stop':<10}{'load':>6}")
+    runs = [("new", None)] + ([("baseline", baseline_src)] if baseline_src else [])
+    rows = {name: [] for name, _ in runs}
     with tempfile.TemporaryDirectory() as tmp:
-        runs = [("new", None)] + ([("baseline", baseline_src)] if baseline_src else [])
-        for name, src in runs:
-            out = Path(tmp) / f"{name}.json"
-            env = {**os.environ, "PYTHONPATH": str(src or Path(spaceid.__file__).parents[1])}
-            subprocess.run([sys.executable, __file__, "--servicer-run", str(out), "--budget", str(budget)], env=env,
-                           check=True)  # fmt: skip
-            traj, info = load_trajectory(out), json.loads(Path(f"{out}.wall").read_text())
-            q, qd, _ = traj.evaluate(sample_times(SERVICER["duration"], SERVICER["samples"]))
-            cond = np.linalg.cond(base(q, qd))
-            rel = np.sqrt(np.diag(bound.crb(q, qd)))[pi > 0] / pi[pi > 0]
-            print(f"{name:<10}{info['wall']:9.1f}{info['starts']:7d}{cond:11.3e}{np.median(rel):10.3g}"
-                  f"{rel.max():10.3g}  {traj.meta.get('stop', '-')}")
+        for _ in range(repeats):
+            for name, src in runs:  # alternating, so that both see the same load
+                out = Path(tmp) / f"{name}.json"
+                env = {**os.environ, "PYTHONPATH": str(src or Path(spaceid.__file__).parents[1])}
+                subprocess.run([sys.executable, __file__, "--servicer-run", str(out), "--budget", str(budget)],
+                               env=env, check=True)  # fmt: skip
+                traj, info = load_trajectory(out), json.loads(Path(f"{out}.wall").read_text())
+                q, qd, _ = traj.evaluate(sample_times(SERVICER["duration"], SERVICER["samples"]))
+                row = (info["wall"], np.linalg.cond(base(q, qd)), *relative_crb(param, traj, SERVICER))
+                rows[name].append(row)
+                print(f"{name:<10}{row[0]:9.1f}{100 * (row[0] / budget - 1):8.1f}%{info['starts']:7d}{row[1]:11.3e}"
+                      f"{row[2]:10.3g}{row[3]:10.3g}  {traj.meta.get('stop', '-'):<10}{load():6.1f}")
+    if repeats > 1:
+        for name, values in rows.items():
+            wall, cond, median, worst = np.median(values, axis=0)
+            print(f"{name}, median of {repeats}: wall {wall:.1f} s, cond {cond:.3e}, relative CRB std median "
+                  f"{median:.3g}, worst {worst:.3g}")
     print()
 
 
@@ -136,6 +160,7 @@ def main():
     parser.add_argument("--budget", type=float, default=10.0, help="wall time per seed [s]")
     parser.add_argument("--regressor", choices=("spaceid", "closed-form"), default="spaceid")
     parser.add_argument("--baseline-src", help="src folder of the spaceid to compare on the servicer")
+    parser.add_argument("--repeats", type=int, default=1, help="servicer: runs of each code, alternating")
     parser.add_argument("--servicer-run", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.servicer_run:
@@ -146,7 +171,7 @@ def main():
     if "tree" in args.parts:
         tree_part()
     if "servicer" in args.parts:
-        servicer_part(args.baseline_src)
+        servicer_part(args.baseline_src, repeats=args.repeats)
     if "cepheus" in args.parts:
         cepheus_part(args)
 
