@@ -401,6 +401,24 @@ def test_whitened_gram_on_a_spatial_tree(chain):
         assert np.abs(Yw[b].T @ Yw[b] - fisher).max() < 1e-9 * np.abs(fisher).max()
 
 
+def test_cond_surrogate_at_p2_is_exact_on_an_ill_conditioned_regressor():
+    """At p = 2 the surrogate comes from a QR (traces of G and G^-1), not an SVD: on a
+    regressor of cond 1e10 its value and gradient match the power-mean formula from the exact
+    singular values, along the largest singular values too (where ``Y G^-2`` formed as
+    ``Y (G^-1 G^-1)`` is off by a factor 400 with the wrong sign)."""
+    rng = np.random.default_rng(0)
+    s = np.logspace(0, -10, 30)
+    U, V = np.linalg.qr(rng.standard_normal((80, 30)))[0], np.linalg.qr(rng.standard_normal((30, 30)))[0]
+    Y = (U * s) @ V.T
+    g = s / np.sum(s**2) - s**-3 / np.sum(s**-2.0)  # d surrogate / d s_i
+    value = (np.log(np.sum(s**2)) + np.log(np.sum(s**-2.0))) / 2 - np.log(len(s))
+    f, W = CRITERIA["cond"].smoothed(Y, 2.0)
+    assert f == pytest.approx(value, abs=1e-6)
+    assert np.abs(W - (U * g) @ V.T).max() < 1e-6 * np.abs(g).max()
+    np.testing.assert_allclose(np.diag(U.T @ W @ V)[:3], g[:3], rtol=1e-6)
+    np.testing.assert_allclose(CRITERIA["cond"].smoothed_value(np.stack([Y, 3 * Y]), 2.0), [f, f], rtol=1e-9)
+
+
 @pytest.mark.parametrize("criterion", CRITERIA)
 def test_directional_pieces_agree_with_the_adjoint(criterion):
     rng = np.random.default_rng(0)
@@ -436,7 +454,7 @@ def test_nested_differences_give_accurate_gradients(cepheus, criterion):
                 return regressor(q + s * e, qd) if signal == 0 else regressor(q, qd + s * e)
 
             ref.append((f(-2) - 8 * f(-1) + 8 * f(1) - f(2)) / (12 * h))
-    ref = np.stack(ref, -1)  # (35, 8, 4): sample t's row along (q|qd)_j
+    ref = np.stack(ref, 1)  # (35, 4, 8): sample t's rows along (q|qd)_j
     assert np.abs(Gt - ref).max() < 1e-6 * np.abs(ref).max()
 
     def piece(s):

@@ -24,6 +24,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+import scipy.linalg
 from scipy.special import logsumexp, softmax
 
 from .._errors import SpaceidError
@@ -99,6 +100,8 @@ def _cond_smooth(Y, p):
     the spectrum at once instead of the smallest value alone, which for a spectrum that decays
     smoothly over many decades (spatial arms) only hands the minimum on to the next one.
     """
+    if p == 2:
+        return _trace_gap(Y, gradient=True)
     U, s, Vt = np.linalg.svd(Y, full_matrices=False)
     if not s[-1] > 0:
         return np.inf, np.zeros_like(Y)
@@ -109,9 +112,37 @@ def _cond_smooth(Y, p):
 def _cond_smooth_value(Y, p):
     """The value of :func:`_cond_smooth` alone for ``Y`` (..., n_rows, k): (...), from the
     singular values (a third of the cost of the SVD with vectors); inf where singular."""
+    if p == 2:
+        Ys = np.reshape(Y, (-1, *np.shape(Y)[-2:]))
+        return np.array([_trace_gap(y) for y in Ys]).reshape(np.shape(Y)[:-2])
     s = np.linalg.svd(Y, compute_uv=False)
     with np.errstate(divide="ignore"):
         return np.where(s[..., -1] > 0, _power_mean_gap(np.log(s), p), np.inf)
+
+
+def _trace_gap(Y, *, gradient=False):
+    """:func:`_cond_smooth` at p = 2 for one ``Y`` (n_rows, k), without an SVD: the value
+    ``(log tr G + log tr G^-1) / 2 - log k``, ``G = Y^T Y``, and, if ``gradient``, its gradient
+    ``Y / tr G - Y G^-2 / tr G^-1`` w.r.t. Y; inf (and a zero gradient) where singular.
+
+    With ``Y = Q R``: ``tr G = |Y|_F^2``, ``G^-1 = R^-1 R^-T`` and ``Y G^-2 = Q R^-T G^-1``, as
+    accurate as the SVD (relative error about eps cond(Y)) at 55 % of its cost with vectors and
+    65 % without (servicer, 1200 x 496). ``Y G^-2`` as ``Y (G^-1 G^-1)`` instead loses the
+    gradient along the large singular values (a factor cond(Y) more error: the model's gradient
+    had the wrong sign at cond 6e10). The trust-region search spends its first stage, and on
+    large problems its whole time budget, at p = 2.
+    """
+    if gradient:
+        Q, R = scipy.linalg.qr(Y, mode="economic", check_finite=False)
+    else:
+        R = scipy.linalg.qr(Y, mode="r", check_finite=False)[0][: Y.shape[1]]
+    R_inv, info = scipy.linalg.lapack.dtrtri(R)
+    if info != 0 or not np.all(np.isfinite(R_inv)):
+        return (np.inf, np.zeros_like(Y)) if gradient else np.inf
+    G_inv = R_inv @ R_inv.T
+    tr, tr_inv = np.sum(Y * Y), np.trace(G_inv)
+    value = (np.log(tr) + np.log(tr_inv)) / 2 - np.log(Y.shape[1])
+    return (value, Y / tr - Q @ (R_inv.T @ G_inv) / tr_inv) if gradient else value
 
 
 def _power_mean_gap(ls, p):

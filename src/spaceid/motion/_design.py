@@ -204,7 +204,7 @@ def optimize_excitation(
         a fifth of them, the best quarter of the starts (at least two) the rest, so a design
         makes about ``(n_starts + 4 max(2, n_starts / 4)) max_steps / 5`` steps, shared by the
         workers; a step takes about 0.2 s on one core for a 7-joint arm (153 parameters,
-        N = 120) and 3.5 s for a 14-joint one (496 parameters, N = 400).
+        N = 120) and 3 s of CPU time for a 14-joint one (496 parameters, N = 400).
     n_screen : int
         Trust region: random starts on the limits (start i drawn from ``(seed, i)``) whose
         surrogate is evaluated; the ``n_starts`` best are searched from (so a larger

@@ -124,8 +124,10 @@ class _ExcitationProblem:
 
     def linearize_regressor(self, z, Y0=None, *, central=True, deadline=None):
         """Y at ``z`` (n_rows, k) and its derivatives along the joint signals at every sample,
-        ``dY`` (n_samples, m k, 2 n_joints): ``dY[t, :, (d, j)]`` is d(rows of sample t) / d q_j
-        (d = 0) or d qd_j (d = 1), flattened.
+        ``dY`` (n_samples, 2 n_joints, m k): ``dY[t, (d, j)]`` is d(rows of sample t) / d q_j
+        (d = 0) or d qd_j (d = 1), flattened; each sample's derivatives contiguous, as they are
+        written and read (a signal-last layout made writing them a quarter of the servicer's
+        linearisation).
 
         Sample t's rows of Y depend on q(t), qd(t) alone, so perturbing joint j's signal at all
         samples at once gives them all: 4 n_joints central differences, or 2 n_joints forward
@@ -150,8 +152,8 @@ class _ExcitationProblem:
             Y = Y.reshape(len(signs), -1, *Y0.shape)
             G = (Y[0] - Y[1]) / (2 * self.step) if central else (Y[0] - Y0) / self.step
             if dY is None:
-                dY = np.empty((n_s, Y0.size // n_s, 2 * nj))
-            dY[:, :, c : c + group] = G.reshape(len(G), n_s, -1).transpose(1, 2, 0)
+                dY = np.empty((n_s, 2 * nj, Y0.size // n_s))
+            dY[:, c : c + group] = G.reshape(len(G), n_s, -1).transpose(1, 0, 2)
         return Y0, dY
 
     def coefficient_gradient(self, W, dY):
@@ -162,7 +164,7 @@ class _ExcitationProblem:
         :meth:`linearize_regressor`), never the n directional derivatives of Y.
         """
         n_s = dY.shape[0]
-        w = (W.reshape(n_s, 1, -1) @ dY).reshape(n_s, 2, -1)  # <W_t, dY_t/d(q|qd)_j>
+        w = (dY @ W.reshape(n_s, -1, 1)).reshape(n_s, 2, -1)  # <W_t, dY_t/d(q|qd)_j>
         return (np.einsum("tdj,dtk->jk", w, self.B_samples) * self.S).ravel()
 
     def linearize_criterion(self, z, *, central=True, deadline=None):
@@ -176,8 +178,8 @@ class _ExcitationProblem:
             return pieces, np.array([self.coefficient_gradient(w, dY) for w in W])
         # a criterion without adjoint: the n directional derivatives of Y, explicitly
         n_s, nj = dY.shape[0], self.S.shape[0]
-        G = dY.reshape(n_s, -1, Y.shape[-1], 2, nj)
-        dY_dz = np.einsum("tmkdj,dtl,jl->jltmk", G, self.B_samples, self.S)
+        G = dY.reshape(n_s, 2, nj, -1, Y.shape[-1])
+        dY_dz = np.einsum("tdjmk,dtl,jl->jltmk", G, self.B_samples, self.S)
         return crit.pieces(Y, dY_dz.reshape(self.n, *Y.shape))
 
     # -- the limits ----------------------------------------------------------------------------

@@ -228,8 +228,8 @@ def _linearized_surrogate(problem, y, z0, Y0, dY, p):
     """
     z, pull = problem.map_onto_limits(y)
     dX = problem.coefficients(z - z0)
-    dsig = np.einsum("dtk,jk->tdj", problem.B_samples, dX).reshape(len(dY), -1, 1)
-    Ym = Y0 + (dY @ dsig).reshape(Y0.shape)
+    dsig = np.einsum("dtk,jk->tdj", problem.B_samples, dX).reshape(len(dY), 1, -1)
+    Ym = Y0 + (dsig @ dY).reshape(Y0.shape)
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         f, W = CRITERIA[problem.criterion].smoothed(Ym, p)
     if not np.isfinite(f):
