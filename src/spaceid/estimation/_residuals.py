@@ -50,7 +50,8 @@ def _leverage_adjusted(M, ginv, r):
     these make White's covariance the jackknife's (HC3), whose tests keep their level on short logs,
     where each sample's own fit shrinks its residual (35 samples for 10 unknowns: 6 of 400 clean logs
     fired at 1e-3 with the plain residuals, 1 with these)."""
-    H = np.einsum("nrp,nsp->nrs", M @ ginv, M)  # one BLAS product, not a naive 5-index loop
+    K = (M.reshape(-1, M.shape[-1]) @ ginv).reshape(M.shape)  # one GEMM (batched 3-row products: 4x slower)
+    H = np.einsum("nrp,nsp->nrs", K, M)
     return np.einsum("nrs,ns->nr", np.linalg.pinv(np.eye(M.shape[1]) - H), r)  # pinv: a sample fitted exactly
 
 
