@@ -236,14 +236,19 @@ def _implausible(param: Parameterization, pi: np.ndarray, std: np.ndarray, where
             "reaction-wheel inertia)")
 
 
+def _implausible_estimate(eq, theta, cov_t, where: str) -> str:
+    """:func:`_implausible` of the estimate ``theta`` of ``eq`` with its covariance ``cov_t``."""
+    std = np.sqrt(np.diag(_full_covariance(eq, cov_t, eq.param.n_params)[0]))
+    return _implausible(eq.param, eq.full(theta)[0], std, where)
+
+
 def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml, where):
     """ML's ``(theta, info, cov_t, rms, uncertainty, implausible)`` when its converged estimate is
     physically impossible: WLS's instead when WLS's is not (with a wrong noise model the likelihood
     can have a local minimum far from the truth, e.g. rates differentiated from noisy angles, levels
     estimated), ``info["fallback"]`` saying so; else ML's, whose warning then stands."""
     theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, "wls", estimated, chunk)
-    cov = _full_covariance(eq, cov_t, eq.param.n_params)[0]
-    if _implausible(eq.param, eq.full(theta)[0], np.sqrt(np.diag(cov)), where):
+    if _implausible_estimate(eq, theta, cov_t, where):
         return ml
     ml_info = {k: v for k, v in ml[1].items() if k != "whitener"}  # ML's weights are not WLS's
     info = ml_info | {"fallback": (f"wls: the maximum-likelihood estimate converged to physically impossible "
@@ -364,8 +369,7 @@ def identify(
             ctx |= _instrument_context(log, instruments, where)
         sigma = signal_sigma(param, noise)
         theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk)
-        cov = _full_covariance(eq, cov_t, param.n_params)[0]
-        implausible = _implausible(param, eq.full(theta)[0], np.sqrt(np.diag(cov)), where)
+        implausible = _implausible_estimate(eq, theta, cov_t, where)
         if implausible and estimator == "ml" and not info.get("fallback"):
             theta, info, cov_t, rms, uncertainty, implausible = _plausible_fallback(
                 eq, x, log, sigma, ctx, estimated, chunk, (theta, info, cov_t, rms, uncertainty, implausible), where)
