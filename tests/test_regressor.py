@@ -256,10 +256,11 @@ def test_kinematics_equal_pinocchio(rng):
             np.testing.assert_allclose(st.velocity[n, b], pose.rotation @ twist.linear, atol=1e-13)
 
 
-def test_blocks_do_not_show(rng, monkeypatch):
-    """Samples are evaluated in padded blocks, groups of blocks on threads: small blocks on
-    two threads, one sample at a time and the default blocks give the same regressors (and
-    the momentum summed block by block, the same as the regressor times pi)."""
+def test_groups_and_threads_do_not_show(rng, monkeypatch):
+    """Samples are evaluated in groups on threads, each sample on its own by compiled kernels
+    without fastmath: small groups on two threads, one sample at a time and the default groups
+    give the same regressor, momentum and linearised regressor bit for bit, the same energy, and
+    the momentum is the regressor times pi."""
     from spaceid.dynamics import _regressor as regressor
     from spaceid.dynamics import energy_regressor
 
@@ -267,15 +268,21 @@ def test_blocks_do_not_show(rng, monkeypatch):
     param = minimal_parameters(model)
     q, qd, w0 = random_states(rng, model, 29)
     q[:, 2] = rng.uniform(-0.5, 0.5, 29)
-    whole, energy = param.regressor(q, qd, w0), energy_regressor(model, q, qd, w0)
-    one_by_one = np.stack([param.regressor(q[n], qd[n], w0[n]) for n in range(len(q))])
-    monkeypatch.setattr(regressor, "_BLOCK", 4)
-    monkeypatch.setattr(regressor, "_GROUP", 12)  # several kinematics calls, the last block padded
+    direction = random_states(rng, model, 29)
+
+    def evaluate(*x):
+        return (param.regressor(*x[:3]), param.momentum(*x[:3], param.true_values),
+                param.linearized_regressor(*x[:3], x[3:], step=1e-6))  # fmt: skip
+
+    whole, energy = evaluate(q, qd, w0, *direction), energy_regressor(model, q, qd, w0)
+    one_by_one = [np.stack(a) for a in zip(*(evaluate(*(a[n] for a in (q, qd, w0, *direction))) for n in range(29)))]
+    monkeypatch.setattr(regressor, "_GROUP", 12)  # several groups, the last one short
     monkeypatch.setattr(regressor, "work_threads", lambda: 2)  # three groups on two threads
-    h = whole @ param.true_values
-    for got, ref in ((param.regressor(q, qd, w0), whole), (one_by_one, whole), (energy_regressor(model, q, qd, w0), energy),
-                     (param.momentum(q, qd, w0, param.true_values), h)):
-        np.testing.assert_allclose(got, ref, rtol=0, atol=1e-14 * np.abs(ref).max())
+    for got, ref in zip([*evaluate(q, qd, w0, *direction), *one_by_one], [*whole, *whole]):
+        np.testing.assert_array_equal(got, ref)
+    np.testing.assert_allclose(energy_regressor(model, q, qd, w0), energy, rtol=0, atol=1e-14 * np.abs(energy).max())
+    h = whole[0] @ param.true_values
+    np.testing.assert_allclose(whole[1], h, rtol=0, atol=1e-14 * np.abs(h).max())
 
 
 def test_blas_thread_limit_is_scoped():

@@ -5,11 +5,11 @@ so neither the base attitude nor the base position is needed: the momentum equat
 axes depend on ``q``, ``qd`` and the base angular velocity ``w0`` only.
 
 Pinocchio evaluates one configuration per call; identification evaluates 10^4 samples at once,
-so the tree recursion here runs over bodies with NumPy arrays over samples. Samples are the
-last, contiguous axis (:func:`frame_table`): each NumPy call then runs one long inner loop or
-one BLAS product, where a time-first layout of 3x3 blocks would run thousands of tiny ones.
-:func:`body_states` gives the same quantities time-first. ``tests/test_regressor.py`` checks
-them against Pinocchio's own kinematics.
+so the tree recursion here is a compiled kernel (:mod:`spaceid._jit`) run sample by sample, its
+per-sample results kept in cache (:func:`_sample_frames`). :func:`frame_table` lays them out
+samples last, in blocks, for the NumPy work that follows (each operation one long loop over
+samples); :func:`body_states` gives them time-first. ``tests/test_regressor.py`` checks them
+against Pinocchio's own kinematics.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._jit import kernel
 from ..models import Model
 
 __all__ = ["BodyStates", "FrameTable", "body_states", "frame_table", "skew"]
@@ -30,19 +31,6 @@ def skew(v):
     z = np.zeros(v.shape[:-1])
     x, y, w = v[..., 0], v[..., 1], v[..., 2]
     return np.stack([np.stack([z, -w, y], -1), np.stack([w, z, -x], -1), np.stack([-y, x, z], -1)], -2)
-
-
-def _cross(a, b, out=None):
-    """Cross products over axis 1 (the component axis of the tables), broadcasting the rest.
-
-    Basic slices only: NumPy broadcasts them with long inner loops over the samples.
-    """
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape)) if out is None else out
-    for r in range(3):
-        i, j = (r + 1) % 3, (r + 2) % 3
-        np.multiply(a[:, i], b[:, j], out=out[:, r])
-        out[:, r] -= a[:, j] * b[:, i]
-    return out
 
 
 @dataclass(frozen=True)
@@ -144,6 +132,90 @@ def _constants(geometry: _Geometry):
     return steps, path
 
 
+@functools.lru_cache(maxsize=32)
+def _joint_arrays(geometry: _Geometry):
+    """The constants of :func:`_constants` as arrays for the compiled recursion: parents
+    ``(n_joints,)``, revolute flags ``(n_joints,)`` and the matrices ``[C0, C1, C2, t, a]``
+    ``(n_joints, 3, 11)``."""
+    steps, _ = _constants(geometry)
+    return (np.array([s[0] for s in steps], dtype=np.int64), np.array([s[1] for s in steps], dtype=bool),
+            np.array([s[2].T for s in steps]).reshape(-1, 3, 11))  # fmt: skip
+
+
+@kernel
+def _sample_frames(parents, revolute, joints, q, qd, w0, frames, omega, spin, work):
+    """Kinematics of one sample, root to leaves (a body's parent comes before it).
+
+    Parameters
+    ----------
+    parents, revolute, joints : ndarray
+        :func:`_joint_arrays`.
+    q, qd : ndarray of shape (n_joints,)
+    w0 : ndarray of shape (3,)
+    frames : ndarray of shape (>= 8 n_bodies, 3)
+        Receives the pose and rate rows of :class:`FrameTable` (row ``4 b + f`` and
+        ``4 n_bodies + 4 b + f``, components last) [m, m/s, 1/s].
+    omega, spin : ndarray of shape (n_bodies, 3)
+        Receive the absolute angular velocities in base and in body axes [rad/s].
+    work : ndarray of shape (2, 3)
+        Scratch.
+    """
+    nb = omega.shape[0]
+    rate = 4 * nb
+    for f in range(4):
+        for r in range(3):
+            frames[f, r] = 1.0 if f == r + 1 else 0.0  # the base: origin, axes
+            frames[rate + f, r] = 0.0  # its rate rows are set with every body's below
+    omega[0] = w0
+    for j in range(nb - 1):
+        p, b, m = parents[j], j + 1, joints[j]
+        c, s = (np.cos(q[j]), np.sin(q[j])) if revolute[j] else (0.0, 0.0)
+        for r in range(3):  # row r of R_p [C0, C1, C2, t, a]: joint frame, offset and axis in base axes
+            x, y, z = frames[4 * p + 1, r], frames[4 * p + 2, r], frames[4 * p + 3, r]
+            for k in range(3):
+                frames[4 * b + 1 + k, r] = (_entry(x, y, z, m, k) + c * _entry(x, y, z, m, 3 + k)
+                                            + s * _entry(x, y, z, m, 6 + k))  # fmt: skip
+            axis = _entry(x, y, z, m, 10)
+            offset = _entry(x, y, z, m, 9) + (0.0 if revolute[j] else axis * q[j])
+            frames[4 * b, r] = frames[4 * p, r] + offset
+            omega[b, r] = omega[p, r] + (axis * qd[j] if revolute[j] else 0.0)
+            work[0, r], work[1, r] = offset, (0.0 if revolute[j] else axis * qd[j])  # prismatic: slide rate
+        for r in range(3):  # v_b = v_p + w_p x offset (+ slide rate)
+            i, k = (r + 1) % 3, (r + 2) % 3
+            step = omega[p, i] * work[0, k] - omega[p, k] * work[0, i] + work[1, r]
+            frames[rate + 4 * b, r] = frames[rate + 4 * p, r] + step
+    for b in range(nb):
+        for k in range(3):
+            e = 4 * b + 1 + k  # the axis R e_k
+            for r in range(3):  # its rate w x R e_k
+                i, l = (r + 1) % 3, (r + 2) % 3
+                frames[rate + e, r] = omega[b, i] * frames[e, l] - omega[b, l] * frames[e, i]
+            spin[b, k] = frames[e, 0] * omega[b, 0] + frames[e, 1] * omega[b, 1] + frames[e, 2] * omega[b, 2]
+
+
+@kernel
+def _entry(x, y, z, m, i):
+    """Entry ``i`` of the row ``(x, y, z)`` times the matrix ``m (3, 11)``."""
+    return x * m[0, i] + y * m[1, i] + z * m[2, i]
+
+
+@kernel
+def _frame_blocks(parents, revolute, joints, q, qd, w0, table, omega, spin):
+    """:func:`_sample_frames` of the samples ``q, qd (n, n_joints)``, ``w0 (n, 3)`` into ``table
+    (n / block, 3, 8 n_bodies, block)``, ``omega`` and ``spin (n / block, 3, n_bodies, block)``."""
+    n_blocks, _, n_rows, block = table.shape
+    nb = omega.shape[2]
+    frames, om, sp, work = np.empty((n_rows, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((2, 3))
+    for n in range(n_blocks * block):
+        i, s = n // block, n % block
+        _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames, om, sp, work)
+        for r in range(3):
+            for k in range(n_rows):
+                table[i, r, k, s] = frames[k, r]
+            for b in range(nb):
+                omega[i, r, b, s], spin[i, r, b, s] = om[b, r], sp[b, r]
+
+
 def frame_table(model: Model, q, qd, w0, block: int) -> FrameTable:
     """Forward kinematics of the whole tree for many samples, in blocks.
 
@@ -162,40 +234,14 @@ def frame_table(model: Model, q, qd, w0, block: int) -> FrameTable:
     FrameTable
         ``ceil(n_samples / block)`` blocks.
     """
-    steps, path = _constants(_Geometry(model))
-    nb, nj = len(model.bodies), len(steps)
+    nb = len(model.bodies)
     n = -(-len(q) // block)
-    inputs = np.zeros((n * block, 2 * nj + 3))
-    inputs[: len(q)] = np.concatenate([q, qd, w0], -1)
-    inputs = np.ascontiguousarray(inputs.reshape(n, block, 2 * nj + 3).transpose(0, 2, 1))
-    q, qd, w0 = inputs[:, :nj], inputs[:, nj : 2 * nj], inputs[:, 2 * nj :]
-    rodrigues = np.stack([np.ones_like(q), np.cos(q), np.sin(q)], 2)  # (n, nj, 3, block): 1, cos, sin
-    table = np.empty((n, 3, 2, nb, 4, block))
-    rot, pos, vel, rate = table[:, :, 0, :, 1:], table[:, :, 0, :, 0], table[:, :, 1, :, 0], table[:, :, 1, :, 1:]
-    rot[:, :, 0] = np.eye(3)[None, :, :, None]
-    joint = np.empty((n, 3, 2, nj, block))  # offset from the parent's origin and axis, base axes
-    # the recursion over the tree runs on rotations only (one BLAS product and a few array
-    # operations per joint); positions and velocities are path sums over all joints at once
-    for j, (parent, _, c) in enumerate(steps):
-        g = np.matmul(c, rot[:, :, parent])  # (n, 3, 11, block): R_parent [C0, C1, C2, t, a]
-        # R_parent (C0 + cos C1 + sin C2) in one pass (C1 = C2 = 0 for a prismatic joint)
-        np.einsum("nrcab,ncb->nrab", g[:, :, :9].reshape(n, 3, 3, 3, block), rodrigues[:, j], out=rot[:, :, j + 1])
-        joint[:, :, :, j] = g[:, :, 9:]
-    offset, axis = joint[:, :, 0], joint[:, :, 1]
-    rates = axis * qd[:, None]  # joint velocity directions times rates
-    revolute = np.array([s[1] for s in steps])[:, None]
-    omega = w0[:, :, None] + np.matmul(path, rates * revolute)
-    # v_j = v_parent + w_parent x (p_j - p_parent) (+ slide rate), summed along the path
-    if not revolute.all():  # prismatic joints slide along their axes
-        offset += axis * (q * ~revolute)[:, None]
-    step_vel = _cross(omega[:, :, [s[0] for s in steps]], offset)
-    if not revolute.all():
-        step_vel += rates * ~revolute
-    np.matmul(path, offset, out=pos)
-    np.matmul(path, step_vel, out=vel)
-    _cross(omega[:, :, :, None], rot, out=rate)
-    omega_body = np.einsum("nrbkc,nrbc->nkbc", rot, omega)
-    return FrameTable(table, omega, omega_body)
+    states = [np.zeros((n * block, np.shape(a)[-1])) for a in (q, qd, w0)]
+    for padded, a in zip(states, (q, qd, w0)):
+        padded[: len(a)] = a
+    table, omega, spin = np.empty((n, 3, 2, nb, 4, block)), np.empty((n, 3, nb, block)), np.empty((n, 3, nb, block))
+    _frame_blocks(*_joint_arrays(_Geometry(model)), *states, table.reshape(n, 3, 8 * nb, block), omega, spin)
+    return FrameTable(table, omega, spin)
 
 
 def _flatten_states(q, qd, w0):

@@ -6,10 +6,10 @@ ones (masses and first moments), once zero linear momentum has eliminated the ba
 
     h = sum_i [ I_i w_i + m_i s_i x u_i ] - (1/M) (sum_i m_i s_i) x (sum_j m_j u_j)
 
-Every column is a sum of two cross products of rows of the batched kinematics (body origins,
-axes, their rates, and the axes times the body-axes rates for the inertias), formed for blocks
-of samples with one gather and a few array operations for all columns at once and written
-straight into the time-first output (:class:`_Plan`).
+Every column is a sum of two cross products of rows of the kinematics (body origins, axes,
+their rates, and the axes times the body-axes rates for the inertias), formed sample by sample
+by a compiled kernel from the sample's kinematics held in cache, and written straight into the
+time-first output (:class:`_Plan`, :func:`_columns_of_states`).
 
 The minimal set ``pi = P @ [theta, phi]`` is found numerically from the regressor stacked at
 seeded random states, with a recorded rank tolerance. Two bases are offered for it:
@@ -44,9 +44,11 @@ from scipy.linalg import solve_triangular
 
 from .._cache import cache_key, read_cached, write_cached
 from .._errors import SpaceidError
+from .._jit import kernel
 from .._threads import one_blas_thread, work_threads
 from ._definitions import column_definitions, planar_definitions
-from ._kinematics import FrameTable, _flatten_states, _Geometry, body_states, frame_table
+from ._kinematics import (FrameTable, _flatten_states, _Geometry, _joint_arrays, _sample_frames, body_states,
+                          frame_table)  # fmt: skip
 from ..models import INERTIAL_NAMES, Model
 from ..models._model import symbol_suffix
 
@@ -184,7 +186,7 @@ class _Plan:
     """
 
     n_cols: int
-    gather: np.ndarray  # (4, 3 * n_cols): extended-table rows of X1, Y1, X2, Y2, components x y z
+    rows: np.ndarray  # (n_cols, 4): extended-table rows of X1, Y1, X2, Y2
     pair_at: np.ndarray  # output positions of the first-order columns
     pair_rows: np.ndarray  # (2, n_pair): rows a, c of the pose (or rate) table
     pair_weight: np.ndarray  # (n_pair,): w
@@ -228,34 +230,28 @@ def _plan(model: Model, columns) -> _Plan:
     diagonal = m1 == m2
     rows[:, inertia_at] = [axis(m1 + 1), spun(m1 + 2, m2), np.where(diagonal, zero, axis(m2 + 1)),
                            np.where(diagonal, zero, spun(m2 + 2, m1))]  # fmt: skip
-    gather = (np.arange(3)[None, :, None] * (17 * nb) + rows[:, None, :]).reshape(4, -1)  # 17 nb rows a component
     a, c, w = np.array(pair, dtype=float).reshape(-1, 3).T
     inertia = np.array([axis(m1), np.where(diagonal, zero, axis(m2)), m1 * nb + body, m2 * nb + body])
-    return _Plan(len(cols), gather, np.array(pair_at, dtype=int), np.array([a, c], dtype=int), w,
-                 np.array(inertia_at, dtype=int), inertia, cols)
+    return _Plan(len(cols), np.ascontiguousarray(rows.T, dtype=np.int64), np.array(pair_at, dtype=int),
+                 np.array([a, c], dtype=int), w, np.array(inertia_at, dtype=int), inertia, cols)
 
 
-_BLOCK = 32
-"""Samples per block of the column evaluation: its buffers (four of 3 values per column and
-sample, 1.5 MB for the servicer's 496 columns) stay in the caches. Measured on the servicer
-(whole regressor, one thread): 32 about 5 % faster than 16, 8 and 64 slower."""
 _GROUP = 256
-"""Samples per kinematics call (and per task of a thread): long enough to amortise the
-per-joint Python cost of the tree recursion, short enough for its arrays to stay in cache
-(measured on the servicer: 256 and 512 alike, 128 and 1024 a few per cent slower)."""
+"""Samples per task of a thread (and per kinematics call of the energy and the tangent, whose
+NumPy tables stay in cache at this size)."""
 
 
 def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=None, direction=None, step=None,
                primal=True, out=None):  # fmt: skip
     """Regressor columns over any leading shape: ``(..., 3, n_cols)`` or, for the energy,
-    ``(..., n_cols)``; with ``weights (n_cols,)`` their weighted sum, ``(..., 3)`` or ``(...)``,
-    formed block by block in cache (the columns are never stored). With ``direction``
-    ``(dq, dqd, dw0)`` (momentum only), the columns' derivative along it, plus the columns when
+    ``(..., n_cols)``; with ``weights (n_cols,)`` their weighted sum, ``(..., 3)`` or ``(...)``
+    (the momentum columns are then never stored). With ``direction`` ``(dq, dqd, dw0)``
+    (momentum only, no weights), the columns' derivative along it, plus the columns when
     ``primal`` (:func:`_tangent_tables`, central differences of step ``step``). ``out`` (a view
-    is fine) receives the columns, shape ``(n_samples, 3, n_cols)``.
+    is fine) receives the result, shape ``(n_samples, 3, n_cols)`` for the columns.
 
-    Groups of ``_GROUP`` samples go to threads (NumPy releases the GIL in the long array
-    operations); each group writes its own rows, the columns straight into ``out``."""
+    Groups of ``_GROUP`` samples go to threads (the kernels and NumPy's long operations release
+    the GIL); each group writes its own rows of ``out``."""
     lead, flat = _flatten_states(q, qd, w0)
     if direction is not None:
         flat += [np.broadcast_to(np.asarray(a, float), lead + b.shape[-1:]).reshape(b.shape)
@@ -263,79 +259,65 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
     n = len(flat[0])
     if out is None:
         out = np.empty((n,) + (() if energy else (3,)) + (() if weights is not None else (plan.n_cols,)))
-    block = max(1, min(_BLOCK, n))
-    group = block * max(1, _GROUP // block)
-    evaluate = _energy_block if energy else _momentum_block
+    joints = _joint_arrays(_Geometry(model))
+    weights = None if weights is None else np.require(weights, float, "CW")
 
-    def tables(states):  # the tables of the group's blocks whose columns sum to the result
-        size = block * -(-len(states[0]) // block)  # one kinematics block, padded to whole blocks
-        if direction is not None:
-            return _tangent_tables(model, states, size, step, primal, block)
-        frames = frame_table(model, *states, size)
+    def run(start):
+        states = [np.require(a[start : start + _GROUP], float, "CW") for a in flat]  # the kernels' one layout
+        part = out[start : start + _GROUP]
         if energy:
-            return [_energy_columns(frames, plan, block)]
-        return [_extended_table(frames.table, frames.omega_body, block)]
+            columns = _energy_columns(frame_table(model, *states, len(states[0])), plan)
+            part[...] = (columns if weights is None else weights @ columns).T
+        elif direction is not None:
+            _columns_of_tables(_tangent_tables(model, states, step, primal), plan.rows, part)
+        elif weights is None:
+            _columns_of_states(*joints, *states, plan.rows, part)
+        else:
+            _momentum_of_states(*joints, *states, plan.rows, weights, part)
 
-    def run(starts):
-        buffers = np.empty((4, 3, plan.n_cols, block))  # this thread's scratch
-        columns = None if weights is None else np.empty((() if energy else (3,)) + (plan.n_cols, block))
-        for start in starts:
-            stop = min(start + group, n)
-            prepared = tables([a[start:stop] for a in flat])
-            for row in range(start, stop, block):
-                rows = slice(row, min(row + block, stop))
-                target = np.moveaxis(out[rows], 0, -1) if weights is None else columns[..., : rows.stop - row]
-                for k, table in enumerate(prepared):
-                    evaluate(table, (row - start) // block, plan, buffers, target, add=k > 0)
-                if weights is not None:
-                    out[rows] = np.moveaxis(weights @ target, -1, 0)
-
-    starts = range(0, n, group)
+    starts = range(0, n, _GROUP)
     threads = min(len(starts), work_threads())
     if threads > 1:  # a pool per call: no idle threads left behind for forked workers to inherit
         with ThreadPoolExecutor(threads) as pool:
-            list(pool.map(run, [starts[i::threads] for i in range(threads)]))
+            list(pool.map(run, starts))
     else:
-        run(starts)
+        for start in starts:
+            run(start)
     return out.reshape(lead + out.shape[1:])
 
 
-def _frame_derivative(model: Model, states, block: int, step: float):
-    """The frame table of ``states = [q, qd, w0, dq, dqd, dw0]`` (each ``(m, .)``) at ``(q, qd, w0)``
-    and the derivatives of its table and body-axes rates along ``(dq, dqd, dw0)``, by central
-    differences of step ``step`` in the largest component of each sample's direction."""
+def _frame_derivative(model: Model, states, step: float):
+    """The frame table (one block) of ``states = [q, qd, w0, dq, dqd, dw0]`` (each ``(m, .)``) at
+    ``(q, qd, w0)`` and the derivatives of its table and body-axes rates along ``(dq, dqd, dw0)``,
+    by central differences of step ``step`` in the largest component of each sample's direction."""
     x, d = states[:3], states[3:]
+    m = len(x[0])
     size = np.max([np.abs(a).max(-1) for a in d], axis=0)
     eps = step / np.where(size > 0, size, 1.0)
-    plus, minus = (frame_table(model, *(a + sign * eps[:, None] * b for a, b in zip(x, d)), block) for sign in (1, -1))
-    frames = frame_table(model, *x, block)
-    n_blocks = frames.table.shape[0]
-    padded = np.ones(n_blocks * block)
-    padded[: len(eps)] = 2 * eps
-    two_eps = padded.reshape(n_blocks, block)
-    d_table = (plus.table - minus.table) / two_eps[:, None, None, None, None]
-    return frames, d_table, (plus.omega_body - minus.omega_body) / two_eps[:, None, None]
+    plus, minus = (frame_table(model, *(a + sign * eps[:, None] * b for a, b in zip(x, d)), m) for sign in (1, -1))
+    d_table, d_spin = plus.table - minus.table, plus.omega_body - minus.omega_body
+    return frame_table(model, *x, m), d_table / (2 * eps), d_spin / (2 * eps)
 
 
-def _tangent_tables(model: Model, states, size: int, step: float, primal: bool, block: int):
-    """Two extended tables (:func:`_extended_table`, blocks of ``block``) whose momentum columns
-    sum to the columns' derivative along a direction; the kinematics in one block of ``size``.
+def _tangent_tables(model: Model, states, step: float, primal: bool) -> np.ndarray:
+    """Two extended tables (:func:`_extended_table`), ``(2, 3, 17 n_bodies, m)``, whose momentum
+    columns sum to the columns' derivative along a direction at the ``m`` samples ``states``.
 
     Every momentum column is ``X x Y`` summed over row pairs, ``X`` a pose row ``S`` (an origin
     or axis) and ``Y`` a rate row ``U`` or an extended row ``Q = R e_k wb_m``, so its derivative
     is the column of ``(S, dU, dQ)`` plus that of ``(dS, U, Q)``; with ``primal`` the first is
     ``(S, U + dU, Q + dQ)`` and the columns come with it (:func:`_frame_derivative`: the
     kinematics are differenced, the columns never; ``dQ = dR e_k wb_m + R e_k dwb_m``)."""
-    frames, d_table, d_spin = _frame_derivative(model, states, size, step)
+    frames, d_table, d_spin = _frame_derivative(model, states, step)
     nb = len(model.bodies)
-    table = _extended_table(frames.table, frames.omega_body, block)
-    d = _extended_table(d_table, frames.omega_body, block)  # the pose and rate rows' derivatives, dR e_k wb_m
-    d[:, :, 8 * nb :] += _extended_table(frames.table, d_spin, block)[:, :, 8 * nb :]  # + R e_k dwb_m
+    table = _extended_table(frames.table, frames.omega_body)
+    d = _extended_table(d_table, frames.omega_body)  # the pose and rate rows' derivatives, dR e_k wb_m
+    d[:, 8 * nb :] += _extended_table(frames.table, d_spin)[:, 8 * nb :]  # + R e_k dwb_m
     rate = table.copy()
-    rate[:, :, 4 * nb :] = d[:, :, 4 * nb :] + (table[:, :, 4 * nb :] if primal else 0)
+    rate[:, 4 * nb :] = d[:, 4 * nb :] + (table[:, 4 * nb :] if primal else 0)
     pose = table
-    pose[:, :, : 4 * nb] = d[:, :, : 4 * nb]
-    return rate, pose
+    pose[:, : 4 * nb] = d[:, : 4 * nb]
+    return np.stack([rate, pose])
 
 
 def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights, step: float, group: int = 1024):
@@ -361,14 +343,14 @@ def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights
             part = slice(start, start + group)
             states = [np.asarray(a, float)[part] for a in (q, qd, w0, *direction)]
             m = len(states[0])
-            frames, d_table, d_spin = _frame_derivative(model, states, m, step)
+            frames, d_table, d_spin = _frame_derivative(model, states, step)
             t, dt = frames.table[0].reshape(3, 8 * nb, m), d_table[0].reshape(3, 8 * nb, m)
             u = np.asarray(weights, float)[part].T[:, None]  # (3, 1, m)
             for r in range(3):
                 G += dt[r] @ (t[(r + 1) % 3] * u[(r + 2) % 3] - t[(r + 2) % 3] * u[(r + 1) % 3]).T  # dT . (T x u)
             P += (u * dt).sum(0) @ frames.omega_body[0].reshape(3 * nb, m).T
             P += (u * t).sum(0) @ d_spin[0].reshape(3 * nb, m).T
-    rows = plan.gather[:, plan.pair_at]  # component x: the table rows of X1, Y1, X2, Y2
+    rows = plan.rows[plan.pair_at].T  # the table rows of X1, Y1, X2, Y2
     out = np.empty(plan.n_cols)
     out[plan.pair_at] = (G - G.T)[rows[0], rows[1]] + (G - G.T)[rows[2], rows[3]]
     axis1, axis2, spin1, spin2 = plan.inertia
@@ -376,54 +358,106 @@ def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights
     return out
 
 
-def _extended_table(table: np.ndarray, spin: np.ndarray, block: int) -> np.ndarray:
+def _extended_table(table: np.ndarray, spin: np.ndarray) -> np.ndarray:
     """A frame table of one block (:class:`FrameTable`'s ``table`` and ``omega_body``, or their
-    derivatives) with the rows ``R e_k wb_m`` of every body appended (:class:`_Plan`), in blocks
-    of ``block`` samples: ``(n_blocks, 3, 17 n_bodies, block)``, row ``8 nb + 9 b + 3 k + m`` of a
-    component for body b. The kinematics run on long blocks, the columns on short ones."""
-    _, _, _, nb, _, size = table.shape
-    n_blocks = size // block
-    ext = np.empty((n_blocks, 3, 17 * nb, block))
-    rows = ext.transpose(1, 2, 0, 3)  # (3, 17 nb, n_blocks, block): the samples in order
-    rows[:, : 8 * nb] = table.reshape(3, 8 * nb, n_blocks, block)
-    axes = table[0, :, 0, :, 1:, None].reshape(3, nb, 3, 1, n_blocks, block)  # R e_k
-    spin = spin[0].reshape(3, nb, n_blocks, block).transpose(1, 0, 2, 3)[None, :, None]  # wb_m
-    np.multiply(axes, spin, out=rows[:, 8 * nb :].reshape(3, nb, 3, 3, n_blocks, block))
+    derivatives) with the rows ``R e_k wb_m`` of every body appended (:class:`_Plan`):
+    ``(3, 17 n_bodies, m)``, row ``8 nb + 9 b + 3 k + m`` of a component for body b."""
+    _, _, _, nb, _, m = table.shape
+    ext = np.empty((3, 17 * nb, m))
+    _extend_samples(table.reshape(3, 8 * nb, m), spin.reshape(3, nb, m), ext)
     return ext
 
 
-def _momentum_block(ext: np.ndarray, i: int, plan: _Plan, buffers: np.ndarray, target: np.ndarray, add: bool):
-    """Momentum columns of block ``i`` of an extended table into ``target (3, n_cols, m)`` (any
-    strides, ``m`` up to the block's samples; added to it with ``add``): gather the rows of
-    ``X1, Y1`` (then ``X2, Y2``) for all columns and form ``X x Y`` component by component, each
-    operation one long loop over columns and samples. The last operation of each component
-    writes ``target``, so the columns reach a time-first output without a transposing copy.
-
-    ``buffers (4, 3, n_cols, block)``: scratch, any content."""
-    x, y, acc, tmp = buffers
-    table, m = ext[i].reshape(-1, ext.shape[-1]), target.shape[-1]
-    for t in (0, 2):
-        # mode="clip" (the indices are valid by construction): "raise" buffers ``out``
-        np.take(table, plan.gather[t], axis=0, out=x.reshape(-1, table.shape[-1]), mode="clip")
-        np.take(table, plan.gather[t + 1], axis=0, out=y.reshape(-1, table.shape[-1]), mode="clip")
-        for r in range(3):
-            j, k = (r + 1) % 3, (r + 2) % 3
-            if t == 0:
-                np.multiply(x[j], y[k], out=acc[r])
-                acc[r] -= np.multiply(x[k], y[j], out=tmp[r])
-                continue
-            acc[r] += np.multiply(x[j], y[k], out=tmp[r])
-            np.multiply(x[k, :, :m], y[j, :, :m], out=tmp[r, :, :m])
-            if add:
-                target[r] += acc[r, :, :m]
-                target[r] -= tmp[r, :, :m]
-            else:
-                np.subtract(acc[r, :, :m], tmp[r, :, :m], out=target[r])
+@kernel
+def _spun_rows(ext, spin):
+    """The rows ``R e_k wb_m`` of one sample's extended table ``ext (17 n_bodies, 3)`` (rows
+    ``8 nb + 9 b + 3 k + m``) from its axes (rows ``4 b + 1 + k``) and ``spin (n_bodies, 3)``,
+    the body-axes angular velocities ``wb``."""
+    nb = spin.shape[0]
+    for b in range(nb):
+        for k in range(3):
+            for m in range(3):
+                for r in range(3):
+                    ext[8 * nb + 9 * b + 3 * k + m, r] = ext[4 * b + 1 + k, r] * spin[b, m]
 
 
-def _energy_columns(frames: FrameTable, plan: _Plan, block: int) -> np.ndarray:
-    """Energy columns of a frame table of one block, in blocks of ``block`` samples:
-    ``(n_blocks, n_cols, block)``."""
+@kernel
+def _extend_samples(table, spin, ext):
+    """:func:`_spun_rows` of every sample: ``table (3, 8 n_bodies, m)`` and ``spin (3, n_bodies,
+    m)`` into ``ext (3, 17 n_bodies, m)``."""
+    local, sp = np.empty((ext.shape[1], 3)), np.empty((spin.shape[1], 3))
+    for n in range(ext.shape[2]):
+        local[: table.shape[1]] = table[:, :, n].T
+        sp[...] = spin[:, :, n].T
+        _spun_rows(local, sp)
+        ext[:, :, n] = local.T
+
+
+@kernel
+def _column(ext, rows, c):
+    """Momentum column ``c`` of one sample, ``X1 x Y1 + X2 x Y2`` with the rows ``rows[c]`` of its
+    extended table ``ext (17 n_bodies, 3)``: a tuple of 3 components."""
+    a, b, d, e = rows[c, 0], rows[c, 1], rows[c, 2], rows[c, 3]  # scalar loads: a view per row costs its refcount
+    return (ext[a, 1] * ext[b, 2] - ext[a, 2] * ext[b, 1] + ext[d, 1] * ext[e, 2] - ext[d, 2] * ext[e, 1],
+            ext[a, 2] * ext[b, 0] - ext[a, 0] * ext[b, 2] + ext[d, 2] * ext[e, 0] - ext[d, 0] * ext[e, 2],
+            ext[a, 0] * ext[b, 1] - ext[a, 1] * ext[b, 0] + ext[d, 0] * ext[e, 1] - ext[d, 1] * ext[e, 0])  # fmt: skip
+
+
+@kernel
+def _sample_extended(parents, revolute, joints, q, qd, w0, ext, omega, spin, work):
+    """One sample's extended table into ``ext (17 n_bodies, 3)`` (:func:`_sample_frames`'s
+    arguments)."""
+    _sample_frames(parents, revolute, joints, q, qd, w0, ext, omega, spin, work)
+    _spun_rows(ext, spin)
+
+
+@kernel
+def _columns_of_states(parents, revolute, joints, q, qd, w0, rows, out):
+    """Momentum columns ``rows (n_cols, 4)`` (:class:`_Plan`) of the samples ``q, qd (n,
+    n_joints)``, ``w0 (n, 3)`` into ``out (n, 3, n_cols)``. Each sample's tables (~17 n_bodies x 3
+    values) stay in the L1 cache; the output is written in order."""
+    nb = len(parents) + 1
+    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((2, 3))
+    for n in range(len(q)):
+        _sample_extended(parents, revolute, joints, q[n], qd[n], w0[n], ext, omega, spin, work)
+        for c in range(rows.shape[0]):
+            out[n, 0, c], out[n, 1, c], out[n, 2, c] = _column(ext, rows, c)
+
+
+@kernel
+def _momentum_of_states(parents, revolute, joints, q, qd, w0, rows, weights, out):
+    """``sum_c weights_c column_c`` of :func:`_columns_of_states` into ``out (n, 3)``."""
+    nb = len(parents) + 1
+    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((2, 3))
+    for n in range(len(q)):
+        _sample_extended(parents, revolute, joints, q[n], qd[n], w0[n], ext, omega, spin, work)
+        h = np.zeros(3)
+        for c in range(rows.shape[0]):
+            x, y, z = _column(ext, rows, c)
+            h[0], h[1], h[2] = h[0] + weights[c] * x, h[1] + weights[c] * y, h[2] + weights[c] * z
+        out[n] = h
+
+
+@kernel
+def _columns_of_tables(tables, rows, out):
+    """Momentum columns ``rows (n_cols, 4)`` summed over extended tables ``tables (k, 3, 17
+    n_bodies, n)`` (:func:`_extended_table`) into ``out (n, 3, n_cols)``."""
+    ext = np.empty((tables.shape[2], 3))
+    for n in range(tables.shape[3]):
+        for t in range(tables.shape[0]):
+            ext[...] = tables[t, :, :, n].T
+            for c in range(rows.shape[0]):
+                x, y, z = _column(ext, rows, c)
+                if t == 0:
+                    out[n, 0, c], out[n, 1, c], out[n, 2, c] = x, y, z
+                else:
+                    out[n, 0, c] += x
+                    out[n, 1, c] += y
+                    out[n, 2, c] += z
+
+
+def _energy_columns(frames: FrameTable, plan: _Plan) -> np.ndarray:
+    """Energy columns of a frame table of one block: ``(n_cols, block)``."""
     rate = frames.table[0, :, 1].reshape(3, -1, frames.table.shape[-1])
     a, c = plan.pair_rows
     y = np.empty((plan.n_cols, rate.shape[-1]))
@@ -432,15 +466,7 @@ def _energy_columns(frames: FrameTable, plan: _Plan, block: int) -> np.ndarray:
         _, _, spin1, spin2 = plan.inertia
         spin = frames.omega_body[0].reshape(-1, rate.shape[-1])
         y[plan.inertia_at] = np.where(spin1 == spin2, 0.5, 1.0)[:, None] * spin[spin1] * spin[spin2]
-    return y.reshape(plan.n_cols, -1, block).transpose(1, 0, 2)
-
-
-def _energy_block(columns: np.ndarray, i: int, plan: _Plan, buffers, target: np.ndarray, add: bool):
-    """Block ``i`` of :func:`_energy_columns` into ``target (n_cols, m)``, as :func:`_momentum_block`."""
-    if add:
-        target += columns[i, :, : target.shape[-1]]
-    else:
-        target[...] = columns[i, :, : target.shape[-1]]
+    return y
 
 
 def full_regressor(model: Model, q, qd, w0, *, columns=None) -> np.ndarray:
@@ -721,7 +747,7 @@ class Parameterization:
     def momentum(self, q, qd, w0, pi) -> np.ndarray:
         """``regressor(q, qd, w0) @ pi`` without storing the regressor: the angular momentum
         about the system CM in base axes [N m s], shape ``(..., rows)``. Faster than the product
-        (the columns are summed block by block, in cache)."""
+        (each sample's columns are summed as they are formed)."""
         kind, data, weights = self._eval
         pi = np.asarray(pi, float)
         if kind == "planar":
