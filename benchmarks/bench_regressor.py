@@ -8,8 +8,10 @@ the regressor: its bytes a sample (3 x 496 doubles) over the write bandwidth mea
 the same output array. The regressor runs on the threads the library takes (``work_threads``:
 both cores when they are idle) and on one thread; Pinocchio and the fill run on one.
 ``--baseline FILE`` times another ``_regressor.py`` (for example ``/work/main/src/spaceid/
-dynamics/_regressor.py``, the code before a change; it runs on this tree's kinematics) in the same
-repeats, and prints how far its regressor is from this one.
+dynamics/_regressor.py``, the code before a change; it runs on the ``_kinematics.py`` beside it when
+there is one, else on this tree's) in the same repeats, and prints how far its regressor is from this one. The first calls of a fresh process
+(regressor, momentum, linearised regressor) are timed with an empty Numba cache (the kernels
+compiled) and again with the cache that run left (loaded), in child processes.
 
 Then the wall time of identification from 10,000 samples (regressor and solve):
 least squares (``ols``, the target) on exact data, beside the same with the former factor
@@ -27,7 +29,9 @@ import argparse
 import contextlib
 import importlib.util
 import os
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -38,7 +42,7 @@ from scipy.linalg import cho_factor, cho_solve
 import spaceid
 from spaceid.estimation import identify
 from spaceid.estimation import Noise
-from spaceid.dynamics import _regressor
+from spaceid.dynamics import _kinematics, _regressor
 from spaceid.dynamics._regressor import _random_states, minimal_parameters
 from spaceid.dynamics import base_rate
 from spaceid.data import Log
@@ -81,13 +85,52 @@ def median_time(fn, repeats):
     return float(np.median(times))
 
 
-def load_baseline(path):
-    """The module of another ``_regressor.py``, run as a sibling of this tree's (its relative imports)."""
-    spec = importlib.util.spec_from_file_location("spaceid.dynamics._regressor_baseline", path)
+def load_module(name, path):
+    """The module of file ``path`` as ``spaceid.dynamics.<name>`` (its relative imports: this tree's)."""
+    spec = importlib.util.spec_from_file_location(f"spaceid.dynamics.{name}", path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # dataclasses look their module up
     spec.loader.exec_module(module)
     return module
+
+
+def load_baseline(path):
+    """The module of another ``_regressor.py``, with the names it took from this tree's kinematics
+    bound to those of the ``_kinematics.py`` beside it, when there is one."""
+    module = load_module("_regressor_baseline", path)
+    if path.with_name("_kinematics.py").exists():
+        kinematics = load_module("_kinematics_baseline", path.with_name("_kinematics.py"))
+        for name, value in vars(_kinematics).items():
+            if getattr(module, name, None) is value and hasattr(kinematics, name):
+                setattr(module, name, getattr(kinematics, name))
+    return module
+
+
+FIRST_CALLS = """
+import time
+import numpy as np
+import spaceid
+from spaceid.dynamics._regressor import _random_states, minimal_parameters
+param = minimal_parameters(spaceid.load_model({urdf!r}))
+x = _random_states(param.model, 10, seed=1)
+times = []
+for call in (lambda: param.regressor(*x), lambda: param.momentum(*x, param.true_values),
+             lambda: param.linearized_regressor(*x, x, step=1e-6)):
+    start = time.perf_counter()
+    call()
+    times.append(time.perf_counter() - start)
+print(*times)
+"""
+
+
+def first_calls():
+    """Seconds of the first regressor, momentum and linearised-regressor calls of a fresh process,
+    with an empty Numba cache and then with the cache that process left: ``(cold, warm)``."""
+    with tempfile.TemporaryDirectory() as cache:
+        env = os.environ | {"NUMBA_CACHE_DIR": cache}
+        code = FIRST_CALLS.format(urdf=str(URDF))
+        return [np.array(subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True,
+                                        check=True).stdout.split(), float) for _ in range(2)]  # fmt: skip
 
 
 def regressor_speed(args, model, param, states, pinocchio_loop, derive):
@@ -143,6 +186,9 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
     print(f"  pinocchio computeCentroidal... {per_sample('pinocchio'):8.2f} us/sample")
     print(f"  memory floor                   {per_sample('floor'):8.2f} us/sample  ({written} bytes a sample over "
           f"{written / per_sample('floor') / 1e3:.1f} GB/s, the rate of filling the output)")
+    cold, warm = first_calls()
+    print(f"  first calls of a process       regressor {cold[0]:.2f} s, momentum {cold[1]:.2f} s, linearised "
+          f"{cold[2]:.2f} s compiling (empty Numba cache); {warm[0]:.2f} s, {warm[1]:.2f} s, {warm[2]:.2f} s cached")
     if args.baseline:
         print(f"  baseline {args.baseline}: max |difference| {gap:.1e} of max |Y|")
         print(f"    its regressor                {per_sample('baseline'):8.2f} us/sample  (this one "

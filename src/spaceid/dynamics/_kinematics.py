@@ -157,7 +157,7 @@ def _sample_frames(parents, revolute, joints, q, qd, w0, frames, omega, spin, wo
         ``4 n_bodies + 4 b + f``, components last) [m, m/s, 1/s].
     omega, spin : ndarray of shape (n_bodies, 3)
         Receive the absolute angular velocities in base and in body axes [rad/s].
-    work : ndarray of shape (2, 3)
+    work : ndarray of shape (5, 3)
         Scratch.
     """
     nb = omega.shape[0]
@@ -170,19 +170,21 @@ def _sample_frames(parents, revolute, joints, q, qd, w0, frames, omega, spin, wo
     for j in range(nb - 1):
         p, b, m = parents[j], j + 1, joints[j]
         c, s = (np.cos(q[j]), np.sin(q[j])) if revolute[j] else (0.0, 0.0)
-        for r in range(3):  # row r of R_p [C0, C1, C2, t, a]: joint frame, offset and axis in base axes
+        for i in range(3):  # the joint frame C0 + cos C1 + sin C2 (parent axes) into work[:3]
+            for k in range(3):
+                work[i, k] = m[i, k] + c * m[i, 3 + k] + s * m[i, 6 + k]
+        for r in range(3):  # row r of R_p [joint frame, t, a]: in base axes
             x, y, z = frames[4 * p + 1, r], frames[4 * p + 2, r], frames[4 * p + 3, r]
             for k in range(3):
-                frames[4 * b + 1 + k, r] = (_entry(x, y, z, m, k) + c * _entry(x, y, z, m, 3 + k)
-                                            + s * _entry(x, y, z, m, 6 + k))  # fmt: skip
-            axis = _entry(x, y, z, m, 10)
-            offset = _entry(x, y, z, m, 9) + (0.0 if revolute[j] else axis * q[j])
+                frames[4 * b + 1 + k, r] = x * work[0, k] + y * work[1, k] + z * work[2, k]
+            axis = x * m[0, 10] + y * m[1, 10] + z * m[2, 10]
+            offset = x * m[0, 9] + y * m[1, 9] + z * m[2, 9] + (0.0 if revolute[j] else axis * q[j])
             frames[4 * b, r] = frames[4 * p, r] + offset
             omega[b, r] = omega[p, r] + (axis * qd[j] if revolute[j] else 0.0)
-            work[0, r], work[1, r] = offset, (0.0 if revolute[j] else axis * qd[j])  # prismatic: slide rate
+            work[3, r], work[4, r] = offset, (0.0 if revolute[j] else axis * qd[j])  # prismatic: slide rate
         for r in range(3):  # v_b = v_p + w_p x offset (+ slide rate)
             i, k = (r + 1) % 3, (r + 2) % 3
-            step = omega[p, i] * work[0, k] - omega[p, k] * work[0, i] + work[1, r]
+            step = omega[p, i] * work[3, k] - omega[p, k] * work[3, i] + work[4, r]
             frames[rate + 4 * b, r] = frames[rate + 4 * p, r] + step
     for b in range(nb):
         for k in range(3):
@@ -194,18 +196,12 @@ def _sample_frames(parents, revolute, joints, q, qd, w0, frames, omega, spin, wo
 
 
 @kernel
-def _entry(x, y, z, m, i):
-    """Entry ``i`` of the row ``(x, y, z)`` times the matrix ``m (3, 11)``."""
-    return x * m[0, i] + y * m[1, i] + z * m[2, i]
-
-
-@kernel
 def _frame_blocks(parents, revolute, joints, q, qd, w0, table, omega, spin):
     """:func:`_sample_frames` of the samples ``q, qd (n, n_joints)``, ``w0 (n, 3)`` into ``table
     (n / block, 3, 8 n_bodies, block)``, ``omega`` and ``spin (n / block, 3, n_bodies, block)``."""
     n_blocks, _, n_rows, block = table.shape
     nb = omega.shape[2]
-    frames, om, sp, work = np.empty((n_rows, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((2, 3))
+    frames, om, sp, work = np.empty((n_rows, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
     for n in range(n_blocks * block):
         i, s = n // block, n % block
         _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames, om, sp, work)

@@ -417,7 +417,7 @@ def _columns_of_states(parents, revolute, joints, q, qd, w0, rows, out):
     n_joints)``, ``w0 (n, 3)`` into ``out (n, 3, n_cols)``. Each sample's tables (~17 n_bodies x 3
     values) stay in the L1 cache; the output is written in order."""
     nb = len(parents) + 1
-    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((2, 3))
+    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
     for n in range(len(q)):
         _sample_extended(parents, revolute, joints, q[n], qd[n], w0[n], ext, omega, spin, work)
         for c in range(rows.shape[0]):
@@ -428,14 +428,14 @@ def _columns_of_states(parents, revolute, joints, q, qd, w0, rows, out):
 def _momentum_of_states(parents, revolute, joints, q, qd, w0, rows, weights, out):
     """``sum_c weights_c column_c`` of :func:`_columns_of_states` into ``out (n, 3)``."""
     nb = len(parents) + 1
-    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((2, 3))
+    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
     for n in range(len(q)):
         _sample_extended(parents, revolute, joints, q[n], qd[n], w0[n], ext, omega, spin, work)
-        h = np.zeros(3)
+        h0 = h1 = h2 = 0.0
         for c in range(rows.shape[0]):
             x, y, z = _column(ext, rows, c)
-            h[0], h[1], h[2] = h[0] + weights[c] * x, h[1] + weights[c] * y, h[2] + weights[c] * z
-        out[n] = h
+            h0, h1, h2 = h0 + weights[c] * x, h1 + weights[c] * y, h2 + weights[c] * z
+        out[n, 0], out[n, 1], out[n, 2] = h0, h1, h2
 
 
 @kernel
