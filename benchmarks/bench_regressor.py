@@ -139,16 +139,18 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
     out = np.empty((n, 3, param.n_params))
     written = out[0].nbytes  # bytes of regressor a sample
 
-    def one_thread(module, call):
+    def on_threads(count, module, call):
         def run():
-            with patched(module, "work_threads", lambda: 1):
+            with patched(module, "work_threads", lambda: count):
                 call()
         return run
 
     def into_out(p):
         return lambda: p.regressor(*states, out=out)
 
-    timed = {"regressor": into_out(param), "one thread": one_thread(_regressor, into_out(param)),
+    timed = {"regressor": into_out(param), "one thread": on_threads(1, _regressor, into_out(param)),
+             "two threads": on_threads(2, _regressor, into_out(param)),
+             "kinematics": lambda: _kinematics.frame_table(model, *states, 256),
              "allocating": lambda: param.regressor(*states), "pinocchio": pinocchio_loop,
              "floor": lambda: out.fill(1.0)}  # fmt: skip
     if args.baseline:
@@ -156,17 +158,24 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
         base_param = base.minimal_parameters(model)
         y = param.regressor(*states)
         gap = np.abs(base_param.regressor(*states) - y).max() / np.abs(y).max()
-        timed |= {"baseline": into_out(base_param), "baseline one thread": one_thread(base, into_out(base_param))}
+        timed |= {"baseline": into_out(base_param), "baseline one thread": on_threads(1, base, into_out(base_param)),
+                  "baseline two threads": on_threads(2, base, into_out(base_param))}
     for fn in timed.values():  # untimed: caches and lazy initialisation
         fn()
-    times = {k: [] for k in timed}
+    times, cpu = {k: [] for k in timed}, {k: [] for k in timed}
     for _ in range(args.repeats):
         for k, fn in timed.items():
-            times[k].append(median_time(fn, 1))
+            start, start_cpu = time.perf_counter(), time.process_time()
+            fn()
+            times[k].append(time.perf_counter() - start)
+            cpu[k].append(time.process_time() - start_cpu)  # all threads': the load distorts it less
     times = {k: np.array(v) for k, v in times.items()}
 
     def per_sample(k):
         return float(np.median(times[k])) / n * 1e6
+
+    def cpu_per_sample(k):
+        return f"CPU {float(np.median(cpu[k])) / n * 1e6:5.2f} us"
 
     def ratio(k, to):
         return float(np.median(times[k] / times[to]))
@@ -176,25 +185,26 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
     print(f"{n} samples, medians of {args.repeats} alternating runs and of the per-run ratios; load average "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     threads = _regressor.work_threads()
-    print(f"  spaceid minimal regressor      {per_sample('regressor'):8.2f} us/sample  ({threads} thread"
-          f"{'s' if threads > 1 else ''} now) = {ratio('regressor', 'pinocchio'):.2f} x pinocchio (target <= 3), "
-          f"{ratio('regressor', 'floor'):.1f} x the floor")
-    print(f"    on one thread                {per_sample('one thread'):8.2f} us/sample  = "
-          f"{ratio('one thread', 'pinocchio'):.2f} x pinocchio, {ratio('one thread', 'floor'):.1f} x the floor")
-    print(f"    allocating its output        {per_sample('allocating'):8.2f} us/sample  = "
-          f"{ratio('allocating', 'pinocchio'):.2f} x pinocchio")
-    print(f"  pinocchio computeCentroidal... {per_sample('pinocchio'):8.2f} us/sample")
-    print(f"  memory floor                   {per_sample('floor'):8.2f} us/sample  ({written} bytes a sample over "
-          f"{written / per_sample('floor') / 1e3:.1f} GB/s, the rate of filling the output)")
+
+    def row(label, k, note):
+        print(f"  {label:<31}{per_sample(k):8.2f} us/sample  ({cpu_per_sample(k)}) {note}")
+
+    row("spaceid minimal regressor", "regressor", f"{threads} thread{'s' if threads > 1 else ''} now = "
+        f"{ratio('regressor', 'pinocchio'):.2f} x pinocchio (target <= 3), {ratio('regressor', 'floor'):.1f} x the floor")
+    for k in ("one thread", "two threads"):
+        row(f"  on {k}", k, f"= {ratio(k, 'pinocchio'):.2f} x pinocchio, {ratio(k, 'floor'):.1f} x the floor")
+    row("  allocating its output", "allocating", f"= {ratio('allocating', 'pinocchio'):.2f} x pinocchio")
+    row("  its kinematics alone", "kinematics", "(frame_table, blocks of 256)")
+    row("pinocchio computeCentroidal...", "pinocchio", "")
+    row("memory floor", "floor", f"{written} bytes a sample over {written / per_sample('floor') / 1e3:.1f} GB/s, "
+        "the rate of filling the output")
     cold, warm = first_calls()
     print(f"  first calls of a process       regressor {cold[0]:.2f} s, momentum {cold[1]:.2f} s, linearised "
           f"{cold[2]:.2f} s compiling (empty Numba cache); {warm[0]:.2f} s, {warm[1]:.2f} s, {warm[2]:.2f} s cached")
     if args.baseline:
         print(f"  baseline {args.baseline}: max |difference| {gap:.1e} of max |Y|")
-        print(f"    its regressor                {per_sample('baseline'):8.2f} us/sample  (this one "
-              f"{ratio('regressor', 'baseline'):.2f} x it)")
-        print(f"    on one thread                {per_sample('baseline one thread'):8.2f} us/sample  (this one "
-              f"{ratio('one thread', 'baseline one thread'):.2f} x it)")
+        for k, mine in (("", "regressor"), (" one thread", "one thread"), (" two threads", "two threads")):
+            row(f"  its regressor{k}", f"baseline{k}", f"this one {ratio(mine, 'baseline' + k):.2f} x it")
 
 
 def main():
