@@ -457,7 +457,7 @@ def _columns_of_tables(tables, rows, out):
 
 
 def _energy_columns(frames: FrameTable, plan: _Plan) -> np.ndarray:
-    """Energy columns of a frame table of one block: ``(n_cols, block)``."""
+    """Energy columns of a frame table of one block of ``m`` samples: ``(n_cols, m)``."""
     rate = frames.table[0, :, 1].reshape(3, -1, frames.table.shape[-1])
     a, c = plan.pair_rows
     y = np.empty((plan.n_cols, rate.shape[-1]))
