@@ -162,11 +162,11 @@ def _sample_frames(parents, revolute, joints, q, qd, w0, frames, omega, spin, wo
     """
     nb = omega.shape[0]
     rate = 4 * nb
-    for f in range(4):
-        for r in range(3):
+    for r in range(3):  # loops, not array assignments: those take seconds to compile
+        for f in range(4):
             frames[f, r] = 1.0 if f == r + 1 else 0.0  # the base: origin, axes
             frames[rate + f, r] = 0.0  # its rate rows are set with every body's below
-    omega[0] = w0
+        omega[0, r] = w0[r]
     for j in range(nb - 1):
         p, b, m = parents[j], j + 1, joints[j]
         c, s = (np.cos(q[j]), np.sin(q[j])) if revolute[j] else (0.0, 0.0)

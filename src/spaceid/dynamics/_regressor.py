@@ -387,10 +387,15 @@ def _extend_samples(table, spin, ext):
     m)`` into ``ext (3, 17 n_bodies, m)``."""
     local, sp = np.empty((ext.shape[1], 3)), np.empty((spin.shape[1], 3))
     for n in range(ext.shape[2]):
-        local[: table.shape[1]] = table[:, :, n].T
-        sp[...] = spin[:, :, n].T
+        for r in range(3):  # loops, not array assignments: those take seconds to compile
+            for k in range(table.shape[1]):
+                local[k, r] = table[r, k, n]
+            for b in range(spin.shape[1]):
+                sp[b, r] = spin[r, b, n]
         _spun_rows(local, sp)
-        ext[:, :, n] = local.T
+        for r in range(3):
+            for k in range(ext.shape[1]):
+                ext[r, k, n] = local[k, r]
 
 
 @kernel
@@ -445,7 +450,9 @@ def _columns_of_tables(tables, rows, out):
     ext = np.empty((tables.shape[2], 3))
     for n in range(tables.shape[3]):
         for t in range(tables.shape[0]):
-            ext[...] = tables[t, :, :, n].T
+            for k in range(tables.shape[2]):
+                for r in range(3):
+                    ext[k, r] = tables[t, r, k, n]
             for c in range(rows.shape[0]):
                 x, y, z = _column(ext, rows, c)
                 if t == 0:
