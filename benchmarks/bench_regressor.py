@@ -148,11 +148,16 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
     def into_out(p):
         return lambda: p.regressor(*states, out=out)
 
+    def others(p):  # the other evaluations of the columns: the momentum and the linearised regressor
+        return (lambda: p.momentum(*states, p.true_values),
+                lambda: p.linearized_regressor(*states, states, step=1e-6, out=out))
+
     timed = {"regressor": into_out(param), "one thread": on_threads(1, _regressor, into_out(param)),
              "two threads": on_threads(2, _regressor, into_out(param)),
              "kinematics": lambda: _kinematics.frame_table(model, *states, 256),
              "allocating": lambda: param.regressor(*states), "pinocchio": pinocchio_loop,
              "floor": lambda: out.fill(1.0)}  # fmt: skip
+    timed |= dict(zip(("momentum", "linearised"), others(param)))
     if args.baseline:
         base = load_baseline(args.baseline)
         base_param = base.minimal_parameters(model)
@@ -160,6 +165,7 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
         gap = np.abs(base_param.regressor(*states) - y).max() / np.abs(y).max()
         timed |= {"baseline": into_out(base_param), "baseline one thread": on_threads(1, base, into_out(base_param)),
                   "baseline two threads": on_threads(2, base, into_out(base_param))}
+        timed |= dict(zip(("baseline momentum", "baseline linearised"), others(base_param)))
     for fn in timed.values():  # untimed: caches and lazy initialisation
         fn()
     times, cpu = {k: [] for k in timed}, {k: [] for k in timed}
@@ -195,6 +201,8 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
         row(f"  on {k}", k, f"= {ratio(k, 'pinocchio'):.2f} x pinocchio, {ratio(k, 'floor'):.1f} x the floor")
     row("  allocating its output", "allocating", f"= {ratio('allocating', 'pinocchio'):.2f} x pinocchio")
     row("  its kinematics alone", "kinematics", "(frame_table, blocks of 256)")
+    row("  momentum (Y pi, summed)", "momentum", "")
+    row("  linearised regressor", "linearised", "(Y + dY along a direction, as maximum likelihood)")
     row("pinocchio computeCentroidal...", "pinocchio", "")
     row("memory floor", "floor", f"{written} bytes a sample over {written / per_sample('floor') / 1e3:.1f} GB/s, "
         "the rate of filling the output")
@@ -205,6 +213,8 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
         print(f"  baseline {args.baseline}: max |difference| {gap:.1e} of max |Y|")
         for k, mine in (("", "regressor"), (" one thread", "one thread"), (" two threads", "two threads")):
             row(f"  its regressor{k}", f"baseline{k}", f"this one {ratio(mine, 'baseline' + k):.2f} x it")
+        for k in ("momentum", "linearised"):
+            row(f"  its {k}", f"baseline {k}", f"this one {ratio(k, 'baseline ' + k):.2f} x it")
 
 
 def main():

@@ -178,7 +178,7 @@ class _Plan:
       the body-axes angular velocity; on the diagonal the momentum's second term is dropped).
 
     The momentum of every column is evaluated as ``X1 x Y1 + X2 x Y2``, rows of the extended
-    table (:func:`_extended_table`): the weights are folded into the choice of rows
+    table (:func:`_sample_extended`): the weights are folded into the choice of rows
     (``U x S = -S x U``; ``|w| = 1/2`` only when ``a == c``, where the second term is the first
     one again and is replaced by the zero row, the base origin), and an inertia term
     ``R e_m wb_n`` is ``R e_(m+1) x (R e_(m+2) wb_n)`` (a rotation's axes are right-handed), the
@@ -247,7 +247,7 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
     ``(..., n_cols)``; with ``weights (n_cols,)`` their weighted sum, ``(..., 3)`` or ``(...)``
     (the momentum columns are then never stored). With ``direction`` ``(dq, dqd, dw0)``
     (momentum only, no weights), the columns' derivative along it, plus the columns when
-    ``primal`` (:func:`_tangent_tables`, central differences of step ``step``). ``out`` (a view
+    ``primal`` (:func:`_tangent_columns`, central differences of step ``step``). ``out`` (a view
     is fine) receives the result, shape ``(n_samples, 3, n_cols)`` for the columns.
 
     Groups of ``_GROUP`` samples go to threads (the kernels and NumPy's long operations release
@@ -269,7 +269,7 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
             columns = _energy_columns(frame_table(model, *states, len(states[0])), plan)
             part[...] = (columns if weights is None else weights @ columns).T
         elif direction is not None:
-            _columns_of_tables(_tangent_tables(model, states, step, primal), plan.rows, part)
+            _tangent_columns(*joints, *states, _steps(states[3:], step), primal, plan.rows, part)
         elif weights is None:
             _columns_of_states(*joints, *states, plan.rows, part)
         else:
@@ -286,38 +286,68 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
     return out.reshape(lead + out.shape[1:])
 
 
+def _steps(direction, step: float) -> np.ndarray:
+    """Central-difference steps along each sample's direction ``(dq, dqd, dw0)`` (leading shape
+    ``(...)``): ``step`` over the direction's largest component (over 1 where it is zero)."""
+    size = np.max([np.abs(a).max(-1) for a in direction], axis=0)
+    return step / np.where(size > 0, size, 1.0)
+
+
 def _frame_derivative(model: Model, states, step: float):
     """The frame table (one block) of ``states = [q, qd, w0, dq, dqd, dw0]`` (each ``(m, .)``) at
     ``(q, qd, w0)`` and the derivatives of its table and body-axes rates along ``(dq, dqd, dw0)``,
-    by central differences of step ``step`` in the largest component of each sample's direction."""
+    by central differences (:func:`_steps`)."""
     x, d = states[:3], states[3:]
-    m = len(x[0])
-    size = np.max([np.abs(a).max(-1) for a in d], axis=0)
-    eps = step / np.where(size > 0, size, 1.0)
+    m, eps = len(x[0]), _steps(d, step)
     plus, minus = (frame_table(model, *(a + sign * eps[:, None] * b for a, b in zip(x, d)), m) for sign in (1, -1))
     d_table, d_spin = plus.table - minus.table, plus.omega_body - minus.omega_body
     return frame_table(model, *x, m), d_table / (2 * eps), d_spin / (2 * eps)
 
 
-def _tangent_tables(model: Model, states, step: float, primal: bool) -> np.ndarray:
-    """Two extended tables (:func:`_extended_table`), ``(2, 3, 17 n_bodies, m)``, whose momentum
-    columns sum to the columns' derivative along a direction at the ``m`` samples ``states``.
+@kernel
+def _tangent_columns(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, primal, rows, out):
+    """The columns' derivative along ``(dq, dqd, dw0)`` (plus the columns with ``primal``) at the
+    samples ``(q, qd, w0)`` into ``out (n, 3, n_cols)``; ``eps (n,)`` the steps (:func:`_steps`).
 
     Every momentum column is ``X x Y`` summed over row pairs, ``X`` a pose row ``S`` (an origin
     or axis) and ``Y`` a rate row ``U`` or an extended row ``Q = R e_k wb_m``, so its derivative
     is the column of ``(S, dU, dQ)`` plus that of ``(dS, U, Q)``; with ``primal`` the first is
-    ``(S, U + dU, Q + dQ)`` and the columns come with it (:func:`_frame_derivative`: the
-    kinematics are differenced, the columns never; ``dQ = dR e_k wb_m + R e_k dwb_m``)."""
-    frames, d_table, d_spin = _frame_derivative(model, states, step)
-    nb = len(model.bodies)
-    table = _extended_table(frames.table, frames.omega_body)
-    d = _extended_table(d_table, frames.omega_body)  # the pose and rate rows' derivatives, dR e_k wb_m
-    d[:, 8 * nb :] += _extended_table(frames.table, d_spin)[:, 8 * nb :]  # + R e_k dwb_m
-    rate = table.copy()
-    rate[:, 4 * nb :] = d[:, 4 * nb :] + (table[:, 4 * nb :] if primal else 0)
-    pose = table
-    pose[:, : 4 * nb] = d[:, : 4 * nb]
-    return np.stack([rate, pose])
+    ``(S, U + dU, Q + dQ)`` and the columns come with it. The kinematics are differenced, the
+    columns never (they are bilinear in them): ``dQ = dR e_k wb_m + R e_k dwb_m``."""
+    nb, nj = len(parents) + 1, len(parents)
+    qs, qds, ws = np.empty((2, nj)), np.empty((2, nj)), np.empty((2, 3))  # the states x + eps d, x - eps d
+    frames, spins, omega, work = np.empty((3, 8 * nb, 3)), np.empty((3, nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
+    rate, pose = np.empty((17 * nb, 3)), np.empty((17 * nb, 3))
+    for n in range(len(q)):
+        for i in range(2):
+            sign = 1.0 - 2.0 * i
+            for j in range(nj):
+                qs[i, j], qds[i, j] = q[n, j] + sign * eps[n] * dq[n, j], qd[n, j] + sign * eps[n] * dqd[n, j]
+            for r in range(3):
+                ws[i, r] = w0[n, r] + sign * eps[n] * dw0[n, r]
+            _sample_frames(parents, revolute, joints, qs[i], qds[i], ws[i], frames[i], omega, spins[i], work)
+        _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames[2], omega, spins[2], work)
+        for r in range(3):  # frames[0], spins[0]: the derivatives
+            for k in range(8 * nb):
+                frames[0, k, r] = (frames[0, k, r] - frames[1, k, r]) / (2 * eps[n])
+            for b in range(nb):
+                spins[0, b, r] = (spins[0, b, r] - spins[1, b, r]) / (2 * eps[n])
+        for k in range(8 * nb):  # rate: S, dU (+ U); pose: dS, U
+            for r in range(3):
+                s, d = frames[2, k, r], frames[0, k, r]
+                rate[k, r], pose[k, r] = (s, d) if k < 4 * nb else ((d + s if primal else d), s)
+        for b in range(nb):  # rate: dQ (+ Q); pose: Q
+            for k in range(3):
+                for m in range(3):
+                    i = 8 * nb + 9 * b + 3 * k + m
+                    for r in range(3):
+                        axis, d_axis = frames[2, 4 * b + 1 + k, r], frames[0, 4 * b + 1 + k, r]
+                        pose[i, r] = axis * spins[2, b, m]
+                        rate[i, r] = (d_axis * spins[2, b, m] + axis * spins[0, b, m]) + (pose[i, r] if primal else 0.0)
+        for c in range(rows.shape[0]):
+            x1, y1, z1 = _column(rate, rows, c)
+            x2, y2, z2 = _column(pose, rows, c)
+            out[n, 0, c], out[n, 1, c], out[n, 2, c] = x1 + x2, y1 + y2, z1 + z2
 
 
 def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights, step: float, group: int = 1024):
@@ -358,16 +388,6 @@ def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights
     return out
 
 
-def _extended_table(table: np.ndarray, spin: np.ndarray) -> np.ndarray:
-    """A frame table of one block (:class:`FrameTable`'s ``table`` and ``omega_body``, or their
-    derivatives) with the rows ``R e_k wb_m`` of every body appended (:class:`_Plan`):
-    ``(3, 17 n_bodies, m)``, row ``8 nb + 9 b + 3 k + m`` of a component for body b."""
-    _, _, _, nb, _, m = table.shape
-    ext = np.empty((3, 17 * nb, m))
-    _extend_samples(table.reshape(3, 8 * nb, m), spin.reshape(3, nb, m), ext)
-    return ext
-
-
 @kernel
 def _spun_rows(ext, spin):
     """The rows ``R e_k wb_m`` of one sample's extended table ``ext (17 n_bodies, 3)`` (rows
@@ -379,23 +399,6 @@ def _spun_rows(ext, spin):
             for m in range(3):
                 for r in range(3):
                     ext[8 * nb + 9 * b + 3 * k + m, r] = ext[4 * b + 1 + k, r] * spin[b, m]
-
-
-@kernel
-def _extend_samples(table, spin, ext):
-    """:func:`_spun_rows` of every sample: ``table (3, 8 n_bodies, m)`` and ``spin (3, n_bodies,
-    m)`` into ``ext (3, 17 n_bodies, m)``."""
-    local, sp = np.empty((ext.shape[1], 3)), np.empty((spin.shape[1], 3))
-    for n in range(ext.shape[2]):
-        for r in range(3):  # loops, not array assignments: those take seconds to compile
-            for k in range(table.shape[1]):
-                local[k, r] = table[r, k, n]
-            for b in range(spin.shape[1]):
-                sp[b, r] = spin[r, b, n]
-        _spun_rows(local, sp)
-        for r in range(3):
-            for k in range(ext.shape[1]):
-                ext[r, k, n] = local[k, r]
 
 
 @kernel
@@ -441,26 +444,6 @@ def _momentum_of_states(parents, revolute, joints, q, qd, w0, rows, weights, out
             x, y, z = _column(ext, rows, c)
             h0, h1, h2 = h0 + weights[c] * x, h1 + weights[c] * y, h2 + weights[c] * z
         out[n, 0], out[n, 1], out[n, 2] = h0, h1, h2
-
-
-@kernel
-def _columns_of_tables(tables, rows, out):
-    """Momentum columns ``rows (n_cols, 4)`` summed over extended tables ``tables (k, 3, 17
-    n_bodies, n)`` (:func:`_extended_table`) into ``out (n, 3, n_cols)``."""
-    ext = np.empty((tables.shape[2], 3))
-    for n in range(tables.shape[3]):
-        for t in range(tables.shape[0]):
-            for k in range(tables.shape[2]):
-                for r in range(3):
-                    ext[k, r] = tables[t, r, k, n]
-            for c in range(rows.shape[0]):
-                x, y, z = _column(ext, rows, c)
-                if t == 0:
-                    out[n, 0, c], out[n, 1, c], out[n, 2, c] = x, y, z
-                else:
-                    out[n, 0, c] += x
-                    out[n, 1, c] += y
-                    out[n, 2, c] += z
 
 
 def _energy_columns(frames: FrameTable, plan: _Plan) -> np.ndarray:
@@ -728,8 +711,7 @@ class Parameterization:
         kind, data, _ = self._eval
         if kind == "planar":
             x, d = [np.asarray(a, float) for a in (q, qd, w0)], [np.asarray(a, float) for a in direction]
-            size = np.max([np.abs(a).max(-1) for a in d], axis=0)[..., None]
-            eps = step / np.where(size > 0, size, 1.0)
+            eps = _steps(d, step)[..., None]
             plus, minus = (self.regressor(*(a + sign * eps * b for a, b in zip(x, d))) for sign in (1, -1))
             tangent = (plus - minus) / (2 * eps[..., None])
             return _into(out, tangent + self.regressor(*x) if primal else tangent)
