@@ -5,8 +5,8 @@ so neither the base attitude nor the base position is needed: the momentum equat
 axes depend on ``q``, ``qd`` and the base angular velocity ``w0`` only.
 
 Pinocchio evaluates one configuration per call; identification evaluates 10^4 samples at once,
-so the tree recursion here is a compiled kernel (:mod:`spaceid._jit`) run sample by sample, its
-per-sample results kept in cache (:func:`_sample_frames`). :func:`frame_table` lays them out
+so the tree recursion here is a compiled kernel run sample by sample, its per-sample results
+kept in cache (:func:`spaceid.dynamics._kernels._sample_frames`). :func:`frame_table` lays them out
 samples last, in blocks, for the NumPy work that follows (each operation one long loop over
 samples); :func:`body_states` gives them time-first. ``tests/test_regressor.py`` checks them
 against Pinocchio's own kinematics.
@@ -19,8 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._jit import kernel
 from ..models import Model
+from ._kernels import _frame_blocks
 
 __all__ = ["BodyStates", "FrameTable", "body_states", "frame_table", "skew"]
 
@@ -140,87 +140,6 @@ def _joint_arrays(geometry: _Geometry):
     steps, _ = _constants(geometry)
     return (np.array([s[0] for s in steps], dtype=np.int64), np.array([s[1] for s in steps], dtype=bool),
             np.array([s[2].T for s in steps]).reshape(-1, 3, 11))  # fmt: skip
-
-
-@kernel
-def _sample_frames(parents, revolute, joints, q, qd, w0, frames, omega, spin, work):
-    """Kinematics of one sample, root to leaves (a body's parent comes before it).
-
-    Parameters
-    ----------
-    parents, revolute, joints : ndarray
-        :func:`_joint_arrays`.
-    q, qd : ndarray of shape (n_joints,)
-    w0 : ndarray of shape (3,)
-    frames : ndarray of shape (>= 8 n_bodies, 3)
-        Receives the pose and rate rows of :class:`FrameTable` (row ``4 b + f`` and
-        ``4 n_bodies + 4 b + f``, components last) [m, m/s, 1/s].
-    omega, spin : ndarray of shape (n_bodies, 3)
-        Receive the absolute angular velocities in base and in body axes [rad/s].
-    work : ndarray of shape (5, 3)
-        Scratch.
-    """
-    nb = omega.shape[0]
-    rate = 4 * nb
-    for r in range(3):  # loops, not array assignments: those take seconds to compile
-        for f in range(4):
-            frames[f, r] = 1.0 if f == r + 1 else 0.0  # the base: origin, axes
-            frames[rate + f, r] = 0.0  # its rate rows are set with every body's below
-        omega[0, r] = w0[r]
-    for j in range(nb - 1):
-        p, b, m = parents[j], j + 1, joints[j]
-        c, s = (np.cos(q[j]), np.sin(q[j])) if revolute[j] else (0.0, 0.0)
-        for i in range(3):  # the joint frame C0 + cos C1 + sin C2 (parent axes) into work[:3]
-            for k in range(3):
-                work[i, k] = m[i, k] + c * m[i, 3 + k] + s * m[i, 6 + k]
-        for r in range(3):  # row r of R_p [joint frame, t, a]: in base axes
-            x, y, z = frames[4 * p + 1, r], frames[4 * p + 2, r], frames[4 * p + 3, r]
-            for k in range(3):
-                frames[4 * b + 1 + k, r] = x * work[0, k] + y * work[1, k] + z * work[2, k]
-            axis = x * m[0, 10] + y * m[1, 10] + z * m[2, 10]
-            offset = x * m[0, 9] + y * m[1, 9] + z * m[2, 9] + (0.0 if revolute[j] else axis * q[j])
-            frames[4 * b, r] = frames[4 * p, r] + offset
-            omega[b, r] = omega[p, r] + (axis * qd[j] if revolute[j] else 0.0)
-            work[3, r], work[4, r] = offset, (0.0 if revolute[j] else axis * qd[j])  # prismatic: slide rate
-        for r in range(3):  # v_b = v_p + w_p x offset (+ slide rate)
-            i, k = (r + 1) % 3, (r + 2) % 3
-            step = omega[p, i] * work[3, k] - omega[p, k] * work[3, i] + work[4, r]
-            frames[rate + 4 * b, r] = frames[rate + 4 * p, r] + step
-    for b in range(nb):
-        for k in range(3):
-            e = 4 * b + 1 + k  # the axis R e_k
-            for r in range(3):  # its rate w x R e_k
-                i, l = (r + 1) % 3, (r + 2) % 3
-                frames[rate + e, r] = omega[b, i] * frames[e, l] - omega[b, l] * frames[e, i]
-            spin[b, k] = frames[e, 0] * omega[b, 0] + frames[e, 1] * omega[b, 1] + frames[e, 2] * omega[b, 2]
-
-
-_CHUNK = 64
-"""Samples whose kinematics :func:`_frame_blocks` holds before laying them out samples last (so
-that it writes the table in order; 180 kB for the servicer, in the level-2 cache)."""
-
-
-@kernel
-def _frame_blocks(parents, revolute, joints, q, qd, w0, table, omega, spin):
-    """:func:`_sample_frames` of the samples ``q, qd (n, n_joints)``, ``w0 (n, 3)`` into ``table
-    (n / block, 3, 8 n_bodies, block)``, ``omega`` and ``spin (n / block, 3, n_bodies, block)``."""
-    n_blocks, _, n_rows, block = table.shape
-    nb = omega.shape[2]
-    frames, om, sp = np.empty((_CHUNK, n_rows, 3)), np.empty((_CHUNK, nb, 3)), np.empty((_CHUNK, nb, 3))
-    work = np.empty((5, 3))
-    for i in range(n_blocks):
-        for start in range(0, block, _CHUNK):
-            m = min(_CHUNK, block - start)
-            for s in range(m):
-                n = i * block + start + s
-                _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames[s], om[s], sp[s], work)
-            for r in range(3):  # samples last, each row written in order
-                for k in range(n_rows):
-                    for s in range(m):
-                        table[i, r, k, start + s] = frames[s, k, r]
-                for b in range(nb):
-                    for s in range(m):
-                        omega[i, r, b, start + s], spin[i, r, b, start + s] = om[s, b, r], sp[s, b, r]
 
 
 def frame_table(model: Model, q, qd, w0, block: int) -> FrameTable:

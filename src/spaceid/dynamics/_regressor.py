@@ -44,11 +44,10 @@ from scipy.linalg import solve_triangular
 
 from .._cache import cache_key, read_cached, write_cached
 from .._errors import SpaceidError
-from .._jit import kernel
 from .._threads import one_blas_thread, work_threads
 from ._definitions import column_definitions, planar_definitions
-from ._kinematics import (FrameTable, _flatten_states, _Geometry, _joint_arrays, _sample_frames, body_states,
-                          frame_table)  # fmt: skip
+from ._kernels import _columns_of_states, _momentum_of_states, _tangent_columns
+from ._kinematics import FrameTable, _flatten_states, _Geometry, _joint_arrays, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
 from ..models._model import symbol_suffix
 
@@ -304,52 +303,6 @@ def _frame_derivative(model: Model, states, step: float):
     return frame_table(model, *x, m), d_table / (2 * eps), d_spin / (2 * eps)
 
 
-@kernel
-def _tangent_columns(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, primal, rows, out):
-    """The columns' derivative along ``(dq, dqd, dw0)`` (plus the columns with ``primal``) at the
-    samples ``(q, qd, w0)`` into ``out (n, 3, n_cols)``; ``eps (n,)`` the steps (:func:`_steps`).
-
-    Every momentum column is ``X x Y`` summed over row pairs, ``X`` a pose row ``S`` (an origin
-    or axis) and ``Y`` a rate row ``U`` or an extended row ``Q = R e_k wb_m``, so its derivative
-    is the column of ``(S, dU, dQ)`` plus that of ``(dS, U, Q)``; with ``primal`` the first is
-    ``(S, U + dU, Q + dQ)`` and the columns come with it. The kinematics are differenced, the
-    columns never (they are bilinear in them): ``dQ = dR e_k wb_m + R e_k dwb_m``."""
-    nb, nj = len(parents) + 1, len(parents)
-    qs, qds, ws = np.empty((2, nj)), np.empty((2, nj)), np.empty((2, 3))  # the states x + eps d, x - eps d
-    frames, spins, omega, work = np.empty((3, 8 * nb, 3)), np.empty((3, nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
-    rate, pose = np.empty((17 * nb, 3)), np.empty((17 * nb, 3))
-    for n in range(len(q)):
-        for i in range(2):
-            sign = 1.0 - 2.0 * i
-            for j in range(nj):
-                qs[i, j], qds[i, j] = q[n, j] + sign * eps[n] * dq[n, j], qd[n, j] + sign * eps[n] * dqd[n, j]
-            for r in range(3):
-                ws[i, r] = w0[n, r] + sign * eps[n] * dw0[n, r]
-            _sample_frames(parents, revolute, joints, qs[i], qds[i], ws[i], frames[i], omega, spins[i], work)
-        _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames[2], omega, spins[2], work)
-        for r in range(3):  # frames[0], spins[0]: the derivatives
-            for k in range(8 * nb):
-                frames[0, k, r] = (frames[0, k, r] - frames[1, k, r]) / (2 * eps[n])
-            for b in range(nb):
-                spins[0, b, r] = (spins[0, b, r] - spins[1, b, r]) / (2 * eps[n])
-        for k in range(8 * nb):  # rate: S, dU (+ U); pose: dS, U
-            for r in range(3):
-                s, d = frames[2, k, r], frames[0, k, r]
-                rate[k, r], pose[k, r] = (s, d) if k < 4 * nb else ((d + s if primal else d), s)
-        for b in range(nb):  # rate: dQ (+ Q); pose: Q
-            for k in range(3):
-                for m in range(3):
-                    i = 8 * nb + 9 * b + 3 * k + m
-                    for r in range(3):
-                        axis, d_axis = frames[2, 4 * b + 1 + k, r], frames[0, 4 * b + 1 + k, r]
-                        pose[i, r] = axis * spins[2, b, m]
-                        rate[i, r] = (d_axis * spins[2, b, m] + axis * spins[0, b, m]) + (pose[i, r] if primal else 0.0)
-        for c in range(rows.shape[0]):
-            x1, y1, z1 = _column(rate, rows, c)
-            x2, y2, z2 = _column(pose, rows, c)
-            out[n, 0, c], out[n, 1, c], out[n, 2, c] = x1 + x2, y1 + y2, z1 + z2
-
-
 def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights, step: float, group: int = 1024):
     """``sum_n weights_n . d(columns)(x_n)[direction_n]``, shape ``(n_cols,)``, without the columns.
 
@@ -386,64 +339,6 @@ def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights
     axis1, axis2, spin1, spin2 = plan.inertia
     out[plan.inertia_at] = P[axis1, spin2] + P[axis2, spin1]
     return out
-
-
-@kernel
-def _spun_rows(ext, spin):
-    """The rows ``R e_k wb_m`` of one sample's extended table ``ext (17 n_bodies, 3)`` (rows
-    ``8 nb + 9 b + 3 k + m``) from its axes (rows ``4 b + 1 + k``) and ``spin (n_bodies, 3)``,
-    the body-axes angular velocities ``wb``."""
-    nb = spin.shape[0]
-    for b in range(nb):
-        for k in range(3):
-            for m in range(3):
-                for r in range(3):
-                    ext[8 * nb + 9 * b + 3 * k + m, r] = ext[4 * b + 1 + k, r] * spin[b, m]
-
-
-@kernel
-def _column(ext, rows, c):
-    """Momentum column ``c`` of one sample, ``X1 x Y1 + X2 x Y2`` with the rows ``rows[c]`` of its
-    extended table ``ext (17 n_bodies, 3)``: a tuple of 3 components."""
-    a, b, d, e = rows[c, 0], rows[c, 1], rows[c, 2], rows[c, 3]  # scalar loads: a view per row costs its refcount
-    return (ext[a, 1] * ext[b, 2] - ext[a, 2] * ext[b, 1] + ext[d, 1] * ext[e, 2] - ext[d, 2] * ext[e, 1],
-            ext[a, 2] * ext[b, 0] - ext[a, 0] * ext[b, 2] + ext[d, 2] * ext[e, 0] - ext[d, 0] * ext[e, 2],
-            ext[a, 0] * ext[b, 1] - ext[a, 1] * ext[b, 0] + ext[d, 0] * ext[e, 1] - ext[d, 1] * ext[e, 0])  # fmt: skip
-
-
-@kernel
-def _sample_extended(parents, revolute, joints, q, qd, w0, ext, omega, spin, work):
-    """One sample's extended table into ``ext (17 n_bodies, 3)`` (:func:`_sample_frames`'s
-    arguments)."""
-    _sample_frames(parents, revolute, joints, q, qd, w0, ext, omega, spin, work)
-    _spun_rows(ext, spin)
-
-
-@kernel
-def _columns_of_states(parents, revolute, joints, q, qd, w0, rows, out):
-    """Momentum columns ``rows (n_cols, 4)`` (:class:`_Plan`) of the samples ``q, qd (n,
-    n_joints)``, ``w0 (n, 3)`` into ``out (n, 3, n_cols)``. Each sample's tables (~17 n_bodies x 3
-    values) stay in the L1 cache; the output is written in order."""
-    nb = len(parents) + 1
-    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
-    for n in range(len(q)):
-        _sample_extended(parents, revolute, joints, q[n], qd[n], w0[n], ext, omega, spin, work)
-        for c in range(rows.shape[0]):
-            out[n, 0, c], out[n, 1, c], out[n, 2, c] = _column(ext, rows, c)
-
-
-@kernel
-def _momentum_of_states(parents, revolute, joints, q, qd, w0, rows, weights, out):
-    """``sum_c weights_c column_c`` of :func:`_columns_of_states` into ``out (n, 3)``."""
-    nb = len(parents) + 1
-    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
-    for n in range(len(q)):
-        _sample_extended(parents, revolute, joints, q[n], qd[n], w0[n], ext, omega, spin, work)
-        h0 = h1 = h2 = 0.0
-        for c in range(rows.shape[0]):
-            x, y, z = _column(ext, rows, c)
-            h0, h1, h2 = h0 + weights[c] * x, h1 + weights[c] * y, h2 + weights[c] * z
-        out[n, 0], out[n, 1], out[n, 2] = h0, h1, h2
 
 
 def _energy_columns(frames: FrameTable, plan: _Plan) -> np.ndarray:
@@ -794,7 +689,7 @@ def _minimal_cached(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
 
 
 _CACHE_KIND = "minimal-set"
-_DERIVATION_SOURCES = ("_regressor.py", "_definitions.py", "_kinematics.py")
+_DERIVATION_SOURCES = ("_regressor.py", "_definitions.py", "_kinematics.py", "_kernels.py")
 
 
 @functools.cache

@@ -1,0 +1,199 @@
+"""The compiled kernels of the dynamics: the kinematics and the momentum columns, sample by sample.
+
+Each kernel works on one sample at a time, its kinematics and extended table (a few hundred
+values) held in the L1 cache, and writes its results in order (:mod:`spaceid._jit`: no GIL, no
+fastmath). They are all in this one file because Numba's on-disk cache checks only the file of
+the kernel it loads: a kernel that called one from another file would keep running the old
+code of that one after it changed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .._jit import kernel
+
+
+@kernel
+def _sample_frames(parents, revolute, joints, q, qd, w0, frames, omega, spin, work):
+    """Kinematics of one sample, root to leaves (a body's parent comes before it).
+
+    Parameters
+    ----------
+    parents, revolute, joints : ndarray
+        :func:`spaceid.dynamics._kinematics._joint_arrays`.
+    q, qd : ndarray of shape (n_joints,)
+    w0 : ndarray of shape (3,)
+    frames : ndarray of shape (>= 8 n_bodies, 3)
+        Receives the pose and rate rows of a ``FrameTable`` (row ``4 b + f`` and
+        ``4 n_bodies + 4 b + f``, components last) [m, m/s, 1/s].
+    omega, spin : ndarray of shape (n_bodies, 3)
+        Receive the absolute angular velocities in base and in body axes [rad/s].
+    work : ndarray of shape (5, 3)
+        Scratch.
+    """
+    nb = omega.shape[0]
+    rate = 4 * nb
+    for r in range(3):  # loops, not array assignments: those take seconds to compile
+        for f in range(4):
+            frames[f, r] = 1.0 if f == r + 1 else 0.0  # the base: origin, axes
+            frames[rate + f, r] = 0.0  # its rate rows are set with every body's below
+        omega[0, r] = w0[r]
+    for j in range(nb - 1):
+        p, b, m = parents[j], j + 1, joints[j]
+        c, s = (np.cos(q[j]), np.sin(q[j])) if revolute[j] else (0.0, 0.0)
+        for i in range(3):  # the joint frame C0 + cos C1 + sin C2 (parent axes) into work[:3]
+            for k in range(3):
+                work[i, k] = m[i, k] + c * m[i, 3 + k] + s * m[i, 6 + k]
+        for r in range(3):  # row r of R_p [joint frame, t, a]: in base axes
+            x, y, z = frames[4 * p + 1, r], frames[4 * p + 2, r], frames[4 * p + 3, r]
+            for k in range(3):
+                frames[4 * b + 1 + k, r] = x * work[0, k] + y * work[1, k] + z * work[2, k]
+            axis = x * m[0, 10] + y * m[1, 10] + z * m[2, 10]
+            offset = x * m[0, 9] + y * m[1, 9] + z * m[2, 9] + (0.0 if revolute[j] else axis * q[j])
+            frames[4 * b, r] = frames[4 * p, r] + offset
+            omega[b, r] = omega[p, r] + (axis * qd[j] if revolute[j] else 0.0)
+            work[3, r], work[4, r] = offset, (0.0 if revolute[j] else axis * qd[j])  # prismatic: slide rate
+        for r in range(3):  # v_b = v_p + w_p x offset (+ slide rate)
+            i, k = (r + 1) % 3, (r + 2) % 3
+            step = omega[p, i] * work[3, k] - omega[p, k] * work[3, i] + work[4, r]
+            frames[rate + 4 * b, r] = frames[rate + 4 * p, r] + step
+    for b in range(nb):
+        for k in range(3):
+            e = 4 * b + 1 + k  # the axis R e_k
+            for r in range(3):  # its rate w x R e_k
+                i, l = (r + 1) % 3, (r + 2) % 3
+                frames[rate + e, r] = omega[b, i] * frames[e, l] - omega[b, l] * frames[e, i]
+            spin[b, k] = frames[e, 0] * omega[b, 0] + frames[e, 1] * omega[b, 1] + frames[e, 2] * omega[b, 2]
+
+
+_CHUNK = 64
+"""Samples whose kinematics :func:`_frame_blocks` holds before laying them out samples last (so
+that it writes the table in order; 180 kB for the servicer, in the level-2 cache)."""
+
+
+@kernel
+def _frame_blocks(parents, revolute, joints, q, qd, w0, table, omega, spin):
+    """:func:`_sample_frames` of the samples ``q, qd (n, n_joints)``, ``w0 (n, 3)`` into ``table
+    (n / block, 3, 8 n_bodies, block)``, ``omega`` and ``spin (n / block, 3, n_bodies, block)``."""
+    n_blocks, _, n_rows, block = table.shape
+    nb = omega.shape[2]
+    frames, om, sp = np.empty((_CHUNK, n_rows, 3)), np.empty((_CHUNK, nb, 3)), np.empty((_CHUNK, nb, 3))
+    work = np.empty((5, 3))
+    for i in range(n_blocks):
+        for start in range(0, block, _CHUNK):
+            m = min(_CHUNK, block - start)
+            for s in range(m):
+                n = i * block + start + s
+                _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames[s], om[s], sp[s], work)
+            for r in range(3):  # samples last, each row written in order
+                for k in range(n_rows):
+                    for s in range(m):
+                        table[i, r, k, start + s] = frames[s, k, r]
+                for b in range(nb):
+                    for s in range(m):
+                        omega[i, r, b, start + s], spin[i, r, b, start + s] = om[s, b, r], sp[s, b, r]
+
+
+@kernel
+def _spun_rows(ext, spin):
+    """The rows ``R e_k wb_m`` of one sample's extended table ``ext (17 n_bodies, 3)`` (rows
+    ``8 nb + 9 b + 3 k + m``) from its axes (rows ``4 b + 1 + k``) and ``spin (n_bodies, 3)``,
+    the body-axes angular velocities ``wb``."""
+    nb = spin.shape[0]
+    for b in range(nb):
+        for k in range(3):
+            for m in range(3):
+                for r in range(3):
+                    ext[8 * nb + 9 * b + 3 * k + m, r] = ext[4 * b + 1 + k, r] * spin[b, m]
+
+
+@kernel
+def _column(ext, rows, c):
+    """Momentum column ``c`` of one sample, ``X1 x Y1 + X2 x Y2`` with the rows ``rows[c]`` of its
+    extended table ``ext (17 n_bodies, 3)``: a tuple of 3 components."""
+    a, b, d, e = rows[c, 0], rows[c, 1], rows[c, 2], rows[c, 3]  # scalar loads: a view per row costs its refcount
+    return (ext[a, 1] * ext[b, 2] - ext[a, 2] * ext[b, 1] + ext[d, 1] * ext[e, 2] - ext[d, 2] * ext[e, 1],
+            ext[a, 2] * ext[b, 0] - ext[a, 0] * ext[b, 2] + ext[d, 2] * ext[e, 0] - ext[d, 0] * ext[e, 2],
+            ext[a, 0] * ext[b, 1] - ext[a, 1] * ext[b, 0] + ext[d, 0] * ext[e, 1] - ext[d, 1] * ext[e, 0])  # fmt: skip
+
+
+@kernel
+def _sample_extended(parents, revolute, joints, q, qd, w0, ext, omega, spin, work):
+    """One sample's extended table into ``ext (17 n_bodies, 3)`` (:func:`_sample_frames`'s
+    arguments)."""
+    _sample_frames(parents, revolute, joints, q, qd, w0, ext, omega, spin, work)
+    _spun_rows(ext, spin)
+
+
+@kernel
+def _columns_of_states(parents, revolute, joints, q, qd, w0, rows, out):
+    """Momentum columns ``rows (n_cols, 4)`` (a ``_Plan``'s) of the samples ``q, qd (n,
+    n_joints)``, ``w0 (n, 3)`` into ``out (n, 3, n_cols)``. Each sample's tables (~17 n_bodies x 3
+    values) stay in the L1 cache; the output is written in order."""
+    nb = len(parents) + 1
+    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
+    for n in range(len(q)):
+        _sample_extended(parents, revolute, joints, q[n], qd[n], w0[n], ext, omega, spin, work)
+        for c in range(rows.shape[0]):
+            out[n, 0, c], out[n, 1, c], out[n, 2, c] = _column(ext, rows, c)
+
+
+@kernel
+def _momentum_of_states(parents, revolute, joints, q, qd, w0, rows, weights, out):
+    """``sum_c weights_c column_c`` of :func:`_columns_of_states` into ``out (n, 3)``."""
+    nb = len(parents) + 1
+    ext, omega, spin, work = np.empty((17 * nb, 3)), np.empty((nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
+    for n in range(len(q)):
+        _sample_extended(parents, revolute, joints, q[n], qd[n], w0[n], ext, omega, spin, work)
+        h0 = h1 = h2 = 0.0
+        for c in range(rows.shape[0]):
+            x, y, z = _column(ext, rows, c)
+            h0, h1, h2 = h0 + weights[c] * x, h1 + weights[c] * y, h2 + weights[c] * z
+        out[n, 0], out[n, 1], out[n, 2] = h0, h1, h2
+
+
+@kernel
+def _tangent_columns(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, primal, rows, out):
+    """The columns' derivative along ``(dq, dqd, dw0)`` (plus the columns with ``primal``) at the
+    samples ``(q, qd, w0)`` into ``out (n, 3, n_cols)``; ``eps (n,)`` the steps (``_regressor._steps``).
+
+    Every momentum column is ``X x Y`` summed over row pairs, ``X`` a pose row ``S`` (an origin
+    or axis) and ``Y`` a rate row ``U`` or an extended row ``Q = R e_k wb_m``, so its derivative
+    is the column of ``(S, dU, dQ)`` plus that of ``(dS, U, Q)``; with ``primal`` the first is
+    ``(S, U + dU, Q + dQ)`` and the columns come with it. The kinematics are differenced, the
+    columns never (they are bilinear in them): ``dQ = dR e_k wb_m + R e_k dwb_m``."""
+    nb, nj = len(parents) + 1, len(parents)
+    qs, qds, ws = np.empty((2, nj)), np.empty((2, nj)), np.empty((2, 3))  # the states x + eps d, x - eps d
+    frames, spins, omega, work = np.empty((3, 8 * nb, 3)), np.empty((3, nb, 3)), np.empty((nb, 3)), np.empty((5, 3))
+    rate, pose = np.empty((17 * nb, 3)), np.empty((17 * nb, 3))
+    for n in range(len(q)):
+        for i in range(2):
+            sign = 1.0 - 2.0 * i
+            for j in range(nj):
+                qs[i, j], qds[i, j] = q[n, j] + sign * eps[n] * dq[n, j], qd[n, j] + sign * eps[n] * dqd[n, j]
+            for r in range(3):
+                ws[i, r] = w0[n, r] + sign * eps[n] * dw0[n, r]
+            _sample_frames(parents, revolute, joints, qs[i], qds[i], ws[i], frames[i], omega, spins[i], work)
+        _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames[2], omega, spins[2], work)
+        for r in range(3):  # frames[0], spins[0]: the derivatives
+            for k in range(8 * nb):
+                frames[0, k, r] = (frames[0, k, r] - frames[1, k, r]) / (2 * eps[n])
+            for b in range(nb):
+                spins[0, b, r] = (spins[0, b, r] - spins[1, b, r]) / (2 * eps[n])
+        for k in range(8 * nb):  # rate: S, dU (+ U); pose: dS, U
+            for r in range(3):
+                s, d = frames[2, k, r], frames[0, k, r]
+                rate[k, r], pose[k, r] = (s, d) if k < 4 * nb else ((d + s if primal else d), s)
+        for b in range(nb):  # rate: dQ (+ Q); pose: Q
+            for k in range(3):
+                for m in range(3):
+                    i = 8 * nb + 9 * b + 3 * k + m
+                    for r in range(3):
+                        axis, d_axis = frames[2, 4 * b + 1 + k, r], frames[0, 4 * b + 1 + k, r]
+                        pose[i, r] = axis * spins[2, b, m]
+                        rate[i, r] = (d_axis * spins[2, b, m] + axis * spins[0, b, m]) + (pose[i, r] if primal else 0.0)
+        for c in range(rows.shape[0]):
+            x1, y1, z1 = _column(rate, rows, c)
+            x2, y2, z2 = _column(pose, rows, c)
+            out[n, 0, c], out[n, 1, c], out[n, 2, c] = x1 + x2, y1 + y2, z1 + z2
