@@ -142,7 +142,7 @@ def _table_log(table, joints: tuple, planar: bool, require_rates: bool, wheels) 
         base_w = _stack(values, base_rates, n, fill=nan)
     log = Log(
         **_optional_columns(table, joints, planar, n),
-        t=values["t"],
+        t=values["t"].copy(),  # the other columns are copied by _stack
         joints=joints,
         q=_stack(values, [f"q_{j}" for j in joints], n),
         qd=_stack(values, [f"qd_{j}" for j in joints], n, fill=nan),
@@ -264,7 +264,7 @@ def read_joint_trajectory(path, *, joints, wheels=()):
     _check_angles(table, values, [f"q_{j}" for j in joints if j not in wheels])
     _check_rates(table, values, (), joints, wheels)
     n = len(values["t"])
-    return values["t"], _stack(values, q_names, n), _stack(values, qd_names, n)
+    return values["t"].copy(), _stack(values, q_names, n), _stack(values, qd_names, n)
 
 
 def write_json(path, obj) -> None:

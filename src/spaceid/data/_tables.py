@@ -33,7 +33,7 @@ MAX_TABLE_ROWS = 10_000_000
 MAX_TABLE_CELLS = 100_000_000
 """Most cells (lines times columns) of a CSV table: read into floats, 8 bytes a cell (800 MB)."""
 BLOCK_ROWS = 4096
-"""Rows of a CSV table parsed at a time: only their text is held (~3 MB for 40 columns of 17 digits)."""
+"""Rows of a CSV table parsed at a time: only their text is held (~11 MB for 36 columns of 17 digits)."""
 MAX_TEXT_BYTES = 256 * MiB
 """Largest other text input read [bytes] (JSON results and trajectories, mapping files)."""
 
@@ -226,7 +226,8 @@ def _listed(names, most=20):
 
 
 def _column(table, name):
-    """The column ``name`` as finite floats, shape (n_rows,)."""
+    """The column ``name`` as finite floats, shape (n_rows,): a view into the table (copy what is kept,
+    or the whole table stays in memory)."""
     j = table.header.index(name)
     if j in table.text:
         i, cell = table.text[j]
@@ -234,7 +235,7 @@ def _column(table, name):
             f"{table.path}: line {table.lines[i]}, column '{name}': {shown(cell.strip())} is not a number: "
             "give plain decimal numbers"
         )
-    x = table.values[j].copy()  # a copy: a view would keep the whole table alive
+    x = table.values[j]
     bad = ~np.isfinite(x)
     if bad.any():
         i = int(np.argmax(bad))
@@ -312,8 +313,10 @@ def _unit_quaternions(table, quat):
 
 def _stack(values, names, n, fill=None):
     """Columns ``names`` of ``values`` side by side, shape (n, len(names)); absent -> ``fill``."""
-    cols = [values[name] if name in values else fill for name in names]
-    return np.ascontiguousarray(np.array(cols, dtype=float).reshape(len(names), n).T)
+    out = np.empty((n, len(names)))  # filled column by column: one copy of the data, not two
+    for k, name in enumerate(names):
+        out[:, k] = values[name] if name in values else fill
+    return out
 
 
 def _is_rate(name):
