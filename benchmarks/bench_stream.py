@@ -11,10 +11,16 @@ the peak; the resident size after the synthesis is printed too). Fixed costs: th
 derivation against a read of its on-disk cache; the Gram product ``A^T A`` of 10,000 servicer
 samples (30,000 x 496) with BLAS on 2 threads and on 1, and through the blockwise accumulation
 the estimators use (2 Python threads over one-threaded BLAS, and 1); the imports of ``spaceid
-identify`` (matplotlib or not). Prints only, never fails on timings.
+identify`` (matplotlib or not). Log CSVs (``--parts csv``): the same logs written with
+``write_log`` and identified by ``spaceid identify LOG.csv --chunk N`` in a child process each
+(the CSV read in blocks, then streamed): peak RSS and CPU time of that process, read included.
+Reading (``--parts read``): ``read_log`` of one such CSV with each source tree of ``--sources``
+(e.g. this one and a baseline), alternated: CPU time, rows per second, peak RSS. Prints only,
+never fails on timings.
 
     python benchmarks/bench_stream.py [--samples 10000 100000 1000000] [--estimators ols ml]
-        [--chunk 4096] [--memory-up-to 10000] [--parts stream fixed]
+        [--chunk 4096] [--memory-up-to 10000] [--parts stream fixed csv read] [--csv-dir DIR]
+        [--read-samples 200000] [--sources src BASELINE/src] [--repeats 3]
 """
 
 import argparse
@@ -31,13 +37,13 @@ import numpy as np
 from bench_regressor import median_time  # the benchmarks' folder is on the path when run as a script
 
 
-def child(n, estimator, chunk):
-    """One identification in this process; prints its figures as JSON."""
+def servicer_log(n):
+    """The servicer-dual problem and a log of ``n`` random joint states whose base rate conserves
+    h = [1, -2, 3] N m s, with 1e-3 noise on every signal: (param, h, log)."""
     import spaceid
     from spaceid.data import Log
     from spaceid.dynamics import base_rate
     from spaceid.dynamics._regressor import _random_states
-    from spaceid.estimation import Noise, identify
 
     model = spaceid.load_model("servicer-dual")
     param = spaceid.minimal_parameters(model)
@@ -47,8 +53,14 @@ def child(n, estimator, chunk):
                         for s in range(0, n, 10_000)])  # fmt: skip
     rng = np.random.default_rng(2)
     q, qd, w = (a + 1e-3 * rng.standard_normal(a.shape) for a in (q, qd, w))
-    log = Log(np.arange(n) * 1e-3, model.joints, q, qd, np.tile([1.0, 0, 0, 0], (n, 1)), w, False)
-    del q, qd, w
+    return param, h, Log(np.arange(n) * 1e-3, model.joints, q, qd, np.tile([1.0, 0, 0, 0], (n, 1)), w, False)
+
+
+def child(n, estimator, chunk):
+    """One identification in this process; prints its figures as JSON."""
+    from spaceid.estimation import Noise, identify
+
+    param, h, log = servicer_log(n)
     rss_log = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     cpu = time.process_time()
     start = time.perf_counter()
@@ -88,6 +100,87 @@ def streaming(args):
                 print(f"{n:>9} {estimator:>9} {mode:>9} {r['wall']:8.1f} {1e6 * r['wall'] / n:10.1f} "
                       f"{1e6 * r['cpu'] / n:13.1f} {r['rss_mb']:11.0f} {r['rss_log_mb']:10.0f} {r['iterations']:5d} "
                       f"{r['z_max']:6.2f} {r['load']:5.1f}", flush=True)  # fmt: skip
+
+
+def measured(argv, env=None):
+    """Run ``argv`` in a child process: (return code, wall [s], CPU [s], peak RSS [MB], stderr's last line),
+    the CPU time and peak RSS those of the child alone (``os.wait4``)."""
+    with tempfile.TemporaryFile() as err:
+        start = time.perf_counter()
+        proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=err, env=env)
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - start
+        proc.returncode = os.waitstatus_to_exitcode(status)  # reaped here: Popen must not wait again
+        err.seek(0)
+        last = (err.read().decode(errors="replace").strip().splitlines() or [""])[-1]
+    return proc.returncode, wall, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024, last
+
+
+def write_servicer_csv(n, path):
+    """The bench's servicer-dual log of ``n`` samples written as a log CSV (``write_log``); (param, seconds)."""
+    from spaceid.data import write_log
+
+    param, _, log = servicer_log(n)
+    start = time.perf_counter()
+    write_log(path, log)
+    return param, time.perf_counter() - start
+
+
+def csv_logs(args):
+    """``spaceid identify`` on servicer-dual log CSVs in a child process each (nice 10): the CSV read in
+    blocks, the equations streamed; peak RSS and CPU time of the child."""
+    print(f"servicer-dual log CSVs through the CLI: spaceid identify servicer-dual LOG.csv --momentum 1,-2,3 "
+          f"--noise-angle 1e-3 --noise-rate 1e-3 --noise-base-rate 1e-3 --chunk {args.chunk} --estimator E "
+          f"(fresh process each, nice 10; peak RSS and CPU time of that process)")
+    print(f"{'samples':>9} {'CSV MB':>7} {'write s':>8} {'estimator':>9} {'wall s':>8} {'CPU us/sample':>13} "
+          f"{'peak RSS MB':>11} {'max z':>6} {'load':>5}")
+    code = "import sys; from spaceid.cli import main; sys.exit(main(sys.argv[1:]))"
+    with tempfile.TemporaryDirectory(dir=args.csv_dir) as folder:
+        for n in args.samples:
+            path, out = os.path.join(folder, f"servicer-{n}.csv"), os.path.join(folder, "result.json")
+            param, write = write_servicer_csv(n, path)
+            size = os.path.getsize(path) / 1e6
+            for estimator in args.estimators:
+                argv = ["nice", "-n", "10", sys.executable, "-c", code, "identify", "servicer-dual", path, "--momentum",
+                        "1,-2,3", "--noise-angle", "1e-3", "--noise-rate", "1e-3", "--noise-base-rate", "1e-3",
+                        "--chunk", str(args.chunk), "--estimator", estimator, "-o", out]  # fmt: skip
+                rc, wall, cpu, rss, last = measured(argv)
+                if rc:
+                    print(f"{n:>9} {size:7.0f} {write:8.1f} {estimator:>9} failed: {last}", flush=True)
+                    continue
+                with open(out) as f:
+                    result = json.load(f)["parameters"]
+                z = max(abs(p["value"] - v) / p["std"] for p, v in zip(result, param.true_values))
+                print(f"{n:>9} {size:7.0f} {write:8.1f} {estimator:>9} {wall:8.1f} {1e6 * cpu / n:13.1f} {rss:11.0f} "
+                      f"{z:6.2f} {os.getloadavg()[0]:5.1f}", flush=True)  # fmt: skip
+            os.remove(path)  # a 10^6-sample CSV is ~0.8 GB
+
+
+def csv_reads(args):
+    """``read_log`` of one servicer-dual log CSV in a child process per source tree (``--sources``),
+    alternated, median of ``--repeats``: CPU time of the read alone, rows per second, peak RSS."""
+    n = args.read_samples
+    code = ("import sys, time, warnings, spaceid; from spaceid.data import read_log; "
+            "m = spaceid.load_model('servicer-dual'); warnings.simplefilter('ignore'); cpu = time.process_time(); "
+            "read_log(sys.argv[1], joints=m.joints, planar=False); print(time.process_time() - cpu, file=sys.stderr)")
+    with tempfile.TemporaryDirectory(dir=args.csv_dir) as folder:
+        path = os.path.join(folder, "servicer.csv")
+        write_servicer_csv(n, path)
+        runs = {src: [] for src in args.sources}
+        for _ in range(args.repeats):  # alternated, so that a load change hits all
+            for src in args.sources:
+                runs[src].append(measured([sys.executable, "-c", code, path],
+                                          dict(os.environ, PYTHONPATH=os.path.abspath(src))))
+        print(f"\nread_log of a servicer-dual log CSV of {n} rows ({os.path.getsize(path) / 1e6:.0f} MB) in child "
+              f"processes, alternated, median of {args.repeats}; load {os.getloadavg()[0]:.1f} on "
+              f"{os.cpu_count()} cores")
+    for src, results in runs.items():
+        if any(rc for rc, *_ in results):
+            print(f"  {src}: failed: {next(last for rc, *_, last in results if rc)}")
+            continue
+        cpu = np.median([float(last) for *_, last in results])
+        print(f"  {src:30} read {np.median([r[1] for r in results]):6.2f} s wall (process), {cpu:6.2f} s CPU, "
+              f"{n / cpu:8.0f} rows/s; peak RSS {np.median([r[3] for r in results]):5.0f} MB")
 
 
 def fixed_costs():
@@ -136,7 +229,11 @@ def main():
     parser.add_argument("--estimators", nargs="+", default=["ols", "ml"])
     parser.add_argument("--chunk", type=int, default=4096)
     parser.add_argument("--memory-up-to", type=int, default=10_000, help="in-memory runs up to this many samples")
-    parser.add_argument("--parts", nargs="+", default=["stream", "fixed"], choices=["stream", "fixed"])
+    parser.add_argument("--parts", nargs="+", default=["stream", "fixed"], choices=["stream", "fixed", "csv", "read"])
+    parser.add_argument("--csv-dir", help="folder for the log CSVs (default: the temporary folder)")
+    parser.add_argument("--read-samples", type=int, default=200_000, help="rows of the CSV that 'read' parses")
+    parser.add_argument("--sources", nargs="+", default=["src"], help="'read': source trees to compare")
+    parser.add_argument("--repeats", type=int, default=3, help="'read': runs per source tree")
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:
@@ -147,6 +244,11 @@ def main():
     if "stream" in args.parts:
         print()
         streaming(args)
+    if "read" in args.parts:
+        csv_reads(args)
+    if "csv" in args.parts:
+        print()
+        csv_logs(args)
 
 
 if __name__ == "__main__":

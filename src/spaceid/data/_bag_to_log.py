@@ -349,7 +349,7 @@ def _on_time_base(t_samples, angle, rate, t):
 def _log_columns(where, joints, q, qd, base_quat, base_w, planar):
     """The log's angle and rate columns by CSV name, for the unit checks shared with the CSV
     reader: an empty table naming the source, the columns, and the base-rate column names."""
-    table = _Table(f"{where}", [], np.empty((0, 0)), [])
+    table = _Table(f"{where}", [], np.empty((0, 0)), np.empty(0, dtype=int), {})
     values = {f"q_{j}": q[:, c] for c, j in enumerate(joints)} | {f"qd_{j}": qd[:, c] for c, j in enumerate(joints)}
     base_rates = ("base_wz",) if planar else ("base_wx", "base_wy", "base_wz")
     values |= {name: base_w[:, "xyz".index(name[-1])] for name in base_rates}

@@ -82,7 +82,9 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
     Raises
     ------
     SpaceidError
-        Missing or unreadable file; empty file or no data rows; missing required columns;
+        Missing or unreadable file; a CSV beyond ``MAX_TABLE_BYTES``, ``MAX_TABLE_ROWS`` lines or
+        ``MAX_TABLE_CELLS`` cells (:mod:`spaceid.data._tables`; it is parsed in blocks of rows into
+        floats, 8 bytes a cell); empty file or no data rows; missing required columns;
         a ``q_X``/``qd_X`` column for a joint X the model lacks; non-numeric, NaN or infinite
         cells; time stamps not strictly increasing; angles apparently in degrees; a base
         quaternion whose norm departs from 1 by more than 1e-2; a median time step above a day
@@ -140,7 +142,7 @@ def _table_log(table, joints: tuple, planar: bool, require_rates: bool, wheels) 
         base_w = _stack(values, base_rates, n, fill=nan)
     log = Log(
         **_optional_columns(table, joints, planar, n),
-        t=values["t"],
+        t=values["t"].copy(),  # the other columns are copied by _stack
         joints=joints,
         q=_stack(values, [f"q_{j}" for j in joints], n),
         qd=_stack(values, [f"qd_{j}" for j in joints], n, fill=nan),
@@ -262,7 +264,7 @@ def read_joint_trajectory(path, *, joints, wheels=()):
     _check_angles(table, values, [f"q_{j}" for j in joints if j not in wheels])
     _check_rates(table, values, (), joints, wheels)
     n = len(values["t"])
-    return values["t"], _stack(values, q_names, n), _stack(values, qd_names, n)
+    return values["t"].copy(), _stack(values, q_names, n), _stack(values, qd_names, n)
 
 
 def write_json(path, obj) -> None:

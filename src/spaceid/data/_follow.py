@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import time
 from pathlib import Path
 
@@ -10,7 +11,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ._files import _table_log
-from ._tables import _Table
+from ._tables import BLOCK_ROWS, _blocks, _malformed, _names
 
 __all__ = ["follow_log"]
 
@@ -68,7 +69,7 @@ def follow_log(path, *, joints, planar, wheels=(), timeout: float = 10.0, poll: 
             raise SpaceidError(f"{path}: no such file after waiting {timeout:g} s (--follow-timeout): start the "
                                "recording first or give the right path")
         time.sleep(poll)
-    with open(path, newline="") as f:
+    with open(path, encoding="utf-8-sig", errors="replace", newline="") as f:
         header, pending, line, last = None, "", 0, -np.inf
         while True:
             text = _wait(f, timeout, poll)
@@ -77,26 +78,21 @@ def follow_log(path, *, joints, planar, wheels=(), timeout: float = 10.0, poll: 
                     raise SpaceidError(f"{path}: no header row within {timeout:g} s (--follow-timeout): the log must "
                                        "start with a header naming the columns")
                 return
-            pending += text
-            complete, _, pending = pending.rpartition("\n")
-            rows = [r for r in csv.reader(complete.splitlines())] if complete else []
-            numbered = []
-            for row in rows:
-                line += 1
-                if row:
-                    numbered.append((line, row))
-            if header is None and numbered:
-                header = [name.strip() for name in numbered.pop(0)[1]]
-            if not numbered:
+            complete, newline, pending = (pending + text).rpartition("\n")
+            if not newline:  # no line complete yet: all of it is pending
                 continue
-            for at, row in numbered:
-                if len(row) != len(header):
-                    raise SpaceidError(f"{path}: line {at} has {len(row)} fields but the header has {len(header)}: "
-                                       "give one value per column on every row")
-            table = _Table(str(path), header, np.array([r for _, r in numbered], dtype=str), [a for a, _ in numbered])
-            log = _table_log(table, joints, planar, True, wheels)
-            if not log.t[0] > last:
-                raise SpaceidError(f"{path}: time stamps must increase strictly, but t = {log.t[0]!r} at line "
-                                   f"{numbered[0][0]} follows t = {last!r}: the writer went back in time")
-            last = float(log.t[-1])
-            yield log
+            reader = csv.reader(io.StringIO(complete + newline, newline=""))
+            try:
+                if header is None:  # blank lines may come first
+                    row = next((row for row in reader if row), None)
+                    header = _names(path, row) if row else None
+                for table in _blocks(path, reader, header, BLOCK_ROWS, line) if header else ():
+                    log = _table_log(table, joints, planar, True, wheels)
+                    if not log.t[0] > last:
+                        raise SpaceidError(f"{path}: time stamps must increase strictly, but t = {log.t[0]!r} at line "
+                                           f"{table.lines[0]} follows t = {last!r}: the writer went back in time")
+                    last = float(log.t[-1])
+                    yield log
+            except csv.Error as err:
+                raise _malformed(path, line + reader.line_num, err) from None
+            line += reader.line_num

@@ -7,7 +7,6 @@ line or column, and the fix.
 from __future__ import annotations
 
 import csv
-import io
 import math
 import warnings
 from dataclasses import dataclass
@@ -16,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from .._errors import SpaceidError, shown
-from .._inputs import MiB, read_input_text
+from .._inputs import MiB, count_input_lines, read_input_text
 from ._timeseries import first_unordered
 
 _MAX_ANGLE = 20 * math.pi  # [rad]; ten turns over a run means the column is in degrees
@@ -27,10 +26,14 @@ _IMPOSSIBLE_RATE = 1e6  # [rad/s or m/s]; beyond any rotor or actuator: an error
 _QUAT_WARN = 1e-6  # |norm - 1| above which a quaternion is renormalised, with a warning
 _QUAT_FAIL = 1e-2  # |norm - 1| above which it is not a unit quaternion at all
 
-MAX_TABLE_BYTES = 128 * MiB
-"""Largest CSV table read [bytes]: ~16 min at 1 kHz with 7 columns of 17 digits (~2 GB of memory while read)."""
-MAX_TABLE_ROWS = 1_000_000
-"""Most rows of a CSV table (read whole: ~2 kB of memory a row while parsed)."""
+MAX_TABLE_BYTES = 4096 * MiB
+"""Largest CSV table read [bytes]: 10^8 cells of 40 characters."""
+MAX_TABLE_ROWS = 10_000_000
+"""Most lines of a CSV table (1 kHz for 2.8 hours)."""
+MAX_TABLE_CELLS = 100_000_000
+"""Most cells (lines times columns) of a CSV table: read into floats, 8 bytes a cell (800 MB)."""
+BLOCK_ROWS = 4096
+"""Rows of a CSV table parsed at a time: only their text is held (~11 MB for 36 columns of 17 digits)."""
 MAX_TEXT_BYTES = 256 * MiB
 """Largest other text input read [bytes] (JSON results and trajectories, mapping files)."""
 
@@ -41,63 +44,151 @@ _SPATIAL_BASE = (("base_qw", "base_qx", "base_qy", "base_qz"), ("base_wx", "base
 
 @dataclass(frozen=True)
 class _Table:
-    """A rectangular CSV: header names, cells as strings (n_rows, n_cols), file line per row."""
+    """A rectangular CSV: its header names, its cells as floats, the file line of each row, and
+    the first cell of each column that is not a number.
+
+    Attributes
+    ----------
+    path : str
+    header : list of str
+        Column names, shape (n_cols,).
+    values : ndarray of shape (n_cols, n_rows)
+        The cells, one column a row (contiguous); not to be used in a column with an entry in ``text``.
+    lines : ndarray of int, shape (n_rows,)
+        The file line of each row (1 for the first line of the file).
+    text : dict
+        Column index -> (row index, cell) of the column's first cell that is not a number.
+    """
 
     path: str
     header: list
-    cells: np.ndarray
-    lines: list
+    values: np.ndarray
+    lines: np.ndarray
+    text: dict
+
+
+def _folder_hint(path):
+    """For messages on a folder given as a file: what it holds, when it looks like a damaged ROS 2 bag."""
+    folder = Path(path)
+    if not folder.is_dir():
+        return ""
+    try:
+        storage = next((f for f in folder.iterdir() if f.suffix.lower() in (".db3", ".mcap")), None)
+    except OSError:
+        storage = None
+    return (f": it holds {storage.name} but no metadata.yaml, which a ROS 2 bag folder needs: restore it "
+            "(`ros2 bag reindex` rebuilds it)" if storage else
+            ": give the file itself, or a ROS 2 bag folder (with metadata.yaml)")
 
 
 def _read_text(path, what, max_bytes=None):
     """The text of a user file within bounds (:func:`~spaceid._inputs.read_input_text`); a folder
     without ``metadata.yaml`` gets a hint when it looks like a damaged ROS 2 bag."""
-    folder, hint = Path(path), ""
-    if folder.is_dir():
-        try:
-            storage = next((f for f in folder.iterdir() if f.suffix.lower() in (".db3", ".mcap")), None)
-        except OSError:
-            storage = None
-        hint = (f": it holds {storage.name} but no metadata.yaml, which a ROS 2 bag folder needs: restore it "
-                "(`ros2 bag reindex` rebuilds it)" if storage else
-                ": give the file itself, or a ROS 2 bag folder (with metadata.yaml)")
-    return read_input_text(path, what, MAX_TEXT_BYTES if max_bytes is None else max_bytes, folder_hint=hint)
+    return read_input_text(path, what, MAX_TEXT_BYTES if max_bytes is None else max_bytes,
+                           folder_hint=_folder_hint(path))
 
 
-def _read_csv(path, *, what):
-    text = _read_text(path, what, MAX_TABLE_BYTES)
-    rows_given = text.count("\n")
-    if rows_given > MAX_TABLE_ROWS:
+def _read_csv(path, *, what, block_rows=None):
+    """The :class:`_Table` of the CSV file ``path``, parsed ``block_rows`` rows at a time
+    (default :data:`BLOCK_ROWS`) into float arrays sized from a first count of the lines, so that
+    only one block's text is held.
+
+    Defects of the structure (malformed CSV, a header naming a column twice, a row whose fields do
+    not match the header) are reported at the first in the file; cells that are not numbers when
+    their column is read (:func:`_column`).
+    """
+    n_lf, n_cr = count_input_lines(path, what, MAX_TABLE_BYTES, folder_hint=_folder_hint(path))
+    n_lines = max(n_lf, n_cr)  # "\r\n", "\n" or "\r" ends
+    if n_lines > MAX_TABLE_ROWS:
         raise SpaceidError(
-            f"{path}: {rows_given} lines, beyond the {MAX_TABLE_ROWS} rows a {what} may have (it is read whole): "
+            f"{path}: {n_lines} lines, beyond the {MAX_TABLE_ROWS} rows a {what} may have: "
             "split the run or downsample it"
         )
-    reader = csv.reader(io.StringIO(text, newline=""))
-    rows, lines = [], []
-    try:
-        for row in reader:
-            if row:  # blank lines carry no sample
-                rows.append(row)
-                lines.append(reader.line_num)
-    except csv.Error as err:
-        raise SpaceidError(f"{path}: line {reader.line_num}: malformed CSV ({err}): fix the file") from None
-    if not rows:
-        raise SpaceidError(f"{path}: the {what} file is empty: expected a header row and data rows")
-    header = [name.strip() for name in rows[0]]  # cells keep theirs: float() ignores it
+    # errors="replace": the bytes were checked to be UTF-8 above; a file changed since reads as not numbers
+    with open(path, encoding="utf-8-sig", errors="replace", newline="") as f:
+        reader = csv.reader(f)
+        try:
+            row = next((row for row in reader if row), None)  # blank lines carry no sample
+            if row is None:
+                raise SpaceidError(f"{path}: the {what} file is empty: expected a header row and data rows")
+            header = _names(path, row)
+            if n_lines * len(header) > MAX_TABLE_CELLS:
+                raise SpaceidError(
+                    f"{path}: {n_lines} lines of {len(header)} columns, beyond the {MAX_TABLE_CELLS} cells a "
+                    f"{what} may have: split the run, downsample it or drop columns"
+                )
+            # an upper bound of the rows whatever the line ends; pages never filled are never resident
+            values, lines = np.empty((len(header), n_lf + n_cr + 1)), np.empty(n_lf + n_cr + 1, dtype=np.int64)
+            n, text = 0, {}
+            for block in _blocks(path, reader, header, block_rows or BLOCK_ROWS):
+                k = len(block.lines)
+                if n + k > len(lines):
+                    raise SpaceidError(f"{path}: the {what} grew while it was read: read it once it is complete")
+                values[:, n : n + k], lines[n : n + k] = block.values, block.lines
+                text |= {j: (n + i, cell) for j, (i, cell) in block.text.items() if j not in text}
+                n += k
+        except csv.Error as err:
+            raise _malformed(path, reader.line_num, err) from None
+    if not n:
+        raise SpaceidError(f"{path}: the {what} has a header but no data rows: give at least one sample")
+    return _Table(str(path), header, values[:, :n], lines[:n], text)
+
+
+def _names(path, row):
+    """The column names of the header ``row``, each once."""
+    header = [name.strip() for name in row]  # cells keep theirs: float() ignores it
     seen = set()
     for name in header:
         if name in seen:
             raise SpaceidError(f"{path}: column {shown(name)} appears twice in the header: rename or drop one")
         seen.add(name)
-    if len(rows) == 1:
-        raise SpaceidError(f"{path}: the {what} has a header but no data rows: give at least one sample")
-    for row, line in zip(rows[1:], lines[1:]):
-        if len(row) != len(header):
-            raise SpaceidError(
-                f"{path}: line {line} has {len(row)} fields but the header has {len(header)}: "
-                "give one value per column on every row"
-            )
-    return _Table(str(path), header, np.array(rows[1:], dtype=str), lines[1:])
+    return header
+
+
+def _malformed(path, line, err):
+    return SpaceidError(f"{path}: line {line}: malformed CSV ({err}): fix the file")
+
+
+def _blocks(path, reader, header, size, first_line=0):
+    """:class:`_Table` blocks of at most ``size`` rows of the csv ``reader`` after the header,
+    blank lines skipped; a row whose fields do not match the header is an error. Line numbers
+    count from ``first_line`` (the lines read before ``reader``'s)."""
+    while True:
+        rows, lines = [], []
+        for row in reader:
+            if not row:
+                continue
+            if len(row) != len(header):
+                raise SpaceidError(
+                    f"{path}: line {first_line + reader.line_num} has {len(row)} fields but the header has "
+                    f"{len(header)}: give one value per column on every row"
+                )
+            rows.append(row)
+            lines.append(first_line + reader.line_num)
+            if len(rows) == size:
+                break
+        if not rows:
+            return
+        values, text = _floats(rows, len(header))
+        yield _Table(str(path), header, values.T, np.array(lines, dtype=np.int64), text)
+
+
+def _floats(rows, n_cols):
+    """The cells of ``rows`` (lists of ``n_cols`` strings) as floats (n_rows, n_cols), NaN down a
+    column with a cell that is not a number, and the first such cell of each, {column: (row, cell)}."""
+    try:
+        return np.array(rows, dtype=float), {}
+    except ValueError:  # a text column (ignored unless needed) or a defect: column by column
+        pass
+    values, text = np.empty((len(rows), n_cols)), {}
+    for j in range(n_cols):
+        cells = [row[j] for row in rows]
+        try:
+            values[:, j] = np.array(cells, dtype=float)
+        except ValueError:
+            i = next((i for i, cell in enumerate(cells) if not _is_float(cell)), 0)
+            values[:, j], text[j] = np.nan, (i, cells[i])
+    return values, text
 
 
 def _check_joint_columns(table, joints):
@@ -135,16 +226,16 @@ def _listed(names, most=20):
 
 
 def _column(table, name):
-    """The column ``name`` as finite floats, shape (n_rows,)."""
-    raw = table.cells[:, table.header.index(name)]
-    try:
-        x = raw.astype(float)
-    except ValueError:
-        i = next((i for i, cell in enumerate(raw) if not _is_float(cell)), 0)
+    """The column ``name`` as finite floats, shape (n_rows,): a view into the table (copy what is kept,
+    or the whole table stays in memory)."""
+    j = table.header.index(name)
+    if j in table.text:
+        i, cell = table.text[j]
         raise SpaceidError(
-            f"{table.path}: line {table.lines[i]}, column '{name}': {shown(str(raw[i]).strip())} is not a number: "
+            f"{table.path}: line {table.lines[i]}, column '{name}': {shown(cell.strip())} is not a number: "
             "give plain decimal numbers"
-        ) from None
+        )
+    x = table.values[j]
     bad = ~np.isfinite(x)
     if bad.any():
         i = int(np.argmax(bad))
@@ -222,8 +313,10 @@ def _unit_quaternions(table, quat):
 
 def _stack(values, names, n, fill=None):
     """Columns ``names`` of ``values`` side by side, shape (n, len(names)); absent -> ``fill``."""
-    cols = [values[name] if name in values else fill for name in names]
-    return np.ascontiguousarray(np.array(cols, dtype=float).reshape(len(names), n).T)
+    out = np.empty((n, len(names)))  # filled column by column: one copy of the data, not two
+    for k, name in enumerate(names):
+        out[:, k] = values[name] if name in values else fill
+    return out
 
 
 def _is_rate(name):
