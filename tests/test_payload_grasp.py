@@ -122,6 +122,21 @@ def test_moving_payload_recovered_noise_free_with_its_momentum(cepheus):
         identify_payload(pmap, log, "link2", None, grasp_motion=motion)
 
 
+def test_an_estimated_momentum_collinear_with_the_payload_warns(cepheus):
+    """A base that turns steadily (a large momentum) makes the payload's own momentum nearly a
+    constant: estimated, the momentum trades off with the payload, and the fit says so."""
+    pmap, traj = cepheus
+    theta = _theta(*PAYLOAD)
+    for h, collinear in ((0.5, True), (0.02, False)):
+        log = spaceid.simulate(pmap.param, pmap.pi(theta), traj, np.linspace(0, 20, 200), np.array([0, 0, h]),
+                               model=pmap.model(theta))  # fmt: skip
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            est = identify_payload(pmap, add_noise(log, angle=1e-4, rate=1e-4, seed=0), "link2", None)
+        said = [str(w.message) for w in caught if "correlates with it" in str(w.message)]
+        assert (est.settings["momentum_payload_correlation"] > 0.9) == collinear == bool(said), said
+
+
 def _grasp_log(pmap, traj, hold: float, momentum_after, theta) -> tuple:
     """A servicer still for ``hold`` s (its momentum zero), then holding ``theta`` through ``traj``
     with ``momentum_after``; the grasp time."""

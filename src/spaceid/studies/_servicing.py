@@ -19,7 +19,8 @@ recorded as one bag (``capture.bag``, ...), read back as a lab recording; then
    identified before matches it only within its own errors, which would bias the payload by an
    amount its standard errors do not include. The window leaves out the samples whose
    differentiated rates blend the grasp, and with drift terms the momentum is the servicer's
-   over the hold before the grasp (:func:`_payload`).
+   over the hold before the grasp; a payload that moves at the grasp adds its own, from its
+   velocity and rate (:func:`_payload`, as 'spaceid payload --grasp' does it).
 
 Only the phases from the grasp on carry the capture: the rehearsals, the excitation and the
 held-out motion run on the servicer alone.
