@@ -72,6 +72,25 @@ def test_hold_momentum_covariance_against_monte_carlo(cepheus):
     assert 0.85 < np.std(spread) / np.sqrt(cov[2, 2]) < 1.15
 
 
+def test_spatial_hold_momentum_covariance_against_monte_carlo():
+    """Spatial: the attitude's noise turns the momentum too (``R0 e_n`` in inertial axes)."""
+    pmap = payload_map("satellite-7dof", "arm_ee")
+    rng = np.random.default_rng(1)
+    nj = pmap.param.model.n_joints
+    traj = FourierTrajectory(pmap.param.model.joints, 10.0, rng.uniform(-0.3, 0.3, (nj, 2)),
+                             rng.uniform(-0.3, 0.3, (nj, 2)))  # fmt: skip
+    h0 = np.array([0.5, -1.0, 2.0])
+    log = spaceid.simulate(pmap.param, pmap.pi(np.zeros(pmap.n)), traj, np.linspace(0, 10, 101), h0)
+    middle = np.arange(40, 50)
+    noise = spaceid.Noise(angle=1e-3, rate=1e-3, base_rate=1e-3, attitude=1e-3)
+    cov = hold_momentum(pmap, add_noise(log, angle=1e-3, rate=1e-3, seed=0).select(middle), noise)[1]
+    spread = np.array([hold_momentum(pmap, add_noise(log, angle=1e-3, rate=1e-3, seed=s).select(middle), noise)[0]
+                       for s in range(200)])  # fmt: skip
+    ratio = spread.std(0) / np.sqrt(np.diag(cov))
+    assert np.all((ratio > 0.85) & (ratio < 1.2)), ratio  # measured 1.03, 1.10, 1.07
+    assert np.all(np.abs(spread.mean(0) - h0) < 4 * spread.std(0) / np.sqrt(200))
+
+
 def test_given_momentum_covariance_is_carried_through_the_fit(cepheus):
     """The covariance added for a given momentum's error is ``g sigma^2 g^T``, ``g`` the estimate's
     derivative in the momentum: checked against central differences of whole fits."""

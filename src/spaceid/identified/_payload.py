@@ -9,7 +9,8 @@ minimal parameters ``pi(theta) = P [theta_all, phi(theta_all)]`` of the whole sy
 ``theta``, so Gauss-Newton on ``Y pi(theta) = R0^T h`` (whitened by the errors-in-variables
 covariance of each sample) starts from the payload-free linearisation (its first step solves the
 first-order problem) and converges in a few steps. The known servicer fixes the scale: no anchor
-is needed and a capture from rest works.
+is needed and a capture from rest works. A payload that moved at the grasp brings its own
+momentum, a function of ``theta`` given its velocity and rate (:class:`GraspMotion`).
 
 Planar motion sees only the mass, the in-plane CoM and the moment about the CoM's vertical axis.
 An estimate that is not physically consistent (pseudo-inertia not positive definite) is projected
