@@ -1118,9 +1118,10 @@ def export(result, prior_src, region, fmt, output):
               "URDF link on fixed joints below one (a tool link); the CoM and inertia are in its frame.")
 @click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown|hold", help="Angular momentum of "
               "the whole system after the capture [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at "
-              "rest; 'unknown' to estimate it (a payload that moved at the grasp; the known servicer fixes the "
-              "scale); 'hold' (with --grasp, a payload at rest): the servicer's over the 1 s before the grasp, its "
-              "error carried into the payload's.")
+              "rest; with --payload-velocity/--payload-rate the servicer's alone. 'hold' (with --grasp): the "
+              "servicer's over the 1 s before the grasp, its error carried into the payload's. 'unknown': estimated "
+              "with the payload (the known servicer fixes the scale; a base that turns steadily makes it nearly "
+              "collinear with the payload, and a warning says so).")
 @click.option("--grasp", type=float, metavar="T", help="The grasp instant [s] on the log's clock: the payload is "
               "identified from T plus half the longest differentiator window (the rates blend the impact before) to "
               "the end; with --momentum hold the servicer's momentum is averaged over the hold before T, and the "
