@@ -95,7 +95,8 @@ def payload_after_grasp(model, log: Log, link: str, grasp: float, momentum, *, p
         The grasp instant [s], on ``log``'s clock.
     momentum : array_like of shape (3,) or None or "hold"
         The inertial momentum after the grasp [N m s] (given: zero for a capture from rest), None
-        (estimated with the payload: a payload that moved at the grasp), or "hold": the servicer's
+        (estimated with the payload: nearly collinear with it when the base turns steadily, so a
+        payload that moved is better given by ``payload_motion``), or "hold": the servicer's
         over ``HOLD`` s before the grasp (:func:`hold_momentum`; a payload at rest), with its
         covariance carried into the payload's; with ``drift`` the drift is integrated from there.
     payload_motion : tuple of two array_like of shape (3,), optional
