@@ -128,6 +128,8 @@ class ServicingResult:
         Payload estimate against truth (z-scores) and the detected change time against the grasp.
     run : TwinRun
         The post-capture phase on the twin (its ``truth`` is written beside the report).
+    servicer : Model
+        The known servicer the payload was identified with (the twin's model, the tank as at the grasp).
     """
 
     payload: object
@@ -138,6 +140,7 @@ class ServicingResult:
     trajectory: FourierTrajectory
     scores: dict
     run: object
+    servicer: object
 
 
 def run_servicing(held_out_run, protocol: CaptureProtocol, trajectory: FourierTrajectory, *, settings, model,
@@ -183,7 +186,8 @@ def run_servicing(held_out_run, protocol: CaptureProtocol, trajectory: FourierTr
     estimate, window, record = _payload(servicer, log, truth["link"], grasp, trajectory.duration, drift,
                                         _payload_motion(protocol.payload), seed, f"{bag} (post-capture excitation)")
     scores = _scores(estimate, truth, events, log, grasp) | record
-    return ServicingResult(estimate, truth, events, log, window, trajectory, scores | {"phase seed": seed}, run)
+    return ServicingResult(estimate, truth, events, log, window, trajectory, scores | {"phase seed": seed}, run,
+                           servicer)  # fmt: skip
 
 
 def _payload(servicer, log: Log, link: str, grasp: float, duration: float, drift, motion, seed: int,
