@@ -552,8 +552,9 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         The link that holds the payload: a body, or (URDF) a link on fixed joints below one.
     momentum : array_like of shape (3,) or None
         Inertial angular momentum of the whole system [N m s] (zero for a capture from rest; at
-        the first sample with ``drift``, or of ``history``); None: estimated with the payload (e.g.
-        a payload that moved at the grasp: its momentum joined the servicer's).
+        the first sample with ``drift``, or of ``history``); None: estimated with the payload (nearly
+        collinear with it when the base turns steadily: a warning says so; a payload that moved at
+        the grasp is better given by ``grasp_motion``).
     grasp_motion : GraspMotion, optional
         A payload that moved at the grasp: ``momentum`` is then the servicer's before the grasp,
         and the payload's own (a function of its parameters and of this motion) is added to it.
