@@ -24,14 +24,18 @@ def _theta(mass, com, izz):
     return np.array([mass, *(mass * c), izz + mass * c @ c])
 
 
+def _motion(pmap, duration, harmonics) -> FourierTrajectory:
+    """A random excitation of the servicer's joints (seed 1, amplitudes up to 0.3 rad)."""
+    rng = np.random.default_rng(1)
+    shape = (pmap.param.model.n_joints, harmonics)
+    return FourierTrajectory(pmap.param.model.joints, duration, rng.uniform(-0.3, 0.3, shape),
+                             rng.uniform(-0.3, 0.3, shape))  # fmt: skip
+
+
 @pytest.fixture(scope="module")
 def cepheus():
     pmap = payload_map("cepheus", "link2")
-    rng = np.random.default_rng(1)
-    nj = pmap.param.model.n_joints
-    traj = FourierTrajectory(pmap.param.model.joints, 20.0, rng.uniform(-0.3, 0.3, (nj, 3)),
-                             rng.uniform(-0.3, 0.3, (nj, 3)))  # fmt: skip
-    return pmap, traj
+    return pmap, _motion(pmap, 20.0, 3)
 
 
 def _brought_by_sums(model, body, link_xy, q, velocity, rate, mass, com, izz):
@@ -75,10 +79,7 @@ def test_hold_momentum_covariance_against_monte_carlo(cepheus):
 def test_spatial_hold_momentum_covariance_against_monte_carlo():
     """Spatial: the attitude's noise turns the momentum too (``R0 e_n`` in inertial axes)."""
     pmap = payload_map("satellite-7dof", "arm_ee")
-    rng = np.random.default_rng(1)
-    nj = pmap.param.model.n_joints
-    traj = FourierTrajectory(pmap.param.model.joints, 10.0, rng.uniform(-0.3, 0.3, (nj, 2)),
-                             rng.uniform(-0.3, 0.3, (nj, 2)))  # fmt: skip
+    traj = _motion(pmap, 10.0, 2)
     h0 = np.array([0.5, -1.0, 2.0])
     log = spaceid.simulate(pmap.param, pmap.pi(np.zeros(pmap.n)), traj, np.linspace(0, 10, 101), h0)
     middle = np.arange(40, 50)
