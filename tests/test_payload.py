@@ -222,19 +222,23 @@ def test_drift_integrated_over_a_history_from_a_known_momentum(cepheus):
 
 
 @pytest.mark.slow
-def test_differentiated_rates_spread_agrees_with_the_newey_west_errors(cepheus):
+def test_differentiated_rates_spread_agrees_with_the_propagated_errors(cepheus):
     """Rates differentiated from noisy angles have errors correlated over the differentiator's
-    window: the standard errors follow the residuals (Newey-West) and cover the spread."""
+    window: the angle noise carried through the Savitzky-Golay filters gives standard errors that
+    match the spread (RMS z 0.82-1.06 over 30 seeds; the Newey-West estimate from the residuals,
+    before: 0.52-0.59, twice too wide)."""
     from spaceid.data import differentiate_log
 
     pmap, traj, theta, _ = cepheus
     log = _log_with_payload(pmap, theta, traj, 1000, np.array([0, 0, 0.05]))
     truth = np.array([CEPHEUS_PAYLOAD[0], *CEPHEUS_PAYLOAD[1], CEPHEUS_PAYLOAD[2]])
     runs = [identify_payload(pmap, differentiate_log(add_noise(log, angle=1e-3, seed=s)), "link2", [0, 0, 0.05])
-            for s in range(40)]  # fmt: skip
-    assert "Newey-West" in runs[0].settings["covariance"]
+            for s in range(30)]  # fmt: skip
+    assert "propagated through their Savitzky-Golay filters" in runs[0].settings["covariance"]
+    assert all(r.settings["newey_west_std"] is not None for r in runs)
     z = (np.array([r.values for r in runs]) - truth) / np.array([r.std for r in runs])
-    assert np.all(np.sqrt((z**2).mean(0)) < 1.2) and np.abs(z).max() < 4, z  # old (Fisher x chi2): RMS z 1.37-1.70
+    rms = np.sqrt((z**2).mean(0))
+    assert np.all((rms > 0.7) & (rms < 1.3)) and np.abs(z).max() < 4, rms
 
 
 def test_links_from_a_urdf_file_and_unknown_links(satellite, tmp_path):

@@ -1116,9 +1116,21 @@ def export(result, prior_src, region, fmt, output):
 @PLANAR
 @click.option("--link", required=True, metavar="LINK", help="The link that holds the payload: a body of MODEL, or a "
               "URDF link on fixed joints below one (a tool link); the CoM and inertia are in its frame.")
-@click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
-              "whole system after the capture [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at "
-              "rest; 'unknown' to estimate it (the known servicer fixes the scale: no anchor needed).")
+@click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown|hold", help="Angular momentum of "
+              "the whole system after the capture [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at "
+              "rest; with --payload-velocity/--payload-rate the servicer's alone. 'hold' (with --grasp): the "
+              "servicer's over the 1 s before the grasp, its error carried into the payload's. 'unknown': estimated "
+              "with the payload (the known servicer fixes the scale; a base that turns steadily makes it nearly "
+              "collinear with the payload, and a warning says so).")
+@click.option("--grasp", type=float, metavar="T", help="The grasp instant [s] on the log's clock: the payload is "
+              "identified from T plus half the longest differentiator window (the rates blend the impact before) to "
+              "the end; with --momentum hold the servicer's momentum is averaged over the hold before T, and the "
+              "drift integrated from there (as 'spaceid experiment --capture' does).")
+@click.option("--payload-velocity", metavar="VX,VY[,VZ]", help="With --grasp, a payload that moved before the grasp: "
+              "the velocity of its CoM [m/s], inertial axes (relative to the servicer's CoM); its momentum, a "
+              "function of its parameters, joins the servicer's --momentum.")
+@click.option("--payload-rate", metavar="W|WX,WY,WZ", help="With --grasp: the payload's angular velocity before the "
+              "grasp [rad/s], about the vertical (planar) or inertial axes.")
 @noise_options
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
@@ -1128,22 +1140,31 @@ def export(result, prior_src, region, fmt, output):
 @SEED
 @bag_options
 @output("PAYLOAD.json to write.")
-def payload(model_src, log_path, planar, link, momentum, noise, differentiate, quantum, drift, seed, output, bag):
+def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity, payload_rate, noise, differentiate,
+            quantum, drift, seed, output, bag):
     """Identify the payload that LINK of the known servicer MODEL holds rigidly, from a LOG recorded
-    after the capture: its mass, centre of mass and inertia about the centre of mass (planar
-    motion: mass, CoM x and y, Izz), physically consistent, with standard errors. Noise levels not
-    given are estimated from the log; with every one zero the fit is unweighted."""
+    after the capture (or, with --grasp, from the part of it after the grasp): its mass, centre of
+    mass and inertia about the centre of mass (planar motion: mass, CoM x and y, Izz), physically
+    consistent, with standard errors. Noise levels not given are estimated from the log; with
+    every one zero the fit is unweighted."""
     from .data import write_json
     from .estimation import parse_drift
-    from .identified import identify_payload
+    from .identified import identify_payload, payload_after_grasp
     from .models import load_model
 
     model = load_model(model_src, planar=planar)
-    h = _momentum(momentum, model.planar, allow_unknown=True)
+    if momentum.strip().lower() == "hold" and grasp is None:
+        raise SpaceidError("--momentum hold needs --grasp T: the hold is the second of the log before the grasp")
+    h = "hold" if momentum.strip().lower() == "hold" else _momentum(momentum, model.planar, allow_unknown=True)
+    motion = _payload_motion(payload_velocity, payload_rate, grasp, h)
     kinds = parse_drift(drift, planar=model.planar, values=False)
     log = _measured_log(model, log_path, differentiate, quantum, bag)
     with _warnings_to_stderr():
-        res = identify_payload(model, log, link, h, noise=noise, drift=kinds, seed=seed, where=str(log_path))
+        if grasp is None:
+            res = identify_payload(model, log, link, h, noise=noise, drift=kinds, seed=seed, where=str(log_path))
+        else:
+            res = payload_after_grasp(model, log, link, grasp, h, payload_motion=motion, noise=noise, drift=kinds,
+                                      seed=seed, where=str(log_path))[0]  # fmt: skip
     write_json(output, res.to_dict())
     for name, value, std in zip(res.names, res.values, res.std):
         unit = {"m": "kg"}.get(name, "m" if name.startswith("c") else "kg m^2")
@@ -1151,10 +1172,31 @@ def payload(model_src, log_path, planar, link, momentum, noise, differentiate, q
     if res.not_identifiable:
         out.print(f"not identifiable from planar motion: {', '.join(res.not_identifiable)}", highlight=False)
     s = res.settings
+    if grasp is not None:
+        g, hold = s["grasp"], s["grasp"]["hold"]
+        held = "" if hold is None else (f"; the servicer's momentum over {hold['from']:.6g}..{hold['to']:.6g} s "
+                                        f"({hold['samples']} samples)")
+        out.print(f"window {g['window'][0]:.6g}..{g['window'][1]:.6g} s after the grasp at {grasp:g} s{held}",
+                  highlight=False)
     projected = " (projected to the nearest consistent estimate)" if s["consistency"]["projected"] else ""
     chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g}; "
     out.print(f"{s['estimator']}: {s['gauss_newton_steps']} steps; residual RMS {s['residual_rms']:.3g} N m s; {chi2}"
-              f"{log.n_samples} samples{projected}; written to {output}", highlight=False)
+              f"{s['n_samples']} samples{projected}; written to {output}", highlight=False)
+
+
+def _payload_motion(velocity, rate, grasp, momentum) -> tuple | None:
+    """``(velocity (3,), rate (3,))`` of --payload-velocity and --payload-rate, or None when neither."""
+    if velocity is None and rate is None:
+        return None
+    if grasp is None or momentum is None:
+        raise SpaceidError("--payload-velocity/--payload-rate need --grasp T and the servicer's --momentum (a value or "
+                           "'hold'): the payload's momentum is added to the servicer's at the grasp")
+    v = _number_list(velocity or "0,0", "--payload-velocity", float)
+    w = _number_list(rate or "0", "--payload-rate", float)
+    if len(v) not in (2, 3) or len(w) not in (1, 3) or not np.all(np.isfinite(v + w)):
+        raise SpaceidError(f"--payload-velocity needs 2 or 3 finite numbers [m/s] and --payload-rate 1 or 3 [rad/s], "
+                           f"got {velocity!r} and {rate!r}")
+    return np.array([*v, 0.0][:3]), np.array(w if len(w) == 3 else [0.0, 0.0, *w])
 
 
 def _number_list(value, option, kind):

@@ -5,11 +5,12 @@ and physically consistent standard parameters that reproduce an identification, 
 robot description.
 """
 
-from . import _com, _dynamics, _export, _files, _payload
+from . import _com, _dynamics, _export, _files, _grasp, _payload
 from ._com import *  # noqa: F403
 from ._dynamics import *  # noqa: F403
 from ._export import *  # noqa: F403
 from ._files import *  # noqa: F403
+from ._grasp import *  # noqa: F403
 from ._payload import *  # noqa: F403
 
-__all__ = [*_com.__all__, *_dynamics.__all__, *_export.__all__, *_files.__all__, *_payload.__all__]
+__all__ = [*_com.__all__, *_dynamics.__all__, *_export.__all__, *_files.__all__, *_grasp.__all__, *_payload.__all__]

@@ -35,13 +35,13 @@ from .._errors import SpaceidError
 from ..data import JOINT_RATE_POLICY, Log, read_bag_log, write_bag, write_json, write_log
 from ..dynamics import minimal_parameters
 from ..estimation import Identification, identify, resolve_anchors
-from ..identified import parameterization_of
+from ..identified import HOLD, mean_momentum, parameterization_of
 from ..models import load_model
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin
 from ._tracking import (check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings,
                         regressor_condition_number)
-from ._servicing import HOLD, CaptureProtocol, mean_momentum, run_servicing, write_servicing
+from ._servicing import CaptureProtocol, run_servicing, write_servicing
 from ._torque_validation import validate_torques
 from ._validate import validate
 

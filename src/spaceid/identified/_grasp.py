@@ -1,0 +1,166 @@
+"""The payload from a log cut at a grasp: :func:`payload_after_grasp` ('spaceid payload --grasp'
+and the servicing study, docs/theory/capture.md).
+
+The samples just after the grasp are left out: the rates jump at the impact, and a centred
+differentiator spreads the jump over the samples whose window holds it. The momentum after the
+grasp is given (zero: a capture from rest), estimated with the payload (a payload that moved:
+its momentum joined the servicer's), or the servicer's own, averaged over a hold before the
+grasp (the payload at rest carries none): its error, from the angle noise carried through the
+differentiators (or the white noise of measured rates), then joins the payload's covariance. A
+payload that moved adds its own momentum: given its velocity and rate, a function of its
+parameters (:class:`~spaceid.identified.GraspMotion`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from .._errors import SpaceidError
+from ..data import Log, quat_to_matrix
+from ..estimation import Noise, noise_from_log, signal_sigma
+from ..estimation._differentiated import differentiated_series, propagated_covariance
+from ..estimation._uncertainty import _correlation_length
+from ._payload import GraspMotion, PayloadMap, _equations, identify_payload, payload_map
+
+__all__ = ["HOLD", "hold_momentum", "mean_momentum", "payload_after_grasp"]
+
+HOLD = 1.0
+"""How long [s] before the grasp the servicer holds still (the study's arm at the end of the
+held-out phase): the samples the momentum before the grasp is averaged over."""
+HOLD_SAMPLES = 5
+"""Fewest samples of the hold that the momentum before the grasp is averaged over."""
+
+
+def mean_momentum(param, values, log: Log) -> np.ndarray:
+    """The inertial angular momentum [N m s] (3,) of the parameters ``values`` of ``param`` over
+    ``log``, the mean of its samples (from the measured joint and base rates)."""
+    h_base = np.zeros((log.n_samples, 3))
+    h_base[:, [2] if param.model.planar else [0, 1, 2]] = param.momentum(log.q, log.qd, log.base_w, values)
+    return np.einsum("nij,nj->ni", quat_to_matrix(log.base_quat), h_base).mean(axis=0)
+
+
+def hold_momentum(pmap: PayloadMap, still: Log, noise: Noise) -> tuple:
+    """The servicer's momentum over the samples ``still`` (no payload yet) and its covariance.
+
+    The mean's error is ``(1/N) sum_n R0_n e_n``, ``e_n`` the equation error of sample ``n`` at the
+    mean (base axes): first order in the signals' noise. Rates differentiated by Savitzky-Golay
+    carry the angle noise of the series behind them (:mod:`spaceid.estimation._differentiated`:
+    their errors are correlated over the window, so a few held samples average little of it);
+    every other signal is white at its ``noise`` level.
+
+    Parameters
+    ----------
+    pmap : PayloadMap
+        The servicer (its parameters without the payload).
+    still : Log
+        The hold's samples (cut from a longer record: its differentiation record is the record's).
+    noise : Noise
+        White noise levels of the signals not differentiated.
+
+    Returns
+    -------
+    (ndarray of shape (3,), ndarray of shape (3, 3))
+        Inertial momentum [N m s] and its covariance [(N m s)^2] (zero off the planar z axis).
+    """
+    h = mean_momentum(pmap.param, pmap.pi(np.zeros(pmap.n)), still)
+    eq = _equations(pmap, still, h, (), "hold")
+    x = eq.signals(still)
+    jac = eq.jacobian(x, np.zeros(0))
+    axes = np.ix_(eq.axes, eq.axes)
+    m = np.swapaxes(eq.rot[(slice(None), *axes)], -1, -2) / still.n_samples  # mean error: sum_n M_n^T e_n
+    series = differentiated_series(still) or []
+    cov = np.zeros((3, 3))
+    cov[axes] = propagated_covariance(series, still.t, m, jac, np.eye(len(eq.axes)), signal_sigma(pmap.param, noise))
+    return h, cov
+
+
+def payload_after_grasp(model, log: Log, link: str, grasp: float, momentum, *, payload_motion=None,
+                        end: float | None = None, noise: Noise | None = None, drift=(), seed: int = 0,
+                        where: str = "log") -> tuple:
+    """The payload identified from the samples of ``log`` after a grasp at ``grasp`` [s].
+
+    The window runs from half the longest differentiator window after the grasp to ``end``.
+
+    Parameters
+    ----------
+    model : Model or str or Path or PayloadMap
+        The known servicer without the payload.
+    log : Log
+        A record that spans the grasp (with ``momentum`` "hold": and the hold before it).
+    link : str
+        The link that holds the payload.
+    grasp : float
+        The grasp instant [s], on ``log``'s clock.
+    momentum : array_like of shape (3,) or None or "hold"
+        The inertial momentum after the grasp [N m s] (given: zero for a capture from rest), None
+        (estimated with the payload: nearly collinear with it when the base turns steadily, so a
+        payload that moved is better given by ``payload_motion``), or "hold": the servicer's
+        over ``HOLD`` s before the grasp (:func:`hold_momentum`; a payload at rest), with its
+        covariance carried into the payload's; with ``drift`` the drift is integrated from there.
+    payload_motion : tuple of two array_like of shape (3,), optional
+        A payload that moved before the grasp: the velocity of its CoM [m/s] and its angular
+        velocity [rad/s], inertial axes (:class:`~spaceid.identified.GraspMotion`, the servicer's
+        configuration at the grasp taken from ``log``); ``momentum`` is then the servicer's alone.
+    end : float, optional
+        Last instant of the window [s] (default: the end of ``log``).
+    noise, drift, seed, where
+        As :func:`spaceid.identified.identify_payload` (``noise`` omitted: estimated from the window;
+        the hold's from ``log``).
+
+    Returns
+    -------
+    (PayloadEstimate, Log)
+        The estimate (``settings["grasp"]`` records the window and the hold) and its window of ``log``.
+
+    Raises
+    ------
+    SpaceidError
+        The grasp outside the log, too few samples after it, or no hold before it.
+    """
+    if not log.t[0] < grasp < log.t[-1]:
+        raise SpaceidError(f"--grasp: {grasp:g} s is not inside {where} ({log.t[0]:.6g}..{log.t[-1]:.6g} s): give "
+                           "the grasp instant on the log's clock")
+    pmap = model if isinstance(model, PayloadMap) else payload_map(model, link, seed=seed)
+    margin = _correlation_length(log) / 2 * float(np.median(np.diff(log.t)))
+    end = log.t[-1] if end is None else end
+    after = (log.t > grasp + margin + 1e-9) & (log.t <= end + 1e-9)
+    if after.sum() < 2:
+        raise SpaceidError(f"--grasp: {where} has no samples from {grasp + margin:.6g} s (the grasp plus half the "
+                           "differentiator's window) on: record longer after the grasp")
+    window = replace(log.select(after), meta=dict(log.meta, window=[grasp + margin, float(end)]))
+    record = {"time": float(grasp), "window": [float(window.t[0]), float(window.t[-1])],
+              "window_start_after_grasp": float(window.t[0] - grasp), "hold": None}  # fmt: skip
+    history, cov = None, None
+    if isinstance(momentum, str):
+        if momentum != "hold":
+            raise SpaceidError(f"--momentum: {momentum!r} is not a value, 'unknown' or 'hold'")
+        still = _hold(log, grasp, margin, where)
+        momentum, cov = hold_momentum(pmap, still, noise_from_log(log) if noise is None else noise)
+        history = log.select((log.t >= still.t[len(still.t) // 2]) & (log.t <= window.t[-1] + 1e-9)) if drift else None
+        record["hold"] = {"from": float(still.t[0]), "to": float(still.t[-1]), "samples": still.n_samples,
+                          "momentum": momentum.tolist(), "momentum_std": np.sqrt(np.diag(cov)).tolist(),
+                          "drift_from": None if history is None else float(history.t[0])}  # fmt: skip
+    motion = None
+    if payload_motion is not None:
+        at = np.flatnonzero(log.t <= grasp)[-1]  # the configuration at the grasp (the angles do not jump)
+        motion = GraspMotion(*(np.asarray(v, float).reshape(3) for v in payload_motion), log.q[at],
+                             quat_to_matrix(log.base_quat[at]))  # fmt: skip
+        record["payload_motion"] = {"velocity": motion.velocity.tolist(), "rate": motion.rate.tolist(),
+                                    "configuration_at": float(log.t[at])}  # fmt: skip
+    estimate = identify_payload(pmap, window, link, momentum, grasp_motion=motion, momentum_cov=cov, noise=noise,
+                                drift=drift, history=history, seed=seed, where=where)  # fmt: skip
+    return replace(estimate, settings=estimate.settings | {"grasp": record}), window
+
+
+def _hold(log: Log, grasp: float, margin: float, where: str) -> Log:
+    """The samples of the hold before the grasp whose rates the grasp does not reach: at least
+    ``HOLD_SAMPLES`` (a differentiator window about as long as the hold: its middle samples)."""
+    hold = np.flatnonzero((log.t > grasp - HOLD + margin) & (log.t < grasp - margin))
+    if hold.size < HOLD_SAMPLES:
+        hold = np.sort(np.argsort(np.abs(log.t - (grasp - HOLD / 2)))[:HOLD_SAMPLES])
+    if log.t[hold[0]] < grasp - HOLD - 1e-9 or log.t[0] > grasp - HOLD:
+        raise SpaceidError(f"--momentum hold: {where} does not hold {HOLD:g} s before the grasp at {grasp:g} s: "
+                           "give the momentum after the grasp, or 'unknown'")
+    return log.select(hold)
