@@ -26,8 +26,9 @@ from scipy.stats import norm
 
 from ._drift import drift_basis, drift_names
 from ._equations import _split
-from ._estimators import _equation_whitener, _solve, _whitened
-from ._uncertainty import _correlation_length, _newey_west
+from ._estimators import _equation_whitener, _solve_factor, _whitened
+from ._stream import _chunks, _streamed_factor
+from ._uncertainty import _correlation_length, _hac, _mapped_scores
 
 DRIFT_ALPHA = 1e-3
 """Significance level of the drift test: the probability that it warns on a log without drift."""
@@ -55,7 +56,7 @@ def _leverage_adjusted(M, ginv, r):
     return np.einsum("nrs,ns->nr", np.linalg.pinv(np.eye(M.shape[1]) - H), r)  # pinv: a sample fitted exactly
 
 
-def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
+def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None) -> dict:
     """Whether the residuals of a drift-free identification show an unmodelled drift.
 
     Parameters
@@ -63,7 +64,8 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
     eq : _Equations
         The equations identified (without drift terms).
     x, phi : ndarray
-        Their signals ``(n, n_x)`` and stacked ``[A | -b]`` ``(n, rows, p + 1)``.
+        Their signals ``(n, n_x)`` and stacked ``[A | -b]`` ``(n, rows, p + 1)``; ``phi`` None: built
+        a chunk at a time.
     sigma : ndarray of shape (n_x,)
         Signal noise levels (whitening; unused for ``ols``).
     theta : ndarray of shape (p,)
@@ -73,6 +75,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
     whitener : ndarray of shape (n, rows, rows), optional
         Cholesky factors of the equation-error covariances to whiten by (the estimator's own: ML's at
         the corrected signals); default: at the measured signals and ``theta``.
+    chunk : int, optional
+        With ``phi`` None: samples per chunk. The test is then a pass for the factor of the equations
+        with the drift columns (two to four more to refine its solution) and one for the scores and
+        residuals (:mod:`spaceid.estimation._stream`), the same sums as on the whole log.
 
     Returns
     -------
@@ -83,30 +89,48 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
         and ``drift`` (True when the test rejects: the caller warns).
     """
     names = drift_names(_CANDIDATES, eq.planar)[0]
+    n, p, q = len(x), eq.p, len(names)
     rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
-    cols = -np.einsum("nri,nki->nrk", rot_t, drift_basis(log, _CANDIDATES))  # (n, rows, q)
-    full = np.concatenate([phi[..., :-1], cols, phi[..., -1:]], -1)
-    if estimator != "ols":
-        L = _equation_whitener(eq, x, theta, sigma) if whitener is None else whitener
-        full = _whitened(L, full)
-    white = full[..., : eq.p] @ theta + full[..., -1]  # whitened residuals of the drift-free fit
-    A, b = _split(full)
-    est, ginv = _solve(A, b)
-    r = full @ np.append(est, 1.0)
-    M = full[..., :-1]
-    cov = _newey_west(ginv, M, _leverage_adjusted(M, ginv, r), _correlation_length(log), len(est), dof_scale=False)
-    d, cdd = est[eq.p :], cov[eq.p :, eq.p :]
+    basis = drift_basis(log, _CANDIDATES)
+
+    def chunks():  # (rows, whitened [A | C | -b], drift columns C, b) of each chunk, C (k, rows, q)
+        parts = [(slice(None), eq, x, phi)] if phi is not None else ((sl, e, xc, e.phi(xc)) for sl, e, xc in
+                                                                      _chunks(eq, x, chunk))  # fmt: skip
+        for sl, e, xc, ph in parts:
+            cols = -np.einsum("nri,nki->nrk", rot_t[sl], basis[sl])
+            full = np.concatenate([ph[..., :-1], cols, ph[..., -1:]], -1)
+            if estimator != "ols":
+                full = _whitened(_equation_whitener(e, xc, theta, sigma) if whitener is None else whitener[sl], full)
+            yield sl, full, cols, _split(ph)[1]
+
+    if phi is not None:  # in memory: built once for every pass
+        built = list(chunks())
+        chunks = lambda: iter(built)  # noqa: E731
+    est, ginv = _solve_factor(*_streamed_factor(lambda: (_split(full) for _, full, _, _ in chunks()), p + q)[::-1])
+    d = est[p:]
+    white = np.empty((n, eq.param.rows))  # whitened residuals of the drift-free fit
+    sums = {"change": 0.0, "square": 0.0}
+
+    def scores():  # the leverage-adjusted scores of the fit with the drift columns, mapped by ginv
+        for sl, full, cols, b in chunks():
+            white[sl] = full[..., :p] @ theta + full[..., -1]
+            M = full[..., :-1]
+            sums["change"] = max(sums["change"], float(np.abs(cols @ d).max()))
+            sums["square"] += float(np.sum(b**2))
+            yield _mapped_scores(ginv, M, _leverage_adjusted(M, ginv, full @ np.append(est, 1.0)))
+
+    cov = _hac(scores(), _correlation_length(log), p + q, dof_scale=False)
+    cdd = cov[p:, p:]
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
-    p_value = float(f_dist.sf(wald / len(d), len(d), max(r.size - len(est), 1)))
-    b_raw = _split(phi)[1]
-    change = np.abs(cols @ d).max() / max(float(np.sqrt(np.mean(b_raw**2))), 1e-300)
+    p_value = float(f_dist.sf(wald / q, q, max(white.size - p - q, 1)))
+    change = sums["change"] / max(float(np.sqrt(sums["square"] / white.size)), 1e-300)
     rho = _lag1(white)
     return {
         "alpha": DRIFT_ALPHA,
         "terms": list(names),
         "trend": dict(zip(names, d.tolist())),
         "wald": wald,
-        "dof": len(d),
+        "dof": q,
         "p_value": p_value,
         "relative_drift": float(change),
         "lag1_autocorrelation": rho,

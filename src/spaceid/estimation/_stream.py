@@ -43,7 +43,7 @@ from ._equations import _split
 from ._estimators import (_accumulate_factor, _accumulate_gram, _blockwise, _equation_whitener, _gram_matrix_factor,
                           _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich, _solve_factor,
                           _whitened, _whitened_gram)  # fmt: skip
-from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores
+from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores, _with_propagated
 
 __all__ = ["STREAMED"]
 
@@ -210,28 +210,32 @@ def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimate
     last evaluation) and, when the covariance follows the residuals or is the instruments' sandwich,
     a pass for the Newey-West sum of the scores or the sandwich (see
     :func:`~spaceid.estimation._uncertainty._covariance_terms` for ``M`` and the scored residuals)."""
-    if estimator == "ml":
-        L, r = info.pop("whitener"), info.pop("residuals")
+    if estimator == "ml":  # its whitener stays for the drift test
+        L, r = info["whitener"], info.pop("residuals")
         bread = _solve_factor(*info.pop("factor")[::-1])[1]
     else:
         r, L, bread = _residual_pass(eq, x, sigma, theta, estimator, info, ctx, chunk)
+        if L is not None:  # the drift test whitens by the same factors: not formed again
+            info["whitener"] = L
     white = None if L is None else _whitened(L, r[..., None])[..., 0]
     chi2, checks, choice = _covariance_choice(eq, r, white, estimator, log, estimated)
     q, qd = ctx.get("reference", (None, None))
     theta_z = info.pop("theta_z", None)
 
-    def influence():  # M_c of each chunk
+    def influence():  # M_c of each chunk, its samples and their equations
         for sl, e, xc in _chunks(eq, x, chunk):
             if estimator == "iv":
-                yield sl, _instrument_rows(e, xc, theta_z, (q[sl], qd[sl])).reshape(-1, eq.param.rows, eq.p)
+                yield sl, _instrument_rows(e, xc, theta_z, (q[sl], qd[sl])).reshape(-1, eq.param.rows, eq.p), e, xc
             else:
-                yield sl, e.phi(xc)[..., :-1]
+                yield sl, e.phi(xc)[..., :-1], e, xc
 
     if choice["covariance_from_residuals"]:
         scored = _inverse_times(L, r[..., None])[..., 0] if estimator in WEIGHTED else r
-        cov_t = _hac((_mapped_scores(bread, M, scored[sl]) for sl, M in influence()), choice["bandwidth"], eq.p)
+        cov_t = _hac((_mapped_scores(bread, M, scored[sl]) for sl, M, _, _ in influence()), choice["bandwidth"], eq.p)
+        cov_t = _with_propagated(cov_t, choice, log, estimator, bread, sigma, lambda: (
+            (sl, M, None if L is None else L[sl], e.jacobian(xc, theta)) for sl, M, e, xc in influence()))
     elif estimator in WEIGHTED:  # the noise model's sandwich is the bread (_model_covariance)
         cov_t = bread * choice["variance_factor"]
     else:
-        cov_t = sum(_sandwich(bread, M, L[sl]) for sl, M in influence()) * choice["variance_factor"]
+        cov_t = sum(_sandwich(bread, M, L[sl]) for sl, M, _, _ in influence()) * choice["variance_factor"]
     return cov_t, float(np.sqrt(np.mean(r**2))), _covariance_record(chi2, checks, choice, log, estimated)
