@@ -25,7 +25,6 @@ from scipy.stats import f as f_dist
 from scipy.stats import norm
 
 from ._drift import drift_basis, drift_names
-from ._equations import _split
 from ._estimators import _equation_whitener, _solve_factor, _whitened
 from ._stream import _chunks, _streamed_factor
 from ._uncertainty import _correlation_length, _hac, _mapped_scores
@@ -76,9 +75,11 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         Cholesky factors of the equation-error covariances to whiten by (the estimator's own: ML's at
         the corrected signals); default: at the measured signals and ``theta``.
     chunk : int, optional
-        With ``phi`` None: samples per chunk. The test is then a pass for the factor of the equations
-        with the drift columns (two to four more to refine its solution) and one for the scores and
-        residuals (:mod:`spaceid.estimation._stream`), the same sums as on the whole log.
+        With ``phi`` None: samples per chunk (:mod:`spaceid.estimation._stream`). The test is two passes
+        either way, the sums being the same: the Gram matrix of the equations with the drift columns
+        and their correlation with the residuals of ``theta``, whose least squares is the refit's
+        correction to ``theta`` (as accurate as one refinement step from the refined ``theta``: no
+        passes to refine it), then the scores and the fitted drift.
 
     Returns
     -------
@@ -101,29 +102,37 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
             full = np.concatenate([ph[..., :-1], cols, ph[..., -1:]], -1)
             if estimator != "ols":
                 full = _whitened(_equation_whitener(e, xc, theta, sigma) if whitener is None else whitener[sl], full)
-            yield sl, full, cols, _split(ph)[1]
+            yield sl, full, cols, ph[..., -1]  # -b
 
-    if phi is not None:  # in memory: built once for every pass
+    if phi is not None:  # in memory: built once for both passes
         built = list(chunks())
         chunks = lambda: iter(built)  # noqa: E731
-    est, ginv = _solve_factor(*_streamed_factor(lambda: (_split(full) for _, full, _, _ in chunks()), p + q)[::-1])
-    d = est[p:]
     white = np.empty((n, eq.param.rows))  # whitened residuals of the drift-free fit
-    sums = {"change": 0.0, "square": 0.0}
+    square = []
+
+    def corrections():  # the refit as a correction of theta: [A | C] (delta, d) = -white, in least squares
+        for sl, full, _, b in chunks():
+            white[sl] = full[..., :p] @ theta + full[..., -1]
+            square.append(float(np.sum(b**2)))
+            yield full[..., :-1].reshape(-1, p + q), -white[sl].ravel()
+
+    # From the Gram matrix without refinement passes: its rounding, eps cond^2, is relative to the correction
+    # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
+    step, ginv = _solve_factor(*_streamed_factor(corrections, p + q, refined=False)[::-1])
+    est, d = np.append(theta, np.zeros(q)) + step, step[p:]
+    change = []
 
     def scores():  # the leverage-adjusted scores of the fit with the drift columns, mapped by ginv
-        for sl, full, cols, b in chunks():
-            white[sl] = full[..., :p] @ theta + full[..., -1]
+        for _, full, cols, _ in chunks():
             M = full[..., :-1]
-            sums["change"] = max(sums["change"], float(np.abs(cols @ d).max()))
-            sums["square"] += float(np.sum(b**2))
+            change.append(float(np.abs(cols @ d).max()))
             yield _mapped_scores(ginv, M, _leverage_adjusted(M, ginv, full @ np.append(est, 1.0)))
 
     cov = _hac(scores(), _correlation_length(log), p + q, dof_scale=False)
     cdd = cov[p:, p:]
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     p_value = float(f_dist.sf(wald / q, q, max(white.size - p - q, 1)))
-    change = sums["change"] / max(float(np.sqrt(sums["square"] / white.size)), 1e-300)
+    change = max(change) / max(float(np.sqrt(sum(square) / white.size)), 1e-300)
     rho = _lag1(white)
     return {
         "alpha": DRIFT_ALPHA,
