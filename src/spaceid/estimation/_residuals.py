@@ -55,6 +55,17 @@ def _leverage_adjusted(M, ginv, r):
     return np.einsum("nrs,ns->nr", np.linalg.pinv(np.eye(M.shape[1]) - H), r)  # pinv: a sample fitted exactly
 
 
+def _drift_equations(phi, rot_t, basis, L) -> tuple:
+    """The equations of ``phi = [A | -b] (k, rows, p + 1)`` with the drift columns ``C (k, rows, q)``
+    of the momentum change ``basis (k, q, 3)`` seen in the base axes ``rot_t (k, rows, 3)``: ``[A | C]``
+    and ``-b (k, rows)`` whitened by ``L (k, rows, rows)`` (None: as they are), ``C`` and ``|b|^2``."""
+    cols = -np.einsum("nri,nki->nrk", rot_t, basis)
+    M, rhs = np.concatenate([phi[..., :-1], cols], -1), phi[..., -1]
+    if L is not None:
+        M, rhs = _whitened(L, M), _whitened(L, rhs[..., None])[..., 0]
+    return M, rhs, cols, float(np.sum(phi[..., -1] ** 2))
+
+
 def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None) -> dict:
     """Whether the residuals of a drift-free identification show an unmodelled drift.
 
@@ -94,15 +105,11 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
     basis = drift_basis(log, _CANDIDATES)
 
-    def chunks():  # (rows, whitened [A | C | -b], drift columns C, b) of each chunk, C (k, rows, q)
-        parts = [(slice(None), eq, x, phi)] if phi is not None else ((sl, e, xc, e.phi(xc)) for sl, e, xc in
-                                                                      _chunks(eq, x, chunk))  # fmt: skip
-        for sl, e, xc, ph in parts:
-            cols = -np.einsum("nri,nki->nrk", rot_t[sl], basis[sl])
-            full = np.concatenate([ph[..., :-1], cols, ph[..., -1:]], -1)
-            if estimator != "ols":
-                full = _whitened(_equation_whitener(e, xc, theta, sigma) if whitener is None else whitener[sl], full)
-            yield sl, full, cols, ph[..., -1]  # -b
+    def chunks():  # :func:`_drift_equations` of each chunk, after its rows
+        for sl, e, xc in [(slice(None), eq, x)] if phi is not None else _chunks(eq, x, chunk):
+            L = None if estimator == "ols" else whitener[sl] if whitener is not None else _equation_whitener(
+                e, xc, theta, sigma)
+            yield sl, *_drift_equations(e.phi(xc) if phi is None else phi, rot_t[sl], basis[sl], L)
 
     if phi is not None:  # in memory: built once for both passes
         built = list(chunks())
@@ -111,10 +118,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     square = []
 
     def corrections():  # the refit as a correction of theta: [A | C] (delta, d) = -white, in least squares
-        for sl, full, _, b in chunks():
-            white[sl] = full[..., :p] @ theta + full[..., -1]
-            square.append(float(np.sum(b**2)))
-            yield full[..., :-1].reshape(-1, p + q), -white[sl].ravel()
+        for sl, M, rhs, _, b2 in chunks():
+            white[sl] = M @ np.append(theta, np.zeros(q)) + rhs
+            square.append(b2)
+            yield M.reshape(-1, p + q), -white[sl].ravel()
 
     # From the Gram matrix without refinement passes: its rounding, eps cond^2, is relative to the correction
     # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
@@ -123,10 +130,9 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     change = []
 
     def scores():  # the leverage-adjusted scores of the fit with the drift columns, mapped by ginv
-        for _, full, cols, _ in chunks():
-            M = full[..., :-1]
+        for _, M, rhs, cols, _ in chunks():
             change.append(float(np.abs(cols @ d).max()))
-            yield _mapped_scores(ginv, M, _leverage_adjusted(M, ginv, full @ np.append(est, 1.0)))
+            yield _mapped_scores(ginv, M, _leverage_adjusted(M, ginv, M @ est + rhs))
 
     cov = _hac(scores(), _correlation_length(log), p + q, dof_scale=False)
     cdd = cov[p:, p:]

@@ -23,12 +23,18 @@ each pass rebuilding the chunk's equations ``[A | -b]`` (``N x rows x (p + 1)``)
   and the choice of covariance need them all) and the whiteners (``n x rows x rows``; ML brings
   both from its last evaluation), then, when the covariance follows the residuals, a pass for the
   sandwich or the Newey-West sum of the scores, whose lags reach back across chunks
-  (:func:`~spaceid.estimation._uncertainty._hac`).
+  (:func:`~spaceid.estimation._uncertainty._hac`), and for rates differentiated by Savitzky-Golay
+  a pass for the angle noise propagated through the filters, the rows under the windows that
+  straddle a chunk's end carried to the next
+  (:func:`~spaceid.estimation._differentiated.propagated_covariance`);
+- the residual test for an unmodelled drift: two passes
+  (:func:`~spaceid.estimation._residuals.drift_test`).
 
-Kept for the whole log: the signals ``x (n, n_x)``, the attitudes, the residuals and the whiteners,
-``O(n (n_x + 12))`` values, and for ML the corrected signals of two estimates; never the
-``n x rows x p`` regressor. Time is linear in the samples. The total least squares (an SVD of the
-whole regressor) and the angles estimator are in memory only.
+Kept for the whole log: the signals ``x (n, n_x)``, the attitudes, the residuals, the whiteners
+and the drift test's whitened residuals and drift columns' basis, ``O(n (n_x + 30))`` values, and
+for ML the corrected signals of two estimates; never the ``n x rows x p`` regressor. Time is linear
+in the samples. The total least squares (an SVD of the whole regressor) and the angles estimator
+are in memory only.
 """
 
 from __future__ import annotations
@@ -209,7 +215,9 @@ def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimate
     (a pass, :func:`_residual_pass`; ML brings them and the factor of its whitened equations from its
     last evaluation) and, when the covariance follows the residuals or is the instruments' sandwich,
     a pass for the Newey-West sum of the scores or the sandwich (see
-    :func:`~spaceid.estimation._uncertainty._covariance_terms` for ``M`` and the scored residuals)."""
+    :func:`~spaceid.estimation._uncertainty._covariance_terms` for ``M`` and the scored residuals), and
+    one for the propagated covariance of differentiated rates. The whiteners stay in ``info["whitener"]``
+    for the drift test."""
     if estimator == "ml":  # its whitener stays for the drift test
         L, r = info["whitener"], info.pop("residuals")
         bread = _solve_factor(*info.pop("factor")[::-1])[1]
