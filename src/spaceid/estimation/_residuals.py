@@ -38,10 +38,12 @@ DRIFT_FLOOR = 1e-6
 _CANDIDATES = ("torque", "viscous")
 
 
-def _lag1(white):
-    """Lag-1 autocorrelation of residuals ``(n, rows)`` in time order (rows pooled)."""
-    den = float(np.sum(white**2))
-    return float(np.sum(white[1:] * white[:-1]) / den) if den > 0 else 0.0
+def _serial_sums(white, before) -> np.ndarray:
+    """``sum r_n^2``, ``sum r_n r_(n-1)`` and ``sum (r_n - r_(n-1))^2`` (rows pooled) of the residuals
+    ``white (k, rows)`` of a chunk in time order, ``before (rows,)`` the previous chunk's last (None for
+    the first): the lag-1 autocorrelation and the Durbin-Watson statistic are ratios of their totals."""
+    w = white if before is None else np.vstack([before, white])
+    return np.array([np.sum(white**2), np.sum(w[1:] * w[:-1]), np.sum(np.diff(w, axis=0) ** 2)])
 
 
 def _leverage_adjusted(M, ginv, r):
@@ -114,14 +116,14 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     if phi is not None:  # in memory: built once for both passes
         built = list(chunks())
         chunks = lambda: iter(built)  # noqa: E731
-    white = np.empty((n, eq.param.rows))  # whitened residuals of the drift-free fit
-    square = []
+    sums = {"b2": 0.0, "serial": np.zeros(3), "last": None}  # of b and of the whitened residuals of theta
 
     def corrections():  # the refit as a correction of theta: [A | C] (delta, d) = -white, in least squares
-        for sl, M, rhs, _, b2 in chunks():
-            white[sl] = M @ np.append(theta, np.zeros(q)) + rhs
-            square.append(b2)
-            yield M.reshape(-1, p + q), -white[sl].ravel()
+        for _, M, rhs, _, b2 in chunks():
+            white = M @ np.append(theta, np.zeros(q)) + rhs
+            sums["b2"], sums["serial"] = sums["b2"] + b2, sums["serial"] + _serial_sums(white, sums["last"])
+            sums["last"] = white[-1]
+            yield M.reshape(-1, p + q), -white.ravel()
 
     # From the Gram matrix without refinement passes: its rounding, eps cond^2, is relative to the correction
     # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
@@ -137,9 +139,11 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     cov = _hac(scores(), _correlation_length(log), p + q, dof_scale=False)
     cdd = cov[p:, p:]
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
-    p_value = float(f_dist.sf(wald / q, q, max(white.size - p - q, 1)))
-    change = max(change) / max(float(np.sqrt(sum(square) / white.size)), 1e-300)
-    rho = _lag1(white)
+    size = n * eq.param.rows
+    p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))
+    change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
+    square, lagged, differences = sums["serial"]
+    rho = float(lagged / square) if square > 0 else 0.0
     return {
         "alpha": DRIFT_ALPHA,
         "terms": list(names),
@@ -149,7 +153,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         "p_value": p_value,
         "relative_drift": float(change),
         "lag1_autocorrelation": rho,
-        "durbin_watson": float(np.sum(np.diff(white, axis=0) ** 2) / max(float(np.sum(white**2)), 1e-300)),
-        "whiteness_p_value": float(norm.sf(rho * np.sqrt(len(white)))),
+        "durbin_watson": float(differences / max(square, 1e-300)),
+        "whiteness_p_value": float(norm.sf(rho * np.sqrt(n))),
         "drift": bool(p_value < DRIFT_ALPHA and change > DRIFT_FLOOR),
     }
