@@ -31,8 +31,8 @@ each pass rebuilding the chunk's equations ``[A | -b]`` (``N x rows x (p + 1)``)
   (:func:`~spaceid.estimation._residuals.drift_test`).
 
 Kept for the whole log: the signals ``x (n, n_x)``, the attitudes, the residuals, the whiteners
-and the drift test's whitened residuals and drift columns' basis, ``O(n (n_x + 30))`` values, and
-for ML the corrected signals of two estimates; never the ``n x rows x p`` regressor. Time is linear
+and the drift test's momentum change per drift coefficient, ``O(n (n_x + 24))`` values, and for ML
+the corrected signals of two estimates; never the ``n x rows x p`` regressor. Time is linear
 in the samples. The total least squares (an SVD of the whole regressor) and the angles estimator
 are in memory only.
 """
