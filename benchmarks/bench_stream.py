@@ -14,16 +14,20 @@ the estimators use (2 Python threads over one-threaded BLAS, and 1); the imports
 identify`` (matplotlib or not). Log CSVs (``--parts csv``): the same logs written with
 ``write_log`` and identified by ``spaceid identify LOG.csv --chunk N`` in a child process each
 (the CSV read in blocks, then streamed): peak RSS and CPU time of that process, read included.
-Reading (``--parts read``): ``read_log`` of one such CSV with each source tree of ``--sources``
-(e.g. this one and a baseline), alternated: CPU time, rows per second, peak RSS. Prints only,
+Reading (``--parts read``): ``read_log`` of one such CSV with this source tree and, with
+``--baseline``, the other one, alternated: CPU time, rows per second, peak RSS. Prints only,
 never fails on timings.
+
+With ``--baseline SRC`` every case also runs on another checkout's sources (e.g. the commit before
+a change), alternated with this one's, ``--repeats`` times (the medians are printed).
 
     python benchmarks/bench_stream.py [--samples 10000 100000 1000000] [--estimators ols ml]
         [--chunk 4096] [--memory-up-to 10000] [--parts stream fixed csv read] [--csv-dir DIR]
-        [--read-samples 200000] [--sources src BASELINE/src] [--repeats 3]
+        [--read-samples 200000] [--repeats 3] [--baseline SRC]
 """
 
 import argparse
+import itertools
 import json
 import os
 import resource
@@ -76,9 +80,11 @@ def child(n, estimator, chunk):
                       "iterations": info.get("iterations", 0)}))  # fmt: skip
 
 
-def run_child(n, estimator, chunk):
+def run_child(n, estimator, chunk, src=None):
+    """The child's figures, with ``src`` first on its path (another checkout's sources) when given."""
+    env = dict(os.environ, PYTHONPATH=src) if src else None
     out = subprocess.run([sys.executable, __file__, "--child", str(n), estimator, str(chunk)], capture_output=True,
-                         text=True)  # fmt: skip
+                         text=True, env=env)  # fmt: skip
     if out.returncode:
         return {"error": out.stderr.strip().splitlines()[-1]}
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -87,18 +93,23 @@ def run_child(n, estimator, chunk):
 def streaming(args):
     print(f"servicer-dual, 1e-3 noise; streamed in chunks of {args.chunk} samples, and in memory up to "
           f"{args.memory_up_to} samples (fresh process each; peak RSS of the process, log synthesis included)")
-    print(f"{'samples':>9} {'estimator':>9} {'mode':>9} {'wall s':>8} {'us/sample':>10} {'CPU us/sample':>13} "
+    print(f"{'samples':>9} {'estimator':>9} {'mode':>13} {'wall s':>8} {'us/sample':>10} {'CPU us/sample':>13} "
           f"{'peak RSS MB':>11} {'log RSS MB':>10} {'iter':>5} {'max z':>6} {'load':>5}")
+    codes = [("", None)] + ([("base ", args.baseline)] if args.baseline else [])
     for n in args.samples:
         for estimator in args.estimators:
             modes = [("streamed", args.chunk)] + ([("memory", 0)] if n <= args.memory_up_to else [])
-            for mode, chunk in modes:
-                r = run_child(n, estimator, chunk)
-                if "error" in r:
-                    print(f"{n:>9} {estimator:>9} {mode:>9} failed: {r['error']}")
+            runs = {}
+            for _ in range(args.repeats):  # the codes and modes alternated, so that a load change hits all
+                for (code, src), (mode, chunk) in itertools.product(codes, modes):
+                    runs.setdefault(code + mode, []).append(run_child(n, estimator, chunk, src))
+            for mode, rs in runs.items():
+                if any("error" in r for r in rs):
+                    print(f"{n:>9} {estimator:>9} {mode:>13} failed: {next(r for r in rs if 'error' in r)['error']}")
                     continue
-                print(f"{n:>9} {estimator:>9} {mode:>9} {r['wall']:8.1f} {1e6 * r['wall'] / n:10.1f} "
-                      f"{1e6 * r['cpu'] / n:13.1f} {r['rss_mb']:11.0f} {r['rss_log_mb']:10.0f} {r['iterations']:5d} "
+                r = {key: float(np.median([r[key] for r in rs])) for key in rs[0]}  # medians of the repeats
+                print(f"{n:>9} {estimator:>9} {mode:>13} {r['wall']:8.1f} {1e6 * r['wall'] / n:10.1f} "
+                      f"{1e6 * r['cpu'] / n:13.1f} {r['rss_mb']:11.0f} {r['rss_log_mb']:10.0f} {r['iterations']:5.0f} "
                       f"{r['z_max']:6.2f} {r['load']:5.1f}", flush=True)  # fmt: skip
 
 
@@ -157,7 +168,7 @@ def csv_logs(args):
 
 
 def csv_reads(args):
-    """``read_log`` of one servicer-dual log CSV in a child process per source tree (``--sources``),
+    """``read_log`` of one servicer-dual log CSV in a child process per source tree (``src``, then ``--baseline``),
     alternated, median of ``--repeats``: CPU time of the read alone, rows per second, peak RSS."""
     n = args.read_samples
     code = ("import sys, time, warnings, spaceid; from spaceid.data import read_log; "
@@ -166,9 +177,9 @@ def csv_reads(args):
     with tempfile.TemporaryDirectory(dir=args.csv_dir) as folder:
         path = os.path.join(folder, "servicer.csv")
         write_servicer_csv(n, path)
-        runs = {src: [] for src in args.sources}
+        runs = {src: [] for src in ["src"] + ([args.baseline] if args.baseline else [])}
         for _ in range(args.repeats):  # alternated, so that a load change hits all
-            for src in args.sources:
+            for src in runs:
                 runs[src].append(measured([sys.executable, "-c", code, path],
                                           dict(os.environ, PYTHONPATH=os.path.abspath(src))))
         print(f"\nread_log of a servicer-dual log CSV of {n} rows ({os.path.getsize(path) / 1e6:.0f} MB) in child "
@@ -232,8 +243,8 @@ def main():
     parser.add_argument("--parts", nargs="+", default=["stream", "fixed"], choices=["stream", "fixed", "csv", "read"])
     parser.add_argument("--csv-dir", help="folder for the log CSVs (default: the temporary folder)")
     parser.add_argument("--read-samples", type=int, default=200_000, help="rows of the CSV that 'read' parses")
-    parser.add_argument("--sources", nargs="+", default=["src"], help="'read': source trees to compare")
-    parser.add_argument("--repeats", type=int, default=3, help="'read': runs per source tree")
+    parser.add_argument("--repeats", type=int, default=1, help="runs of each case (medians printed)")
+    parser.add_argument("--baseline", help="another checkout's src/ folder: each case also run with it ('base')")
     parser.add_argument("--child", nargs=3, help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.child:

@@ -54,9 +54,26 @@ def test_propagated_covariance_is_the_differentiators_own(record):
     M, J = rng.standard_normal((n, 1, p)), rng.standard_normal((n, 1, n_x))
     series = differentiated_series(record)
     assert len(series) == len(record.joints) + 1  # every joint, and the base yaw
-    got = propagated_covariance(series, record.t, M, J, np.eye(p), np.zeros(n_x))
+    got = propagated_covariance(series, record.t, [(slice(None), M, J)], np.eye(p), np.zeros(n_x))
     want = _brute_force(record, M, J, None)
     assert np.allclose(got, want, rtol=1e-10, atol=1e-12 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("chunk", [2, 7, 20])
+def test_propagated_covariance_in_chunks_is_the_whole_logs(record, chunk):
+    """Chunks shorter than the filters' windows (and not dividing the log): the rows of the windows that
+    straddle a chunk's end are carried over, and the covariance is that of the log at once to round-off."""
+    rng = np.random.default_rng(5)
+    n, p = record.n_samples, 4
+    n_x = 2 * len(record.joints) + 1
+    M, J = rng.standard_normal((n, 2, p)), rng.standard_normal((n, 2, n_x))
+    sigma = np.where(np.arange(n_x) == 1, 0.3, 0.0)  # one signal white: the uncovered terms too
+    series = differentiated_series(record)[1:]  # the first joint's angle and rate left to sigma
+    assert record.n_samples % chunk and chunk < min(s[0]["window"] for s in series)
+    whole = propagated_covariance(series, record.t, [(slice(None), M, J)], np.eye(p), sigma)
+    parts = [(sl, M[sl], J[sl]) for sl in (slice(s, min(s + chunk, n)) for s in range(0, n, chunk))]
+    got = propagated_covariance(series, record.t, parts, np.eye(p), sigma)
+    assert np.abs(got - whole).max() <= 1e-13 * np.abs(whole).max()
 
 
 def test_a_window_cut_from_a_longer_record_takes_centred_filters(record):
@@ -70,7 +87,8 @@ def test_a_window_cut_from_a_longer_record_takes_centred_filters(record):
     M[rows], J[rows] = rng.standard_normal((len(rows), 1, p)), rng.standard_normal((len(rows), 1, n_x))
     whole = _brute_force(record, M, J, None)
     cut = record.select(rows)
-    got = propagated_covariance(differentiated_series(cut), cut.t, M[rows], J[rows], np.eye(p), np.zeros(n_x))
+    got = propagated_covariance(differentiated_series(cut), cut.t, [(slice(None), M[rows], J[rows])], np.eye(p),
+                                np.zeros(n_x))
     assert np.allclose(got, whole, rtol=1e-10, atol=1e-12 * np.abs(whole).max())
 
 

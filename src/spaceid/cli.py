@@ -605,8 +605,8 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "(base_x, base_y or base_px, base_py, base_pz [m]; zero linear momentum): RESULT.json field 'com'.")
 @click.option("--chunk", type=int, help="Stream the identification (--estimator ml, wls, iv or ols): build the "
               "equations this many samples at a time, so that memory does not grow with the regressor (e.g. 4096 for "
-              "long logs of large robots); the result agrees with the in-memory one to round-off; no drift residual "
-              "test.")
+              "long logs of large robots); the result agrees with the in-memory one to round-off, the drift residual "
+              "test and the covariance of differentiated rates included.")
 @bag_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,

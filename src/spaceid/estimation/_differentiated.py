@@ -74,35 +74,38 @@ def differentiated_series(log: Log) -> list | None:
     return series or None
 
 
-def _filter(record: dict, t: np.ndarray):
-    """The Savitzky-Golay filter of one series at the log's stamps ``t (n,)``: the grid indices
-    ``(n, window)`` and the value and rate weights ``(n, window)``, on a uniform grid at the
-    series' step (see the module's description). On a uniform grid a row's weights depend only on
-    its place in its window (centred, or shifted inwards at the ends): one fit per place."""
+def _grid(record: dict, t: np.ndarray) -> tuple:
+    """Where the Savitzky-Golay filter of one series reads the raw samples for the log's stamps
+    ``t (n,)``, on a uniform grid at the series' step (see the module's description): the first
+    grid index of each sample's window ``(n,)`` and the sample's place in it ``(n,)`` (centred, or
+    shifted inwards at the ends, as the differentiator's)."""
     step, window = record["step"], record["window"]
     whole = t[-1] - t[0] >= (record["n_samples"] - 1.5) * step  # the log is the whole record
     pad = 0 if whole else window // 2
     count = max(int(round((t[-1] - t[0]) / step)) + 1 + 2 * pad, window)
     rows = np.clip(np.rint((t - t[0]) / step).astype(int) + pad, 0, count - 1)
-    first = np.clip(rows - window // 2, 0, count - window)  # each row's window, as the differentiator's
-    places, which = np.unique(rows - first, return_inverse=True)
-    _, smooth, rate = savgol_weights(step * np.arange(window), places, window, record["order"])
-    return first[:, None] + np.arange(window), smooth[which], rate[which]
+    first = np.clip(rows - window // 2, 0, count - window)
+    return first, rows - first
 
 
-def _series_scores(record, value, rate, t, M, J):
-    """``K_s (m_s, p)`` of one series: its filters transposed onto the rows ``U_c = sum_r J[:, r, c] M[:, r]``
-    of its smoothed angle ``value`` and rate ``rate`` columns."""
-    idx, smooth, slope = _filter(record, t)
-    n, width = idx.shape
-    rows = np.repeat(np.arange(n), width)
-    size = int(idx.max()) + 1
+def _series_part(record, value, rate, first, place, M, J) -> tuple:
+    """The part of ``K_s`` that samples ``(k,)`` give, their windows at grid indices ``first`` and
+    their places ``place`` (:func:`_grid`), ``M (k, rows, p)``, ``J (k, rows, n_x)``: the grid index
+    of its first row and its rows ``W_c^T U_c`` for the smoothed angle ``value`` and rate ``rate``
+    columns. On a uniform grid a row's weights depend only on its place: one fit per place."""
+    window = record["window"]
+    places, which = np.unique(place, return_inverse=True)
+    _, smooth, slope = savgol_weights(record["step"] * np.arange(window), places, window, record["order"])
+    start = int(first.min())
+    idx = (first - start)[:, None] + np.arange(window)
+    rows = np.repeat(np.arange(len(first)), window)
+    shape = (len(first), int(idx.max()) + 1)
     K = 0.0
-    for weights, column in ((smooth, value), (slope, rate)):
+    for weights, column in ((smooth[which], value), (slope[which], rate)):
         if column is not None:
-            W = sparse.csr_matrix((weights.ravel(), (rows, idx.ravel())), shape=(n, size))
+            W = sparse.csr_matrix((weights.ravel(), (rows, idx.ravel())), shape=shape)
             K = K + W.T @ _rows(M, J, column)
-    return K
+    return start, K
 
 
 def _rows(M, J, column):
@@ -110,11 +113,28 @@ def _rows(M, J, column):
     return np.einsum("nrp,nr->np", M, J[:, :, column])
 
 
-def propagated_covariance(series, t, M, J, bread, sigma) -> np.ndarray:
+def _joined(open_part, part) -> tuple:
+    """The rows of ``K_s`` still open before a chunk (``(first grid index, rows)``, or None) plus
+    that chunk's part (:func:`_series_part`), which starts no earlier."""
+    if open_part is None:
+        return part
+    (start, K), (start_new, K_new) = open_part, part
+    joined = np.zeros((max(len(K), start_new - start + len(K_new)), K_new.shape[1]))
+    joined[: len(K)] += K
+    joined[start_new - start : start_new - start + len(K_new)] += K_new
+    return start, joined
+
+
+def propagated_covariance(series, t, chunks, bread, sigma) -> np.ndarray:
     """``bread (sum_s sigma_s^2 K_s^T K_s + sum_c sigma_c^2 U_c^T U_c) bread^T`` ``(p, p)``: the
     first-order covariance of an estimate whose score is ``sum_n M_n^T e_n``, the differentiated
     series ``series`` (:func:`differentiated_series`) carried through their filters, every other
     signal ``c`` white with the noise model's ``sigma (n_x,)``.
+
+    The samples come in consecutive chunks (one, or a stream: :mod:`spaceid.estimation._stream`).
+    A row of ``K_s`` (a raw sample) sums the samples whose windows hold it; it is complete, and its
+    term added, once no later sample's window reaches it: only the rows under the windows that
+    straddle a chunk's end are carried to the next, ``(chunk + window) x p`` values.
 
     Parameters
     ----------
@@ -122,21 +142,30 @@ def propagated_covariance(series, t, M, J, bread, sigma) -> np.ndarray:
         From :func:`differentiated_series`.
     t : ndarray of shape (n,)
         The log's stamps [s].
-    M : ndarray of shape (n, rows, p)
-        The estimator's weights (:func:`spaceid.estimation._uncertainty._covariance_terms`).
-    J : ndarray of shape (n, rows, n_x)
-        The equation errors' derivatives with respect to the signals.
+    chunks : iterable
+        ``(rows, M_c, J_c)`` in time order: the slice of samples, the estimator's weights
+        ``M_c (k, rows, p)`` (:func:`spaceid.estimation._uncertainty._covariance_terms`) and the equation
+        errors' derivatives ``J_c (k, rows, n_x)`` with respect to the signals.
     bread : ndarray of shape (p, p)
     sigma : ndarray of shape (n_x,)
     """
     covered = {c for _, value, rate in series for c in (value, rate) if c is not None}
+    grids = [_grid(record, t) for record, _, _ in series]
+    # the first grid row that a sample at or after each one reads: rows before it are complete
+    reach = [np.append(np.minimum.accumulate(first[::-1])[::-1], np.iinfo(int).max) for first, _ in grids]
+    open_parts = [None] * len(series)
     cov = np.zeros(bread.shape)
     with one_blas_thread():  # one series or signal at a time: never every signal's rows at once
-        for record, value, rate in series:
-            cov += _mapped_gram(record["noise"] * _series_scores(record, value, rate, t, M, J), bread)
-        for c in range(J.shape[-1]):
-            if c not in covered and sigma[c] > 0:
-                cov += _mapped_gram(sigma[c] * _rows(M, J, c), bread)
+        for sl, M, J in chunks:
+            stop = len(t) if sl.stop is None else sl.stop
+            for i, ((record, value, rate), (first, place)) in enumerate(zip(series, grids)):
+                start, K = _joined(open_parts[i], _series_part(record, value, rate, first[sl], place[sl], M, J))
+                done = min(max(reach[i][stop] - start, 0), len(K))
+                cov += _mapped_gram(record["noise"] * K[:done], bread)
+                open_parts[i] = (start + done, K[done:]) if done < len(K) else None
+            for c in range(J.shape[-1]):
+                if c not in covered and sigma[c] > 0:
+                    cov += _mapped_gram(sigma[c] * _rows(M, J, c), bread)
     return cov
 
 

@@ -125,8 +125,6 @@ def _full_covariance(eq, cov_t, k: int) -> tuple:
     return cov, h_std, std[len(std) - len(eq.drift) :]
 
 
-_STREAMED_DRIFT = {"run": False, "reason": "not run on a streamed identification (chunk=): run it in memory"}
-
 DRIFT_CORRELATION = 0.99
 """Drift coefficients whose estimates correlate beyond this are told apart by the log only weakly."""
 
@@ -151,15 +149,15 @@ def _drift_collinear(eq, cov_t, where) -> tuple:
                    "errors and the parameters'; keep one of them (--drift) unless the motion can tell them apart")
 
 
-def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None) -> tuple:
+def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None, chunk=None) -> tuple:
     """The record of the residual test for an unmodelled drift (:func:`spaceid.estimation._residuals.drift_test`,
-    ``whitener`` the estimator's own, if any) and its warning (``""`` when silent); not run when drift terms
-    are modelled."""
+    ``whitener`` the estimator's own, if any; streamed in chunks of ``chunk`` samples when given) and its warning
+    (``""`` when silent); not run when drift terms are modelled."""
     if drift:
         return {"run": False, "reason": f"drift terms modelled: {', '.join(drift)}"}, ""
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
         return {"run": False, "reason": "not defined for the angles estimator"}, ""
-    test = dict(drift_test(eq, x, phi, sigma, theta, estimator, log, whitener), run=True)
+    test = dict(drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk), run=True)
     if not test["drift"]:
         return test, ""
     white = "" if test["whiteness_p_value"] >= test["alpha"] else (
@@ -316,10 +314,11 @@ def identify(
         log: friction acted in between). The result's ``momentum`` is still the one at the
         log's first sample.
     chunk : int, optional
-        Stream the identification (``ols``, ``wls``, ``iv``): the equations are built a chunk of
+        Stream the identification (``ols``, ``wls``, ``iv``, ``ml``): the equations are built a chunk of
         this many samples at a time and never held whole, so memory does not grow with the
         regressor (:mod:`spaceid.estimation._stream`); the result agrees with the in-memory one
-        to round-off. The residual test for an unmodelled drift is not run then. Default: in memory.
+        to round-off, the residual test for an unmodelled drift and the covariance of
+        differentiated rates included. Default: in memory.
 
     Returns
     -------
@@ -374,9 +373,8 @@ def identify(
             theta, info, cov_t, rms, uncertainty, implausible = _plausible_fallback(
                 eq, x, log, sigma, ctx, estimated, chunk, (theta, info, cov_t, rms, uncertainty, implausible), where)
         s = _singular_values(factor)
-        drift_record, drift_warning = ((_STREAMED_DRIFT, "") if chunk else
-                                       _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
-                                                    info.pop("whitener", None)))
+        drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
+                                                   info.pop("whitener", None), chunk)
         pi, h = eq.full(theta)
         if history is not None and drift:  # the momentum at the log's first sample
             h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])

@@ -25,9 +25,9 @@ from scipy.stats import f as f_dist
 from scipy.stats import norm
 
 from ._drift import drift_basis, drift_names
-from ._equations import _split
-from ._estimators import _equation_whitener, _solve, _whitened
-from ._uncertainty import _correlation_length, _newey_west
+from ._estimators import _equation_whitener, _solve_factor, _whitened
+from ._stream import _chunks, _streamed_factor
+from ._uncertainty import _correlation_length, _hac, _mapped_scores
 
 DRIFT_ALPHA = 1e-3
 """Significance level of the drift test: the probability that it warns on a log without drift."""
@@ -38,10 +38,12 @@ DRIFT_FLOOR = 1e-6
 _CANDIDATES = ("torque", "viscous")
 
 
-def _lag1(white):
-    """Lag-1 autocorrelation of residuals ``(n, rows)`` in time order (rows pooled)."""
-    den = float(np.sum(white**2))
-    return float(np.sum(white[1:] * white[:-1]) / den) if den > 0 else 0.0
+def _serial_sums(white, before) -> np.ndarray:
+    """``sum r_n^2``, ``sum r_n r_(n-1)`` and ``sum (r_n - r_(n-1))^2`` (rows pooled) of the residuals
+    ``white (k, rows)`` of a chunk in time order, ``before (rows,)`` the previous chunk's last (None for
+    the first): the lag-1 autocorrelation and the Durbin-Watson statistic are ratios of their totals."""
+    w = white if before is None else np.vstack([before, white])
+    return np.array([np.sum(white**2), np.sum(w[1:] * w[:-1]), np.sum(np.diff(w, axis=0) ** 2)])
 
 
 def _leverage_adjusted(M, ginv, r):
@@ -55,7 +57,18 @@ def _leverage_adjusted(M, ginv, r):
     return np.einsum("nrs,ns->nr", np.linalg.pinv(np.eye(M.shape[1]) - H), r)  # pinv: a sample fitted exactly
 
 
-def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
+def _drift_equations(phi, rot_t, basis, L) -> tuple:
+    """The equations of ``phi = [A | -b] (k, rows, p + 1)`` with the drift columns ``C (k, rows, q)``
+    of the momentum change ``basis (k, q, 3)`` seen in the base axes ``rot_t (k, rows, 3)``: ``[A | C]``
+    and ``-b (k, rows)`` whitened by ``L (k, rows, rows)`` (None: as they are), ``C`` and ``|b|^2``."""
+    cols = -np.einsum("nri,nki->nrk", rot_t, basis)
+    M, rhs = np.concatenate([phi[..., :-1], cols], -1), phi[..., -1]
+    if L is not None:
+        M, rhs = _whitened(L, M), _whitened(L, rhs[..., None])[..., 0]
+    return M, rhs, cols, float(np.sum(phi[..., -1] ** 2))
+
+
+def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None) -> dict:
     """Whether the residuals of a drift-free identification show an unmodelled drift.
 
     Parameters
@@ -63,7 +76,8 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
     eq : _Equations
         The equations identified (without drift terms).
     x, phi : ndarray
-        Their signals ``(n, n_x)`` and stacked ``[A | -b]`` ``(n, rows, p + 1)``.
+        Their signals ``(n, n_x)`` and stacked ``[A | -b]`` ``(n, rows, p + 1)``; ``phi`` None: built
+        a chunk at a time.
     sigma : ndarray of shape (n_x,)
         Signal noise levels (whitening; unused for ``ols``).
     theta : ndarray of shape (p,)
@@ -73,6 +87,12 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
     whitener : ndarray of shape (n, rows, rows), optional
         Cholesky factors of the equation-error covariances to whiten by (the estimator's own: ML's at
         the corrected signals); default: at the measured signals and ``theta``.
+    chunk : int, optional
+        With ``phi`` None: samples per chunk (:mod:`spaceid.estimation._stream`). The test is two passes
+        either way, the sums being the same: the Gram matrix of the equations with the drift columns
+        and their correlation with the residuals of ``theta``, whose least squares is the refit's
+        correction to ``theta`` (as accurate as one refinement step from the refined ``theta``: no
+        passes to refine it), then the scores and the fitted drift.
 
     Returns
     -------
@@ -83,34 +103,57 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None) -> dict:
         and ``drift`` (True when the test rejects: the caller warns).
     """
     names = drift_names(_CANDIDATES, eq.planar)[0]
+    n, p, q = len(x), eq.p, len(names)
     rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
-    cols = -np.einsum("nri,nki->nrk", rot_t, drift_basis(log, _CANDIDATES))  # (n, rows, q)
-    full = np.concatenate([phi[..., :-1], cols, phi[..., -1:]], -1)
-    if estimator != "ols":
-        L = _equation_whitener(eq, x, theta, sigma) if whitener is None else whitener
-        full = _whitened(L, full)
-    white = full[..., : eq.p] @ theta + full[..., -1]  # whitened residuals of the drift-free fit
-    A, b = _split(full)
-    est, ginv = _solve(A, b)
-    r = full @ np.append(est, 1.0)
-    M = full[..., :-1]
-    cov = _newey_west(ginv, M, _leverage_adjusted(M, ginv, r), _correlation_length(log), len(est), dof_scale=False)
-    d, cdd = est[eq.p :], cov[eq.p :, eq.p :]
+    basis = drift_basis(log, _CANDIDATES)
+
+    def chunks():  # :func:`_drift_equations` of each chunk, after its rows
+        for sl, e, xc in [(slice(None), eq, x)] if phi is not None else _chunks(eq, x, chunk):
+            L = None if estimator == "ols" else whitener[sl] if whitener is not None else _equation_whitener(
+                e, xc, theta, sigma)
+            yield sl, *_drift_equations(e.phi(xc) if phi is None else phi, rot_t[sl], basis[sl], L)
+
+    if phi is not None:  # in memory: built once for both passes
+        built = list(chunks())
+        chunks = lambda: iter(built)  # noqa: E731
+    sums = {"b2": 0.0, "serial": np.zeros(3), "last": None}  # of b and of the whitened residuals of theta
+
+    def corrections():  # the refit as a correction of theta: [A | C] (delta, d) = -white, in least squares
+        for _, M, rhs, _, b2 in chunks():
+            white = M @ np.append(theta, np.zeros(q)) + rhs
+            sums["b2"], sums["serial"] = sums["b2"] + b2, sums["serial"] + _serial_sums(white, sums["last"])
+            sums["last"] = white[-1]
+            yield M.reshape(-1, p + q), -white.ravel()
+
+    # From the Gram matrix without refinement passes: its rounding, eps cond^2, is relative to the correction
+    # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
+    step, ginv = _solve_factor(*_streamed_factor(corrections, p + q, refined=False)[::-1])
+    est, d = np.append(theta, np.zeros(q)) + step, step[p:]
+    change = []
+
+    def scores():  # the leverage-adjusted scores of the fit with the drift columns, mapped by ginv
+        for _, M, rhs, cols, _ in chunks():
+            change.append(float(np.abs(cols @ d).max()))
+            yield _mapped_scores(ginv, M, _leverage_adjusted(M, ginv, M @ est + rhs))
+
+    cov = _hac(scores(), _correlation_length(log), p + q, dof_scale=False)
+    cdd = cov[p:, p:]
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
-    p_value = float(f_dist.sf(wald / len(d), len(d), max(r.size - len(est), 1)))
-    b_raw = _split(phi)[1]
-    change = np.abs(cols @ d).max() / max(float(np.sqrt(np.mean(b_raw**2))), 1e-300)
-    rho = _lag1(white)
+    size = n * eq.param.rows
+    p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))
+    change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
+    square, lagged, differences = sums["serial"]
+    rho = float(lagged / square) if square > 0 else 0.0
     return {
         "alpha": DRIFT_ALPHA,
         "terms": list(names),
         "trend": dict(zip(names, d.tolist())),
         "wald": wald,
-        "dof": len(d),
+        "dof": q,
         "p_value": p_value,
         "relative_drift": float(change),
         "lag1_autocorrelation": rho,
-        "durbin_watson": float(np.sum(np.diff(white, axis=0) ** 2) / max(float(np.sum(white**2)), 1e-300)),
-        "whiteness_p_value": float(norm.sf(rho * np.sqrt(len(white)))),
+        "durbin_watson": float(differences / max(square, 1e-300)),
+        "whiteness_p_value": float(norm.sf(rho * np.sqrt(n))),
         "drift": bool(p_value < DRIFT_ALPHA and change > DRIFT_FLOOR),
     }

@@ -23,12 +23,18 @@ each pass rebuilding the chunk's equations ``[A | -b]`` (``N x rows x (p + 1)``)
   and the choice of covariance need them all) and the whiteners (``n x rows x rows``; ML brings
   both from its last evaluation), then, when the covariance follows the residuals, a pass for the
   sandwich or the Newey-West sum of the scores, whose lags reach back across chunks
-  (:func:`~spaceid.estimation._uncertainty._hac`).
+  (:func:`~spaceid.estimation._uncertainty._hac`), and for rates differentiated by Savitzky-Golay
+  a pass for the angle noise propagated through the filters, the rows under the windows that
+  straddle a chunk's end carried to the next
+  (:func:`~spaceid.estimation._differentiated.propagated_covariance`);
+- the residual test for an unmodelled drift: two passes
+  (:func:`~spaceid.estimation._residuals.drift_test`).
 
-Kept for the whole log: the signals ``x (n, n_x)``, the attitudes, the residuals and the whiteners,
-``O(n (n_x + 12))`` values, and for ML the corrected signals of two estimates; never the
-``n x rows x p`` regressor. Time is linear in the samples. The total least squares (an SVD of the
-whole regressor) and the angles estimator are in memory only.
+Kept for the whole log: the signals ``x (n, n_x)``, the attitudes, the residuals, the whiteners
+and the drift test's momentum change per drift coefficient, ``O(n (n_x + 24))`` values, and for ML
+the corrected signals of two estimates; never the ``n x rows x p`` regressor. Time is linear
+in the samples. The total least squares (an SVD of the whole regressor) and the angles estimator
+are in memory only.
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ from ._equations import _split
 from ._estimators import (_accumulate_factor, _accumulate_gram, _blockwise, _equation_whitener, _gram_matrix_factor,
                           _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich, _solve_factor,
                           _whitened, _whitened_gram)  # fmt: skip
-from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores
+from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores, _with_propagated
 
 __all__ = ["STREAMED"]
 
@@ -209,29 +215,35 @@ def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimate
     (a pass, :func:`_residual_pass`; ML brings them and the factor of its whitened equations from its
     last evaluation) and, when the covariance follows the residuals or is the instruments' sandwich,
     a pass for the Newey-West sum of the scores or the sandwich (see
-    :func:`~spaceid.estimation._uncertainty._covariance_terms` for ``M`` and the scored residuals)."""
-    if estimator == "ml":
-        L, r = info.pop("whitener"), info.pop("residuals")
+    :func:`~spaceid.estimation._uncertainty._covariance_terms` for ``M`` and the scored residuals), and
+    one for the propagated covariance of differentiated rates. The whiteners stay in ``info["whitener"]``
+    for the drift test."""
+    if estimator == "ml":  # its whitener stays for the drift test
+        L, r = info["whitener"], info.pop("residuals")
         bread = _solve_factor(*info.pop("factor")[::-1])[1]
     else:
         r, L, bread = _residual_pass(eq, x, sigma, theta, estimator, info, ctx, chunk)
+        if L is not None:  # the drift test whitens by the same factors: not formed again
+            info["whitener"] = L
     white = None if L is None else _whitened(L, r[..., None])[..., 0]
     chi2, checks, choice = _covariance_choice(eq, r, white, estimator, log, estimated)
     q, qd = ctx.get("reference", (None, None))
     theta_z = info.pop("theta_z", None)
 
-    def influence():  # M_c of each chunk
+    def influence():  # M_c of each chunk, its samples and their equations
         for sl, e, xc in _chunks(eq, x, chunk):
             if estimator == "iv":
-                yield sl, _instrument_rows(e, xc, theta_z, (q[sl], qd[sl])).reshape(-1, eq.param.rows, eq.p)
+                yield sl, _instrument_rows(e, xc, theta_z, (q[sl], qd[sl])).reshape(-1, eq.param.rows, eq.p), e, xc
             else:
-                yield sl, e.phi(xc)[..., :-1]
+                yield sl, e.phi(xc)[..., :-1], e, xc
 
     if choice["covariance_from_residuals"]:
         scored = _inverse_times(L, r[..., None])[..., 0] if estimator in WEIGHTED else r
-        cov_t = _hac((_mapped_scores(bread, M, scored[sl]) for sl, M in influence()), choice["bandwidth"], eq.p)
+        cov_t = _hac((_mapped_scores(bread, M, scored[sl]) for sl, M, _, _ in influence()), choice["bandwidth"], eq.p)
+        cov_t = _with_propagated(cov_t, choice, log, estimator, bread, sigma, lambda: (
+            (sl, M, None if L is None else L[sl], e.jacobian(xc, theta)) for sl, M, e, xc in influence()))
     elif estimator in WEIGHTED:  # the noise model's sandwich is the bread (_model_covariance)
         cov_t = bread * choice["variance_factor"]
     else:
-        cov_t = sum(_sandwich(bread, M, L[sl]) for sl, M in influence()) * choice["variance_factor"]
+        cov_t = sum(_sandwich(bread, M, L[sl]) for sl, M, _, _ in influence()) * choice["variance_factor"]
     return cov_t, float(np.sqrt(np.mean(r**2))), _covariance_record(chi2, checks, choice, log, estimated)

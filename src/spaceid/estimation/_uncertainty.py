@@ -253,15 +253,25 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     bandwidth, follows, factor = choice["bandwidth"], choice["covariance_from_residuals"], choice["variance_factor"]
     if follows:
         cov_t = _newey_west(t["bread"], t["M"], t["scored"], bandwidth, eq.p)
-        series = differentiated_series(log)
-        if series is not None:  # the differentiator's own correlation, unless the residuals show more
-            M = _inverse_times(t["L"], t["M"]) if estimator in WEIGHTED else t["M"]  # score M^T e
-            cov_t, larger = _larger_of(propagated_covariance(series, log.t, M, eq.jacobian(x, theta), t["bread"],
-                                                             sigma), cov_t)
-            choice["covariance"] = _propagated_how(series, larger, eq.p, bandwidth)
+        cov_t = _with_propagated(cov_t, choice, log, estimator, t["bread"], sigma,
+                                 lambda: [(slice(None), t["M"], t["L"], eq.jacobian(x, theta))])
     else:
         cov_t = _model_covariance(estimator, t["bread"], t["M"], t["L"]) * factor
     return cov_t, float(np.sqrt(np.mean(r**2))), _covariance_record(chi2, checks, choice, log, estimated)
+
+
+def _with_propagated(cov_t, choice, log, estimator, bread, sigma, chunks):
+    """The Newey-West ``cov_t (p, p)``, or for rates differentiated by Savitzky-Golay the larger
+    (:func:`_larger_of`) of it and the angle noise propagated through the filters, ``choice["covariance"]``
+    then saying so. ``chunks()`` gives ``(rows, M_c, L_c, J_c)`` in time order (the whole log, or a
+    stream: :func:`~spaceid.estimation._differentiated.propagated_covariance`), not called otherwise."""
+    series = differentiated_series(log)
+    if series is None:
+        return cov_t
+    scores = ((sl, _inverse_times(L, M) if estimator in WEIGHTED else M, J) for sl, M, L, J in chunks())  # M^T e
+    cov_t, larger = _larger_of(propagated_covariance(series, log.t, scores, bread, sigma), cov_t)
+    choice["covariance"] = _propagated_how(series, larger, len(cov_t), choice["bandwidth"])
+    return cov_t
 
 
 def _larger_of(base, other) -> tuple:
