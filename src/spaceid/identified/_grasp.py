@@ -72,7 +72,8 @@ def hold_momentum(pmap: PayloadMap, still: Log, noise: Noise) -> tuple:
     m = np.swapaxes(eq.rot[(slice(None), *axes)], -1, -2) / still.n_samples  # mean error: sum_n M_n^T e_n
     series = differentiated_series(still) or []
     cov = np.zeros((3, 3))
-    cov[axes] = propagated_covariance(series, still.t, m, jac, np.eye(len(eq.axes)), signal_sigma(pmap.param, noise))
+    cov[axes] = propagated_covariance(series, still.t, [(slice(None), m, jac)], np.eye(len(eq.axes)),
+                                      signal_sigma(pmap.param, noise))
     return h, cov
 
 

@@ -506,7 +506,7 @@ def _covariance(r, a, weighted: bool, estimated: bool, window: int, differentiat
         series, m, jac, sigma, t = differentiated
         how = (f"the angle noise of {len(series)} differentiated series propagated through their Savitzky-Golay "
                "filters (its correlation over the windows)")
-        return propagated_covariance(series, t, m, jac, bread, sigma), chi2, how, bread, newey_west
+        return propagated_covariance(series, t, [(slice(None), m, jac)], bread, sigma), chi2, how, bread, newey_west
     if weighted:
         return (bread * (chi2 if estimated else 1.0), chi2,
                 "inverse Fisher information" + (" scaled by chi2/dof" if estimated else ""), bread, None)
