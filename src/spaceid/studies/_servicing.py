@@ -51,9 +51,6 @@ MONITOR_WARMUP = 100
 """Samples of each monitored segment identified before its test starts (2 s at the bag's 50 Hz):
 the 5 s held-out motion then leaves 3 s tested before the grasp. The monitor's default, 200,
 leaves 1 s, and a false alarm then starts a segment whose warm-up covers the grasp."""
-EARLY = 0.5
-"""How long before the grasp [s] an event still counts as the grasp's: the differentiated rates
-see the motion that starts at the grasp up to half the differentiator's window earlier."""
 HOLD = 1.0
 """How long [s] the arm holds still at the end of the held-out phase, before the grasp."""
 HOLD_SAMPLES = 5
@@ -252,15 +249,17 @@ def _monitor(model, log: Log, before: Identification, seed: int) -> dict:
 
 
 def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict:
-    """The payload against its truth (z-scores), and the first event from ``EARLY`` before the
-    grasp on against the grasp, in seconds and in samples of ``log`` (earlier events: false alarms)."""
+    """The payload against its truth (z-scores), and the first event that can be the grasp's against
+    the grasp, in seconds and in samples of ``log``: an event's change lies between its ``time`` and
+    ``time + lead`` (the differentiated rates show it up to ``lead`` early), to within a sample step;
+    events whose interval ends before the grasp are false alarms."""
     payload = truth["payload"]
     true = {"m": payload["mass"], "cx": payload["com"][0], "cy": payload["com"][1], "cz": payload["com"][2]}
     inertia = np.asarray(payload["inertia"])
     true |= dict(zip(("Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"), inertia[[0, 0, 1, 0, 1, 2], [0, 1, 1, 2, 2, 2]]))
     true = np.array([true[n] for n in estimate.names])
     dt = float(np.median(np.diff(log.t)))
-    found = [e for e in events["events"] if e["time"] >= grasp - EARLY]
+    found = [e for e in events["events"] if e["time"] + e["lead"] + dt >= grasp]
     first = found[0] if found else None
     return {
         "payload": [{"name": n, "true": float(t), "estimate": float(v), "std": float(e),
