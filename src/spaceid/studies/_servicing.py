@@ -8,10 +8,12 @@ recorded as one bag (``capture.bag``, ...), read back as a lab recording; then
 
 1. the change monitor (:class:`~spaceid.estimation.Monitor`, the servicer's minimal parameters as
    its structure) runs over it sample by sample and reports the change it detects, scored against
-   the twin's grasp tick. Its noise levels are those of the excitation's log, scaled so that the
-   identification before fits it with chi2/dof = 1: the levels estimated from a log understate
-   the error of differentiated rates (chi2/dof about 30 on the ideal twin), and the CUSUM's
-   false-alarm rate holds only for the true levels;
+   the twin's grasp tick (an event's change lies within its ``lead`` after its time). Its noise
+   levels are those of the excitation's log, scaled so that the identification before fits it
+   with chi2/dof = 1: the levels estimated from a log understate the error of differentiated
+   rates (chi2/dof about 30 on the ideal twin), and the CUSUM's false-alarm rate holds only for
+   the true levels. (The differentiated signals' errors are whitened with the raw angle noise
+   that the bag reader's differentiator estimated; these levels are for the others.);
 2. the payload is identified from the post-capture excitation (:func:`~spaceid.identified.identify_payload`)
    with the twin's servicer model (the CAD model with the tank as it was at the grasp): the known
    servicer of a servicing mission, and on the twin the truth, so that the z-scores against the
