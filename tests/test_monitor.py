@@ -185,11 +185,13 @@ def test_false_alarm_rate_as_stated_with_differentiated_rates(cepheus, steady, n
     _, param = cepheus
     for record in _assert_false_alarm_rate(param, [_differentiated(steady, 200 + seed) for seed in range(12)], noise):
         white = record["segments"][0]["prewhitening"]
-        assert white["filter"] == "differentiator" and white["order"] == 0 and white["differentiator_window"] == 30
+        assert white["differentiator_window"] == 30 and white["lag1_autocorrelation"] > 0.5
         # the warm-up's chi2/dof: about 1 with the levels given (200 samples), up to 2.2 with them estimated
         # (500 samples): then the innovations are divided by its square root
-        assert white["lag1_autocorrelation"] > 0.5 and 0.7 < white["chi2_dof"] < 3
-        assert white["scale"] == 1 or white["scale"] == pytest.approx(np.sqrt(white["chi2_dof"]))
+        assert 0.7 < white["chi2_dof"] < 3
+        assert white["differentiator_scale"] in (1, pytest.approx(white["chi2_dof"] ** 0.5))
+        # the model's correlation holds, or (levels estimated) the warm-up's innovations contradict it
+        assert white["filter"] == "differentiator" or noise is None and white["innovations_ljung_box_p"] < 1e-3
 
 
 def test_false_alarms_with_differentiated_rates_in_seconds(cepheus, steady):
@@ -233,6 +235,20 @@ def test_differentiated_innovations_have_unit_variance(cepheus, steady):
         mon.update(_differentiated(steady, seed))
         assert not mon.finish()["events"]
         assert abs(np.mean(mon.statistics) - 1) < 0.15, (seed, np.mean(mon.statistics))
+
+
+def test_a_warm_up_that_contradicts_the_differentiator_falls_back_to_an_ar_filter(cepheus, steady):
+    """A record whose raw noise levels are 3 times the actual ones: the warm-up's innovations are
+    far smaller than the model predicts, so its correlation is not trusted and the segment
+    whitens with an AR filter fitted to its residuals instead."""
+    _, param = cepheus
+    log = _differentiated(steady, 11)
+    record = log.meta["differentiation"]
+    wrong = {part: dict(record[part], noise=[3 * v for v in record[part]["noise"]]) for part in ("joints", "base")}
+    mon = Monitor(param, H, estimator="wls")  # levels not given: the record's
+    mon.update(dataclasses.replace(log, meta=dict(log.meta, differentiation=wrong)))
+    white = mon.finish()["segments"][0]["prewhitening"]
+    assert white["filter"] == "autoregressive" and white["order"] == 3 and white["chi2_dof"] < 0.2
 
 
 def test_the_last_half_window_of_differentiated_rates_is_not_tested(cepheus, steady):

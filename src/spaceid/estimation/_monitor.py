@@ -24,8 +24,9 @@ the linearisation point at which the equation-error covariances ``S_n``
 
 An alarm closes the segment at the estimated change time (within the CUSUM's last excursion
 above zero, :meth:`Monitor._change_time`) and starts a new one there; once the new segment's
-warm-up is identified, the event reports the z-scores of the change (:func:`~spaceid.estimation.compare`). Each closed segment is re-identified
-in batch from at most ``max_segment`` of its samples (evenly thinned), so memory stays bounded.
+warm-up is identified, the event reports the z-scores of the change (:func:`~spaceid.estimation.compare`).
+Each closed segment is re-identified in batch from at most ``max_segment`` of its samples (evenly
+thinned), so memory stays bounded.
 """
 
 from __future__ import annotations
@@ -327,7 +328,7 @@ class Monitor:
     def _open(self, start):
         self._warm, self._thinned, self._R, self._g = [], _Thinned(self.max_segment), None, 0.0
         self._start, self._count, self._ident, self._target = start, 0, None, self.warmup
-        self._prewhitening = None
+        self._prewhitening, self._kalman = None, False  # _kalman: the segment uses the differentiator's whitening
         self._excursion = collections.deque(maxlen=self.warmup)  # (t, nu^T nu) since the CUSUM last left zero
 
     def _identify(self, rows, label) -> Identification:
@@ -370,41 +371,54 @@ class Monitor:
     def _set_prewhitening(self, block, rows, L, J):
         """The segment's prewhitening from the warm-up's whitened equations ``block (m, p + 1)`` at
         its batch estimate, their whiteners ``L`` and Jacobians ``J`` there: the differentiator's
-        Kalman whitening when the log records Savitzky-Golay rates (:meth:`_warm_whitening`); else an
-        AR(``AR_ORDER``) filter and the std it leaves when the rates were differentiated otherwise
-        or the residuals are autocorrelated (Ljung-Box at ``SIGNIFICANCE``, as the identification's
+        Kalman whitening when the log records Savitzky-Golay rates (:meth:`_warm_whitening`) and the
+        warm-up agrees with its model: its innovations independent (Ljung-Box) and not smaller than
+        predicted (the lower tail of chi2/dof), both at ``SIGNIFICANCE``. Otherwise an
+        AR(``AR_ORDER``) filter and the std it leaves, fitted to the residuals, when the rates were
+        differentiated or the residuals are autocorrelated (Ljung-Box, as the identification's
         covariance choice); else none (the innovations are independent)."""
         res = (block[:, -1] - block[:, :-1] @ self._theta_ref).reshape(len(rows), self.param.rows)
         checks = _residual_checks(res, res.size, None)
-        order, chi2_dof, coef, scale = 0, None, np.zeros(0), 1.0
+        chi2_dof, kalman_scale, kalman_p = None, 1.0, None
         if self._whitener:
-            chi2_dof, scale = self._warm_whitening(rows, block, res, L, J)
-        elif (self._window or checks["ljung_box_p"] < SIGNIFICANCE) and len(rows) > 4 * AR_ORDER:
-            order = AR_ORDER
-            coef, scale = _ar_fit(res, order, len(self._theta_ref))
-        self._ar, self._ar_scale = coef, scale
+            nu, chi2_dof, kalman_scale, small = self._warm_whitening(rows, block, res, L, J)
+            kalman_p = _residual_checks(nu, nu.size, None)["ljung_box_p"]
+        self._kalman = bool(self._whitener) and kalman_p >= SIGNIFICANCE and not small
+        correlated = self._window or checks["ljung_box_p"] < SIGNIFICANCE
+        order = AR_ORDER if not self._kalman and correlated and len(rows) > 4 * AR_ORDER else 0
+        coef, scale = _ar_fit(res, order, len(self._theta_ref)) if order else (np.zeros(0), 1.0)
+        self._ar, self._ar_scale, self._kalman_scale = coef, scale, kalman_scale
         self._history = collections.deque(list(res[len(res) - order :]), maxlen=order)  # the lags of the first test
-        self._prewhitening = {"filter": "differentiator" if self._whitener else "autoregressive" if order else None,
+        self._prewhitening = {"filter": "differentiator" if self._kalman else "autoregressive" if order else None,
                               "order": order, "coefficients": coef.tolist(), "scale": scale, "chi2_dof": chi2_dof,
+                              "differentiator_scale": kalman_scale if self._whitener else None,
+                              "innovations_ljung_box_p": kalman_p,
                               "lag1_autocorrelation": checks["lag1_autocorrelation"],
                               "ljung_box_p": checks["ljung_box_p"], "differentiator_window": self._window or 0}
 
     def _warm_whitening(self, rows, block, res, L, J) -> tuple:
         """Run the differentiator's whitening over the warm-up's residuals ``res (n, rows)`` (its state
-        then predicts the first tested sample): the chi2/dof of the innovations, ``p`` unknowns fitted,
-        and the scale they are divided by: 1, or ``sqrt(chi2/dof)`` when the warm-up contradicts the
-        noise model (the upper tail below ``SIGNIFICANCE``: effects it does not have)."""
-        p = len(self._scale)
-        r_inv = solve_triangular(self._R[:p, :p], np.eye(p))
-        self._whitener.start(PRIOR * r_inv @ r_inv.T)
-        a = block[:, :-1].reshape(len(rows), self.param.rows, p) / self._scale
+        then predicts the first tested sample): its innovations ``(n, rows)``, their chi2/dof (``p``
+        unknowns fitted), the scale the test divides them by: 1, or ``sqrt(chi2/dof)`` when they are
+        larger than the noise model predicts (the upper tail below ``SIGNIFICANCE``: effects it
+        does not have), and whether they are smaller than it predicts (the lower tail)."""
+        self._start_whitener()
+        a = block[:, :-1].reshape(len(rows), self.param.rows, len(self._scale)) / self._scale
         Li = np.linalg.inv(L)
         R = Li @ equation_covariance(J, self._whitener.uncovered(self._sigma)) @ np.swapaxes(Li, -1, -2)
         nu = [self._whitener.innovation(r, self._whitener.design(row[0], ai, li @ j), c)
               for row, r, ai, li, j, c in zip(rows, res, a, Li, J, R)]  # fmt: skip
         dof = max(res.size - len(self._theta_ref), 1)
         chi2_dof = float(np.sum(np.square(nu)) / dof)
-        return chi2_dof, math.sqrt(chi2_dof) if chi2.sf(chi2_dof * dof, dof) < SIGNIFICANCE else 1.0
+        scale = math.sqrt(chi2_dof) if chi2.sf(chi2_dof * dof, dof) < SIGNIFICANCE else 1.0
+        return np.array(nu), chi2_dof, scale, bool(chi2.cdf(chi2_dof * dof, dof) < SIGNIFICANCE)
+
+    def _start_whitener(self):
+        """Start the differentiator's whitening with the estimate's error ``PRIOR`` times as uncertain
+        as the segment's weighted least-squares estimate says."""
+        p = len(self._scale)
+        r_inv = solve_triangular(self._R[:p, :p], np.eye(p))
+        self._whitener.start(PRIOR * r_inv @ r_inv.T)
 
     def _whitened(self, log: Log, derivatives: bool = False) -> tuple:
         """``log``'s equations ``[A | b]`` whitened by ``S_n`` at the linearisation point, ``(n, rows,
@@ -481,10 +495,10 @@ class Monitor:
         # the equation error's covariance at the estimate so far (the weights stay at the linearisation point)
         J = np.einsum("rcx,c->rx", D, np.append(theta / self._scale, 1.0))
         Li = np.linalg.inv(L)
-        if self._whitener:  # what the samples before do not predict of the residual at the linearisation point
+        if self._kalman:  # what the samples before do not predict of the residual at the linearisation point
             C = Li @ equation_covariance(J[None], self._whitener.uncovered(self._sigma))[0] @ Li.T
             e_ref = b - a @ (self._theta_ref * self._scale)
-            nu = self._whitener.innovation(e_ref, self._whitener.design(row[0], a, Li @ J), C) / self._ar_scale
+            nu = self._whitener.innovation(e_ref, self._whitener.design(row[0], a, Li @ J), C) / self._kalman_scale
             if self.forgetting < 1:
                 self._whitener.forget(self.forgetting)
         else:
@@ -547,6 +561,9 @@ class Monitor:
             series = differentiated_series(samples)
             p = len(self._eq.free)
             self._whitener = DifferentiatedWhitener(series, self._t0, p, self._raw_levels) if series else None
+            self._kalman = self._kalman and self._whitener is not None
+            if self._kalman:  # new filters within a tested segment: start afresh
+                self._start_whitener()
 
     def update(self, samples: Log) -> list:
         """Feed new samples (a :class:`~spaceid.data.Log` of one or more rows, after those fed
