@@ -8,14 +8,18 @@ Cepheus at 100 Hz, a two-joint sine motion, h = 0.5 N m s, noise 1e-4 rad on the
     a change, fed in chunks of 256 and one sample at a time (the per-sample cost must not grow
     with the length: a recursive estimator, bounded memory);
 (b) detection delay: a 0.1 kg payload grasped at 0.2 m along link2 at t = 6 s (the momentum
-    carried over), over seeded noise draws: the estimated change time and the detection time
-    against the true one, in samples, at the default false-alarm rate (1e-5 per sample);
+    carried over), over seeded noise draws, the rates measured and differentiated over 31
+    samples: the estimated change time and the detection time against the true one, in samples,
+    at the default false-alarm rate (1e-5 per sample);
 (c) false-alarm rate: logs without a change at 1e-3 per sample, alarms per tested sample
-    against the stated rate.
+    against the stated rate;
+(d) the same with the rates differentiated from the angles over 31 samples (as bags are read),
+    the noise levels given and estimated from the log, seeds 212 on: alarms against the stated
+    rate, with the Poisson probability of as many or more (and as few or fewer).
 
 Prints only; never fails on the figures.
 
-    python benchmarks/bench_monitor.py [--runs 20] [--parts a b c]
+    python benchmarks/bench_monitor.py [--runs 20] [--parts a b c d]
 """
 
 import argparse
@@ -23,8 +27,9 @@ import dataclasses
 import time
 
 import numpy as np
+from scipy.stats import poisson
 
-from spaceid.data import Log
+from spaceid.data import Log, differentiate_log
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Monitor, Noise
 from spaceid.models import load_model
@@ -49,17 +54,18 @@ def noisy(log, seed):
 def throughput(param, model):
     print("(a) throughput of the test phase (samples/s), no change")
     for n in (1000, 4000, 16000):
-        log = noisy(simulate(param, param.true_values, motion, np.arange(n) / RATE, H, model=model), 0)
-        for chunk in (256, 1):
-            mon = Monitor(param, H, noise=NOISE, false_alarm_rate=1e-9)
-            mon.update(log.select(slice(0, mon.warmup)))
-            rest = log.select(slice(mon.warmup, None if chunk > 1 else mon.warmup + 300))
-            start = time.perf_counter()
-            for i in range(0, rest.n_samples, chunk):
-                mon.update(rest.select(slice(i, i + chunk)))
-            wall = time.perf_counter() - start
-            print(f"  N = {n:6d}, chunks of {chunk:3d}: {rest.n_samples / wall:8.0f} samples/s "
-                  f"({rest.n_samples} tested; {len(mon._thinned.rows)} samples kept for the batch identification)")
+        measured = noisy(simulate(param, param.true_values, motion, np.arange(n) / RATE, H, model=model), 0)
+        for kind, log in (("measured", measured), ("differentiated", differentiate_log(measured, window=31))):
+            for chunk in (256, 1):
+                mon = Monitor(param, H, noise=NOISE, false_alarm_rate=1e-9)
+                mon.update(log.select(slice(0, mon.warmup)))
+                rest = log.select(slice(mon.warmup, None if chunk > 1 else mon.warmup + 300))
+                start = time.perf_counter()
+                for i in range(0, rest.n_samples, chunk):
+                    mon.update(rest.select(slice(i, i + chunk)))
+                wall = time.perf_counter() - start
+                print(f"  N = {n:6d}, {kind} rates, chunks of {chunk:3d}: {rest.n_samples / wall:8.0f} samples/s "
+                      f"({rest.n_samples} fed; {len(mon._thinned.rows)} samples kept for the batch identification)")
 
 
 def capture_log(param, model):
@@ -78,39 +84,45 @@ def capture_log(param, model):
 def delay(param, model, runs):
     print(f"(b) detection of a capture at t = {T_CAPTURE} s, {runs} noise draws, default false-alarm rate")
     log = capture_log(param, model)
-    onset, detect, other = [], [], 0
-    for seed in range(runs):
-        mon = Monitor(param, H, noise=NOISE)
-        mon.update(noisy(log, seed))
-        record = mon.finish()
-        near = [e for e in record["events"] if abs(e["time"] - T_CAPTURE) < 0.5]
-        other += len(record["events"]) - len(near)
-        if near:
-            onset.append(round((near[0]["time"] - T_CAPTURE) * RATE))
-            detect.append(round((near[0]["detected_at"] - T_CAPTURE) * RATE))
-    print(f"  found in {len(onset)}/{runs} runs; change time - true [samples]: {sorted(onset)}; detection - true "
-          f"[samples]: {sorted(detect)}; other events: {other}; expected delay for a ratio-4 change "
-          f"{mon.expected_delay:.1f} samples")
+    for kind in ("measured", "differentiated"):
+        onset, detect, other = [], [], 0
+        for seed in range(runs):
+            mon = Monitor(param, H, noise=NOISE)
+            mon.update(noisy(log, seed) if kind == "measured" else differentiate_log(noisy(log, seed), window=31))
+            record = mon.finish()
+            near = [e for e in record["events"] if abs(e["time"] - T_CAPTURE) < 0.5]
+            other += len(record["events"]) - len(near)
+            if near:
+                onset.append(round((near[0]["time"] - T_CAPTURE) * RATE))
+                detect.append(round((near[0]["detected_at"] - T_CAPTURE) * RATE))
+        print(f"  {kind} rates: found in {len(onset)}/{runs} runs; change time - true [samples]: median "
+              f"{np.median(onset):.0f}, {min(onset)} to {max(onset)}; detection - true [samples]: median "
+              f"{np.median(detect):.0f}, {min(detect)} to {max(detect)}; other events: {other}")
+    print(f"  expected delay for a ratio-4 change {mon.expected_delay:.1f} samples")
 
 
-def false_alarms(param, model, runs):
+def false_alarms(param, runs, logs, noise, label):
+    """Alarms on ``logs`` (seed -> log, without a change) at 1e-3 per sample against the stated rate."""
     alpha = 1e-3
-    print(f"(c) false alarms at {alpha:g} per sample, {runs} logs of 2000 samples without a change")
-    clean = simulate(param, param.true_values, motion, np.arange(2000) / RATE, H, model=model)
+    print(f"({label}) false alarms at {alpha:g} per sample, {runs} logs of 2000 samples without a change, "
+          f"noise {'given' if noise else 'estimated'}")
     alarms = tested = 0
     for seed in range(runs):
-        mon = Monitor(param, H, noise=NOISE, false_alarm_rate=alpha, estimator="wls")
-        mon.update(noisy(clean, 1000 + seed))
+        mon = Monitor(param, H, noise=noise, false_alarm_rate=alpha, estimator="wls")
+        mon.update(logs(seed))
         record = mon.finish()
         alarms, tested = alarms + len(record["events"]), tested + record["n_tested"]
+    expected = alpha * tested
     print(f"  {alarms} alarms in {tested} tested samples: {alarms / tested:.3g} per sample "
-          f"(+- {np.sqrt(alarms) / tested:.2g} counting error), stated {alpha:g}")
+          f"(+- {np.sqrt(alarms) / tested:.2g} counting error), stated {alpha:g}: {expected:.1f} expected, "
+          f"Poisson P(>= {alarms}) = {poisson.sf(alarms - 1, expected):.3g}, P(<= {alarms}) = "
+          f"{poisson.cdf(alarms, expected):.3g}")
 
 
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=20)
-    parser.add_argument("--parts", nargs="+", default=["a", "b", "c"])
+    parser.add_argument("--parts", nargs="+", default=["a", "b", "c", "d"])
     args = parser.parse_args()
     model = load_model("cepheus")
     param = minimal_parameters(model)
@@ -118,8 +130,13 @@ def main():
         throughput(param, model)
     if "b" in args.parts:
         delay(param, model, args.runs)
+    clean = simulate(param, param.true_values, motion, np.arange(2000) / RATE, H, model=model)
     if "c" in args.parts:
-        false_alarms(param, model, args.runs)
+        false_alarms(param, args.runs, lambda seed: noisy(clean, 1000 + seed), NOISE, "c")
+    if "d" in args.parts:
+        for noise in (NOISE, None):
+            false_alarms(param, args.runs, lambda seed: differentiate_log(noisy(clean, 212 + seed), window=31),
+                         noise, "d")
 
 
 if __name__ == "__main__":

@@ -54,6 +54,22 @@ def test_cli_capture_options_need_capture(capsys):
     assert "error: --capture-mass, --capture-settings and --capture-trajectory need --capture" in err
 
 
+def test_an_event_is_the_grasp_s_when_its_lead_reaches_the_grasp():
+    """An event's change lies between its time and its lead later (to a sample step): one whose
+    interval ends before the grasp is a false alarm however close (a fixed 0.5 s allowance took
+    the event at -0.5 s, lead 0.45 s, for the grasp)."""
+    from types import SimpleNamespace
+
+    from spaceid.studies._servicing import _scores
+
+    estimate = SimpleNamespace(names=("m",), values=np.array([0.5]), std=np.array([0.01]), not_identifiable=())
+    truth = {"payload": {"mass": 0.5, "com": [0.0, 0.0, 0.0], "inertia": 1e-3 * np.eye(3)}}
+    events = {"events": [{"time": t, "lead": 0.45, "detected_at": t + 0.1} for t in (3.0, 4.5, 4.56, 5.2)]}
+    scores = _scores(estimate, truth, events, SimpleNamespace(t=np.arange(0, 10, 0.02)), 5.0)
+    assert scores["events before the grasp (false alarms)"] == 2 and scores["detected change time [s]"] == 4.56
+    assert scores["change time error [samples]"] == -22.0
+
+
 def test_capture_figures_name_the_grasp_and_units():
     from spaceid.data import Log
 

@@ -10,8 +10,11 @@ the linearisation point at which the equation-error covariances ``S_n``
    of the estimate from the samples before it) is normalised by its predicted covariance
    ``L_n^-1 S_n(estimate) L_n^-T + a_n P a_n^T``: under no change ``nu_n ~ N(0, I)``,
    independent from sample to sample;
-   when the warm-up's residuals are autocorrelated (differentiated rates), an AR filter fitted
-   to them prewhitens the innovations (:meth:`Monitor._set_prewhitening`);
+   when the rates were differentiated by a recorded Savitzky-Golay filter, a Kalman filter on the
+   raw angle noise in the differentiator's windows and the estimate's error whitens them instead
+   (:mod:`~spaceid.estimation._monitor_filter`); when the warm-up's residuals are otherwise
+   autocorrelated, an AR filter fitted to them (:meth:`Monitor._set_prewhitening`). A sample is
+   tested once its rates are final: the last half window of differentiated rates never is;
 2. feeds a CUSUM of the log-likelihood ratio of an innovation inflated ``change_ratio`` times in
    variance against none; its threshold gives the requested false-alarm rate (one alarm per
    ``1 / false_alarm_rate`` samples on average, :func:`cusum_threshold`);
@@ -20,9 +23,10 @@ the linearisation point at which the equation-error covariances ``S_n``
    sample whatever the log's length.
 
 An alarm closes the segment at the estimated change time (within the CUSUM's last excursion
-above zero, :meth:`Monitor._change_time`) and starts a new one there; once the new segment's warm-up is identified, the event reports the
-z-scores of the change (:func:`~spaceid.estimation.compare`). Each closed segment is re-identified
-in batch from at most ``max_segment`` of its samples (evenly thinned), so memory stays bounded.
+above zero, :meth:`Monitor._change_time`) and starts a new one there; once the new segment's
+warm-up is identified, the event reports the z-scores of the change (:func:`~spaceid.estimation.compare`).
+Each closed segment is re-identified in batch from at most ``max_segment`` of its samples (evenly
+thinned), so memory stays bounded.
 """
 
 from __future__ import annotations
@@ -45,6 +49,8 @@ from ..dynamics import Parameterization
 from ._equations import _equations
 from ._estimators import _accumulate_factor, _column_scale, _whiten
 from ._identify import identify
+from ._differentiated import differentiated_series
+from ._monitor_filter import DifferentiatedWhitener
 from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
 from ._uncertainty import SIGNIFICANCE, _correlation_length, _residual_checks
@@ -65,7 +71,10 @@ too loose for the normalisation of the residuals that follow (false alarms early
 NOISE_SAMPLES = 500
 """Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
 AR_ORDER = 3
-"""Order of the autoregressive filter that prewhitens correlated innovations (differentiated rates)."""
+"""Order of the autoregressive filter that prewhitens correlated innovations (rates differentiated otherwise)."""
+PRIOR = 100.0
+"""The differentiator's whitening starts each segment with the estimate's error this many times
+the warm-up's weighted least-squares covariance: weak against the warm-up itself, which it then takes in."""
 
 
 def _ar_fit(res: np.ndarray, order: int, p: int) -> tuple:
@@ -283,6 +292,8 @@ class Monitor:
         self.param, self.where = param, where
         self.momentum = np.asarray(momentum, float)
         self.known, self.noise, self.estimator = dict(known or {}), noise, estimator
+        # the raw angle noise of differentiated rates: as given, else the differentiator's estimate from the record
+        self._raw_levels = (0.0, 0.0) if noise is None or noise.source != "given" else (noise.angle, noise.attitude)
         self.false_alarm_rate, self.change_ratio, self.forgetting = false_alarm_rate, change_ratio, forgetting
         self.threshold = cusum_threshold(false_alarm_rate, param.rows, change_ratio)
         self.expected_delay = cusum_run_length(self.threshold, param.rows, change_ratio, actual=change_ratio)
@@ -302,10 +313,12 @@ class Monitor:
         self.n_samples = self.n_tested = 0
         self._recent = collections.deque(maxlen=self.warmup)  # samples an alarm may hand to the next segment
         self._pending = None  # an alarm whose comparison waits for the next warm-up
-        self._meta = None  # the first samples' meta: its differentiation record
-        self._window = None  # the differentiator's window [samples] (:meth:`_set_prewhitening`)
+        self._t0 = None  # the first sample's stamp [s]: the origin of the differentiators' raw grids
+        self._window = None  # the differentiator's window [samples], from the first samples (:meth:`update`)
         self._step_s = 0.0  # the sample step [s], set with it
         self._skip = 0  # samples still to drop after an alarm
+        self._held = []  # the last half window of samples: their rates may change with the samples to come
+        self._whitener = None  # the Kalman whitening of differentiated rates' errors (:meth:`_set_prewhitening`)
         self._open(start=None)
         if noise is None:
             self._target = max(self.warmup, NOISE_SAMPLES)
@@ -315,7 +328,7 @@ class Monitor:
     def _open(self, start):
         self._warm, self._thinned, self._R, self._g = [], _Thinned(self.max_segment), None, 0.0
         self._start, self._count, self._ident, self._target = start, 0, None, self.warmup
-        self._prewhitening = None
+        self._prewhitening, self._kalman = None, False  # _kalman: the segment uses the differentiator's whitening
         self._excursion = collections.deque(maxlen=self.warmup)  # (t, nu^T nu) since the CUSUM last left zero
 
     def _identify(self, rows, label) -> Identification:
@@ -344,52 +357,87 @@ class Monitor:
             return []
         self._theta_ref = self._ident.values[self._eq.free]
         self._sigma = signal_sigma(self.param, self.noise)
-        block = self._whitened(_log(rows, self.param.model, self.where))[0]
-        block = block.reshape(-1, block.shape[-1])
+        white, L, J, _ = self._whitened(_log(rows, self.param.model, self.where))
+        block = white.reshape(-1, white.shape[-1])
         self._scale = _column_scale(block[:, :-1])
         self._R = _accumulate_factor(None, np.asfortranarray(block / np.r_[self._scale, 1.0]))
-        self._set_prewhitening(block, rows)
+        self._set_prewhitening(block, rows, L, J)
         for row in rows:
             self._thinned.add(row)
             self._recent.append(row)
         self._warm = []
         return self._complete_pending()
 
-    def _set_prewhitening(self, block, rows):
-        """The segment's prewhitening filter from the warm-up's whitened residuals at its batch
-        estimate: an AR(``AR_ORDER``) filter and the std it leaves when the rates were
-        differentiated or the residuals are autocorrelated (Ljung-Box at ``SIGNIFICANCE``, as the
-        identification's covariance choice), else none (the innovations are independent)."""
+    def _set_prewhitening(self, block, rows, L, J):
+        """The segment's prewhitening from the warm-up's whitened equations ``block (m, p + 1)`` at
+        its batch estimate, their whiteners ``L`` and Jacobians ``J`` there: the differentiator's
+        Kalman whitening when the log records Savitzky-Golay rates (:meth:`_warm_whitening`) and the
+        warm-up agrees with its model: its innovations independent (Ljung-Box) and not smaller than
+        predicted (the lower tail of chi2/dof), both at ``SIGNIFICANCE``. Otherwise an
+        AR(``AR_ORDER``) filter and the std it leaves, fitted to the residuals, when the rates were
+        differentiated or the residuals are autocorrelated (Ljung-Box, as the identification's
+        covariance choice); else none (the innovations are independent)."""
         res = (block[:, -1] - block[:, :-1] @ self._theta_ref).reshape(len(rows), self.param.rows)
         checks = _residual_checks(res, res.size, None)
-        if self._window is None:  # the first warm-up: its samples with the log's record of differentiation
-            self._window = _correlation_length(dataclasses.replace(_log(rows, self.param.model, ""), meta=self._meta))
-            self._step_s = float(np.median(np.diff([r[0] for r in rows])))  # the sample step [s]
-        window = self._window
-        order = AR_ORDER if (window or checks["ljung_box_p"] < SIGNIFICANCE) and len(rows) > 4 * AR_ORDER else 0
+        chi2_dof, kalman_scale, kalman_p = None, 1.0, None
+        if self._whitener:
+            nu, chi2_dof, kalman_scale, small = self._warm_whitening(rows, block, res, L, J)
+            kalman_p = _residual_checks(nu, nu.size, None)["ljung_box_p"]
+        self._kalman = bool(self._whitener) and kalman_p >= SIGNIFICANCE and not small
+        correlated = self._window or checks["ljung_box_p"] < SIGNIFICANCE
+        order = AR_ORDER if not self._kalman and correlated and len(rows) > 4 * AR_ORDER else 0
         coef, scale = _ar_fit(res, order, len(self._theta_ref)) if order else (np.zeros(0), 1.0)
-        self._ar, self._ar_scale = coef, scale
+        self._ar, self._ar_scale, self._kalman_scale = coef, scale, kalman_scale
         self._history = collections.deque(list(res[len(res) - order :]), maxlen=order)  # the lags of the first test
-        self._prewhitening = {"order": order, "coefficients": coef.tolist(), "scale": scale,
+        self._prewhitening = {"filter": "differentiator" if self._kalman else "autoregressive" if order else None,
+                              "order": order, "coefficients": coef.tolist(), "scale": scale, "chi2_dof": chi2_dof,
+                              "differentiator_scale": kalman_scale if self._whitener else None,
+                              "innovations_ljung_box_p": kalman_p,
                               "lag1_autocorrelation": checks["lag1_autocorrelation"],
-                              "ljung_box_p": checks["ljung_box_p"], "differentiator_window": window}
+                              "ljung_box_p": checks["ljung_box_p"], "differentiator_window": self._window or 0}
+
+    def _warm_whitening(self, rows, block, res, L, J) -> tuple:
+        """Run the differentiator's whitening over the warm-up's residuals ``res (n, rows)`` (its state
+        then predicts the first tested sample): its innovations ``(n, rows)``, their chi2/dof (``p``
+        unknowns fitted), the scale the test divides them by: 1, or ``sqrt(chi2/dof)`` when they are
+        larger than the noise model predicts (the upper tail below ``SIGNIFICANCE``: effects it
+        does not have), and whether they are smaller than it predicts (the lower tail)."""
+        self._start_whitener()
+        a = block[:, :-1].reshape(len(rows), self.param.rows, len(self._scale)) / self._scale
+        Li = np.linalg.inv(L)
+        R = Li @ equation_covariance(J, self._whitener.uncovered(self._sigma)) @ np.swapaxes(Li, -1, -2)
+        nu = [self._whitener.innovation(r, self._whitener.design(row[0], ai, li @ j), c)
+              for row, r, ai, li, j, c in zip(rows, res, a, Li, J, R)]  # fmt: skip
+        dof = max(res.size - len(self._theta_ref), 1)
+        chi2_dof = float(np.sum(np.square(nu)) / dof)
+        scale = math.sqrt(chi2_dof) if chi2.sf(chi2_dof * dof, dof) < SIGNIFICANCE else 1.0
+        return np.array(nu), chi2_dof, scale, bool(chi2.cdf(chi2_dof * dof, dof) < SIGNIFICANCE)
+
+    def _start_whitener(self):
+        """Start the differentiator's whitening with the estimate's error ``PRIOR`` times as uncertain
+        as the segment's weighted least-squares estimate says."""
+        p = len(self._scale)
+        r_inv = solve_triangular(self._R[:p, :p], np.eye(p))
+        self._whitener.start(PRIOR * r_inv @ r_inv.T)
 
     def _whitened(self, log: Log, derivatives: bool = False) -> tuple:
         """``log``'s equations ``[A | b]`` whitened by ``S_n`` at the linearisation point, ``(n, rows,
-        p + 1)``, the Cholesky factors ``L_n (n, rows, rows)`` of ``S_n`` and, if ``derivatives``, those
-        of the equations ``[A | -b]`` in each signal, ``(n, rows, p + 1, n_x)`` (the equation error's
-        Jacobian at any estimate is their product with ``[theta; 1]``)."""
+        p + 1)``, the Cholesky factors ``L_n (n, rows, rows)`` of ``S_n``, the equation errors' Jacobians
+        there ``(n, rows, n_x)`` and, if ``derivatives``, those of the equations ``[A | -b]`` in each
+        signal, ``(n, rows, p + 1, n_x)`` (the equation error's Jacobian at any estimate is their
+        product with ``[theta; 1]``)."""
         eq = dataclasses.replace(self._eq, rot=quat_to_matrix(log.base_quat))
         x = eq.signals(log)
-        L = _whiten(equation_covariance(eq.jacobian(x, self._theta_ref), self._sigma))
+        J = eq.jacobian(x, self._theta_ref)
+        L = _whiten(equation_covariance(J, self._sigma))
         white = np.linalg.solve(L, eq.phi(x))
         white[..., -1] *= -1
         if not derivatives:
-            return white, L, None
+            return white, L, J, None
         n, n_x = x.shape  # every signal direction in one call: the regressor's cost is mostly per call
         tiled = dataclasses.replace(eq, rot=np.tile(eq.rot, (n_x, 1, 1)))
         D = tiled.dphi(np.tile(x, (n_x, 1)), np.repeat(np.eye(n_x), n, axis=0))
-        return white, L, np.moveaxis(D.reshape((n_x, n) + D.shape[1:]), 0, -1)
+        return white, L, J, np.moveaxis(D.reshape((n_x, n) + D.shape[1:]), 0, -1)
 
     def _complete_pending(self) -> list:
         if self._pending is None:
@@ -447,8 +495,15 @@ class Monitor:
         # the equation error's covariance at the estimate so far (the weights stay at the linearisation point)
         J = np.einsum("rcx,c->rx", D, np.append(theta / self._scale, 1.0))
         Li = np.linalg.inv(L)
-        C = Li @ equation_covariance(J[None], self._sigma)[0] @ Li.T + u.T @ u
-        nu = solve_triangular(np.linalg.cholesky(C), e, lower=True)
+        if self._kalman:  # what the samples before do not predict of the residual at the linearisation point
+            C = Li @ equation_covariance(J[None], self._whitener.uncovered(self._sigma))[0] @ Li.T
+            e_ref = b - a @ (self._theta_ref * self._scale)
+            nu = self._whitener.innovation(e_ref, self._whitener.design(row[0], a, Li @ J), C) / self._kalman_scale
+            if self.forgetting < 1:
+                self._whitener.forget(self.forgetting)
+        else:
+            C = Li @ equation_covariance(J[None], self._sigma)[0] @ Li.T + u.T @ u
+            nu = solve_triangular(np.linalg.cholesky(C), e, lower=True)
         if len(self._ar):  # prewhitened: what the AR filter of the past innovations does not predict
             past = np.array(self._history)[::-1]  # lag 1 first
             self._history.append(nu)
@@ -496,15 +551,39 @@ class Monitor:
         handed = handed[self._window or 0 :]
         self._warm, self._count = handed, len(handed)
 
+    def _read_differentiation(self, samples: Log):
+        """The differentiator's window from the first samples, and its filters from each part's
+        record (a bag's parts are differentiated one by one)."""
+        if self._window is None and samples.n_samples > 1:
+            self._window = _correlation_length(samples)
+            self._step_s = float(np.median(np.diff(samples.t)))  # the sample step [s]
+        if self._whitener is None or not self._whitener.follows(samples):
+            series = differentiated_series(samples)
+            p = len(self._eq.free)
+            self._whitener = DifferentiatedWhitener(series, self._t0, p, self._raw_levels) if series else None
+            self._kalman = self._kalman and self._whitener is not None
+            if self._kalman:  # new filters within a tested segment: start afresh
+                self._start_whitener()
+
     def update(self, samples: Log) -> list:
         """Feed new samples (a :class:`~spaceid.data.Log` of one or more rows, after those fed
-        before); returns the events they complete, in order (often none)."""
-        rows, events, i = _rows(samples), [], 0
-        if self._start is None and rows:
-            self._start = float(rows[0][0])
-        self.n_samples += len(rows)
-        if self._meta is None:
-            self._meta = samples.meta
+        before); returns the events they complete, in order (often none).
+
+        A sample is taken once its rates are final: with differentiated rates, once half the
+        differentiator's window of samples has come after it (the rates of the last half window
+        come from one-sided windows: extrapolations, never tested)."""
+        if self._start is None and samples.n_samples:
+            self._start = self._t0 = float(samples.t[0])
+        self.n_samples += samples.n_samples
+        self._read_differentiation(samples)
+        rows, events, i = self._held + _rows(samples), [], 0
+        half = -(-(self._window or 0) // 2)
+        cut = max(len(rows) - half, 0)
+        rows, self._held = rows[:cut], rows[cut:]
+        if not rows:
+            return events
+        if half:
+            samples = dataclasses.replace(_log(rows, self.param.model, self.where), meta=samples.meta)
         while True:
             if self._R is None and len(self._warm) >= self._target:
                 events += self._begin_testing()
@@ -522,7 +601,7 @@ class Monitor:
                 i += take
                 continue
             end = min(len(rows), i + self._block)
-            white, L, D = self._whitened(samples.select(slice(i, end)), derivatives=True)
+            white, L, _, D = self._whitened(samples.select(slice(i, end)), derivatives=True)
             for k in range(len(white)):
                 if self._step(rows[i + k], white[k], L[k], D[k]):
                     self._alarm(rows[i + k])
@@ -533,7 +612,8 @@ class Monitor:
 
     def finish(self) -> dict:
         """Close the last segment and return the record of the run (``EVENTS.json``, see
-        docs/formats/events-json.md), with each segment's batch identification."""
+        docs/formats/events-json.md), with each segment's batch identification. The samples held
+        back (:meth:`update`: the last half window of differentiated rates) are left out."""
         self._close(None)
         if self._pending is not None:  # an alarm too close to the end for a warm-up: compare with what there is
             before, after = (s["identification"] for s in self.segments[-2:])

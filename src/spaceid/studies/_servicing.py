@@ -8,10 +8,12 @@ recorded as one bag (``capture.bag``, ...), read back as a lab recording; then
 
 1. the change monitor (:class:`~spaceid.estimation.Monitor`, the servicer's minimal parameters as
    its structure) runs over it sample by sample and reports the change it detects, scored against
-   the twin's grasp tick. Its noise levels are those of the excitation's log, scaled so that the
-   identification before fits it with chi2/dof = 1: the levels estimated from a log understate
-   the error of differentiated rates (chi2/dof about 30 on the ideal twin), and the CUSUM's
-   false-alarm rate holds only for the true levels;
+   the twin's grasp tick (an event's change lies within its ``lead`` after its time). Its noise
+   levels are those of the excitation's log, scaled so that the identification before fits it
+   with chi2/dof = 1: the levels estimated from a log understate the error of differentiated
+   rates (chi2/dof about 30 on the ideal twin), and the CUSUM's false-alarm rate holds only for
+   the true levels. (The differentiated signals' errors are whitened with the raw angle noise
+   that the bag reader's differentiator estimated; these levels are for the others.);
 2. the payload is identified from the post-capture excitation (:func:`~spaceid.identified.identify_payload`)
    with the twin's servicer model (the CAD model with the tank as it was at the grasp): the known
    servicer of a servicing mission, and on the twin the truth, so that the z-scores against the
@@ -51,9 +53,6 @@ MONITOR_WARMUP = 100
 """Samples of each monitored segment identified before its test starts (2 s at the bag's 50 Hz):
 the 5 s held-out motion then leaves 3 s tested before the grasp. The monitor's default, 200,
 leaves 1 s, and a false alarm then starts a segment whose warm-up covers the grasp."""
-EARLY = 0.5
-"""How long before the grasp [s] an event still counts as the grasp's: the differentiated rates
-see the motion that starts at the grasp up to half the differentiator's window earlier."""
 SETTINGS_KEYS = ("mass", "com", "inertia", "velocity", "rate", "link", "offset", "yaw")
 
 
@@ -193,7 +192,7 @@ def run_servicing(held_out_run, protocol: CaptureProtocol, trajectory: FourierTr
 def _payload(servicer, log: Log, link: str, grasp: float, duration: float, drift, motion, seed: int,
              where: str) -> tuple:
     """The payload identified from the post-capture excitation of ``log`` (grasp at ``grasp`` [s],
-    the excitation ``duration`` [s] long, the arm held still for ``HOLD`` s before the grasp), as
+    the excitation ``duration`` [s] long, the arm held still for ``identified._grasp.HOLD`` s before the grasp), as
     'spaceid payload --grasp' does it (:func:`~spaceid.identified.payload_after_grasp`).
 
     The servicer's momentum before the grasp: without drift terms it is zero (the system started
@@ -246,15 +245,17 @@ def _monitor(model, log: Log, before: Identification, seed: int) -> dict:
 
 
 def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict:
-    """The payload against its truth (z-scores), and the first event from ``EARLY`` before the
-    grasp on against the grasp, in seconds and in samples of ``log`` (earlier events: false alarms)."""
+    """The payload against its truth (z-scores), and the first event that can be the grasp's against
+    the grasp, in seconds and in samples of ``log``: an event's change lies between its ``time`` and
+    ``time + lead`` (the differentiated rates show it up to ``lead`` early), to within a sample step;
+    events whose interval ends before the grasp are false alarms."""
     payload = truth["payload"]
     true = {"m": payload["mass"], "cx": payload["com"][0], "cy": payload["com"][1], "cz": payload["com"][2]}
     inertia = np.asarray(payload["inertia"])
     true |= dict(zip(("Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"), inertia[[0, 0, 1, 0, 1, 2], [0, 1, 1, 2, 2, 2]]))
     true = np.array([true[n] for n in estimate.names])
     dt = float(np.median(np.diff(log.t)))
-    found = [e for e in events["events"] if e["time"] >= grasp - EARLY]
+    found = [e for e in events["events"] if e["time"] + e["lead"] + dt >= grasp]
     first = found[0] if found else None
     return {
         "payload": [{"name": n, "true": float(t), "estimate": float(v), "std": float(e),
