@@ -9,8 +9,8 @@ the same output array. The regressor runs on the threads the library takes (``wo
 both cores when they are idle) and on one thread; Pinocchio and the fill run on one.
 ``--baseline FILE`` times another ``_regressor.py`` (for example ``/work/main/src/spaceid/
 dynamics/_regressor.py``, the code before a change; it runs on the ``_kinematics.py`` beside it when
-there is one, else on this tree's) in the same repeats, and prints how far its regressor is from this one. The first calls of a fresh process
-(regressor, momentum, linearised regressor) are timed with an empty Numba cache (the kernels
+there is one, else on this tree's) in the same repeats, and prints how far its regressor is from
+this one. The first calls of a fresh process (regressor, momentum, linearised regressor) are timed with an empty Numba cache (the kernels
 compiled) and again with the cache that run left (loaded), in child processes.
 
 Then the wall time of identification from 10,000 samples (regressor and solve):
@@ -196,7 +196,8 @@ def regressor_speed(args, model, param, states, pinocchio_loop, derive):
         print(f"  {label:<31}{per_sample(k):8.2f} us/sample  ({cpu_per_sample(k)}) {note}")
 
     row("spaceid minimal regressor", "regressor", f"{threads} thread{'s' if threads > 1 else ''} now = "
-        f"{ratio('regressor', 'pinocchio'):.2f} x pinocchio (target <= 3), {ratio('regressor', 'floor'):.1f} x the floor")
+        f"{ratio('regressor', 'pinocchio'):.2f} x pinocchio (target <= 3), "
+        f"{ratio('regressor', 'floor'):.1f} x the floor")
     for k in ("one thread", "two threads"):
         row(f"  on {k}", k, f"= {ratio(k, 'pinocchio'):.2f} x pinocchio, {ratio(k, 'floor'):.1f} x the floor")
     row("  allocating its output", "allocating", f"= {ratio('allocating', 'pinocchio'):.2f} x pinocchio")
