@@ -10,8 +10,9 @@ both cores when they are idle) and on one thread; Pinocchio and the fill run on 
 ``--baseline FILE`` times another ``_regressor.py`` (for example ``/work/main/src/spaceid/
 dynamics/_regressor.py``, the code before a change; it runs on the ``_kinematics.py`` beside it when
 there is one, else on this tree's) in the same repeats, and prints how far its regressor is from
-this one. The first calls of a fresh process (regressor, momentum, linearised regressor) are timed with an empty Numba cache (the kernels
-compiled) and again with the cache that run left (loaded), in child processes.
+this one. The first calls of a fresh process (regressor, momentum, linearised regressor) are timed
+with an empty Numba cache (the kernels compiled) and again with the cache that run left (loaded),
+in child processes.
 
 Then the wall time of identification from 10,000 samples (regressor and solve):
 least squares (``ols``, the target) on exact data, beside the same with the former factor
