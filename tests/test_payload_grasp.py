@@ -12,6 +12,7 @@ from spaceid.cli import app
 from spaceid.data import Log, differentiate_log, write_log, yaw_to_quat
 from spaceid.dynamics import body_states, system_com
 from spaceid.identified import GraspMotion, hold_momentum, identify_payload, payload_after_grasp, payload_map
+from spaceid.models import inertial_vector
 from spaceid.motion import FourierTrajectory, add_noise
 
 PAYLOAD = (0.3, [0.05, 0.01], 7.8e-4)  # on Cepheus' end effector: mass, CoM in link2's frame, Izz about the CoM
@@ -145,6 +146,32 @@ def test_moving_payload_recovered_noise_free_with_its_momentum(cepheus):
     assert 0 < unknown.settings["momentum_payload_correlation"] < 1
     with pytest.raises(spaceid.SpaceidError, match="estimated with the payload"):
         identify_payload(pmap, log, "link2", None, grasp_motion=motion)
+
+
+def test_spatial_moving_payload_recovered_noise_free_with_its_momentum():
+    """A payload moving in 3D (velocity off the plane, rate about a tilted axis) grasped by a spatial
+    servicer: recovered to 1e-8, its momentum the body-by-body sum's."""
+    pmap = payload_map("satellite-7dof", "arm_link7")
+    traj = _motion(pmap, 15.0, 3)
+    mass, com = 20.0, np.array([0.05, -0.03, 0.3])
+    inertia = np.diag([2.0, 2.5, 1.5]) + 0.1 * np.ones((3, 3))
+    velocity, rate = np.array([0.04, -0.03, 0.02]), np.array([0.1, -0.2, 0.3])
+    q0 = traj.evaluate(np.zeros(1))[0][0]
+    h_servicer = np.array([0.5, -1.0, 2.0])
+    brought = _brought_by_sums(pmap.param.model, pmap.body, q0, velocity, rate, mass, com, inertia)
+    theta = inertial_vector(mass, com, inertia)
+    log = spaceid.simulate(pmap.param, pmap.pi(theta), traj, np.linspace(0, 15, 120), h_servicer + brought,
+                           model=pmap.model(theta))  # fmt: skip
+    est = identify_payload(pmap, log, "arm_link7", h_servicer, grasp_motion=GraspMotion(velocity, rate, q0, np.eye(3)),
+                           noise=spaceid.Noise())  # fmt: skip
+    assert est.mass == pytest.approx(mass, rel=1e-8)
+    np.testing.assert_allclose(est.com, com, atol=1e-8)
+    np.testing.assert_allclose(est.inertia, inertia, atol=1e-8 * np.abs(inertia).max())
+    np.testing.assert_allclose(est.settings["payload_momentum"], brought, rtol=1e-8, atol=1e-10)
+    with warnings.catch_warnings():  # the motion ignored: the fit is off (its estimate projected inexactly)
+        warnings.simplefilter("ignore", UserWarning)
+        off = identify_payload(pmap, log, "arm_link7", h_servicer, noise=spaceid.Noise())
+    assert abs(off.mass - mass) > 1e-3 * mass
 
 
 def test_moving_payload_placed_at_the_grasp_instant_of_a_turning_base(cepheus):
