@@ -3,6 +3,7 @@ momentum over the hold and its error carried into the payload's, a payload that 
 
 import json
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -176,9 +177,10 @@ def test_spatial_moving_payload_recovered_noise_free_with_its_momentum():
 
 def test_moving_payload_placed_at_the_grasp_instant_of_a_turning_base(cepheus):
     """The servicer spins before the grasp (joints still, base turning) and the grasp falls between
-    samples: the configuration that places the moving payload is interpolated at the grasp instant
-    (to 1e-3 across the rates' jump, the next sample 2 ms after it). The sample before it, 0.03 s
-    earlier with the base at 1.7 rad/s, turned the lever arm: the mass 0.6 % off, Izz 6 %."""
+    samples: the configuration that places the moving payload is the one at the grasp instant,
+    from the last samples that the differentiators' smear of the grasp does not reach, carried to
+    it by their rates. The sample before it, 0.03 s earlier with the base at 1.7 rad/s, turned the
+    lever arm: the mass 0.6 % off, Izz 6 %."""
     pmap, traj = cepheus
     theta, h_servicer = _theta(*PAYLOAD), np.array([0, 0, 0.3])
     q0 = traj.evaluate(np.zeros(1))[0][0]
@@ -195,8 +197,18 @@ def test_moving_payload_placed_at_the_grasp_instant_of_a_turning_base(cepheus):
               np.r_[np.tile([0, 0, w0], (n, 1)), after.base_w[1:]], planar=True)  # fmt: skip
     est, _ = payload_after_grasp(pmap, log, "link2", grasp, h_servicer, payload_motion=(VELOCITY, RATE),
                                  noise=spaceid.Noise())  # fmt: skip
-    np.testing.assert_allclose(est.values, TRUTH, rtol=2e-3)  # 0.6 % and 6 % off from the sample before
-    assert est.settings["grasp"]["payload_motion"]["configuration_at"] == grasp
+    np.testing.assert_allclose(est.values, TRUTH, rtol=1e-8)  # 0.6 % and 6 % off from the sample before
+    assert est.settings["grasp"]["payload_motion"]["configuration_from"] == pytest.approx([0.97] * (q0.size + 1))
+    # differentiated: the samples whose windows (joints 0.1 s, base 0.3 s) hold the grasp are smeared
+    near = lambda half: (log.t > grasp - half) & (log.t < grasp)  # noqa: E731
+    meta = {"differentiation": {"base": {"window_s": [0.3]}, "joints": {j: {"window_s": [0.1]} for j in log.joints}}}
+    smeared = replace(log, q=log.q + 0.01 * near(0.05)[:, None],
+                      base_quat=np.where(near(0.15)[:, None], yaw_to_quat(np.full(n + 100, 0.5)), log.base_quat),
+                      meta=meta)  # fmt: skip
+    est, _ = payload_after_grasp(pmap, smeared, "link2", grasp, h_servicer, payload_motion=(VELOCITY, RATE),
+                                 noise=spaceid.Noise())  # fmt: skip
+    np.testing.assert_allclose(est.values, TRUTH, rtol=1e-6)
+    assert est.settings["grasp"]["payload_motion"]["configuration_from"] == pytest.approx([0.92] * q0.size + [0.82])
 
 
 def test_an_estimated_momentum_collinear_with_the_payload_warns(cepheus):
