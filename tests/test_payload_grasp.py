@@ -201,14 +201,15 @@ def test_moving_payload_placed_at_the_grasp_instant_of_a_turning_base(cepheus):
     assert est.settings["grasp"]["payload_motion"]["configuration_from"] == pytest.approx([0.97] * (q0.size + 1))
     # differentiated: the samples whose windows (joints 0.1 s, base 0.3 s) hold the grasp are smeared
     near = lambda half: (log.t > grasp - half) & (log.t < grasp)  # noqa: E731
-    meta = {"differentiation": {"base": {"window_s": [0.3]}, "joints": {j: {"window_s": [0.1]} for j in log.joints}}}
     smeared = replace(log, q=log.q + 0.01 * near(0.05)[:, None],
-                      base_quat=np.where(near(0.15)[:, None], yaw_to_quat(np.full(n + 100, 0.5)), log.base_quat),
-                      meta=meta)  # fmt: skip
-    est, _ = payload_after_grasp(pmap, smeared, "link2", grasp, h_servicer, payload_motion=(VELOCITY, RATE),
-                                 noise=spaceid.Noise())  # fmt: skip
-    np.testing.assert_allclose(est.values, TRUTH, rtol=1e-6)
-    assert est.settings["grasp"]["payload_motion"]["configuration_from"] == pytest.approx([0.92] * q0.size + [0.82])
+                      base_quat=np.where(near(0.15)[:, None], yaw_to_quat(np.full(n + 100, 0.5)), log.base_quat))
+    per_joint = {j: {"method": "savgol", "window_s": [0.1]} for j in log.joints}  # a bag's; differentiate_log's:
+    for joints in (per_joint, {"method": "savgol", "window_s": [0.1] * q0.size}):
+        meta = {"differentiation": {"base": {"method": "savgol", "window_s": [0.3]}, "joints": joints}}
+        est, _ = payload_after_grasp(pmap, replace(smeared, meta=meta), "link2", grasp, h_servicer,
+                                     payload_motion=(VELOCITY, RATE), noise=spaceid.Noise())  # fmt: skip
+        np.testing.assert_allclose(est.values, TRUTH, rtol=1e-6)
+        assert est.settings["grasp"]["payload_motion"]["configuration_from"] == pytest.approx([0.92] * q0.size + [0.82])
 
 
 def test_an_estimated_momentum_collinear_with_the_payload_warns(cepheus):

@@ -178,7 +178,10 @@ def _configuration_at(log: Log, t: float) -> tuple:
     """
     info = log.meta.get("differentiation") or {}
     joints = info.get("joints") or {}
-    spans = [max(_window_spans(joints.get(name)), default=0.0) for name in log.joints]
+    if joints.get("window_s") is not None:  # one record, a window per joint (differentiate_log)
+        spans = np.broadcast_to(np.asarray(joints["window_s"], float), len(log.joints)).tolist()
+    else:  # a record per joint (the bag reader), or none
+        spans = [max(_window_spans(joints.get(name)), default=0.0) for name in log.joints]
     spans.append(max(_window_spans(info.get("base")), default=0.0))
     at = [max(int(np.searchsorted(log.t, t - span / 2 + 1e-9, side="right")) - 1, 0) for span in spans]
     j = np.arange(len(log.joints))
