@@ -68,7 +68,9 @@ def one_run(seed, twin, moving, unknown=False, changes=(), window=None):
     grasp = s.scores["grasp time [s]"]
     step = s.scores["sample period [s]"]
     early = [e["time"] - grasp for e in s.events["events"] if e["time"] + e["lead"] + step < grasp]
-    return (_refit_unknown(s, settings) if unknown else s.scores) | {"events before the grasp [s]": early}
+    warm = s.events["segments"][0]["prewhitening"]  # the first warm-up's check of the differentiator's model
+    return (_refit_unknown(s, settings) if unknown else s.scores) | {"events before the grasp [s]": early,
+                                                                      "first warm-up": warm}
 
 
 def _refit_unknown(s, settings):
@@ -106,6 +108,12 @@ def summarise(label, runs):
           f"{len(runs)} runs")
     early = sorted(t for r in runs for t in r["events before the grasp [s]"])
     print(f"  their change times from the grasp [s]: {', '.join(f'{t:+.2f}' for t in early) or 'none'}")
+    warm = [r["first warm-up"] or {} for r in runs]  # None: the warm-up was never identified
+    chi2 = [w["chi2_dof"] for w in warm if w.get("chi2_dof") is not None]
+    if chi2:
+        fallback = sum(w.get("filter") != "differentiator" for w in warm)
+        print(f"  first warm-up's differentiator innovations: chi2/dof {min(chi2):.2f} to {max(chi2):.2f}, "
+              f"{fallback} of {len(runs)} fall back to the AR filter")
 
 
 def main():
