@@ -10,12 +10,17 @@ one per argument): ``realistic`` (every effect on, ``viscous`` drift identified:
 default) and ``ideal`` (``--ideal``). ``--unknown-momentum`` refits each recording with the momentum
 after the grasp estimated with the payload instead (``payload_after_grasp(..., None)``), the
 alternative to giving a moving payload's motion.
+Diagnosis of the events before the grasp: ``--set PART.FIELD=VALUE`` (repeated) changes a twin
+setting (:class:`~spaceid.twin.TwinSettings`: ``mocap.attitude_noise=1e-4``, ``mocap.latency=0``,
+``encoders.counts_per_rev={}``, ``bearing_friction.enabled=false``, ...; VALUE is YAML),
+``--window N`` fixes the Savitzky-Golay window [samples] with which the bags are read (the motion
+capture's and the joints'), instead of the automatic choice (0.7 to 0.9 s for the yaw).
 Per payload parameter over the seeds: bias and RMSE relative to the truth [%], RMSE / median
 predicted std, fraction within 2 sigma, largest |z|; and the change time error [samples] (median
 and range) with the events before the grasp (false alarms).
 
     python benchmarks/bench_capture.py [--seeds 12] [--jobs 2] [--twin realistic ideal] [--moving 0.04 -0.03 0.3]
-        [--unknown-momentum]
+        [--unknown-momentum] [--set mocap.attitude_noise=1e-4] [--window 41]
 """
 
 import argparse
@@ -27,6 +32,7 @@ from dataclasses import replace
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
+import yaml  # noqa: E402
 
 from spaceid.motion import FourierTrajectory  # noqa: E402
 from spaceid.studies import capture_protocol, run_experiment  # noqa: E402
@@ -36,10 +42,21 @@ HELD_OUT = FourierTrajectory(("left_shoulder", "left_elbow"), 5.0, np.array([[0.
                              np.array([[0.1, 0.05, -0.05], [0.1, -0.1, 0.05]]), meta={"name": "held-out"})  # fmt: skip
 
 
-def one_run(seed, twin, moving, unknown=False):
+def one_run(seed, twin, moving, unknown=False, changes=(), window=None):
     """The capture scores of one experiment; ``moving``: None or the payload's ``(vx, vy, rate)``;
-    ``unknown``: the payload refitted with the momentum after the grasp estimated."""
+    ``unknown``: the payload refitted with the momentum after the grasp estimated; ``changes``: the
+    ``--set`` options; ``window``: the differentiators' window [samples], None automatic. Adds the
+    times [s] of the events before the grasp."""
     settings = TwinSettings() if twin == "realistic" else TwinSettings().without_effects()
+    for change in changes:
+        name, value = change.split("=", 1)
+        part, key = name.split(".")
+        settings = replace(settings, **{part: replace(getattr(settings, part), **{key: yaml.safe_load(value)})})
+    if window is not None:  # a diagnosis, not an option of the experiment: its bag reader given the window
+        import spaceid.studies._experiment as experiment
+        from spaceid.data import read_bag_log
+
+        experiment.read_bag_log = lambda *args, **kwargs: read_bag_log(*args, window=window, **kwargs)
     protocol = capture_protocol()
     if moving:
         protocol = replace(protocol, payload=replace(protocol.payload, velocity=moving[:2], rate=moving[2]))
@@ -47,7 +64,13 @@ def one_run(seed, twin, moving, unknown=False):
         warnings.simplefilter("ignore")
         r = run_experiment(trajectory="paper-table2", validation=HELD_OUT, settings=settings, bag_format="mcap",
                            seed=seed, capture=protocol)  # fmt: skip
-        return _refit_unknown(r.servicing, settings) if unknown else r.servicing.scores
+    s = r.servicing
+    grasp = s.scores["grasp time [s]"]
+    step = s.scores["sample period [s]"]
+    early = [e["time"] - grasp for e in s.events["events"] if e["time"] + e["lead"] + step < grasp]
+    warm = s.events["segments"][0]["prewhitening"]  # the first warm-up's check of the differentiator's model
+    return (_refit_unknown(s, settings) if unknown else s.scores) | {"events before the grasp [s]": early,
+                                                                      "first warm-up": warm}
 
 
 def _refit_unknown(s, settings):
@@ -83,6 +106,14 @@ def summarise(label, runs):
     print(f"  change time error [samples]: median {np.nanmedian(delay):.1f}, range {np.nanmin(delay):.0f} to "
           f"{np.nanmax(delay):.0f}, missed {int(np.isnan(delay).sum())}; events before the grasp: {sum(alarms)} in "
           f"{len(runs)} runs")
+    early = sorted(t for r in runs for t in r["events before the grasp [s]"])
+    print(f"  their change times from the grasp [s]: {', '.join(f'{t:+.2f}' for t in early) or 'none'}")
+    warm = [r["first warm-up"] or {} for r in runs]  # None: the warm-up was never identified
+    chi2 = [w["chi2_dof"] for w in warm if w.get("chi2_dof") is not None]
+    if chi2:
+        fallback = sum(w.get("filter") != "differentiator" for w in warm)
+        print(f"  first warm-up's differentiator innovations: chi2/dof {min(chi2):.2f} to {max(chi2):.2f}, "
+              f"{fallback} of {len(runs)} fall back to the AR filter")
 
 
 def main():
@@ -93,13 +124,18 @@ def main():
     parser.add_argument("--moving", nargs=3, type=float, metavar=("VX", "VY", "RATE"),
                         help="a payload that moves when grasped [m/s, m/s, rad/s]")
     parser.add_argument("--unknown-momentum", action="store_true", help="refit with the momentum estimated")
+    parser.add_argument("--set", action="append", default=[], metavar="PART.FIELD=VALUE", help="a twin setting")
+    parser.add_argument("--window", type=int, help="the differentiators' window [samples] (default automatic)")
     args = parser.parse_args()
     with ProcessPoolExecutor(args.jobs) as pool:
         for twin in args.twin:
             runs = list(pool.map(one_run, range(args.seeds), [twin] * args.seeds, [args.moving] * args.seeds,
-                                 [args.unknown_momentum] * args.seeds))  # fmt: skip
-            moving = "" if args.moving is None else f", payload moving {args.moving}"
-            summarise(f"{twin}{moving}{', momentum estimated' if args.unknown_momentum else ''}", runs)
+                                 [args.unknown_momentum] * args.seeds, [args.set] * args.seeds,
+                                 [args.window] * args.seeds))  # fmt: skip
+            label = twin + ("" if args.moving is None else f", payload moving {args.moving}")
+            label += ", momentum estimated" if args.unknown_momentum else ""
+            label += "".join(f", {change}" for change in args.set)
+            summarise(label + ("" if args.window is None else f", window {args.window} samples"), runs)
 
 
 if __name__ == "__main__":
