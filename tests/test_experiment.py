@@ -69,7 +69,8 @@ def test_validation_is_on_a_held_out_motion(ideal):
     assert s["validation window [s]"][0] == pytest.approx(s["excitation window [s]"][1] + 1)  # after its hold
     assert res.validation_log.n_samples == s["validation samples"] == 251
     # the held-out metrics are not those of the fitting log, and report the re-simulated held-out motion
-    assert res.metrics != res.fit_metrics and np.array_equal(res.predicted.q, res.validation_log.q)
+    assert res.metrics != res.fit_metrics  # the spline through the held-out samples gives them back to round-off
+    assert np.abs(res.predicted.q - res.validation_log.q).max() <= 1e-14 * np.abs(res.validation_log.q).max()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the experiment never validates on a fitting log itself
         kinematic = validate(res.ident, res.validation_log, momentum=np.zeros(3))[1]
