@@ -464,3 +464,24 @@ def _rotor():
     param = minimal_parameters(load_model("cepheus-rw"))
     ((value, _),) = resolve_anchors(param, {}, "cepheus-rw").values()
     return value
+
+
+def test_monitor_takes_the_differentiator_window_of_a_bag(capture_bag, tmp_path, capsys):
+    """``--window`` sets every differentiated series' window: the events' lead is half the widest one (41
+    encoder samples at 50 Hz); an even window, or one for a CSV log, is a one-line error."""
+    from spaceid.data import read_bag_log
+
+    bag, _ = capture_bag
+    out = tmp_path / "events.json"
+    args = ["monitor", "cepheus-rw", str(bag), "--momentum", "0", "--known", f"Iczz_wheel={_rotor()!r}",
+            "--warmup", "100", "--noise-angle", "1e-3", "--noise-rate", "1e-2", "--noise-base-rate", "1e-2",
+            "-o", str(out)]  # fmt: skip
+    assert main(args + ["--window", "41"]) == 0
+    (event,) = json.loads(out.read_text())["events"]
+    assert event["lead"] == pytest.approx(20 * 0.02, rel=0.05)
+    assert main(args + ["--window", "40"]) == 2
+    assert "window" in capsys.readouterr().err
+    csv = tmp_path / "log.csv"
+    write_log(csv, read_bag_log(bag, **_bag_options()))
+    assert main(["monitor", "cepheus-rw", str(csv), "--momentum", "0", "--window", "41", "-o", str(out)]) == 2
+    assert "apply to ROS bags" in capsys.readouterr().err

@@ -270,14 +270,14 @@ def _options(*decorators):
 
 
 def bag_options(f):
-    """Options ``--joint-topic``, ``--pose-topic``, ``--mapping``, ``--joint-rates`` for a log that
-    is a ROS bag, handed to the command as one ``bag`` argument: the keywords of
+    """Options ``--joint-topic``, ``--pose-topic``, ``--mapping``, ``--joint-rates``, ``--window`` for a
+    log that is a ROS bag, handed to the command as one ``bag`` argument: the keywords of
     ``read_log(bag_options=...)``."""
+    keys = ("joint_topic", "pose_topic", "mapping", "joint_rates", "window")
 
     @functools.wraps(f)
     def command(*args, **kwargs):
-        return f(*args, bag={k: kwargs.pop(k) for k in ("joint_topic", "pose_topic", "mapping", "joint_rates")},
-                 **kwargs)
+        return f(*args, bag={k: kwargs.pop(k) for k in keys}, **kwargs)
 
     return _options(
         click.option("--joint-topic", help="Bag logs (.bag, .mcap, ROS 2 bag folder): sensor_msgs/JointState topic "
@@ -290,6 +290,10 @@ def bag_options(f):
                      "joint rates from the encoder angles, differentiated (the default, as 'spaceid experiment' "
                      "reads its bag: one-tick encoder velocities gave 6-17 times larger errors there), from the "
                      "published velocities, or from those where every message has one."),
+        click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Bag logs: Savitzky-Golay "
+                     "window of every differentiated series [samples, odd; default: chosen per series for the "
+                     "rates' least error]. A shorter one than the default lowers the smoothing bias that raises "
+                     "change alarms during fast motion ('spaceid monitor'), at more noise."),
     )(command)
 
 
