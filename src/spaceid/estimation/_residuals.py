@@ -131,13 +131,13 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     est, d = np.append(theta, np.zeros(q)) + step, step[p:]
     change = []
 
-    def scores():  # the leverage-adjusted scores of the fit with the drift columns, mapped by ginv
+    def scores():  # the leverage-adjusted scores of the fit with the drift columns, mapped by ginv's drift rows
         for _, M, rhs, cols, _ in chunks():
             change.append(float(np.abs(cols @ d).max()))
-            yield _mapped_scores(ginv, M, _leverage_adjusted(M, ginv, M @ est + rhs))
+            yield _mapped_scores(ginv[p:], M, _leverage_adjusted(M, ginv, M @ est + rhs))
 
-    cov = _hac(scores(), _correlation_length(log), p + q, dof_scale=False)
-    cdd = cov[p:, p:]
+    # only the drift block of the sandwich is tested: its q rows of ginv, not all p + q (q^2, not (p + q)^2, a lag)
+    cdd = _hac(scores(), _correlation_length(log), q, dof_scale=False)
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     size = n * eq.param.rows
     p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))
