@@ -154,7 +154,8 @@ def open_workers(scheduler: str, jobs: int, shared):
         yield _in_process(shared)
     elif scheduler == "processes":
         with process_pool(jobs, _init_process, (shared,)) as pool:  # an interrupt stops the workers
-            yield Workers(jobs, lambda function, *args: pool.submit(_call_shared, function, *args), _first_done, 2 * jobs)
+            yield Workers(jobs, lambda function, *args: pool.submit(_call_shared, function, *args),
+                          _first_done, 2 * jobs)
     else:
         import distributed
 
@@ -164,7 +165,8 @@ def open_workers(scheduler: str, jobs: int, shared):
                 raise SpaceidError(f"--scheduler: {scheduler} has no workers: start 'dask worker {scheduler}'")
             [remote] = client.scatter([shared], broadcast=True, hash=False)
             yield Workers(n, lambda function, *args: client.submit(_call_with, function, remote, *args, pure=False),
-                          lambda pending: distributed.wait(pending, return_when="FIRST_COMPLETED").done, 2 * n)  # fmt: skip
+                          lambda pending: distributed.wait(pending, return_when="FIRST_COMPLETED").done,
+                          2 * n)  # fmt: skip
 
 
 # --- campaigns ----------------------------------------------------------------------------------

@@ -83,11 +83,13 @@ CHANGE_RATIO = _Number(above=1, fix="give a variance ratio above 1, e.g. 4")
 FORGETTING = _Number(above=0, maximum=1, fix="give a forgetting factor in (0, 1], e.g. 0.999 (1: none)")
 
 MODEL = click.argument("model_src", metavar="MODEL")
-PLANAR = click.option("--planar/--spatial", default=None, help="Force planar (x, y, yaw) or spatial mode; default: the model's.")
+PLANAR = click.option("--planar/--spatial", default=None,
+                      help="Force planar (x, y, yaw) or spatial mode; default: the model's.")
 MOMENTUM_METAVAR = "H|HX,HY,HZ"
 MOMENTUM = click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR, help="Angular momentum of the whole "
                         "system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest.")
-SEED = click.option("--seed", type=SEED_VALUE, default=0, show_default=True, help="Seed of every random choice (recorded in the output).")
+SEED = click.option("--seed", type=SEED_VALUE, default=0, show_default=True,
+                    help="Seed of every random choice (recorded in the output).")
 SCHEDULER = click.option("--scheduler", metavar="SCHEDULER", help="Where the tasks run: processes (a local process "
                          "pool of --jobs), dask (a Dask LocalCluster of --jobs workers) or tcp://HOST:PORT (a running "
                          "'dask scheduler' and its workers); the numbers do not depend on it [default: "
@@ -98,7 +100,8 @@ NOISE = [
     click.option("--noise-angle", type=NOISE_LEVEL, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=NOISE_LEVEL, default=0.0, help="White noise on rates [rad/s]."),
 ]
-ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")  # spaceid.estimation.ESTIMATORS, without importing NumPy here
+# spaceid.estimation.ESTIMATORS, without importing NumPy here
+ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")
 KNOT_SPACING = 0.05  # [s] spaceid.estimation.KNOT_SPACING, likewise
 DRIFT_VALUES = click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="External torque on the base, so "
                             "that the momentum drifts from its --momentum value at t0: torque=TAU (constant torque "
@@ -255,8 +258,10 @@ def noise_options(f):
     return _options(
         click.option("--noise-angle", type=NOISE_LEVEL, help="Noise std of the joint angles [rad]."),
         click.option("--noise-rate", type=NOISE_LEVEL, help="Noise std of the joint rates [rad/s]."),
-        click.option("--noise-base-rate", type=NOISE_LEVEL, help="Noise std of the base angular velocity, per axis [rad/s]."),
-        click.option("--noise-attitude", type=NOISE_LEVEL, help="Noise std of the base attitude, per axis [rad] (spatial)."),
+        click.option("--noise-base-rate", type=NOISE_LEVEL,
+                     help="Noise std of the base angular velocity, per axis [rad/s]."),
+        click.option("--noise-attitude", type=NOISE_LEVEL,
+                     help="Noise std of the base attitude, per axis [rad] (spatial)."),
     )(command)
 
 
@@ -344,7 +349,8 @@ def _progress(label: str, enabled: bool = True):
 
         yield line
         return
-    with Progress(TextColumn(label), BarColumn(), TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn(), console=err, transient=True) as bar:
+    columns = (TextColumn(label), BarColumn(), TextColumn("{task.percentage:>3.0f}%"), TimeElapsedColumn())
+    with Progress(*columns, console=err, transient=True) as bar:
         task = bar.add_task(label, total=None)
         yield lambda done, total: bar.update(task, completed=done, total=total)
 
@@ -489,7 +495,8 @@ def _write_definitions(path, info, model_src):
 @noise_options
 @click.option("--q-max", type=POSITIVE, help="Joint angle limit, largest abs(q) [rad] (default: model limits).")
 @click.option("--qd-max", type=POSITIVE, help="Joint rate limit, largest abs(qd) [rad/s] (default: model limits).")
-@click.option("--qdd-max", type=POSITIVE, help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
+@click.option("--qdd-max", type=POSITIVE,
+              help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
 @click.option("--starts", type=STARTS, help="Local starts of the global search [default: by the problem's size, 64 for "
               "cepheus]; the search also stops once half of them (at least 8) in a row improve the best by under "
               "0.1 %.")
@@ -597,8 +604,8 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
 @click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
-@click.option("--knot-spacing", type=SECONDS, default=KNOT_SPACING, show_default=True, help="--estimator angles: knot spacing "
-              "of the joint-path splines [s]; at least two samples per span.")
+@click.option("--knot-spacing", type=SECONDS, default=KNOT_SPACING, show_default=True,
+              help="--estimator angles: knot spacing of the joint-path splines [s]; at least two samples per span.")
 @click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
               "estimated with the parameters: torque (constant torque [N m]), viscous (base friction -c w0, c in "
               "N m s/rad), coulomb (base friction -mu w0/norm(w0), mu in N m); e.g. --drift viscous on an air-bearing "
@@ -852,7 +859,8 @@ def _validate_torques(ident, log, h, horizon, output, where):
 
 
 @app.command(short_help="The paper's simulation study on the built-in Cepheus model.")
-@click.option("--trajectory", default="designed", show_default=True, help="designed, paper-table2 or a file from 'design'.")
+@click.option("--trajectory", default="designed", show_default=True,
+              help="designed, paper-table2 or a file from 'design'.")
 @_options(*NOISE)
 @SEED
 @click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-report", show_default=True,
@@ -884,8 +892,10 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 
 @app.command(short_help="The paper's Cepheus experiment on the digital twin, through a ROS bag.")
 @click.argument("model_src", metavar="[MODEL]", default="cepheus")
-@click.option("--trajectory", default="designed", show_default=True, help="designed, paper-table2 or a file from 'design'.")
-@click.option("--wheel-speed", type=FINITE, default=170.0, show_default=True, help="Wheel speed relative to the base [rad/s].")
+@click.option("--trajectory", default="designed", show_default=True,
+              help="designed, paper-table2 or a file from 'design'.")
+@click.option("--wheel-speed", type=FINITE, default=170.0, show_default=True,
+              help="Wheel speed relative to the base [rad/s].")
 @click.option("--samples", type=SAMPLES, default=29, show_default=True, help="N, the samples identification uses.")
 @click.option("--format", "bag_format", type=click.Choice(["ros1", "ros2", "mcap"]), default="ros1", show_default=True,
               help="Bag the twin records: ros1 (ROS 1 .bag file), ros2 (ROS 2 bag folder, sqlite3 storage), mcap "
@@ -917,8 +927,9 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-experiment", show_default=True,
               help="Report folder (bag, logs, results, figures, report.md).")
 @OVERWRITE
-def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift, feedforward,
-               rehearsals, capture, capture_mass, capture_settings, capture_trajectory, seed, folder, overwrite):
+def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift,
+               feedforward, rehearsals, capture, capture_mass, capture_settings, capture_trajectory, seed, folder,
+               overwrite):
     """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
     identify from the recorded bag (N samples and all of the excitation), validate the identified
     model on the held-out motion (Fig. 6).
@@ -981,7 +992,8 @@ def _print_servicing(scores: dict) -> None:
 @click.argument("before", metavar="BEFORE.json", type=click.Path(path_type=Path))
 @click.argument("after", metavar="AFTER.json", type=click.Path(path_type=Path))
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
-@click.option("--all", "show_all", is_flag=True, help="List every parameter, not only those that changed (z-score above 3 in magnitude).")
+@click.option("--all", "show_all", is_flag=True,
+              help="List every parameter, not only those that changed (z-score above 3 in magnitude).")
 def compare(before, after, as_json, show_all):
     """Compare two identifications of the same structure, e.g. before and after a capture."""
     from rich.table import Table
@@ -1017,8 +1029,8 @@ def compare(before, after, as_json, show_all):
               "trajectory (paper-table2), or 'designed' (designed now: --duration, --samples, --harmonics, "
               "--criterion, --seed).")
 @click.option("--duration", type=SECONDS, help="Sampled span [s] (default: the trajectory's; required for 'designed').")
-@click.option("--samples", type=SAMPLES, default=35, show_default=True, help="N samples equally spaced over the duration "
-              "(501 over 5 s is 100 Hz, e.g. for --angles-only).")
+@click.option("--samples", type=SAMPLES, default=35, show_default=True,
+              help="N samples equally spaced over the duration (501 over 5 s is 100 Hz, e.g. for --angles-only).")
 @click.option("--harmonics", type=HARMONICS, default=3, show_default=True,
               help="Fourier harmonics of a 'designed' trajectory.")
 @click.option("--criterion", default="cond", show_default=True, help="Design criterion of a 'designed' trajectory "
@@ -1060,8 +1072,9 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
     out.print(montecarlo_table(res))
     for e in res.estimators:
         w = res.summary(e)
-        out.print(f"{e.upper()}, worst over parameters: RMSE {100 * w['relative_rmse']:.3g} %, RMSE/CRB{'*' * angles_only} "
-                  f"{w['rmse_crb']:.2f}, |bias|/std {w['abs_bias_std']:.2f}; {w['runs_ok']}/{res.runs} runs",
+        out.print(f"{e.upper()}, worst over parameters: RMSE {100 * w['relative_rmse']:.3g} %, "
+                  f"RMSE/CRB{'*' * angles_only} {w['rmse_crb']:.2f}, |bias|/std {w['abs_bias_std']:.2f}; "
+                  f"{w['runs_ok']}/{res.runs} runs",
                   highlight=False)
     if folder is not None:
         with _report_folder(folder, overwrite) as tmp:
@@ -1264,12 +1277,15 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid identify': "
               "anchors the scale when the momentum is zero; repeatable.")
 @noise_options
-@click.option("--false-alarm-rate", type=PROBABILITY, default=1e-5, show_default=True, help="False alarms per sample when "
-              "nothing changes (one per 1/RATE samples on average): sets the CUSUM threshold.")
-@click.option("--change-ratio", type=CHANGE_RATIO, default=4.0, show_default=True, help="Innovation variance ratio the test "
-              "is tuned to (a change that doubles the momentum residual's std is 4).")
-@click.option("--forgetting", type=FORGETTING, default=1.0, show_default=True, help="Forgetting factor of the recursive "
-              "estimate, in (0, 1]; 1: each segment's estimate is its batch weighted least squares.")
+@click.option("--false-alarm-rate", type=PROBABILITY, default=1e-5, show_default=True,
+              help="False alarms per sample when nothing changes (one per 1/RATE samples on average): "
+                   "sets the CUSUM threshold.")
+@click.option("--change-ratio", type=CHANGE_RATIO, default=4.0, show_default=True,
+              help="Innovation variance ratio the test is tuned to "
+                   "(a change that doubles the momentum residual's std is 4).")
+@click.option("--forgetting", type=FORGETTING, default=1.0, show_default=True,
+              help="Forgetting factor of the recursive estimate, in (0, 1]; "
+                   "1: each segment's estimate is its batch weighted least squares.")
 @click.option("--warmup", type=SAMPLES, help="Samples of each segment identified in batch before its test starts "
               "[default: max(200, 4 (p + 1) / rows)].")
 @click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES[:-1]), default="ml", show_default=True,

@@ -41,7 +41,8 @@ import numpy as np
 from .._atomic import atomic_path, write_text_atomic
 from .._errors import SpaceidError
 from . import _bags as bags
-from ._tables import _read_text, _read_csv, _check_joint_columns, _require, _column, _check_time, _check_angles, _check_rates, _unit_quaternions, _stack, _is_rate, _PLANAR_BASE, _SPATIAL_BASE
+from ._tables import (_read_text, _read_csv, _check_joint_columns, _require, _column, _check_time, _check_angles,
+                      _check_rates, _unit_quaternions, _stack, _is_rate, _PLANAR_BASE, _SPATIAL_BASE)
 from ._signal_checks import plausibility_warnings
 from ._timeseries import Log, yaw_to_quat
 

@@ -258,7 +258,8 @@ def _check_time(table, t):
     if steps.size and steps.max() > _GAP * np.median(steps):
         i = int(np.argmax(steps)) + 1
         warnings.warn(
-            f"{table.path}: a gap of {steps[i - 1]:.3g} s before line {table.lines[i]} ({steps[i - 1] / np.median(steps):.0f} "
+            f"{table.path}: a gap of {steps[i - 1]:.3g} s before line {table.lines[i]} "
+            f"({steps[i - 1] / np.median(steps):.0f} "
             "median steps): identification uses the samples as they are, but rates cannot be differentiated and "
             "validation re-simulates across it",
             stacklevel=3,

@@ -89,7 +89,8 @@ class _Geometry:
     def __init__(self, model: Model):
         self.model = model
         self.key = (model.planar, tuple(
-            (b.parent, b.joint_type, b.joint, b.name, b.known_zero, b.axis.tobytes(), b.rotation.tobytes(), b.translation.tobytes())
+            (b.parent, b.joint_type, b.joint, b.name, b.known_zero,
+             b.axis.tobytes(), b.rotation.tobytes(), b.translation.tobytes())
             for b in model.bodies
         ))
 
@@ -122,7 +123,8 @@ def _constants(geometry: _Geometry):
             c = [b.rotation @ (np.eye(3) + k @ k), -b.rotation @ k @ k, b.rotation @ k]
         else:  # prismatic: no rotation
             c = [b.rotation, np.zeros((3, 3)), np.zeros((3, 3))]
-        steps.append((b.parent, b.joint_type == "revolute", np.column_stack([*c, b.translation, b.rotation @ b.axis]).T))
+        columns = np.column_stack([*c, b.translation, b.rotation @ b.axis]).T
+        steps.append((b.parent, b.joint_type == "revolute", columns))
     path = np.zeros((len(model.bodies), len(steps)))
     for j in range(1, len(model.bodies)):
         k = j

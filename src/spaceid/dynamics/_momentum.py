@@ -51,7 +51,8 @@ def angular_momentum(model: Model, q, qd, w0, base_quat=None):
     u_c = np.einsum("b,...bi->...i", masses, u) / masses.sum()
     # zero linear momentum: absolute velocity of CoM b is u_b - u_c; about the fixed system CM
     i_com = np.array(
-        [_inertia_matrix(b.inertial) - b.mass * (b.com @ b.com * np.eye(3) - np.outer(b.com, b.com)) for b in model.bodies]
+        [_inertia_matrix(b.inertial) - b.mass * (b.com @ b.com * np.eye(3) - np.outer(b.com, b.com))
+         for b in model.bodies]
     )
     i_base = st.rotation @ i_com @ np.swapaxes(st.rotation, -1, -2)
     spin = np.einsum("...bij,...bj->...i", i_base, st.omega)

@@ -764,7 +764,8 @@ def _derive_minimal(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
     indep, basis = _independent(y_full, tol)
     rank = len(indep)
     if rank == 0:
-        raise SpaceidError(f"{model.source or model.name}: the momentum does not depend on any parameter (no moving body?)")
+        raise SpaceidError(f"{model.source or model.name}: the momentum does not depend on any parameter "
+                           "(no moving body?)")
     symbolic = len(model.bodies) <= PLANAR_SYMBOLIC_BODIES
     if model.planar and symbolic and all(b.joint_type == "revolute" for b in model.bodies[1:]):
         terms = _planar_pairs(len(model.bodies))
@@ -897,7 +898,8 @@ def identifiability(param: Parameterization, *, tol: float | None = None) -> dic
             acts[theta.index(first[a])] = acts[theta.index(first[b])] = True
             acts[[k == 0 for _, k in theta]] = True  # every mass acts through M = sum of masses
     no_effect = [n for n, a in zip(names, acts) if not a]
-    alone = [n for j, n in enumerate(names[:n_theta]) if n not in no_effect and 1 - rowspace[:, j] @ rowspace[:, j] < tol]
+    alone = [n for j, n in enumerate(names[:n_theta])
+             if n not in no_effect and 1 - rowspace[:, j] @ rowspace[:, j] < tol]
     return {
         "no_effect": no_effect,
         "individually_identifiable": alone,

@@ -164,8 +164,8 @@ def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitene
         f", and the residuals are correlated (lag-1 autocorrelation {test['lag1_autocorrelation']:.2f})")
     return test, (f"{where}: the equation residuals trend with time and attitude (Wald p = {test['p_value']:.2g} "
                   f"< {test['alpha']:g}, momentum drift {100 * test['relative_drift']:.2g} % of its RMS{white}): an "
-                  "external torque or base friction changes the momentum: model it with --drift (one term first, e.g. --drift "
-                  "viscous: terms that move alike are confounded; see the drift theory page)")
+                  "external torque or base friction changes the momentum: model it with --drift (one term first, "
+                  "e.g. --drift viscous: terms that move alike are confounded; see the drift theory page)")
 
 
 def _singular_values(factor) -> np.ndarray:

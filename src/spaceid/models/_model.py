@@ -565,7 +565,8 @@ def _check_urdf_tree(text: str, where: str):
     try:
         root = ET.fromstring(text)
     except DefusedXmlException:
-        raise SpaceidError(f"{where}: the URDF declares XML entities or a DTD, which are refused for safety: remove them") from None
+        raise SpaceidError(f"{where}: the URDF declares XML entities or a DTD, which are refused for safety: "
+                           "remove them") from None
     except ET.ParseError as exc:
         raise SpaceidError(f"{where}: not well-formed XML ({exc}): fix the URDF") from None
     if root.tag != "robot":
@@ -781,7 +782,8 @@ def from_pinocchio(pmodel, source: str = "") -> Model:
             bodies.append(Body(name, -1, None, "base", np.zeros(3), np.eye(3), np.zeros(3), inertial))
             continue
         if jm.nv != 1:
-            raise SpaceidError(f"{source}: joint '{pmodel.names[j]}' ({short}) has {jm.nv} degrees of freedom: only 1-DOF joints are supported")
+            raise SpaceidError(f"{source}: joint '{pmodel.names[j]}' ({short}) has {jm.nv} degrees of freedom: "
+                               "only 1-DOF joints are supported")
         # the motion subspace gives the axis for every 1-DOF joint kind (aligned or not)
         jdata = jm.createData()
         jm.calc(jdata, neutral)
@@ -824,7 +826,8 @@ def to_pinocchio(model: Model):
         if b.parent < 0:
             jid = pmodel.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "root_joint")
         else:
-            jm = (pin.JointModelPrismaticUnaligned if b.joint_type == "prismatic" else pin.JointModelRevoluteUnaligned)(b.axis)
+            kind = pin.JointModelPrismaticUnaligned if b.joint_type == "prismatic" else pin.JointModelRevoluteUnaligned
+            jm = kind(b.axis)
             jid = pmodel.addJoint(ids[b.parent], jm, pin.SE3(b.rotation, b.translation), b.joint)
         ids.append(jid)
         pmodel.appendBodyToJoint(jid, pin.Inertia.FromDynamicParameters(b.inertial), pin.SE3.Identity())

@@ -59,7 +59,8 @@ def _quat_rate(quat, w):
     qw, qx, qy, qz = quat
     wx, wy, wz = w
     return 0.5 * np.array(
-        [-qx * wx - qy * wy - qz * wz, qw * wx + qy * wz - qz * wy, qw * wy - qx * wz + qz * wx, qw * wz + qx * wy - qy * wx]
+        [-qx * wx - qy * wy - qz * wz, qw * wx + qy * wz - qz * wy,
+         qw * wy - qx * wz + qz * wx, qw * wz + qx * wy - qy * wx]
     )
 
 

@@ -50,8 +50,10 @@ class DemoResult:
         rel = (self.ident.values - self.true) / self.true * 100
         return {
             "parameters": [
-                {"name": n, "definition": d, "true": float(t), "estimate": float(v), "std": float(s), "relative_error_percent": float(r)}
-                for n, d, t, v, s, r in zip(self.ident.names, self.ident.definitions, self.true, self.ident.values, self.ident.std, rel)
+                {"name": n, "definition": d, "true": float(t), "estimate": float(v), "std": float(s),
+                 "relative_error_percent": float(r)}
+                for n, d, t, v, s, r in zip(self.ident.names, self.ident.definitions, self.true, self.ident.values,
+                                            self.ident.std, rel)
             ],
             "condition_number": self.ident.condition_number,
             "n_samples": self.ident.n_samples,
@@ -106,9 +108,12 @@ def run_demo(
     clean = simulate(param, param.true_values, motion, times, momentum, model=model)
     log = add_noise(clean, angle=noise_angle, rate=noise_rate, seed=seed) if noise_angle or noise_rate else clean
     # the noise levels are known here: the estimator weights by them (none: estimated, ~0)
-    noise = Noise(noise_angle, noise_rate, noise_rate, noise_angle, "given (simulated)") if noise_angle or noise_rate else None
+    noise = None
+    if noise_angle or noise_rate:
+        noise = Noise(noise_angle, noise_rate, noise_rate, noise_angle, "given (simulated)")
     ident = identify(param, log, momentum, noise=noise, where="demo")
-    ident.settings.update(trajectory=traj.meta.get("name", str(trajectory)), seed=seed, noise_angle=noise_angle, noise_rate=noise_rate)
+    ident.settings.update(trajectory=traj.meta.get("name", str(trajectory)), seed=seed, noise_angle=noise_angle,
+                          noise_rate=noise_rate)
     # validation on a fine grid: the true system vs the identified model for the same joint motion
     fine = simulate(param, param.true_values, motion, np.linspace(0, traj.duration, 501), momentum, model=model)
     predicted, metrics = validate(ident, fine, momentum=momentum, where="demo")
@@ -133,16 +138,19 @@ def _write_report(result: DemoResult, log, fine, predicted) -> None:
     grid = np.linspace(0, traj.duration, 501)
     q, qd, qdd = traj.evaluate(grid)
     model = load_model("cepheus")
-    limits = {"q": model.joint_limits("upper"), "qd": model.joint_limits("velocity"), "qdd": model.joint_limits("acceleration")}
+    limits = {"q": model.joint_limits("upper"), "qd": model.joint_limits("velocity"),
+              "qdd": model.joint_limits("acceleration")}
     figures = {
         "Exciting trajectory": "trajectory.png",
         "Validation: measured vs identified model": "validation.png",
         "Parameter estimates": "parameters.png",
         "Singular values of the regressor": "singular_values.png",
     }
-    plot_trajectory(grid, q, qd, qdd, traj.joints, folder / figures["Exciting trajectory"], limits=limits, samples=log.t)
+    plot_trajectory(grid, q, qd, qdd, traj.joints, folder / figures["Exciting trajectory"], limits=limits,
+                    samples=log.t)
     plot_validation(fine, predicted, folder / figures["Validation: measured vs identified model"])
-    plot_parameters(result.ident, folder / figures["Parameter estimates"], true=result.true, reference=PAPER_TABLE3["relative_error_percent"])
+    plot_parameters(result.ident, folder / figures["Parameter estimates"], true=result.true,
+                    reference=PAPER_TABLE3["relative_error_percent"])
     plot_singular_values(result.ident, folder / figures["Singular values of the regressor"])
     settings = {
         "model": "cepheus (paper Table 1)",

@@ -523,7 +523,8 @@ def _write_report(result: ExperimentResult, run, held_out_run) -> None:
     worst_all = float(np.max(np.abs(result.ident_all.values - result.true) / np.abs(result.true))) * 100
     settings = readable_settings({k: v for k, v in result.settings.items() if k != "twin"})
     settings["worst relative error, all samples [%]"] = round(worst_all, 4)
-    effects = {k: v.get("enabled") for k, v in result.settings["twin"].items() if isinstance(v, dict) and "enabled" in v}
+    effects = {k: v.get("enabled") for k, v in result.settings["twin"].items()
+               if isinstance(v, dict) and "enabled" in v}
     settings["twin effects"] = ", ".join(f"{k} {'on' if on else 'off'}" for k, on in effects.items())
     sections = {}
     if result.servicing is not None:

@@ -177,7 +177,8 @@ def _campaign_fingerprint(study: _Study, trajectory: dict, seed: int, runs: int)
     """What the task results of a study folder must belong to for ``resume`` (the trajectory without
     its ``meta``: a design's wall time changes from call to call; the motion is in the arrays)."""
     settings = {"model": study.param.model.source or study.param.model.name, "names": list(study.param.names),
-                "trajectory": {k: v for k, v in trajectory.items() if k != "meta"}, "momentum": study.momentum.tolist(), "noise": study.noise.to_dict(),
+                "trajectory": {k: v for k, v in trajectory.items() if k != "meta"},
+                "momentum": study.momentum.tolist(), "noise": study.noise.to_dict(),
                 "estimators": list(study.estimators), "angles_only": study.angles_only,
                 "differentiate": study.differentiate, "seed": seed, "runs": runs}  # fmt: skip
     clean = study.clean

@@ -33,7 +33,9 @@ def _md_value(value) -> str:
 
 
 def _md_table(header, rows) -> list:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" if i < 2 else "---:" for i in range(len(header))) + "|"]
+    # the first two columns (text) left-aligned, the numbers right-aligned
+    rule = "|" + "|".join("---" if i < 2 else "---:" for i in range(len(header))) + "|"
+    lines = ["| " + " | ".join(header) + " |", rule]
     return lines + ["| " + " | ".join(row) + " |" for row in rows]
 
 

@@ -80,7 +80,8 @@ DEFINITIONS_SHOWN = 30
 496, many of them hundreds of characters long) point to ``spaceid model`` and the result file."""
 
 
-def parameter_table(ident: Identification, *, true=None, reference=None, reference_true=None, reference_label="paper") -> Group:
+def parameter_table(ident: Identification, *, true=None, reference=None, reference_true=None,
+                    reference_label="paper") -> Group:
     """The estimates as a rich table, with the definitions listed below it.
 
     The definitions (often long SymPy expressions) go under the table so that the numbers stay
@@ -105,7 +106,8 @@ def parameter_table(ident: Identification, *, true=None, reference=None, referen
     header, rows = _columns(ident, true, reference, reference_label, reference_true)
     # one unit for all (every planar-basis pi is in kg m^2) goes in the caption, and the paper's
     # seven columns still fit 80
-    shown = [i for i, name in enumerate(header) if name != "definition" and (name != "unit" or len(set(ident.units)) > 1)]
+    shown = [i for i, name in enumerate(header)
+             if name != "definition" and (name != "unit" or len(set(ident.units)) > 1)]
     same_unit = f"; all in {ident.units[0]}" if ident.units and len(set(ident.units)) == 1 else ""
     # under the table, not its caption: a caption wraps at the (often narrow) table's width
     note = Text(f"cond(Y) {ident.condition_number:.4g}, N = {ident.n_samples}{same_unit}")

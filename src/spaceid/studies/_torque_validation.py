@@ -5,8 +5,8 @@ the identified model (:meth:`spaceid.identified.IdentifiedModel.forward_dynamics
 conserved, linear momentum zero) are integrated under the logged efforts ``tau_J`` (linear between
 samples, or held from each to the next), with the base attitude following the base rate that
 momentum implies (classical Runge-Kutta, every window at once). The predicted joint angles and
-rates and base motion are compared with the measured ones. Restarting every window keeps the comparison about the model rather than the growth of an open-loop
-error over long times.
+rates and base motion are compared with the measured ones. Restarting every window keeps the
+comparison about the model rather than the growth of an open-loop error over long times.
 """
 
 from __future__ import annotations

@@ -575,7 +575,8 @@ def spin_up(
     [rad/s] (relative to the base), then holds for ``settle`` [s]. With the default PI gains and
     ramp the wheel overshoots by ~6 rad/s (3.5 %) at the end of the ramp, is within 0.5 rad/s
     of 170 rad/s ~1.1 s and within 0.05 rad/s ~2 s after it, using at most ~0.25 N m (limit
-    0.5). The momentum of the rest of the system is then ``h - I_rw (w0 + w_rw)`` (docs/theory/scale.md), with ``h`` the total (zero when starting at rest).
+    0.5). The momentum of the rest of the system is then ``h - I_rw (w0 + w_rw)`` (docs/theory/scale.md),
+    with ``h`` the total (zero when starting at rest).
 
     Returns
     -------
