@@ -256,7 +256,8 @@ def noise_options(f):
         click.option("--noise-angle", type=NOISE_LEVEL, help="Noise std of the joint angles [rad]."),
         click.option("--noise-rate", type=NOISE_LEVEL, help="Noise std of the joint rates [rad/s]."),
         click.option("--noise-base-rate", type=NOISE_LEVEL, help="Noise std of the base angular velocity, per axis [rad/s]."),
-        click.option("--noise-attitude", type=NOISE_LEVEL, help="Noise std of the base attitude, per axis [rad] (spatial)."),
+        click.option("--noise-attitude", type=NOISE_LEVEL,
+                     help="Noise std of the base attitude, per axis [rad] (planar: the yaw)."),
     )(command)
 
 
