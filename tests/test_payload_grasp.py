@@ -12,7 +12,7 @@ from scipy.spatial.transform import Rotation
 from click.testing import CliRunner
 import spaceid
 from spaceid.cli import app
-from spaceid.data import Log, differentiate_log, quat_to_matrix, write_log, yaw_to_quat
+from spaceid.data import Log, differentiate_log, write_log, yaw_to_quat
 from spaceid.dynamics import body_states, system_com
 from spaceid.estimation._uncertainty import _correlation_length
 from spaceid.identified import GraspMotion, hold_momentum, identify_payload, payload_after_grasp, payload_map
@@ -111,13 +111,14 @@ def _configuration_spread(pmap, log, grasp, noisy, noise, seeds=150) -> tuple:
     (``phi`` the attitude's error, base axes; planar the yaw's) and the hold's momentum, their
     spread ``(seeds, 3 + n_c)`` and the median of their predicted covariance."""
     values, covs = [], []
+    exact = _configuration_at(log, grasp, pmap.planar)[1]  # the attitude at the grasp without noise
     for seed in range(seeds):
         rec = noisy(seed)
         config = _configuration_at(rec, grasp, pmap.planar)
         hold = _hold(rec, grasp, _correlation_length(rec) / 2 * np.median(np.diff(rec.t)), "log")
         h, cov = _before_grasp(pmap, rec, hold, config, noise)
-        turn = Rotation.from_matrix(quat_to_matrix(log.base_quat[config[2][-1]]).T @ config[1]).as_rotvec()
-        values.append([*h, *config[0], *(turn[2:] if pmap.planar else turn)])
+        phi = Rotation.from_matrix(exact.T @ config[1]).as_rotvec()
+        values.append([*h, *config[0], *(phi[2:] if pmap.planar else phi)])
         covs.append(cov)
     return np.array(values), np.median(covs, axis=0)
 
