@@ -1,5 +1,6 @@
 """The payload after a grasp (spaceid.identified._grasp, 'spaceid payload --grasp'): the servicer's
-momentum over the hold and its error carried into the payload's, a payload that moved at the grasp."""
+momentum over the hold and its error carried into the payload's, a payload that moved at the grasp
+and the error of the configuration that places it."""
 
 import json
 import warnings
@@ -7,12 +8,15 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 from click.testing import CliRunner
 import spaceid
 from spaceid.cli import app
 from spaceid.data import Log, differentiate_log, write_log, yaw_to_quat
 from spaceid.dynamics import body_states, system_com
+from spaceid.estimation._uncertainty import _correlation_length
 from spaceid.identified import GraspMotion, hold_momentum, identify_payload, payload_after_grasp, payload_map
+from spaceid.identified._grasp import _before_grasp, _configuration_at, _hold
 from spaceid.models import inertial_vector
 from spaceid.motion import FourierTrajectory, add_noise
 
@@ -102,6 +106,66 @@ def test_spatial_hold_momentum_covariance_against_monte_carlo():
     assert np.all(np.abs(spread.mean(0) - h0) < 4 * spread.std(0) / np.sqrt(200))
 
 
+def _configuration_spread(pmap, log, grasp, noisy, noise, seeds=150) -> tuple:
+    """Over seeded recordings ``noisy(seed)`` of ``log``: the configuration at ``grasp`` ``[q, phi]``
+    (``phi`` the attitude's error, base axes; planar the yaw's) and the hold's momentum, their
+    spread ``(seeds, 3 + n_c)`` and the median of their predicted covariance."""
+    values, covs = [], []
+    exact = _configuration_at(log, grasp, pmap.planar)[1]  # the attitude at the grasp without noise
+    for seed in range(seeds):
+        rec = noisy(seed)
+        config = _configuration_at(rec, grasp, pmap.planar)
+        hold = _hold(rec, grasp, _correlation_length(rec) / 2 * np.median(np.diff(rec.t)), "log")
+        h, cov = _before_grasp(pmap, rec, hold, config, noise)
+        phi = Rotation.from_matrix(exact.T @ config[1]).as_rotvec()
+        values.append([*h, *config[0], *(phi[2:] if pmap.planar else phi)])
+        covs.append(cov)
+    return np.array(values), np.median(covs, axis=0)
+
+
+@pytest.mark.parametrize("differentiated", [True, False])
+def test_configuration_at_the_grasp_covariance_against_monte_carlo(cepheus, differentiated):
+    """The configuration that places a moving payload, each angle and the yaw from its last sample
+    clear of the grasp carried by its rate there, and the hold's momentum: their covariance from
+    the angle noise through the differentiators (the smoothed angle and rate of one sample; the
+    yaw's rate shares its raw samples with the hold's base rates, so the two errors correlate)
+    against the spread over seeded recordings; and with measured (white) rates."""
+    pmap, traj = cepheus
+    log = spaceid.simulate(pmap.param, pmap.pi(np.zeros(pmap.n)), traj, np.linspace(0, 20, 401), np.array([0, 0, 0.3]))
+    grasp, z = 10.013, [2, 3, 4, 5]  # the momentum's z, the two joints, the yaw
+    noise = spaceid.Noise() if differentiated else spaceid.Noise(angle=1e-3, rate=2e-3, base_rate=2e-3, attitude=1e-3)
+
+    def noisy(seed):
+        if differentiated:  # the rates from the angles: the filters' noise, no white level
+            return differentiate_log(add_noise(log, angle=1e-3, seed=seed), method="savgol", window=21, order=3)
+        return add_noise(log, angle=1e-3, rate=2e-3, seed=seed)
+
+    values, cov = _configuration_spread(pmap, log, grasp, noisy, noise)
+    cov = cov[np.ix_(z, z)]
+    spread = np.cov(values[:, z].T)
+    ratio = np.sqrt(np.diag(spread) / np.diag(cov))
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio  # the std of a std over 150 seeds: ~6 %; 0.95 to 1.04
+    fisher = lambda c: np.arctanh(c[0, 3] / np.sqrt(c[0, 0] * c[3, 3]))  # noqa: E731  the momentum's with the yaw's
+    assert abs(fisher(spread) - fisher(cov)) < 3 / np.sqrt(147), (spread, cov)  # differentiated: 0.88 (both)
+    rec = noisy(0)  # the joint covariance's momentum block is the hold's alone
+    hold = _hold(rec, grasp, 0.0, "log")
+    np.testing.assert_allclose(_before_grasp(pmap, rec, hold, _configuration_at(rec, grasp, True), noise)[1][:3, :3],
+                               hold_momentum(pmap, rec.select(hold), noise)[1], rtol=1e-12, atol=1e-20)  # fmt: skip
+
+
+def test_spatial_configuration_at_the_grasp_covariance_against_monte_carlo():
+    """Spatial, measured rates: the attitude's error (a small rotation, base axes) from the
+    attitude's and the base rate's noise carried over a step to the grasp."""
+    pmap = payload_map("satellite-7dof", "arm_ee")
+    log = spaceid.simulate(pmap.param, pmap.pi(np.zeros(pmap.n)), _motion(pmap, 10.0, 2), np.linspace(0, 10, 101),
+                           np.array([0.5, -1.0, 2.0]))  # fmt: skip
+    noise = spaceid.Noise(angle=1e-3, rate=5e-3, base_rate=5e-3, attitude=1e-3)
+    values, cov = _configuration_spread(pmap, log, 5.099, lambda s: add_noise(log, angle=1e-3, rate=5e-3, seed=s),
+                                        noise, seeds=200)  # fmt: skip
+    ratio = values[:, 3:].std(0) / np.sqrt(np.diag(cov)[3:])
+    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
+
+
 def test_given_momentum_covariance_is_carried_through_the_fit(cepheus):
     """The covariance added for a given momentum's error is ``g sigma^2 g^T``, ``g`` the estimate's
     derivative in the momentum: checked against central differences of whole fits."""
@@ -119,6 +183,45 @@ def test_given_momentum_covariance_is_carried_through_the_fit(cepheus):
                                atol=1e-6 * np.abs(np.outer(g, g)).max() * sigma**2)  # fmt: skip
     assert carried.settings["momentum_std"] == pytest.approx([sigma])
     assert np.all(carried.std > plain.std)
+
+
+def test_configuration_covariance_is_carried_through_the_fit(cepheus):
+    """A moving payload's configuration error moves the momentum it brings: the covariance added is
+    ``G C G^T`` plus the cross terms with the given momentum's error, ``G`` the estimate's
+    derivative in the configuration, checked against central differences of whole fits; a payload
+    at rest brings no momentum, and its configuration's error adds nothing."""
+    pmap, traj = cepheus
+    theta, h = _theta(*PAYLOAD), np.array([0, 0, 0.02])
+    q0 = traj.evaluate(np.zeros(1))[0][0]
+    log = spaceid.simulate(pmap.param, pmap.pi(theta), traj, np.linspace(0, 20, 200), h + _planar_brought(pmap, q0),
+                           model=pmap.model(theta))  # fmt: skip
+    noise = spaceid.Noise(angle=1e-5, rate=1e-5, base_rate=1e-5)
+    motion = GraspMotion(VELOCITY, RATE, q0, np.eye(3))
+
+    def fit(dh=0.0, dc=np.zeros(3), momentum_cov=None, **kwargs):
+        moved = replace(motion, q=q0 + dc[:2], rotation=Rotation.from_rotvec([0, 0, dc[2]]).as_matrix(), **kwargs)
+        return identify_payload(pmap, log, "link2", h + [0, 0, dh], grasp_motion=moved, noise=noise,
+                                momentum_cov=momentum_cov)  # fmt: skip
+
+    step = 1e-6
+    g = np.stack([(fit(dc=step * e).values - fit(dc=-step * e).values) / (2 * step) for e in np.eye(3)], -1)
+    g_h = (fit(dh=step).values - fit(dh=-step).values) / (2 * step)
+    c = np.diag([1e-6, 4e-6, 9e-6]) + 1e-6  # the joints' and the yaw's [rad^2]
+    cross = np.array([[0, 0, 0], [0, 0, 0], [1e-7, -2e-7, 1.5e-7]])  # the momentum's z with them [N m s rad]
+    given = np.diag([0, 0, 4e-8])  # the momentum's [(N m s)^2]
+    plain, carried = fit(momentum_cov=given), fit(momentum_cov=given, cov=c, momentum_cross=cross)
+    both = np.column_stack([g_h, g])
+    joint = np.block([[np.array([[4e-8]]), cross[2:]], [cross[2:].T, c]])
+    expected = both @ joint @ both.T - 4e-8 * np.outer(g_h, g_h)
+    np.testing.assert_allclose(carried.cov - plain.cov, expected, rtol=1e-4, atol=1e-6 * np.abs(expected).max())
+    assert plain.settings["payload_momentum_std"] is None and carried.settings["payload_momentum_std"][2] > 0
+    # at rest: the configuration does not enter
+    rest = [identify_payload(pmap, log, "link2", h, noise=noise, grasp_motion=GraspMotion(np.zeros(3), np.zeros(3), q0,
+                                                                                          np.eye(3), cov))
+            for cov in (None, c)]  # fmt: skip
+    np.testing.assert_array_equal(rest[1].cov, rest[0].cov)
+    with pytest.raises(spaceid.SpaceidError, match=r"grasp_motion.cov: shape \(2, 2\), expected \(3, 3\)"):
+        fit(cov=np.eye(2))
 
 
 def test_moving_payload_recovered_noise_free_with_its_momentum(cepheus):
@@ -250,7 +353,7 @@ def test_cli_grasp_cuts_the_log_and_takes_the_hold(cepheus, tmp_path):
     path, out = tmp_path / "servicing.csv", tmp_path / "payload.json"
     write_log(path, log)
     runner = CliRunner()
-    noise = ["--noise-angle", "1e-6", "--noise-rate", "1e-6", "--noise-base-rate", "1e-6"]
+    noise = ["--noise-angle", "1e-6", "--noise-rate", "1e-6", "--noise-base-rate", "1e-6", "--noise-attitude", "2e-6"]
     args = ["payload", "cepheus", str(path), "--link", "link2", "--grasp", f"{grasp}", "--momentum", "hold",
             "--payload-velocity", "0.04,-0.03", "--payload-rate", "0.5", *noise, "-o", str(out)]
     res = runner.invoke(app, args)
@@ -261,6 +364,10 @@ def test_cli_grasp_cuts_the_log_and_takes_the_hold(cepheus, tmp_path):
     assert g["window"][0] > grasp and g["hold"]["samples"] >= 5 and g["hold"]["to"] < grasp
     assert abs(g["hold"]["momentum"][2]) < 1e-12 and g["payload_motion"]["rate"] == [0.0, 0.0, 0.5]
     assert data["settings"]["momentum_covariance"] is not None and "window" in res.output
+    # measured signals: each angle (the yaw's 2e-6) and its rate's error carried 0.04 s to the grasp, white
+    dt = grasp - g["payload_motion"]["configuration_from"][0]
+    assert dt == pytest.approx(0.04) and g["payload_motion"]["configuration_from"] == [grasp - dt] * 3
+    np.testing.assert_allclose(g["payload_motion"]["configuration_std"], 1e-6 * np.sqrt(np.r_[1, 1, 4] + dt**2))
     # the whole log without --grasp mixes the servicer alone with the payload: off
     whole = runner.invoke(app, args[:5] + ["--momentum", "0", *noise, "-o", str(tmp_path / "whole.json")])
     assert whole.exit_code == 0 and abs(json.loads((tmp_path / "whole.json").read_text())["mass"] - PAYLOAD[0]) > 1e-3

@@ -261,7 +261,7 @@ def noise_options(f):
         click.option("--noise-base-rate", type=NOISE_LEVEL,
                      help="Noise std of the base angular velocity, per axis [rad/s]."),
         click.option("--noise-attitude", type=NOISE_LEVEL,
-                     help="Noise std of the base attitude, per axis [rad] (spatial)."),
+                     help="Noise std of the base attitude, per axis [rad] (planar: the yaw)."),
     )(command)
 
 

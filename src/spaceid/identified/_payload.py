@@ -24,6 +24,7 @@ import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
@@ -359,12 +360,22 @@ class GraspMotion:
         The servicer's joint positions at the grasp [rad or m].
     rotation : ndarray of shape (3, 3)
         Its base-to-inertial rotation at the grasp.
+    cov : ndarray of shape (n_c, n_c), optional
+        Covariance of the configuration's error ``c = [q, phi]`` [rad^2 or m^2], ``phi`` a small
+        rotation in base axes (``rotation exp([phi]x)``; planar: its z component, the yaw), so
+        ``n_c = n_joints + 3`` (planar ``n_joints + 1``): carried into the payload's covariance
+        through the momentum it brings.
+    momentum_cross : ndarray of shape (3, n_c), optional
+        Covariance of the given momentum's error (``momentum_cov`` of
+        :func:`identify_payload`) with the configuration's: both from the samples before the grasp.
     """
 
     velocity: np.ndarray
     rate: np.ndarray
     q: np.ndarray
     rotation: np.ndarray
+    cov: np.ndarray | None = None
+    momentum_cross: np.ndarray | None = None
 
 
 def _brought_momentum(pmap: PayloadMap, motion: GraspMotion):
@@ -388,6 +399,41 @@ def _brought_momentum(pmap: PayloadMap, motion: GraspMotion):
         return rot @ i_com @ rot.T @ rate + m_s / (m_s + m) * np.cross(m * origin + rot @ h, velocity)
 
     return brought
+
+
+def _attitude_axes(planar: bool) -> list:
+    """Components of the attitude's small rotation that the configuration carries: the yaw (planar)."""
+    return [2] if planar else [0, 1, 2]
+
+
+def _configuration_sensitivity(pmap: PayloadMap, motion: GraspMotion, theta) -> np.ndarray:
+    """``d(brought momentum)/dc`` ``(3, n_c)`` [N m s per rad or m] of the payload ``theta`` in the
+    configuration ``c = [q, phi]`` of ``motion`` (see :class:`GraspMotion`), by central differences."""
+    nj, axes = len(motion.q), _attitude_axes(pmap.planar)
+
+    def brought(c):
+        phi = np.zeros(3)
+        phi[axes] = c[nj:]
+        moved = replace(motion, q=motion.q + c[:nj], rotation=motion.rotation @ Rotation.from_rotvec(phi).as_matrix())
+        return _brought_momentum(pmap, moved)(theta)
+
+    return _central_jacobian(brought, np.zeros(nj + len(axes)))
+
+
+def _given_covariance(pmap: PayloadMap, motion, momentum_cov, theta) -> tuple:
+    """The covariance ``(3, 3)`` of the momentum that the fit takes as given: the servicer's
+    (``momentum_cov``) plus what a moving payload brings, through its configuration's error
+    (``motion.cov``, correlated with the momentum's by ``motion.momentum_cross``), at the payload
+    ``theta``; and the configuration's share alone (None without one). None when neither."""
+    if motion is None or motion.cov is None:
+        return momentum_cov, None
+    g = _configuration_sensitivity(pmap, motion, theta)
+    share = g @ motion.cov @ g.T
+    given = share if momentum_cov is None else momentum_cov + share
+    if motion.momentum_cross is not None:
+        cross = motion.momentum_cross @ g.T
+        given = given + cross + cross.T
+    return given, share
 
 
 def _equations(pmap: PayloadMap, log: Log, momentum, drift, where, history=None) -> _Equations:
@@ -557,7 +603,9 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         the grasp is better given by ``grasp_motion``).
     grasp_motion : GraspMotion, optional
         A payload that moved at the grasp: ``momentum`` is then the servicer's before the grasp,
-        and the payload's own (a function of its parameters and of this motion) is added to it.
+        and the payload's own (a function of its parameters and of this motion) is added to it;
+        the covariance of the configuration it is placed with (``grasp_motion.cov``) is carried into
+        the payload's covariance to first order, as ``momentum_cov`` is.
     momentum_cov : array_like of shape (3, 3), optional
         Covariance of a given ``momentum`` [(N m s)^2], e.g. of the servicer's momentum estimated
         over a hold before the grasp (:func:`spaceid.identified.hold_momentum`): carried into the
@@ -605,8 +653,13 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         raise SpaceidError("momentum: estimated with the payload, so it takes neither a covariance nor the payload's "
                            "motion at the grasp: give the servicer's momentum")
     momentum_cov = None if momentum_cov is None else np.asarray(momentum_cov, float).reshape(3, 3)
+    n_c = pmap.param.model.n_joints + len(_attitude_axes(pmap.planar))
+    if grasp_motion is not None and grasp_motion.cov is not None and np.shape(grasp_motion.cov) != (n_c, n_c):
+        raise SpaceidError(f"grasp_motion.cov: shape {np.shape(grasp_motion.cov)}, expected ({n_c}, {n_c}): the "
+                           "covariance of the joint positions and the attitude at the grasp (planar: the yaw)")
     brought = None if grasp_motion is None else _brought_momentum(pmap, grasp_motion)
-    fit = _fit(pmap, log, momentum, momentum_cov, brought, drift, history, noise, estimated, where, cond_limit)
+    fit = _fit(pmap, log, momentum, momentum_cov, grasp_motion, brought, drift, history, noise, estimated, where,
+               cond_limit)
     eq, theta, cov_all = fit["equations"], fit["theta"], fit["cov"]
     n = pmap.n
     standard, cov_std = theta[:n], cov_all[:n, :n]
@@ -644,6 +697,8 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         "momentum_covariance": None if momentum_cov is None else momentum_cov.tolist(),
         "momentum_payload_correlation": correlation,
         "payload_momentum": None if brought is None else brought(standard).tolist(),
+        "payload_momentum_std": None if fit["configuration_share"] is None else
+                                np.sqrt(np.diag(fit["configuration_share"])).tolist(),
         "n_samples": log.n_samples,
         "seed": pmap.param.seed,
         "minimal_set": {"basis": pmap.param.basis, "rank_tol": pmap.param.rank_tol, "n_params": pmap.param.n_params},
@@ -664,10 +719,12 @@ def _largest_correlation(cov, n: int, n_h: int) -> float:
     return float(np.abs(corr).max())
 
 
-def _fit(pmap, log, momentum, momentum_cov, brought, drift, history, noise, estimated, where, cond_limit) -> dict:
+def _fit(pmap, log, momentum, momentum_cov, motion, brought, drift, history, noise, estimated, where,
+         cond_limit) -> dict:
     """The unconstrained fit of ``[payload, momentum, drift]``: the equations, the estimate, its
-    covariance (with that of a given momentum, ``momentum_cov``, carried through) and the record
-    of how they were obtained (see :func:`identify_payload`; ``brought``: :func:`_brought_momentum`)."""
+    covariance (with that of a given momentum, ``momentum_cov``, and of a moving payload's
+    configuration, ``motion.cov``, carried through) and the record of how they were obtained (see
+    :func:`identify_payload`; ``brought``: :func:`_brought_momentum` of ``motion``)."""
     eq = _equations(pmap, log, momentum, drift, where, history)
     p = pmap.n + eq.p
     if log.n_samples * pmap.param.rows < p + 1:
@@ -687,16 +744,18 @@ def _fit(pmap, log, momentum, momentum_cov, brought, drift, history, noise, esti
         white = np.zeros(x.shape[1]) if sigma is None else sigma
         differentiated = (series, *_score_weights(pmap, eq, x, sigma, theta, a, brought), white, log.t)
     cov, chi2, how, bread, newey_west = _covariance(r, a, sigma is not None, estimated, window, differentiated)
-    if momentum_cov is not None:  # the given momentum's error moves the estimate too (independent of the log's)
+    given, share = _given_covariance(pmap, motion, momentum_cov, theta[: pmap.n])
+    if given is not None:  # the given momentum's error moves the estimate too (independent of the log's)
         d = _momentum_sensitivity(pmap, eq, x, y, sigma, theta, a, bread, brought)
-        cov = cov + d @ momentum_cov[np.ix_(eq.axes, eq.axes)] @ d.T
+        cov = cov + d @ given[np.ix_(eq.axes, eq.axes)] @ d.T
         how += "; plus the given momentum's covariance carried through d(estimate)/d(momentum)"
+        how += "" if share is None else " (with the moving payload's, from its configuration's at the grasp)"
     return {
         "equations": eq, "theta": theta, "cov": cov, "newey_west": newey_west, "chi2_dof": chi2, "steps": steps,
         "cond": cond,
         "residual_rms": float(np.sqrt(np.mean(_whitened(pmap, eq, x, y, rhs, None, theta)[0] ** 2))),
         "estimator": "wls (Gauss-Newton, errors-in-variables weights)" if sigma is not None else "ols (Gauss-Newton)",
-        "covariance": how,
+        "covariance": how, "configuration_share": share,
     }  # fmt: skip
 
 
