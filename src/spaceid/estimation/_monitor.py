@@ -14,7 +14,7 @@ the linearisation point at which the equation-error covariances ``S_n``
    raw angle noise in the differentiator's windows and the estimate's error whitens them instead
    (:mod:`~spaceid.estimation._monitor_filter`); when the warm-up's residuals are otherwise
    autocorrelated, an AR filter fitted to them (:meth:`Monitor._set_prewhitening`). A sample is
-   tested once its rates are final: the last half window of differentiated rates never is;
+   taken once its rates are final: the first and last half windows of differentiated rates never are;
 2. feeds a CUSUM of the log-likelihood ratio of an innovation inflated ``change_ratio`` times in
    variance against none; its threshold gives the requested false-alarm rate (one alarm per
    ``1 / false_alarm_rate`` samples on average, :func:`cusum_threshold`);
@@ -557,6 +557,10 @@ class Monitor:
         if self._window is None and samples.n_samples > 1:
             self._window = _correlation_length(samples)
             self._step_s = float(np.median(np.diff(samples.t)))  # the sample step [s]
+            # the log's first half window has one-sided windows, as the last: extrapolated rates, never taken
+            half = -(-self._window // 2)
+            self._skip, self._warm = max(half - len(self._warm), 0), self._warm[half:]
+            self._count = len(self._warm)
         if self._whitener is None or not self._whitener.follows(samples):
             series = differentiated_series(samples)
             p = len(self._eq.free)
@@ -570,8 +574,8 @@ class Monitor:
         before); returns the events they complete, in order (often none).
 
         A sample is taken once its rates are final: with differentiated rates, once half the
-        differentiator's window of samples has come after it (the rates of the last half window
-        come from one-sided windows: extrapolations, never tested)."""
+        differentiator's window of samples has come after it (the rates of the log's first and last
+        half windows come from one-sided windows: extrapolations, never taken)."""
         if self._start is None and samples.n_samples:
             self._start = self._t0 = float(samples.t[0])
         self.n_samples += samples.n_samples
@@ -590,7 +594,7 @@ class Monitor:
                 continue
             if i >= len(rows):
                 break
-            if self._skip:  # samples blended across a change (:meth:`_alarm`)
+            if self._skip:  # samples blended across a change (:meth:`_alarm`), or the log's first half window
                 drop = min(self._skip, len(rows) - i)
                 i, self._skip = i + drop, self._skip - drop
                 continue

@@ -161,6 +161,13 @@ servicer from 1,500 equations) they are correlated though the noise is white, an
 would inflate honest standard errors (measured: 8-fold)."""
 
 
+def _ljung_box_p(rho, m: int) -> float:
+    """Ljung-Box p-value of the autocorrelations ``rho (lags,)`` at lags 1, 2, ... of ``m`` samples."""
+    lags = len(rho)
+    q = m * (m + 2) * np.sum(rho**2 / (m - np.arange(1, lags + 1)))
+    return float(stats.chi2.sf(q, lags))
+
+
 def _residual_checks(res, dof, chi2):
     """The tests of the residuals ``res (n, rows)`` (whitened when there is a noise model) against
     white noise of the model's levels: the two-sided chi-square p-value of ``chi2_dof`` for ``dof``
@@ -173,8 +180,7 @@ def _residual_checks(res, dof, chi2):
     e = e / np.where(e.std(axis=0) > 0, e.std(axis=0), 1.0)
     rho = np.array([np.sum(e[k:] * e[:-k]) for k in range(1, lags + 1)]) / max(np.sum(e**2), 1e-300)
     m = n * res.shape[1]  # pooled: the rows as independent series under the model
-    q = m * (m + 2) * np.sum(rho**2 / (m - np.arange(1, lags + 1)))
-    record = {"significance": SIGNIFICANCE, "ljung_box_p": float(stats.chi2.sf(q, lags)), "ljung_box_lags": lags,
+    record = {"significance": SIGNIFICANCE, "ljung_box_p": _ljung_box_p(rho, m), "ljung_box_lags": lags,
               "lag1_autocorrelation": float(rho[0]), "chi2_p": None, "chi2_band": None}  # fmt: skip
     if chi2 is not None:
         cdf = stats.chi2.cdf(chi2 * dof, dof)
