@@ -69,8 +69,14 @@ def one_run(seed, twin, moving, unknown=False, changes=(), window=None):
     step = s.scores["sample period [s]"]
     early = [e["time"] - grasp for e in s.events["events"] if e["time"] + e["lead"] + step < grasp]
     warm = s.events["segments"][0]["prewhitening"]  # the first warm-up's check of the differentiator's model
+    warmup = s.events["settings"]["warmup"]
+    tested = sum(max(0, round((min(g["end"] or grasp, grasp) - g["start"]) / step) - warmup)
+                 for g in s.events["segments"] if g["start"] < grasp)  # segments' samples after their warm-ups
     return (_refit_unknown(s, settings) if unknown else s.scores) | {"events before the grasp [s]": early,
-                                                                      "first warm-up": warm}
+                                                                      "first warm-up": warm,
+                                                                      "tested before the grasp": tested,
+                                                                      "false-alarm rate": s.events["settings"][
+                                                                          "false_alarm_rate"]}
 
 
 def _refit_unknown(s, settings):
@@ -106,6 +112,9 @@ def summarise(label, runs):
     print(f"  change time error [samples]: median {np.nanmedian(delay):.1f}, range {np.nanmin(delay):.0f} to "
           f"{np.nanmax(delay):.0f}, missed {int(np.isnan(delay).sum())}; events before the grasp: {sum(alarms)} in "
           f"{len(runs)} runs")
+    tested = sum(r["tested before the grasp"] for r in runs)
+    print(f"  tested samples before the grasp: {tested}, expected false alarms at "
+          f"{runs[0]['false-alarm rate']:g} per sample: {runs[0]['false-alarm rate'] * tested:.2f}")
     early = sorted(t for r in runs for t in r["events before the grasp [s]"])
     print(f"  their change times from the grasp [s]: {', '.join(f'{t:+.2f}' for t in early) or 'none'}")
     warm = [r["first warm-up"] or {} for r in runs]  # None: the warm-up was never identified
