@@ -14,16 +14,18 @@ Diagnosis of the events before the grasp: ``--set PART.FIELD=VALUE`` (repeated) 
 setting (:class:`~spaceid.twin.TwinSettings`: ``mocap.attitude_noise=1e-4``, ``mocap.latency=0``,
 ``encoders.counts_per_rev={}``, ``bearing_friction.enabled=false``, ...; VALUE is YAML),
 ``--window N`` fixes the Savitzky-Golay window [samples] with which the bags are read (the motion
-capture's and the joints'), instead of the automatic choice (0.7 to 0.9 s for the yaw).
+capture's and the joints', or with ``--window-on yaw`` or ``joints`` only those), instead of the
+automatic choice (0.7 to 0.9 s for the yaw).
 Per payload parameter over the seeds: bias and RMSE relative to the truth [%], RMSE / median
 predicted std, fraction within 2 sigma, largest |z|; and the change time error [samples] (median
 and range) with the events before the grasp (false alarms).
 
     python benchmarks/bench_capture.py [--seeds 12] [--jobs 2] [--twin realistic ideal] [--moving 0.04 -0.03 0.3]
-        [--unknown-momentum] [--set mocap.attitude_noise=1e-4] [--window 41]
+        [--unknown-momentum] [--set mocap.attitude_noise=1e-4] [--window 41 [--window-on yaw]]
 """
 
 import argparse
+import collections
 import os
 import warnings
 from concurrent.futures import ProcessPoolExecutor
@@ -42,21 +44,32 @@ HELD_OUT = FourierTrajectory(("left_shoulder", "left_elbow"), 5.0, np.array([[0.
                              np.array([[0.1, 0.05, -0.05], [0.1, -0.1, 0.05]]), meta={"name": "held-out"})  # fmt: skip
 
 
-def one_run(seed, twin, moving, unknown=False, changes=(), window=None):
+def one_run(seed, twin, moving, unknown=False, changes=(), window=None, window_on="all"):
     """The capture scores of one experiment; ``moving``: None or the payload's ``(vx, vy, rate)``;
     ``unknown``: the payload refitted with the momentum after the grasp estimated; ``changes``: the
-    ``--set`` options; ``window``: the differentiators' window [samples], None automatic. Adds the
-    times [s] of the events before the grasp."""
+    ``--set`` options; ``window``: the differentiators' window [samples], None automatic, on
+    ``window_on`` (``all``, or only the ``yaw`` or the ``joints``). Adds the times [s] of the events
+    before the grasp."""
     settings = TwinSettings() if twin == "realistic" else TwinSettings().without_effects()
     for change in changes:
         name, value = change.split("=", 1)
         part, key = name.split(".")
         settings = replace(settings, **{part: replace(getattr(settings, part), **{key: yaml.safe_load(value)})})
-    if window is not None:  # a diagnosis, not an option of the experiment: its bag reader given the window
+    if window is not None and window_on == "all":  # a diagnosis, not an option of the experiment: its bag reader
         import spaceid.studies._experiment as experiment
         from spaceid.data import read_bag_log
 
         experiment.read_bag_log = lambda *args, **kwargs: read_bag_log(*args, window=window, **kwargs)
+    elif window is not None:  # the window on one part only: the bag reader's private helper for it given it
+        import spaceid.data._bag_to_log as reader
+
+        if window_on == "yaw":
+            base = reader._base
+            reader._base = lambda *args: base(*args[:-1], args[-1] | {"window": window})
+        else:
+            joints = reader._joints
+            reader._joints = lambda *args, **kwargs: joints(*args, **kwargs | {
+                "options": kwargs["options"] | {"window": window}})
     protocol = capture_protocol()
     if moving:
         protocol = replace(protocol, payload=replace(protocol.payload, velocity=moving[:2], rate=moving[2]))
@@ -67,13 +80,18 @@ def one_run(seed, twin, moving, unknown=False, changes=(), window=None):
     s = r.servicing
     grasp = s.scores["grasp time [s]"]
     step = s.scores["sample period [s]"]
-    early = [e["time"] - grasp for e in s.events["events"] if e["time"] + e["lead"] + step < grasp]
+    before = [e for e in s.events["events"] if e["time"] + e["lead"] + step < grasp]
+    early = [e["time"] - grasp for e in before]
+    # the whitening of the segment each of them was raised in (the last one starting before it)
+    whitening = [[g for g in s.events["segments"] if g["start"] < e["time"]][-1]["prewhitening"]["filter"]
+                 for e in before]  # fmt: skip
     warm = s.events["segments"][0]["prewhitening"]  # the first warm-up's check of the differentiator's model
     warmup = s.events["settings"]["warmup"]
     tested = sum(max(0, round((min(g["end"] or grasp, grasp) - g["start"]) / step) - warmup)
                  for g in s.events["segments"] if g["start"] < grasp)  # segments' samples after their warm-ups
     return (_refit_unknown(s, settings) if unknown else s.scores) | {"events before the grasp [s]": early,
                                                                       "first warm-up": warm,
+                                                                      "their whitening": whitening,
                                                                       "tested before the grasp": tested,
                                                                       "false-alarm rate": s.events["settings"][
                                                                           "false_alarm_rate"]}
@@ -117,6 +135,8 @@ def summarise(label, runs):
           f"{runs[0]['false-alarm rate']:g} per sample: {runs[0]['false-alarm rate'] * tested:.2f}")
     early = sorted(t for r in runs for t in r["events before the grasp [s]"])
     print(f"  their change times from the grasp [s]: {', '.join(f'{t:+.2f}' for t in early) or 'none'}")
+    whitening = collections.Counter(str(f) for r in runs for f in r["their whitening"])
+    print(f"  their segments' whitening: {', '.join(f'{k} {v}' for k, v in sorted(whitening.items())) or 'none'}")
     warm = [r["first warm-up"] or {} for r in runs]  # None: the warm-up was never identified
     chi2 = [w["chi2_dof"] for w in warm if w.get("chi2_dof") is not None]
     if chi2:
@@ -135,16 +155,19 @@ def main():
     parser.add_argument("--unknown-momentum", action="store_true", help="refit with the momentum estimated")
     parser.add_argument("--set", action="append", default=[], metavar="PART.FIELD=VALUE", help="a twin setting")
     parser.add_argument("--window", type=int, help="the differentiators' window [samples] (default automatic)")
+    parser.add_argument("--window-on", default="all", choices=["all", "yaw", "joints"],
+                        help="the series --window applies to (the others automatic)")
     args = parser.parse_args()
     with ProcessPoolExecutor(args.jobs) as pool:
         for twin in args.twin:
             runs = list(pool.map(one_run, range(args.seeds), [twin] * args.seeds, [args.moving] * args.seeds,
                                  [args.unknown_momentum] * args.seeds, [args.set] * args.seeds,
-                                 [args.window] * args.seeds))  # fmt: skip
+                                 [args.window] * args.seeds, [args.window_on] * args.seeds))  # fmt: skip
             label = twin + ("" if args.moving is None else f", payload moving {args.moving}")
             label += ", momentum estimated" if args.unknown_momentum else ""
             label += "".join(f", {change}" for change in args.set)
-            summarise(label + ("" if args.window is None else f", window {args.window} samples"), runs)
+            summarise(label + ("" if args.window is None else f", window {args.window} samples on {args.window_on}"),
+                      runs)
 
 
 if __name__ == "__main__":
