@@ -123,7 +123,7 @@ def _configuration_spread(pmap, log, grasp, noisy, noise, seeds=150) -> tuple:
     return np.array(values), np.median(covs, axis=0)
 
 
-@pytest.mark.parametrize("differentiated", [True, False])
+@pytest.mark.parametrize("differentiated", [pytest.param(True, marks=pytest.mark.slow), False])
 def test_configuration_at_the_grasp_covariance_against_monte_carlo(cepheus, differentiated):
     """The configuration that places a moving payload, each angle and the yaw from its last sample
     clear of the grasp carried by its rate there, and the hold's momentum: their covariance from
