@@ -72,9 +72,11 @@ NOISE_SAMPLES = 500
 """Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
 AR_ORDER = 3
 """Order of the autoregressive filter that prewhitens correlated innovations (rates differentiated otherwise)."""
-PRIOR = 100.0
+PRIOR = 1e4
 """The differentiator's whitening starts each segment with the estimate's error this many times
-the warm-up's weighted least-squares covariance: weak against the warm-up itself, which it then takes in."""
+the warm-up's weighted least-squares covariance: diffuse against the warm-up itself, which it then
+takes in (a change within the warm-up puts its batch estimate, the linearisation point, between
+the two systems: many of its standard errors from either)."""
 
 
 def _ar_fit(res: np.ndarray, order: int, p: int) -> tuple:
@@ -340,7 +342,13 @@ class Monitor:
 
     def _begin_testing(self) -> list:
         """Identify the warm-up, set the linearisation point, start the recursion on the warm-up
-        samples; returns the pending event, now with its comparison."""
+        samples; returns the pending event, now with its comparison.
+
+        When the segment before was whitened by the differentiator's model (which the recording
+        then agreed with), this warm-up's own innovations under it (:meth:`_warm_whitening`: each
+        predicted from the samples before it) are tested too, divided by the square root of that
+        segment's chi2/dof when above 1 (this warm-up's own would grow with a change within it):
+        such a change closes the segment there and hands the samples after it to the next."""
         rows = self._warm
         if self.noise is None:
             self.noise = dataclasses.replace(noise_from_log(_log(rows, self.param.model, self.where)),
@@ -361,12 +369,25 @@ class Monitor:
         block = white.reshape(-1, white.shape[-1])
         self._scale = _column_scale(block[:, :-1])
         self._R = _accumulate_factor(None, np.asfortranarray(block / np.r_[self._scale, 1.0]))
-        self._set_prewhitening(block, rows, L, J)
-        for row in rows:
+        last = self.segments[-1]["prewhitening"] if self.segments else None
+        # the recording's excess over the noise model as the segment before measured it, significant or not
+        before = math.sqrt(max(last["chi2_dof"], 1.0)) if last and last["filter"] == "differentiator" else None
+        nu = self._set_prewhitening(block, rows, L, J)
+        self._warm, events = [], self._complete_pending()
+        for k, row in enumerate(rows):
+            if before is not None and nu is not None and self._cusum(row[0], nu[k] / before):
+                self._R = None  # the warm-up's batch estimate blends the change: no recursive estimate
+                self._alarm(row)
+                rest = rows[k + 1 :]
+                drop = min(self._skip, len(rest))
+                self._skip -= drop
+                self._warm, self._count = self._warm + rest[drop:], self._count + len(rest) - drop
+                return events
             self._thinned.add(row)
             self._recent.append(row)
-        self._warm = []
-        return self._complete_pending()
+        self._g = 0.0  # the samples after the warm-up are tested afresh, with this segment's whitening
+        self._excursion.clear()
+        return events
 
     def _set_prewhitening(self, block, rows, L, J):
         """The segment's prewhitening from the warm-up's whitened equations ``block (m, p + 1)`` at
@@ -376,10 +397,11 @@ class Monitor:
         predicted (the lower tail of chi2/dof), both at ``SIGNIFICANCE``. Otherwise an
         AR(``AR_ORDER``) filter and the std it leaves, fitted to the residuals, when the rates were
         differentiated or the residuals are autocorrelated (Ljung-Box, as the identification's
-        covariance choice); else none (the innovations are independent)."""
+        covariance choice); else none (the innovations are independent). Returns the warm-up's
+        innovations under the differentiator's whitening ``(n, rows)`` (None without one)."""
         res = (block[:, -1] - block[:, :-1] @ self._theta_ref).reshape(len(rows), self.param.rows)
         checks = _residual_checks(res, res.size, None)
-        chi2_dof, kalman_scale, kalman_p = None, 1.0, None
+        nu, chi2_dof, kalman_scale, kalman_p = None, None, 1.0, None
         if self._whitener:
             nu, chi2_dof, kalman_scale, small = self._warm_whitening(rows, block, res, L, J)
             kalman_p = _residual_checks(nu, nu.size, None)["ljung_box_p"]
@@ -395,6 +417,7 @@ class Monitor:
                               "innovations_ljung_box_p": kalman_p,
                               "lag1_autocorrelation": checks["lag1_autocorrelation"],
                               "ljung_box_p": checks["ljung_box_p"], "differentiator_window": self._window or 0}
+        return nu
 
     def _warm_whitening(self, rows, block, res, L, J) -> tuple:
         """Run the differentiator's whitening over the warm-up's residuals ``res (n, rows)`` (its state
@@ -442,8 +465,8 @@ class Monitor:
     def _complete_pending(self) -> list:
         if self._pending is None:
             return []
-        before = self.segments[-1]["identification"]
-        res = compare(before, self._ident, where=self.where)["parameters"]
+        before = self.segments[-1]["identification"]  # None: a segment too short to identify
+        res = [] if before is None else compare(before, self._ident, where=self.where)["parameters"]
         event = MonitorEvent(**self._pending, changed=tuple(p["name"] for p in res if abs(p["z"]) > Z_CHANGED),
                              parameters=tuple(res))
         self._pending = None
@@ -508,21 +531,28 @@ class Monitor:
             past = np.array(self._history)[::-1]  # lag 1 first
             self._history.append(nu)
             nu = (nu - self._ar @ past) / self._ar_scale
-        c, d = self._increment
-        stat = float(nu @ nu)
-        self._g = max(0.0, self._g + c * stat - d)
-        self._excursion.append((row[0], stat))
-        self.n_tested += 1
-        if self._g > self.threshold:
+        if self._cusum(row[0], nu):
             return True
-        if self._g == 0:
-            self._excursion.clear()
         if self.forgetting < 1:
             self._R *= math.sqrt(self.forgetting)
         self._R = _accumulate_factor(self._R, np.asfortranarray(np.column_stack([a, b])))
         self._thinned.add(row)
         self._recent.append(row)
         self._count += 1
+        return False
+
+    def _cusum(self, t: float, nu: np.ndarray) -> bool:
+        """Add the normalised innovation ``nu (rows,)`` of the sample at ``t`` [s] to the CUSUM; True
+        when it crosses the threshold."""
+        c, d = self._increment
+        stat = float(nu @ nu)
+        self._g = max(0.0, self._g + c * stat - d)
+        self._excursion.append((t, stat))
+        self.n_tested += 1
+        if self._g > self.threshold:
+            return True
+        if self._g == 0:
+            self._excursion.clear()
         return False
 
     def _change_time(self) -> tuple:
