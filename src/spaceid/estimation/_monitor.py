@@ -342,13 +342,7 @@ class Monitor:
 
     def _begin_testing(self) -> list:
         """Identify the warm-up, set the linearisation point, start the recursion on the warm-up
-        samples; returns the pending event, now with its comparison.
-
-        When the segment before was whitened by the differentiator's model (which the recording
-        then agreed with), this warm-up's own innovations under it (:meth:`_warm_whitening`: each
-        predicted from the samples before it) are tested too, divided by the square root of that
-        segment's chi2/dof when above 1 (this warm-up's own would grow with a change within it):
-        such a change closes the segment there and hands the samples after it to the next."""
+        samples (:meth:`_take_warm_up`); returns the pending event, now with its comparison."""
         rows = self._warm
         if self.noise is None:
             self.noise = dataclasses.replace(noise_from_log(_log(rows, self.param.model, self.where)),
@@ -369,25 +363,37 @@ class Monitor:
         block = white.reshape(-1, white.shape[-1])
         self._scale = _column_scale(block[:, :-1])
         self._R = _accumulate_factor(None, np.asfortranarray(block / np.r_[self._scale, 1.0]))
-        last = self.segments[-1]["prewhitening"] if self.segments else None
-        # the recording's excess over the noise model as the segment before measured it, significant or not
-        before = math.sqrt(max(last["chi2_dof"], 1.0)) if last and last["filter"] == "differentiator" else None
         nu = self._set_prewhitening(block, rows, L, J)
         self._warm, events = [], self._complete_pending()
+        self._take_warm_up(rows, nu)
+        return events
+
+    def _take_warm_up(self, rows: list, nu):
+        """Add the warm-up's samples ``rows`` to the segment.
+
+        When the segment before was whitened by the differentiator's model (which the recording
+        then agreed with), the warm-up's own innovations under it ``nu (n, rows)``
+        (:meth:`_warm_whitening`: each predicted from the samples before it) are tested too,
+        divided by the square root of that segment's chi2/dof when above 1 (this warm-up's own would
+        grow with a change within it): such a change closes the segment there and hands the
+        samples after it to the next."""
+        last = self.segments[-1]["prewhitening"] if self.segments else None
+        # the recording's excess over the noise model as the segment before measured it, significant or not
+        tested = nu is not None and last is not None and last["filter"] == "differentiator"
+        scale = math.sqrt(max(last["chi2_dof"], 1.0)) if tested else None
         for k, row in enumerate(rows):
-            if before is not None and nu is not None and self._cusum(row[0], nu[k] / before):
+            if tested and self._cusum(row[0], nu[k] / scale):
                 self._R = None  # the warm-up's batch estimate blends the change: no recursive estimate
                 self._alarm(row)
                 rest = rows[k + 1 :]
                 drop = min(self._skip, len(rest))
                 self._skip -= drop
                 self._warm, self._count = self._warm + rest[drop:], self._count + len(rest) - drop
-                return events
+                return
             self._thinned.add(row)
             self._recent.append(row)
         self._g = 0.0  # the samples after the warm-up are tested afresh, with this segment's whitening
         self._excursion.clear()
-        return events
 
     def _set_prewhitening(self, block, rows, L, J):
         """The segment's prewhitening from the warm-up's whitened equations ``block (m, p + 1)`` at
