@@ -24,8 +24,9 @@ the linearisation point at which the equation-error covariances ``S_n``
 
 An alarm closes the segment at the estimated change time (within the CUSUM's last excursion
 above zero, :meth:`Monitor._change_time`) and starts a new one there; once the new segment's
-warm-up is identified, the event reports the z-scores of the change (:func:`~spaceid.estimation.compare`).
-Each closed segment is re-identified in batch from at most ``max_segment`` of its samples (evenly
+warm-up is identified, the event reports the z-scores of the change (:func:`~spaceid.estimation.compare`),
+and, when the segment before was whitened by the differentiator's model, that warm-up's own
+innovations are tested too (:meth:`Monitor._take_warm_up`). Each closed segment is re-identified in batch from at most ``max_segment`` of its samples (evenly
 thinned), so memory stays bounded.
 """
 
