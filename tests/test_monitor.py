@@ -342,11 +342,14 @@ def test_finds_the_capture_with_differentiated_rates(capture, cepheus):
 
 
 
-def test_a_change_within_a_warm_up_after_an_alarm_is_found(cepheus):
-    """After an alarm, the next warm-up's own innovations are tested (at the scale of the segment
-    before, whitened by the differentiator's model): a second grasp at 4.5 s, 1.5 s into the 2 s
-    warm-up that follows the first at 3 s, is found at its time (before, that warm-up was never
-    tested: its estimate blended the two systems, and the second grasp was reported about 1 s late)."""
+@pytest.mark.parametrize("differentiated", [True, False])
+def test_a_change_within_a_warm_up_after_an_alarm_is_found(cepheus, differentiated):
+    """After an alarm, the next warm-up's own innovations are tested (each predicted from the warm-up's
+    samples before it, under the whitening of the segment before: the differentiator's model, or
+    none for measured rates): a second grasp at 4.5 s, 1.5 s into the 2 s warm-up that follows the
+    first at 3 s, is found at its time (before, that warm-up was never tested, and with measured
+    rates still not last release: its estimate blended the two systems, and the second grasp was
+    reported about 1 s late)."""
     model, param = cepheus
     once = _with_payload(model, "link2", 0.1, [0.2, 0, 0])
     twice = _with_payload(once, "link1", 0.2, [0.1, 0, 0])
@@ -356,14 +359,15 @@ def test_a_change_within_a_warm_up_after_an_alarm_is_found(cepheus):
         part = simulate(param, minimal_parameters(m).true_values, _motion, t[span], H, model=m, initial_quat=quat)
         quat = part.base_quat[-1]
         parts.append(part if m is twice else part.select(slice(0, -1)))
-    log = _differentiated(_concatenate(_concatenate(*parts[:2]), parts[2]), 3)
+    log = _concatenate(_concatenate(*parts[:2]), parts[2])
     mon = Monitor(param, H, noise=NOISE)
-    mon.update(log)
+    mon.update(_differentiated(log, 3) if differentiated else _noisy(log, 3))
     record = mon.finish()
     times = [e["time"] for e in record["events"]]
     assert len(times) == 2 and all(abs(a - b) <= 17 / RATE for a, b in zip(times, (3.0, 4.5))), times
-    assert record["segments"][0]["prewhitening"]["filter"] == "differentiator"
+    assert (record["segments"][0]["prewhitening"]["filter"] == "differentiator") == differentiated
     assert record["segments"][1]["recursive"] is None  # its warm-up held the change: closed before its test began
+
 
 def _cli_events(tmp_path, log_path, *extra):
     out = tmp_path / "events.json"
@@ -542,17 +546,21 @@ def _rotor():
 
 def test_monitor_takes_the_differentiator_window_of_a_bag(capture_bag, tmp_path, capsys):
     """``--window`` sets every differentiated series' window: the events' lead is half the widest one (41
-    encoder samples at 50 Hz); an even window, or one for a CSV log, is a one-line error."""
+    encoder samples at 50 Hz); an even window, or one for a CSV log, is a one-line error. The grasp
+    is the last event, found in the warm-up after an alarm 1.6 s before it (before the warm-ups
+    after an AR-whitened segment were tested, that alarm was the only event)."""
     from spaceid.data import read_bag_log
 
-    bag, _ = capture_bag
+    bag, grasp = capture_bag
+    grasp -= read_bag_log(bag, **_bag_options()).meta["time_origin_ns"] / 1e9
     out = tmp_path / "events.json"
     args = ["monitor", "cepheus-rw", str(bag), "--momentum", "0", "--known", f"Iczz_wheel={_rotor()!r}",
             "--warmup", "100", "--noise-angle", "1e-3", "--noise-rate", "1e-2", "--noise-base-rate", "1e-2",
             "-o", str(out)]  # fmt: skip
     assert main(args + ["--window", "41"]) == 0
-    (event,) = json.loads(out.read_text())["events"]
-    assert event["lead"] == pytest.approx(20 * 0.02, rel=0.05)
+    events = json.loads(out.read_text())["events"]
+    assert all(e["lead"] == pytest.approx(20 * 0.02, rel=0.05) for e in events)
+    assert events[-1]["time"] <= grasp <= events[-1]["time"] + events[-1]["lead"] + 0.02, (events, grasp)
     assert main(args + ["--window", "40"]) == 2
     assert "window" in capsys.readouterr().err
     csv = tmp_path / "log.csv"

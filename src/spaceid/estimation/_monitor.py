@@ -25,9 +25,10 @@ the linearisation point at which the equation-error covariances ``S_n``
 An alarm closes the segment at the estimated change time (within the CUSUM's last excursion
 above zero, :meth:`Monitor._change_time`) and starts a new one there; once the new segment's
 warm-up is identified, the event reports the z-scores of the change (:func:`~spaceid.estimation.compare`),
-and, when the segment before was whitened by the differentiator's model, that warm-up's own
-innovations are tested too (:meth:`Monitor._take_warm_up`). Each closed segment is re-identified in batch from at most ``max_segment`` of its samples (evenly
-thinned), so memory stays bounded.
+and that warm-up's own innovations are tested too, each predicted from the warm-up's samples before
+it under the whitening of the segment before (:meth:`Monitor._warm_up_innovations`). Each closed
+segment is re-identified in batch from at most ``max_segment`` of its samples (evenly thinned), so
+memory stays bounded.
 """
 
 from __future__ import annotations
@@ -78,6 +79,12 @@ PRIOR = 1e4
 the warm-up's weighted least-squares covariance: diffuse against the warm-up itself, which it then
 takes in (a change within the warm-up puts its batch estimate, the linearisation point, between
 the two systems: many of its standard errors from either)."""
+PRIOR_CEILING = 1e10
+"""Largest variance of that prior in any direction of the scaled parameters (a unit there moves the
+warm-up's whitened residuals by at most one noise standard deviation in all): a direction the
+warm-up leaves this undetermined is unknown to the test either way, and larger variances leave the
+filter's covariance update to round-off (on the twin, 1e13 against the raw noise's 1 turned it
+indefinite and the innovations' Cholesky factorisation failed)."""
 
 
 def _ar_fit(res: np.ndarray, order: int, p: int) -> tuple:
@@ -93,6 +100,41 @@ def _ar_fit(res: np.ndarray, order: int, p: int) -> tuple:
     m = res.size
     scale = math.sqrt(np.sum(left**2) / max(left.size - order, 1) * m / max(m - p, 1))
     return coef, scale
+
+
+def _ar_filtered(nu: np.ndarray, coef, scale: float) -> np.ndarray:
+    """What the AR filter ``coef (order,)`` of the past does not predict of each of the innovations
+    ``nu (n, rows)``, divided by ``scale`` (the first ``order`` with the lags they have)."""
+    out = np.array(nu, float)
+    for k, c in enumerate(coef, start=1):
+        out[k:] -= c * nu[:-k]
+    return out / scale
+
+
+def _prediction(R: np.ndarray, a: np.ndarray) -> tuple:
+    """The estimate ``(p,)`` of the square-root information factor ``R (p + 1, p + 1)`` (scaled
+    unknowns, data column last) and ``u = R_p^-T a^T (p, rows)`` for the rows ``a (rows, p)``: ``u^T
+    u`` is the estimate's share of the covariance of their residual."""
+    r = R[:-1, :-1]
+    return lapack.dtrtrs(r, R[:-1, -1])[0], lapack.dtrtrs(r, a.T, trans=1)[0]
+
+
+def _recursive_innovations(block: np.ndarray, rows: int, scale: np.ndarray) -> np.ndarray:
+    """Innovations ``(n, rows)`` of recursive least squares over whitened equations ``block (n rows,
+    p + 1)`` (unknowns divided by ``scale (p,)``): each sample's residual at the estimate from the
+    samples before it, normalised by its covariance ``I + u^T u``; zero while those samples leave
+    the estimate undetermined (a change before them cannot show)."""
+    p = len(scale)
+    eqs = np.asfortranarray(block / np.r_[scale, 1.0])
+    out, R = np.zeros((len(block) // rows, rows)), None
+    for k in range(len(out)):
+        a, b = eqs[k * rows : (k + 1) * rows, :p], eqs[k * rows : (k + 1) * rows, p]
+        diag = None if R is None else np.abs(np.diag(R)[:p])
+        if diag is not None and diag.min() > 1e-8 * diag.max():
+            theta, u = _prediction(R, a)
+            out[k] = solve_triangular(np.linalg.cholesky(np.eye(rows) + u.T @ u), b - a @ theta, lower=True)
+        R = _accumulate_factor(R, eqs[k * rows : (k + 1) * rows])
+    return out
 
 
 def _increment(rows: int, ratio: float):
@@ -364,26 +406,32 @@ class Monitor:
         block = white.reshape(-1, white.shape[-1])
         self._scale = _column_scale(block[:, :-1])
         self._R = _accumulate_factor(None, np.asfortranarray(block / np.r_[self._scale, 1.0]))
-        nu = self._set_prewhitening(block, rows, L, J)
+        nu = self._warm_up_innovations(block, self._set_prewhitening(block, rows, L, J))
         self._warm, events = [], self._complete_pending()
         self._take_warm_up(rows, nu)
         return events
 
-    def _take_warm_up(self, rows: list, nu):
-        """Add the warm-up's samples ``rows`` to the segment.
-
-        When the segment before was whitened by the differentiator's model (which the recording
-        then agreed with), the warm-up's own innovations under it ``nu (n, rows)``
-        (:meth:`_warm_whitening`: each predicted from the samples before it) are tested too,
-        divided by the square root of that segment's chi2/dof when above 1 (this warm-up's own would
-        grow with a change within it): such a change closes the segment there and hands the
-        samples after it to the next."""
+    def _warm_up_innovations(self, block, kalman):
+        """The innovations ``(n, rows)`` of a warm-up after an alarm, each predicted from the warm-up's
+        samples before it, under the whitening of the segment before (its recording's noise): the
+        differentiator's (``kalman``, :meth:`_warm_whitening`), divided by the square root of that
+        segment's chi2/dof when above 1 (this warm-up's own would grow with a change within it);
+        else those of recursive least squares from the warm-up's start (its whitened equations
+        ``block``), through that segment's AR filter if it had one. None for the first warm-up."""
         last = self.segments[-1]["prewhitening"] if self.segments else None
-        # the recording's excess over the noise model as the segment before measured it, significant or not
-        tested = nu is not None and last is not None and last["filter"] == "differentiator"
-        scale = math.sqrt(max(last["chi2_dof"], 1.0)) if tested else None
+        if last is None:
+            return None
+        if last["filter"] == "differentiator":
+            return kalman / math.sqrt(max(last["chi2_dof"], 1.0))  # its excess as measured, significant or not
+        nu = _recursive_innovations(block, self.param.rows, self._scale)
+        return _ar_filtered(nu, last["coefficients"], last["scale"]) if last["order"] else nu
+
+    def _take_warm_up(self, rows: list, nu):
+        """Add the warm-up's samples ``rows`` to the segment, testing their innovations ``nu (n,
+        rows)`` (:meth:`_warm_up_innovations`; None: untested) too: a change among them closes the
+        segment there and hands the samples after it to the next."""
         for k, row in enumerate(rows):
-            if tested and self._cusum(row[0], nu[k] / scale):
+            if nu is not None and self._cusum(row[0], nu[k]):
                 self._R = None  # the warm-up's batch estimate blends the change: no recursive estimate
                 self._alarm(row)
                 rest = rows[k + 1 :]
@@ -445,10 +493,12 @@ class Monitor:
 
     def _start_whitener(self):
         """Start the differentiator's whitening with the estimate's error ``PRIOR`` times as uncertain
-        as the segment's weighted least-squares estimate says."""
+        as the segment's weighted least-squares estimate says, no direction's variance above
+        ``PRIOR_CEILING``."""
         p = len(self._scale)
         r_inv = solve_triangular(self._R[:p, :p], np.eye(p))
-        self._whitener.start(PRIOR * r_inv @ r_inv.T)
+        variances, axes = np.linalg.eigh(PRIOR * r_inv @ r_inv.T)
+        self._whitener.start((axes * np.minimum(variances, PRIOR_CEILING)) @ axes.T)
 
     def _whitened(self, log: Log, derivatives: bool = False) -> tuple:
         """``log``'s equations ``[A | b]`` whitened by ``S_n`` at the linearisation point, ``(n, rows,
@@ -516,12 +566,9 @@ class Monitor:
     def _step(self, row, white, L, D) -> bool:
         """Test one sample, then add it; True on an alarm. ``white``, ``L``, ``D``: the sample's
         whitened equations, their whitener and derivatives (:meth:`_whitened`)."""
-        p = len(self._scale)
         a, b = white[:, :-1] / self._scale, white[:, -1]
-        r = self._R[:p, :p]
-        theta = lapack.dtrtrs(r, self._R[:p, p])[0]
+        theta, u = _prediction(self._R, a)
         e = b - a @ theta
-        u = lapack.dtrtrs(r, a.T, trans=1)[0]  # r^-T a^T: u^T u is the estimate's share of the innovation
         # the equation error's covariance at the estimate so far (the weights stay at the linearisation point)
         J = np.einsum("rcx,c->rx", D, np.append(theta / self._scale, 1.0))
         Li = np.linalg.inv(L)
