@@ -54,20 +54,21 @@ def test_cli_capture_options_need_capture(capsys):
     assert "error: --capture-mass, --capture-settings and --capture-trajectory need --capture" in err
 
 
-def test_an_event_is_the_grasp_s_when_its_lead_reaches_the_grasp():
-    """An event's change lies between its time and its lead later (to a sample step): one whose
-    interval ends before the grasp is a false alarm however close (a fixed 0.5 s allowance took
-    the event at -0.5 s, lead 0.45 s, for the grasp)."""
+def test_an_alarm_before_the_grasp_can_show_is_a_false_alarm():
+    """The rates show the grasp up to an event's lead early: an alarm raised before that (to a
+    sample step) is a false alarm however close; one raised after it is the grasp's even when its
+    change time comes earlier than the lead allows (before: scored by the change interval, which
+    took the grasp found at 4.5 s, alarm 4.6 s, for a false alarm)."""
     from types import SimpleNamespace
 
     from spaceid.studies._servicing import _scores
 
     estimate = SimpleNamespace(names=("m",), values=np.array([0.5]), std=np.array([0.01]), not_identifiable=())
     truth = {"payload": {"mass": 0.5, "com": [0.0, 0.0, 0.0], "inertia": 1e-3 * np.eye(3)}}
-    events = {"events": [{"time": t, "lead": 0.45, "detected_at": t + 0.1} for t in (3.0, 4.5, 4.56, 5.2)]}
+    events = {"events": [{"time": t, "lead": 0.45, "detected_at": t + 0.1} for t in (3.0, 4.42, 4.5, 5.2)]}
     scores = _scores(estimate, truth, events, SimpleNamespace(t=np.arange(0, 10, 0.02)), 5.0)
-    assert scores["events before the grasp (false alarms)"] == 2 and scores["detected change time [s]"] == 4.56
-    assert scores["change time error [samples]"] == -22.0
+    assert scores["events before the grasp (false alarms)"] == 2 and scores["detected change time [s]"] == 4.5
+    assert scores["change time error [samples]"] == -25.0
 
 
 def test_capture_figures_name_the_grasp_and_units():
@@ -130,7 +131,7 @@ def test_report_files_and_section(ideal):
     payload = json.loads((folder / "payload.json").read_text())
     assert payload["link"] == "link2" and payload["mass"] == pytest.approx(ideal.servicing.payload.mass)
     events = json.loads((folder / "events.json").read_text())
-    assert events["events"] and events["settings"]["warmup"] == 100
+    assert events["events"] and events["settings"]["warmup"] == 200
     text = (folder / "report.md").read_text()
     assert "## Capture: change detection and the payload" in text and "(payload.png)" in text
     assert "change time error \\[samples\\]" in text or "change time error [samples]" in text
@@ -195,3 +196,28 @@ def _saved(tmp_path):
     path = tmp_path / "held_out.json"
     HELD_OUT.save(path)
     return path
+
+
+@pytest.mark.slow
+def test_whitening_stays_positive_definite_with_exact_arm_encoders():
+    """Exact arm angles (the differentiator's noise ~1e-7 rad), a quantised wheel and a 2 s warm-up
+    that leaves one parameter direction 1e13 times less certain than another: the whitening's
+    covariance update turned indefinite and the monitor raised LinAlgError (seed 3, before its
+    prior's variances were capped)."""
+    from spaceid.dynamics import minimal_parameters
+    from spaceid.estimation import Monitor, Noise
+    from spaceid.models import load_model
+
+    settings = TwinSettings().without_effects()
+    settings = replace(settings, encoders=replace(settings.encoders, counts_per_rev={"reaction_wheel_joint": 4096}))
+    r = run_experiment(trajectory="paper-table2", validation=HELD_OUT, settings=settings, bag_format="mcap", seed=3,
+                       capture=capture_protocol())  # fmt: skip
+    levels = r.servicing.events["settings"]["noise"]
+    noise = Noise(**{k: levels[k] for k in ("angle", "rate", "base_rate", "attitude")}, source=levels["source"])
+    param = minimal_parameters(load_model(settings.model), seed=r.settings["capture phase seed"])
+    mon = Monitor(param, np.zeros(3), noise=noise, warmup=100)
+    mon.update(r.servicing.log)
+    events = mon.finish()["events"]
+    grasp, step = r.servicing.scores["grasp time [s]"], r.servicing.scores["sample period [s]"]
+    # found, if late: the alarms the 2 s warm-up raises leave the grasp in an untested warm-up (docs/theory/capture.md)
+    assert any(e["detected_at"] + step >= grasp - e["lead"] for e in events), events

@@ -7,8 +7,9 @@ excitation holding the payload. The held-out motion, the grasp and the post-capt
 recorded as one bag (``capture.bag``, ...), read back as a lab recording; then
 
 1. the change monitor (:class:`~spaceid.estimation.Monitor`, the servicer's minimal parameters as
-   its structure) runs over it sample by sample and reports the change it detects, scored against
-   the twin's grasp tick (an event's change lies within its ``lead`` after its time). Its noise
+   its structure, its default warm-up) runs over it sample by sample and reports the change it
+   detects, scored against the twin's grasp tick (an alarm raised before the grasp can show in the
+   rates, the event's ``lead`` before it, is a false alarm: :func:`_split_at_grasp`). Its noise
    levels are those of the excitation's log, scaled so that the identification before fits it
    with chi2/dof = 1: the levels estimated from a log understate the error of differentiated
    rates (chi2/dof about 30 on the ideal twin), and the CUSUM's false-alarm rate holds only for
@@ -49,10 +50,6 @@ __all__ = ["CaptureProtocol", "ServicingResult", "capture_protocol", "run_servic
 
 CAPTURE_OFFSET = (0.04, 0.0)
 """Default payload frame origin in the grasping link's frame at the grasp [m]: at the gripper."""
-MONITOR_WARMUP = 100
-"""Samples of each monitored segment identified before its test starts (2 s at the bag's 50 Hz):
-the 5 s held-out motion then leaves 3 s tested before the grasp. The monitor's default, 200,
-leaves 1 s, and a false alarm then starts a segment whose warm-up covers the grasp."""
 SETTINGS_KEYS = ("mass", "com", "inertia", "velocity", "rate", "link", "offset", "yaw")
 
 
@@ -233,29 +230,29 @@ def _bag_format(bag: Path) -> str:
 def _monitor(model, log: Log, before: Identification, seed: int) -> dict:
     """The monitor's record over ``log`` (momentum zero: the system started at rest, the wheel
     measured), the structure of the servicer before the grasp, the noise levels of ``before``
-    scaled to its chi2/dof = 1 (the equation-error covariance is quadratic in them)."""
+    scaled to its chi2/dof = 1 (the equation-error covariance is quadratic in them). Its default
+    warm-up (200 samples, 4 s at the bag's 50 Hz): after 2 s of the held-out motion the estimate was
+    off by several times its standard errors on the twin, and the first tested samples raised
+    false alarms (docs/theory/capture.md)."""
     levels = before.settings["noise"]
     scale = np.sqrt(before.settings.get("chi2_dof") or 1.0)
     noise = Noise(**{k: levels[k] * scale for k in ("angle", "rate", "base_rate", "attitude")},
                   source=f"{levels['source']}, scaled by sqrt(chi2/dof) = {scale:.3g} of the identification before")
-    mon = Monitor(minimal_parameters(model, seed=seed), np.zeros(3), noise=noise, warmup=MONITOR_WARMUP,
-                  where=str(log.meta.get("source", "log")))
+    mon = Monitor(minimal_parameters(model, seed=seed), np.zeros(3), noise=noise, where=str(log.meta.get("source", "log")))
     mon.update(log)
     return mon.finish()
 
 
 def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict:
-    """The payload against its truth (z-scores), and the first event that can be the grasp's against
-    the grasp, in seconds and in samples of ``log``: an event's change lies between its ``time`` and
-    ``time + lead`` (the differentiated rates show it up to ``lead`` early), to within a sample step;
-    events whose interval ends before the grasp are false alarms."""
+    """The payload against its truth (z-scores), and the first event that can be the grasp's
+    (:func:`_split_at_grasp`) against the grasp, in seconds and in samples of ``log``."""
     payload = truth["payload"]
     true = {"m": payload["mass"], "cx": payload["com"][0], "cy": payload["com"][1], "cz": payload["com"][2]}
     inertia = np.asarray(payload["inertia"])
     true |= dict(zip(("Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz"), inertia[[0, 0, 1, 0, 1, 2], [0, 1, 1, 2, 2, 2]]))
     true = np.array([true[n] for n in estimate.names])
     dt = float(np.median(np.diff(log.t)))
-    found = [e for e in events["events"] if e["time"] + e["lead"] + dt >= grasp]
+    early, found = _split_at_grasp(events["events"], grasp, dt)
     first = found[0] if found else None
     return {
         "payload": [{"name": n, "true": float(t), "estimate": float(v), "std": float(e),
@@ -269,10 +266,21 @@ def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict
         "change time error [samples]": None if first is None else round((first["time"] - grasp) / dt, 1),
         "change time lead [s]": None if first is None else first["lead"],
         "alarm time from the grasp [s]": None if first is None else first["detected_at"] - grasp,
-        "events before the grasp (false alarms)": len(events["events"]) - len(found),
+        "events before the grasp (false alarms)": len(early),
         "events": len(events["events"]),
         "sample period [s]": dt,
     }
+
+
+def _split_at_grasp(events: list, grasp: float, dt: float) -> tuple:
+    """The monitor's ``events`` split into false alarms and those that can be the grasp's (grasp at
+    ``grasp`` [s], sample step ``dt`` [s]): the differentiated rates show the grasp up to an event's
+    ``lead`` early, so an alarm raised before ``grasp - lead`` (to within a step) is a false alarm,
+    however close; one raised after it can be the grasp's even when its estimated change ``time``
+    comes earlier than the lead allows (the CUSUM places the change within its last excursion,
+    a few samples either way)."""
+    early = [e for e in events if e["detected_at"] + dt < grasp - e["lead"]]
+    return early, [e for e in events if e["detected_at"] + dt >= grasp - e["lead"]]
 
 
 def write_servicing(folder: Path, result: ServicingResult) -> tuple:
