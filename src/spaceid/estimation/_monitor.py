@@ -122,15 +122,15 @@ def _prediction(R: np.ndarray, a: np.ndarray) -> tuple:
 def _recursive_innovations(block: np.ndarray, rows: int, scale: np.ndarray) -> np.ndarray:
     """Innovations ``(n, rows)`` of recursive least squares over whitened equations ``block (n rows,
     p + 1)`` (unknowns divided by ``scale (p,)``): each sample's residual at the estimate from the
-    samples before it, normalised by its covariance ``I + u^T u``; zero while those samples leave
-    the estimate undetermined (a change before them cannot show)."""
+    samples before it, normalised by its covariance ``I + u^T u``; NaN (untested) until those
+    samples give four equations per unknown, the least warm-up (from fewer, the innovations'
+    variance ran 12 to 26 % above one on Cepheus logs with measured rates)."""
     p = len(scale)
     eqs = np.asfortranarray(block / np.r_[scale, 1.0])
-    out, R = np.zeros((len(block) // rows, rows)), None
+    out, R = np.full((len(block) // rows, rows), np.nan), None
     for k in range(len(out)):
         a, b = eqs[k * rows : (k + 1) * rows, :p], eqs[k * rows : (k + 1) * rows, p]
-        diag = None if R is None else np.abs(np.diag(R)[:p])
-        if diag is not None and diag.min() > 1e-8 * diag.max():
+        if k * rows >= 4 * (p + 1):
             theta, u = _prediction(R, a)
             out[k] = solve_triangular(np.linalg.cholesky(np.eye(rows) + u.T @ u), b - a @ theta, lower=True)
         R = _accumulate_factor(R, eqs[k * rows : (k + 1) * rows])
@@ -362,6 +362,7 @@ class Monitor:
         self._window = None  # the differentiator's window [samples], from the first samples (:meth:`update`)
         self._step_s = 0.0  # the sample step [s], set with it
         self._skip = 0  # samples still to drop after an alarm
+        self._tested_until = -math.inf  # the last alarm's time [s]: the samples up to it were tested
         self._held = []  # the last half window of samples: their rates may change with the samples to come
         self._whitener = None  # the Kalman whitening of differentiated rates' errors (:meth:`_set_prewhitening`)
         self._open(start=None)
@@ -428,10 +429,13 @@ class Monitor:
 
     def _take_warm_up(self, rows: list, nu):
         """Add the warm-up's samples ``rows`` to the segment, testing their innovations ``nu (n,
-        rows)`` (:meth:`_warm_up_innovations`; None: untested) too: a change among them closes the
-        segment there and hands the samples after it to the next."""
+        rows)`` (:meth:`_warm_up_innovations`; None, or NaN for a sample: untested) too, those after
+        the last alarm (the samples of its excursion were tested: again, a false alarm's excursion
+        would raise another): a change among them closes the segment there and hands the samples
+        after it to the next."""
         for k, row in enumerate(rows):
-            if nu is not None and self._cusum(row[0], nu[k]):
+            test = nu is not None and row[0] > self._tested_until and not np.isnan(nu[k]).any()
+            if test and self._cusum(row[0], nu[k]):
                 self._R = None  # the warm-up's batch estimate blends the change: no recursive estimate
                 self._alarm(row)
                 rest = rows[k + 1 :]
@@ -623,6 +627,7 @@ class Monitor:
     def _alarm(self, row):
         """Close the segment at the estimated change and open the next one with the samples since."""
         onset, delay = self._change_time()
+        self._tested_until = float(row[0])
         self._pending = {"index": len(self.events), "time": onset, "detected_at": float(row[0]),
                          "delay": delay, "statistic": float(self._g), "threshold": self.threshold,
                          "lead": (self._window or 0) / 2 * self._step_s}  # fmt: skip
