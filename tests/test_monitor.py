@@ -18,7 +18,7 @@ from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Monitor, Noise, cusum_run_length, cusum_threshold, equation_covariance, monitor
 from spaceid.estimation import signal_sigma
 from spaceid.estimation._equations import _equations
-from spaceid.estimation._monitor import _increment
+from spaceid.estimation._monitor import _increment, _recursive_innovations
 from spaceid.estimation._uncertainty import _ljung_box_p
 from spaceid.models import load_model
 from spaceid.models._model import inertial_vector
@@ -567,3 +567,29 @@ def test_monitor_takes_the_differentiator_window_of_a_bag(capture_bag, tmp_path,
     write_log(csv, read_bag_log(bag, **_bag_options()))
     assert main(["monitor", "cepheus-rw", str(csv), "--momentum", "0", "--window", "41", "-o", str(out)]) == 2
     assert "apply to ROS bags" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("rows", [1, 3])
+def test_recursive_innovations_against_direct_least_squares(rows):
+    """Each innovation is the residual at the least-squares estimate of the samples before it over its
+    standard deviation (checked by a direct fit for some samples); with unit noise they are N(0, I),
+    independent (recursive residuals), and untested before four equations per unknown."""
+    from scipy.linalg import sqrtm
+
+    rng = np.random.default_rng(rows)
+    n, p = 3000, 5
+    A = rng.normal(size=(n * rows, p)) * [1.0, 10.0, 0.1, 3.0, 1.0]
+    b = A @ rng.normal(size=p) + rng.normal(size=n * rows)
+    scale = np.linalg.norm(A, axis=0)
+    nu = _recursive_innovations(np.c_[A, b], rows, scale)
+    first = -(-4 * (p + 1) // rows)
+    assert np.isnan(nu[:first]).all() and np.isfinite(nu[first:]).all()
+    for k in (first, first + 7, n - 1):
+        past, a = A[: k * rows], A[k * rows : (k + 1) * rows]
+        theta = np.linalg.lstsq(past, b[: k * rows], rcond=None)[0]
+        cov = np.eye(rows) + a @ np.linalg.inv(past.T @ past) @ a.T
+        direct = np.linalg.solve(np.real(sqrtm(cov)), b[k * rows : (k + 1) * rows] - a @ theta)
+        assert np.linalg.norm(nu[k]) == pytest.approx(np.linalg.norm(direct), rel=1e-8)  # any square root
+    v = nu[first:].ravel()
+    assert abs(v.mean()) < 4 / np.sqrt(v.size) and abs(v.var() - 1) < 4 * np.sqrt(2 / v.size)
+    assert abs(np.corrcoef(v[:-1], v[1:])[0, 1]) < 4 / np.sqrt(v.size)
