@@ -238,7 +238,8 @@ def _monitor(model, log: Log, before: Identification, seed: int) -> dict:
     scale = np.sqrt(before.settings.get("chi2_dof") or 1.0)
     noise = Noise(**{k: levels[k] * scale for k in ("angle", "rate", "base_rate", "attitude")},
                   source=f"{levels['source']}, scaled by sqrt(chi2/dof) = {scale:.3g} of the identification before")
-    mon = Monitor(minimal_parameters(model, seed=seed), np.zeros(3), noise=noise, where=str(log.meta.get("source", "log")))
+    mon = Monitor(minimal_parameters(model, seed=seed), np.zeros(3), noise=noise,
+                  where=str(log.meta.get("source", "log")))
     mon.update(log)
     return mon.finish()
 
