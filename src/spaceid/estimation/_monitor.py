@@ -131,10 +131,11 @@ def _recursive_innovations(block: np.ndarray, rows: int, scale: np.ndarray) -> n
     out, R = np.full((len(block) // rows, rows), np.nan), None
     for k in range(len(out)):
         a, b = eqs[k * rows : (k + 1) * rows, :p], eqs[k * rows : (k + 1) * rows, p]
-        diag = np.abs(np.diag(R)[:p]) if R is not None else None
-        if k * rows >= 4 * (p + 1) and diag.min() > 1e-8 * diag.max():
-            theta, u = _prediction(R, a)
-            out[k] = solve_triangular(np.linalg.cholesky(np.eye(rows) + u.T @ u), b - a @ theta, lower=True)
+        if k * rows >= 4 * (p + 1):
+            diag = np.abs(np.diag(R)[:p])
+            if diag.min() > 1e-8 * diag.max():
+                theta, u = _prediction(R, a)
+                out[k] = solve_triangular(np.linalg.cholesky(np.eye(rows) + u.T @ u), b - a @ theta, lower=True)
         R = _accumulate_factor(R, eqs[k * rows : (k + 1) * rows])
     return out
 
@@ -588,9 +589,9 @@ class Monitor:
             C = Li @ equation_covariance(J[None], self._sigma)[0] @ Li.T + u.T @ u
             nu = solve_triangular(np.linalg.cholesky(C), e, lower=True)
         if len(self._ar):  # prewhitened: what the AR filter of the past innovations does not predict
-            past = np.array(self._history)[::-1]  # lag 1 first
+            recent = np.array([*self._history, nu])  # the order lags, then this sample
             self._history.append(nu)
-            nu = (nu - self._ar @ past) / self._ar_scale
+            nu = _ar_filtered(recent, self._ar, self._ar_scale)[-1]
         if self._cusum(row[0], nu):
             return True
         if self.forgetting < 1:
