@@ -20,11 +20,16 @@ Cepheus at 100 Hz, a two-joint sine motion, h = 0.5 N m s, noise 1e-4 rad on the
     rate, with the Poisson probability of as many or more (and as few or fewer);
 (e) the same at the default 1e-5 per sample, the levels given, seeds 244 on: there the CUSUM's
     threshold is crossed by runs of tens of samples, so the rate rests on the innovations' scale
-    and independence over such runs, not only on their variance.
+    and independence over such runs, not only on their variance;
+(f) drift: the table's viscous friction (5e-4 N m s/rad: the momentum moves 2 % in 20 s) on the
+    logs of (c) and (d), alarms at 1e-3 per sample without drift terms and with them
+    (``Monitor(drift=("viscous",))``; also with 400-sample warm-ups, 4 s, and for measured rates
+    the ML estimator, the monitor's default, where the others use weighted least squares), seeds
+    2000 on; and the throughput of (a) at N = 4,000 without and with the drift terms.
 
 Prints only; never fails on the figures.
 
-    python benchmarks/bench_monitor.py [--runs 20] [--parts a b c d e]
+    python benchmarks/bench_monitor.py [--runs 20] [--parts a b c d e f]
 """
 
 import argparse
@@ -45,6 +50,7 @@ RATE, T_CAPTURE = 100.0, 6.0
 H = np.array([0.0, 0.0, 0.5])
 NOISE = Noise(angle=1e-4, rate=1e-3, base_rate=1e-3, attitude=1e-4)
 FREQ, PHASE = np.array([0.31, 0.47]), np.array([0.3, 1.1])
+VISCOUS = 5e-4  # [N m s/rad], part (f)
 
 
 def motion(t):
@@ -56,13 +62,13 @@ def noisy(log, seed):
     return add_noise(log, angle=NOISE.angle, rate=NOISE.rate, seed=seed)
 
 
-def throughput(param, model):
-    print("(a) throughput of the test phase (samples/s), no change")
-    for n in (1000, 4000, 16000):
+def throughput(param, model, sizes=(1000, 4000, 16000), drift=(), label="a"):
+    print(f"({label}) throughput of the test phase (samples/s), no change, drift terms: {', '.join(drift) or 'none'}")
+    for n in sizes:
         measured = noisy(simulate(param, param.true_values, motion, np.arange(n) / RATE, H, model=model), 0)
         for kind, log in (("measured", measured), ("differentiated", differentiate_log(measured, window=31))):
             for chunk in (256, 1):
-                mon = Monitor(param, H, noise=NOISE, false_alarm_rate=1e-9)
+                mon = Monitor(param, H, noise=NOISE, false_alarm_rate=1e-9, drift=drift)
                 mon.update(log.select(slice(0, mon.warmup)))
                 rest = log.select(slice(mon.warmup, None if chunk > 1 else mon.warmup + 300))
                 start = time.perf_counter()
@@ -110,13 +116,14 @@ def delay(param, model, runs):
     print(f"  expected delay for a ratio-4 change {mon.expected_delay:.1f} samples")
 
 
-def false_alarms(param, runs, logs, noise, label, alpha=1e-3):
+def false_alarms(param, runs, logs, noise, label, alpha=1e-3, drift=(), warmup=None, estimator="wls"):
     """Alarms on ``logs`` (seed -> log, without a change) at ``alpha`` per sample against the stated rate."""
     print(f"({label}) false alarms at {alpha:g} per sample, {runs} logs of 2000 samples without a change, "
-          f"noise {'given' if noise else 'estimated'}")
+          f"noise {'given' if noise else 'estimated'}" + (f", drift terms: {', '.join(drift) or 'none'}, warm-up "
+                                                         f"{warmup or 'default'}, {estimator}" if label == "f" else ""))
     alarms = tested = 0
     for seed in range(runs):
-        mon = Monitor(param, H, noise=noise, false_alarm_rate=alpha, estimator="wls")
+        mon = Monitor(param, H, noise=noise, false_alarm_rate=alpha, estimator=estimator, drift=drift, warmup=warmup)
         mon.update(logs(seed))
         record = mon.finish()
         alarms, tested = alarms + len(record["events"]), tested + record["n_tested"]
@@ -130,7 +137,7 @@ def false_alarms(param, runs, logs, noise, label, alpha=1e-3):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=int, default=20)
-    parser.add_argument("--parts", nargs="+", default=["a", "b", "c", "d", "e"])
+    parser.add_argument("--parts", nargs="+", default=["a", "b", "c", "d", "e", "f"])
     args = parser.parse_args()
     model = load_model("cepheus")
     param = minimal_parameters(model)
@@ -148,6 +155,18 @@ def main():
     if "e" in args.parts:
         false_alarms(param, args.runs, lambda seed: differentiate_log(noisy(clean, 244 + seed), window=31), NOISE,
                      "e", alpha=1e-5)
+    if "f" in args.parts:
+        drifting = simulate(param, param.true_values, motion, np.arange(2000) / RATE, H, model=model,
+                            drift={"viscous": VISCOUS})  # fmt: skip
+        measured = lambda seed: noisy(drifting, 2000 + seed)  # noqa: E731
+        differentiated = lambda seed: differentiate_log(noisy(drifting, 2000 + seed), window=31)  # noqa: E731
+        for logs, drift, warmup, estimator in (
+                (measured, (), None, "wls"), (differentiated, (), None, "wls"), (measured, ("viscous",), None, "wls"),
+                (measured, ("viscous",), None, "ml"), (measured, ("viscous",), 400, "wls"),
+                (differentiated, ("viscous",), None, "wls"), (differentiated, ("viscous",), 400, "wls")):
+            false_alarms(param, args.runs, logs, NOISE, "f", drift=drift, warmup=warmup, estimator=estimator)
+        for drift in ((), ("viscous",)):  # side by side: the cost of the drift terms
+            throughput(param, model, sizes=(4000,), drift=drift, label="f")
 
 
 if __name__ == "__main__":

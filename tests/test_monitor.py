@@ -157,12 +157,12 @@ def test_false_alarm_rate_as_stated(cepheus, steady):
     _assert_false_alarm_rate(param, [_noisy(steady, 100 + seed) for seed in range(12)], NOISE)
 
 
-def _assert_false_alarm_rate(param, logs, noise, rate=1e-3) -> list:
+def _assert_false_alarm_rate(param, logs, noise, rate=1e-3, **options) -> list:
     """Monitor each of ``logs`` (no change in them) at ``rate`` false alarms per sample: the count
     of alarms within three Poisson standard deviations of the stated rate; the run records."""
     records = []
     for log in logs:
-        mon = Monitor(param, H, noise=noise, false_alarm_rate=rate, estimator="wls")
+        mon = Monitor(param, H, noise=noise, false_alarm_rate=rate, estimator="wls", **options)
         mon.update(log)
         records.append(mon.finish())
     alarms, tested = sum(len(r["events"]) for r in records), sum(r["n_tested"] for r in records)

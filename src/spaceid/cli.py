@@ -1277,6 +1277,10 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid identify': "
               "anchors the scale when the momentum is zero; repeatable.")
 @noise_options
+@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log "
+              "(torque, viscous, coulomb, as for 'spaceid identify'; e.g. viscous on an air-bearing table): each "
+              "segment's coefficients are estimated with its parameters, the drift integrated from the segment's "
+              "start, where its momentum is the segment before's; --momentum is then the momentum at the first sample.")
 @click.option("--false-alarm-rate", type=PROBABILITY, default=1e-5, show_default=True,
               help="False alarms per sample when nothing changes (one per 1/RATE samples on average): "
                    "sets the CUSUM threshold.")
@@ -1297,8 +1301,8 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
               help="With --follow: the log counts as finished after this many seconds without a new row.")
 @bag_options
 @output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
-def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rate, change_ratio, forgetting, warmup,
-            estimator, follow, follow_timeout, output, bag):
+def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_alarm_rate, change_ratio, forgetting,
+            warmup, estimator, follow, follow_timeout, output, bag):
     """Follow a log sample by sample (LOG.csv; a ROS bag, read part by part as its messages come;
     or with --follow a CSV being written): a recursive estimate of the parameters on the
     momentum equations and a CUSUM test on its normalised residual; each detected change is
@@ -1306,7 +1310,7 @@ def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rat
     changed, and each segment between changes is identified in batch. Noise levels not given are
     estimated from the first samples."""
     from .data import bag_chunks, follow_log, is_bag, read_log, write_json
-    from .estimation import Monitor, log_chunks, parse_known
+    from .estimation import Monitor, log_chunks, parse_drift, parse_known
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
@@ -1323,7 +1327,8 @@ def monitor(model_src, log_path, planar, momentum, known, noise, false_alarm_rat
         chunks = bag_chunks(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, **bag)
     else:
         chunks = log_chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
-    mon = Monitor(param, h, known=parse_known(known), noise=noise, false_alarm_rate=false_alarm_rate,
+    kinds = parse_drift(drift, planar=m.planar, values=False)
+    mon = Monitor(param, h, known=parse_known(known), noise=noise, drift=kinds, false_alarm_rate=false_alarm_rate,
                   change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
                   where=str(log_path))
     err.print(f"CUSUM threshold {mon.threshold:.4g} for {false_alarm_rate:g} false alarms per sample; expected "

@@ -29,6 +29,16 @@ and that warm-up's own innovations are tested too, each predicted from the warm-
 it under the whitening of the segment before (:meth:`Monitor._warm_up_innovations`). Each closed
 segment is re-identified in batch from at most ``max_segment`` of its samples (evenly thinned), so
 memory stays bounded.
+
+With drift terms (an external torque, such as an air-bearing table's friction) the momentum is
+``h_s + sum_k d_k (g_k(t) - g_k(t_s))`` in a segment, ``g_k`` the drift basis
+(:mod:`~spaceid.estimation._drift`) accumulated chunk by chunk from the log's first sample
+(:meth:`Monitor._running_basis`), ``t_s`` the segment's first sample (the log's, or the estimated
+change time) and ``d_k`` unknowns estimated with the parameters; ``h_s`` is the given momentum for
+the first segment, for the others the segment before's at ``t_s`` with its drift estimated so far
+(a change conserves the momentum). The momentum itself is not estimated: with a wheel spinning at
+constant speed (its rotor inertia the only anchor) a short warm-up does not fix the scale, and on
+the twin its estimate collapsed to the parameters near zero.
 """
 
 from __future__ import annotations
@@ -52,6 +62,7 @@ from ._equations import _equations
 from ._estimators import _accumulate_factor, _column_scale, _whiten
 from ._identify import identify
 from ._differentiated import differentiated_series
+from ._drift import check_drift_kinds, drift_basis
 from ._monitor_filter import DifferentiatedWhitener
 from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
@@ -74,6 +85,9 @@ NOISE_SAMPLES = 500
 """Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
 AR_ORDER = 3
 """Order of the autoregressive filter that prewhitens correlated innovations (rates differentiated otherwise)."""
+BASIS_OVERLAP = 8
+"""Samples before a chunk that the drift basis's quadrature of the chunk starts from (the Coulomb
+kind's sign changes are located by cubics through four samples on either side)."""
 PRIOR = 1e4
 """The differentiator's whitening starts each segment with the estimate's error this many times
 the warm-up's weighted least-squares covariance: diffuse against the warm-up itself, which it then
@@ -280,14 +294,15 @@ class _Thinned:
         self.rows = [r for r in self.rows if r[0] < t]
 
 
-def _rows(log: Log) -> list:
-    """The samples of ``log`` as ``(t, q, qd, base_quat, base_w)`` tuples."""
-    return list(zip(log.t, log.q, log.qd, log.base_quat, log.base_w))
+def _rows(log: Log, basis=None) -> list:
+    """The samples of ``log`` as ``(t, q, qd, base_quat, base_w)`` tuples, each with its drift
+    basis ``(n_d, 3)`` from the log's first sample appended when ``basis (n, n_d, 3)`` is given."""
+    return list(zip(log.t, log.q, log.qd, log.base_quat, log.base_w, *([] if basis is None else [basis])))
 
 
 def _log(rows: list, model, source: str) -> Log:
     """The log of ``_rows`` tuples of ``model``'s joints."""
-    t, q, qd, quat, w = (np.array(c) for c in zip(*rows))
+    t, q, qd, quat, w = (np.array(c) for c in list(zip(*rows))[:5])
     return Log(t, tuple(model.joints), q, qd, quat, w, planar=model.planar, meta={"source": source})
 
 
@@ -301,8 +316,14 @@ class Monitor:
     momentum : array_like of shape (3,)
         Inertial angular momentum of the whole system [N m s], conserved through the changes
         (a capture from rest adds none); zero needs ``known`` anchors (or a reaction wheel).
+        With ``drift``, its value at the log's first sample.
     known : dict, optional
         Known parameter values ``{name: value}``, as :func:`~spaceid.estimation.identify` takes them.
+    drift : iterable of {"torque", "viscous", "coulomb"}
+        External torques that change the momentum during the log (:mod:`~spaceid.estimation._drift`;
+        an air-bearing table's friction, which the test would otherwise take for a change): each
+        segment's drift coefficients are estimated with its parameters, the drift integrated from
+        the segment's change time, where its momentum is the segment before's at that instant.
     noise : Noise, optional
         Signal noise levels; estimated from the first warm-up (then at least ``NOISE_SAMPLES``
         long) when omitted: give them for the stated false-alarm rate (the rate is sensitive to
@@ -326,7 +347,7 @@ class Monitor:
         Name of the data source, for error messages.
     """
 
-    def __init__(self, param: Parameterization, momentum, *, known=None, noise: Noise | None = None,
+    def __init__(self, param: Parameterization, momentum, *, known=None, noise: Noise | None = None, drift=(),
                  false_alarm_rate: float = FALSE_ALARM_RATE, change_ratio: float = CHANGE_RATIO,
                  forgetting: float = 1.0, warmup: int | None = None, estimator: str = "ml",
                  max_segment: int = 4000, where: str = "log"):
@@ -337,7 +358,7 @@ class Monitor:
         if noise is not None and noise.is_zero:
             raise SpaceidError("--noise-*: all zero: the test normalises the residuals by the noise, give its levels "
                                "(or none, to estimate them from the first samples)")
-        self.param, self.where = param, where
+        self.param, self.where, self.drift = param, where, check_drift_kinds(drift)
         self.momentum = np.asarray(momentum, float)
         self.known, self.noise, self.estimator = dict(known or {}), noise, estimator
         # the raw angle noise of differentiated rates: as given, else the differentiator's estimate from the record
@@ -349,8 +370,8 @@ class Monitor:
         nj = len(param.model.joints)
         rest = Log(np.zeros(1), param.model.joints, np.zeros((1, nj)), np.zeros((1, nj)), np.array([[1.0, 0, 0, 0]]),
                    np.zeros((1, 3)), planar=param.model.planar)
-        self._eq = _equations(param, rest, self.momentum, self.known, where)[0]  # a missing anchor: an error now
-        p = len(self._eq.free)
+        self._eq = _equations(param, rest, self.momentum, self.known, where, self.drift)[0]  # no anchor: an error now
+        p = self._eq.p
         self.warmup = int(warmup) if warmup is not None else max(WARMUP, -(-4 * (p + 1) // param.rows))
         if self.warmup < p + 1:
             raise SpaceidError(f"--warmup {self.warmup}: at least {p + 1} samples are needed to identify a segment")
@@ -368,6 +389,9 @@ class Monitor:
         self._tested_until = -math.inf  # the last alarm's time [s]: the samples up to it were tested
         self._held = []  # the last half window of samples: their rates may change with the samples to come
         self._whitener = None  # the Kalman whitening of differentiated rates' errors (:meth:`_set_prewhitening`)
+        self._basis_tail = []  # the last samples with their drift basis: the next chunk's quadrature starts there
+        self._origin, self._h_origin = None, self.momentum  # the segment's first sample and its momentum there
+        self._carried = None  # drift coefficients and their std that the last change's momentum was carried with
         self._open(start=None)
         if noise is None:
             self._target = max(self.warmup, NOISE_SAMPLES)
@@ -376,16 +400,20 @@ class Monitor:
 
     def _open(self, start):
         self._warm, self._thinned, self._R, self._g = [], _Thinned(self.max_segment), None, 0.0
+        self._trail = []  # the samples from the origin until the warm-up is identified: its drift's history
         self._start, self._count, self._ident, self._target = start, 0, None, self.warmup
         self._prewhitening, self._kalman = None, False  # _kalman: the segment uses the differentiator's whitening
         self._excursion = collections.deque(maxlen=self.warmup)  # (t, nu^T nu) since the CUSUM last left zero
 
-    def _identify(self, rows, label) -> Identification:
+    def _identify(self, rows, label, history) -> Identification:
+        """The batch identification of the segment's samples ``rows``, the drift integrated over the
+        samples ``history`` from its origin (where the momentum is :attr:`_h_origin`)."""
         log = _log(rows, self.param.model, f"{self.where} {label}")
+        history = _log(history, self.param.model, self.where) if self.drift else None
         with warnings.catch_warnings():  # short windows trip the residual checks; the events say what matters
             warnings.simplefilter("ignore")
-            return identify(self.param, log, self.momentum, estimator=self.estimator, known=self.known,
-                            noise=self.noise, where=f"{self.where} ({label})")
+            return identify(self.param, log, self._h_origin, estimator=self.estimator, known=self.known,
+                            noise=self.noise, drift=self.drift, history=history, where=f"{self.where} ({label})")
 
     def _begin_testing(self) -> list:
         """Identify the warm-up, set the linearisation point, start the recursion on the warm-up
@@ -398,15 +426,16 @@ class Monitor:
                 raise SpaceidError(f"{self.where}: the first {len(rows)} samples show no noise: give the noise levels "
                                    "(--noise-*)")
         try:
-            self._ident = self._identify(rows, f"segment {len(self.segments)} warm-up")
+            self._ident = self._identify(rows, f"segment {len(self.segments)} warm-up", self._trail)
         except SpaceidError:
             if self._target + self.warmup > self.max_segment:
                 raise
             self._target += self.warmup  # not excited yet (e.g. the arm at rest): wait for more samples
             return []
-        self._theta_ref = self._ident.values[self._eq.free]
+        self._theta_ref = np.r_[self._ident.values[self._eq.free], [d["value"] for d in self._ident.drift]]
         self._sigma = signal_sigma(self.param, self.noise)
-        white, L, J, _ = self._whitened(_log(rows, self.param.model, self.where))
+        self._trail = []
+        white, L, J, _ = self._whitened(_log(rows, self.param.model, self.where), rows)
         block = white.reshape(-1, white.shape[-1])
         self._scale = _column_scale(block[:, :-1])
         self._R = _accumulate_factor(None, np.asfortranarray(block / np.r_[self._scale, 1.0]))
@@ -421,13 +450,22 @@ class Monitor:
         differentiator's (``kalman``, :meth:`_warm_whitening`), divided by the square root of that
         segment's chi2/dof when above 1 (this warm-up's own would grow with a change within it);
         else those of recursive least squares from the warm-up's start (its whitened equations
-        ``block``), through that segment's AR filter if it had one. None for the first warm-up."""
+        ``block``), through that segment's AR filter if it had one. None for the first warm-up.
+
+        With drift terms, recursive least squares takes the drift coefficients the change's
+        momentum was carried with as known: estimated from the warm-up's first samples, whose drift
+        basis has barely grown, they leave the parameters' estimate so loose along a direction
+        that the regressor's own noise (not in ``I + u^T u``) inflated the innovations (on Cepheus
+        logs their variance ran 0.6 to 1.6 over a warm-up at the exact weights)."""
         last = self.segments[-1]["prewhitening"] if self.segments else None
         if last is None:
             return None
         if last["filter"] == "differentiator":
             return kalman / math.sqrt(max(last["chi2_dof"], 1.0))  # its excess as measured, significant or not
-        nu = _recursive_innovations(block, self.param.rows, self._scale)
+        nf = len(self._eq.free)
+        if self.drift:  # [A_free | b - A_drift d]
+            block = np.column_stack([block[:, :nf], block[:, -1] - block[:, nf:-1] @ self._carried[0]])
+        nu = _recursive_innovations(block, self.param.rows, self._scale[:nf])
         return _ar_filtered(nu, last["coefficients"], last["scale"]) if last["order"] else nu
 
     def _take_warm_up(self, rows: list, nu):
@@ -442,6 +480,7 @@ class Monitor:
                 self._R = None  # the warm-up's batch estimate blends the change: no recursive estimate
                 self._alarm(row)
                 rest = rows[k + 1 :]
+                self._trail += rest if self.drift else []
                 drop = min(self._skip, len(rest))
                 self._skip -= drop
                 self._warm, self._count = self._warm + rest[drop:], self._count + len(rest) - drop
@@ -507,13 +546,26 @@ class Monitor:
         variances, axes = np.linalg.eigh(PRIOR * r_inv @ r_inv.T)
         self._whitener.start((axes * np.minimum(variances, PRIOR_CEILING)) @ axes.T)
 
-    def _whitened(self, log: Log, derivatives: bool = False) -> tuple:
-        """``log``'s equations ``[A | b]`` whitened by ``S_n`` at the linearisation point, ``(n, rows,
-        p + 1)``, the Cholesky factors ``L_n (n, rows, rows)`` of ``S_n``, the equation errors' Jacobians
-        there ``(n, rows, n_x)`` and, if ``derivatives``, those of the equations ``[A | -b]`` in each
-        signal, ``(n, rows, p + 1, n_x)`` (the equation error's Jacobian at any estimate is their
-        product with ``[theta; 1]``)."""
-        eq = dataclasses.replace(self._eq, rot=quat_to_matrix(log.base_quat))
+    def _running_basis(self, samples: Log) -> np.ndarray:
+        """The drift basis ``(n, n_d, 3)`` of the new ``samples`` from the log's first sample, the
+        quadrature continued from the last samples before them (:func:`drift_basis` over those and
+        these: its one-sided fits and spline see across the chunks, the yaw is unwrapped across)."""
+        tail = self._basis_tail
+        g = drift_basis(_log(tail + _rows(samples), self.param.model, self.where), self.drift)
+        if tail:
+            g = tail[-1][5] + g[len(tail) :] - g[len(tail) - 1]
+        self._basis_tail = (tail + _rows(samples, g))[-BASIS_OVERLAP:]
+        return g
+
+    def _whitened(self, log: Log, rows: list, derivatives: bool = False) -> tuple:
+        """``log``'s equations ``[A | b]`` (its samples ``rows``, which carry the drift basis)
+        whitened by ``S_n`` at the linearisation point, ``(n, rows, p + 1)``, the Cholesky factors
+        ``L_n (n, rows, rows)`` of ``S_n``, the equation errors' Jacobians there ``(n, rows, n_x)``
+        and, if ``derivatives``, those of the equations ``[A | -b]`` in each signal, ``(n, rows,
+        p + 1, n_x)`` (the equation error's Jacobian at any estimate is their product with
+        ``[theta; 1]``)."""
+        basis = np.array([r[5] for r in rows]) - self._origin[5] if self.drift else None
+        eq = dataclasses.replace(self._eq, rot=quat_to_matrix(log.base_quat), basis=basis, momentum=self._h_origin)
         x = eq.signals(log)
         J = eq.jacobian(x, self._theta_ref)
         L = _whiten(equation_covariance(J, self._sigma))
@@ -522,7 +574,8 @@ class Monitor:
         if not derivatives:
             return white, L, J, None
         n, n_x = x.shape  # every signal direction in one call: the regressor's cost is mostly per call
-        tiled = dataclasses.replace(eq, rot=np.tile(eq.rot, (n_x, 1, 1)))
+        tiled = dataclasses.replace(eq, rot=np.tile(eq.rot, (n_x, 1, 1)),
+                                    basis=None if basis is None else np.tile(basis, (n_x, 1, 1)))
         D = tiled.dphi(np.tile(x, (n_x, 1)), np.repeat(np.eye(n_x), n, axis=0))
         return white, L, J, np.moveaxis(D.reshape((n_x, n) + D.shape[1:]), 0, -1)
 
@@ -544,10 +597,12 @@ class Monitor:
         rows = self._thinned.rows or self._warm
         record = {"index": len(self.segments), "start": self._start, "end": end, "n_samples": self._count,
                   "n_identified": len(rows), "identification": None, "recursive": self.estimate(),
-                  "prewhitening": self._prewhitening}
+                  "prewhitening": self._prewhitening, "momentum": self._h_origin.tolist(),
+                  "momentum_from": None if self._origin is None else float(self._origin[0])}
         if rows and self.noise is not None:
+            history = [self._origin] * bool(self._origin[0] < rows[0][0]) + rows  # from the origin, for the drift
             try:
-                record["identification"] = self._identify(rows, f"segment {len(self.segments)}")
+                record["identification"] = self._identify(rows, f"segment {len(self.segments)}", history)
             except SpaceidError:  # too short or not excited: the record says so by its None
                 pass
         self.segments.append(record)
@@ -556,9 +611,12 @@ class Monitor:
 
     def estimate(self) -> dict | None:
         """The recursive estimate of the running segment: ``values`` (all minimal parameters),
-        ``std`` and the ``linearization`` point (the warm-up's batch estimate), each ``(k,)``; None
-        during the warm-up. With forgetting 1 it is the weighted
-        least-squares estimate of the segment's samples (weights at the linearisation point)."""
+        ``std`` and the ``linearization`` point (the warm-up's batch estimate), each ``(k,)``; with
+        drift also ``drift`` and ``drift_std`` ``(n_d,)`` (the coefficients, named as
+        :func:`~spaceid.estimation.drift_names`), and the ``momentum`` ``(3,)`` [N m s] they are
+        integrated from, at ``momentum_from`` [s]; None during the warm-up.
+        With forgetting 1 it is the weighted least-squares estimate of the segment's samples
+        (weights at the linearisation point)."""
         if self._R is None:
             return None
         p = len(self._scale)
@@ -566,9 +624,14 @@ class Monitor:
         theta = solve_triangular(r, self._R[:p, p]) / self._scale
         r_inv = solve_triangular(r, np.eye(p))
         std = np.sqrt(np.einsum("ij,ij->i", r_inv, r_inv)) / self._scale
+        nf = len(self._eq.free)
         values, stds = self._ident.values.copy(), np.zeros(self.param.n_params)
-        values[self._eq.free], stds[self._eq.free] = theta, std
-        return {"values": values, "std": stds, "linearization": self._ident.values}
+        values[self._eq.free], stds[self._eq.free] = theta[:nf], std[:nf]
+        out = {"values": values, "std": stds, "linearization": self._ident.values}
+        if self.drift:
+            out |= {"drift": theta[nf:], "drift_std": std[nf:], "momentum": self._h_origin,
+                    "momentum_from": np.float64(self._origin[0])}  # fmt: skip
+        return out
 
     def _step(self, row, white, L, D) -> bool:
         """Test one sample, then add it; True on an alarm. ``white``, ``L``, ``D``: the sample's
@@ -628,20 +691,44 @@ class Monitor:
         return float(t[i]), len(stat) - i
 
     def _alarm(self, row):
-        """Close the segment at the estimated change and open the next one with the samples since."""
+        """Close the segment at the estimated change and open the next one with the samples since
+        (the first of them its origin, where the momentum is the closed segment's: a change
+        conserves it)."""
         onset, delay = self._change_time()
         self._tested_until = float(row[0])
         self._pending = {"index": len(self.events), "time": onset, "detected_at": float(row[0]),
                          "delay": delay, "statistic": float(self._g), "threshold": self.threshold,
                          "lead": (self._window or 0) / 2 * self._step_s}  # fmt: skip
-        self._close(onset)
         handed = [r for r in self._recent if r[0] >= onset] + [row]
+        h = self._momentum_at(handed[0])
+        self._close(onset)
         self._recent.clear()
         self._open(start=float(onset))
+        self._origin, self._h_origin, self._trail = handed[0], h, list(handed)
         # a differentiator blends the samples within its window of the change: they fit neither segment
         self._skip = max(0, (self._window or 0) - len(handed))
         handed = handed[self._window or 0 :]
         self._warm, self._count = handed, len(handed)
+
+    def _momentum_at(self, row) -> np.ndarray:
+        """The momentum ``(3,)`` [N m s] at the sample ``row`` of the running segment: at its origin
+        plus its drift since, by the drift coefficients that give it the smaller standard error:
+        the segment's so far (recursive, else its warm-up's), or the ones carried from the segments
+        before when it is too short to fix them (a 2 s warm-up of a Cepheus log left them 6 times
+        as uncertain as they are large); the choice is carried on."""
+        if not self.drift:
+            return self._h_origin
+        if self._R is not None:
+            own = self.estimate()["drift"], self.estimate()["drift_std"]
+        else:
+            own = self._theta_ref[len(self._eq.free) :], np.array([d["std"] for d in self._ident.drift])
+        moved = row[5] - self._origin[5]  # (n_d, 3): the drift basis since the origin
+
+        def variance(estimate):
+            return np.sum((estimate[1][:, None] * moved) ** 2)
+
+        self._carried = min([own] + ([self._carried] if self._carried else []), key=variance)
+        return self._h_origin + np.einsum("k,ki->i", self._carried[0], moved)
 
     def _read_differentiation(self, samples: Log):
         """The differentiator's window from the first samples, and its filters from each part's
@@ -655,8 +742,7 @@ class Monitor:
             self._count = len(self._warm)
         if self._whitener is None or not self._whitener.follows(samples):
             series = differentiated_series(samples)
-            p = len(self._eq.free)
-            self._whitener = DifferentiatedWhitener(series, self._t0, p, self._raw_levels) if series else None
+            self._whitener = DifferentiatedWhitener(series, self._t0, self._eq.p, self._raw_levels) if series else None
             self._kalman = self._kalman and self._whitener is not None
             if self._kalman:  # new filters within a tested segment: start afresh
                 self._start_whitener()
@@ -672,7 +758,7 @@ class Monitor:
             self._start = self._t0 = float(samples.t[0])
         self.n_samples += samples.n_samples
         self._read_differentiation(samples)
-        rows, events, i = self._held + _rows(samples), [], 0
+        rows, events, i = self._held + _rows(samples, self._running_basis(samples) if self.drift else None), [], 0
         half = -(-(self._window or 0) // 2)
         cut = max(len(rows) - half, 0)
         rows, self._held = rows[:cut], rows[cut:]
@@ -680,6 +766,7 @@ class Monitor:
             return events
         if half:
             samples = dataclasses.replace(_log(rows, self.param.model, self.where), meta=samples.meta)
+        self._origin = self._origin or rows[0]
         while True:
             if self._R is None and len(self._warm) >= self._target:
                 events += self._begin_testing()
@@ -688,16 +775,18 @@ class Monitor:
                 break
             if self._skip:  # samples blended across a change (:meth:`_alarm`), or the log's first half window
                 drop = min(self._skip, len(rows) - i)
+                self._trail += rows[i : i + drop] if self.drift else []
                 i, self._skip = i + drop, self._skip - drop
                 continue
             if self._R is None:  # warming up
                 take = min(len(rows) - i, self._target - len(self._warm))
                 self._warm += rows[i : i + take]
+                self._trail += rows[i : i + take] if self.drift else []
                 self._count += take
                 i += take
                 continue
             end = min(len(rows), i + self._block)
-            white, L, _, D = self._whitened(samples.select(slice(i, end)), derivatives=True)
+            white, L, _, D = self._whitened(samples.select(slice(i, end)), rows[i:end], derivatives=True)
             for k in range(len(white)):
                 if self._step(rows[i + k], white[k], L[k], D[k]):
                     self._alarm(rows[i + k])
@@ -735,9 +824,11 @@ class Monitor:
 
         def segment(s):
             ident, rec = s["identification"], s["recursive"]
-            return {k: s[k] for k in ("index", "start", "end", "n_samples", "n_identified", "prewhitening")} | {
+            keys = ("index", "start", "end", "n_samples", "n_identified", "prewhitening", "momentum", "momentum_from")
+            return {k: s[k] for k in keys} | {
                 "parameters": None if ident is None else [
                     {"name": n, "value": float(v), "std": float(e)} for n, v, e in zip(names, ident.values, ident.std)],
+                "drift": None if ident is None else [dict(d) for d in ident.drift],
                 "chi2_dof": None if ident is None else ident.settings.get("chi2_dof"),
                 "recursive": None if rec is None else {k: v.tolist() for k, v in rec.items()},
             }
@@ -754,6 +845,7 @@ class Monitor:
                 "threshold": self.threshold, "expected_delay": self.expected_delay,
                 "forgetting": self.forgetting, "warmup": self.warmup, "estimator": self.estimator,
                 "max_segment": self.max_segment, "known": self.known, "z_changed": Z_CHANGED,
+                "drift": list(self.drift),
                 "noise": None if self.noise is None else self.noise.to_dict(), "parameter_names": names,
             },
             "events": [e.to_dict() | {"segments": self._segment_change(e.index)} for e in self.events],
@@ -781,7 +873,7 @@ def monitor(param: Parameterization, samples, momentum, **options):
     momentum : array_like of shape (3,)
         Inertial angular momentum of the whole system [N m s].
     **options
-        Keywords of :class:`Monitor` (``known``, ``noise``, ``false_alarm_rate``, ``change_ratio``,
+        Keywords of :class:`Monitor` (``known``, ``noise``, ``drift``, ``false_alarm_rate``, ``change_ratio``,
         ``forgetting``, ``warmup``, ``estimator``, ``max_segment``, ``where``).
 
     Yields
