@@ -65,7 +65,8 @@ def test_an_alarm_before_the_grasp_can_show_is_a_false_alarm():
 
     estimate = SimpleNamespace(names=("m",), values=np.array([0.5]), std=np.array([0.01]), not_identifiable=())
     truth = {"payload": {"mass": 0.5, "com": [0.0, 0.0, 0.0], "inertia": 1e-3 * np.eye(3)}}
-    events = {"events": [{"time": t, "lead": 0.45, "detected_at": t + 0.1} for t in (3.0, 4.42, 4.5, 5.2)]}
+    events = {"events": [{"time": t, "lead": 0.45, "detected_at": t + 0.1} for t in (3.0, 4.42, 4.5, 5.2)],
+              "settings": {"drift": []}}
     scores = _scores(estimate, truth, events, SimpleNamespace(t=np.arange(0, 10, 0.02)), 5.0)
     assert scores["events before the grasp (false alarms)"] == 2 and scores["detected change time [s]"] == 4.5
     assert scores["change time error [samples]"] == -25.0
