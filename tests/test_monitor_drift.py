@@ -9,23 +9,17 @@ import pytest
 from conftest import random_tree
 from test_monitor import H, NOISE, RATE, T_CAPTURE, _assert_false_alarm_rate, _concatenate, _motion, _noisy
 from test_monitor import _with_payload
+from test_monitor import cepheus  # noqa: F401  the module fixture: Cepheus and its minimal parameters
 
 from spaceid.cli import main
 from spaceid.data import Log, write_log
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Monitor, Noise, monitor
 from spaceid.estimation._drift import drift_basis
-from spaceid.models import load_model
 from spaceid.motion import simulate
 
 VISCOUS = 5e-4  # [N m s/rad]: the base turns ~20 rad in 20 s, the momentum moves 2 % of H
 DRIFT = {"viscous": VISCOUS}
-
-
-@pytest.fixture(scope="module")
-def cepheus():
-    model = load_model("cepheus")
-    return model, minimal_parameters(model)
 
 
 @pytest.fixture(scope="module")
