@@ -550,11 +550,11 @@ class Monitor:
         """The drift basis ``(n, n_d, 3)`` of the new ``samples`` from the log's first sample, the
         quadrature continued from the last samples before them (:func:`drift_basis` over those and
         these: its one-sided fits and spline see across the chunks, the yaw is unwrapped across)."""
-        tail = self._basis_tail
-        g = drift_basis(_log(tail + _rows(samples), self.param.model, self.where), self.drift)
+        tail, new = self._basis_tail, _rows(samples)
+        g = drift_basis(_log(tail + new, self.param.model, self.where), self.drift)
         if tail:
             g = tail[-1][5] + g[len(tail) :] - g[len(tail) - 1]
-        self._basis_tail = (tail + _rows(samples, g))[-BASIS_OVERLAP:]
+        self._basis_tail = (tail + [r + (gk,) for r, gk in zip(new, g)])[-BASIS_OVERLAP:]
         return g
 
     def _whitened(self, log: Log, rows: list, derivatives: bool = False) -> tuple:
@@ -718,10 +718,10 @@ class Monitor:
         as uncertain as they are large); the choice is carried on."""
         if not self.drift:
             return self._h_origin
+        own = self._theta_ref[len(self._eq.free) :], np.array([d["std"] for d in self._ident.drift])
         if self._R is not None:
-            own = self.estimate()["drift"], self.estimate()["drift_std"]
-        else:
-            own = self._theta_ref[len(self._eq.free) :], np.array([d["std"] for d in self._ident.drift])
+            recursive = self.estimate()
+            own = recursive["drift"], recursive["drift_std"]
         moved = row[5] - self._origin[5]  # (n_d, 3): the drift basis since the origin
 
         def variance(estimate):
@@ -766,7 +766,8 @@ class Monitor:
             return events
         if half:
             samples = dataclasses.replace(_log(rows, self.param.model, self.where), meta=samples.meta)
-        self._origin = self._origin or rows[0]
+        if self._origin is None:  # the log's first sample: the first segment's origin
+            self._origin = rows[0]
         while True:
             if self._R is None and len(self._warm) >= self._target:
                 events += self._begin_testing()

@@ -35,13 +35,13 @@ from .._errors import SpaceidError
 from ..data import JOINT_RATE_POLICY, Log, read_bag_log, write_bag, write_json, write_log
 from ..dynamics import minimal_parameters
 from ..estimation import Identification, identify, resolve_anchors
-from ..identified import HOLD, mean_momentum, parameterization_of
+from ..identified import HOLD
 from ..models import load_model
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin
 from ._tracking import (check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings,
                         regressor_condition_number)
-from ._servicing import CaptureProtocol, run_servicing, write_servicing
+from ._servicing import CaptureProtocol, initial_momentum, run_servicing, write_servicing
 from ._torque_validation import validate_torques
 from ._validate import validate
 
@@ -176,17 +176,10 @@ def _held_out_validation(ident: Identification, log: Log, held_out: Log, momentu
     ``momentum`` None (drift terms identified): the fitting window starts from the identified
     momentum, the held-out motion, later, from the identified model's momentum over its first
     samples (friction changed it in between)."""
-    start = momentum if momentum is not None or not ident.drift else _initial_momentum(ident, held_out)
+    start = momentum if momentum is not None or not ident.drift else initial_momentum(ident, held_out)
     predicted, metrics = validate(ident, held_out, momentum=start, where=f"{where} (held-out motion)")
     _, fit_metrics = validate(ident, log, momentum=momentum, where=f"{where} (fitting window)")
     return predicted, metrics, fit_metrics
-
-
-def _initial_momentum(ident: Identification, log: Log, samples: int = 10) -> np.ndarray:
-    """The inertial angular momentum [N m s] (3,) of the identified model over the first
-    ``samples`` samples of ``log``, their mean (from the measured joint and base rates)."""
-    first = log.select(np.arange(min(samples, log.n_samples)))
-    return mean_momentum(parameterization_of(ident), ident.values, first)
 
 
 def _held_out_seed(seed: int, rehearsals: int) -> int:
@@ -374,7 +367,7 @@ def run_experiment(
     if held_out.tau is not None:  # the twin's joint efforts: the torque level beside, restarted every second
         try:
             metrics |= validate_torques(ident, held_out, horizon=1.0, where=where,
-                                        momentum=_initial_momentum(ident, held_out) if drift else zero)[1]
+                                        momentum=initial_momentum(ident, held_out) if drift else zero)[1]
         except SpaceidError as exc:  # an inconsistent identified model (H* not positive definite)
             metrics["torque_validation"] = str(exc)
     # the truth is the twin's model when the excitation starts: the CO2 tank may have drained

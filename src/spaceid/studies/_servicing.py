@@ -52,9 +52,6 @@ __all__ = ["CaptureProtocol", "ServicingResult", "capture_protocol", "run_servic
 CAPTURE_OFFSET = (0.04, 0.0)
 """Default payload frame origin in the grasping link's frame at the grasp [m]: at the gripper."""
 SETTINGS_KEYS = ("mass", "com", "inertia", "velocity", "rate", "link", "offset", "yaw")
-FIRST_SAMPLES = 10
-"""Samples at the start of the servicing log whose mean momentum (by the model identified before)
-is the monitor's momentum when the table's friction moves it."""
 
 
 @dataclass(frozen=True)
@@ -248,12 +245,18 @@ def _monitor(model, log: Log, before: Identification, drift, seed: int) -> dict:
     scale = np.sqrt(before.settings.get("chi2_dof") or 1.0)
     noise = Noise(**{k: levels[k] * scale for k in ("angle", "rate", "base_rate", "attitude")},
                   source=f"{levels['source']}, scaled by sqrt(chi2/dof) = {scale:.3g} of the identification before")
-    first = log.select(np.arange(min(FIRST_SAMPLES, log.n_samples)))
-    momentum = mean_momentum(parameterization_of(before), before.values, first) if drift else np.zeros(3)
+    momentum = initial_momentum(before, log) if drift else np.zeros(3)
     mon = Monitor(minimal_parameters(model, seed=seed), momentum, noise=noise, drift=drift,
                   where=str(log.meta.get("source", "log")))
     mon.update(log)
     return mon.finish()
+
+
+def initial_momentum(ident: Identification, log: Log, samples: int = 10) -> np.ndarray:
+    """The inertial angular momentum [N m s] (3,) of the identified model over the first
+    ``samples`` samples of ``log``, their mean (from the measured joint and base rates)."""
+    first = log.select(np.arange(min(samples, log.n_samples)))
+    return mean_momentum(parameterization_of(ident), ident.values, first)
 
 
 def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict:
