@@ -48,6 +48,11 @@ def drifting_capture(cepheus):
     return _concatenate(before.select(slice(0, -1)), after), captured.true_values
 
 
+def _basis(mon, chunk) -> np.ndarray:
+    """The drift basis ``(n, n_d, 3)`` the monitor attaches to the samples of ``chunk``."""
+    return np.array([row[5] for row in mon._rows_with_basis(chunk)])
+
+
 @pytest.mark.parametrize("kinds", [("torque",), ("viscous",), ("coulomb",)])
 @pytest.mark.parametrize("chunk", [1, 7])
 def test_running_basis_continues_across_chunks(cepheus, kinds, chunk):
@@ -59,7 +64,7 @@ def test_running_basis_continues_across_chunks(cepheus, kinds, chunk):
                    drift={"viscous": 1e-3})
     assert np.sum(np.diff(np.sign(log.base_w[:, 2])) != 0) >= 2  # the base turns both ways
     mon = Monitor(param, H, drift=kinds)
-    running = np.concatenate([mon._running_basis(log.select(slice(i, i + chunk)))
+    running = np.concatenate([_basis(mon, log.select(slice(i, i + chunk)))
                               for i in range(0, log.n_samples, chunk)])  # fmt: skip
     whole = drift_basis(log, kinds)
     assert np.max(np.abs(running - whole)) < (1e-3 / RATE if kinds == ("coulomb",) else 1e-12 * np.max(np.abs(whole)))
@@ -73,7 +78,7 @@ def test_running_basis_of_a_spatial_log():
     param = minimal_parameters(model)
     log = simulate(param, param.true_values, _motion, np.arange(600) / 50, np.array([0.5, -0.4, 0.8]), model=model)
     mon = Monitor(param, np.array([0.5, -0.4, 0.8]), drift=("viscous",))
-    running = np.concatenate([mon._running_basis(log.select(slice(i, i + 7))) for i in range(0, log.n_samples, 7)])
+    running = np.concatenate([_basis(mon, log.select(slice(i, i + 7))) for i in range(0, log.n_samples, 7)])
     whole = drift_basis(log, ("viscous",))
     assert np.max(np.abs(running - whole)) < 1e-9 * np.max(np.abs(whole))
 

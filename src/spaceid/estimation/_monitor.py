@@ -33,7 +33,7 @@ memory stays bounded.
 With drift terms (an external torque, such as an air-bearing table's friction) the momentum is
 ``h_s + sum_k d_k (g_k(t) - g_k(t_s))`` in a segment, ``g_k`` the drift basis
 (:mod:`~spaceid.estimation._drift`) accumulated chunk by chunk from the log's first sample
-(:meth:`Monitor._running_basis`), ``t_s`` the segment's first sample (the log's, or the estimated
+(:meth:`Monitor._rows_with_basis`), ``t_s`` the segment's first sample (the log's, or the estimated
 change time) and ``d_k`` unknowns estimated with the parameters; ``h_s`` is the given momentum for
 the first segment, for the others the segment before's at ``t_s`` with its drift estimated so far
 (a change conserves the momentum). The momentum itself is not estimated: with a wheel spinning at
@@ -294,10 +294,10 @@ class _Thinned:
         self.rows = [r for r in self.rows if r[0] < t]
 
 
-def _rows(log: Log, basis=None) -> list:
-    """The samples of ``log`` as ``(t, q, qd, base_quat, base_w)`` tuples, each with its drift
-    basis ``(n_d, 3)`` from the log's first sample appended when ``basis (n, n_d, 3)`` is given."""
-    return list(zip(log.t, log.q, log.qd, log.base_quat, log.base_w, *([] if basis is None else [basis])))
+def _rows(log: Log) -> list:
+    """The samples of ``log`` as ``(t, q, qd, base_quat, base_w)`` tuples (with drift terms the
+    monitor appends each one's drift basis, :meth:`Monitor._rows_with_basis`)."""
+    return list(zip(log.t, log.q, log.qd, log.base_quat, log.base_w))
 
 
 def _log(rows: list, model, source: str) -> Log:
@@ -546,16 +546,18 @@ class Monitor:
         variances, axes = np.linalg.eigh(PRIOR * r_inv @ r_inv.T)
         self._whitener.start((axes * np.minimum(variances, PRIOR_CEILING)) @ axes.T)
 
-    def _running_basis(self, samples: Log) -> np.ndarray:
-        """The drift basis ``(n, n_d, 3)`` of the new ``samples`` from the log's first sample, the
-        quadrature continued from the last samples before them (:func:`drift_basis` over those and
-        these: its one-sided fits and spline see across the chunks, the yaw is unwrapped across)."""
+    def _rows_with_basis(self, samples: Log) -> list:
+        """The new ``samples`` as :func:`_rows` tuples, each with its drift basis ``(n_d, 3)`` from the
+        log's first sample appended: the quadrature continued from the last samples before them
+        (:func:`drift_basis` over those and these: its one-sided fits and spline see across the
+        chunks, the yaw is unwrapped across)."""
         tail, new = self._basis_tail, _rows(samples)
         g = drift_basis(_log(tail + new, self.param.model, self.where), self.drift)
         if tail:
             g = tail[-1][5] + g[len(tail) :] - g[len(tail) - 1]
-        self._basis_tail = (tail + [r + (gk,) for r, gk in zip(new, g)])[-BASIS_OVERLAP:]
-        return g
+        new = [r + (gk,) for r, gk in zip(new, g)]
+        self._basis_tail = (tail + new)[-BASIS_OVERLAP:]
+        return new
 
     def _whitened(self, log: Log, rows: list, derivatives: bool = False) -> tuple:
         """``log``'s equations ``[A | b]`` (its samples ``rows``, which carry the drift basis)
@@ -600,7 +602,7 @@ class Monitor:
                   "prewhitening": self._prewhitening, "momentum": self._h_origin.tolist(),
                   "momentum_from": None if self._origin is None else float(self._origin[0])}
         if rows and self.noise is not None:
-            history = [self._origin] * bool(self._origin[0] < rows[0][0]) + rows  # from the origin, for the drift
+            history = [self._origin] * bool(self._origin[0] < rows[0][0]) + rows if self.drift else None
             try:
                 record["identification"] = self._identify(rows, f"segment {len(self.segments)}", history)
             except SpaceidError:  # too short or not excited: the record says so by its None
@@ -758,7 +760,7 @@ class Monitor:
             self._start = self._t0 = float(samples.t[0])
         self.n_samples += samples.n_samples
         self._read_differentiation(samples)
-        rows, events, i = self._held + _rows(samples, self._running_basis(samples) if self.drift else None), [], 0
+        rows, events, i = self._held + (self._rows_with_basis(samples) if self.drift else _rows(samples)), [], 0
         half = -(-(self._window or 0) // 2)
         cut = max(len(rows) - half, 0)
         rows, self._held = rows[:cut], rows[cut:]
