@@ -13,7 +13,11 @@ class SpaceidError(ValueError):
     """Bad input or an ill-posed problem, with a message that says what to fix.
 
     Library code raises it; only the CLI turns it into ``error: <message>`` and exit code 2.
-    The message names the file or field, what was expected, what arrived and how to fix it.
+    The message names the file or field, or the Python argument, what was expected, what arrived
+    and how to fix it. A Python argument is named in backquotes, as in ``"`drift`: 'wind' is not
+    a drift kind"``: the command line shows each such name as its option (``--drift``) through
+    one table (:func:`spaceid.cli.for_the_command_line`), so a library message never names a
+    command-line option itself.
     """
 
 

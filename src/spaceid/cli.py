@@ -14,6 +14,7 @@ import dataclasses
 import functools
 import json
 import os
+import re
 import signal
 import sys
 import traceback
@@ -217,6 +218,21 @@ class _Group(click.Group):
             raise click.exceptions.Exit(code) from None
 
 
+# Python argument -> the option that sets it, where the option is not the argument's name with
+# dashes (``drift`` -> ``--drift``). The one place where library messages meet the CLI's grammar.
+OPTION_OF = {
+    "noise": "--noise-*",
+}
+_ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
+
+
+def for_the_command_line(text) -> str:
+    """A library message as the command line shows it: one line, each Python argument named in
+    backquotes (``\`drift\```) shown as its option (``--drift``, see ``OPTION_OF``)."""
+    option = lambda m: OPTION_OF.get(m[1], "--" + m[1].replace("_", "-"))  # noqa: E731
+    return one_line(_ARGUMENT.sub(option, str(text)))
+
+
 def _failure(exc, ctx) -> tuple:
     """The line and exit code of an exception that escaped a command (see :meth:`_Group.invoke`)."""
     if isinstance(exc, KeyboardInterrupt):
@@ -224,7 +240,7 @@ def _failure(exc, ctx) -> tuple:
     if isinstance(exc, _Terminated):
         return "interrupted", 143
     if isinstance(exc, SpaceidError):
-        return f"error: {exc}", 2
+        return f"error: {for_the_command_line(exc)}", 2
     if isinstance(exc, np.linalg.LinAlgError):  # NumPy's and SciPy's: an ill-conditioned input, not a bug
         inputs = ctx.meta.get("spaceid.inputs", [])  # click shares meta between a group and its command
         inputs = ", ".join(f"{label} {shown_name(path)}" for label, path in inputs) or "the input"
@@ -315,7 +331,7 @@ def _warnings_to_stderr():
         warnings.simplefilter("always")
         yield
     for w in caught:
-        err.print(f"warning: {one_line(w.message)}", highlight=False, soft_wrap=True)  # one line each
+        err.print(f"warning: {for_the_command_line(w.message)}", highlight=False, soft_wrap=True)  # one line each
 
 
 def _print_joint_rates(log) -> None:
@@ -1376,7 +1392,7 @@ def main(argv=None) -> int:
     """Entry point: run the app and return its exit code (see :meth:`_Group.invoke`); SIGTERM
     unwinds the command like Ctrl-C does."""
     warnings.simplefilter("default")
-    warnings.showwarning = lambda msg, *a, **k: print(f"warning: {one_line(msg)}", file=sys.stderr)
+    warnings.showwarning = lambda msg, *a, **k: print(f"warning: {for_the_command_line(msg)}", file=sys.stderr)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         code = app.main(args=argv, prog_name="spaceid", standalone_mode=False)
