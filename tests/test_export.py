@@ -1,6 +1,7 @@
 """Export of an identified model: physical standard parameters that reproduce the identification,
 closest to a prior, as a URDF that Pinocchio loads and whose momentum is the identified one."""
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
@@ -48,7 +49,9 @@ def pinocchio_momentum(pmodel, joints, states):
         qp, v = pin.neutral(pmodel), np.zeros(pmodel.nv)
         v[:3], v[3:6] = [0.3, -0.2, 0.1], w0
         for j, a, r in zip(ids, q, qd):
-            qp[pmodel.joints[j].idx_q], v[pmodel.joints[j].idx_v] = a, r
+            joint = pmodel.joints[j]  # a continuous joint's configuration is (cos, sin)
+            qp[joint.idx_q : joint.idx_q + joint.nq] = [np.cos(a), np.sin(a)] if joint.nq == 2 else a
+            v[joint.idx_v] = r
         out.append(np.array(pin.computeCentroidalMomentum(pmodel, data, qp, v).angular))
     return np.array(out)
 
@@ -282,3 +285,14 @@ def test_cli_writes_the_urdf_and_refuses_its_inputs(cepheus, tmp_path, capsys):
     back = spaceid.load_model(out, planar=True)
     pi = minimal_parameters(true.with_inertials([b.inertial for b in back.bodies])).true_values
     np.testing.assert_allclose(pi, ident.values, rtol=1e-8)
+
+
+def test_an_unphysical_model_is_never_written(cepheus, tmp_path):
+    true, prior, ident, res = cepheus
+    inertials = np.array([b.inertial for b in res.model.bodies])
+    inertials[1, 4:] *= -1  # link 1's inertia negative: no pseudo-inertia is positive definite
+    bad = dataclasses.replace(res, model=res.model.with_inertials(inertials))
+    path = tmp_path / "bad.urdf"
+    with pytest.raises(spaceid.SpaceidError, match=f"not written: the bodies {res.model.bodies[1].name} "):
+        write_export(bad, path)
+    assert not path.exists() and list(tmp_path.iterdir()) == []

@@ -228,7 +228,7 @@ _ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
 
 def for_the_command_line(text) -> str:
     """A library message as the command line shows it: one line, each Python argument named in
-    backquotes (``\`drift\```) shown as its option (``--drift``, see ``OPTION_OF``)."""
+    backquotes (as in "`drift`: ...") shown as its option (``--drift``, see ``OPTION_OF``)."""
     option = lambda m: OPTION_OF.get(m[1], "--" + m[1].replace("_", "-"))  # noqa: E731
     return one_line(_ARGUMENT.sub(option, str(text)))
 

@@ -25,7 +25,7 @@ from ..dynamics import minimal_parameters
 from ..estimation import Identification
 from ..models import INERTIAL_NAMES, Model, load_model
 
-__all__ = ["Export", "export_model", "inertial_from_pseudo", "pseudo_divergence", "pseudo_inertia"]
+__all__ = ["Export", "export_model", "inertial_from_pseudo", "pseudo_divergence", "pseudo_inertia", "unphysical_bodies"]
 
 MARGIN = 1e-6
 """Every exported pseudo-inertia satisfies ``J - MARGIN J_prior`` positive semidefinite: strictly
@@ -319,21 +319,49 @@ def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
         f"{', '.join(names) or 'the anchors'} cannot be met): try a larger --region, or check the identification")
 
 
-def _polish(param, theta, e, pi, slots_scale):
+def _polish(param, theta, e, pi, slots_scale, g):
     """Newton steps of least change (in ``theta`` relative to ``slots_scale``) onto ``E (P
     full(theta) - pi) = 0``: the convex steps meet the conditions to the solver's tolerance, this
-    to round-off."""
+    to round-off. The minimal parameters of a tree are dependent functions of ``theta`` (the
+    Jacobian of a planar 4-joint tree: rank 16 of 25 rows), so the step ignores the directions
+    whose singular value is below ``1e-10`` of the largest: left in, a round-off residual along
+    them became a step of tens of per cent that left a body unphysical. A step that would leave a
+    body unphysical or raise the residual is halved."""
+    def residual(th):
+        return e @ (param.projection @ full_values(_with_theta(param.model, th)) - pi)
+
     for _ in range(4):
-        model = _with_theta(param.model, theta)
-        r = e @ (param.projection @ full_values(model) - pi)
-        a = e @ param.projection @ full_values_jacobian(model) * slots_scale
+        r = residual(theta)
+        a = e @ param.projection @ full_values_jacobian(_with_theta(param.model, theta)) * slots_scale
         row = np.linalg.norm(a, axis=1)
         row = np.where(row > 0, row, 1.0)
-        step = np.linalg.lstsq(a / row[:, None], -r / row, rcond=None)[0] * slots_scale
-        theta = theta + step
+        step = np.linalg.lstsq(a / row[:, None], -r / row, rcond=1e-10)[0] * slots_scale
+        for _halving in range(30):
+            trial = theta + step
+            if _physical(g, trial) and np.abs(residual(trial)).max() <= np.abs(r).max():
+                break
+            step = step / 2
+        else:
+            break
+        theta = trial
         if np.abs(step).max() <= 1e-15 * np.abs(theta).max():
             break
     return theta
+
+
+def _physical(g, theta) -> bool:
+    """Whether every body's whitened pseudo-inertia ``X_b`` (``theta = G vec X``, the prior at the
+    identity) is positive definite: mass, inertia about the CoM and triangle inequalities."""
+    x = np.linalg.lstsq(g, theta, rcond=None)[0]
+    return all(np.linalg.eigvalsh(0.5 * (b + b.T)).min() > 0
+               for b in x.reshape(-1, 4, 4).transpose(0, 2, 1))  # column-major vec per body
+
+
+def unphysical_bodies(model: Model) -> list:
+    """Names of the bodies of ``model`` whose pseudo-inertia is not positive definite (a mass that
+    is not positive, an inertia about the CoM that is not positive definite, or principal moments
+    that break the triangle inequality); empty for a physically consistent model."""
+    return [b.name for b in model.bodies if np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() <= 0]
 
 
 def _checked_prior(result: Identification, prior, where: str, prior_name: str):
@@ -411,7 +439,7 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
         warnings.warn(f"{where}: the export did not settle in {MAX_STEPS} convex steps (last move {moved:.2g})",
                       stacklevel=3)
     scale = np.abs(g).max(axis=1)  # of each standard parameter, for a unit change of X
-    theta = _polish(param, theta, e, pi, scale)
+    theta = _polish(param, theta, e, pi, scale, g)
     hidden = _hidden(param)
     # the parameters the momentum does not see are at the prior up to the solver's noise: exactly there
     theta = np.where(hidden & (np.abs(theta - prior_theta) <= 1e-9 * scale), prior_theta, theta)
@@ -419,6 +447,9 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
     if len(a_eq) and np.abs(a_eq @ theta - b_eq).max() > 1e-9:  # in units of the prior's distribution
         raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
     model = _with_theta(prior, theta)
+    if unphysical_bodies(model):  # never hand on (or write) an unphysical model as a result
+        raise SpaceidError(f"{where}: the export ended on a model whose bodies {', '.join(unphysical_bodies(model))} "
+                           "are not physically consistent: nothing was written; please report this")
     values = param.projection @ full_values(model)
     seen = {b.name: tuple(INERTIAL_NAMES[k] for (i, k), h in zip(_theta_slots(prior), hidden) if i == n and not h)
             for n, b in enumerate(prior.bodies)}  # fmt: skip

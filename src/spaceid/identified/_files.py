@@ -13,7 +13,7 @@ import numpy as np
 from .._atomic import write_text_atomic
 from .._errors import SpaceidError
 from ..models import PRESETS, Model
-from ._export import Export
+from ._export import Export, unphysical_bodies
 
 __all__ = ["FORMATS", "urdf_text", "write_export", "yaml_text"]
 
@@ -192,6 +192,10 @@ def write_export(export: Export, path, *, fmt: str = "urdf", inputs=(), note: st
     for source in inputs:
         if Path(source).is_file() and path.resolve() == Path(source).resolve():
             raise SpaceidError(f"-o {path}: that is an input file ({source}): give another file name")
+    bad = unphysical_bodies(export.model)
+    if bad:  # checked here too: whatever reaches a file is physically consistent
+        raise SpaceidError(f"{path}: not written: the bodies {', '.join(bad)} of the exported model are not "
+                           "physically consistent (a mass, an inertia about the CoM or a triangle inequality)")
     text = urdf_text(export, note) if fmt == "urdf" else yaml_text(export, note)
     try:
         write_text_atomic(path, text)
