@@ -239,7 +239,7 @@ def test_spatial_export_reproduces_pi_and_momentum(tmp_path):
 
 
 @pytest.mark.slow
-def test_noisy_spatial_needs_the_region(tmp_path):
+def test_noisy_spatial_export_takes_the_region_by_itself(tmp_path):
     true = spaceid.load_model("satellite-7dof")
     param = minimal_parameters(true)
     exact = exact_result(param)
@@ -247,12 +247,15 @@ def test_noisy_spatial_needs_the_region(tmp_path):
     values = param.true_values + std * np.random.default_rng(2).standard_normal(param.n_params)
     noisy = Identification(**{**exact.__dict__, "values": values, "std": std, "cov": np.diag(std**2)})
     prior = perturbed(true, seed=1)
-    with pytest.raises(spaceid.SpaceidError, match="not physically realisable.*--region"):
-        export_model(noisy, prior)  # 153 noisy combinations of 80 standard parameters: none reproduces them
-    res = export_model(noisy, prior, region=0.95)
-    assert res.mahalanobis <= res.bound
+    # 153 noisy combinations of 80 standard parameters: no physical model reproduces them exactly
+    with pytest.warns(UserWarning, match="not physically realisable exactly: .* within its 0.95 confidence"):
+        res = export_model(noisy, prior)
+    assert res.region == 0.95 and res.mahalanobis <= res.bound
     for b in res.model.bodies:
         assert np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() > 0
+    given = export_model(noisy, prior, region=0.95)
+    np.testing.assert_array_equal(given.values, res.values)
+    check_export(true, prior, res, tmp_path, rtol=1e-2)
 
 
 def test_cli_errors_are_one_line(cepheus, tmp_path, capsys):

@@ -1134,8 +1134,8 @@ def export(result, prior_src, region, fmt, output):
         table.add_row(c["body"], f"{c['mass']:.6g}", f"{100 * (c['mass'] / c['mass_prior'] - 1):+.2f}",
                       f"{1e3 * c['com_shift']:.2f}", f"{100 * c['inertia_change']:.2f}", seen)
     out.print(table)
-    if region:
-        fit = f"within the {region:g} ellipsoid (distance^2 {res.mahalanobis:.4g} <= {res.bound:.4g})"
+    if res.region is not None:  # given, or taken because no physical model reproduces the estimate
+        fit = f"within the {res.region:g} ellipsoid (distance^2 {res.mahalanobis:.4g} <= {res.bound:.4g})"
     else:
         error = np.abs(res.values - ident.values) / np.maximum(np.abs(ident.values), 1e-300)
         fit = f"exact (largest relative error {error.max():.1e})"

@@ -37,6 +37,9 @@ MAX_STEPS = 60
 SPREAD = 1e-6
 """A prior body whose pseudo-inertia has an eigenvalue below this fraction of its largest (a plate,
 a rod) is measured against a copy with ``SPREAD tr(Sigma)`` of isotropic second moment added."""
+AUTO_REGIONS = (0.95, 0.99, 0.999)
+"""The confidence ellipsoids tried in turn, smallest first, when an estimate is not physically
+realisable exactly and no region is given."""
 SHRINK = 1e-6
 """``--region``: the ellipsoid used is this much smaller (relative radius), so the exported
 parameters lie inside the stated one despite the solver's tolerance."""
@@ -330,7 +333,7 @@ def _polish(param, theta, e, pi, slots_scale, g):
     def residual(th):
         return e @ (param.projection @ full_values(_with_theta(param.model, th)) - pi)
 
-    for _ in range(4):
+    for _ in range(4 if len(e) else 0):  # no equalities (a region and no anchors): nothing to polish
         r = residual(theta)
         a = e @ param.projection @ full_values_jacobian(_with_theta(param.model, theta)) * slots_scale
         row = np.linalg.norm(a, axis=1)
@@ -398,7 +401,10 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
         guess (every body's pseudo-inertia positive definite). Loaded in the result's planar mode.
     region : float, optional
         Probability ``P`` in (0, 1): search the ``P`` confidence ellipsoid of ``pi`` (anchored
-        parameters exact) instead of reproducing ``pi`` exactly.
+        parameters exact) instead of reproducing ``pi`` exactly. None (the default): reproduce
+        ``pi`` exactly when a physical model does; when none does (a noisy estimate), the
+        smallest of the ``AUTO_REGIONS`` ellipsoids that holds one, with a warning, and
+        ``Export.region`` records it.
     where, prior_name : str
         Names of the result and the prior in error messages.
 
@@ -416,7 +422,20 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
         raise SpaceidError(f"--region {region:g}: give a probability between 0 and 1 (e.g. 0.95)")
     prior, param = _checked_prior(result, prior, where, prior_name)
     with one_blas_thread():  # small dense factorisations: threads only wait on busy cores
-        return _export(result, prior, param, region, where, prior_name)
+        try:
+            return _export(result, prior, param, region, where, prior_name)
+        except SpaceidError as exact_failure:
+            if region is not None or not np.any(np.diag(result.cov) > 0):
+                raise
+            for auto in AUTO_REGIONS:  # the point estimate is not physical: the closest ellipsoid that is
+                try:
+                    export = _export(result, prior, param, auto, where, prior_name)
+                except SpaceidError:
+                    continue
+                warnings.warn(f"{where}: the estimate is not physically realisable exactly: exported the model "
+                              f"closest to the prior within its {auto:g} confidence ellipsoid", stacklevel=2)
+                return export
+            raise exact_failure from None
 
 
 def _export(result, prior, param, region, where, prior_name) -> Export:
