@@ -2,6 +2,9 @@
 (``random_robots``), with random CAD-like priors. The seeds of failures found this way are kept
 as ``@example`` regression cases."""
 
+import dataclasses
+import warnings
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, example, given, settings
@@ -12,7 +15,8 @@ from test_export import check_export
 
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import identify
-from spaceid.identified import export_model
+import spaceid
+from spaceid.identified import export_model, pseudo_inertia, write_export
 
 SEEDS = st.integers(0, 2**31 - 1)
 FAST = settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.too_slow,
@@ -57,3 +61,37 @@ def test_spatial_export_of_an_exact_identification(seed, tmp_path):
 @given(seed=SEEDS, planar=st.booleans())
 def test_export_of_an_exact_identification_on_larger_robots(seed, planar, tmp_path):
     _exact_export(seed, planar, tmp_path, max_arms=3, max_joints=4)
+
+
+def _noisy_export(seed, planar, tmp_path, **size):
+    """Export of a noisy identification (each parameter off by its standard error, 1e-3 of its
+    size plus 1e-6 of the largest) with no options: consistent, within the region it records."""
+    true = random_robot(seed, planar=planar, **size).load(tmp_path)
+    exact = noise_free_identification(true, seed)
+    std = 1e-3 * np.abs(exact.values) + 1e-6 * np.abs(exact.values).max()
+    values = exact.values + std * np.random.default_rng(seed).standard_normal(len(std))
+    noisy = dataclasses.replace(exact, values=values, std=std, cov=np.diag(std**2))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # the fall-back to a region is tested with the presets
+        res = export_model(noisy, perturbed_prior(true, seed + 1))
+    write_export(res, tmp_path / "noisy.urdf")
+    for b in spaceid.load_model(tmp_path / "noisy.urdf", planar=planar).bodies:
+        assert np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() > 0, b.name
+    if res.region is None:
+        np.testing.assert_allclose(res.values, values, rtol=0, atol=1e-8 * np.abs(values).max())
+    else:
+        assert res.mahalanobis <= res.bound
+
+
+@FAST
+@given(seed=SEEDS, planar=st.booleans())
+@example(seed=114, planar=False)  # linearised at the prior, the 0.95 ellipsoid reached no physical model
+def test_noisy_export_without_options(seed, planar, tmp_path):
+    _noisy_export(seed, planar, tmp_path, max_arms=2, max_joints=2)
+
+
+@pytest.mark.slow
+@SLOW
+@given(seed=SEEDS, planar=st.booleans())
+def test_noisy_export_without_options_on_larger_robots(seed, planar, tmp_path):
+    _noisy_export(seed, planar, tmp_path, max_arms=3, max_joints=4)

@@ -446,10 +446,15 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
     program = _Program(g, z, _projected_rows((len(e), g.shape[0])), len(w), radius * (1 - SHRINK))
     theta = prior_theta = full_values(prior)[: g.shape[0]]
     x = np.concatenate([np.eye(4).ravel()] * len(prior.bodies))
+    restore, violation = None, np.inf
     for steps in range(1, MAX_STEPS + 1):
         new = program.solve(*_conditions(param, g, theta, e, w, pi))
-        if new is None:
-            raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
+        if new is None:  # linearised at theta, the conditions reach no physical model: move towards them first
+            restore = restore or _Program(g, z, len(e), len(w), radius * (1 - SHRINK), elastic=True)
+            new = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False))
+            if new is None or restore.problem.value > 0.9 * violation:  # stalled: no physical model meets them
+                raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
+            violation = restore.problem.value
         moved = np.abs(new - x).max()
         x, theta = new, g @ new
         if moved < STEP_TOL:
