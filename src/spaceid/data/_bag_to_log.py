@@ -18,6 +18,7 @@ from .._errors import SpaceidError
 from ._bag_format import _check_recording
 from ._recording import Recording
 from ._signals import differentiate, differentiate_quaternion
+from .._memory import require_memory
 from ._tables import _check_angles, _check_rates, _Table
 from ._timeseries import Log, quat_to_yaw, yaw_to_quat
 
@@ -238,7 +239,11 @@ def _time_base(t_joints, valid, start, end, rate, joints, where, topic):
         t = t_joints[rows]
         time_base = {"kind": "joint stamps", "topic": topic}
     else:
-        t = np.minimum(start + np.arange(int(math.floor((end - start) * rate + 1e-9)) + 1) / rate, end)
+        n = math.floor((end - start) * rate + 1e-9) + 1
+        # a few float columns a joint and the attitude's, and the interpolants' work arrays
+        require_memory(n * 8.0 * 8 * (2 * len(joints) + 16), f"{where}: mapping key 'rate' {rate:g} Hz over "
+                       f"{end - start:.6g} s: {n:.3g} samples", "give the rate of the log to write, in Hz (e.g. 100)")
+        t = np.minimum(start + np.arange(n) / rate, end)
         time_base = {"kind": "uniform", "rate_hz": float(rate)}
     time_base.update(start=float(t[0]), end=float(t[-1]), n_samples=int(t.size))
     return t, time_base

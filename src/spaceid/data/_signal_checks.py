@@ -16,6 +16,8 @@ import numpy as np
 from .._errors import SpaceidError
 from ._timeseries import first_unordered, quat_to_matrix
 
+__all__ = ["check_time_units", "plausibility_warnings"]
+
 _WARN_GAP = 10.0  # steps longer than this many median steps are gaps (a warning) ...
 _MAX_GAP = 100.0  # ... and beyond this many, differentiation would extrapolate (an error)
 
@@ -223,12 +225,9 @@ def plausibility_warnings(log, where, wheels=()) -> list:
                      "from them would be 1000 times too small, every parameter 1000 times too large)")
     pairs, stride = _pairs(log, wheels)
     agreement = {label: _agreement(a, b) for label, (a, b, _, _) in pairs.items()}
-    ratios = [r for r, misfit in filter(None, agreement.values()) if misfit < _MISMATCH]
-    time_cause = _likely_cause(np.median(ratios)) if len(ratios) > 1 else None
-    if time_cause and time_cause.startswith("time stamps") and all(_likely_cause(r) == time_cause for r in ratios):
-        return [f"{where}: column t: every rate integrates to {np.median(ratios):.3g} times its angle's change: "
-                f"{time_cause}? Convert t to seconds (rates differentiated from these stamps, and validation, would "
-                "be off by that factor)"]
+    stamps = _stamps_in_other_units(agreement, where)
+    if stamps:
+        return [stamps]
     for label, result in agreement.items():
         if result is None:
             continue
@@ -241,6 +240,29 @@ def plausibility_warnings(log, where, wheels=()) -> list:
             found.append(f"{where}: columns {angle} and {rate}: the rate integrates to {ratio:.3g} times the "
                          f"angle's change: likely {cause}")
     return found
+
+
+def _stamps_in_other_units(agreement, where) -> str | None:
+    """The warning that every rate integrates to one telling factor (1e3, 1e6, 1e9) times its
+    angle's change: stamps in ms, us or ns; None otherwise."""
+    ratios = [r for r, misfit in filter(None, agreement.values()) if misfit < _MISMATCH]
+    cause = _likely_cause(np.median(ratios)) if len(ratios) > 1 else None
+    if not (cause and cause.startswith("time stamps") and all(_likely_cause(r) == cause for r in ratios)):
+        return None
+    return (f"{where}: column t: every rate integrates to {np.median(ratios):.3g} times its angle's change: "
+            f"{cause}? Convert t to seconds (rates differentiated from these stamps, and validation, would be off "
+            "by that factor)")
+
+
+def check_time_units(log, where: str, wheels=()) -> None:
+    """A SpaceidError naming the log's column t when its stamps are not seconds (every rate
+    integrates to 1e3, 1e6 or 1e9 times its angle's change): for what re-simulates the log in
+    time (validation, prediction), where such stamps give meaningless figures."""
+    if log.n_samples >= 3:
+        pairs, _ = _pairs(log, wheels)
+        stamps = _stamps_in_other_units({k: _agreement(a, b) for k, (a, b, _, _) in pairs.items()}, where)
+        if stamps:
+            raise SpaceidError(stamps)
 
 
 def _disagreement(log, label, pairs, where, misfit, stride):

@@ -47,6 +47,11 @@ __all__ = [
 BOUNDARY_FIELDS = ("q0", "qd0", "qdd0", "qf", "qdf", "qddf")
 """Boundary values, in the order ``[q, qd, qdd](0)`` then ``[q, qd, qdd](tf)``."""
 
+MIN_DURATION = 1e-3
+"""[s] The shortest trajectory accepted: no robot's joint motion, nor any sensor's log, is shorter."""
+MAX_JOINT_RATE = 1e4
+"""[rad/s or m/s] The largest joint rate a trajectory may reach (about 95,000 rpm): beyond it the
+coefficients are not rad/s of a robot's joint (a unit error, a corrupted file)."""
 _FORMAT = "spaceid.motion"
 _VERSION = 1
 
@@ -185,6 +190,9 @@ class FourierTrajectory:
             raise SpaceidError(
                 f"{src}: field 'duration' must be a positive number of seconds, got {shown(self.duration)}"
             )
+        if duration < MIN_DURATION:
+            raise SpaceidError(f"{src}: field 'duration' is {duration:g} s, shorter than {MIN_DURATION:g} s: give the "
+                               "motion's duration in seconds")
         a = finite_array(self.a, 2, "a", src)
         if a.shape[0] != len(joints) or a.shape[1] < 1:
             raise SpaceidError(
@@ -200,6 +208,18 @@ class FourierTrajectory:
             value = getattr(self, name)
             value = np.zeros(len(joints)) if value is None else value
             set_(self, name, finite_array(value, (len(joints),), name, src))
+        self._check_rates(src)
+
+    def _check_rates(self, src):
+        """A SpaceidError naming the fields when the joint rates, on a grid of 8 points a harmonic,
+        overflow or exceed :data:`MAX_JOINT_RATE` (huge coefficients: a unit error, a corrupted file)."""
+        with np.errstate(all="ignore"):
+            _, qd, _ = self.evaluate(np.linspace(0.0, self.duration, 8 * self.n_harmonics + 2))
+            peak = float(np.max(np.abs(qd))) if np.all(np.isfinite(qd)) else math.inf
+        if peak > MAX_JOINT_RATE:
+            raise SpaceidError(f"{src}: fields 'a', 'b' and the boundary values give joint rates up to {peak:.3g} "
+                               f"rad/s, above {MAX_JOINT_RATE:g}: give the Fourier coefficients in rad/s of a robot's "
+                               "motion")
 
     def __eq__(self, other):
         if not isinstance(other, FourierTrajectory):

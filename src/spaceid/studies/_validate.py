@@ -13,7 +13,7 @@ import numpy as np
 from ..estimation import Identification
 from ..identified import parameterization_of
 from ..motion import hermite_motion, simulate
-from ..data import Log, log_fingerprint
+from ..data import Log, check_time_units, log_fingerprint
 
 __all__ = ["attitude_error_angle", "predict", "validate", "validation_metrics"]
 
@@ -113,6 +113,7 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
         See :func:`validation_metrics`.
     """
     _warn_if_fitting_log(ident, log, where)
+    check_time_units(log, log.meta.get("source", "log"))  # re-simulated in time: stamps in ms would mislead
     predicted = predict(ident, log.t, log.q, log.qd, momentum=momentum, initial_quat=log.base_quat[0], where=where,
                         drift=drift)
     metrics = validation_metrics(log, predicted)
