@@ -227,13 +227,13 @@ def test_ml_builds_the_regressor_once(cepheus, monkeypatch):
 def test_ml_on_threads_equals_serial(cepheus, monkeypatch):
     """The evaluations' parts and the whitened Gram matrix's blocks on two threads or one: the same
     estimate and covariance, bit for bit (the parts' sums are added in order)."""
-    from spaceid.estimation import _estimators as estimate
+    from spaceid.estimation import _linalg as linalg
 
     param, make = cepheus
     log, noise = add_noise(make(2501), angle=1e-3, rate=1e-3, seed=2), Noise(1e-3, 1e-3, 1e-3)
     results = []
     for threads in (1, 2):
-        monkeypatch.setattr(estimate, "work_threads", lambda threads=threads: threads)
+        monkeypatch.setattr(linalg, "work_threads", lambda threads=threads: threads)
         results.append(identify(param, log, H, estimator="ml", noise=noise))
     assert np.array_equal(results[0].values, results[1].values) and np.array_equal(results[0].cov, results[1].cov)
 

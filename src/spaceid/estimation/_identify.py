@@ -26,7 +26,8 @@ from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
-from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _solve_factor, _triangular_factor
+from ._estimators import _KERNELS, ESTIMATORS, _ols
+from ._linalg import _column_scale, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
 from ._residuals import drift_test
 from ._result import Identification
@@ -63,7 +64,7 @@ def _unexcited(r: np.ndarray, names, tol: float) -> list:
 
 def _check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
     """The orthogonal factorisation ``(scale (p,), R (p + 1, p + 1))`` of the column-scaled
-    stacked equations ``phi (n, rows, p + 1)`` (see :func:`~spaceid.estimation._estimators._triangular_factor`)
+    stacked equations ``phi (n, rows, p + 1)`` (see :func:`~spaceid.estimation._linalg._triangular_factor`)
     and the condition number of the column-scaled regressor; raises when the right-hand side
     vanishes or the condition number reaches ``cond_limit`` (naming the parameters not excited)."""
     A, b = _split(phi)

@@ -19,7 +19,7 @@ the linearisation point at which the equation-error covariances ``S_n``
    variance against none; its threshold gives the requested false-alarm rate (one alarm per
    ``1 / false_alarm_rate`` samples on average, :func:`cusum_threshold`);
 3. updates the square-root information factor of recursive weighted least squares with
-   forgetting (:func:`~spaceid.estimation._estimators._accumulate_factor`): O(p^2) work per
+   forgetting (:func:`~spaceid.estimation._linalg._accumulate_factor`): O(p^2) work per
    sample whatever the log's length.
 
 An alarm closes the segment at the estimated change time (within the CUSUM's last excursion
@@ -59,7 +59,7 @@ from .._threads import one_blas_thread
 from ..data import Log, quat_to_matrix
 from ..dynamics import Parameterization
 from ._equations import _equations
-from ._estimators import _accumulate_factor, _column_scale, _whiten
+from ._linalg import _accumulate_factor, _column_scale, _whiten
 from ._identify import identify
 from ._differentiated import differentiated_series
 from ._drift import check_drift_kinds, drift_basis

@@ -25,7 +25,7 @@ from scipy.stats import f as f_dist
 from scipy.stats import norm
 
 from ._drift import drift_basis, drift_names
-from ._estimators import _equation_whitener, _solve_factor, _whitened
+from ._linalg import _equation_whitener, _solve_factor, _whitened
 from ._stream import _chunks, _streamed_factor
 from ._uncertainty import _correlation_length, _hac, _mapped_scores
 

@@ -35,7 +35,7 @@ from ..dynamics import Parameterization
 from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import drift_vector
 from ._equations import _equations, _split
-from ._estimators import _column_scale, _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
+from ._linalg import _column_scale, _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
 from ._noise import Noise, signal_sigma
 
 __all__ = ["cramer_rao"]
