@@ -2,7 +2,7 @@
 algebra they share.
 
 Each kernel solves the stacked equations ``Phi_n(x) [theta; 1] = 0`` of
-:class:`~spaceid.estimation._equations._Equations` for ``theta``, starting from the OLS
+:class:`~spaceid.estimation._equations.Equations` for ``theta``, starting from the OLS
 solution; ``ESTIMATORS`` names them and ``_KERNELS`` dispatches on the name:
 
 ``ols``

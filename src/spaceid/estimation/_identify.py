@@ -62,7 +62,7 @@ def _unexcited(r: np.ndarray, names, tol: float) -> list:
     return [n for n, w in zip(names, weight) if w > 0.3]
 
 
-def _check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
+def check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
     """The orthogonal factorisation ``(scale (p,), R (p + 1, p + 1))`` of the column-scaled
     stacked equations ``phi (n, rows, p + 1)`` (see :func:`~spaceid.estimation._linalg._triangular_factor`)
     and the condition number of the column-scaled regressor; raises when the right-hand side
@@ -83,7 +83,7 @@ def _check_right_hand_side(nonzero: bool, where: str) -> None:
 
 def _check_factor(factor, names, cond_limit: float, where: str) -> tuple:
     """``factor`` and the scaled condition number of the regressor it factors, as
-    :func:`_check_excitation` returns them; raises when the condition number reaches ``cond_limit``."""
+    :func:`check_excitation` returns them; raises when the condition number reaches ``cond_limit``."""
     scale, R = factor
     with one_blas_thread():
         sv = np.linalg.svd(R[:-1, :-1], compute_uv=False)  # those of A / scale, to eps * sv[0]
@@ -363,7 +363,7 @@ def identify(
             _check_right_hand_side(nonzero, where)
             factor, cond_scaled = _check_factor(factor, eq.names(), cond_limit, where)
         else:
-            factor, cond_scaled = _check_excitation(phi, eq.names(), cond_limit, where)
+            factor, cond_scaled = check_excitation(phi, eq.names(), cond_limit, where)
         ctx |= {"phi": phi, "factor": factor}
         if estimator == "iv":
             ctx |= _instrument_context(log, instruments, where)

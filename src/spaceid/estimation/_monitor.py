@@ -66,7 +66,7 @@ from ._drift import check_drift_kinds, drift_basis
 from ._monitor_filter import DifferentiatedWhitener
 from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
-from ._uncertainty import SIGNIFICANCE, _correlation_length, _residual_checks
+from ._uncertainty import SIGNIFICANCE, _residual_checks, correlation_length
 
 __all__ = ["Monitor", "MonitorEvent", "monitor", "cusum_threshold", "cusum_run_length", "log_chunks", "Z_CHANGED"]
 
@@ -736,7 +736,7 @@ class Monitor:
         """The differentiator's window from the first samples, and its filters from each part's
         record (a bag's parts are differentiated one by one)."""
         if self._window is None and samples.n_samples > 1:
-            self._window = _correlation_length(samples)
+            self._window = correlation_length(samples)
             self._step_s = float(np.median(np.diff(samples.t)))  # the sample step [s]
             # the log's first half window has one-sided windows, as the last: extrapolated rates, never taken
             half = -(-self._window // 2)
