@@ -27,6 +27,7 @@ from spaceid.dynamics import base_rate
 from spaceid.dynamics._regressor import _random_states, minimal_parameters
 from spaceid.estimation import Noise, identify, signal_sigma
 from spaceid.estimation import _estimators as estimate
+from spaceid.estimation import _linalg as linalg
 from spaceid.estimation._equations import _equations, _split
 
 URDF = Path(spaceid.__file__).parent / "models" / "presets" / "servicer-dual.urdf"
@@ -57,7 +58,7 @@ def parts(param, log, h, noise):
     eq, _ = _equations(param, log, h, None, "bench")
     x, sigma = eq.signals(log), signal_sigma(param, noise)
     phi = eq.phi(x)
-    theta = estimate._solve(*_split(phi))[0]
+    theta = linalg._solve(*_split(phi))[0]
     equations = lambda rows, e, xe: phi[rows]  # noqa: E731
     first = estimate._ml_evaluate(eq, x, theta, sigma, estimate.ML_PART, equations)
     previous = (theta, first["xh"], first["r"], first["L"], first["J"])
@@ -67,7 +68,7 @@ def parts(param, log, h, noise):
                                                                      previous),  # fmt: skip
         "  signal Jacobian": lambda: eq.jacobian(xh, theta),
         "  weights' derivative (contracted)": lambda: eq.contracted_dphi(xh, x - xh, np.ones((n, param.rows))),
-        "whitened factorisation": lambda: estimate._gram_matrix_factor(estimate._whitened_gram(first["L"], phi)),
+        "whitened factorisation": lambda: linalg._gram_matrix_factor(linalg._whitened_gram(first["L"], phi)),
     }
     return {key: timed(fn)[0] for key, fn in out.items()}
 

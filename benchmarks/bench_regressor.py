@@ -48,7 +48,7 @@ from spaceid.dynamics._regressor import _random_states, minimal_parameters
 from spaceid.dynamics import base_rate
 from spaceid.data import Log
 from spaceid.estimation._equations import _equations, _split
-from spaceid.estimation import _estimators as estimate
+from spaceid.estimation import _linalg as linalg
 from spaceid._threads import one_blas_thread
 
 URDF = Path(spaceid.__file__).parent / "models" / "presets" / "servicer-dual.urdf"
@@ -257,7 +257,7 @@ def main():
         return None
 
     def identify_householder():
-        with patched(estimate, "_gram_factor", householder_only):
+        with patched(linalg, "_gram_factor", householder_only):
             former.append(identify(param, log, h, estimator="ols"))
 
     def identify_now():
@@ -271,12 +271,12 @@ def main():
     # blocked Householder QR before it, and the normal equations before that
     eq, _ = _equations(param, log, h, None, "bench")
     A, b = _split(eq.phi(eq.signals(log)))
-    scale = estimate._column_scale(A)
+    scale = linalg._column_scale(A)
 
     def householder():
-        estimate._blockwise(A, b, scale, estimate._accumulate_factor, estimate._accumulate_factor)
+        linalg._blockwise(A, b, scale, linalg._accumulate_factor, linalg._accumulate_factor)
 
-    t_ls, t_qr, t_ne = np.median([(median_time(lambda: estimate._triangular_factor(A, b, scale), 1),
+    t_ls, t_qr, t_ne = np.median([(median_time(lambda: linalg._triangular_factor(A, b, scale), 1),
                                    median_time(householder, 1), median_time(lambda: normal_equations(A, b), 1))
                                   for _ in range(args.repeats)], axis=0)  # fmt: skip
 

@@ -200,7 +200,7 @@ def fixed_costs():
 
     from spaceid.dynamics import _regressor
     from spaceid.dynamics._kinematics import _Geometry
-    from spaceid.estimation import _estimators as E
+    from spaceid.estimation import _linalg as E
 
     model = spaceid.load_model("servicer-dual")
     with tempfile.TemporaryDirectory() as cache:

@@ -213,7 +213,7 @@ def test_a_read_only_output_folder_is_one_line(work, capsys, command):
 def test_a_failed_or_interrupted_run_leaves_the_old_folder(work, capsys, monkeypatch, failure, code, line):
     """validate failing or interrupted while its report is written: the earlier report stays as
     it was, no temporary left."""
-    import spaceid.studies._figures
+    import spaceid.studies
 
     folder = work / "v"
     args = ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM, "-o", folder]
@@ -224,7 +224,7 @@ def test_a_failed_or_interrupted_run_leaves_the_old_folder(work, capsys, monkeyp
         Path(path).write_bytes(b"half a figure")
         raise failure
 
-    monkeypatch.setattr(spaceid.studies._figures, "plot_validation", fail)
+    monkeypatch.setattr(spaceid.studies, "plot_validation", fail)
     capsys.readouterr()
     assert run(*args) == code
     assert capsys.readouterr().err.strip().splitlines()[-1] == line

@@ -170,7 +170,7 @@ def test_ml_never_reports_physically_impossible_parameters_when_wls_has_none(cep
 def _reference_ml(eq, x, sigma, theta, iterations=40):
     """The fundamental numerical scheme as first written, with nothing reused: at each estimate the
     equations linearised at the corrected signals (their columns included, by
-    ``_Equations.linearized``), whitened by batched solves and refactorised by ``numpy.linalg.lstsq``;
+    ``Equations.linearized``), whitened by batched solves and refactorised by ``numpy.linalg.lstsq``;
     the next linearisation point is the corrected signals of the update."""
     from spaceid.estimation._noise import equation_covariance
 
@@ -212,12 +212,12 @@ def test_ml_reaches_the_fixed_point_of_the_scheme_as_first_written(cepheus, leve
 def test_ml_builds_the_regressor_once(cepheus, monkeypatch):
     """In memory the columns are built once, at the measured signals: no linearised equations,
     the corrected signals entering through the residuals and the weights (signal Jacobian)."""
-    from spaceid.estimation._equations import _Equations
+    from spaceid.estimation._equations import Equations
 
     param, make = cepheus
     built = []
     for name in ("phi", "linearized"):
-        monkeypatch.setattr(_Equations, name, lambda self, *a, _n=name, _f=getattr(_Equations, name), **k:
+        monkeypatch.setattr(Equations, name, lambda self, *a, _n=name, _f=getattr(Equations, name), **k:
                             built.append(_n) or _f(self, *a, **k))  # fmt: skip
     ml = identify(param, add_noise(make(201), angle=1e-3, rate=1e-3, seed=1), H, estimator="ml",
                   noise=Noise(1e-3, 1e-3, 1e-3))  # fmt: skip
@@ -227,19 +227,19 @@ def test_ml_builds_the_regressor_once(cepheus, monkeypatch):
 def test_ml_on_threads_equals_serial(cepheus, monkeypatch):
     """The evaluations' parts and the whitened Gram matrix's blocks on two threads or one: the same
     estimate and covariance, bit for bit (the parts' sums are added in order)."""
-    from spaceid.estimation import _estimators as estimate
+    from spaceid.estimation import _linalg as linalg
 
     param, make = cepheus
     log, noise = add_noise(make(2501), angle=1e-3, rate=1e-3, seed=2), Noise(1e-3, 1e-3, 1e-3)
     results = []
     for threads in (1, 2):
-        monkeypatch.setattr(estimate, "work_threads", lambda threads=threads: threads)
+        monkeypatch.setattr(linalg, "work_threads", lambda threads=threads: threads)
         results.append(identify(param, log, H, estimator="ml", noise=noise))
     assert np.array_equal(results[0].values, results[1].values) and np.array_equal(results[0].cov, results[1].cov)
 
 
 def test_equation_error_without_the_regressor(cepheus):
-    """``_Equations.error`` (the signal Jacobian's rate columns times the rates) is ``Phi(x) [theta; 1]``,
+    """``Equations.error`` (the signal Jacobian's rate columns times the rates) is ``Phi(x) [theta; 1]``,
     planar and spatial, with a known or an estimated momentum, a known parameter and drift columns."""
     from spaceid.estimation._equations import _equations
 

@@ -139,13 +139,13 @@ def test_equations_linearised_and_contracted(rng):
     """The stacked equations with a known parameter and the momentum estimated (attitude columns):
     linearised derivative against Richardson differences of ``phi``, and its contraction."""
     from spaceid.data import quat_to_matrix
-    from spaceid.estimation._equations import _Equations
+    from spaceid.estimation._equations import Equations
 
     model = random_tree(rng, [0, 1, 1], planar=False, prismatic=(2,))
     param = minimal_parameters(model)
     n, k = 200, param.n_params
     quat = rng.standard_normal((n, 4))
-    eq = _Equations(param, quat_to_matrix(quat / np.linalg.norm(quat, axis=1, keepdims=True)), np.arange(1, k),
+    eq = Equations(param, quat_to_matrix(quat / np.linalg.norm(quat, axis=1, keepdims=True)), np.arange(1, k),
                     np.array([0]), param.true_values[:1], None)  # fmt: skip
     x = np.hstack([*random_states(rng, model, n), 0.1 * rng.standard_normal((n, 3))])
     v = 1e-2 * rng.standard_normal(x.shape)

@@ -144,18 +144,18 @@ def test_cholesky_factor_with_refinement_agrees_with_householder(dual_arm, ampli
     """Scaled cond ~1e6: the factor comes from the Gram matrix's Cholesky factor, its solution
     refined on the data, and agrees with blocked Householder QR (solution, Gram matrix), with and
     without residuals; cond ~1e9 (beyond GRAM_COND): the Cholesky path declines."""
-    from spaceid.estimation import _estimators as estimate
+    from spaceid.estimation import _linalg as linalg
 
     eq, _ = _equations(dual_arm, _spatial_log(dual_arm, amplitude, duration), H_SPATIAL, None, "log")
     A, b = _split(eq.phi(eq.signals(_spatial_log(dual_arm, amplitude, duration))))
-    scale = estimate._column_scale(A)
+    scale = linalg._column_scale(A)
     if not cholesky:
-        assert estimate._gram_factor(A, b, scale) is None
+        assert linalg._gram_factor(A, b, scale) is None
         return
     for rhs in (b, b + 1e-3 * np.random.default_rng(0).standard_normal(len(b)) * np.abs(b).max()):
-        R = estimate._gram_factor(A, rhs, scale)
-        householder = estimate._blockwise(A, rhs, scale, estimate._accumulate_factor, estimate._accumulate_factor)
-        x, x_h = estimate._solve_factor(R, scale)[0], estimate._solve_factor(householder, scale)[0]
+        R = linalg._gram_factor(A, rhs, scale)
+        householder = linalg._blockwise(A, rhs, scale, linalg._accumulate_factor, linalg._accumulate_factor)
+        x, x_h = linalg._solve_factor(R, scale)[0], linalg._solve_factor(householder, scale)[0]
         assert np.abs(x - x_h).max() <= 1e-9 * np.abs(x_h).max()
         gram, gram_h = R[:-1, :-1].T @ R[:-1, :-1], householder[:-1, :-1].T @ householder[:-1, :-1]
         assert np.abs(gram - gram_h).max() < 1e-13 * np.abs(gram_h).max()

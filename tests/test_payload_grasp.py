@@ -14,7 +14,7 @@ import spaceid
 from spaceid.cli import app
 from spaceid.data import Log, differentiate_log, write_log, yaw_to_quat
 from spaceid.dynamics import body_states, system_com
-from spaceid.estimation._uncertainty import _correlation_length
+from spaceid.estimation._uncertainty import correlation_length
 from spaceid.identified import GraspMotion, hold_momentum, identify_payload, payload_after_grasp, payload_map
 from spaceid.identified._grasp import _before_grasp, _configuration_at, _hold
 from spaceid.models import inertial_vector
@@ -115,7 +115,7 @@ def _configuration_spread(pmap, log, grasp, noisy, noise, seeds=150) -> tuple:
     for seed in range(seeds):
         rec = noisy(seed)
         config = _configuration_at(rec, grasp, pmap.planar)
-        hold = _hold(rec, grasp, _correlation_length(rec) / 2 * np.median(np.diff(rec.t)), "log")
+        hold = _hold(rec, grasp, correlation_length(rec) / 2 * np.median(np.diff(rec.t)), "log")
         h, cov = _before_grasp(pmap, rec, hold, config, noise)
         phi = Rotation.from_matrix(exact.T @ config[1]).as_rotvec()
         values.append([*h, *config[0], *(phi[2:] if pmap.planar else phi)])

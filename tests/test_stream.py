@@ -12,7 +12,7 @@ from spaceid import SpaceidError, add_noise
 from spaceid.data import Log, differentiate_log
 from spaceid.dynamics import base_rate, minimal_parameters
 from spaceid.estimation import Noise, identify
-from spaceid.estimation._equations import _Equations
+from spaceid.estimation._equations import Equations
 from spaceid.motion import load_trajectory, simulate
 
 from conftest import random_states, random_tree
@@ -158,8 +158,8 @@ def test_the_regressor_is_never_built_for_more_than_a_chunk(spatial, monkeypatch
     param, log, h = spatial
     sizes = []
     for name in ("phi", "linearized"):
-        built = getattr(_Equations, name)
-        monkeypatch.setattr(_Equations, name, lambda self, x, *a, _built=built, **k: sizes.append(len(x))
+        built = getattr(Equations, name)
+        monkeypatch.setattr(Equations, name, lambda self, x, *a, _built=built, **k: sizes.append(len(x))
                             or _built(self, x, *a, **k))  # fmt: skip
     noisy = add_noise(log, angle=1e-3, rate=1e-3, seed=2)
     streamed = identify(param, noisy, h, estimator=estimator, noise=NOISE, chunk=200)

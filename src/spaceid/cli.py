@@ -828,7 +828,7 @@ def validate(result, log_path, momentum, drift, torques, horizon, output, overwr
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     if horizon is not None and not torques:
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
-    from .studies._figures import plot_validation
+    from .studies import plot_validation
     from .data import read_log, write_json, write_log
     from .estimation import load_result, parse_drift
     from .studies import metric_label

@@ -23,7 +23,8 @@ from collections import Counter
 
 import numpy as np
 
-from ..models._model import Model, _inertia_matrix, symbol_suffix
+from ..models import Model
+from ..models.internal import inertia_matrix, symbol_suffix
 
 __all__ = ["planar_definitions", "planar_symbol_values", "column_definitions"]
 
@@ -39,7 +40,7 @@ def planar_symbol_values(model: Model) -> dict:
     """Numerical values of the symbols used in planar definitions."""
     values = {"M": model.mass}
     for b in model.bodies:
-        i_com = _inertia_matrix(b.inertial) - b.mass * (b.com @ b.com * np.eye(3) - np.outer(b.com, b.com))
+        i_com = inertia_matrix(b.inertial) - b.mass * (b.com @ b.com * np.eye(3) - np.outer(b.com, b.com))
         body = symbol_suffix(b.name)
         values.update({f"m_{body}": b.mass, f"cx_{body}": b.com[0], f"cy_{body}": b.com[1],
                        f"Iczz_{body}": i_com[2, 2]})

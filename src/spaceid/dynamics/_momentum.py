@@ -14,7 +14,8 @@ from __future__ import annotations
 import numpy as np
 
 from ._kinematics import body_states
-from ..models._model import Model, _inertia_matrix
+from ..models import Model
+from ..models.internal import inertia_matrix
 from ..data import quat_to_matrix
 
 __all__ = ["angular_momentum"]
@@ -51,7 +52,7 @@ def angular_momentum(model: Model, q, qd, w0, base_quat=None):
     u_c = np.einsum("b,...bi->...i", masses, u) / masses.sum()
     # zero linear momentum: absolute velocity of CoM b is u_b - u_c; about the fixed system CM
     i_com = np.array(
-        [_inertia_matrix(b.inertial) - b.mass * (b.com @ b.com * np.eye(3) - np.outer(b.com, b.com))
+        [inertia_matrix(b.inertial) - b.mass * (b.com @ b.com * np.eye(3) - np.outer(b.com, b.com))
          for b in model.bodies]
     )
     i_base = st.rotation @ i_com @ np.swapaxes(st.rotation, -1, -2)

@@ -49,7 +49,7 @@ from ._definitions import column_definitions, planar_definitions
 from ._kernels import _columns_of_states, _momentum_of_states, _tangent_columns
 from ._kinematics import FrameTable, _flatten_states, _Geometry, _joint_arrays, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
-from ..models._model import symbol_suffix
+from ..models.internal import symbol_suffix
 
 __all__ = [
     "Parameterization",

@@ -34,7 +34,7 @@ from .._errors import SpaceidError
 from ..data import Log, quat_to_yaw
 from ..dynamics import base_rate
 from ._equations import _equations
-from ._estimators import _inverse_gram, _solve  # imported from _estimators' end, which registers the kernel
+from ._linalg import _inverse_gram, _solve
 from ._noise import Noise, signal_jacobian
 
 __all__ = ["KNOT_SPACING", "cramer_rao_angles"]

@@ -92,7 +92,7 @@ def _rotvec_matrix(v):
 
 
 @dataclass(frozen=True)
-class _Equations:
+class Equations:
     """The momentum equations of a log as ``Phi_n(x) [theta; 1] = 0``, sample by sample.
 
     ``theta`` holds the free minimal parameters, then, when the momentum is unknown, its inertial
@@ -251,7 +251,7 @@ class _Equations:
         h = self.base_momentum(theta, self.unpack(x)[3])
         return np.einsum("nrx,nx->nr", jac[..., rates], x[:, rates]) - (h[:, 2:3] if self.planar else h)
 
-    def select(self, rows: slice) -> "_Equations":
+    def select(self, rows: slice) -> "Equations":
         """The equations of the samples ``rows`` (their attitudes and drift basis)."""
         return replace(self, rot=self.rot[rows], basis=None if self.basis is None else self.basis[rows])
 
@@ -262,7 +262,7 @@ def _split(phi):
     return flat[:, :-1], -flat[:, -1]
 
 
-def _drift_basis(log, drift, history, where):
+def drift_basis_at(log, drift, history, where):
     """:func:`drift_basis` of ``log``, or integrated over ``history`` and taken at ``log``'s stamps."""
     if history is None:
         return drift_basis(log, drift)
@@ -291,7 +291,7 @@ def _equations(param, log, momentum, known, where, drift=(), history=None) -> tu
     free = np.setdiff1d(np.arange(param.n_params), idx)
     values = np.array([anchors[i][0] for i in idx], float)
     names = drift_names(drift, param.model.planar)[0]
-    eq = _Equations(param, quat_to_matrix(log.base_quat), free, idx, values, momentum, names,
-                    _drift_basis(log, drift, history, where) if names else None)
+    eq = Equations(param, quat_to_matrix(log.base_quat), free, idx, values, momentum, names,
+                   drift_basis_at(log, drift, history, where) if names else None)
     return eq, [{"name": param.names[i], "definition": param.definitions[i], "value": anchors[i][0],
                  "source": anchors[i][1]} for i in idx]  # fmt: skip

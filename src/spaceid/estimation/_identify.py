@@ -26,7 +26,8 @@ from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
-from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _solve_factor, _triangular_factor
+from ._estimators import _KERNELS, ESTIMATORS, _ols
+from ._linalg import _column_scale, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
 from ._residuals import drift_test
 from ._result import Identification
@@ -61,9 +62,9 @@ def _unexcited(r: np.ndarray, names, tol: float) -> list:
     return [n for n, w in zip(names, weight) if w > 0.3]
 
 
-def _check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
+def check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
     """The orthogonal factorisation ``(scale (p,), R (p + 1, p + 1))`` of the column-scaled
-    stacked equations ``phi (n, rows, p + 1)`` (see :func:`~spaceid.estimation._estimators._triangular_factor`)
+    stacked equations ``phi (n, rows, p + 1)`` (see :func:`~spaceid.estimation._linalg._triangular_factor`)
     and the condition number of the column-scaled regressor; raises when the right-hand side
     vanishes or the condition number reaches ``cond_limit`` (naming the parameters not excited)."""
     A, b = _split(phi)
@@ -82,7 +83,7 @@ def _check_right_hand_side(nonzero: bool, where: str) -> None:
 
 def _check_factor(factor, names, cond_limit: float, where: str) -> tuple:
     """``factor`` and the scaled condition number of the regressor it factors, as
-    :func:`_check_excitation` returns them; raises when the condition number reaches ``cond_limit``."""
+    :func:`check_excitation` returns them; raises when the condition number reaches ``cond_limit``."""
     scale, R = factor
     with one_blas_thread():
         sv = np.linalg.svd(R[:-1, :-1], compute_uv=False)  # those of A / scale, to eps * sv[0]
@@ -362,7 +363,7 @@ def identify(
             _check_right_hand_side(nonzero, where)
             factor, cond_scaled = _check_factor(factor, eq.names(), cond_limit, where)
         else:
-            factor, cond_scaled = _check_excitation(phi, eq.names(), cond_limit, where)
+            factor, cond_scaled = check_excitation(phi, eq.names(), cond_limit, where)
         ctx |= {"phi": phi, "factor": factor}
         if estimator == "iv":
             ctx |= _instrument_context(log, instruments, where)

@@ -19,7 +19,7 @@ the linearisation point at which the equation-error covariances ``S_n``
    variance against none; its threshold gives the requested false-alarm rate (one alarm per
    ``1 / false_alarm_rate`` samples on average, :func:`cusum_threshold`);
 3. updates the square-root information factor of recursive weighted least squares with
-   forgetting (:func:`~spaceid.estimation._estimators._accumulate_factor`): O(p^2) work per
+   forgetting (:func:`~spaceid.estimation._linalg._accumulate_factor`): O(p^2) work per
    sample whatever the log's length.
 
 An alarm closes the segment at the estimated change time (within the CUSUM's last excursion
@@ -59,14 +59,14 @@ from .._threads import one_blas_thread
 from ..data import Log, quat_to_matrix
 from ..dynamics import Parameterization
 from ._equations import _equations
-from ._estimators import _accumulate_factor, _column_scale, _whiten
+from ._linalg import _accumulate_factor, _column_scale, _whiten
 from ._identify import identify
 from ._differentiated import differentiated_series
 from ._drift import check_drift_kinds, drift_basis
 from ._monitor_filter import DifferentiatedWhitener
 from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
-from ._uncertainty import SIGNIFICANCE, _correlation_length, _residual_checks
+from ._uncertainty import SIGNIFICANCE, _residual_checks, correlation_length
 
 __all__ = ["Monitor", "MonitorEvent", "monitor", "cusum_threshold", "cusum_run_length", "log_chunks", "Z_CHANGED"]
 
@@ -736,7 +736,7 @@ class Monitor:
         """The differentiator's window from the first samples, and its filters from each part's
         record (a bag's parts are differentiated one by one)."""
         if self._window is None and samples.n_samples > 1:
-            self._window = _correlation_length(samples)
+            self._window = correlation_length(samples)
             self._step_s = float(np.median(np.diff(samples.t)))  # the sample step [s]
             # the log's first half window has one-sided windows, as the last: extrapolated rates, never taken
             half = -(-self._window // 2)

@@ -25,9 +25,9 @@ from scipy.stats import f as f_dist
 from scipy.stats import norm
 
 from ._drift import drift_basis, drift_names
-from ._estimators import _equation_whitener, _solve_factor, _whitened
+from ._linalg import _equation_whitener, _solve_factor, _whitened
 from ._stream import _chunks, _streamed_factor
-from ._uncertainty import _correlation_length, _hac, _mapped_scores
+from ._uncertainty import _hac, _mapped_scores, correlation_length
 
 DRIFT_ALPHA = 1e-3
 """Significance level of the drift test: the probability that it warns on a log without drift."""
@@ -73,7 +73,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
 
     Parameters
     ----------
-    eq : _Equations
+    eq : Equations
         The equations identified (without drift terms).
     x, phi : ndarray
         Their signals ``(n, n_x)`` and stacked ``[A | -b]`` ``(n, rows, p + 1)``; ``phi`` None: built
@@ -137,7 +137,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
             yield _mapped_scores(ginv[p:], M, _leverage_adjusted(M, ginv, M @ est + rhs))
 
     # only the drift block of the sandwich is tested: its q rows of ginv, not all p + q (q^2, not (p + q)^2, a lag)
-    cdd = _hac(scores(), _correlation_length(log), q, dof_scale=False)
+    cdd = _hac(scores(), correlation_length(log), q, dof_scale=False)
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     size = n * eq.param.rows
     p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))

@@ -5,9 +5,9 @@ What the estimators need from all samples is accumulated over the chunks in pass
 each pass rebuilding the chunk's equations ``[A | -b]`` (``N x rows x (p + 1)``):
 
 - the least-squares factor (:func:`_streamed_factor`): the unscaled ``R`` of ``[A | b]`` by blocked
-  Householder QR (TSQR, :func:`~spaceid.estimation._estimators._accumulate_factor`), column-wise
+  Householder QR (TSQR, :func:`~spaceid.estimation._linalg._accumulate_factor`), column-wise
   backward stable in one pass; the column scales are its column norms (``A^T A = R^T R``), so the
-  scaled factor of :func:`~spaceid.estimation._estimators._triangular_factor` follows without a
+  scaled factor of :func:`~spaceid.estimation._linalg._triangular_factor` follows without a
   pass for the norms. (The in-memory path's Cholesky of the Gram matrix would need one more pass
   per refinement step.)
 - ``wls``: one factor pass per iteration, the whitening recomputed per chunk;
@@ -46,9 +46,9 @@ import numpy as np
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ._equations import _split
-from ._estimators import (_accumulate_factor, _accumulate_gram, _blockwise, _equation_whitener, _gram_matrix_factor,
-                          _instrument_rows, _inverse_times, _ml_evaluate, _ml_fit, _sandwich, _solve_factor,
-                          _whitened, _whitened_gram)  # fmt: skip
+from ._estimators import _instrument_rows, _ml_evaluate, _ml_fit
+from ._linalg import (_accumulate_factor, _accumulate_gram, _blockwise, _equation_whitener, _gram_matrix_factor,
+                      _inverse_times, _sandwich, _solve_factor, _whitened, _whitened_gram)  # fmt: skip
 from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores, _with_propagated
 
 __all__ = ["STREAMED"]
@@ -88,11 +88,11 @@ def _accumulated_factor(blocks):
 
 
 def _streamed_factor(blocks, p, refined=True, gram=None):
-    """``(scale (p,), R (p + 1, p + 1))`` of :func:`~spaceid.estimation._estimators._triangular_factor`
+    """``(scale (p,), R (p + 1, p + 1))`` of :func:`~spaceid.estimation._linalg._triangular_factor`
     for the rows of the blocks ``(A_c (m, p), b_c (m,))`` that ``blocks()`` yields anew at each pass.
 
     As in memory: from their Gram matrix (a pass, or ``gram`` when given) by
-    :func:`~spaceid.estimation._estimators._gram_matrix_factor`, the solution refined on the data (a
+    :func:`~spaceid.estimation._linalg._gram_matrix_factor`, the solution refined on the data (a
     pass per step, two to four) when ``refined``; when the scaled condition number is above
     ``GRAM_COND``, by TSQR of the unscaled rows (:func:`_accumulated_factor`, a pass), scaled by the
     column norms of ``A`` read from ``R``."""

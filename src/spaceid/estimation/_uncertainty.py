@@ -35,7 +35,7 @@ from ..dynamics import Parameterization
 from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import drift_vector
 from ._equations import _equations, _split
-from ._estimators import _column_scale, _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
+from ._linalg import _column_scale, _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
 from ._noise import Noise, signal_sigma
 
 __all__ = ["cramer_rao"]
@@ -69,8 +69,8 @@ def _covariance_terms(eq, x, phi, sigma, theta, estimator, info):
     (ols, tls) and ``W_n = I``. With independent samples and the noise model right, the covariance
     is ``bread (sum_n M_n^T W_n S_n W_n M_n) bread^T`` (:func:`_model_covariance`); whatever the
     noise, it is estimated from the residuals' scores ``g_n = M_n^T W_n r_n``, ``W_n r_n`` the
-    ``scored`` residuals (:func:`_newey_west`). An estimator that formed the pieces at its estimate
-    gives them in ``info["terms"]`` (ML: at the corrected signals)."""
+    ``scored`` residuals (:func:`newey_west_covariance`). An estimator that formed the pieces at
+    its estimate gives them in ``info["terms"]`` (ML: at the corrected signals)."""
     if "terms" in info:
         return info.pop("terms")
     A = phi[..., :-1]
@@ -83,7 +83,7 @@ def _covariance_terms(eq, x, phi, sigma, theta, estimator, info):
     return {"M": M, "bread": bread, "L": L, "r": r, "scored": scored, "white": _whitened(L, r[..., None])[..., 0]}
 
 
-def _newey_west(bread, M, r, bandwidth, p, dof_scale=True):
+def newey_west_covariance(bread, M, r, bandwidth, p, dof_scale=True):
     """``bread Omega bread^T`` with ``Omega`` the Bartlett-weighted autocovariance of the scores
     ``g_n = M_n^T r_n`` up to lag ``bandwidth`` (0: White's heteroscedasticity-consistent form),
     scaled by ``n / (n - p)`` and, for a bandwidth ``b n``, by ``1 / (1 - b + b^2 / 3)``: the mean of
@@ -101,7 +101,7 @@ def _mapped_scores(bread, M, r):
 
 
 def _hac(chunks, bandwidth, p, dof_scale=True):
-    """:func:`_newey_west` from the mapped scores ``bread g_n`` given as consecutive chunks
+    """:func:`newey_west_covariance` from the mapped scores ``bread g_n`` given as consecutive chunks
     ``(n_c, p)`` in time order (one, or a stream of them: the lags reach back across chunks).
 
     Formed from the mapped scores, so that at lag 0 it is a Gram matrix: no negative variances
@@ -121,26 +121,26 @@ def _hac(chunks, bandwidth, p, dof_scale=True):
     return cov * (n / max(n - p, 1) if dof_scale else 1.0) / (1 - b + b * b / 3)
 
 
-def _window_spans(node):
+def window_spans(node):
     """Every differentiator window ``window_s`` [s] recorded in a nested record."""
     if isinstance(node, dict):
         for key, value in node.items():
             if key == "window_s" and value is not None:
                 yield from np.ravel(value).tolist()
             else:
-                yield from _window_spans(value)
+                yield from window_spans(value)
     elif isinstance(node, list):
         for value in node:
-            yield from _window_spans(value)
+            yield from window_spans(value)
 
 
-def _correlation_length(log: Log) -> int:
+def correlation_length(log: Log) -> int:
     """Samples over which the errors of differentiated rates are correlated: the longest
     differentiator window recorded in ``log.meta`` (0 when nothing was differentiated)."""
     info = log.meta.get("differentiation")
     if not info or log.n_samples < 2:
         return 0
-    spans = list(_window_spans(info))
+    spans = list(window_spans(info))
     step = float(np.median(np.diff(log.t)))
     if not spans:  # e.g. smoothing splines: the Newey-West rule of thumb
         return int(np.floor(4 * (log.n_samples / 100) ** (2 / 9)))
@@ -258,7 +258,7 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
     chi2, checks, choice = _covariance_choice(eq, r, white, estimator, log, estimated)
     bandwidth, follows, factor = choice["bandwidth"], choice["covariance_from_residuals"], choice["variance_factor"]
     if follows:
-        cov_t = _newey_west(t["bread"], t["M"], t["scored"], bandwidth, eq.p)
+        cov_t = newey_west_covariance(t["bread"], t["M"], t["scored"], bandwidth, eq.p)
         cov_t = _with_propagated(cov_t, choice, log, estimator, t["bread"], sigma,
                                  lambda: [(slice(None), t["M"], t["L"], eq.jacobian(x, theta))])
     else:
@@ -336,7 +336,7 @@ def _covariance_choice(eq, r, white, estimator, log, estimated):
     dof = max(r.size - eq.p, 1)
     chi2 = None if white is None else float(np.sum(white**2) / dof)
     checks = _residual_checks(r if white is None else white, dof, chi2)
-    window = _correlation_length(log)
+    window = correlation_length(log)
     factor, follows = 1.0, True
     if window:  # a differentiator's errors are positively correlated over about half its window, negatively
         bandwidth = max(1, window // 2)  # beyond (they sum to zero): the whole window understated the std by ~16 %

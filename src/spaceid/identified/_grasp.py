@@ -22,8 +22,7 @@ from scipy.spatial.transform import Rotation
 from .._errors import SpaceidError
 from ..data import Log, quat_to_matrix
 from ..estimation import Noise, noise_from_log, signal_sigma
-from ..estimation._differentiated import differentiated_series, propagated_covariance
-from ..estimation._uncertainty import _correlation_length, _window_spans
+from ..estimation.internal import correlation_length, differentiated_series, propagated_covariance, window_spans
 from ._payload import (
     GraspMotion,
     PayloadMap,
@@ -164,7 +163,7 @@ def payload_after_grasp(model, log: Log, link: str, grasp: float, momentum, *, p
         raise SpaceidError(f"--grasp: {grasp:g} s is not inside {where} ({log.t[0]:.6g}..{log.t[-1]:.6g} s): give "
                            "the grasp instant on the log's clock")
     pmap = model if isinstance(model, PayloadMap) else payload_map(model, link, seed=seed)
-    margin = _correlation_length(log) / 2 * float(np.median(np.diff(log.t)))
+    margin = correlation_length(log) / 2 * float(np.median(np.diff(log.t)))
     end = log.t[-1] if end is None else end
     after = (log.t > grasp + margin + 1e-9) & (log.t <= end + 1e-9)
     if after.sum() < 2:
@@ -228,8 +227,8 @@ def _configuration_at(log: Log, t: float, planar: bool) -> tuple:
     if joints.get("window_s") is not None:  # one record, a window per joint (differentiate_log)
         spans = np.broadcast_to(np.asarray(joints["window_s"], float), len(log.joints)).tolist()
     else:  # a record per joint (the bag reader), or none
-        spans = [max(_window_spans(joints.get(name)), default=0.0) for name in log.joints]
-    spans.append(max(_window_spans(info.get("base")), default=0.0))
+        spans = [max(window_spans(joints.get(name)), default=0.0) for name in log.joints]
+    spans.append(max(window_spans(info.get("base")), default=0.0))
     at = [max(int(np.searchsorted(log.t, t - span / 2 + 1e-9, side="right")) - 1, 0) for span in spans]
     nj, k = len(log.joints), at[-1]
     j, dt = np.arange(nj), t - log.t[at]

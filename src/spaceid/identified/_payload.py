@@ -38,14 +38,19 @@ from ..dynamics import (
     minimal_parameters,
     system_com,
 )
-from ..estimation import Noise, equation_covariance, noise_from_log, signal_sigma
-from ..estimation._differentiated import differentiated_series, propagated_covariance
-from ..estimation._drift import check_drift_kinds, drift_names
-from ..estimation._equations import _drift_basis, _Equations
-from ..estimation._identify import _check_excitation
-from ..estimation._uncertainty import _correlation_length, _newey_west
+from ..estimation import Noise, drift_names, equation_covariance, noise_from_log, signal_sigma
+from ..estimation.internal import (
+    Equations,
+    check_drift_kinds,
+    check_excitation,
+    correlation_length,
+    differentiated_series,
+    drift_basis_at,
+    newey_west_covariance,
+    propagated_covariance,
+)
 from ..models import INERTIAL_NAMES, Model, link_frame, load_model
-from ..models._model import add_to_body, symbol_suffix
+from ..models.internal import add_to_body, symbol_suffix
 from ._export import _CLARABEL, MARGIN, inertial_from_pseudo, pseudo_inertia
 
 __all__ = ["GraspMotion", "PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent",
@@ -436,18 +441,18 @@ def _given_covariance(pmap: PayloadMap, motion, momentum_cov, theta) -> tuple:
     return given, share
 
 
-def _equations(pmap: PayloadMap, log: Log, momentum, drift, where, history=None) -> _Equations:
+def _equations(pmap: PayloadMap, log: Log, momentum, drift, where, history=None) -> Equations:
     """The servicer's momentum equations of ``log`` with every minimal parameter known (their
     values, the payload's, set per step), the momentum and drift as the other unknowns (the drift
     integrated over ``history`` when given)."""
     names = drift_names(drift, pmap.planar)[0]
     k = pmap.param.n_params
-    basis = _drift_basis(log, drift, history, where) if names else None
-    return _Equations(pmap.param, quat_to_matrix(log.base_quat), np.array([], int), np.arange(k),
+    basis = drift_basis_at(log, drift, history, where) if names else None
+    return Equations(pmap.param, quat_to_matrix(log.base_quat), np.array([], int), np.arange(k),
                       pmap.pi(np.zeros(pmap.n)), momentum, names, basis)
 
 
-def _affine_momentum(eq: _Equations, p: int, brought=None) -> tuple:
+def _affine_momentum(eq: Equations, p: int, brought=None) -> tuple:
     """The right-hand side ``R0^T h`` of every sample as ``b0 (n, rows) + C (n, rows, p) theta``
     in the momentum and drift unknowns ``theta`` (``base_momentum`` is affine in them), and
     ``brought``: None, or the momentum ``(3,)`` that a moving payload brings, a function of its
@@ -545,7 +550,7 @@ def _covariance(r, a, weighted: bool, estimated: bool, window: int, differentiat
     chi2 = float(r.ravel() @ r.ravel()) / max(n * rows - p, 1) if weighted else None
     if window:
         bandwidth = max(1, window // 2)
-        newey_west = _newey_west(bread, a, r, bandwidth, p)
+        newey_west = newey_west_covariance(bread, a, r, bandwidth, p)
         if differentiated is None:
             how = f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (differentiated rates)"
             return newey_west, chi2, how, bread, newey_west
@@ -556,7 +561,7 @@ def _covariance(r, a, weighted: bool, estimated: bool, window: int, differentiat
     if weighted:
         return (bread * (chi2 if estimated else 1.0), chi2,
                 "inverse Fisher information" + (" scaled by chi2/dof" if estimated else ""), bread, None)
-    return _newey_west(bread, a, r, 0, p), None, "sandwich of the per-sample residuals", bread, None
+    return newey_west_covariance(bread, a, r, 0, p), None, "sandwich of the per-sample residuals", bread, None
 
 
 def _score_weights(pmap, eq, x, sigma, theta, a, brought) -> tuple:
@@ -735,10 +740,10 @@ def _fit(pmap, log, momentum, momentum_cov, motion, brought, drift, history, noi
     rhs = _affine_momentum(eq, eq.p, brought)
     names = list(PLANAR_NAMES if pmap.planar else INERTIAL_NAMES) + eq.names()
     r0, a0 = _whitened(pmap, eq, x, y, rhs, None, np.zeros(p))
-    _, cond = _check_excitation(np.concatenate([a0, r0[..., None]], -1), names, cond_limit, where)
+    _, cond = check_excitation(np.concatenate([a0, r0[..., None]], -1), names, cond_limit, where)
     sigma = None if noise.is_zero else signal_sigma(pmap.param, noise)
     theta, r, a, steps = _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where)
-    window, series = _correlation_length(log), differentiated_series(log)
+    window, series = correlation_length(log), differentiated_series(log)
     differentiated = None
     if window and series is not None:
         white = np.zeros(x.shape[1]) if sigma is None else sigma

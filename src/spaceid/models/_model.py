@@ -232,7 +232,7 @@ def _validate(model: Model) -> Model:
                 f"{where}: body '{b.name}' has mass {b.mass:g} kg: every body needs a positive mass "
                 "(merge massless frames into their parent with a fixed joint)"
             )
-        i_com = _inertia_matrix(b.inertial) - b.mass * _skew(b.com).T @ _skew(b.com)
+        i_com = inertia_matrix(b.inertial) - b.mass * _skew(b.com).T @ _skew(b.com)
         check_rigid_inertia(f"{where}: body '{b.name}'", i_com)
         if i > 0:
             if not 0 <= b.parent < i:
@@ -359,7 +359,7 @@ def _skew(v):
     return np.array([[0, -v[2], v[1]], [v[2], 0, -v[0]], [-v[1], v[0], 0]])
 
 
-def _inertia_matrix(p):
+def inertia_matrix(p):
     """Inertia about the body origin as a 3x3 matrix from the standard parameters ``p``."""
     return np.array([[p[4], p[5], p[7]], [p[5], p[6], p[8]], [p[7], p[8], p[9]]])
 

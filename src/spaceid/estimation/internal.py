@@ -1,0 +1,46 @@
+"""Internal interface of :mod:`spaceid.estimation` for the later stages (:mod:`spaceid.identified`):
+stable within the package, not public API.
+
+The payload and grasp estimators of :mod:`spaceid.identified` solve momentum equations of their own
+with the machinery of this stage. They take it from here, never from this subpackage's private
+modules: a change to a name below is a change to an interface between subpackages, to be made with
+its callers. ``tests/test_layout.py`` enforces that other subpackages import only through
+``spaceid.estimation`` (its ``__all__``) or this module (its ``__all__``).
+
+``Equations``
+    The stacked momentum equations of a log, ``Phi_n(x) [theta; 1] = 0``, sample by sample.
+``drift_basis_at``
+    The drift basis of a log, or integrated over a longer history and taken at the log's stamps.
+``check_drift_kinds``
+    The drift kinds of a ``--drift`` value, checked and in canonical order.
+``check_excitation``
+    The triangular factor of the column-scaled equations and the scaled condition number; raises
+    when the parameters are not excited.
+``correlation_length``
+    Samples over which the errors of differentiated rates are correlated (0: not differentiated).
+``window_spans``
+    Every differentiator window recorded in a log's differentiation record.
+``newey_west_covariance``
+    The Bartlett-weighted (Newey-West) sandwich covariance from the residuals.
+``differentiated_series``, ``propagated_covariance``
+    The raw angle series behind differentiated rates, and the covariance of an estimate with
+    their noise carried through the differentiating filters.
+"""
+
+from ._differentiated import differentiated_series, propagated_covariance
+from ._drift import check_drift_kinds
+from ._equations import Equations, drift_basis_at
+from ._identify import check_excitation
+from ._uncertainty import correlation_length, newey_west_covariance, window_spans
+
+__all__ = [
+    "Equations",
+    "drift_basis_at",
+    "check_drift_kinds",
+    "check_excitation",
+    "correlation_length",
+    "window_spans",
+    "newey_west_covariance",
+    "differentiated_series",
+    "propagated_covariance",
+]
