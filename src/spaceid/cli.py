@@ -26,6 +26,8 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from ._constants import (BAG_FORMATS, CHANGE_RATIO, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC, DESIGN_CRITERIA,
+                         ESTIMATORS, EXPORT_FORMATS, FALSE_ALARM_RATE, JOINT_RATES, KNOT_SPACING, WARMUP)
 from ._errors import SpaceidError, one_line, shown_name
 
 # No markup, no emoji codes: file, joint and topic names like 'a[/b].csv' print as they are
@@ -80,7 +82,7 @@ RUNS = _Number(integer=True, minimum=2, maximum=100_000,
                fix="give 2 to 100000 noise draws (200 or more for stable statistics)")
 JOBS = _Number(integer=True, minimum=1, maximum=1024, fix="give 1 or more worker processes")
 PROBABILITY = _Number(above=0, maximum=0.999999, fix="give a probability between 0 and 1, e.g. 0.95")
-CHANGE_RATIO = _Number(above=1, fix="give a variance ratio above 1, e.g. 4")
+RATIO = _Number(above=1, fix="give a variance ratio above 1, e.g. 4")
 FORGETTING = _Number(above=0, maximum=1, fix="give a forgetting factor in (0, 1], e.g. 0.999 (1: none)")
 
 MODEL = click.argument("model_src", metavar="MODEL")
@@ -101,9 +103,6 @@ NOISE = [
     click.option("--noise-angle", type=NOISE_LEVEL, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=NOISE_LEVEL, default=0.0, help="White noise on rates [rad/s]."),
 ]
-# spaceid.estimation.ESTIMATORS, without importing NumPy here
-ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")
-KNOT_SPACING = 0.05  # [s] spaceid.estimation.KNOT_SPACING, likewise
 DRIFT_VALUES = click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="External torque on the base, so "
                             "that the momentum drifts from its --momentum value at t0: torque=TAU (constant torque "
                             "[N m], about z for planar, TX:TY:TZ inertial axes for spatial; or torque_x=.. per "
@@ -228,7 +227,7 @@ _ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
 
 def for_the_command_line(text) -> str:
     """A library message as the command line shows it: one line, each Python argument named in
-    backquotes (``\`drift\```) shown as its option (``--drift``, see ``OPTION_OF``)."""
+    backquotes (as in ``"`drift`: ..."``) shown as its option (``--drift``, see ``OPTION_OF``)."""
     option = lambda m: OPTION_OF.get(m[1], "--" + m[1].replace("_", "-"))  # noqa: E731
     return one_line(_ARGUMENT.sub(option, str(text)))
 
@@ -302,12 +301,12 @@ def bag_options(f):
 
     return _options(
         click.option("--joint-topic", help="Bag logs (.bag, .mcap, ROS 2 bag folder): sensor_msgs/JointState topic "
-                     "[default: /joint_states]."),
+                     f"[default: {DEFAULT_JOINT_TOPIC}]."),
         click.option("--pose-topic", help="Bag logs: geometry_msgs/PoseStamped topic of the base "
-                     "[default: /vrpn_client_node/cepheus/pose]."),
+                     f"[default: {DEFAULT_POSE_TOPIC}]."),
         click.option("--mapping", type=click.Path(path_type=Path), help="Bag logs: YAML file with joint_topic, "
                      "pose_topic, joints {bag name: model name}, rate, pose_latency, max_gap, max_tilt."),
-        click.option("--joint-rates", type=click.Choice(["differentiate", "velocity", "auto"]), help="Bag logs: "
+        click.option("--joint-rates", type=click.Choice(JOINT_RATES[::-1]), help="Bag logs: "
                      "joint rates from the encoder angles, differentiated (the default, as 'spaceid experiment' "
                      "reads its bag: one-tick encoder velocities gave 6-17 times larger errors there), from the "
                      "published velocities, or from those where every message has one."),
@@ -505,7 +504,7 @@ def _write_definitions(path, info, model_src):
               "[N m s]: h (planar) or hx,hy,hz (inertial axes); nonzero (with zero momentum Y pi = 0: no "
               "condition number to minimise).")
 @SEED
-@click.option("--criterion", type=click.Choice(["cond", "logdet", "dopt", "crb"]), default="cond", show_default=True,
+@click.option("--criterion", type=click.Choice(DESIGN_CRITERIA), default="cond", show_default=True,
               help="cond (condition number), logdet (scaled columns), or with the --noise-* options: dopt (max "
               "log det of the Fisher information), crb (min trace of the relative Cramer-Rao bound).")
 @noise_options
@@ -611,7 +610,7 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
               "whole system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to "
               "estimate it (both need an anchor, --known or a reaction wheel).")
-@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
+@click.option("--estimator", type=click.Choice(ESTIMATORS), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
               "parameter one equals alone, e.g. Iczz_wheel=0.00197): anchors the scale; repeatable.")
 @click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (the JSON 'spaceid "
@@ -913,10 +912,10 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--wheel-speed", type=FINITE, default=170.0, show_default=True,
               help="Wheel speed relative to the base [rad/s].")
 @click.option("--samples", type=SAMPLES, default=29, show_default=True, help="N, the samples identification uses.")
-@click.option("--format", "bag_format", type=click.Choice(["ros1", "ros2", "mcap"]), default="ros1", show_default=True,
+@click.option("--format", "bag_format", type=click.Choice(BAG_FORMATS), default="ros1", show_default=True,
               help="Bag the twin records: ros1 (ROS 1 .bag file), ros2 (ROS 2 bag folder, sqlite3 storage), mcap "
               "(ROS 2 bag folder, MCAP storage).")
-@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
+@click.option("--estimator", type=click.Choice(ESTIMATORS), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
 @click.option("--validation", help="Held-out motion, run after the excitation, that the model is validated on: "
               "paper-table2, designed (seed + 1) or a file from 'design' [default: paper-table2; designed when "
@@ -1050,10 +1049,10 @@ def compare(before, after, as_json, show_all):
 @click.option("--harmonics", type=HARMONICS, default=3, show_default=True,
               help="Fourier harmonics of a 'designed' trajectory.")
 @click.option("--criterion", default="cond", show_default=True, help="Design criterion of a 'designed' trajectory "
-              "(cond, logdet, dopt, crb; see 'spaceid design').")
+              f"({', '.join(DESIGN_CRITERIA)}; see 'spaceid design').")
 @MOMENTUM
 @click.option("--runs", type=RUNS, default=200, show_default=True, help="Noise draws.")
-@click.option("--estimator", "estimators", multiple=True, metavar="[" + "|".join(ESTIMATOR_CHOICES) + "]",
+@click.option("--estimator", "estimators", multiple=True, metavar="[" + "|".join(ESTIMATORS) + "]",
               help="Estimator to study, repeatable [default: ml and ols]. " + ESTIMATOR_HELP)
 @noise_options
 @click.option("--angles-only", is_flag=True, help="Noise on joint angles and base attitude only, rates differentiated "
@@ -1107,7 +1106,7 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
 @click.option("--region", type=PROBABILITY, metavar="P", help="Search the P confidence ellipsoid of the identified "
               "parameters (e.g. 0.95; anchored ones stay exact) instead of reproducing them exactly: for noisy "
               "results that no physical model reproduces.")
-@click.option("--format", "fmt", type=click.Choice(["urdf", "yaml"]), default="urdf", show_default=True,
+@click.option("--format", "fmt", type=click.Choice(EXPORT_FORMATS), default="urdf", show_default=True,
               help="Output format: urdf (a URDF prior keeps its file but the <inertial> elements; a YAML prior is "
               "written out as URDF) or yaml (spaceid's YAML model: keeps the planar flag, reaction wheels and "
               "declared zeros, no visuals).")
@@ -1182,7 +1181,7 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
     every one zero the fit is unweighted."""
     from .data import write_json
     from .estimation import parse_drift
-    from .identified import identify_payload, payload_after_grasp
+    from .identified import identify_payload, payload_after_grasp, payload_units
     from .models import load_model
 
     model = load_model(model_src, planar=planar)
@@ -1199,8 +1198,7 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
             res = payload_after_grasp(model, log, link, grasp, h, payload_motion=motion, noise=noise, drift=kinds,
                                       seed=seed, where=str(log_path))[0]  # fmt: skip
     write_json(output, res.to_dict())
-    for name, value, std in zip(res.names, res.values, res.std):
-        unit = {"m": "kg"}.get(name, "m" if name.startswith("c") else "kg m^2")
+    for name, value, std, unit in zip(res.names, res.values, res.std, payload_units(res.names)):
         out.print(f"{name:>4s} = {value:12.6g} +/- {std:.3g} {unit}", highlight=False)
     if res.not_identifiable:
         out.print(f"not identifiable from planar motion: {', '.join(res.not_identifiable)}", highlight=False)
@@ -1248,7 +1246,7 @@ def _number_list(value, option, kind):
 @click.option("--durations", required=True, metavar="TF[,TF...]", help="Trajectory durations [s], comma-separated.")
 @click.option("--harmonics", required=True, metavar="NF[,NF...]", help="Fourier harmonics, comma-separated.")
 @click.option("--samples", required=True, metavar="N[,N...]", help="Samples over each duration, comma-separated.")
-@click.option("--criterion", type=click.Choice(["cond", "logdet", "dopt", "crb"]), default="cond", show_default=True,
+@click.option("--criterion", type=click.Choice(DESIGN_CRITERIA), default="cond", show_default=True,
               help="Design criterion of every setting (see 'spaceid design').")
 @click.option("--starts", type=STARTS, default=8, show_default=True, help="Local searches of each setting's design.")
 @noise_options
@@ -1297,18 +1295,18 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
               "(torque, viscous, coulomb, as for 'spaceid identify'; e.g. viscous on an air-bearing table): each "
               "segment's coefficients are estimated with its parameters, the drift integrated from the segment's "
               "start, where its momentum is the segment before's; --momentum is then the momentum at the first sample.")
-@click.option("--false-alarm-rate", type=PROBABILITY, default=1e-5, show_default=True,
+@click.option("--false-alarm-rate", type=PROBABILITY, default=FALSE_ALARM_RATE, show_default=True,
               help="False alarms per sample when nothing changes (one per 1/RATE samples on average): "
                    "sets the CUSUM threshold.")
-@click.option("--change-ratio", type=CHANGE_RATIO, default=4.0, show_default=True,
+@click.option("--change-ratio", type=RATIO, default=CHANGE_RATIO, show_default=True,
               help="Innovation variance ratio the test is tuned to "
                    "(a change that doubles the momentum residual's std is 4).")
 @click.option("--forgetting", type=FORGETTING, default=1.0, show_default=True,
               help="Forgetting factor of the recursive estimate, in (0, 1]; "
                    "1: each segment's estimate is its batch weighted least squares.")
 @click.option("--warmup", type=SAMPLES, help="Samples of each segment identified in batch before its test starts "
-              "[default: max(200, 4 (p + 1) / rows)].")
-@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES[:-1]), default="ml", show_default=True,
+              f"[default: max({WARMUP}, 4 (p + 1) / rows)].")
+@click.option("--estimator", type=click.Choice([e for e in ESTIMATORS if e != "angles"]), default="ml", show_default=True,
               help="Estimator of the batch identifications of the segments (see 'spaceid identify').")
 @click.option("--follow", is_flag=True, help="LOG is a CSV being written: keep reading appended rows until "
               "interrupted (Ctrl-C) or --follow-timeout seconds pass without a new row (a bag cannot be read until "

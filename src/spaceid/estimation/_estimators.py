@@ -77,14 +77,13 @@ import numpy as np
 from scipy.linalg import cho_solve, lapack, solve_triangular
 from scipy.optimize import brentq
 
+from .._constants import ESTIMATORS
 from .._threads import one_blas_thread, work_threads
 from ..dynamics import base_rate
 from ._equations import _split
 from ._noise import FD_STEP, equation_covariance
 
 __all__ = ["ESTIMATORS"]
-
-ESTIMATORS = ("ml", "wls", "iv", "tls", "ols", "angles")
 
 
 # --- linear algebra -----------------------------------------------------------------------------
