@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 import click
+from click.testing import CliRunner
 import pytest
 
 import spaceid
@@ -71,3 +72,52 @@ def test_payload_units_are_derived_once():
 
     assert payload_units(PLANAR_NAMES) == ("kg", "m", "m", "kg m^2")
     assert payload_units(SPATIAL_NAMES) == ("kg", "m", "m", "m", *["kg m^2"] * 6)
+
+
+# --- files with -o/--output, folders with --out --------------------------------------------------
+
+H = "0.4934"
+DEPRECATED = "it will be removed in the next release"
+
+
+@pytest.fixture(scope="module")
+def files(tmp_path_factory):
+    """A Cepheus log (paper-table2, 40 samples, noise-free) and its identification."""
+    d = tmp_path_factory.mktemp("grammar")
+    assert main(["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", H, "--samples", "40",
+                 "-o", str(d / "log.csv")]) == 0
+    assert main(["identify", "cepheus", str(d / "log.csv"), "--momentum", H, "-o", str(d / "result.json")]) == 0
+    return d
+
+
+def _warnings(err):
+    return [line for line in err.splitlines() if line.startswith("warning: ") and DEPRECATED in line]
+
+
+@pytest.mark.parametrize("name", sorted(app.commands))
+def test_files_are_o_output_and_folders_out(name):
+    for p in app.commands[name].params:
+        if isinstance(p.type, spaceid.cli._OutputPath) and not p.hidden:
+            if p.type.folder:
+                assert p.opts == ["--out"], (name, p.opts)
+            else:
+                assert p.opts == ["-o", "--output"] or p.opts == ["--definitions"], (name, p.opts)
+
+
+def test_validate_writes_its_folder_with_out_and_o_is_deprecated(files, tmp_path, capsys):
+    args = ["validate", str(files / "result.json"), str(files / "log.csv"), "--momentum", H]
+    assert main([*args, "--out", str(tmp_path / "new")]) == 0
+    assert not _warnings(capsys.readouterr().err)
+    for spelling in ("-o", "--output"):
+        assert main([*args, spelling, str(tmp_path / spelling)]) == 0
+        assert _warnings(capsys.readouterr().err) == [
+            "warning: -o/--output is deprecated: use --out DIR (-o/--output names a file, --out a folder); it will be "
+            "removed in the next release"]
+        assert (json.loads((tmp_path / spelling / "metrics.json").read_text())
+                == json.loads((tmp_path / "new" / "metrics.json").read_text()))
+    assert main([*args, "-o", str(tmp_path / "a"), "--out", str(tmp_path / "b")]) == 2
+    err = capsys.readouterr().err.splitlines()
+    assert err[-1] == f"error: -o/--output (deprecated) and --out {tmp_path / 'b'} contradict each other: give --out alone"
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+    usage = " ".join(CliRunner().invoke(app, ["validate", "--help"], terminal_width=200).output.split())
+    assert "--out DIR" in usage and "--output" not in usage  # the old spelling is hidden

@@ -124,14 +124,50 @@ class _OutputPath(click.Path):
         self.folder = folder
 
 
-def output(help_text, folder=False):
-    """The required ``-o/--output`` option (a file, or a report ``folder``), with what the command writes there."""
-    return click.option("-o", "--output", type=_OutputPath(folder), required=True, metavar="DIR" if folder else "PATH",
-                        help=help_text)
+def output(help_text):
+    """The required ``-o/--output`` option: the file the command writes (``help_text`` says what)."""
+    return click.option("-o", "--output", type=_OutputPath(), required=True, metavar="PATH", help=help_text)
+
+
+def out_folder(help_text, **kwargs):
+    """The ``--out DIR`` option: the report folder the command writes (``help_text`` says what),
+    handed to the command as ``folder``; ``kwargs``: its default, or ``required=True``."""
+    return click.option("--out", "folder", type=_OutputPath(folder=True), metavar="DIR", help=help_text, **kwargs)
 
 
 OVERWRITE = click.option("--overwrite", is_flag=True, help="Write into an output folder that holds files spaceid did "
                          "not write (beside them; same names replaced); without it such a folder is refused.")
+REMOVED_IN = "the next release"  # when the deprecated spellings (_Deprecated) go
+
+
+class _Deprecated(click.Option):
+    """An old spelling kept for one release: hidden from the help; when given, one line on stderr,
+    ``warning: OPTION is deprecated: use INSTEAD; it will be removed in the next release``
+    (``instead`` may quote the value given as ``{value}``). With ``into`` (the name of the option
+    that replaces it) the value given, or ``value`` for a flag, is handed to that option as if it
+    had been given (the same checks, the same messages); an old and a new spelling of different
+    values are refused. Without ``into`` the command receives it as its own argument."""
+
+    def __init__(self, *decls, instead, into=None, value=None, **kwargs):
+        kwargs.setdefault("help", f"Deprecated: use {instead}.")
+        super().__init__(*decls, hidden=True, expose_value=into is None, **kwargs)
+        self.instead, self.into, self.into_value = instead, into, value
+
+    def handle_parse_result(self, ctx, opts, args):
+        given = self.name in opts and not ctx.resilient_parsing
+        if given:
+            raw = opts[self.name]
+            spelling = "/".join(self.opts)
+            print(f"warning: {spelling} is deprecated: use {self.instead.format(value=raw)}; it will be removed in "
+                  f"{REMOVED_IN}", file=sys.stderr)
+            if self.into is not None:
+                new = self.into_value if self.into_value is not None else raw
+                if self.into in opts and opts[self.into] != new:
+                    option = min(next(p for p in ctx.command.params if p.name == self.into).opts, key=len)
+                    raise SpaceidError(f"{spelling} (deprecated) and {option} {opts[self.into]} contradict each other: "
+                                       f"give {option} alone")
+                opts[self.into] = new  # parsed before the option it stands for (click parses given options first)
+        return super().handle_parse_result(ctx, opts, args)
 
 
 class _Command(click.Command):
@@ -821,9 +857,11 @@ def _require_sample_memory(what, n, model):
 @click.option("--horizon", type=SECONDS, metavar="SECONDS", help="With --torques: restart from the measured state "
               "every SECONDS [s] (default: one run over the whole log).")
 @bag_options
-@output("Report folder to write predicted.csv, metrics.json and validation.png into.", folder=True)
+@out_folder("Report folder to write predicted.csv, metrics.json and validation.png into.", required=True)
+@click.option("-o", "--output", cls=_Deprecated, instead="--out DIR (-o/--output names a file, --out a folder)",
+              into="folder")
 @OVERWRITE
-def validate(result, log_path, momentum, drift, torques, horizon, output, overwrite, bag):
+def validate(result, log_path, momentum, drift, torques, horizon, folder, overwrite, bag):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     if horizon is not None and not torques:
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
@@ -843,12 +881,12 @@ def validate(result, log_path, momentum, drift, torques, horizon, output, overwr
     _print_joint_rates(log)
     with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
         predicted, metrics = run(ident, log, momentum=h, where=str(result), drift=terms)
-    with _report_folder(output, overwrite) as folder:
-        write_log(folder / "predicted.csv", predicted)
-        write_json(folder / "metrics.json", metrics)
-        plot_validation(log, predicted, folder / "validation.png")
+    with _report_folder(folder, overwrite) as tmp:
+        write_log(tmp / "predicted.csv", predicted)
+        write_json(tmp / "metrics.json", metrics)
+        plot_validation(log, predicted, tmp / "validation.png")
         if torques:
-            torque_metrics = _validate_torques(ident, log, h, horizon, folder, str(result))
+            torque_metrics = _validate_torques(ident, log, h, horizon, tmp, str(result))
     for key, value in metrics.items():
         out.print(f"{metric_label(key)} = {value:.4g}", highlight=False)
     if torques:
@@ -856,7 +894,7 @@ def validate(result, log_path, momentum, drift, torques, horizon, output, overwr
 
         for key, value in torque_metrics.items():
             out.print(f"{TORQUE_METRIC_LABELS[key]} = {value:.4g}", highlight=False)
-    err.print(f"plots and metrics written to {shown_name(output)}/")
+    err.print(f"plots and metrics written to {shown_name(folder)}/")
 
 
 def _validate_torques(ident, log, h, horizon, output, where):
@@ -878,8 +916,7 @@ def _validate_torques(ident, log, h, horizon, output, where):
               help="designed, paper-table2 or a file from 'design'.")
 @_options(*NOISE)
 @SEED
-@click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-report", show_default=True,
-              help="Report folder.")
+@out_folder("Report folder.", default="spaceid-report", show_default=True)
 @OVERWRITE
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of tables.")
 def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
@@ -939,8 +976,8 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--capture-trajectory", default="same", show_default=True, help="With --capture: the post-capture "
               "excitation: same (the identification excitation), designed (for the payload) or a file from 'design'.")
 @SEED
-@click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-experiment", show_default=True,
-              help="Report folder (bag, logs, results, figures, report.md).")
+@out_folder("Report folder (bag, logs, results, figures, report.md).", default="spaceid-experiment",
+            show_default=True)
 @OVERWRITE
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift,
                feedforward, rehearsals, capture, capture_mass, capture_settings, capture_trajectory, seed, folder,
@@ -1060,9 +1097,8 @@ def compare(before, after, as_json, show_all):
 @SEED
 @click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
-@click.option("--out", "folder", type=_OutputPath(folder=True), help="Folder for table.txt, montecarlo.json and "
-              "montecarlo.png (each chunk of runs kept beside it in .FOLDER.tasks/ as it completes, for --resume, "
-              "until they are written).")
+@out_folder("Folder for table.txt, montecarlo.json and montecarlo.png (each chunk of runs kept beside it in "
+            ".FOLDER.tasks/ as it completes, for --resume, until they are written).")
 @RESUME
 @OVERWRITE
 def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
@@ -1253,9 +1289,8 @@ def _number_list(value, option, kind):
 @SEED
 @click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
-@click.option("--out", "folder", type=_OutputPath(folder=True), required=True, help="Folder for sweep.json, "
-              "sweep.csv, table.txt and sweep.png (each setting kept beside it in .FOLDER.tasks/ as it completes, "
-              "for --resume, until they are written).")
+@out_folder("Folder for sweep.json, sweep.csv, table.txt and sweep.png (each setting kept beside it in "
+            ".FOLDER.tasks/ as it completes, for --resume, until they are written).", required=True)
 @RESUME
 @OVERWRITE
 def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion, starts, noise, seed, jobs, scheduler,
