@@ -121,3 +121,68 @@ def test_validate_writes_its_folder_with_out_and_o_is_deprecated(files, tmp_path
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
     usage = " ".join(CliRunner().invoke(app, ["validate", "--help"], terminal_width=200).output.split())
     assert "--out DIR" in usage and "--output" not in usage  # the old spelling is hidden
+
+
+# --- one --drift grammar -----------------------------------------------------------------------------
+
+SETS = {"simulate": ["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", H, "--samples", "40"],
+        "predict": ["predict", "RESULT", "paper-table2", "--momentum", H, "--samples", "40"],
+        "validate": ["validate", "RESULT", "LOG", "--momentum", H]}
+ESTIMATES = {"identify": ["identify", "cepheus", "LOG", "--momentum", H],
+             "payload": ["payload", "cepheus", "LOG", "--link", "link2", "--momentum", H],
+             "monitor": ["monitor", "cepheus", "LOG", "--momentum", H],
+             "experiment": ["experiment"]}
+
+
+def _args(args, files, out):
+    args = [str(files / "result.json") if a == "RESULT" else str(files / "log.csv") if a == "LOG" else a for a in args]
+    return [*args, "--out" if args[0] in ("validate", "experiment") else "-o", str(out)]
+
+
+@pytest.mark.parametrize("command", SETS)
+def test_a_command_that_sets_the_drift_refuses_a_bare_kind(files, tmp_path, capsys, command):
+    assert main(_args([*SETS[command], "--drift", "viscous"], files, tmp_path / "out")) == 2
+    assert capsys.readouterr().err == (f"error: --drift: 'viscous' gives no value: {command} needs one, e.g. --drift "
+                                       "viscous=5e-4\n")
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("command", ESTIMATES)
+def test_a_command_that_estimates_the_drift_refuses_a_value(files, tmp_path, capsys, command):
+    assert main(_args([*ESTIMATES[command], "--drift", "torque,viscous=5e-4"], files, tmp_path / "out")) == 2
+    assert capsys.readouterr().err == (f"error: --drift: 'viscous=5e-4' gives a value: {command} estimates the drift "
+                                       "terms and cannot hold them fixed: give the kind alone, e.g. --drift "
+                                       "torque,viscous\n")
+    assert not (tmp_path / "out").exists()
+
+
+def test_both_forms_where_they_are_used(files, tmp_path, capsys):
+    """simulate sets a viscous drift, identify estimates it back; 'none' is no drift in both."""
+    log = tmp_path / "drifting.csv"
+    assert main(_args([*SETS["simulate"], "--drift", "viscous=5e-3"], files, log)) == 0
+    assert main(["identify", "cepheus", str(log), "--momentum", H, "--drift", "viscous", "-o",
+                 str(tmp_path / "r.json")]) == 0
+    drift = json.loads((tmp_path / "r.json").read_text())["drift"]
+    assert [d["name"] for d in drift] == ["viscous"] and drift[0]["value"] == pytest.approx(5e-3, rel=1e-5)
+    assert main(_args([*SETS["simulate"], "--drift", "none"], files, tmp_path / "none.csv")) == 0
+    assert (tmp_path / "none.csv").read_text() == (files / "log.csv").read_text()  # the same as without --drift
+    assert main(_args([*ESTIMATES["identify"], "--drift", "none"], files, tmp_path / "n.json")) == 0
+    assert json.loads((tmp_path / "n.json").read_text())["drift"] == []
+
+
+def test_the_parser_is_the_librarys():
+    from spaceid import SpaceidError
+    from spaceid.estimation import parse_drift
+
+    assert parse_drift("viscous, torque", planar=True, values=False) == ("torque", "viscous")
+    assert parse_drift("none", planar=True, values=False) == ()
+    terms = parse_drift("torque=0:0:1e-4,viscous=5e-4", planar=False, values=True)
+    assert terms["torque"].tolist() == [0, 0, 1e-4] and terms["viscous"] == 5e-4
+    none = parse_drift("none", planar=True, values=True)
+    assert none["viscous"] == none["coulomb"] == 0 and not none["torque"].any()  # replaces a result's own terms
+    with pytest.raises(SpaceidError, match=r"^`drift`: 'torque' gives no value: simulate needs one, e\.g\. `drift` "
+                                           r"torque=0:0:1e-4$"):
+        parse_drift("torque", planar=False, values=True, command="simulate")
+    for command, values in [("simulate", True), ("identify", False)]:
+        metavar = _option(command, "drift").metavar
+        assert metavar == ("KIND=VALUE[,...]" if values else "KIND[,KIND...]")

@@ -103,11 +103,34 @@ NOISE = [
     click.option("--noise-angle", type=NOISE_LEVEL, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=NOISE_LEVEL, default=0.0, help="White noise on rates [rad/s]."),
 ]
-DRIFT_VALUES = click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="External torque on the base, so "
-                            "that the momentum drifts from its --momentum value at t0: torque=TAU (constant torque "
-                            "[N m], about z for planar, TX:TY:TZ inertial axes for spatial; or torque_x=.. per "
-                            "axis), viscous=C (friction -C w0, [N m s/rad]), coulomb=MU (friction -MU w0/norm(w0), "
-                            "[N m]); e.g. --drift torque=1e-4,viscous=5e-5.")
+
+
+def drift_option(help_text, *, values):
+    """The ``--drift`` option, one grammar in every command: a comma list where a bare ``KIND``
+    estimates that drift term and ``KIND=VALUE`` sets it (``none``: no drift terms), read by
+    :func:`spaceid.estimation.parse_drift` (:func:`_drift`); ``values``: the command sets terms
+    (``simulate``, ``predict``, ``validate``), else it estimates them, and the help says so."""
+    if values:
+        metavar, grammar = "KIND=VALUE[,...]", ("KIND=VALUE sets a term ('none': none); a bare KIND, a term to "
+                                                "estimate, is for identify, payload, monitor and experiment.")
+    else:
+        metavar, grammar = "KIND[,KIND...]", ("A bare KIND estimates a term ('none': none); KIND=VALUE, a term held at "
+                                              "a value, is for simulate, predict and validate.")
+    return click.option("--drift", metavar=metavar, help=f"{help_text} {grammar}")
+
+
+def _drift(value, planar, *, values):
+    """``--drift`` of the running command (:func:`drift_option`): its kinds, or with ``values`` its
+    terms; the other form refused naming the command."""
+    from .estimation import parse_drift
+
+    return parse_drift(value, planar=planar, values=values, command=click.get_current_context().info_name)
+
+
+DRIFT_VALUES = drift_option("External torque on the base, so that the momentum drifts from its --momentum value at "
+                            "t0: torque=TAU (constant torque [N m], about z for planar, TX:TY:TZ inertial axes for "
+                            "spatial; or torque_x=.. per axis), viscous=C (friction -C w0, [N m s/rad]), coulomb=MU "
+                            "(friction -MU w0/norm(w0), [N m]); e.g. --drift torque=1e-4,viscous=5e-5.", values=True)
 ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, efficient); wls: weighted least squares "
                   "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
                   "noise as instruments); tls: total least squares (for comparison with the literature); ols: "
@@ -617,13 +640,12 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
              seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
     from .data import write_log
-    from .estimation import parse_drift
     from .motion import add_noise, simulate as run
     from .motion import load_trajectory
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
-    terms = parse_drift(drift, planar=param.model.planar, values=True)
+    terms = _drift(drift, param.model.planar, values=True)
     traj = load_trajectory(trajectory, joints=param.model.joints)
     times = _trajectory_times(traj, samples, rate, "simulate", param.model)
     log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model, drift=terms,
@@ -657,12 +679,12 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
 @click.option("--knot-spacing", type=SECONDS, default=KNOT_SPACING, show_default=True,
               help="--estimator angles: knot spacing of the joint-path splines [s]; at least two samples per span.")
-@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
+@drift_option("External torques that change the momentum during the log, "
               "estimated with the parameters: torque (constant torque [N m]), viscous (base friction -c w0, c in "
               "N m s/rad), coulomb (base friction -mu w0/norm(w0), mu in N m); e.g. --drift viscous on an air-bearing "
               "table (terms that move alike are confounded: start with one). --momentum is then the momentum at the "
               "first sample ('unknown' when the log does not start at rest). Without it, a residual test warns when "
-              "the data show a drift.")
+              "the data show a drift.", values=False)
 @click.option("--com", "with_com", is_flag=True, help="Also identify the system-CM terms from the log's base position "
               "(base_x, base_y or base_px, base_py, base_pz [m]; zero linear momentum): RESULT.json field 'com'.")
 @click.option("--chunk", type=int, help="Stream the identification (--estimator ml, wls, iv or ols): build the "
@@ -679,14 +701,14 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     inertia) move their spin momentum to the right-hand side.
     """
     from .estimation import identify as run
-    from .estimation import parse_drift, parse_known
+    from .estimation import parse_known
     from .data import write_json
     from .studies import drift_lines, parameter_table
 
     known = parse_known(known)  # option values first: before the model and the log are read
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
-    kinds = parse_drift(drift, planar=param.model.planar, values=False)
+    kinds = _drift(drift, param.model.planar, values=False)
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
     log = _measured_log(param.model, log_path, differentiate, quantum, bag, angles_only=angles_only)
     reference = None
@@ -766,8 +788,8 @@ def _identify_com(ident, log):
 @click.option("--rate", type=RATE, help="TRAJ from 'design': sample rate [Hz] (instead of --samples).")
 @click.option("--initial-yaw", type=FINITE, help="Base yaw at t0 [rad] (planar; default 0).")
 @click.option("--initial-quat", help="Base attitude at t0 as w,x,y,z (spatial; default 1,0,0,0).")
-@click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="Drift terms replacing those of RESULT.json "
-              "(used by default): torque=TAU, viscous=C, coulomb=MU, as for 'spaceid simulate'.")
+@drift_option("Drift terms replacing those of RESULT.json (used by default): torque=TAU, viscous=C, coulomb=MU, "
+              "as for 'spaceid simulate'.", values=True)
 @output("Predicted log CSV to write.")
 def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_quat, drift, output):
     """Base motion of an identified model for a joint motion TRAJ: a joint-trajectory CSV
@@ -775,12 +797,12 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
     paper-table2), sampled like 'simulate' does."""
     from .data import read_joint_trajectory, write_log
     from .data import yaw_to_quat
-    from .estimation import load_result, parse_drift
+    from .estimation import load_result
     from .studies import predict as run
 
     ident = load_result(result)
     h = _momentum(momentum, ident.planar)
-    terms = parse_drift(drift, planar=ident.planar, values=True)
+    terms = _drift(drift, ident.planar, values=True)
     model = _result_model(ident)
     joints = model.joints
     if trajectory.suffix.lower() == ".csv":
@@ -849,9 +871,8 @@ def _require_sample_memory(what, n, model):
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
 @click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @MOMENTUM
-@click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="Drift terms replacing those of RESULT.json "
-              "(used by default): torque=TAU, viscous=C, coulomb=MU, as for 'spaceid simulate'; --momentum is the "
-              "momentum at the log's first sample.")
+@drift_option("Drift terms replacing those of RESULT.json (used by default): torque=TAU, viscous=C, coulomb=MU, "
+              "as for 'spaceid simulate'; --momentum is the momentum at the log's first sample.", values=True)
 @click.option("--torques", is_flag=True, help="Also drive the identified model's forward dynamics with the log's "
               "joint torques (columns tau_J [N m]) and compare the motion: torque_*.csv/json/png.")
 @click.option("--horizon", type=SECONDS, metavar="SECONDS", help="With --torques: restart from the measured state "
@@ -867,13 +888,13 @@ def validate(result, log_path, momentum, drift, torques, horizon, folder, overwr
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
     from .studies._figures import plot_validation
     from .data import read_log, write_json, write_log
-    from .estimation import load_result, parse_drift
+    from .estimation import load_result
     from .studies import metric_label
     from .studies import validate as run
 
     ident = load_result(result)
     h = _momentum(momentum, ident.planar)
-    terms = parse_drift(drift, planar=ident.planar, values=True)
+    terms = _drift(drift, ident.planar, values=True)
     from .models import load_model
 
     model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
@@ -957,10 +978,10 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--validation", help="Held-out motion, run after the excitation, that the model is validated on: "
               "paper-table2, designed (seed + 1) or a file from 'design' [default: paper-table2; designed when "
               "--trajectory is paper-table2].")
-@click.option("--drift", metavar="KIND[,KIND...]", help="Drift terms to identify with the parameters (torque, "
+@drift_option("Drift terms to identify with the parameters (torque, "
               "viscous, coulomb; see 'spaceid identify --drift'): the table's friction, integrated from the rest "
               "at the bag's start. Default: viscous while the table's friction acts, none with --ideal; "
-              "--drift none: no drift terms.")
+              "--drift none: no drift terms.", values=False)
 @click.option("--feedforward/--no-feedforward", default=True, show_default=True,
               help="Add the arm's inverse dynamics planned from the prior model to the PD loops (after holding the "
               "start pose); --no-feedforward: the published PD loops alone.")
@@ -988,7 +1009,6 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
 
     MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default.
     """
-    from .estimation import parse_drift
     from .studies import capture_protocol, run_experiment
     from .studies import parameter_table
     from .twin import TwinSettings
@@ -1003,8 +1023,8 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
           _report_folder(folder, overwrite) as tmp):
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
                              bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=tmp,
-                             out_name=folder, progress=progress, drift=None if drift is None else
-                             () if drift.strip().lower() == "none" else parse_drift(drift, planar=True, values=False),
+                             out_name=folder, progress=progress,
+                             drift=None if drift is None else _drift(drift, True, values=False),
                              feedforward=feedforward, rehearsals=rehearsals, capture=protocol,
                              capture_trajectory=capture_trajectory)
     out.print(parameter_table(res.ident, true=res.true))
@@ -1203,8 +1223,8 @@ def export(result, prior_src, region, fmt, output):
 @click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
               "also used when the log has no rate columns.")
 @click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
-@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
-              "estimated with the payload: torque, viscous, coulomb (as for 'spaceid identify').")
+@drift_option("External torques that change the momentum during the log, estimated with the payload: torque, "
+              "viscous, coulomb (as for 'spaceid identify').", values=False)
 @SEED
 @bag_options
 @output("PAYLOAD.json to write.")
@@ -1216,7 +1236,6 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
     consistent, with standard errors. Noise levels not given are estimated from the log; with
     every one zero the fit is unweighted."""
     from .data import write_json
-    from .estimation import parse_drift
     from .identified import identify_payload, payload_after_grasp, payload_units
     from .models import load_model
 
@@ -1225,7 +1244,7 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
         raise SpaceidError("--momentum hold needs --grasp T: the hold is the second of the log before the grasp")
     h = "hold" if momentum.strip().lower() == "hold" else _momentum(momentum, model.planar, allow_unknown=True)
     motion = _payload_motion(payload_velocity, payload_rate, grasp, h)
-    kinds = parse_drift(drift, planar=model.planar, values=False)
+    kinds = _drift(drift, model.planar, values=False)
     log = _measured_log(model, log_path, differentiate, quantum, bag)
     with _warnings_to_stderr():
         if grasp is None:
@@ -1326,10 +1345,11 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid identify': "
               "anchors the scale when the momentum is zero; repeatable.")
 @noise_options
-@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log "
+@drift_option("External torques that change the momentum during the log "
               "(torque, viscous, coulomb, as for 'spaceid identify'; e.g. viscous on an air-bearing table): each "
               "segment's coefficients are estimated with its parameters, the drift integrated from the segment's "
-              "start, where its momentum is the segment before's; --momentum is then the momentum at the first sample.")
+              "start, where its momentum is the segment before's; --momentum is then the momentum at the first sample.",
+              values=False)
 @click.option("--false-alarm-rate", type=PROBABILITY, default=FALSE_ALARM_RATE, show_default=True,
               help="False alarms per sample when nothing changes (one per 1/RATE samples on average): "
                    "sets the CUSUM threshold.")
@@ -1359,7 +1379,7 @@ def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_al
     changed, and each segment between changes is identified in batch. Noise levels not given are
     estimated from the first samples."""
     from .data import bag_chunks, follow_log, is_bag, read_log, write_json
-    from .estimation import Monitor, log_chunks, parse_drift, parse_known
+    from .estimation import Monitor, log_chunks, parse_known
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
@@ -1376,7 +1396,7 @@ def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_al
         chunks = bag_chunks(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, **bag)
     else:
         chunks = log_chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
-    kinds = parse_drift(drift, planar=m.planar, values=False)
+    kinds = _drift(drift, m.planar, values=False)
     mon = Monitor(param, h, known=parse_known(known), noise=noise, drift=kinds, false_alarm_rate=false_alarm_rate,
                   change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
                   where=str(log_path))
