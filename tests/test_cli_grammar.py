@@ -186,3 +186,113 @@ def test_the_parser_is_the_librarys():
     for command, values in [("simulate", True), ("identify", False)]:
         metavar = _option(command, "drift").metavar
         assert metavar == ("KIND=VALUE[,...]" if values else "KIND[,KIND...]")
+
+
+# --- one rate source for CSV and bag logs --------------------------------------------------------
+
+
+def _identify(log, out, *options):
+    return main(["identify", "cepheus", str(log), "--momentum", H, *options, "-o", str(out)])
+
+
+def _without(columns, source, target):
+    """``source`` (a log CSV) without the columns named in ``columns``, written to ``target``."""
+    import numpy as np
+
+    header = source.read_text().splitlines()[0].split(",")
+    keep = [i for i, name in enumerate(header) if name not in columns]
+    values = np.loadtxt(source, delimiter=",", skiprows=1)[:, keep]
+    np.savetxt(target, values, delimiter=",", header=",".join(header[i] for i in keep), comments="", fmt="%.17g")
+    return target
+
+
+def test_csv_rates_differentiated_with_joint_rates_and_differentiate_is_deprecated(files, tmp_path, capsys):
+    log = files / "log.csv"
+    assert _identify(log, tmp_path / "new.json", "--joint-rates", "differentiate", "--window", "11") == 0
+    assert not _warnings(capsys.readouterr().err)
+    new = json.loads((tmp_path / "new.json").read_text())
+    assert new["settings"]["log"]["differentiation"]["joints"]["window"] == [11, 11]  # per joint
+    assert _identify(log, tmp_path / "old.json", "--differentiate", "--window", "11") == 0
+    assert _warnings(capsys.readouterr().err) == ["warning: --differentiate is deprecated: use --joint-rates "
+                                                  "differentiate; it will be removed in the next release"]
+    assert json.loads((tmp_path / "old.json").read_text()) == new
+    assert _identify(log, tmp_path / "x.json", "--differentiate", "--joint-rates", "velocity") == 2
+    assert capsys.readouterr().err.splitlines()[-1] == ("error: --differentiate (deprecated) and --joint-rates velocity "
+                                                        "contradict each other: give --joint-rates alone")
+
+
+def test_csv_measured_rates_take_no_differentiator_options(files, tmp_path, capsys):
+    log = files / "log.csv"
+    for options in (["--window", "11"], ["--joint-rates", "measured", "--quantum", "1e-6"]):
+        assert _identify(log, tmp_path / "r.json", *options) == 2
+        option = options[-2]
+        assert capsys.readouterr().err == (f"error: {option}: {log}'s rates are its rate columns (--joint-rates "
+                                           f"measured), none is differentiated: add --joint-rates differentiate, or "
+                                           f"drop {option}\n")
+    for rates in ("measured", "velocity", "auto"):  # a CSV with every rate column: the columns
+        assert _identify(log, tmp_path / f"{rates}.json", "--joint-rates", rates) == 0
+        assert "differentiation" not in json.loads((tmp_path / f"{rates}.json").read_text())["settings"]["log"]
+
+
+def test_csv_missing_rates(files, tmp_path, capsys):
+    """Some rate columns missing: refused unless differentiated (auto differentiates); none at all:
+    differentiated by default, refused when measured rates are asked for."""
+    partial = _without({"qd_left_elbow"}, files / "log.csv", tmp_path / "partial.csv")
+    assert _identify(partial, tmp_path / "r.json") == 2
+    assert capsys.readouterr().err == (f"error: {partial}: rate column(s) qd_left_elbow missing: add them, or pass "
+                                       "--joint-rates differentiate to compute every rate from the angles\n")
+    assert _identify(partial, tmp_path / "auto.json", "--joint-rates", "auto") == 0
+    assert "differentiation" in json.loads((tmp_path / "auto.json").read_text())["settings"]["log"]
+    header = (files / "log.csv").read_text().splitlines()[0].split(",")
+    angles = _without({n for n in header if n.startswith(("qd_", "base_w"))}, files / "log.csv", tmp_path / "a.csv")
+    assert _identify(angles, tmp_path / "default.json") == 0
+    assert "differentiation" in json.loads((tmp_path / "default.json").read_text())["settings"]["log"]
+    capsys.readouterr()
+    assert _identify(angles, tmp_path / "m.json", "--joint-rates", "measured") == 2
+    assert "missing: add them, or pass --joint-rates differentiate" in capsys.readouterr().err
+
+
+def test_monitor_follow_takes_no_differentiation(files, tmp_path, capsys):
+    args = ["monitor", "cepheus", str(files / "log.csv"), "--momentum", H, "--follow", "-o", str(tmp_path / "e.json")]
+    assert main([*args, "--joint-rates", "differentiate", "--window", "11"]) == 2
+    assert capsys.readouterr().err == ("error: --joint-rates differentiate and --window: --follow reads the rows as "
+                                       "they are written, with their rate columns: differentiate once the log is "
+                                       "closed (monitor it without --follow)\n")
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory):
+    """A noise-free Cepheus bag (MCAP; joint states with velocities at 100 Hz, poses at 100 Hz)."""
+    import numpy as np
+
+    from spaceid.data import JointStates, Poses, Recording, write_bag
+    from spaceid.dynamics import minimal_parameters
+    from spaceid.motion import load_trajectory, simulate
+
+    model = spaceid.load_model("cepheus")
+    param = minimal_parameters(model)
+    traj = load_trajectory("paper-table2")
+    t = np.arange(501) / 100
+    log = simulate(param, param.true_values, lambda s: traj.evaluate(s)[:2], t, [0, 0, float(H)], model=model)
+    path = tmp_path_factory.mktemp("bag") / "run.mcap"
+    write_bag(path, Recording(JointStates(t, log.joints, log.q, log.qd), Poses(t, np.zeros((501, 3)), log.base_quat)))
+    return path
+
+
+def test_bag_rates_from_the_same_options(bag, tmp_path, capsys):
+    """measured is the published velocities (the bag reader's 'velocity'); differentiate with a
+    window and a quantum; --differentiate the deprecated spelling of the latter."""
+    assert _identify(bag, tmp_path / "m.json", "--joint-rates", "measured") == 0
+    assert "joint rates: 'velocity'" in capsys.readouterr().out
+    measured = json.loads((tmp_path / "m.json").read_text())
+    assert set(measured["settings"]["log"]["joint_rates"].values()) == {"velocity"}
+    assert _identify(bag, tmp_path / "v.json", "--joint-rates", "velocity") == 0
+    assert json.loads((tmp_path / "v.json").read_text()) == measured
+    assert _identify(bag, tmp_path / "d.json", "--joint-rates", "differentiate", "--window", "21") == 0
+    differentiated = json.loads((tmp_path / "d.json").read_text())["settings"]["log"]
+    assert set(differentiated["joint_rates"].values()) == {"differentiated"}
+    assert [d["window"] for d in differentiated["differentiation"]["joints"].values()] == [[21], [21]]
+    capsys.readouterr()
+    assert _identify(bag, tmp_path / "old.json", "--differentiate", "--window", "21") == 0
+    assert len(_warnings(capsys.readouterr().err)) == 1
+    assert json.loads((tmp_path / "old.json").read_text())["settings"]["log"] == differentiated

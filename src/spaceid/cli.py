@@ -348,15 +348,24 @@ def _options(*decorators):
     return apply
 
 
-def bag_options(f):
-    """Options ``--joint-topic``, ``--pose-topic``, ``--mapping``, ``--joint-rates``, ``--window`` for a
-    log that is a ROS bag, handed to the command as one ``bag`` argument: the keywords of
-    ``read_log(bag_options=...)``."""
-    keys = ("joint_topic", "pose_topic", "mapping", "joint_rates", "window")
+RATE_SOURCES = ("measured", *JOINT_RATES[::-1])
+"""``--joint-rates``: the log's own rates (a CSV's rate columns, a bag's published velocities; also
+spelled ``velocity``, the bag reader's word), the angles differentiated, or ``auto``: the log's own
+where it has them all (a bag: per joint, where every message has one), else differentiated."""
+BAG_ONLY = {"joint_topic": "--joint-topic", "pose_topic": "--pose-topic", "mapping": "--mapping"}
+
+
+def log_options(f):
+    """Options of how a LOG is read, handed to the command as one ``reading`` argument (a dict,
+    see :func:`_measured_log`): a bag's ``--joint-topic``, ``--pose-topic``, ``--mapping``, and
+    for a CSV and a bag alike where the rates come from and how they are differentiated,
+    ``--joint-rates``, ``--window``, ``--quantum`` (``--differentiate``: the deprecated spelling
+    of ``--joint-rates differentiate``)."""
+    keys = (*BAG_ONLY, "joint_rates", "window", "quantum")
 
     @functools.wraps(f)
     def command(*args, **kwargs):
-        return f(*args, bag={k: kwargs.pop(k) for k in keys}, **kwargs)
+        return f(*args, reading={k: kwargs.pop(k) for k in keys}, **kwargs)
 
     return _options(
         click.option("--joint-topic", help="Bag logs (.bag, .mcap, ROS 2 bag folder): sensor_msgs/JointState topic "
@@ -365,14 +374,22 @@ def bag_options(f):
                      f"[default: {DEFAULT_POSE_TOPIC}]."),
         click.option("--mapping", type=click.Path(path_type=Path), help="Bag logs: YAML file with joint_topic, "
                      "pose_topic, joints {bag name: model name}, rate, pose_latency, max_gap, max_tilt."),
-        click.option("--joint-rates", type=click.Choice(JOINT_RATES[::-1]), help="Bag logs: "
-                     "joint rates from the encoder angles, differentiated (the default, as 'spaceid experiment' "
-                     "reads its bag: one-tick encoder velocities gave 6-17 times larger errors there), from the "
-                     "published velocities, or from those where every message has one."),
-        click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Bag logs: Savitzky-Golay "
-                     "window of every differentiated series [samples, odd; default: chosen per series for the "
-                     "rates' least error]. A shorter one than the default lowers the smoothing bias that raises "
-                     "change alarms during fast motion ('spaceid monitor'), at more noise."),
+        click.option("--joint-rates", type=click.Choice(RATE_SOURCES), help="Where the rates come from, CSV and bag "
+                     "logs alike: measured (a CSV's rate columns, base_w* included; a bag's published joint "
+                     "velocities; 'velocity' is the same), differentiate (the angles and the base attitude, "
+                     "Savitzky-Golay), auto (measured where the log has them: a CSV with every rate column, a bag's "
+                     "joints whose every message has one; else differentiated). [default: a CSV's rate columns, "
+                     "differentiated when it has none; a bag's angles differentiated (as 'spaceid experiment' reads "
+                     "its bag: one-tick encoder velocities gave 6-17 times larger errors there); a bag's base rate "
+                     "always comes from its poses]"),
+        click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Savitzky-Golay window of every "
+                     "differentiated series [samples, odd; default: chosen per series for the rates' least error]. A "
+                     "shorter one than the default lowers the smoothing bias that raises change alarms during fast "
+                     "motion ('spaceid monitor'), at more noise."),
+        click.option("--quantum", type=POSITIVE, metavar="RAD", help="Encoder resolution of the differentiated joint "
+                     "angles [rad per count]."),
+        click.option("--differentiate", cls=_Deprecated, is_flag=True, instead="--joint-rates differentiate",
+                     into="joint_rates", value="differentiate"),
     )(command)
 
 
@@ -674,9 +691,6 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (the JSON 'spaceid "
               "design' writes) for --estimator iv; default: measured joints with the predicted base rate.")
 @noise_options
-@click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
-              "also used when the log has no rate columns.")
-@click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
 @click.option("--knot-spacing", type=SECONDS, default=KNOT_SPACING, show_default=True,
               help="--estimator angles: knot spacing of the joint-path splines [s]; at least two samples per span.")
 @drift_option("External torques that change the momentum during the log, "
@@ -691,10 +705,10 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "equations this many samples at a time, so that memory does not grow with the regressor (e.g. 4096 for "
               "long logs of large robots); the result agrees with the in-memory one to round-off, the drift residual "
               "test and the covariance of differentiated rates included.")
-@bag_options
+@log_options
 @output("RESULT.json to write.")
-def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
-             knot_spacing, drift, with_com, chunk, output, bag):
+def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, knot_spacing, drift,
+             with_com, chunk, output, reading):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -710,7 +724,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     kinds = _drift(drift, param.model.planar, values=False)
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
-    log = _measured_log(param.model, log_path, differentiate, quantum, bag, angles_only=angles_only)
+    log = _measured_log(param.model, log_path, reading, angles_only=angles_only)
     reference = None
     if instruments is not None:
         if estimator != "iv":
@@ -746,26 +760,43 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
               f"result written to {shown_name(output)}")
 
 
-def _measured_log(model, log_path, differentiate, quantum, bag, *, angles_only=False):
-    """The log at ``log_path`` (CSV or bag, ``bag`` options) for ``model``, its rates differentiated
-    with ``--differentiate`` or where missing (not for ``angles_only``); prints the joint rates."""
-    from .data import read_log
+def _measured_log(model, log_path, reading, *, angles_only=False):
+    """The log at ``log_path`` for ``model``, read as ``reading`` (:func:`log_options`) says. A bag:
+    as its reader aligns and differentiates it (``measured``: the published joint velocities); the
+    joint rates' sources are printed. A CSV: its rate columns (``measured``, the default), or its
+    angles and attitude differentiated (``differentiate``; by default when it has no rate column;
+    ``auto`` when some are missing), with ``--window`` and ``--quantum``; ``angles_only``: left as
+    read (the angles estimator uses no rates)."""
+    from .data import differentiate_log, is_bag, read_log
 
-    if differentiate and bag["joint_rates"] not in (None, "differentiate"):
-        raise SpaceidError(f"--differentiate and --joint-rates {bag['joint_rates']} contradict each other: give one")
-    rates = bag["joint_rates"] or ("differentiate" if differentiate else None)
-    log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels,
-                   require_rates=False, bag_options=dict(bag, quantum=quantum, joint_rates=rates))
-    _print_joint_rates(log)
+    rates = reading["joint_rates"]
+    if is_bag(log_path):
+        log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels,
+                       bag_options=_bag_reading(reading))
+        _print_joint_rates(log)
+        return log
+    log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels, require_rates=False,
+                   bag_options={k: reading[k] for k in BAG_ONLY})  # topics or a mapping: refused for a CSV
     missing = log.meta.get("missing_rates", [])
-    if missing and not differentiate and not angles_only and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
-        raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
-                           "--differentiate to compute every rate from the angles")
-    if (differentiate or missing) and not angles_only and "differentiation" not in log.meta:  # bags come differentiated
-        from .data import differentiate_log
+    none = len(missing) == log.q.shape[1] + (1 if log.planar else 3)
+    if angles_only:
+        return log
+    if not (rates == "differentiate" or rates == "auto" and missing or rates is None and none):
+        if missing:
+            raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
+                               "--joint-rates differentiate to compute every rate from the angles")
+        given = " and ".join(o for o in ("--window", "--quantum") if reading[o[2:]] is not None)
+        if given:
+            raise SpaceidError(f"{given}: {log_path}'s rates are its rate columns (--joint-rates "
+                               f"{rates or 'measured'}), none is differentiated: add --joint-rates differentiate, or "
+                               f"drop {given}")
+        return log
+    return differentiate_log(log, window=reading["window"], quantum=reading["quantum"])
 
-        log = differentiate_log(log, quantum=quantum)
-    return log
+
+def _bag_reading(reading) -> dict:
+    """``reading`` (:func:`log_options`) as the keywords of a bag reader (``read_bag_log``)."""
+    return dict(reading, joint_rates={"measured": "velocity"}.get(reading["joint_rates"], reading["joint_rates"]))
 
 
 def _identify_com(ident, log):
@@ -877,17 +908,17 @@ def _require_sample_memory(what, n, model):
               "joint torques (columns tau_J [N m]) and compare the motion: torque_*.csv/json/png.")
 @click.option("--horizon", type=SECONDS, metavar="SECONDS", help="With --torques: restart from the measured state "
               "every SECONDS [s] (default: one run over the whole log).")
-@bag_options
+@log_options
 @out_folder("Report folder to write predicted.csv, metrics.json and validation.png into.", required=True)
 @click.option("-o", "--output", cls=_Deprecated, instead="--out DIR (-o/--output names a file, --out a folder)",
               into="folder")
 @OVERWRITE
-def validate(result, log_path, momentum, drift, torques, horizon, folder, overwrite, bag):
+def validate(result, log_path, momentum, drift, torques, horizon, folder, overwrite, reading):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     if horizon is not None and not torques:
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
     from .studies._figures import plot_validation
-    from .data import read_log, write_json, write_log
+    from .data import write_json, write_log
     from .estimation import load_result
     from .studies import metric_label
     from .studies import validate as run
@@ -898,8 +929,7 @@ def validate(result, log_path, momentum, drift, torques, horizon, folder, overwr
     from .models import load_model
 
     model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
-    log = read_log(log_path, joints=model.joints, planar=ident.planar, wheels=model.wheels, bag_options=bag)
-    _print_joint_rates(log)
+    log = _measured_log(model, log_path, reading)
     with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
         predicted, metrics = run(ident, log, momentum=h, where=str(result), drift=terms)
     with _report_folder(folder, overwrite) as tmp:
@@ -1220,16 +1250,13 @@ def export(result, prior_src, region, fmt, output):
 @click.option("--payload-rate", metavar="W|WX,WY,WZ", help="With --grasp: the payload's angular velocity before the "
               "grasp [rad/s], about the vertical (planar) or inertial axes.")
 @noise_options
-@click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
-              "also used when the log has no rate columns.")
-@click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
 @drift_option("External torques that change the momentum during the log, estimated with the payload: torque, "
               "viscous, coulomb (as for 'spaceid identify').", values=False)
 @SEED
-@bag_options
+@log_options
 @output("PAYLOAD.json to write.")
-def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity, payload_rate, noise, differentiate,
-            quantum, drift, seed, output, bag):
+def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity, payload_rate, noise, drift, seed,
+            output, reading):
     """Identify the payload that LINK of the known servicer MODEL holds rigidly, from a LOG recorded
     after the capture (or, with --grasp, from the part of it after the grasp): its mass, centre of
     mass and inertia about the centre of mass (planar motion: mass, CoM x and y, Izz), physically
@@ -1245,7 +1272,7 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
     h = "hold" if momentum.strip().lower() == "hold" else _momentum(momentum, model.planar, allow_unknown=True)
     motion = _payload_motion(payload_velocity, payload_rate, grasp, h)
     kinds = _drift(drift, model.planar, values=False)
-    log = _measured_log(model, log_path, differentiate, quantum, bag)
+    log = _measured_log(model, log_path, reading)
     with _warnings_to_stderr():
         if grasp is None:
             res = identify_payload(model, log, link, h, noise=noise, drift=kinds, seed=seed, where=str(log_path))
@@ -1368,17 +1395,17 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
               "its recording closes).")
 @click.option("--follow-timeout", type=SECONDS, default=10.0, show_default=True, metavar="SECONDS",
               help="With --follow: the log counts as finished after this many seconds without a new row.")
-@bag_options
+@log_options
 @output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
 def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_alarm_rate, change_ratio, forgetting,
-            warmup, estimator, follow, follow_timeout, output, bag):
+            warmup, estimator, follow, follow_timeout, output, reading):
     """Follow a log sample by sample (LOG.csv; a ROS bag, read part by part as its messages come;
     or with --follow a CSV being written): a recursive estimate of the parameters on the
     momentum equations and a CUSUM test on its normalised residual; each detected change is
     printed and written to EVENTS.json with its time, test statistic and the parameters that
     changed, and each segment between changes is identified in batch. Noise levels not given are
     estimated from the first samples."""
-    from .data import bag_chunks, follow_log, is_bag, read_log, write_json
+    from .data import bag_chunks, follow_log, is_bag, write_json
     from .estimation import Monitor, log_chunks, parse_known
 
     param = _param(model_src, planar)
@@ -1389,13 +1416,18 @@ def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_al
             raise SpaceidError(f"{log_path}: --follow reads a CSV being written; a bag cannot be read while it "
                                "is recorded (ROS 1 writes its index, MCAP its footer and ROS 2 its metadata.yaml "
                                "when the recording closes): monitor the bag once closed, or log a CSV to follow")
-        if any(v is not None for v in bag.values()):
+        if any(reading[k] is not None for k in BAG_ONLY):
             raise SpaceidError("--follow reads a CSV being written: the bag options do not apply")
+        given = ["--joint-rates differentiate"] * (reading["joint_rates"] == "differentiate") + [
+            o for o in ("--window", "--quantum") if reading[o[2:]] is not None]
+        if given:
+            raise SpaceidError(f"{' and '.join(given)}: --follow reads the rows as they are written, with their rate "
+                               "columns: differentiate once the log is closed (monitor it without --follow)")
         chunks = follow_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, timeout=follow_timeout)
     elif is_bag(log_path):  # read part by part: events as the messages are read, memory bounded
-        chunks = bag_chunks(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, **bag)
+        chunks = bag_chunks(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, **_bag_reading(reading))
     else:
-        chunks = log_chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
+        chunks = log_chunks(_measured_log(m, log_path, reading))
     kinds = _drift(drift, m.planar, values=False)
     mon = Monitor(param, h, known=parse_known(known), noise=noise, drift=kinds, false_alarm_rate=false_alarm_rate,
                   change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
