@@ -1000,9 +1000,10 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--wheel-speed", type=FINITE, default=170.0, show_default=True,
               help="Wheel speed relative to the base [rad/s].")
 @click.option("--samples", type=SAMPLES, default=29, show_default=True, help="N, the samples identification uses.")
-@click.option("--format", "bag_format", type=click.Choice(BAG_FORMATS), default="ros1", show_default=True,
+@click.option("--bag-format", type=click.Choice(BAG_FORMATS), default="ros1", show_default=True,
               help="Bag the twin records: ros1 (ROS 1 .bag file), ros2 (ROS 2 bag folder, sqlite3 storage), mcap "
               "(ROS 2 bag folder, MCAP storage).")
+@click.option("--format", "old_bag_format", cls=_Deprecated, instead="--bag-format {value}", into="bag_format")
 @click.option("--estimator", type=click.Choice(ESTIMATORS), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
 @click.option("--validation", help="Held-out motion, run after the excitation, that the model is validated on: "
