@@ -296,3 +296,51 @@ def test_bag_rates_from_the_same_options(bag, tmp_path, capsys):
     assert _identify(bag, tmp_path / "old.json", "--differentiate", "--window", "21") == 0
     assert len(_warnings(capsys.readouterr().err)) == 1
     assert json.loads((tmp_path / "old.json").read_text())["settings"]["log"] == differentiated
+
+
+# --- capture settings, --format ------------------------------------------------------------------
+
+
+@pytest.fixture
+def experiment_settings(monkeypatch):
+    """The keywords 'spaceid experiment' hands to run_experiment (which is stopped there)."""
+    import spaceid.studies
+
+    seen = []
+
+    def stop(**kwargs):
+        seen.append(kwargs)
+        raise spaceid.SpaceidError("stop here")
+
+    monkeypatch.setattr(spaceid.studies, "run_experiment", stop)
+    return seen
+
+
+def test_capture_mass_is_deprecated_for_the_settings_file(tmp_path, capsys, experiment_settings):
+    settings = tmp_path / "capture.yaml"
+    settings.write_text("mass: 0.6\n")
+    out = ["--out", str(tmp_path / "x")]
+    assert main(["experiment", "--capture", "--capture-settings", str(settings), *out]) == 2
+    assert not _warnings(capsys.readouterr().err)
+    assert main(["experiment", "--capture", "--capture-mass", "0.6", *out]) == 2
+    assert _warnings(capsys.readouterr().err) == ["warning: --capture-mass is deprecated: use --capture-settings FILE "
+                                                  "holding 'mass: 0.6'; it will be removed in the next release"]
+    new, old = (s["capture"] for s in experiment_settings)
+    assert new.payload.mass == old.payload.mass == 0.6 and new.offset == old.offset and new.yaw == old.yaw
+    assert "--capture-mass" not in CliRunner().invoke(app, ["experiment", "--help"]).output
+
+
+def test_format_is_only_an_output_format(tmp_path, capsys, experiment_settings):
+    """export --format urdf|yaml; the experiment's bag format is --bag-format (--format deprecated)."""
+    shown = {name for name, command in app.commands.items() for p in command.params
+             if isinstance(p, click.Option) and not p.hidden and "--format" in p.opts}
+    assert shown == {"export"}
+    out = ["--out", str(tmp_path / "x")]
+    assert main(["experiment", "--bag-format", "mcap", *out]) == 2
+    assert not _warnings(capsys.readouterr().err)
+    assert main(["experiment", "--format", "mcap", *out]) == 2
+    assert _warnings(capsys.readouterr().err) == ["warning: --format is deprecated: use --bag-format mcap; it will be "
+                                                  "removed in the next release"]
+    assert [s["bag_format"] for s in experiment_settings] == ["mcap", "mcap"]
+    assert main(["experiment", "--format", "bag", *out]) == 2  # the new option's check
+    assert "Invalid value for '--bag-format': 'bag' is not one of 'ros1', 'ros2', 'mcap'" in capsys.readouterr().err

@@ -1022,9 +1022,10 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--capture", is_flag=True, help="After the held-out motion, grasp a free-floating payload and run the "
               "servicing sequence: post-capture excitation, change detection over the recording, the payload "
               "identified with the twin's servicer and scored against the truth.")
-@click.option("--capture-mass", type=float, help="With --capture: the payload's mass [kg] (default 0.5).")
-@click.option("--capture-settings", type=click.Path(path_type=Path), help="With --capture: a YAML or JSON file of "
-              "the payload: mass, com, inertia, velocity, rate, link, offset, yaw (docs: theory/capture).")
+@click.option("--capture-settings", type=click.Path(path_type=Path), metavar="FILE", help="With --capture: a YAML "
+              "or JSON file of the payload: mass [kg], com, inertia, velocity, rate, link, offset, yaw, each optional "
+              "(default: a 0.5 kg cylinder at rest held by link2; docs: theory/capture).")
+@click.option("--capture-mass", cls=_Deprecated, type=float, instead="--capture-settings FILE holding 'mass: {value}'")
 @click.option("--capture-trajectory", default="same", show_default=True, help="With --capture: the post-capture "
               "excitation: same (the identification excitation), designed (for the payload) or a file from 'design'.")
 @SEED
