@@ -117,7 +117,8 @@ def test_validate_writes_its_folder_with_out_and_o_is_deprecated(files, tmp_path
                 == json.loads((tmp_path / "new" / "metrics.json").read_text()))
     assert main([*args, "-o", str(tmp_path / "a"), "--out", str(tmp_path / "b")]) == 2
     err = capsys.readouterr().err.splitlines()
-    assert err[-1] == f"error: -o/--output (deprecated) and --out {tmp_path / 'b'} contradict each other: give --out alone"
+    assert err[-1] == (f"error: -o/--output (deprecated) and --out {tmp_path / 'b'} contradict each other: give --out "
+                       "alone")
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
     usage = " ".join(CliRunner().invoke(app, ["validate", "--help"], terminal_width=200).output.split())
     assert "--out DIR" in usage and "--output" not in usage  # the old spelling is hidden
@@ -217,8 +218,8 @@ def test_csv_rates_differentiated_with_joint_rates_and_differentiate_is_deprecat
                                                   "differentiate; it will be removed in the next release"]
     assert json.loads((tmp_path / "old.json").read_text()) == new
     assert _identify(log, tmp_path / "x.json", "--differentiate", "--joint-rates", "velocity") == 2
-    assert capsys.readouterr().err.splitlines()[-1] == ("error: --differentiate (deprecated) and --joint-rates velocity "
-                                                        "contradict each other: give --joint-rates alone")
+    assert capsys.readouterr().err.splitlines()[-1] == ("error: --differentiate (deprecated) and --joint-rates "
+                                                        "velocity contradict each other: give --joint-rates alone")
 
 
 def test_csv_measured_rates_take_no_differentiator_options(files, tmp_path, capsys):
@@ -344,3 +345,23 @@ def test_format_is_only_an_output_format(tmp_path, capsys, experiment_settings):
     assert [s["bag_format"] for s in experiment_settings] == ["mcap", "mcap"]
     assert main(["experiment", "--format", "bag", *out]) == 2  # the new option's check
     assert "Invalid value for '--bag-format': 'bag' is not one of 'ros1', 'ros2', 'mcap'" in capsys.readouterr().err
+
+
+# --- the deprecated spellings, all of them ---------------------------------------------------------
+
+DEPRECATED_SPELLINGS = {("validate", "-o/--output"), ("identify", "--differentiate"), ("payload", "--differentiate"),
+                        ("validate", "--differentiate"), ("monitor", "--differentiate"), ("experiment", "--format"),
+                        ("experiment", "--capture-mass")}
+
+
+def test_every_old_spelling_is_a_hidden_deprecated_option():
+    """The hidden options are exactly the old spellings tested above, each one _Deprecated (one
+    warning line, see _Deprecated), with a help line naming its replacement (sphinx-click and
+    --help leave it out)."""
+    hidden = {(name, "/".join(p.opts)) for name, command in app.commands.items() for p in command.params
+              if getattr(p, "hidden", False)}
+    assert hidden == DEPRECATED_SPELLINGS
+    for name, spelling in hidden:
+        p = next(p for p in app.commands[name].params if "/".join(p.opts) == spelling)
+        assert isinstance(p, spaceid.cli._Deprecated) and p.help.startswith("Deprecated: use ")
+        assert spelling.split("/")[-1] not in CliRunner().invoke(app, [name, "--help"]).output

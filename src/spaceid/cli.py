@@ -1390,7 +1390,8 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
                    "1: each segment's estimate is its batch weighted least squares.")
 @click.option("--warmup", type=SAMPLES, help="Samples of each segment identified in batch before its test starts "
               f"[default: max({WARMUP}, 4 (p + 1) / rows)].")
-@click.option("--estimator", type=click.Choice([e for e in ESTIMATORS if e != "angles"]), default="ml", show_default=True,
+@click.option("--estimator", type=click.Choice([e for e in ESTIMATORS if e != "angles"]), default="ml",
+              show_default=True,
               help="Estimator of the batch identifications of the segments (see 'spaceid identify').")
 @click.option("--follow", is_flag=True, help="LOG is a CSV being written: keep reading appended rows until "
               "interrupted (Ctrl-C) or --follow-timeout seconds pass without a new row (a bag cannot be read until "
