@@ -778,10 +778,10 @@ def _measured_log(model, log_path, reading, *, angles_only=False):
     log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels, require_rates=False,
                    bag_options={k: reading[k] for k in BAG_ONLY})  # topics or a mapping: refused for a CSV
     missing = log.meta.get("missing_rates", [])
-    none = len(missing) == log.q.shape[1] + (1 if log.planar else 3)
     if angles_only:
         return log
-    if not (rates == "differentiate" or rates == "auto" and missing or rates is None and none):
+    no_rates = len(missing) == log.q.shape[1] + (1 if log.planar else 3)
+    if not (rates == "differentiate" or rates == "auto" and missing or rates is None and no_rates):
         if missing:
             raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
                                "--joint-rates differentiate to compute every rate from the angles")
