@@ -68,7 +68,7 @@ def test_predict_and_validate(workdir, capsys):
     err = " ".join(capsys.readouterr().err.split())  # rich wraps long lines
     assert "warning: " in err and "validation on the fitting log cannot fail; record a different motion" in err
     # another motion (paper-table2, noisy): no warning; the true model within the noise
-    assert run("validate", workdir / "result.json", workdir / "noisy.csv", "--momentum", 0.4934, "-o",
+    assert run("validate", workdir / "result.json", workdir / "noisy.csv", "--momentum", 0.4934, "--out",
                workdir / "val2") == 0
     assert "warning" not in capsys.readouterr().err
     assert json.loads((workdir / "val2" / "metrics.json").read_text())["base_w_rms"] < 1e-3

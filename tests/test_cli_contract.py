@@ -109,12 +109,12 @@ def test_model_definitions_never_over_the_model(work, capsys):
 
 
 def test_validate_refuses_a_folder_of_the_users_files(work, capsys):
-    """validate -o DIR, DIR holding the user's log: refused, unless --overwrite (then beside them)."""
+    """validate --out DIR, DIR holding the user's log: refused, unless --overwrite (then beside them)."""
     folder = work / "mine"
     folder.mkdir()
     (folder / "log.csv").write_bytes((work / "log.csv").read_bytes())
-    args = ["validate", work / "result.json", folder / "log.csv", "--momentum", MOMENTUM, "-o", folder]
-    _refused(capsys, args, f"error: -o {folder} holds files spaceid did not write (log.csv): choose another "
+    args = ["validate", work / "result.json", folder / "log.csv", "--momentum", MOMENTUM, "--out", folder]
+    _refused(capsys, args, f"error: --out {folder} holds files spaceid did not write (log.csv): choose another "
              "folder, or pass --overwrite to write beside them", work)
     user = (folder / "log.csv").read_bytes()
     assert run(*args, "--overwrite") == 0
@@ -144,8 +144,8 @@ def test_validate_refuses_to_replace_a_folder_holding_its_input(work, capsys):
     assert run(*args) == 0
     capsys.readouterr()
     log = folder / "predicted.csv"
-    _refused(capsys, ["validate", work / "result.json", log, "--momentum", MOMENTUM, "-o", folder],
-             f"error: -o {folder} holds the input LOG ({log}), which the new report would replace: choose another "
+    _refused(capsys, ["validate", work / "result.json", log, "--momentum", MOMENTUM, "--out", folder],
+             f"error: --out {folder} holds the input LOG ({log}), which the new report would replace: choose another "
              "folder", work)
 
 
@@ -167,7 +167,7 @@ def test_an_output_folder_that_is_a_file_is_refused_before_work(work, capsys, mo
         monkeypatch.setattr(spaceid.studies, name, lambda *a, **k: pytest.fail("the work started"))
     path = work / "taken"
     path.write_text("a user's file\n")
-    option = "-o" if command == "validate" else "--out"
+    option = "--out"
     args = {"validate": ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM],
             "demo": ["demo"], "experiment": ["experiment"],
             "montecarlo": ["montecarlo", "cepheus", "--momentum", MOMENTUM, "--runs", 4]}[command]
@@ -184,7 +184,7 @@ def test_an_output_under_an_existing_file_is_one_line(work, capsys, command):
                        MOMENTUM],
             "validate": ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM],
             "experiment": ["experiment"]}[command]
-    option = "--out" if command == "experiment" else "-o"
+    option = "-o" if command == "design" else "--out"
     _refused(capsys, [*args, option, target], f"error: {option} {target}: cannot write into {taken} (not a writable "
              "folder): choose another place", work)
 
@@ -201,8 +201,8 @@ def test_a_read_only_output_folder_is_one_line(work, capsys, command):
                     "-o", ro / "x.json"]
             line = f"error: -o {ro / 'x.json'}: cannot write into {ro} (not a writable folder): choose another place"
         else:
-            args = ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM, "-o", ro]
-            line = f"error: -o {ro} is a read-only folder: choose another folder"
+            args = ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM, "--out", ro]
+            line = f"error: --out {ro} is a read-only folder: choose another folder"
         _refused(capsys, args, line, work)
     finally:
         ro.chmod(0o755)
@@ -295,7 +295,7 @@ def test_any_numerical_failure_names_the_inputs(work, capsys, monkeypatch):
 
     monkeypatch.setattr(spaceid.studies, "validate", singular)
     result, log = work / "result.json", work / "log.csv"
-    _refused(capsys, ["validate", result, log, "--momentum", MOMENTUM, "-o", work / "v"],
+    _refused(capsys, ["validate", result, log, "--momentum", MOMENTUM, "--out", work / "v"],
              f"error: numerical failure on RESULT.json {result}, LOG {log} (Singular matrix): the data are too "
              "ill-conditioned for this computation: check their excitation, noise and units", work)
 

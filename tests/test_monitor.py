@@ -546,9 +546,10 @@ def _rotor():
 
 def test_monitor_takes_the_differentiator_window_of_a_bag(capture_bag, tmp_path, capsys):
     """``--window`` sets every differentiated series' window: the events' lead is half the widest one (41
-    encoder samples at 50 Hz); an even window, or one for a CSV log, is a one-line error. The grasp
-    is the last event, found in the warm-up after an alarm 1.6 s before it (before the warm-ups
-    after an AR-whitened segment were tested, that alarm was the only event)."""
+    encoder samples at 50 Hz); an even window, or one for a CSV log read with its rate columns (nothing
+    to differentiate), is a one-line error. The grasp is the last event, found in the warm-up after
+    an alarm 1.6 s before it (before the warm-ups after an AR-whitened segment were tested, that
+    alarm was the only event)."""
     from spaceid.data import read_bag_log
 
     bag, grasp = capture_bag
@@ -566,7 +567,7 @@ def test_monitor_takes_the_differentiator_window_of_a_bag(capture_bag, tmp_path,
     csv = tmp_path / "log.csv"
     write_log(csv, read_bag_log(bag, **_bag_options()))
     assert main(["monitor", "cepheus-rw", str(csv), "--momentum", "0", "--window", "41", "-o", str(out)]) == 2
-    assert "apply to ROS bags" in capsys.readouterr().err
+    assert "rates are its rate columns (--joint-rates measured)" in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("rows", [1, 3])

@@ -132,7 +132,7 @@ def test_validate_against_a_model_1000_times_off_warns(logs, tmp_path, capsys):
     (tmp_path / "off.json").write_text(json.dumps(result))
     capsys.readouterr()
     assert main(["validate", str(tmp_path / "r.json"), str(logs / "held.csv"), "--momentum", H,
-                 "-o", str(tmp_path / "good")]) == 0
+                 "--out", str(tmp_path / "good")]) == 0
     assert "warning" not in capsys.readouterr().err
     assert main(["validate", str(tmp_path / "off.json"), str(logs / "held.csv"), "--momentum", H,
                  "-o", str(tmp_path / "bad")]) == 0

@@ -13,7 +13,7 @@ one library call, and each has a command-line twin; the same session from a shel
     spaceid simulate cepheus --trajectory traj.json --momentum 0.4934 --samples 35 \\
         --noise-angle 1e-4 --noise-rate 1e-4 --seed 2 -o log.csv
     spaceid identify cepheus log.csv --momentum 0.4934 -o result.json
-    spaceid validate result.json log.csv --momentum 0.4934 -o validation/
+    spaceid validate result.json log.csv --momentum 0.4934 --out validation/
 
 The files it writes are described in :doc:`/formats/index`, the method in :doc:`/theory/index`.
 """

@@ -16,7 +16,7 @@ second recording of a different motion. From a shell:
 .. code-block:: bash
 
     spaceid identify cepheus run.bag --momentum 0.4934 --mapping mapping.yaml -o result.json
-    spaceid validate result.json second.bag --momentum 0.4934 --mapping mapping.yaml -o validation/
+    spaceid validate result.json second.bag --momentum 0.4934 --mapping mapping.yaml --out validation/
 """
 
 # %%

@@ -26,6 +26,8 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
+from ._constants import (BAG_FORMATS, CHANGE_RATIO, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC, DESIGN_CRITERIA,
+                         ESTIMATORS, EXPORT_FORMATS, FALSE_ALARM_RATE, JOINT_RATES, KNOT_SPACING, WARMUP)
 from ._errors import SpaceidError, one_line, shown_name
 
 # No markup, no emoji codes: file, joint and topic names like 'a[/b].csv' print as they are
@@ -80,7 +82,7 @@ RUNS = _Number(integer=True, minimum=2, maximum=100_000,
                fix="give 2 to 100000 noise draws (200 or more for stable statistics)")
 JOBS = _Number(integer=True, minimum=1, maximum=1024, fix="give 1 or more worker processes")
 PROBABILITY = _Number(above=0, maximum=0.999999, fix="give a probability between 0 and 1, e.g. 0.95")
-CHANGE_RATIO = _Number(above=1, fix="give a variance ratio above 1, e.g. 4")
+RATIO = _Number(above=1, fix="give a variance ratio above 1, e.g. 4")
 FORGETTING = _Number(above=0, maximum=1, fix="give a forgetting factor in (0, 1], e.g. 0.999 (1: none)")
 
 MODEL = click.argument("model_src", metavar="MODEL")
@@ -101,14 +103,34 @@ NOISE = [
     click.option("--noise-angle", type=NOISE_LEVEL, default=0.0, help="White noise on angles [rad]."),
     click.option("--noise-rate", type=NOISE_LEVEL, default=0.0, help="White noise on rates [rad/s]."),
 ]
-# spaceid.estimation.ESTIMATORS, without importing NumPy here
-ESTIMATOR_CHOICES = ("ml", "wls", "iv", "tls", "ols", "angles")
-KNOT_SPACING = 0.05  # [s] spaceid.estimation.KNOT_SPACING, likewise
-DRIFT_VALUES = click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="External torque on the base, so "
-                            "that the momentum drifts from its --momentum value at t0: torque=TAU (constant torque "
-                            "[N m], about z for planar, TX:TY:TZ inertial axes for spatial; or torque_x=.. per "
-                            "axis), viscous=C (friction -C w0, [N m s/rad]), coulomb=MU (friction -MU w0/norm(w0), "
-                            "[N m]); e.g. --drift torque=1e-4,viscous=5e-5.")
+
+
+def drift_option(help_text, *, values):
+    """The ``--drift`` option, one grammar in every command: a comma list where a bare ``KIND``
+    estimates that drift term and ``KIND=VALUE`` sets it (``none``: no drift terms), read by
+    :func:`spaceid.estimation.parse_drift` (:func:`_drift`); ``values``: the command sets terms
+    (``simulate``, ``predict``, ``validate``), else it estimates them, and the help says so."""
+    if values:
+        metavar, grammar = "KIND=VALUE[,...]", ("KIND=VALUE sets a term ('none': none); a bare KIND, a term to "
+                                                "estimate, is for identify, payload, monitor and experiment.")
+    else:
+        metavar, grammar = "KIND[,KIND...]", ("A bare KIND estimates a term ('none': none); KIND=VALUE, a term held at "
+                                              "a value, is for simulate, predict and validate.")
+    return click.option("--drift", metavar=metavar, help=f"{help_text} {grammar}")
+
+
+def _drift(value, planar, *, values):
+    """``--drift`` of the running command (:func:`drift_option`): its kinds, or with ``values`` its
+    terms; the other form refused naming the command."""
+    from .estimation import parse_drift
+
+    return parse_drift(value, planar=planar, values=values, command=click.get_current_context().info_name)
+
+
+DRIFT_VALUES = drift_option("External torque on the base, so that the momentum drifts from its --momentum value at "
+                            "t0: torque=TAU (constant torque [N m], about z for planar, TX:TY:TZ inertial axes for "
+                            "spatial; or torque_x=.. per axis), viscous=C (friction -C w0, [N m s/rad]), coulomb=MU "
+                            "(friction -MU w0/norm(w0), [N m]); e.g. --drift torque=1e-4,viscous=5e-5.", values=True)
 ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, efficient); wls: weighted least squares "
                   "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
                   "noise as instruments); tls: total least squares (for comparison with the literature); ols: "
@@ -125,14 +147,50 @@ class _OutputPath(click.Path):
         self.folder = folder
 
 
-def output(help_text, folder=False):
-    """The required ``-o/--output`` option (a file, or a report ``folder``), with what the command writes there."""
-    return click.option("-o", "--output", type=_OutputPath(folder), required=True, metavar="DIR" if folder else "PATH",
-                        help=help_text)
+def output(help_text):
+    """The required ``-o/--output`` option: the file the command writes (``help_text`` says what)."""
+    return click.option("-o", "--output", type=_OutputPath(), required=True, metavar="PATH", help=help_text)
+
+
+def out_folder(help_text, **kwargs):
+    """The ``--out DIR`` option: the report folder the command writes (``help_text`` says what),
+    handed to the command as ``folder``; ``kwargs``: its default, or ``required=True``."""
+    return click.option("--out", "folder", type=_OutputPath(folder=True), metavar="DIR", help=help_text, **kwargs)
 
 
 OVERWRITE = click.option("--overwrite", is_flag=True, help="Write into an output folder that holds files spaceid did "
                          "not write (beside them; same names replaced); without it such a folder is refused.")
+REMOVED_IN = "the next release"  # when the deprecated spellings (_Deprecated) go
+
+
+class _Deprecated(click.Option):
+    """An old spelling kept for one release: hidden from the help; when given, one line on stderr,
+    ``warning: OPTION is deprecated: use INSTEAD; it will be removed in the next release``
+    (``instead`` may quote the value given as ``{value}``). With ``into`` (the name of the option
+    that replaces it) the value given, or ``value`` for a flag, is handed to that option as if it
+    had been given (the same checks, the same messages); an old and a new spelling of different
+    values are refused. Without ``into`` the command receives it as its own argument."""
+
+    def __init__(self, *decls, instead, into=None, value=None, **kwargs):
+        kwargs.setdefault("help", f"Deprecated: use {instead}.")
+        super().__init__(*decls, hidden=True, expose_value=into is None, **kwargs)
+        self.instead, self.into, self.into_value = instead, into, value
+
+    def handle_parse_result(self, ctx, opts, args):
+        given = self.name in opts and not ctx.resilient_parsing
+        if given:
+            raw = opts[self.name]
+            spelling = "/".join(self.opts)
+            print(f"warning: {spelling} is deprecated: use {self.instead.format(value=raw)}; it will be removed in "
+                  f"{REMOVED_IN}", file=sys.stderr)
+            if self.into is not None:
+                new = self.into_value if self.into_value is not None else raw
+                if self.into in opts and opts[self.into] != new:
+                    option = min(next(p for p in ctx.command.params if p.name == self.into).opts, key=len)
+                    raise SpaceidError(f"{spelling} (deprecated) and {option} {opts[self.into]} contradict each other: "
+                                       f"give {option} alone")
+                opts[self.into] = new  # parsed before the option it stands for (click parses given options first)
+        return super().handle_parse_result(ctx, opts, args)
 
 
 class _Command(click.Command):
@@ -228,7 +286,7 @@ _ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
 
 def for_the_command_line(text) -> str:
     """A library message as the command line shows it: one line, each Python argument named in
-    backquotes (as in "`drift`: ...") shown as its option (``--drift``, see ``OPTION_OF``)."""
+    backquotes (as in ``"`drift`: ..."``) shown as its option (``--drift``, see ``OPTION_OF``)."""
     option = lambda m: OPTION_OF.get(m[1], "--" + m[1].replace("_", "-"))  # noqa: E731
     return one_line(_ARGUMENT.sub(option, str(text)))
 
@@ -290,31 +348,48 @@ def _options(*decorators):
     return apply
 
 
-def bag_options(f):
-    """Options ``--joint-topic``, ``--pose-topic``, ``--mapping``, ``--joint-rates``, ``--window`` for a
-    log that is a ROS bag, handed to the command as one ``bag`` argument: the keywords of
-    ``read_log(bag_options=...)``."""
-    keys = ("joint_topic", "pose_topic", "mapping", "joint_rates", "window")
+RATE_SOURCES = ("measured", *JOINT_RATES[::-1])
+"""``--joint-rates``: the log's own rates (a CSV's rate columns, a bag's published velocities; also
+spelled ``velocity``, the bag reader's word), the angles differentiated, or ``auto``: the log's own
+where it has them all (a bag: per joint, where every message has one), else differentiated."""
+BAG_ONLY = {"joint_topic": "--joint-topic", "pose_topic": "--pose-topic", "mapping": "--mapping"}
+
+
+def log_options(f):
+    """Options of how a LOG is read, handed to the command as one ``reading`` argument (a dict,
+    see :func:`_measured_log`): a bag's ``--joint-topic``, ``--pose-topic``, ``--mapping``, and
+    for a CSV and a bag alike where the rates come from and how they are differentiated,
+    ``--joint-rates``, ``--window``, ``--quantum`` (``--differentiate``: the deprecated spelling
+    of ``--joint-rates differentiate``)."""
+    keys = (*BAG_ONLY, "joint_rates", "window", "quantum")
 
     @functools.wraps(f)
     def command(*args, **kwargs):
-        return f(*args, bag={k: kwargs.pop(k) for k in keys}, **kwargs)
+        return f(*args, reading={k: kwargs.pop(k) for k in keys}, **kwargs)
 
     return _options(
         click.option("--joint-topic", help="Bag logs (.bag, .mcap, ROS 2 bag folder): sensor_msgs/JointState topic "
-                     "[default: /joint_states]."),
+                     f"[default: {DEFAULT_JOINT_TOPIC}]."),
         click.option("--pose-topic", help="Bag logs: geometry_msgs/PoseStamped topic of the base "
-                     "[default: /vrpn_client_node/cepheus/pose]."),
+                     f"[default: {DEFAULT_POSE_TOPIC}]."),
         click.option("--mapping", type=click.Path(path_type=Path), help="Bag logs: YAML file with joint_topic, "
                      "pose_topic, joints {bag name: model name}, rate, pose_latency, max_gap, max_tilt."),
-        click.option("--joint-rates", type=click.Choice(["differentiate", "velocity", "auto"]), help="Bag logs: "
-                     "joint rates from the encoder angles, differentiated (the default, as 'spaceid experiment' "
-                     "reads its bag: one-tick encoder velocities gave 6-17 times larger errors there), from the "
-                     "published velocities, or from those where every message has one."),
-        click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Bag logs: Savitzky-Golay "
-                     "window of every differentiated series [samples, odd; default: chosen per series for the "
-                     "rates' least error]. A shorter one than the default lowers the smoothing bias that raises "
-                     "change alarms during fast motion ('spaceid monitor'), at more noise."),
+        click.option("--joint-rates", type=click.Choice(RATE_SOURCES), help="Where the rates come from, CSV and bag "
+                     "logs alike: measured (a CSV's rate columns, base_w* included; a bag's published joint "
+                     "velocities; 'velocity' is the same), differentiate (the angles and the base attitude, "
+                     "Savitzky-Golay), auto (measured where the log has them: a CSV with every rate column, a bag's "
+                     "joints whose every message has one; else differentiated). [default: a CSV's rate columns, "
+                     "differentiated when it has none; a bag's angles differentiated (as 'spaceid experiment' reads "
+                     "its bag: one-tick encoder velocities gave 6-17 times larger errors there); a bag's base rate "
+                     "always comes from its poses]"),
+        click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Savitzky-Golay window of every "
+                     "differentiated series [samples, odd; default: chosen per series for the rates' least error]. A "
+                     "shorter one than the default lowers the smoothing bias that raises change alarms during fast "
+                     "motion ('spaceid monitor'), at more noise."),
+        click.option("--quantum", type=POSITIVE, metavar="RAD", help="Encoder resolution of the differentiated joint "
+                     "angles [rad per count]."),
+        click.option("--differentiate", cls=_Deprecated, is_flag=True, instead="--joint-rates differentiate",
+                     into="joint_rates", value="differentiate"),
     )(command)
 
 
@@ -505,7 +580,7 @@ def _write_definitions(path, info, model_src):
               "[N m s]: h (planar) or hx,hy,hz (inertial axes); nonzero (with zero momentum Y pi = 0: no "
               "condition number to minimise).")
 @SEED
-@click.option("--criterion", type=click.Choice(["cond", "logdet", "dopt", "crb"]), default="cond", show_default=True,
+@click.option("--criterion", type=click.Choice(DESIGN_CRITERIA), default="cond", show_default=True,
               help="cond (condition number), logdet (scaled columns), or with the --noise-* options: dopt (max "
               "log det of the Fisher information), crb (min trace of the relative Cramer-Rao bound).")
 @noise_options
@@ -582,13 +657,12 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
              seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
     from .data import write_log
-    from .estimation import parse_drift
     from .motion import add_noise, simulate as run
     from .motion import load_trajectory
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
-    terms = parse_drift(drift, planar=param.model.planar, values=True)
+    terms = _drift(drift, param.model.planar, values=True)
     traj = load_trajectory(trajectory, joints=param.model.joints)
     times = _trajectory_times(traj, samples, rate, "simulate", param.model)
     log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model, drift=terms,
@@ -611,49 +685,46 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
               "whole system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to "
               "estimate it (both need an anchor, --known or a reaction wheel).")
-@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
+@click.option("--estimator", type=click.Choice(ESTIMATORS), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
               "parameter one equals alone, e.g. Iczz_wheel=0.00197): anchors the scale; repeatable.")
 @click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (the JSON 'spaceid "
               "design' writes) for --estimator iv; default: measured joints with the predicted base rate.")
 @noise_options
-@click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
-              "also used when the log has no rate columns.")
-@click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
 @click.option("--knot-spacing", type=SECONDS, default=KNOT_SPACING, show_default=True,
               help="--estimator angles: knot spacing of the joint-path splines [s]; at least two samples per span.")
-@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
+@drift_option("External torques that change the momentum during the log, "
               "estimated with the parameters: torque (constant torque [N m]), viscous (base friction -c w0, c in "
               "N m s/rad), coulomb (base friction -mu w0/norm(w0), mu in N m); e.g. --drift viscous on an air-bearing "
               "table (terms that move alike are confounded: start with one). --momentum is then the momentum at the "
               "first sample ('unknown' when the log does not start at rest). Without it, a residual test warns when "
-              "the data show a drift.")
+              "the data show a drift.", values=False)
 @click.option("--com", "with_com", is_flag=True, help="Also identify the system-CM terms from the log's base position "
               "(base_x, base_y or base_px, base_py, base_pz [m]; zero linear momentum): RESULT.json field 'com'.")
 @click.option("--chunk", type=int, help="Stream the identification (--estimator ml, wls, iv or ols): build the "
               "equations this many samples at a time, so that memory does not grow with the regressor (e.g. 4096 for "
               "long logs of large robots); the result agrees with the in-memory one to round-off, the drift residual "
               "test and the covariance of differentiated rates included.")
-@bag_options
+@log_options
 @output("RESULT.json to write.")
-def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, differentiate, quantum,
-             knot_spacing, drift, with_com, chunk, output, bag):
+def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, knot_spacing, drift,
+             with_com, chunk, output, reading):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
     inertia) move their spin momentum to the right-hand side.
     """
     from .estimation import identify as run
-    from .estimation import parse_drift, parse_known
+    from .estimation import parse_known
     from .data import write_json
     from .studies import drift_lines, parameter_table
 
     known = parse_known(known)  # option values first: before the model and the log are read
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
-    kinds = parse_drift(drift, planar=param.model.planar, values=False)
+    kinds = _drift(drift, param.model.planar, values=False)
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
-    log = _measured_log(param.model, log_path, differentiate, quantum, bag, angles_only=angles_only)
+    log = _measured_log(param.model, log_path, reading, angles_only=angles_only)
     reference = None
     if instruments is not None:
         if estimator != "iv":
@@ -689,26 +760,43 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
               f"result written to {shown_name(output)}")
 
 
-def _measured_log(model, log_path, differentiate, quantum, bag, *, angles_only=False):
-    """The log at ``log_path`` (CSV or bag, ``bag`` options) for ``model``, its rates differentiated
-    with ``--differentiate`` or where missing (not for ``angles_only``); prints the joint rates."""
-    from .data import read_log
+def _measured_log(model, log_path, reading, *, angles_only=False):
+    """The log at ``log_path`` for ``model``, read as ``reading`` (:func:`log_options`) says. A bag:
+    as its reader aligns and differentiates it (``measured``: the published joint velocities); the
+    joint rates' sources are printed. A CSV: its rate columns (``measured``, the default), or its
+    angles and attitude differentiated (``differentiate``; by default when it has no rate column;
+    ``auto`` when some are missing), with ``--window`` and ``--quantum``; ``angles_only``: left as
+    read (the angles estimator uses no rates)."""
+    from .data import differentiate_log, is_bag, read_log
 
-    if differentiate and bag["joint_rates"] not in (None, "differentiate"):
-        raise SpaceidError(f"--differentiate and --joint-rates {bag['joint_rates']} contradict each other: give one")
-    rates = bag["joint_rates"] or ("differentiate" if differentiate else None)
-    log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels,
-                   require_rates=False, bag_options=dict(bag, quantum=quantum, joint_rates=rates))
-    _print_joint_rates(log)
+    rates = reading["joint_rates"]
+    if is_bag(log_path):
+        log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels,
+                       bag_options=_bag_reading(reading))
+        _print_joint_rates(log)
+        return log
+    log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels, require_rates=False,
+                   bag_options={k: reading[k] for k in BAG_ONLY})  # topics or a mapping: refused for a CSV
     missing = log.meta.get("missing_rates", [])
-    if missing and not differentiate and not angles_only and len(missing) < log.q.shape[1] + (1 if log.planar else 3):
-        raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
-                           "--differentiate to compute every rate from the angles")
-    if (differentiate or missing) and not angles_only and "differentiation" not in log.meta:  # bags come differentiated
-        from .data import differentiate_log
+    if angles_only:
+        return log
+    no_rates = len(missing) == log.q.shape[1] + (1 if log.planar else 3)
+    if not (rates == "differentiate" or rates == "auto" and missing or rates is None and no_rates):
+        if missing:
+            raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
+                               "--joint-rates differentiate to compute every rate from the angles")
+        given = " and ".join(o for o in ("--window", "--quantum") if reading[o[2:]] is not None)
+        if given:
+            raise SpaceidError(f"{given}: {log_path}'s rates are its rate columns (--joint-rates "
+                               f"{rates or 'measured'}), none is differentiated: add --joint-rates differentiate, or "
+                               f"drop {given}")
+        return log
+    return differentiate_log(log, window=reading["window"], quantum=reading["quantum"])
 
-        log = differentiate_log(log, quantum=quantum)
-    return log
+
+def _bag_reading(reading) -> dict:
+    """``reading`` (:func:`log_options`) as the keywords of a bag reader (``read_bag_log``)."""
+    return dict(reading, joint_rates={"measured": "velocity"}.get(reading["joint_rates"], reading["joint_rates"]))
 
 
 def _identify_com(ident, log):
@@ -731,8 +819,8 @@ def _identify_com(ident, log):
 @click.option("--rate", type=RATE, help="TRAJ from 'design': sample rate [Hz] (instead of --samples).")
 @click.option("--initial-yaw", type=FINITE, help="Base yaw at t0 [rad] (planar; default 0).")
 @click.option("--initial-quat", help="Base attitude at t0 as w,x,y,z (spatial; default 1,0,0,0).")
-@click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="Drift terms replacing those of RESULT.json "
-              "(used by default): torque=TAU, viscous=C, coulomb=MU, as for 'spaceid simulate'.")
+@drift_option("Drift terms replacing those of RESULT.json (used by default): torque=TAU, viscous=C, coulomb=MU, "
+              "as for 'spaceid simulate'.", values=True)
 @output("Predicted log CSV to write.")
 def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_quat, drift, output):
     """Base motion of an identified model for a joint motion TRAJ: a joint-trajectory CSV
@@ -740,12 +828,12 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
     paper-table2), sampled like 'simulate' does."""
     from .data import read_joint_trajectory, write_log
     from .data import yaw_to_quat
-    from .estimation import load_result, parse_drift
+    from .estimation import load_result
     from .studies import predict as run
 
     ident = load_result(result)
     h = _momentum(momentum, ident.planar)
-    terms = parse_drift(drift, planar=ident.planar, values=True)
+    terms = _drift(drift, ident.planar, values=True)
     model = _result_model(ident)
     joints = model.joints
     if trajectory.suffix.lower() == ".csv":
@@ -814,42 +902,42 @@ def _require_sample_memory(what, n, model):
 @click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
 @click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
 @MOMENTUM
-@click.option("--drift", metavar="KIND=VALUE[,KIND=VALUE...]", help="Drift terms replacing those of RESULT.json "
-              "(used by default): torque=TAU, viscous=C, coulomb=MU, as for 'spaceid simulate'; --momentum is the "
-              "momentum at the log's first sample.")
+@drift_option("Drift terms replacing those of RESULT.json (used by default): torque=TAU, viscous=C, coulomb=MU, "
+              "as for 'spaceid simulate'; --momentum is the momentum at the log's first sample.", values=True)
 @click.option("--torques", is_flag=True, help="Also drive the identified model's forward dynamics with the log's "
               "joint torques (columns tau_J [N m]) and compare the motion: torque_*.csv/json/png.")
 @click.option("--horizon", type=SECONDS, metavar="SECONDS", help="With --torques: restart from the measured state "
               "every SECONDS [s] (default: one run over the whole log).")
-@bag_options
-@output("Report folder to write predicted.csv, metrics.json and validation.png into.", folder=True)
+@log_options
+@out_folder("Report folder to write predicted.csv, metrics.json and validation.png into.", required=True)
+@click.option("-o", "--output", cls=_Deprecated, instead="--out DIR (-o/--output names a file, --out a folder)",
+              into="folder")
 @OVERWRITE
-def validate(result, log_path, momentum, drift, torques, horizon, output, overwrite, bag):
+def validate(result, log_path, momentum, drift, torques, horizon, folder, overwrite, reading):
     """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
     if horizon is not None and not torques:
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
     from .studies import plot_validation
-    from .data import read_log, write_json, write_log
-    from .estimation import load_result, parse_drift
+    from .data import write_json, write_log
+    from .estimation import load_result
     from .studies import metric_label
     from .studies import validate as run
 
     ident = load_result(result)
     h = _momentum(momentum, ident.planar)
-    terms = parse_drift(drift, planar=ident.planar, values=True)
+    terms = _drift(drift, ident.planar, values=True)
     from .models import load_model
 
     model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
-    log = read_log(log_path, joints=model.joints, planar=ident.planar, wheels=model.wheels, bag_options=bag)
-    _print_joint_rates(log)
+    log = _measured_log(model, log_path, reading)
     with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
         predicted, metrics = run(ident, log, momentum=h, where=str(result), drift=terms)
-    with _report_folder(output, overwrite) as folder:
-        write_log(folder / "predicted.csv", predicted)
-        write_json(folder / "metrics.json", metrics)
-        plot_validation(log, predicted, folder / "validation.png")
+    with _report_folder(folder, overwrite) as tmp:
+        write_log(tmp / "predicted.csv", predicted)
+        write_json(tmp / "metrics.json", metrics)
+        plot_validation(log, predicted, tmp / "validation.png")
         if torques:
-            torque_metrics = _validate_torques(ident, log, h, horizon, folder, str(result))
+            torque_metrics = _validate_torques(ident, log, h, horizon, tmp, str(result))
     for key, value in metrics.items():
         out.print(f"{metric_label(key)} = {value:.4g}", highlight=False)
     if torques:
@@ -857,7 +945,7 @@ def validate(result, log_path, momentum, drift, torques, horizon, output, overwr
 
         for key, value in torque_metrics.items():
             out.print(f"{TORQUE_METRIC_LABELS[key]} = {value:.4g}", highlight=False)
-    err.print(f"plots and metrics written to {shown_name(output)}/")
+    err.print(f"plots and metrics written to {shown_name(folder)}/")
 
 
 def _validate_torques(ident, log, h, horizon, output, where):
@@ -879,8 +967,7 @@ def _validate_torques(ident, log, h, horizon, output, where):
               help="designed, paper-table2 or a file from 'design'.")
 @_options(*NOISE)
 @SEED
-@click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-report", show_default=True,
-              help="Report folder.")
+@out_folder("Report folder.", default="spaceid-report", show_default=True)
 @OVERWRITE
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object instead of tables.")
 def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
@@ -913,18 +1000,19 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--wheel-speed", type=FINITE, default=170.0, show_default=True,
               help="Wheel speed relative to the base [rad/s].")
 @click.option("--samples", type=SAMPLES, default=29, show_default=True, help="N, the samples identification uses.")
-@click.option("--format", "bag_format", type=click.Choice(["ros1", "ros2", "mcap"]), default="ros1", show_default=True,
+@click.option("--bag-format", type=click.Choice(BAG_FORMATS), default="ros1", show_default=True,
               help="Bag the twin records: ros1 (ROS 1 .bag file), ros2 (ROS 2 bag folder, sqlite3 storage), mcap "
               "(ROS 2 bag folder, MCAP storage).")
-@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES), default="ml", show_default=True, help=ESTIMATOR_HELP)
+@click.option("--format", "old_bag_format", cls=_Deprecated, instead="--bag-format {value}", into="bag_format")
+@click.option("--estimator", type=click.Choice(ESTIMATORS), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
 @click.option("--validation", help="Held-out motion, run after the excitation, that the model is validated on: "
               "paper-table2, designed (seed + 1) or a file from 'design' [default: paper-table2; designed when "
               "--trajectory is paper-table2].")
-@click.option("--drift", metavar="KIND[,KIND...]", help="Drift terms to identify with the parameters (torque, "
+@drift_option("Drift terms to identify with the parameters (torque, "
               "viscous, coulomb; see 'spaceid identify --drift'): the table's friction, integrated from the rest "
               "at the bag's start. Default: viscous while the table's friction acts, none with --ideal; "
-              "--drift none: no drift terms.")
+              "--drift none: no drift terms.", values=False)
 @click.option("--feedforward/--no-feedforward", default=True, show_default=True,
               help="Add the arm's inverse dynamics planned from the prior model to the PD loops (after holding the "
               "start pose); --no-feedforward: the published PD loops alone.")
@@ -934,14 +1022,15 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--capture", is_flag=True, help="After the held-out motion, grasp a free-floating payload and run the "
               "servicing sequence: post-capture excitation, change detection over the recording, the payload "
               "identified with the twin's servicer and scored against the truth.")
-@click.option("--capture-mass", type=float, help="With --capture: the payload's mass [kg] (default 0.5).")
-@click.option("--capture-settings", type=click.Path(path_type=Path), help="With --capture: a YAML or JSON file of "
-              "the payload: mass, com, inertia, velocity, rate, link, offset, yaw (docs: theory/capture).")
+@click.option("--capture-settings", type=click.Path(path_type=Path), metavar="FILE", help="With --capture: a YAML "
+              "or JSON file of the payload: mass [kg], com, inertia, velocity, rate, link, offset, yaw, each optional "
+              "(default: a 0.5 kg cylinder at rest held by link2; docs: theory/capture).")
+@click.option("--capture-mass", cls=_Deprecated, type=float, instead="--capture-settings FILE holding 'mass: {value}'")
 @click.option("--capture-trajectory", default="same", show_default=True, help="With --capture: the post-capture "
               "excitation: same (the identification excitation), designed (for the payload) or a file from 'design'.")
 @SEED
-@click.option("--out", "folder", type=_OutputPath(folder=True), default="spaceid-experiment", show_default=True,
-              help="Report folder (bag, logs, results, figures, report.md).")
+@out_folder("Report folder (bag, logs, results, figures, report.md).", default="spaceid-experiment",
+            show_default=True)
 @OVERWRITE
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift,
                feedforward, rehearsals, capture, capture_mass, capture_settings, capture_trajectory, seed, folder,
@@ -952,7 +1041,6 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
 
     MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default.
     """
-    from .estimation import parse_drift
     from .studies import capture_protocol, run_experiment
     from .studies import parameter_table
     from .twin import TwinSettings
@@ -967,8 +1055,8 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
           _report_folder(folder, overwrite) as tmp):
         res = run_experiment(trajectory=trajectory, wheel_speed=wheel_speed, samples=samples, settings=settings,
                              bag_format=bag_format, estimator=estimator, validation=validation, seed=seed, out=tmp,
-                             out_name=folder, progress=progress, drift=None if drift is None else
-                             () if drift.strip().lower() == "none" else parse_drift(drift, planar=True, values=False),
+                             out_name=folder, progress=progress,
+                             drift=None if drift is None else _drift(drift, True, values=False),
                              feedforward=feedforward, rehearsals=rehearsals, capture=protocol,
                              capture_trajectory=capture_trajectory)
     out.print(parameter_table(res.ident, true=res.true))
@@ -1050,10 +1138,10 @@ def compare(before, after, as_json, show_all):
 @click.option("--harmonics", type=HARMONICS, default=3, show_default=True,
               help="Fourier harmonics of a 'designed' trajectory.")
 @click.option("--criterion", default="cond", show_default=True, help="Design criterion of a 'designed' trajectory "
-              "(cond, logdet, dopt, crb; see 'spaceid design').")
+              f"({', '.join(DESIGN_CRITERIA)}; see 'spaceid design').")
 @MOMENTUM
 @click.option("--runs", type=RUNS, default=200, show_default=True, help="Noise draws.")
-@click.option("--estimator", "estimators", multiple=True, metavar="[" + "|".join(ESTIMATOR_CHOICES) + "]",
+@click.option("--estimator", "estimators", multiple=True, metavar="[" + "|".join(ESTIMATORS) + "]",
               help="Estimator to study, repeatable [default: ml and ols]. " + ESTIMATOR_HELP)
 @noise_options
 @click.option("--angles-only", is_flag=True, help="Noise on joint angles and base attitude only, rates differentiated "
@@ -1061,9 +1149,8 @@ def compare(before, after, as_json, show_all):
 @SEED
 @click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
-@click.option("--out", "folder", type=_OutputPath(folder=True), help="Folder for table.txt, montecarlo.json and "
-              "montecarlo.png (each chunk of runs kept beside it in .FOLDER.tasks/ as it completes, for --resume, "
-              "until they are written).")
+@out_folder("Folder for table.txt, montecarlo.json and montecarlo.png (each chunk of runs kept beside it in "
+            ".FOLDER.tasks/ as it completes, for --resume, until they are written).")
 @RESUME
 @OVERWRITE
 def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
@@ -1107,7 +1194,7 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
 @click.option("--region", type=PROBABILITY, metavar="P", help="Search the P confidence ellipsoid of the identified "
               "parameters (e.g. 0.95; anchored ones stay exact) instead of reproducing them exactly: for noisy "
               "results that no physical model reproduces.")
-@click.option("--format", "fmt", type=click.Choice(["urdf", "yaml"]), default="urdf", show_default=True,
+@click.option("--format", "fmt", type=click.Choice(EXPORT_FORMATS), default="urdf", show_default=True,
               help="Output format: urdf (a URDF prior keeps its file but the <inertial> elements; a YAML prior is "
               "written out as URDF) or yaml (spaceid's YAML model: keeps the planar flag, reaction wheels and "
               "declared zeros, no visuals).")
@@ -1165,24 +1252,20 @@ def export(result, prior_src, region, fmt, output):
 @click.option("--payload-rate", metavar="W|WX,WY,WZ", help="With --grasp: the payload's angular velocity before the "
               "grasp [rad/s], about the vertical (planar) or inertial axes.")
 @noise_options
-@click.option("--differentiate", is_flag=True, help="Rates from the angles (Savitzky-Golay, automatic window), "
-              "also used when the log has no rate columns.")
-@click.option("--quantum", type=POSITIVE, help="Encoder resolution [rad per count], for --differentiate.")
-@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log, "
-              "estimated with the payload: torque, viscous, coulomb (as for 'spaceid identify').")
+@drift_option("External torques that change the momentum during the log, estimated with the payload: torque, "
+              "viscous, coulomb (as for 'spaceid identify').", values=False)
 @SEED
-@bag_options
+@log_options
 @output("PAYLOAD.json to write.")
-def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity, payload_rate, noise, differentiate,
-            quantum, drift, seed, output, bag):
+def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity, payload_rate, noise, drift, seed,
+            output, reading):
     """Identify the payload that LINK of the known servicer MODEL holds rigidly, from a LOG recorded
     after the capture (or, with --grasp, from the part of it after the grasp): its mass, centre of
     mass and inertia about the centre of mass (planar motion: mass, CoM x and y, Izz), physically
     consistent, with standard errors. Noise levels not given are estimated from the log; with
     every one zero the fit is unweighted."""
     from .data import write_json
-    from .estimation import parse_drift
-    from .identified import identify_payload, payload_after_grasp
+    from .identified import identify_payload, payload_after_grasp, payload_units
     from .models import load_model
 
     model = load_model(model_src, planar=planar)
@@ -1190,8 +1273,8 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
         raise SpaceidError("--momentum hold needs --grasp T: the hold is the second of the log before the grasp")
     h = "hold" if momentum.strip().lower() == "hold" else _momentum(momentum, model.planar, allow_unknown=True)
     motion = _payload_motion(payload_velocity, payload_rate, grasp, h)
-    kinds = parse_drift(drift, planar=model.planar, values=False)
-    log = _measured_log(model, log_path, differentiate, quantum, bag)
+    kinds = _drift(drift, model.planar, values=False)
+    log = _measured_log(model, log_path, reading)
     with _warnings_to_stderr():
         if grasp is None:
             res = identify_payload(model, log, link, h, noise=noise, drift=kinds, seed=seed, where=str(log_path))
@@ -1199,8 +1282,7 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
             res = payload_after_grasp(model, log, link, grasp, h, payload_motion=motion, noise=noise, drift=kinds,
                                       seed=seed, where=str(log_path))[0]  # fmt: skip
     write_json(output, res.to_dict())
-    for name, value, std in zip(res.names, res.values, res.std):
-        unit = {"m": "kg"}.get(name, "m" if name.startswith("c") else "kg m^2")
+    for name, value, std, unit in zip(res.names, res.values, res.std, payload_units(res.names)):
         out.print(f"{name:>4s} = {value:12.6g} +/- {std:.3g} {unit}", highlight=False)
     if res.not_identifiable:
         out.print(f"not identifiable from planar motion: {', '.join(res.not_identifiable)}", highlight=False)
@@ -1248,16 +1330,15 @@ def _number_list(value, option, kind):
 @click.option("--durations", required=True, metavar="TF[,TF...]", help="Trajectory durations [s], comma-separated.")
 @click.option("--harmonics", required=True, metavar="NF[,NF...]", help="Fourier harmonics, comma-separated.")
 @click.option("--samples", required=True, metavar="N[,N...]", help="Samples over each duration, comma-separated.")
-@click.option("--criterion", type=click.Choice(["cond", "logdet", "dopt", "crb"]), default="cond", show_default=True,
+@click.option("--criterion", type=click.Choice(DESIGN_CRITERIA), default="cond", show_default=True,
               help="Design criterion of every setting (see 'spaceid design').")
 @click.option("--starts", type=STARTS, default=8, show_default=True, help="Local searches of each setting's design.")
 @noise_options
 @SEED
 @click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
-@click.option("--out", "folder", type=_OutputPath(folder=True), required=True, help="Folder for sweep.json, "
-              "sweep.csv, table.txt and sweep.png (each setting kept beside it in .FOLDER.tasks/ as it completes, "
-              "for --resume, until they are written).")
+@out_folder("Folder for sweep.json, sweep.csv, table.txt and sweep.png (each setting kept beside it in "
+            ".FOLDER.tasks/ as it completes, for --resume, until they are written).", required=True)
 @RESUME
 @OVERWRITE
 def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion, starts, noise, seed, jobs, scheduler,
@@ -1293,40 +1374,42 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid identify': "
               "anchors the scale when the momentum is zero; repeatable.")
 @noise_options
-@click.option("--drift", metavar="KIND[,KIND...]", help="External torques that change the momentum during the log "
+@drift_option("External torques that change the momentum during the log "
               "(torque, viscous, coulomb, as for 'spaceid identify'; e.g. viscous on an air-bearing table): each "
               "segment's coefficients are estimated with its parameters, the drift integrated from the segment's "
-              "start, where its momentum is the segment before's; --momentum is then the momentum at the first sample.")
-@click.option("--false-alarm-rate", type=PROBABILITY, default=1e-5, show_default=True,
+              "start, where its momentum is the segment before's; --momentum is then the momentum at the first sample.",
+              values=False)
+@click.option("--false-alarm-rate", type=PROBABILITY, default=FALSE_ALARM_RATE, show_default=True,
               help="False alarms per sample when nothing changes (one per 1/RATE samples on average): "
                    "sets the CUSUM threshold.")
-@click.option("--change-ratio", type=CHANGE_RATIO, default=4.0, show_default=True,
+@click.option("--change-ratio", type=RATIO, default=CHANGE_RATIO, show_default=True,
               help="Innovation variance ratio the test is tuned to "
                    "(a change that doubles the momentum residual's std is 4).")
 @click.option("--forgetting", type=FORGETTING, default=1.0, show_default=True,
               help="Forgetting factor of the recursive estimate, in (0, 1]; "
                    "1: each segment's estimate is its batch weighted least squares.")
 @click.option("--warmup", type=SAMPLES, help="Samples of each segment identified in batch before its test starts "
-              "[default: max(200, 4 (p + 1) / rows)].")
-@click.option("--estimator", type=click.Choice(ESTIMATOR_CHOICES[:-1]), default="ml", show_default=True,
+              f"[default: max({WARMUP}, 4 (p + 1) / rows)].")
+@click.option("--estimator", type=click.Choice([e for e in ESTIMATORS if e != "angles"]), default="ml",
+              show_default=True,
               help="Estimator of the batch identifications of the segments (see 'spaceid identify').")
 @click.option("--follow", is_flag=True, help="LOG is a CSV being written: keep reading appended rows until "
               "interrupted (Ctrl-C) or --follow-timeout seconds pass without a new row (a bag cannot be read until "
               "its recording closes).")
 @click.option("--follow-timeout", type=SECONDS, default=10.0, show_default=True, metavar="SECONDS",
               help="With --follow: the log counts as finished after this many seconds without a new row.")
-@bag_options
+@log_options
 @output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
 def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_alarm_rate, change_ratio, forgetting,
-            warmup, estimator, follow, follow_timeout, output, bag):
+            warmup, estimator, follow, follow_timeout, output, reading):
     """Follow a log sample by sample (LOG.csv; a ROS bag, read part by part as its messages come;
     or with --follow a CSV being written): a recursive estimate of the parameters on the
     momentum equations and a CUSUM test on its normalised residual; each detected change is
     printed and written to EVENTS.json with its time, test statistic and the parameters that
     changed, and each segment between changes is identified in batch. Noise levels not given are
     estimated from the first samples."""
-    from .data import bag_chunks, follow_log, is_bag, read_log, write_json
-    from .estimation import Monitor, log_chunks, parse_drift, parse_known
+    from .data import bag_chunks, follow_log, is_bag, write_json
+    from .estimation import Monitor, log_chunks, parse_known
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
@@ -1336,14 +1419,19 @@ def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_al
             raise SpaceidError(f"{log_path}: --follow reads a CSV being written; a bag cannot be read while it "
                                "is recorded (ROS 1 writes its index, MCAP its footer and ROS 2 its metadata.yaml "
                                "when the recording closes): monitor the bag once closed, or log a CSV to follow")
-        if any(v is not None for v in bag.values()):
+        if any(reading[k] is not None for k in BAG_ONLY):
             raise SpaceidError("--follow reads a CSV being written: the bag options do not apply")
+        given = ["--joint-rates differentiate"] * (reading["joint_rates"] == "differentiate") + [
+            o for o in ("--window", "--quantum") if reading[o[2:]] is not None]
+        if given:
+            raise SpaceidError(f"{' and '.join(given)}: --follow reads the rows as they are written, with their rate "
+                               "columns: differentiate once the log is closed (monitor it without --follow)")
         chunks = follow_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, timeout=follow_timeout)
     elif is_bag(log_path):  # read part by part: events as the messages are read, memory bounded
-        chunks = bag_chunks(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, **bag)
+        chunks = bag_chunks(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, **_bag_reading(reading))
     else:
-        chunks = log_chunks(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels, bag_options=bag))
-    kinds = parse_drift(drift, planar=m.planar, values=False)
+        chunks = log_chunks(_measured_log(m, log_path, reading))
+    kinds = _drift(drift, m.planar, values=False)
     mon = Monitor(param, h, known=parse_known(known), noise=noise, drift=kinds, false_alarm_rate=false_alarm_rate,
                   change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
                   where=str(log_path))

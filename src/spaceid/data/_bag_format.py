@@ -41,20 +41,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._constants import BAG_FORMATS as FORMATS
+from .._constants import DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC
 from .._errors import SpaceidError
 from ._tables import _QUAT_FAIL
 from ._timeseries import first_unordered
 
 __all__ = ["DEFAULT_JOINT_TOPIC", "DEFAULT_POSE_TOPIC", "FORMATS"]
 
-DEFAULT_JOINT_TOPIC = "/joint_states"
-"""Topic of ``sensor_msgs/JointState`` (``joint_state_controller``'s default)."""
-
-DEFAULT_POSE_TOPIC = "/vrpn_client_node/cepheus/pose"
-"""Topic of the base's ``geometry_msgs/PoseStamped`` (``vrpn_client_ros``, rigid body ``cepheus``)."""
-
-FORMATS = ("ros1", "ros2", "mcap")
-"""``format`` values of :func:`~spaceid.data.write_bag`: ROS 1 ``.bag``, ROS 2 sqlite3 folder, ROS 2 MCAP."""
+# DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC and FORMATS (the ``format`` values of write_bag: ROS 1
+# ``.bag``, ROS 2 sqlite3 folder, ROS 2 MCAP) are defined in spaceid._constants
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"

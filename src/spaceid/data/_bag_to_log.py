@@ -14,6 +14,7 @@ import math
 import numpy as np
 from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
+from .._constants import JOINT_RATE_POLICY, JOINT_RATES
 from .._errors import SpaceidError
 from ._bag_format import _check_recording
 from ._recording import Recording
@@ -30,15 +31,8 @@ MAX_GAP = 0.1
 MAX_TILT = 0.1
 """Default largest tilt of the base z axis from the capture frame's z in planar mode [rad]."""
 
-JOINT_RATES = ("auto", "velocity", "differentiate")
-
-JOINT_RATE_POLICY = "differentiate"
-"""Default joint-rate source of :func:`to_log`: the encoder angles, differentiated. The velocity
-field of a JointState is often a one-tick encoder difference (on the Cepheus twin a count per
-millisecond is 1.5 rad/s on the wheel): on the twin experiment's bags (seeds 0-2, 29 samples)
-the worst parameter error was 7.6-37 % from differentiated angles and 77-227 % from the
-published velocities. ``spaceid identify``, ``spaceid validate`` and the experiment all read
-bags with it."""
+# JOINT_RATES, the joint-rate sources, and JOINT_RATE_POLICY, the default (the encoder angles,
+# differentiated), are defined in spaceid._constants
 
 
 def to_log(

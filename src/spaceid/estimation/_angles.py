@@ -30,6 +30,7 @@ from dataclasses import replace
 import numpy as np
 from scipy.interpolate import BSpline
 
+from .._constants import KNOT_SPACING
 from .._errors import SpaceidError
 from ..data import Log, quat_to_yaw
 from ..dynamics import base_rate
@@ -38,14 +39,6 @@ from ._linalg import _inverse_gram, _solve
 from ._noise import Noise, signal_jacobian
 
 __all__ = ["KNOT_SPACING", "cramer_rao_angles"]
-
-KNOT_SPACING = 0.05
-"""Default knot spacing of the joint-path splines [s]. A cubic spline through a motion of
-angular frequency ``omega`` and amplitude ``a`` misses it by about ``5 a (omega d)^4 / 384`` at
-spacing ``d``: below 1e-6 rad at 0.05 s for Cepheus' motions (harmonics up to 0.6 Hz within
-the joint limits), far below encoder noise, so the splines add no bias. Finer knots cost time
-but no accuracy: the bound is the same to 1e-6 from 0.1 s down to 0.02 s on Cepheus (the
-nuisance's extra freedom is at frequencies the parameters do not see; tests/test_angles.py)."""
 
 GAUSS_NODES = 4
 """Gauss-Legendre nodes per quadrature panel: exact for the spline pieces to ~1e-13 at 100 Hz."""

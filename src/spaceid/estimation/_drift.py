@@ -28,12 +28,12 @@ from __future__ import annotations
 import numpy as np
 from scipy.interpolate import make_interp_spline
 
+from .._constants import DRIFT_KINDS
 from .._errors import SpaceidError
 from ..data import Log, quat_to_matrix
 
 __all__ = ["DRIFT_KINDS", "drift_names", "drift_basis", "drift_terms", "drift_vector"]
 
-DRIFT_KINDS = ("torque", "viscous", "coulomb")
 _UNITS = {"torque": "N m", "viscous": "N m s/rad", "coulomb": "N m"}
 
 

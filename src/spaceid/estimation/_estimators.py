@@ -59,6 +59,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import brentq
 
+from .._constants import ESTIMATORS
 from .._threads import one_blas_thread
 from ..dynamics import base_rate
 from ._angles import _angles_ml
@@ -68,8 +69,6 @@ from ._linalg import (_column_scale, _equation_whitener, _gram_matrix_factor, _i
 from ._noise import FD_STEP, equation_covariance
 
 __all__ = ["ESTIMATORS"]
-
-ESTIMATORS = ("ml", "wls", "iv", "tls", "ols", "angles")
 
 
 # --- the kernels: (eq, x, sigma, theta, ctx) -> (theta, info) -----------------------------------

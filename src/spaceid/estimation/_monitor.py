@@ -54,6 +54,7 @@ from scipy.linalg import lapack, solve_triangular
 from scipy.optimize import brentq
 from scipy.stats import chi2
 
+from .._constants import CHANGE_RATIO, FALSE_ALARM_RATE, WARMUP
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log, quat_to_matrix
@@ -70,17 +71,10 @@ from ._uncertainty import SIGNIFICANCE, _residual_checks, correlation_length
 
 __all__ = ["Monitor", "MonitorEvent", "monitor", "cusum_threshold", "cusum_run_length", "log_chunks", "Z_CHANGED"]
 
-FALSE_ALARM_RATE = 1e-5
-"""Default false alarms per sample under no change (one per 10^5 samples: 17 min at 100 Hz)."""
-CHANGE_RATIO = 4.0
-"""Default innovation variance ratio the CUSUM is tuned to (innovations twice their predicted std)."""
 Z_CHANGED = 3.0
 """A parameter changed when its z-score (change / combined standard error) exceeds this in magnitude."""
 CHUNK = 256
 """Samples of a whole :class:`~spaceid.data.Log` fed to the monitor at a time (the regressor is vectorised)."""
-WARMUP = 200
-"""Least samples of a segment's warm-up by default (2 s at 100 Hz): shorter ones leave the estimate
-too loose for the normalisation of the residuals that follow (false alarms early in a segment)."""
 NOISE_SAMPLES = 500
 """Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
 AR_ORDER = 3

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._errors import SpaceidError
-from ._drift import check_drift_kinds, drift_terms
+from ._drift import DRIFT_KINDS, check_drift_kinds, drift_terms
 
 __all__ = ["parse_momentum", "parse_known", "parse_drift"]
 
@@ -54,29 +54,48 @@ def parse_known(items) -> dict:
     return known
 
 
-def parse_drift(value, *, planar: bool, values: bool):
-    """``--drift``: drift kinds ``"torque,viscous"`` (``values=False``: for identification) or
-    drift terms ``"torque=VALUE,viscous=VALUE,coulomb=VALUE"`` (``values=True``: for simulation),
-    as :func:`spaceid.estimation.identify` and :func:`spaceid.motion.simulate` take them.
+_EXAMPLES = {"torque": "1e-4", "viscous": "5e-4", "coulomb": "1e-3"}
+"""A value of each drift kind for the examples of the messages (spatial torque: ``0:0:1e-4``)."""
 
-    A spatial torque is ``torque=TX:TY:TZ`` [N m] (or ``torque_x=..`` per axis); empty or None
-    gives ``()`` or ``{}``."""
+
+def parse_drift(value, *, planar: bool, values: bool, command: str = "this command"):
+    """``--drift``: one comma list for every command, where a bare ``KIND`` is a drift term to
+    estimate and ``KIND=VALUE`` one set to that value; ``none`` alone: no drift terms.
+
+    ``values=False`` (a command that estimates the drift: identify, payload, monitor, experiment)
+    returns the kinds as :func:`spaceid.estimation.identify` takes them (``()`` for ``none``);
+    ``values=True`` (one that sets it: simulate, predict, validate) returns the terms as
+    :func:`spaceid.motion.simulate` takes them (``none``: every term zero, which replaces a
+    result's own). The form ``command`` cannot use is refused, naming it and the fix. A spatial
+    torque is ``torque=TX:TY:TZ`` [N m] (or ``torque_x=..`` per axis); empty or None gives ``()``
+    or ``{}``."""
     if value is None or not str(value).strip():
         return {} if values else ()
+    items = [item.strip() for item in str(value).split(",") if item.strip()]
+    if [item.lower() for item in items] == ["none"]:
+        return drift_terms(dict.fromkeys(DRIFT_KINDS, 0.0), planar) if values else ()
+    bare = [item for item in items if "=" not in item]
+    if values and bare:
+        kinds = check_drift_kinds(bare)
+        example = ",".join(f"{k}={'0:0:' if k == 'torque' and not planar else ''}{_EXAMPLES[k]}" for k in kinds)
+        raise SpaceidError(f"`drift`: '{','.join(bare)}' gives no value: {command} needs one, e.g. `drift` {example}")
     if not values:
-        if "=" in str(value):
-            raise SpaceidError(f"--drift: '{value}' gives values: here --drift takes kinds to estimate, e.g. "
-                               "--drift torque,viscous,coulomb")
-        return check_drift_kinds(str(value))
+        given = [item for item in items if "=" in item]
+        if given:
+            names = [item.partition("=")[0].strip().lower() for item in items]
+            kinds = ",".join(dict.fromkeys("torque" if n.startswith("torque_") else n for n in names))
+            raise SpaceidError(f"`drift`: '{','.join(given)}' gives a value: {command} estimates the drift terms and "
+                               f"cannot hold them fixed: give the kind alone, e.g. `drift` {kinds}")
+        return check_drift_kinds(items)
     terms = {}
-    for item in str(value).split(","):
-        name, sep, number = item.partition("=")
+    for item in items:
+        name, _, number = item.partition("=")
         try:
             parsed = [float(v) for v in number.split(":")]
         except ValueError:
             parsed = []
-        if not sep or not name.strip() or not parsed:
-            raise SpaceidError(f"--drift: '{item}' is not KIND=VALUE with a number (e.g. --drift torque=1e-4,"
+        if not name.strip() or not parsed:
+            raise SpaceidError(f"`drift`: '{item}' is not KIND=VALUE with a number (e.g. `drift` torque=1e-4,"
                                "viscous=5e-5; a spatial torque as torque=TX:TY:TZ)")
         terms[name.strip()] = parsed[0] if len(parsed) == 1 else parsed
-    return drift_terms(terms, planar, where="--drift")
+    return drift_terms(terms, planar, where="`drift`")

@@ -11,14 +11,13 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from .._atomic import write_text_atomic
+from .._constants import EXPORT_FORMATS as FORMATS
 from .._errors import SpaceidError
 from ..models import PRESETS, Model
 from ._export import Export, unphysical_bodies
 
 __all__ = ["FORMATS", "urdf_text", "write_export", "yaml_text"]
 
-FORMATS = ("urdf", "yaml")
-"""Output formats of :func:`write_export`."""
 NOTE = "inertial parameters identified by spaceid export"
 
 

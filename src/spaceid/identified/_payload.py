@@ -54,7 +54,7 @@ from ..models.internal import add_to_body, symbol_suffix
 from ._export import _CLARABEL, MARGIN, inertial_from_pseudo, pseudo_inertia
 
 __all__ = ["GraspMotion", "PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent",
-           "nominal_payload"]
+           "nominal_payload", "payload_units"]
 
 SPATIAL_NAMES = ("m", "cx", "cy", "cz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
 """The payload's physical parameters: mass [kg], CoM in LINK's frame [m], inertia about the CoM
@@ -64,6 +64,14 @@ PLANAR_SLOTS = (0, 1, 2, 9)
 """Entries of the standard vector ``[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]`` that a
 planar motion sees (the z row of the momentum)."""
 NOT_PLANAR = ("cz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz")
+
+
+def payload_units(names) -> tuple:
+    """The unit of each payload parameter of ``names`` (of ``SPATIAL_NAMES``): ``kg`` for the
+    mass ``m``, ``m`` for the CoM ``cx, cy, cz``, ``kg m^2`` for the inertia."""
+    return tuple("kg" if n == "m" else "m" if n in ("cx", "cy", "cz") else "kg m^2" for n in names)
+
+
 COLLINEAR = 0.9
 """An estimated momentum whose correlation with a payload parameter exceeds this brings a warning:
 that parameter's standard error is then over twice what a known momentum gives (``1 / sqrt(1 -

@@ -43,7 +43,7 @@ from .._yaml import parse_yaml
 from ..data import Log, write_bag, write_json, write_log
 from ..dynamics import minimal_parameters
 from ..estimation import Identification, Monitor, Noise
-from ..identified import mean_momentum, parameterization_of, payload_after_grasp
+from ..identified import mean_momentum, parameterization_of, payload_after_grasp, payload_units
 from ..motion import FourierTrajectory
 from ..twin import Capture, drained_model, join_runs, place_payload, run_twin
 
@@ -322,9 +322,9 @@ def write_servicing(folder: Path, result: ServicingResult) -> tuple:
     s = result.scores
     plot_capture_monitor(result.log, s, folder / "capture.png", joints=result.trajectory.joints)
     plot_payload(s["payload"], folder / "payload.png", link=result.truth["link"])
-    units = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"}
-    rows = [(p["name"], units.get(p["name"], "kg m^2"), f"{p['true']:.6g}", f"{p['estimate']:.6g}", f"{p['std']:.2g}",
-             "" if p["z"] is None else f"{p['z']:+.2f}") for p in s["payload"]]  # fmt: skip
+    units = payload_units([p["name"] for p in s["payload"]])
+    rows = [(p["name"], unit, f"{p['true']:.6g}", f"{p['estimate']:.6g}", f"{p['std']:.2g}",
+             "" if p["z"] is None else f"{p['z']:+.2f}") for p, unit in zip(s["payload"], units)]  # fmt: skip
     lines = [f"The payload grasped by `{result.truth['link']}` (mass, CoM and inertia about the CoM in its frame), "
              "identified from the post-capture excitation with the twin's servicer model, against the twin's truth:",
              "", *_md_table(["parameter", "unit", "true", "estimate", "std", "z"], rows), ""]  # fmt: skip
