@@ -77,7 +77,7 @@ def throughput(param, model, sizes=(1000, 4000, 16000), drift=(), label="a"):
                     mon.update(rest.select(slice(i, i + chunk)))
                 wall = time.perf_counter() - start
                 print(f"  N = {n:6d}, {kind} rates, chunks of {chunk:3d}: {rest.n_samples / wall:8.0f} samples/s "
-                      f"({rest.n_samples} fed; {len(mon._thinned.rows)} samples kept for the batch identification)")
+                      f"({rest.n_samples} fed; {len(mon._segment.thinned.rows)} samples kept for the batch identification)")
 
 
 def capture_log(param, model):

@@ -18,7 +18,8 @@ from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Monitor, Noise, cusum_run_length, cusum_threshold, equation_covariance, monitor
 from spaceid.estimation import signal_sigma
 from spaceid.estimation._equations import _equations
-from spaceid.estimation._monitor import _increment, _recursive_innovations
+from spaceid.estimation._monitor_cusum import _increment
+from spaceid.estimation._monitor_whitening import _recursive_innovations
 from spaceid.estimation._uncertainty import _ljung_box_p
 from spaceid.models import load_model
 from spaceid.models._model import inertial_vector
@@ -207,12 +208,9 @@ class _Recording(Monitor):
     """A monitor that keeps every tested sample's statistic ``nu^T nu`` in ``statistics``."""
 
     def __init__(self, *args, **options):
-        self.statistics = []
         super().__init__(*args, **options)
-
-    def _open(self, start):
-        super()._open(start)
-        self._excursion = _Kept(self.statistics, maxlen=self.warmup)
+        self.statistics = []
+        self._cusum.excursion = _Kept(self.statistics, maxlen=self.warmup)
 
 
 class _Kept(collections.deque):

@@ -50,7 +50,7 @@ def drifting_capture(cepheus):
 
 def _basis(mon, chunk) -> np.ndarray:
     """The drift basis ``(n, n_d, 3)`` the monitor attaches to the samples of ``chunk``."""
-    return np.array([row[5] for row in mon._rows_with_basis(chunk)])
+    return np.array([sample.basis for sample in mon._intake.with_basis(chunk)])
 
 
 @pytest.mark.parametrize("kinds", [("torque",), ("viscous",), ("coulomb",)])
