@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from conftest import random_tree
 
+from spaceid._errors import SpaceidError
 from spaceid.cli import main
 from spaceid.data import Log, differentiate_log, write_log
 from spaceid.dynamics import minimal_parameters
@@ -433,11 +434,23 @@ def test_errors_name_the_option(tmp_path, steady, capsys):
     assert "--noise-*: all zero" in capsys.readouterr().err
     assert main(base + ["--false-alarm-rate", "2"]) == 2
     assert "--false-alarm-rate" in capsys.readouterr().err
+    assert main(base + ["--noise-rate", "1e-3", "--warmup", "3"]) == 2
+    assert "--warmup: 3: at least" in capsys.readouterr().err
     assert main(base + ["--follow", "--joint-topic", "/j"]) == 2
     assert "bag options" in capsys.readouterr().err
     at_rest = [a if a != "0.5" else "0" for a in base]
     assert main(at_rest + ["--noise-rate", "1e-3"]) == 2  # zero momentum and no anchor: an error at the start
     assert "--known NAME=VALUE" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option, name", [({"forgetting": 2.0}, "`forgetting`"), ({"estimator": "angles"}, "`estimator`"),
+                                          ({"warmup": 3}, "`warmup`"), ({"false_alarm_rate": 2.0}, "`false_alarm_rate`"),
+                                          ({"change_ratio": 0.5}, "`change_ratio`"),
+                                          ({"noise": Noise(0.0, 0.0, 0.0, 0.0)}, "`noise`")])
+def test_library_errors_name_the_argument(cepheus, option, name):
+    _, param = cepheus
+    with pytest.raises(SpaceidError, match=name):
+        Monitor(param, H, **option)
 
 
 def test_cli_defaults_are_the_library_ones():

@@ -88,11 +88,11 @@ NOISE_SAMPLES = 500
 def _check_options(forgetting: float, estimator: str, noise: Noise | None):
     """Raise on options the monitor cannot run with."""
     if not 0 < forgetting <= 1:
-        raise SpaceidError(f"--forgetting {forgetting!r}: give a factor in (0, 1], 1 for no forgetting")
+        raise SpaceidError(f"`forgetting`: {forgetting!r}: give a factor in (0, 1], 1 for no forgetting")
     if estimator == "angles":
-        raise SpaceidError("--estimator angles: the monitor needs per-sample momentum equations: use another one")
+        raise SpaceidError("`estimator` 'angles': the monitor needs per-sample momentum equations: use another one")
     if noise is not None and noise.is_zero:
-        raise SpaceidError("--noise-*: all zero: the test normalises the residuals by the noise, give its levels "
+        raise SpaceidError("`noise`: all zero: the test normalises the residuals by the noise, give its levels "
                            "(or none, to estimate them from the first samples)")
 
 
@@ -109,7 +109,7 @@ def _warmup_length(warmup: int | None, p: int, rows: int) -> int:
     """The warm-up [samples]: as given, else ``max(WARMUP, 4 (p + 1) / rows)``; at least ``p + 1``."""
     n = int(warmup) if warmup is not None else max(WARMUP, -(-4 * (p + 1) // rows))
     if n < p + 1:
-        raise SpaceidError(f"--warmup {n}: at least {p + 1} samples are needed to identify a segment")
+        raise SpaceidError(f"`warmup`: {n}: at least {p + 1} samples are needed to identify a segment")
     return n
 
 
@@ -315,7 +315,7 @@ class Monitor:
                                          source=f"estimated from the first {len(rows)} samples")
         if self.noise.is_zero:
             raise SpaceidError(f"{self.where}: the first {len(rows)} samples show no noise: give the noise levels "
-                               "(--noise-*)")
+                               "(`noise`)")
 
     def _set_prewhitening(self, block, rows, L, J):
         """The segment's prewhitening (:func:`~spaceid.estimation._monitor_whitening.prewhitening`)

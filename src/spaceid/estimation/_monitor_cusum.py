@@ -93,10 +93,10 @@ def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RA
         ``false_alarm_rate`` outside (0, 0.5) or ``ratio`` not above 1.
     """
     if not 0 < false_alarm_rate < 0.5:
-        raise SpaceidError(f"--false-alarm-rate {false_alarm_rate!r}: give false alarms per sample in (0, 0.5), "
+        raise SpaceidError(f"`false_alarm_rate`: {false_alarm_rate!r}: give false alarms per sample in (0, 0.5), "
                            f"e.g. {FALSE_ALARM_RATE:g}")
     if not ratio > 1:
-        raise SpaceidError(f"--change-ratio {ratio!r}: give an innovation variance ratio above 1, "
+        raise SpaceidError(f"`change_ratio`: {ratio!r}: give an innovation variance ratio above 1, "
                            f"e.g. {CHANGE_RATIO:g}")
     target = math.log(1 / false_alarm_rate)
     gap = lambda h: math.log(cusum_run_length(h, rows, ratio)) - target  # noqa: E731
