@@ -229,14 +229,19 @@ class Monitor:
         if half is not None and self._segment.phase is not Phase.TESTING:
             self._segment.drop_first(half)  # the log's first half window: extrapolated rates, never taken
         if self._whitener is None or not self._whitener.follows(samples):
-            series = differentiated_series(samples)
-            self._whitener = DifferentiatedWhitener(series, self._intake.t0, self._eq.p, self._raw_levels) \
-                if series else None
-            kalman = self._segment.whitening is not None and self._segment.whitening.kalman
-            if kalman:  # new filters within a tested segment: start afresh, if it still has some
-                self._segment.whitening.kalman = self._whitener is not None
-                if self._whitener is not None:
-                    self._start_whitener()
+            self._new_whitener(samples)
+
+    def _new_whitener(self, samples: Log):
+        """The differentiator's whitening of ``samples``' record (None without one): a segment whose
+        test it whitened starts afresh with the new one, or goes on without (no AR filter either)."""
+        series = differentiated_series(samples)
+        self._whitener = DifferentiatedWhitener(series, self._intake.t0, self._eq.p, self._raw_levels) \
+            if series else None
+        whitening = self._segment.whitening
+        if whitening is not None and whitening.kalman:
+            whitening.kalman = self._whitener is not None
+            if whitening.kalman:
+                self._start_whitener()
 
     def _take(self, samples: Log, rows: list) -> list:
         """Take the final samples ``rows`` (of ``samples``), each as its segment's phase says;
