@@ -66,7 +66,7 @@ from ._estimators import _accumulate_factor, _column_scale
 from ._identify import identify
 from ._monitor_cusum import CHANGE_RATIO, FALSE_ALARM_RATE, Cusum, cusum_run_length, cusum_threshold
 from ._monitor_filter import DifferentiatedWhitener
-from ._monitor_records import Z_CHANGED, Alarm, MonitorEvent
+from ._monitor_records import Z_CHANGED, Alarm, MonitorEvent, MonitorRecord, SegmentRecord
 from ._monitor_samples import Intake, Sample, Thinned, log_of
 from ._monitor_state import Phase, Segment
 from ._monitor_whitening import (_prediction, differentiator_innovations, prewhitening, warm_up_innovations,
@@ -74,7 +74,8 @@ from ._monitor_whitening import (_prediction, differentiator_innovations, prewhi
 from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
 
-__all__ = ["Monitor", "MonitorEvent", "monitor", "cusum_threshold", "cusum_run_length", "log_chunks", "Z_CHANGED"]
+__all__ = ["Monitor", "MonitorEvent", "MonitorRecord", "SegmentRecord", "monitor", "cusum_threshold",
+           "cusum_run_length", "log_chunks", "Z_CHANGED"]
 
 CHUNK = 256
 """Samples of a whole :class:`~spaceid.data.Log` fed to the monitor at a time (the regressor is vectorised)."""
@@ -127,6 +128,9 @@ def _raw_levels(noise: Noise | None) -> tuple:
 
 class Monitor:
     """Change detection on the momentum equations, one sample at a time (module docstring).
+
+    Feed it the samples with :meth:`update`, which returns the events as they are found; then
+    :meth:`finish` returns the run's :class:`MonitorRecord` (:func:`monitor` does both).
 
     Parameters
     ----------
@@ -191,6 +195,7 @@ class Monitor:
         self._whitener = None  # the Kalman whitening of differentiated rates' errors (DifferentiatedWhitener)
         self._sigma = None  # the signal noise levels (n_x,), once the noise is known
         self._carried = None  # drift coefficients and their std that the last change's momentum was carried with
+        self._last_time = None  # the last sample taken [s]
         target = self.warmup if noise is not None else max(self.warmup, NOISE_SAMPLES)
         self._segment = Segment(start=None, origin=None, momentum=self.momentum, drift=bool(self.drift),
                                 target=target, thinned=Thinned(self.max_segment))
@@ -216,6 +221,7 @@ class Monitor:
         rows = self._intake.final(samples)
         if not rows:
             return []
+        self._last_time = float(rows[-1].t)
         if self._intake.half:
             samples = dataclasses.replace(log_of(rows, self.param.model, self.where), meta=samples.meta)
         if self._segment.origin is None:  # the log's first sample: the first segment's origin
@@ -304,7 +310,7 @@ class Monitor:
         block = white.reshape(-1, white.shape[-1])
         segment.scale = _column_scale(block[:, :-1])
         segment.R = _accumulate_factor(None, np.asfortranarray(block / np.r_[segment.scale, 1.0]))
-        last = self.segments[-1]["prewhitening"] if self.segments else None
+        last = self.segments[-1].prewhitening if self.segments else None
         carried = self._carried[0] if self.drift and last is not None else None
         nu = warm_up_innovations(last, block, self._set_prewhitening(block, rows, L, J), self.param.rows,
                                  segment.scale, len(self._eq.free), carried)
@@ -460,7 +466,7 @@ class Monitor:
         """The waiting alarm's event, the segment before against this one's warm-up (none waiting: [])."""
         if self._waiting is None:
             return []
-        event = self._waiting.event(self.segments[-1]["identification"], self._segment.ident, self.where)
+        event = self._waiting.event(self.segments[-1].identification, self._segment.ident, self.where)
         self._waiting = None
         self.events.append(event)
         return [event]
@@ -471,18 +477,24 @@ class Monitor:
         if end is not None:
             segment.thinned.until(end)
         rows = segment.thinned.rows or segment.warm
-        record = {"index": len(self.segments), "start": segment.start, "end": end, "n_samples": segment.count,
-                  "n_identified": len(rows), "identification": None, "recursive": self.estimate(),
-                  "prewhitening": None if segment.whitening is None else segment.whitening.record,
-                  "momentum": segment.momentum.tolist(),
-                  "momentum_from": None if segment.origin is None else float(segment.origin.t)}
-        if rows and self.noise is not None:
-            history = [segment.origin] * bool(segment.origin.t < rows[0].t) + rows if self.drift else None
-            try:
-                record["identification"] = self._identify(rows, f"segment {len(self.segments)}", history)
-            except SpaceidError:  # too short or not excited: the record says so by its None
-                pass
-        self.segments.append(record)
+        self.segments.append(SegmentRecord(
+            index=len(self.segments), start=segment.start, end=end, n_samples=segment.count, n_identified=len(rows),
+            identification=self._identify_segment(rows), recursive=self.estimate(),
+            prewhitening=None if segment.whitening is None else segment.whitening.record,
+            momentum=segment.momentum.copy(),
+            momentum_from=None if segment.origin is None else float(segment.origin.t)))
+
+    def _identify_segment(self, rows: list) -> Identification | None:
+        """The batch identification of the running segment from its samples ``rows``; None when
+        there are none, or too few or not exciting enough (the record says so by its None)."""
+        if not rows or self.noise is None:
+            return None
+        segment = self._segment
+        history = [segment.origin] * bool(segment.origin.t < rows[0].t) + rows if self.drift else None
+        try:
+            return self._identify(rows, f"segment {len(self.segments)}", history)
+        except SpaceidError:
+            return None
 
     def estimate(self) -> dict | None:
         """The recursive estimate of the running segment: ``values`` (all minimal parameters),
@@ -494,60 +506,47 @@ class Monitor:
         (weights at the linearisation point)."""
         return self._segment.estimate(self._eq.free, self.param.n_params)
 
-    def finish(self) -> dict:
-        """Close the last segment and return the record of the run (``EVENTS.json``, see
-        docs/formats/events-json.md), with each segment's batch identification. The samples held
-        back (:meth:`update`: the last half window of differentiated rates) are left out."""
+    def finish(self) -> MonitorRecord:
+        """Close the last segment and return the record of the run, with each segment's batch
+        identification (its :meth:`~MonitorRecord.to_dict` is EVENTS.json, see
+        docs/formats/events-json.md). The samples held back (:meth:`update`: the last half window
+        of differentiated rates) are left out."""
         self._close(None)
         if self._waiting is not None:  # an alarm too close to the end for a warm-up: compare with what there is
-            before, after = (s["identification"] for s in self.segments[-2:])
+            before, after = (s.identification for s in self.segments[-2:])
             self.events.append(self._waiting.event(before, after, self.where))
             self._waiting = None
         return self.record()
+
+    def record(self) -> MonitorRecord:
+        """The record of the events and closed segments so far."""
+        return MonitorRecord(
+            model=self.param.model.source or self.param.model.name, planar=self.param.model.planar,
+            momentum=self.momentum.copy(), n_samples=self.n_samples, n_tested=self.n_tested, settings=self._settings(),
+            events=tuple(self.events), segments=tuple(self.segments),
+            whole_segment_changes=tuple(self._segment_change(e.index) for e in self.events), last_time=self._last_time)
+
+    def _settings(self) -> dict:
+        """How the test runs: the ``settings`` of EVENTS.json."""
+        return {
+            "test": "CUSUM of the chi-square log-likelihood ratio of the normalised innovations",
+            "false_alarm_rate": self.false_alarm_rate, "change_ratio": self.change_ratio,
+            "threshold": self.threshold, "expected_delay": self.expected_delay,
+            "forgetting": self.forgetting, "warmup": self.warmup, "estimator": self.estimator,
+            "max_segment": self.max_segment, "known": self.known, "z_changed": Z_CHANGED,
+            "drift": list(self.drift),
+            "noise": None if self.noise is None else self.noise.to_dict(), "parameter_names": list(self.param.names),
+        }  # fmt: skip
 
     def _segment_change(self, k: int) -> dict | None:
         """The change across event ``k`` from the batch identifications of the whole segments on
         either side (None until both are closed and identified): ``changed`` and ``parameters``
         as in :class:`MonitorEvent`."""
         pair = self.segments[k : k + 2]
-        if len(pair) < 2 or None in (pair[0]["identification"], pair[1]["identification"]):
+        if len(pair) < 2 or None in (pair[0].identification, pair[1].identification):
             return None
-        res = compare(pair[0]["identification"], pair[1]["identification"], where=self.where)["parameters"]
+        res = compare(pair[0].identification, pair[1].identification, where=self.where)["parameters"]
         return {"changed": [q["name"] for q in res if abs(q["z"]) > Z_CHANGED], "parameters": res}
-
-    def record(self) -> dict:
-        """The JSON-ready record of the events and closed segments so far."""
-        names = list(self.param.names)
-
-        def segment(s):
-            ident, rec = s["identification"], s["recursive"]
-            keys = ("index", "start", "end", "n_samples", "n_identified", "prewhitening", "momentum", "momentum_from")
-            return {k: s[k] for k in keys} | {
-                "parameters": None if ident is None else [
-                    {"name": n, "value": float(v), "std": float(e)} for n, v, e in zip(names, ident.values, ident.std)],
-                "drift": None if ident is None else [dict(d) for d in ident.drift],
-                "chi2_dof": None if ident is None else ident.settings.get("chi2_dof"),
-                "recursive": None if rec is None else {k: v.tolist() for k, v in rec.items()},
-            }
-
-        return {
-            "model": self.param.model.source or self.param.model.name,
-            "planar": self.param.model.planar,
-            "momentum": self.momentum.tolist(),
-            "n_samples": self.n_samples,
-            "n_tested": self.n_tested,
-            "settings": {
-                "test": "CUSUM of the chi-square log-likelihood ratio of the normalised innovations",
-                "false_alarm_rate": self.false_alarm_rate, "change_ratio": self.change_ratio,
-                "threshold": self.threshold, "expected_delay": self.expected_delay,
-                "forgetting": self.forgetting, "warmup": self.warmup, "estimator": self.estimator,
-                "max_segment": self.max_segment, "known": self.known, "z_changed": Z_CHANGED,
-                "drift": list(self.drift),
-                "noise": None if self.noise is None else self.noise.to_dict(), "parameter_names": names,
-            },
-            "events": [e.to_dict() | {"segments": self._segment_change(e.index)} for e in self.events],
-            "segments": [segment(s) for s in self.segments],
-        }
 
 
 def log_chunks(samples):
@@ -557,8 +556,8 @@ def log_chunks(samples):
     return samples
 
 
-def monitor(param: Parameterization, samples, momentum, **options):
-    """Yield the changes of a running log as its samples arrive.
+def monitor(param: Parameterization, samples, momentum, *, on_event=None, **options) -> MonitorRecord:
+    """Follow a log for changes as its samples arrive.
 
     Parameters
     ----------
@@ -569,21 +568,25 @@ def monitor(param: Parameterization, samples, momentum, **options):
         file, :func:`spaceid.data.follow_log`).
     momentum : array_like of shape (3,)
         Inertial angular momentum of the whole system [N m s].
+    on_event : callable, optional
+        Called with each :class:`MonitorEvent` as it is found: once the segment after the change
+        has its warm-up identified (or at the end of the samples).
     **options
         Keywords of :class:`Monitor` (``known``, ``noise``, ``drift``, ``false_alarm_rate``, ``change_ratio``,
         ``forgetting``, ``warmup``, ``estimator``, ``max_segment``, ``where``).
 
-    Yields
-    ------
-    MonitorEvent
-        Each change, once the segment after it has its warm-up identified (or at the end of the
-        samples). The generator's return value (``StopIteration.value``) is the run's record,
-        :meth:`Monitor.finish`.
+    Returns
+    -------
+    MonitorRecord
+        The run's record (:meth:`Monitor.finish`): its ``events`` and ``segments``.
     """
+    found = on_event or (lambda event: None)
     mon = Monitor(param, momentum, **options)
     for chunk in log_chunks(samples):
-        yield from mon.update(chunk)
+        for event in mon.update(chunk):
+            found(event)
     seen = len(mon.events)
     record = mon.finish()
-    yield from mon.events[seen:]
+    for event in record.events[seen:]:  # a change too close to the end for the next warm-up
+        found(event)
     return record
