@@ -76,8 +76,9 @@ def throughput(param, model, sizes=(1000, 4000, 16000), drift=(), label="a"):
                 for i in range(0, rest.n_samples, chunk):
                     mon.update(rest.select(slice(i, i + chunk)))
                 wall = time.perf_counter() - start
+                kept = len(mon._segment.thinned.rows)
                 print(f"  N = {n:6d}, {kind} rates, chunks of {chunk:3d}: {rest.n_samples / wall:8.0f} samples/s "
-                      f"({rest.n_samples} fed; {len(mon._thinned.rows)} samples kept for the batch identification)")
+                      f"({rest.n_samples} fed; {kept} samples kept for the batch identification)")
 
 
 def capture_log(param, model):
@@ -102,13 +103,13 @@ def delay(param, model, runs):
             mon = Monitor(param, H, noise=NOISE)
             mon.update(noisy(log, seed) if kind == "measured" else differentiate_log(noisy(log, seed), window=31))
             record = mon.finish()
-            shows = [e["detected_at"] >= T_CAPTURE - e["lead"] - 1e-9 for e in record["events"]]  # the grasp can
-            near = [e for e, s in zip(record["events"], shows) if s and abs(e["time"] - T_CAPTURE) < 0.5]
-            other += len(record["events"]) - len(near)
-            early, tested = early + shows.count(False), tested + record["n_tested"]
+            shows = [e.detected_at >= T_CAPTURE - e.lead - 1e-9 for e in record.events]  # the grasp can
+            near = [e for e, s in zip(record.events, shows) if s and abs(e.time - T_CAPTURE) < 0.5]
+            other += len(record.events) - len(near)
+            early, tested = early + shows.count(False), tested + record.n_tested
             if near:
-                onset.append(round((near[0]["time"] - T_CAPTURE) * RATE))
-                detect.append(round((near[0]["detected_at"] - T_CAPTURE) * RATE))
+                onset.append(round((near[0].time - T_CAPTURE) * RATE))
+                detect.append(round((near[0].detected_at - T_CAPTURE) * RATE))
         print(f"  {kind} rates: found in {len(onset)}/{runs} runs; change time - true [samples]: median "
               f"{np.median(onset):.0f}, {min(onset)} to {max(onset)}; detection - true [samples]: median "
               f"{np.median(detect):.0f}, {min(detect)} to {max(detect)}; other events: {other}, {early} of them "
@@ -127,7 +128,7 @@ def false_alarms(param, runs, logs, noise, label, alpha=1e-3, drift=(), warmup=N
         mon = Monitor(param, H, noise=noise, false_alarm_rate=alpha, estimator=estimator, drift=drift, warmup=warmup)
         mon.update(logs(seed))
         record = mon.finish()
-        alarms, tested = alarms + len(record["events"]), tested + record["n_tested"]
+        alarms, tested = alarms + len(record.events), tested + record.n_tested
     expected = alpha * tested
     print(f"  {alarms} alarms in {tested} tested samples: {alarms / tested:.3g} per sample "
           f"(+- {np.sqrt(alarms) / tested:.2g} counting error), stated {alpha:g}: {expected:.1f} expected, "

@@ -221,7 +221,7 @@ def test_whitening_stays_positive_definite_with_exact_arm_encoders():
     param = minimal_parameters(load_model(settings.model), seed=r.settings["capture phase seed"])
     mon = Monitor(param, np.zeros(3), noise=noise, warmup=100)
     mon.update(r.servicing.log)
-    events = mon.finish()["events"]
+    events = mon.finish().events
     grasp, step = r.servicing.scores["grasp time [s]"], r.servicing.scores["sample period [s]"]
     # found, if late: the alarms the 2 s warm-up raises leave the grasp in an untested warm-up (docs/theory/capture.md)
-    assert any(e["detected_at"] + step >= grasp - e["lead"] for e in events), events
+    assert any(e.detected_at + step >= grasp - e.lead for e in events), events

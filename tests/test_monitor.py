@@ -1,6 +1,6 @@
 """Change detection on a running log (spaceid.estimation.monitor, spaceid monitor): the CUSUM's
 threshold, the recursive estimate against the batch one, a capture found where it happened, the
-false-alarm rate, the generator against the CLI, and a file that grows while it is followed."""
+false-alarm rate, the streamed events against the CLI, and a file that grows while it is followed."""
 
 import collections
 import dataclasses
@@ -12,13 +12,15 @@ import numpy as np
 import pytest
 from conftest import random_tree
 
+from spaceid._errors import SpaceidError
 from spaceid.cli import main
 from spaceid.data import Log, differentiate_log, write_log
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Monitor, Noise, cusum_run_length, cusum_threshold, equation_covariance, monitor
 from spaceid.estimation import signal_sigma
 from spaceid.estimation._equations import _equations
-from spaceid.estimation._monitor import _increment, _recursive_innovations
+from spaceid.estimation._monitor_cusum import _increment
+from spaceid.estimation._monitor_whitening import _recursive_innovations
 from spaceid.estimation._uncertainty import _ljung_box_p
 from spaceid.models import load_model
 from spaceid.models._model import inertial_vector
@@ -116,11 +118,15 @@ def test_recursive_estimate_equals_batch_weighted_least_squares(cepheus, steady)
 def test_finds_the_capture_within_a_few_samples(capture):
     log, truth = capture
     param = minimal_parameters(load_model("cepheus"))
-    events = list(monitor(param, _noisy(log, 1), H, noise=NOISE))
-    assert len(events) == 1
-    (event,) = events
+    record = monitor(param, _noisy(log, 1), H, noise=NOISE)
+    assert len(record.events) == 1
+    (event,) = record.events
     assert abs(event.time - T_CAPTURE) <= 2 / RATE and event.detected_at - T_CAPTURE <= 3 / RATE
     assert event.statistic > event.threshold
+    # the record draws each segment's change from the first, the capture's parameters labelled
+    ax = record.plot().axes[0]
+    assert {line.get_label() for line in ax.get_lines()} >= set(event.changed)
+    assert record.plot(ax) is ax.figure
 
 
 @pytest.mark.slow
@@ -130,11 +136,11 @@ def test_segments_reidentified_on_either_side_of_the_capture(capture, cepheus):
     mon = Monitor(param, H, noise=NOISE)
     mon.update(_noisy(log, 2))
     record = mon.finish()
-    assert len(record["events"]) == 1 and len(record["segments"]) == 2
-    for segment, pi in zip(mon.segments, (param.true_values, truth)):
-        ident = segment["identification"]
+    assert len(record.events) == 1 and len(record.segments) == 2
+    for segment, pi in zip(record.segments, (param.true_values, truth)):
+        ident = segment.identification
         assert np.all(np.abs(ident.values - pi) < 5 * ident.std)
-    change = record["events"][0]["segments"]
+    change = record.whole_segment_changes[0]
     moved = np.abs(truth - param.true_values) / param.true_values > 0.1
     assert set(change["changed"]) >= {n for n, m in zip(param.names, moved) if m}
 
@@ -145,7 +151,7 @@ def test_no_event_without_a_change(cepheus, steady, forgetting):
     mon = Monitor(param, H, noise=NOISE, forgetting=forgetting)
     mon.update(_noisy(steady, 4))
     rec = mon.estimate()
-    assert mon.finish()["events"] == []
+    assert mon.finish().events == ()
     assert np.all(np.abs(rec["values"] - param.true_values) < 5 * rec["std"])  # forgetting: a looser estimate
 
 
@@ -165,7 +171,7 @@ def _assert_false_alarm_rate(param, logs, noise, rate=1e-3, **options) -> list:
         mon = Monitor(param, H, noise=noise, false_alarm_rate=rate, estimator="wls", **options)
         mon.update(log)
         records.append(mon.finish())
-    alarms, tested = sum(len(r["events"]) for r in records), sum(r["n_tested"] for r in records)
+    alarms, tested = sum(len(r.events) for r in records), sum(r.n_tested for r in records)
     expected = rate * tested
     assert abs(alarms - expected) < 3 * np.sqrt(expected), (alarms, expected)
     return records
@@ -185,7 +191,7 @@ def test_false_alarm_rate_as_stated_with_differentiated_rates(cepheus, steady, n
     estimated from the log gave 48 alarms on 6 logs where 0.13 were expected)."""
     _, param = cepheus
     for record in _assert_false_alarm_rate(param, [_differentiated(steady, 200 + seed) for seed in range(12)], noise):
-        white = record["segments"][0]["prewhitening"]
+        white = record.segments[0].prewhitening
         assert white["differentiator_window"] == 30 and white["lag1_autocorrelation"] > 0.5
         # the warm-up's chi2/dof: about 1 with the levels given (200 samples), up to 2.2 with them estimated
         # (500 samples): then the innovations are divided by its square root
@@ -207,12 +213,9 @@ class _Recording(Monitor):
     """A monitor that keeps every tested sample's statistic ``nu^T nu`` in ``statistics``."""
 
     def __init__(self, *args, **options):
-        self.statistics = []
         super().__init__(*args, **options)
-
-    def _open(self, start):
-        super()._open(start)
-        self._excursion = _Kept(self.statistics, maxlen=self.warmup)
+        self.statistics = []
+        self._cusum.excursion = _Kept(self.statistics, maxlen=self.warmup)
 
 
 class _Kept(collections.deque):
@@ -245,7 +248,7 @@ def test_differentiated_innovations_have_unit_variance(differentiated_statistics
     for 1770 independent ones (an AR(3) filter fitted to the warm-up gave 0.78 to 1.36 on these
     seeds: its scale comes from few independent stretches of 200 correlated samples)."""
     for seed, statistics, record in differentiated_statistics:
-        assert not record["events"]
+        assert not record.events
         assert abs(np.mean(statistics) - 1) < 0.15, (seed, np.mean(statistics))
 
 
@@ -278,7 +281,7 @@ def test_a_warm_up_that_contradicts_the_differentiator_falls_back_to_an_ar_filte
     wrong = {part: dict(record[part], noise=[3 * v for v in record[part]["noise"]]) for part in ("joints", "base")}
     mon = Monitor(param, H, estimator="wls")  # levels not given: the record's
     mon.update(dataclasses.replace(log, meta=dict(log.meta, differentiation=wrong)))
-    white = mon.finish()["segments"][0]["prewhitening"]
+    white = mon.finish().segments[0].prewhitening
     assert white["filter"] == "autoregressive" and white["order"] == 3 and white["chi2_dof"] < 0.2
 
 
@@ -290,14 +293,14 @@ def test_the_last_half_window_of_differentiated_rates_is_not_tested(cepheus, ste
     _, param = cepheus
     log = _differentiated(steady, 7)
     wrong = dataclasses.replace(log, qd=log.qd + np.where(np.arange(log.n_samples) >= 1985, 0.05, 0.0)[:, None])
-    assert list(monitor(param, wrong, H, noise=NOISE)) == []
+    assert monitor(param, wrong, H, noise=NOISE).events == ()
     mon = Monitor(param, H, noise=NOISE)
     mon.update(wrong.select(slice(0, 1000)))
     assert mon.n_tested == 1000 - 15 - 200 - 15  # the first half window is not taken either (below)
     mon.update(wrong.select(slice(1000, None)))
-    assert mon.finish()["n_tested"] == 2000 - 15 - 200 - 15
+    assert mon.finish().n_tested == 2000 - 15 - 200 - 15
     wrong = dataclasses.replace(log, qd=log.qd + np.where(np.arange(log.n_samples) >= 1975, 0.05, 0.0)[:, None])
-    (event,) = monitor(param, wrong, H, noise=NOISE)  # the same error on samples that are tested is found
+    (event,) = monitor(param, wrong, H, noise=NOISE).events  # the same error on samples that are tested is found
     assert abs(event.time - 19.75) <= 0.16
 
 
@@ -316,29 +319,29 @@ def test_the_first_half_window_of_differentiated_rates_is_not_taken(cepheus, ste
         mon = Monitor(param, H, noise=NOISE)
         mon.update(samples)
         records.append(mon.finish())
-    assert records[0] == records[1] and records[0]["events"] == []
-    assert records[0]["n_tested"] == 600 - 15 - 200 - 15
+    assert records[0].to_dict() == records[1].to_dict() and records[0].events == ()
+    assert records[0].n_tested == 600 - 15 - 200 - 15
 
 
 def test_white_innovations_are_not_prewhitened(cepheus, steady):
     _, param = cepheus
     mon = Monitor(param, H, noise=NOISE)
     mon.update(_noisy(steady, 8))
-    white = mon.finish()["segments"][0]["prewhitening"]
+    white = mon.finish().segments[0].prewhitening
     assert white["order"] == 0 and white["scale"] == 1.0 and white["ljung_box_p"] > 1e-3
 
 
 def test_finds_the_capture_with_differentiated_rates(capture, cepheus):
     log, _ = capture
     _, param = cepheus
-    events = list(monitor(param, _differentiated(log, 9), H, noise=NOISE))
+    events = monitor(param, _differentiated(log, 9), H, noise=NOISE).events
     assert len(events) == 1  # the samples the differentiator blends across the grasp are skipped, not a 2nd event
     (event,) = events  # the smoothed rates show the grasp up to half a window (15 samples) before it
     assert abs(event.time - T_CAPTURE) <= 17 / RATE and event.detected_at - T_CAPTURE <= 3 / RATE
     # the event says so: the change lies between its time and half the window (30 samples) later
     assert event.lead == pytest.approx(15 / RATE)
     assert event.time <= T_CAPTURE + 1e-9 <= event.time + event.lead + 2 / RATE
-    assert next(monitor(param, _noisy(log, 9), H, noise=NOISE)).lead == 0.0  # measured rates: no lead
+    assert monitor(param, _noisy(log, 9), H, noise=NOISE).events[0].lead == 0.0  # measured rates: no lead
 
 
 
@@ -363,10 +366,10 @@ def test_a_change_within_a_warm_up_after_an_alarm_is_found(cepheus, differentiat
     mon = Monitor(param, H, noise=NOISE)
     mon.update(_differentiated(log, 3) if differentiated else _noisy(log, 3))
     record = mon.finish()
-    times = [e["time"] for e in record["events"]]
+    times = [e.time for e in record.events]
     assert len(times) == 2 and all(abs(a - b) <= 17 / RATE for a, b in zip(times, (3.0, 4.5))), times
-    assert (record["segments"][0]["prewhitening"]["filter"] == "differentiator") == differentiated
-    assert record["segments"][1]["recursive"] is None  # its warm-up held the change: closed before its test began
+    assert (record.segments[0].prewhitening["filter"] == "differentiator") == differentiated
+    assert record.segments[1].recursive is None  # its warm-up held the change: closed before its test began
 
 
 def _cli_events(tmp_path, log_path, *extra):
@@ -385,14 +388,17 @@ def _same_events(a, b):
 
 
 @pytest.mark.slow
-def test_generator_yields_the_events_of_the_cli(capture, cepheus, tmp_path):
+def test_streamed_events_are_those_of_the_cli(capture, cepheus, tmp_path):
     log, _ = capture
     _, param = cepheus
     noisy = _noisy(log, 5)
     write_log(tmp_path / "log.csv", noisy)
     cuts = np.cumsum(np.resize([1, 1, 1, 7, 31, 2], noisy.n_samples))  # one sample at a time, and bursts
     arriving = (noisy.select(slice(a, b)) for a, b in zip(np.r_[0, cuts], cuts) if a < noisy.n_samples)
-    events = [e.to_dict() for e in monitor(param, arriving, H, noise=NOISE)]
+    streamed = []
+    run = monitor(param, arriving, H, noise=NOISE, on_event=streamed.append)
+    assert streamed == list(run.events)
+    events = [e.to_dict() for e in streamed]
     record = _cli_events(tmp_path, tmp_path / "log.csv")
     assert len(events) == 1
     _same_events(events, record["events"])
@@ -435,11 +441,23 @@ def test_errors_name_the_option(tmp_path, steady, capsys):
     assert "--noise-*: all zero" in capsys.readouterr().err
     assert main(base + ["--false-alarm-rate", "2"]) == 2
     assert "--false-alarm-rate" in capsys.readouterr().err
+    assert main(base + ["--noise-rate", "1e-3", "--warmup", "3"]) == 2
+    assert "--warmup: 3: at least" in capsys.readouterr().err
     assert main(base + ["--follow", "--joint-topic", "/j"]) == 2
     assert "bag options" in capsys.readouterr().err
     at_rest = [a if a != "0.5" else "0" for a in base]
     assert main(at_rest + ["--noise-rate", "1e-3"]) == 2  # zero momentum and no anchor: an error at the start
     assert "--known NAME=VALUE" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option, name", [
+    ({"forgetting": 2.0}, "`forgetting`"), ({"estimator": "angles"}, "`estimator`"), ({"warmup": 3}, "`warmup`"),
+    ({"false_alarm_rate": 2.0}, "`false_alarm_rate`"), ({"change_ratio": 0.5}, "`change_ratio`"),
+    ({"noise": Noise(0.0, 0.0, 0.0, 0.0)}, "`noise`")])
+def test_library_errors_name_the_argument(cepheus, option, name):
+    _, param = cepheus
+    with pytest.raises(SpaceidError, match=name):
+        Monitor(param, H, **option)
 
 
 def test_cli_defaults_are_the_library_ones():
@@ -468,7 +486,7 @@ def test_finds_a_capture_on_a_spatial_tree():
     before = simulate(param, param.true_values, motion, t[t <= 15.0], h, model=model)
     after = simulate(param, captured.true_values, motion, t[t >= 15.0], h, initial_quat=before.base_quat[-1])
     log = _noisy(_concatenate(before.select(slice(0, -1)), after), 7)
-    events = list(monitor(param, log, h, noise=NOISE))
+    events = monitor(param, log, h, noise=NOISE).events
     assert len(events) == 1 and abs(events[0].time - 15.0) <= 2 / 50
 
 
@@ -530,7 +548,7 @@ def test_monitor_on_a_bag_reads_it_in_parts(capture_bag, tmp_path, capsys):
     # found where the whole log read at once finds it: within half the differentiator's window before the grasp
     param = minimal_parameters(load_model("cepheus-rw"))
     (expected,) = monitor(param, whole, np.zeros(3), known={"Iczz_wheel": _rotor()}, warmup=100,
-                          noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
+                          noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2)).events  # fmt: skip
     assert abs(event["time"] - expected.time) <= 0.04 and -0.5 < event["time"] - grasp <= 0.02, (event, grasp)
     assert main(args + ["--follow"]) == 2
     assert "a bag cannot be read while it is recorded" in capsys.readouterr().err

@@ -50,7 +50,7 @@ def drifting_capture(cepheus):
 
 def _basis(mon, chunk) -> np.ndarray:
     """The drift basis ``(n, n_d, 3)`` the monitor attaches to the samples of ``chunk``."""
-    return np.array([row[5] for row in mon._rows_with_basis(chunk)])
+    return np.array([sample.basis for sample in mon._intake.with_basis(chunk)])
 
 
 @pytest.mark.parametrize("kinds", [("torque",), ("viscous",), ("coulomb",)])
@@ -94,15 +94,15 @@ def test_noise_free_drift_and_momentum_through_a_capture(drifting_capture, cephe
     mon = Monitor(param, H, noise=tiny, drift=("viscous",), estimator="wls")
     mon.update(log)
     record = mon.finish()
-    assert len(record["events"]) == 1 and abs(record["events"][0]["time"] - T_CAPTURE) <= 1 / RATE
-    for segment, pi in zip(mon.segments, (param.true_values, truth)):
-        ident = segment["identification"]
+    assert len(record.events) == 1 and abs(record.events[0].time - T_CAPTURE) <= 1 / RATE
+    for segment, pi in zip(record.segments, (param.true_values, truth)):
+        ident = segment.identification
         assert np.max(np.abs(ident.values - pi) / np.abs(pi)) < 1e-6
         assert ident.drift[0]["value"] == pytest.approx(VISCOUS, rel=1e-6)
-    second = record["segments"][1]
-    h_true = _true_momentum(log, second["momentum_from"])
-    assert np.max(np.abs(np.array(second["momentum"]) - h_true)) < 1e-9
-    assert record["settings"]["drift"] == ["viscous"]
+    second = record.segments[1]
+    h_true = _true_momentum(log, second.momentum_from)
+    assert np.max(np.abs(second.momentum - h_true)) < 1e-9
+    assert record.settings["drift"] == ["viscous"]
 
 
 def test_a_drift_is_no_change(drifting, cepheus):
@@ -110,11 +110,11 @@ def test_a_drift_is_no_change(drifting, cepheus):
     change), none with them, the drift coefficient and the parameters within their errors."""
     _, param = cepheus
     log = _noisy(drifting, 4)
-    assert list(monitor(param, log, H, noise=NOISE))  # the test can fail: the drift alone raises events
+    assert monitor(param, log, H, noise=NOISE).events  # the test can fail: the drift alone raises events
     mon = Monitor(param, H, noise=NOISE, drift=("viscous",))
     mon.update(log)
     rec = mon.estimate()
-    assert mon.finish()["events"] == []
+    assert mon.finish().events == ()
     assert abs(rec["drift"][0] - VISCOUS) < 4 * rec["drift_std"][0]
     assert np.all(np.abs(rec["values"] - param.true_values) < 5 * rec["std"])
     assert rec["momentum_from"] == drifting.t[0] and np.array_equal(rec["momentum"], H)
@@ -123,7 +123,7 @@ def test_a_drift_is_no_change(drifting, cepheus):
 def test_finds_the_capture_on_a_drifting_log(drifting_capture, cepheus):
     log, _ = drifting_capture
     _, param = cepheus
-    events = list(monitor(param, _noisy(log, 1), H, noise=NOISE, drift=("viscous",)))
+    events = monitor(param, _noisy(log, 1), H, noise=NOISE, drift=("viscous",)).events
     assert len(events) == 1 and abs(events[0].time - T_CAPTURE) <= 2 / RATE
 
 

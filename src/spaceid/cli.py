@@ -1442,19 +1442,19 @@ def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_al
             for chunk in chunks:
                 for event in mon.update(chunk):
                     _print_event(event)
-                    write_json(output, mon.record())
+                    write_json(output, mon.record().to_dict())
         except KeyboardInterrupt:
             err.print("interrupted: closing the last segment")
         printed = len(mon.events)
         record = mon.finish()
-    for event in mon.events[printed:]:  # a change too close to the end for the next warm-up
+    for event in record.events[printed:]:  # a change too close to the end for the next warm-up
         _print_event(event)
-    for event in record["events"]:
-        if event["segments"] is not None:
-            out.print(f"change {event['index']}, whole segments compared: changed "
-                      f"{', '.join(event['segments']['changed']) or 'none'}", highlight=False)
-    write_json(output, record)
-    out.print(f"{len(record['events'])} change(s) in {record['n_samples']} samples; {len(record['segments'])} "
+    for event, change in zip(record.events, record.whole_segment_changes):
+        if change is not None:
+            out.print(f"change {event.index}, whole segments compared: changed "
+                      f"{', '.join(change['changed']) or 'none'}", highlight=False)
+    write_json(output, record.to_dict())
+    out.print(f"{len(record.events)} change(s) in {record.n_samples} samples; {len(record.segments)} "
               f"segment(s) identified; written to {output}", highlight=False)
 
 

@@ -249,7 +249,7 @@ def _monitor(model, log: Log, before: Identification, drift, seed: int) -> dict:
     mon = Monitor(minimal_parameters(model, seed=seed), momentum, noise=noise, drift=drift,
                   where=str(log.meta.get("source", "log")))
     mon.update(log)
-    return mon.finish()
+    return mon.finish().to_dict()
 
 
 def initial_momentum(ident: Identification, log: Log, samples: int = 10) -> np.ndarray:
