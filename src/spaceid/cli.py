@@ -219,17 +219,19 @@ class _Group(click.Group):
 
 
 # Python argument -> the option that sets it, where the option is not the argument's name with
-# dashes (``drift`` -> ``--drift``). The one place where library messages meet the CLI's grammar.
+# dashes (``drift`` -> ``--drift``, ``noise.base_rate`` -> ``--noise-base-rate``). The one place
+# where library messages meet the CLI's grammar.
 OPTION_OF = {
     "noise": "--noise-*",
 }
-_ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
+_ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*)`")
 
 
 def for_the_command_line(text) -> str:
-    """A library message as the command line shows it: one line, each Python argument named in
-    backquotes (``\`drift\```) shown as its option (``--drift``, see ``OPTION_OF``)."""
-    option = lambda m: OPTION_OF.get(m[1], "--" + m[1].replace("_", "-"))  # noqa: E731
+    r"""A library message as the command line shows it: one line, each Python argument named in
+    backquotes (``\`drift\```, or a field of one, ``\`noise.angle\```) shown as its option
+    (``--drift``, ``--noise-angle``; see ``OPTION_OF``)."""
+    option = lambda m: OPTION_OF.get(m[1], "--" + re.sub(r"[_.]", "-", m[1]))  # noqa: E731
     return one_line(_ARGUMENT.sub(option, str(text)))
 
 
