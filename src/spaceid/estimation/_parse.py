@@ -24,20 +24,20 @@ def parse_momentum(value, *, planar: bool):
     try:
         parts = [float(v) for v in str(value).split(",")] if not np.ndim(value) else [float(v) for v in value]
     except ValueError:
-        raise SpaceidError(f"--momentum: '{value}' is not a number or a list hx,hy,hz [N m s]") from None
+        raise SpaceidError(f"`momentum`: '{value}' is not a number or a list hx,hy,hz [N m s]") from None
     if len(parts) == 1 and (planar or parts[0] == 0):
         parts = [0.0, 0.0, parts[0]]
     if len(parts) != 3 or not np.all(np.isfinite(parts)):
         single = "h or " if planar else "0 or "
-        raise SpaceidError(f"--momentum: expected {single}hx,hy,hz (finite, N m s), got '{value}'")
+        raise SpaceidError(f"`momentum`: expected {single}hx,hy,hz (finite, N m s), got '{value}'")
     if planar and any(parts[:2]):  # they would be ignored by the equations, yet kept in the result
-        raise SpaceidError(f"--momentum: '{value}' has in-plane components hx, hy, but a planar model carries only "
-                           f"the momentum about z: give --momentum {parts[2]:g}")
+        raise SpaceidError(f"`momentum`: '{value}' has in-plane components hx, hy, but a planar model carries only "
+                           f"the momentum about z: give `momentum` {parts[2]:g}")
     return np.array(parts)
 
 
 def parse_known(items) -> dict:
-    """``NAME=VALUE`` strings (``--known``) as ``{name: value}``; a name given twice is refused."""
+    """``NAME=VALUE`` strings (the command line's ``--known``) as ``{name: value}``; a name given twice is refused."""
     known = {}
     for item in items or ():
         name, sep, value = str(item).partition("=")
@@ -46,16 +46,16 @@ def parse_known(items) -> dict:
         except ValueError:
             number = np.nan
         if not sep or not name.strip() or not np.isfinite(number):
-            raise SpaceidError(f"--known: '{item}' is not NAME=VALUE with a finite number (e.g. Iczz_wheel=0.00197)")
+            raise SpaceidError(f"`known`: '{item}' is not NAME=VALUE with a finite number (e.g. Iczz_wheel=0.00197)")
         if name.strip() in known:
-            raise SpaceidError(f"--known: {name.strip()} is given twice ({known[name.strip()]:g} and {number:g}): "
+            raise SpaceidError(f"`known`: {name.strip()} is given twice ({known[name.strip()]:g} and {number:g}): "
                                "give each anchor once")
         known[name.strip()] = number
     return known
 
 
 def parse_drift(value, *, planar: bool, values: bool):
-    """``--drift``: drift kinds ``"torque,viscous"`` (``values=False``: for identification) or
+    """``drift`` (the command line's ``--drift``): drift kinds ``"torque,viscous"`` (``values=False``: for identification) or
     drift terms ``"torque=VALUE,viscous=VALUE,coulomb=VALUE"`` (``values=True``: for simulation),
     as :func:`spaceid.estimation.identify` and :func:`spaceid.motion.simulate` take them.
 
@@ -65,8 +65,8 @@ def parse_drift(value, *, planar: bool, values: bool):
         return {} if values else ()
     if not values:
         if "=" in str(value):
-            raise SpaceidError(f"--drift: '{value}' gives values: here --drift takes kinds to estimate, e.g. "
-                               "--drift torque,viscous,coulomb")
+            raise SpaceidError(f"`drift`: '{value}' gives values: here it takes the kinds to estimate, among "
+                               "torque, viscous, coulomb")
         return check_drift_kinds(str(value))
     terms = {}
     for item in str(value).split(","):
@@ -76,7 +76,7 @@ def parse_drift(value, *, planar: bool, values: bool):
         except ValueError:
             parsed = []
         if not sep or not name.strip() or not parsed:
-            raise SpaceidError(f"--drift: '{item}' is not KIND=VALUE with a number (e.g. --drift torque=1e-4,"
-                               "viscous=5e-5; a spatial torque as torque=TX:TY:TZ)")
+            raise SpaceidError(f"`drift`: '{item}' is not KIND=VALUE with a number (e.g. torque=1e-4,viscous=5e-5; "
+                               "a spatial torque as torque=TX:TY:TZ)")
         terms[name.strip()] = parsed[0] if len(parsed) == 1 else parsed
-    return drift_terms(terms, planar, where="--drift")
+    return drift_terms(terms, planar, where="`drift`")
