@@ -221,7 +221,7 @@ def test_unpicklable_regressor_runs_in_this_process():
 @pytest.mark.parametrize(
     "options, match",
     [
-        ({"criterion": "aopt"}, "criterion must be one of cond, logdet"),
+        ({"criterion": "aopt"}, "`criterion` must be one of cond, logdet"),
         ({"samples": 7}, "at least 8 samples"),
         ({"harmonics": 0}, "harmonics"),
         ({"q_max": [1.5, 1.5, 1.5]}, "q_max"),
@@ -230,7 +230,7 @@ def test_unpicklable_regressor_runs_in_this_process():
         ({"boundary": {"q_start": [0.0, 0.0]}}, "q_start"),
         ({"time_budget": 0}, "time_budget"),
         ({"initial": load_trajectory("paper-table2"), "harmonics": 4}, "initial"),
-        ({"method": "newton"}, "method must be one of auto, slsqp, trust-region"),
+        ({"method": "newton"}, "`method` must be one of auto, slsqp, trust-region"),
         ({"max_steps": 0}, "max_steps"),
     ],
 )
@@ -501,7 +501,7 @@ def test_noise_and_predicted_bound_are_recorded(cepheus, noisy_designs):
 
 @pytest.mark.parametrize("noise", [None, Noise()])
 def test_noise_aware_criteria_need_the_noise(cepheus, noise):
-    with pytest.raises(SpaceidError, match="give --noise-angle, --noise-rate, --noise-base-rate"):
+    with pytest.raises(SpaceidError, match="give `noise.angle`, `noise.rate`, `noise.base_rate`"):
         design_excitation(cepheus, **{**NOISY, "criterion": "crb", "noise": noise})
 
 

@@ -145,7 +145,7 @@ def test_yaml_keeps_planar_mode_and_declared_zeros(cepheus, tmp_path):
     assert back.planar and [b.known_zero for b in back.bodies] == [b.known_zero for b in true.bodies]
     assert param.definitions == ident.definitions
     np.testing.assert_allclose(param.true_values, ident.values, rtol=1e-12)
-    with pytest.raises(spaceid.SpaceidError, match="--format step: not one of urdf, yaml"):
+    with pytest.raises(spaceid.SpaceidError, match="`fmt`: 'step' is not one of urdf, yaml"):
         write_export(res, path, fmt="step")
 
 
@@ -154,14 +154,14 @@ def test_infeasible_pi_is_one_line_naming_it(cepheus):
     values = ident.values.copy()
     values[7] = -abs(values[7])  # pi8 = Iczz_link2 + (positive terms): negative, no physical body has it
     bad = Identification(**{**ident.__dict__, "values": values})
-    with pytest.raises(spaceid.SpaceidError, match=r"not physically realisable.*pi8.*--region") as info:
+    with pytest.raises(spaceid.SpaceidError, match=r"not physically realisable.*pi8.*`region`") as info:
         export_model(bad, prior, where="bad.json")
     assert "\n" not in str(info.value)
 
 
 def test_bad_region_and_other_joints_are_refused(cepheus):
     _, prior, ident, _ = cepheus
-    with pytest.raises(spaceid.SpaceidError, match="--region 1.5: give a probability"):
+    with pytest.raises(spaceid.SpaceidError, match="`region`: 1.5 is not a probability"):
         export_model(ident, prior, region=1.5)
     with pytest.raises(spaceid.SpaceidError, match="joints .* differ from the identified model"):
         export_model(ident, "satellite-7dof", prior_name="satellite-7dof")
@@ -244,7 +244,7 @@ def test_noisy_spatial_needs_the_region(tmp_path):
     values = param.true_values + std * np.random.default_rng(2).standard_normal(param.n_params)
     noisy = Identification(**{**exact.__dict__, "values": values, "std": std, "cov": np.diag(std**2)})
     prior = perturbed(true, seed=1)
-    with pytest.raises(spaceid.SpaceidError, match="not physically realisable.*--region"):
+    with pytest.raises(spaceid.SpaceidError, match="not physically realisable.*`region`"):
         export_model(noisy, prior)  # 153 noisy combinations of 80 standard parameters: none reproduces them
     res = export_model(noisy, prior, region=0.95)
     assert res.mahalanobis <= res.bound

@@ -109,7 +109,7 @@ def test_computed_torque_rejects_bad_times():
 
 
 def test_with_values_checks_the_shape():
-    with pytest.raises(SpaceidError, match="with_values: pi has shape"):
+    with pytest.raises(SpaceidError, match="with_values: `pi` has shape"):
         _noise_free_model().with_values(np.ones(2))
 
 

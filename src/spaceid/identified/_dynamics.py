@@ -41,7 +41,7 @@ __all__ = ["IdentifiedModel", "identified_model", "load_identified", "parameteri
 _FIXES = {
     "total_mass": "a weighing of the whole system, or a thruster test with a known force",
     "system_com": "the total mass (pi fixes the rest), or the base position logged over a motion "
-                  "(spaceid.identified.identify_com, 'spaceid identify --com')",
+                  "(spaceid.identified.identify_com; 'spaceid identify' runs it on request)",
     "linear_velocity": "the system centre of mass (see 'system_com'): zero linear momentum fixes the base "
                        "linear velocity, hence any point's, relative to it",
     "base_force_response": "the total mass and the system centre of mass: a force on the base changes the "
@@ -168,7 +168,7 @@ class IdentifiedModel:
         with the same joints), to compare controllers built on each."""
         pi = np.asarray(pi, float)
         if pi.shape != self.values.shape:
-            raise SpaceidError(f"with_values: pi has shape {pi.shape}, expected {self.values.shape} "
+            raise SpaceidError(f"with_values: `pi` has shape {pi.shape}, expected {self.values.shape} "
                                f"(the parameters {', '.join(self.names)})")  # fmt: skip
         return IdentifiedModel(replace(self.identification, values=pi), self.param, self.where)
 

@@ -11,7 +11,7 @@ from xml.sax.saxutils import escape
 import numpy as np
 
 from .._atomic import write_text_atomic
-from .._errors import SpaceidError
+from .._errors import SpaceidError, shown
 from ..models import PRESETS, Model
 from ._export import Export
 
@@ -187,11 +187,11 @@ def write_export(export: Export, path, *, fmt: str = "urdf", inputs=(), note: st
         An unknown format, ``path`` one of ``inputs``, or a path that cannot be written.
     """
     if fmt not in FORMATS:
-        raise SpaceidError(f"--format {fmt}: not one of {', '.join(FORMATS)}")
+        raise SpaceidError(f"`fmt`: {shown(fmt)} is not one of {', '.join(FORMATS)}")
     path = Path(path)
     for source in inputs:
         if Path(source).is_file() and path.resolve() == Path(source).resolve():
-            raise SpaceidError(f"-o {path}: that is an input file ({source}): give another file name")
+            raise SpaceidError(f"{path}: that is an input file ({source}): give another file name")
     text = urdf_text(export, note) if fmt == "urdf" else yaml_text(export, note)
     try:
         write_text_atomic(path, text)

@@ -252,7 +252,7 @@ def optimize_excitation(
                    **({} if n_starts is None else {"n_starts": n_starts}),
                    **({} if patience is None else {"patience": patience}))  # fmt: skip
     if method not in _METHODS:
-        raise SpaceidError(f"method must be one of {', '.join(_METHODS)}, got {method!r}")
+        raise SpaceidError(f"`method` must be one of {', '.join(_METHODS)}, got {method!r}")
     limits = _limit_array(joints, q_max, qd_max, qdd_max)
     bc = _boundary_array(joints, boundary)
     problem = _set_up_problem(regressor, criterion, duration=float(duration),
@@ -333,11 +333,11 @@ def _check_options(criterion, duration, time_budget, **integers):
            "n_screen": 1, "patience": 1}
     for name, value in integers.items():
         if not isinstance(value, (int, np.integer)) or value < low[name]:
-            raise SpaceidError(f"{name} must be an integer >= {low[name]}, got {value!r}")
+            raise SpaceidError(f"`{name}` must be an integer >= {low[name]}, got {value!r}")
     if not (np.isfinite(duration) and duration > 0):
-        raise SpaceidError(f"duration must be a positive number of seconds, got {duration!r}")
+        raise SpaceidError(f"`duration` must be a positive number of seconds, got {duration!r}")
     if time_budget is not None and not time_budget > 0:
-        raise SpaceidError(f"time_budget must be a positive number of seconds, got {time_budget!r}")
+        raise SpaceidError(f"`time_budget` must be a positive number of seconds, got {time_budget!r}")
 
 
 def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, progress=None,
@@ -386,12 +386,12 @@ def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, 
     """
     crit = _criterion_named(criterion)
     if noise is not None and not isinstance(noise, Noise):
-        raise SpaceidError(f"noise must be a spaceid.estimation.Noise, got {type(noise).__name__}")
+        raise SpaceidError(f"`noise` must be a spaceid.estimation.Noise, got {type(noise).__name__}")
     if crit.noise_aware and (noise is None or noise.is_zero):
         raise SpaceidError(
-            f"criterion {criterion!r} minimises the estimation error under measurement noise: "
-            "give --noise-angle, --noise-rate, --noise-base-rate (rad, rad/s; spatial also "
-            "--noise-attitude), or use --criterion cond"
+            f"`criterion` {criterion!r} minimises the estimation error under measurement noise: "
+            "give `noise.angle`, `noise.rate`, `noise.base_rate` (rad, rad/s; spatial also "
+            "`noise.attitude`), or use `criterion` cond"
         )
     overrides = {key: options.pop(key, None) for key in ("q_max", "qd_max", "qdd_max")}
     limits = _model_limits(param.model, overrides)

@@ -278,7 +278,7 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
         meta["momentum_rel_error"] = float(np.abs(angular_momentum(model, q, qd, w0, quat) - h).max() / scale)
     if meta["momentum_balance_error"] > BALANCE_TOLERANCE:
         warnings.warn(f"simulate: the samples are too sparse to integrate the drift (momentum balance off by "
-                      f"{meta['momentum_balance_error']:.2g} of the momentum): identification with --drift from this "
+                      f"{meta['momentum_balance_error']:.2g} of the momentum): identification with `drift` from this "
                       "log will be biased by as much; sample more finely", stacklevel=3)
     return replace(log, meta=meta)
 
@@ -291,7 +291,7 @@ def add_noise(log: Log, *, angle: float = 0.0, rate: float = 0.0, seed: int = 0)
     angular velocity.
     """
     if angle < 0 or rate < 0:
-        raise SpaceidError("noise levels must be non-negative (--noise-angle, --noise-rate)")
+        raise SpaceidError(f"`angle`, `rate`: noise levels must be non-negative, got {angle:g} and {rate:g}")
     rng = np.random.default_rng(seed)
     n, nj = log.q.shape
     q = log.q + angle * rng.standard_normal((n, nj))
