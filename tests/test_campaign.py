@@ -118,15 +118,15 @@ def test_a_resumed_campaign_equals_an_uninterrupted_one(param, tmp_path, monkeyp
 
 def test_resume_refuses_results_of_other_settings(param, tmp_path):
     study(param, folder=tmp_path)
-    with pytest.raises(SpaceidError, match="--resume: .* other settings"):
+    with pytest.raises(SpaceidError, match="`resume`: .* other settings"):
         study(param, folder=tmp_path, resume=True, seed=8)
-    with pytest.raises(SpaceidError, match="--resume: needs the study folder"):
+    with pytest.raises(SpaceidError, match="`resume`: needs the study folder"):
         study(param, resume=True)
 
 
 def test_scheduler_names_and_seeds():
     assert resolve_scheduler("dask") == "dask" and resolve_scheduler("tcp://10.0.0.1:8786") == "tcp://10.0.0.1:8786"
-    with pytest.raises(SpaceidError, match="--scheduler: 'threads'"):
+    with pytest.raises(SpaceidError, match="`scheduler`: 'threads'"):
         resolve_scheduler("threads")
     seeds = task_seeds(5, 4)
     np.testing.assert_array_equal(seeds[:3], task_seeds(5, 3))  # task i's seed depends on (seed, i) alone

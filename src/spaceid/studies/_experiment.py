@@ -135,7 +135,7 @@ def _validation_trajectory(validation, identification: FourierTrajectory, *, mom
         validation = "designed" if identification.meta.get("name") == "paper-table2" else "paper-table2"
     traj = _trajectory(validation, momentum=momentum, samples=samples, seed=seed + 1, progress=progress)
     if traj == identification:
-        raise SpaceidError(f"--validation {validation}: it is the identification trajectory, and validation on the "
+        raise SpaceidError(f"`validation` {validation!r}: it is the identification trajectory, and validation on the "
                            "fitting motion cannot fail: choose a different motion")  # fmt: skip
     return traj, traj.meta.get("name", str(validation))
 
@@ -308,9 +308,9 @@ def run_experiment(
     ExperimentResult
     """
     if bag_format not in BAG_NAMES:
-        raise SpaceidError(f"--format: '{bag_format}' is not one of {', '.join(BAG_NAMES)}")
+        raise SpaceidError(f"`bag_format`: '{bag_format}' is not one of {', '.join(BAG_NAMES)}")
     if int(samples) < 10:
-        raise SpaceidError(f"--samples {samples}: identification of Cepheus needs at least 10 samples")
+        raise SpaceidError(f"`samples`: {samples!r} are too few: identification of Cepheus needs at least 10")
     rehearsals = check_rehearsals(rehearsals)
     settings = TwinSettings() if settings is None else settings
     drift = _experiment_drift(drift, settings)

@@ -92,10 +92,10 @@ def _grid_values(values, option: str, kind) -> tuple:
     integers (``int``: harmonics >= 1, samples >= 2)."""
     values = tuple(dict.fromkeys(np.atleast_1d(np.asarray(values, dtype=object)).tolist()))
     if not values:
-        raise SpaceidError(f"{option}: no value given: give at least one (comma-separated)")
+        raise SpaceidError(f"{option}: no value given: give at least one")
     if kind is int:
-        minimum = 2 if option == "--samples" else 1
-        return tuple(_check_int(v, option, minimum, "give integers, comma-separated") for v in values)
+        minimum = 2 if option == "`samples`" else 1
+        return tuple(_check_int(v, option, minimum, "give integers") for v in values)
     for v in values:
         if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not (np.isfinite(v) and v > 0):
             raise SpaceidError(f"{option}: {v!r} is not a positive number of seconds")
@@ -143,13 +143,13 @@ def run_sweep(param: Parameterization, *, momentum, durations, harmonics, sample
         samples for the parameters).
     """
     t_start = time.perf_counter()
-    seed = _check_int(seed, "--seed", 0, "give a non-negative integer")
-    n_starts = _check_int(n_starts, "--starts", 1, "give 1 or more local searches")
-    jobs = _cores() if jobs is None else _check_int(jobs, "--jobs", 1, "give 1 or more worker processes")
+    seed = _check_int(seed, "`seed`", 0, "give a non-negative integer")
+    n_starts = _check_int(n_starts, "`n_starts`", 1, "give 1 or more local searches")
+    jobs = _cores() if jobs is None else _check_int(jobs, "`jobs`", 1, "give 1 or more worker processes")
     scheduler = resolve_scheduler(scheduler)
-    grid = list(itertools.product(_grid_values(durations, "--durations", float),
-                                  _grid_values(harmonics, "--harmonics", int),
-                                  _grid_values(samples, "--samples", int)))  # fmt: skip
+    grid = list(itertools.product(_grid_values(durations, "`durations`", float),
+                                  _grid_values(harmonics, "`harmonics`", int),
+                                  _grid_values(samples, "`samples`", int)))  # fmt: skip
     sweep = _Sweep(param, _check_momentum(momentum), noise, criterion, n_starts)
     seeds = task_seeds(seed, len(grid))
     tasks = {f"setting-{i:05d}": (*setting, int(s)) for i, (setting, s) in enumerate(zip(grid, seeds))}
@@ -238,7 +238,7 @@ def write_sweep(result: SweepResult, folder) -> dict:
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise SpaceidError(f"--out: cannot create {folder} ({exc.strerror or exc}): give a writable folder") from None
+        raise SpaceidError(f"`out`: cannot create {folder} ({exc.strerror or exc}): give a writable folder") from None
     paths = {name: folder / f"sweep.{ext}" for name, ext in (("json", "json"), ("csv", "csv"), ("figure", "png"))}
     paths["table"] = folder / "table.txt"
     write_json(paths["json"], result.to_dict())

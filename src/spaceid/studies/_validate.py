@@ -120,6 +120,6 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
         warnings.warn(
             f"{where}: the predicted base rate misses the measured one by {100 * metrics['base_w_nrms']:.3g} % "
             f"(RMS, above {100 * POOR_VALIDATION:.0f} %): the model does not predict this log: a result of another "
-            "robot or payload, a wrong --momentum, or a unit error in the log or the model (parameters 1000 times "
+            "robot or payload, a wrong `momentum`, or a unit error in the log or the model (parameters 1000 times "
             "off give ~100 %)", UserWarning, stacklevel=2)
     return predicted, metrics
