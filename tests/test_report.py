@@ -261,7 +261,7 @@ def test_parameter_units_label_the_ticks(ident):
 
 
 def test_parameter_figure_checks_lengths(tmp_path, ident):
-    with pytest.raises(SpaceidError, match=r"true: expected one value per parameter \(3"):
+    with pytest.raises(SpaceidError, match=r"`true`: expected one value per parameter \(3"):
         plot_parameters(ident, tmp_path / "p.png", true=TRUE[:2])
 
 

@@ -186,7 +186,7 @@ def drift_terms(values: dict, planar: bool, where: str = "`drift`", *, physical:
 def drift_vector(terms: dict, kinds, planar: bool) -> np.ndarray:
     """The coefficients ``(n_d,)`` in :func:`drift_names` order of ``kinds`` from the
     :func:`drift_terms` dict ``terms`` (absent terms zero)."""
-    terms, out = drift_terms(terms, planar, where="drift", physical=False), []
+    terms, out = drift_terms(terms, planar, where="`drift`", physical=False), []
     for kind in check_drift_kinds(kinds):
         if kind == "torque":
             out += list(np.asarray(terms.get("torque", np.zeros(3)), float)[_axes(planar)])

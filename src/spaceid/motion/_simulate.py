@@ -133,7 +133,7 @@ def simulate(
     times = np.asarray(times, float)
     momentum = np.asarray(momentum, float)
     quat0 = np.array([1.0, 0, 0, 0]) if initial_quat is None else np.asarray(initial_quat, float)
-    terms = drift_terms(drift, param.model.planar, where="drift", physical=False)  # estimates may be < 0
+    terms = drift_terms(drift, param.model.planar, where="`drift`", physical=False)  # estimates may be < 0
     if any(np.any(v) for v in terms.values()):
         return _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol)
 

@@ -247,8 +247,8 @@ def _percent_errors(ident: Identification, true):
 @_styled
 def _draw_parameters(ident: Identification, true=None, reference=None, reference_label="paper") -> Figure:
     """The figure of :func:`plot_parameters`."""
-    true = _per_param(true, ident, "true")
-    reference = _per_param(reference, ident, "reference")
+    true = _per_param(true, ident, "`true`")
+    reference = _per_param(reference, ident, "`reference`")
     units = _units(ident)
     per_tick = units is not None and len(set(units)) > 1  # else one unit for the axis label
     anchored = _anchored(ident)

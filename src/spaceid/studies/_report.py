@@ -98,9 +98,9 @@ def write_markdown_report(
         The written ``report.md``.
     """
     folder = Path(folder)
-    true = _per_param(true, ident, "true")
-    reference = _per_param(reference, ident, "reference")
-    reference_true = _per_param(reference_true, ident, "reference_true")
+    true = _per_param(true, ident, "`true`")
+    reference = _per_param(reference, ident, "`reference`")
+    reference_true = _per_param(reference_true, ident, "`reference_true`")
     links = []
     for caption, fig_path in figures.items():
         full = folder / fig_path  # an absolute fig_path stays as it is

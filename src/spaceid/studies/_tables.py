@@ -100,9 +100,9 @@ def parameter_table(ident: Identification, *, true=None, reference=None, referen
     reference_label : str
         Name of the reference in its column headers.
     """
-    true = _per_param(true, ident, "true")
-    reference = _per_param(reference, ident, "reference")
-    reference_true = _per_param(reference_true, ident, "reference_true")
+    true = _per_param(true, ident, "`true`")
+    reference = _per_param(reference, ident, "`reference`")
+    reference_true = _per_param(reference_true, ident, "`reference_true`")
     header, rows = _columns(ident, true, reference, reference_label, reference_true)
     # one unit for all (every planar-basis pi is in kg m^2) goes in the caption, and the paper's
     # seven columns still fit 80
