@@ -223,6 +223,12 @@ class _Group(click.Group):
 # where library messages meet the CLI's grammar.
 OPTION_OF = {
     "noise": "--noise-*",
+    "estimators": "--estimator",
+    "n_starts": "--starts",
+    "bag_format": "--format",
+    "fmt": "--format",
+    "timeout": "--follow-timeout",
+    "payload_motion": "--payload-velocity, --payload-rate",
 }
 _ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*)`")
 
