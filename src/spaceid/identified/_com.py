@@ -68,7 +68,7 @@ def identify_com(model, log: Log, *, seed: int = 0):
     Parameters
     ----------
     model : IdentifiedModel
-        The momentum identification (``spaceid.load_result`` or
+        The momentum identification (``spaceid.load_identified`` or
         :func:`~spaceid.identified.identified_model`).
     log : Log
         The identification's log (or any other of the same system at zero linear momentum) with

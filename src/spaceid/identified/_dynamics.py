@@ -87,8 +87,9 @@ def identified_model(ident: Identification, *, where: str = "result") -> Identif
 def load_identified(path) -> IdentifiedModel:
     """An identification saved as RESULT.json, as a controller-ready :class:`IdentifiedModel`.
 
-    This is ``spaceid.load_result``; :func:`spaceid.estimation.load_result` gives the bare
-    :class:`~spaceid.estimation.Identification`.
+    This is ``spaceid.load_identified``; ``spaceid.load_result`` (that is,
+    :func:`spaceid.estimation.load_result`) gives the :class:`~spaceid.estimation.Identification`
+    record alone, and :func:`identified_model` turns one into this model.
 
     Parameters
     ----------
