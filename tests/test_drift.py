@@ -195,7 +195,7 @@ def test_report_lists_the_drift_terms(cepheus, tmp_path):
     from spaceid.studies import write_markdown_report
 
     log = drifting(cepheus, ("torque",), np.linspace(0, 5, 201))
-    report = write_markdown_report(tmp_path, title="t", ident=identify(cepheus, log, H, drift=("torque",)),
+    report = write_markdown_report(tmp_path, title="t", result=identify(cepheus, log, H, drift=("torque",)),
                                    settings={}, figures={}).read_text()
     assert "| torque\\_z | N m | 0.001 |" in report
 

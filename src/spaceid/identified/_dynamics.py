@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.linalg import qr
 
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import quat_to_matrix
@@ -63,25 +64,27 @@ _SLIDE = 0.1
 """Step [m] of the central difference for prismatic joints: exact for a quadratic, any step."""
 
 
-def parameterization_of(ident, *, where: str = "result") -> Parameterization:
-    """Rebuild the minimal parameter set that ``ident`` (an :class:`~spaceid.estimation.Identification`
+@deprecated_alias(old="ident", new="result")
+def parameterization_of(result, *, where: str = "result") -> Parameterization:
+    """Rebuild the minimal parameter set that ``result`` (an :class:`~spaceid.estimation.Identification`
     or :class:`IdentifiedModel`) was identified with, and check it against the result's names."""
-    if isinstance(ident, IdentifiedModel):
-        return ident.param
-    settings = ident.settings.get("parameterization", {})
-    model = load_model(ident.model, planar=ident.planar)
+    if isinstance(result, IdentifiedModel):
+        return result.param
+    settings = result.settings.get("parameterization", {})
+    model = load_model(result.model, planar=result.planar)
     param = minimal_parameters(model, tol=settings.get("rank_tol", 1e-9), seed=settings.get("seed", 0))
-    if param.names != ident.names or param.definitions != ident.definitions:
+    if param.names != result.names or param.definitions != result.definitions:
         raise SpaceidError(
-            f"{where}: its parameters do not match model '{ident.model}' as loaded now "
-            f"({len(ident.names)} vs {param.n_params}): identify again with this model"
+            f"{where}: its parameters do not match model '{result.model}' as loaded now "
+            f"({len(result.names)} vs {param.n_params}): identify again with this model"
         )
     return param
 
 
-def identified_model(ident: Identification, *, where: str = "result") -> IdentifiedModel:
+@deprecated_alias(old="ident", new="result")
+def identified_model(result: Identification, *, where: str = "result") -> IdentifiedModel:
     """The controller-ready model of an identification (its parameter set rebuilt and checked)."""
-    return IdentifiedModel(ident, parameterization_of(ident, where=where), where)
+    return IdentifiedModel(result, parameterization_of(result, where=where), where)
 
 
 def load_identified(path) -> IdentifiedModel:

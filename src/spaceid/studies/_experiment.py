@@ -481,7 +481,7 @@ def _plot_tracking(result: ExperimentResult, path) -> None:
     title = (f"Tracking of the exciting trajectory: {how}, "
              f"{len(result.settings['rehearsal runs (seed, tracking RMS [rad])'])} rehearsals\n"
              f"cond(Y), N = {result.ident.n_samples}: designed {d_n:.4g}, executed {e_n:.4g} (x {ratio:.3g})")
-    plot_tracking(t, designed, executed, traj.joints, path, samples=log.t[_nearest(log.t, start + sample_times(
+    plot_tracking(t, designed, executed, traj.joints, path, times=log.t[_nearest(log.t, start + sample_times(
         traj.duration, result.ident.n_samples))] - start, title=title)  # fmt: skip
 
 
@@ -525,7 +525,7 @@ def _write_report(result: ExperimentResult, run, held_out_run) -> None:
         sections["Capture: change detection and the payload"] = lines
         figures |= capture_figures
     write_markdown_report(
-        folder, title="spaceid: the Cepheus experiment on the digital twin", ident=result.ident, settings=settings,
+        folder, title="spaceid: the Cepheus experiment on the digital twin", result=result.ident, settings=settings,
         figures=figures, true=result.true, metrics=_labelled_metrics(result), sections=sections,
     )
 

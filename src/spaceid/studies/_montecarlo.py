@@ -54,6 +54,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .._campaign import fingerprint, resolve_scheduler, run_campaign
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..dynamics import Parameterization
 from ..estimation import ESTIMATORS, Noise, cramer_rao, identify
@@ -334,6 +335,7 @@ def _settings(study: _Study, trajectory: dict, times, differentiation, *, runs, 
     }  # fmt: skip
 
 
+@deprecated_alias(old="folder", new="out")
 def run_montecarlo(
     param: Parameterization,
     trajectory,
@@ -352,7 +354,7 @@ def run_montecarlo(
     differentiate: dict | None = None,
     design: dict | None = None,
     scheduler: str | None = None,
-    folder=None,
+    out=None,
     resume: bool = False,
 ) -> MonteCarloResult:
     """Repeat simulate-and-identify with fresh noise; statistics against the truth and the CRB.
@@ -403,10 +405,10 @@ def run_montecarlo(
         ``processes``, ``dask`` (a LocalCluster of ``jobs`` workers) or a ``dask scheduler``
         address ``tcp://HOST:PORT``; default ``DASK_SCHEDULER_ADDRESS`` if set, else
         ``processes``. The results do not depend on it.
-    folder : path, optional
+    out : path, optional
         Study folder: each chunk of runs is written beside it (:func:`spaceid._campaign.task_folder`) as it completes.
     resume : bool
-        Use the chunks in ``folder`` (they must be of the same settings) and run the others.
+        Use the chunks in ``out`` (they must be of the same settings) and run the others.
 
     Returns
     -------
@@ -432,7 +434,7 @@ def run_montecarlo(
     momentum = _check_momentum(momentum)
     traj, traj_record = _trajectory(param, trajectory, duration=duration, samples=samples, momentum=momentum,
                                     noise=noise, seed=seed, progress=progress,
-                                    design={"n_jobs": jobs, "scheduler": scheduler, **dict(design or {})})  # fmt: skip
+                                    design={"jobs": jobs, "scheduler": scheduler, **dict(design or {})})  # fmt: skip
     motion, times = _motion_and_times(traj, duration, samples, times)
 
     with threadpool_limits(1):
@@ -440,7 +442,7 @@ def run_montecarlo(
         # a noise-free identification first: rank deficiency and a zero momentum fail here, once
         identify(param, clean, momentum, estimator="ols", noise=noise, where=_WHERE)
     study = _Study(param, clean, momentum, noise, estimators, bool(angles_only), diff_options)
-    outputs = _execute(study, _noise_states(seed, runs), scheduler=scheduler, jobs=jobs, folder=folder, resume=resume,
+    outputs = _execute(study, _noise_states(seed, runs), scheduler=scheduler, jobs=jobs, folder=out, resume=resume,
                        campaign=_campaign_fingerprint(study, traj_record, seed, runs), progress=progress)  # fmt: skip
     estimates, predicted, failures, warned = _merge_chunks(outputs, estimators, runs, param.n_params)
 
@@ -457,7 +459,8 @@ def run_montecarlo(
                             stats, failures, warned, settings)  # fmt: skip
 
 
-def write_montecarlo(result: MonteCarloResult, folder) -> dict:
+@deprecated_alias(old="folder", new="out")
+def write_montecarlo(result: MonteCarloResult, out) -> dict:
     """Write ``montecarlo.json``, ``table.txt`` (the terminal table) and ``montecarlo.png`` into
     ``folder`` (created if needed), each atomically.
 
@@ -474,7 +477,7 @@ def write_montecarlo(result: MonteCarloResult, folder) -> dict:
     from .._atomic import write_text_atomic
     from ..data import write_json
 
-    folder = Path(folder)
+    folder = Path(out)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:

@@ -23,6 +23,7 @@ import numpy as np
 
 from .._atomic import write_text_atomic
 from .._campaign import fingerprint, resolve_scheduler, run_campaign, task_seeds
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..dynamics import Parameterization, excitation_regressor
 from ..estimation import Noise
@@ -50,7 +51,7 @@ class _Sweep:
         docstring); the searches run in this process."""
         res = design_excitation(self.param, duration=duration, harmonics=harmonics, samples=samples,
                                 momentum=self.momentum, seed=int(seed), criterion=self.criterion, noise=self.noise,
-                                n_starts=self.n_starts, n_jobs=1, scheduler="processes")  # fmt: skip
+                                n_starts=self.n_starts, jobs=1, scheduler="processes")  # fmt: skip
         q, qd, _ = res.trajectory.evaluate(sample_times(duration, samples))
         cond = float(np.linalg.cond(excitation_regressor(self.param, self.param.true_values, self.momentum)(q, qd)))
         relative = {n: v for n, v in res.trajectory.meta["crb_relative_std"].items() if v is not None}
@@ -102,9 +103,10 @@ def _grid_values(values, option: str, kind) -> tuple:
     return tuple(float(v) for v in values)
 
 
+@deprecated_alias(old="folder", new="out")
 def run_sweep(param: Parameterization, *, momentum, durations, harmonics, samples, noise: Noise = DEFAULT_NOISE,
               criterion: str = "cond", n_starts: int = 8, seed: int = 0, scheduler: str | None = None,
-              jobs: int | None = None, folder=None, resume: bool = False, progress=None) -> SweepResult:
+              jobs: int | None = None, out=None, resume: bool = False, progress=None) -> SweepResult:
     """Design an excitation for every setting of a grid; condition number and relative CRB of each.
 
     Parameters
@@ -127,7 +129,7 @@ def run_sweep(param: Parameterization, *, momentum, durations, harmonics, sample
         Local searches of each design.
     seed : int
         Root seed (>= 0); setting i designs from its i-th spawned seed.
-    scheduler, jobs, folder, resume
+    scheduler, jobs, out, resume
         As for :func:`spaceid.studies.run_montecarlo`: a setting is a task.
     progress : callable, optional
         ``progress(done, total)`` in settings.
@@ -160,7 +162,7 @@ def run_sweep(param: Parameterization, *, momentum, durations, harmonics, sample
                 "setting_seeds": "np.random.SeedSequence(seed).spawn(n_settings)[i].generate_state(1)[0], settings "
                                  "in grid order (durations slowest, samples fastest)"}  # fmt: skip
     campaign = fingerprint({**settings, "grid": grid}, param.true_values)
-    rows = run_campaign(_Sweep.setting, sweep, tasks, scheduler=scheduler, jobs=jobs, folder=folder,
+    rows = run_campaign(_Sweep.setting, sweep, tasks, scheduler=scheduler, jobs=jobs, folder=out,
                         campaign=campaign, resume=resume, progress=progress)  # fmt: skip
     settings |= {"scheduler": scheduler, "jobs": jobs, "wall_time_s": time.perf_counter() - t_start}
     return SweepResult(tuple(rows.values()), settings)
@@ -219,9 +221,10 @@ def _draw_sweep(result: SweepResult):
     return draw()
 
 
-def write_sweep(result: SweepResult, folder) -> dict:
+@deprecated_alias(old="folder", new="out")
+def write_sweep(result: SweepResult, out) -> dict:
     """Write ``sweep.json`` (settings and every row, trajectories included), ``sweep.csv`` (one
-    line a setting, the columns of the table), ``table.txt`` and ``sweep.png`` into ``folder``,
+    line a setting, the columns of the table), ``table.txt`` and ``sweep.png`` into ``out``,
     each atomically.
 
     Returns
@@ -234,7 +237,7 @@ def write_sweep(result: SweepResult, folder) -> dict:
     from ..data import write_json
     from ._figures import _save
 
-    folder = Path(folder)
+    folder = Path(out)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
