@@ -15,13 +15,14 @@ from spaceid import SpaceidError
 from spaceid import cli
 from spaceid._atomic import check_output_folder
 from spaceid._campaign import resolve_scheduler, run_campaign
-from spaceid.data import bag_chunks, follow_log
+from spaceid.data import bag_chunks, differentiate, follow_log
 from spaceid.estimation import Noise, cramer_rao, cramer_rao_angles, identify, parse_drift, parse_known
 from spaceid.estimation import parse_momentum
 from spaceid.identified import export_model, identified_model, identify_payload, payload_after_grasp, payload_map
 from spaceid.identified import write_export
 from spaceid.motion import add_noise, design_excitation, load_trajectory, simulate
 from spaceid.studies import run_experiment, run_montecarlo, run_sweep, validate_torques
+from spaceid.twin import run_twin
 
 SRC = Path(spaceid.__file__).parent
 FLAG = re.compile(r"(?<![\w-])--[a-z]")  # a command-line option
@@ -119,7 +120,10 @@ CASES = [
     ("unknown simulated drift term",
      lambda c, p: simulate(c["param"], c["param"].true_values, lambda t: TRAJ.evaluate(t)[:2], [0.0, 1.0], H,
                            drift={"wind": 1e-4}), "drift"),
-    # data, models
+    # data, models, twin
+    ("even differentiator window", lambda c, p: differentiate(np.linspace(0, 1, 50), np.ones(50), window=4), "window"),
+    ("twin effort not callable", lambda c, p: run_twin(None, duration=0.01, effort=np.zeros(2)), "effort"),
+    ("negative twin duration", lambda c, p: run_twin(None, duration=-1.0), "duration"),
     ("no bag block", lambda c, p: next(bag_chunks(p / "r.bag", joints=("a",), planar=True, block=0)), "block"),
     ("log never written", lambda c, p: _follow(p), "timeout"),
     ("planar mode of a spatial robot", lambda c, p: spaceid.load_model("satellite-7dof", planar=True), "planar"),
@@ -178,7 +182,9 @@ NO_OPTION = {
     "block": "bag_chunks' block of seconds: the monitor reads bags with the default",
     "boundary": "optimize_excitation's boundary values: the design command keeps the default",
     "initial": "optimize_excitation's warm start: the design command gives none",
-    "method": "optimize_excitation's search method: the design command keeps 'auto'",
+    "method": "optimize_excitation's search method, differentiate's differentiator: the commands keep 'auto'",
+    "order": "differentiate's Savitzky-Golay order: the commands choose it (a bag's --window sets the window)",
+    "smoothing": "differentiate's spline smoothing: the commands use Savitzky-Golay filters",
     "regressor": "optimize_excitation's regressor callable: design_excitation builds it",
     "n_grid": "optimize_excitation's limit-check grid: the design command keeps the default",
     "max_steps": "optimize_excitation's step limit: the design command keeps the default",
@@ -190,14 +196,21 @@ NO_OPTION = {
     "grasp_motion.cov": "identify_payload's grasp motion: payload_after_grasp builds it from --payload-velocity, "
                         "--payload-rate",
     "hold": "validate_torques' effort interpolation: the validate command keeps 'linear'",
-    "times": "run_montecarlo's sample times: the montecarlo command gives --samples",
+    "times": "run_montecarlo's and computed_torque's sample times: the commands give --samples",
+    "effort": "run_twin's feed-forward efforts: the experiment command plans them itself",
+    "controller": "run_twin's controller hook: the experiment command uses the twin's PID loops",
+    "state": "run_twin's starting state: the experiment command chains the runs itself",
+    "settings": "run_twin's TwinSettings: the experiment command builds them (its --capture-settings file is "
+                "checked field by field, named as the file's keys)",
+    "stride": "computed_torque's planning stride: no command calls it",
     "true": "the true values of parameter_table, plot_parameters, write_markdown_report: the commands know them",
-    "reference": "the reference values of parameter_table, plot_parameters, write_markdown_report: likewise",
+    "reference": "run_twin's set points, and the reference values of parameter_table, plot_parameters, "
+                 "write_markdown_report: the experiment command gives them itself",
     "reference_true": "the reference's true values in parameter_table, write_markdown_report: likewise",
 }
 # names that messages form at run time (``f"`{name}` must be ..."``), not visible to the scan below
 DYNAMIC = ("harmonics", "samples", "n_starts", "n_grid", "seed", "max_steps", "n_screen", "patience", "q_max",
-           "qd_max", "qdd_max")
+           "qd_max", "qdd_max", "window", "order")
 
 
 def _options():

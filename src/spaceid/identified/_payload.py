@@ -773,6 +773,6 @@ def nominal_payload(path, *, planar: bool) -> np.ndarray:
     std = data.get("standard_parameters") if isinstance(data, dict) else None
     if not isinstance(std, dict) or any(not isinstance(std.get(n), (int, float)) for n in INERTIAL_NAMES):
         raise SpaceidError(f"{path}: no standard_parameters with {', '.join(INERTIAL_NAMES)}: give a PAYLOAD.json "
-                           "that 'spaceid payload' wrote")
+                           "as 'spaceid payload' writes it (PayloadEstimate.to_dict)")
     values = np.array([std[n] for n in INERTIAL_NAMES], float)
     return values[list(PLANAR_SLOTS)] if planar else values

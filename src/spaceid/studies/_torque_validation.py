@@ -159,7 +159,7 @@ def _check_positive_inertia(model: IdentifiedModel, log: Log, where: str, n_chec
             f"{where}: the identified free-floating inertia H* is not positive definite at {bad.sum()} of "
             f"{len(rows)} samples checked (lowest eigenvalue {lowest.min():.3g}): these parameters are not "
             "physically consistent, so their forward dynamics diverge; identify from more samples or validate "
-            "a consistent model ('spaceid export')")
+            "a consistent model (export_model, 'spaceid export')")
 
 
 def torque_metrics(measured: Log, predicted: Log) -> dict:
