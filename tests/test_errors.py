@@ -203,6 +203,7 @@ NO_OPTION = {
     "settings": "run_twin's TwinSettings: the experiment command builds them (its --capture-settings file is "
                 "checked field by field, named as the file's keys)",
     "stride": "computed_torque's planning stride: no command calls it",
+    "model": "simulate's physical model: the simulate command always passes its MODEL",
     "true": "the true values of parameter_table, plot_parameters, write_markdown_report: the commands know them",
     "reference": "run_twin's set points, and the reference values of parameter_table, plot_parameters, "
                  "write_markdown_report: the experiment command gives them itself",

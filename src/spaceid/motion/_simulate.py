@@ -165,7 +165,7 @@ def simulate(
     position = None
     if base_position:
         if model is None:
-            raise SpaceidError("simulate: base_position=True needs the physical model (model=...): pi does not fix "
+            raise SpaceidError("simulate: `base_position` needs the physical model (`model`): pi does not fix "
                                "the system centre of mass")
         position = -np.einsum("nij,nj->ni", quat_to_matrix(quat), system_com(model, q))
     return Log(times, names, q, qd, quat, w0, param.model.planar, meta, position)
