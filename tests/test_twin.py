@@ -413,8 +413,10 @@ def test_bad_settings(make, match):
         (dict(duration=-1.0), r"`duration` \[s\] must be greater than 0"),
         (dict(reference=load_trajectory("paper-table2"), settings=TwinSettings(
             controllers=Controllers(position={"left_shoulder": PID(0.1)}))),
-         r"`reference` drives joints \(left_shoulder, left_elbow\) but the position-controlled joints are \(left_shoulder\)"),
-        (dict(reference=lambda t: (np.zeros((len(t), 3)), np.zeros((len(t), 3)))), r"`reference`\(t\) returned 3 columns"),
+         r"`reference` drives joints \(left_shoulder, left_elbow\) but the position-controlled joints are "
+         r"\(left_shoulder\)"),
+        (dict(reference=lambda t: (np.zeros((len(t), 3)), np.zeros((len(t), 3)))),
+         r"`reference`\(t\) returned 3 columns"),
         (dict(state=TwinState(q=[0.0, 0.0])), r"twin: field 'state.q' must have shape \(3,\), got \(2,\)"),
         (dict(state=TwinState(co2_mass=1.0)), r"state.co2_mass = 1 kg exceeds the full tank"),
         (dict(wheel_speed=float("nan")), r"`wheel_speed` \[rad/s\] must be a finite number"),

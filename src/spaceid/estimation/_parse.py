@@ -55,9 +55,10 @@ def parse_known(items) -> dict:
 
 
 def parse_drift(value, *, planar: bool, values: bool):
-    """``drift`` (the command line's ``--drift``): drift kinds ``"torque,viscous"`` (``values=False``: for identification) or
-    drift terms ``"torque=VALUE,viscous=VALUE,coulomb=VALUE"`` (``values=True``: for simulation),
-    as :func:`spaceid.estimation.identify` and :func:`spaceid.motion.simulate` take them.
+    """``drift`` (the command line's ``--drift``): drift kinds ``"torque,viscous"``
+    (``values=False``: for identification) or drift terms ``"torque=VALUE,viscous=VALUE,coulomb=VALUE"``
+    (``values=True``: for simulation), as :func:`spaceid.estimation.identify` and
+    :func:`spaceid.motion.simulate` take them.
 
     A spatial torque is ``torque=TX:TY:TZ`` [N m] (or ``torque_x=..`` per axis); empty or None
     gives ``()`` or ``{}``."""

@@ -673,8 +673,8 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     if correlation is not None and correlation > COLLINEAR:
         warnings.warn(f"{where}: the momentum estimated with the payload correlates with it at {correlation:.3f}: the "
                       "motion hardly tells them apart, and the rates' systematic errors move the mass along; give the "
-                      "momentum (`momentum`: a value, or 'hold' with the `grasp` instant) and a moving payload's velocity "
-                      "and rate (`payload_motion`)", stacklevel=2)  # fmt: skip
+                      "momentum (`momentum`: a value, or 'hold' with the `grasp` instant) and a moving payload's "
+                      "velocity and rate (`payload_motion`)", stacklevel=2)  # fmt: skip
     units = drift_names(drift, pmap.planar)[1]
     terms = tuple({"name": nm, "value": float(v), "std": float(e), "unit": u} for nm, v, e, u in
                   zip(eq.drift, eq.drift_values(theta), std_all[len(theta) - len(eq.drift) :], units))  # fmt: skip

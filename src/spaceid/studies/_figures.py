@@ -330,7 +330,8 @@ def _draw_singular_values(ident: Identification) -> Figure:
     """The figure of :func:`plot_singular_values`."""
     s = np.asarray(ident.singular_values, float)
     if s.size == 0:
-        raise SpaceidError("plot_singular_values: the result has no singular values: identify again (identify, 'spaceid identify')")
+        raise SpaceidError("plot_singular_values: the result has no singular values: identify again (identify, "
+                           "'spaceid identify')")
     i = np.arange(1, s.size + 1)
     fig = _new_figure((5.0, 3.2))
     ax = fig.subplots()
