@@ -125,7 +125,7 @@ def servicer_design(out, budget, steps=None):
     """Design the servicer within ``budget`` [s] (this process's spaceid), or, given ``steps``,
     without a budget in this process (the two best screened starts, ``steps`` trust-region steps
     each); write the trajectory to ``out`` and the wall and CPU time beside it (``out.wall``)."""
-    options = {"time_budget": budget} if steps is None else {"n_starts": 2, "max_steps": steps, "n_jobs": 1}
+    options = {"time_budget": budget} if steps is None else {"n_starts": 2, "max_steps": steps, "jobs": 1}
     res, wall = timed(design_excitation, servicer_param(), **SERVICER, seed=0, **options)
     res.trajectory.save(out)
     # CPU time of this process and its (ended) worker processes: what the design got of the

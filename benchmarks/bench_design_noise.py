@@ -67,7 +67,7 @@ def main():
     for seed in args.seeds:
         for criterion in CRITERIA:
             res = design_excitation(param, **SETTING, momentum=MOMENTUM, seed=seed, criterion=criterion,
-                             noise=NOISE, n_starts=args.starts, n_jobs=args.jobs)  # fmt: skip
+                             noise=NOISE, n_starts=args.starts, jobs=args.jobs)  # fmt: skip
             label = f"{criterion} s{seed}"
             summary[criterion].append(row(label, param, res.trajectory, res.wall_time))
     if len(args.seeds) > 1:

@@ -51,7 +51,7 @@ def make_figures(folder) -> dict:
     study = spaceid.run_montecarlo(param, traj, momentum=MOMENTUM, noise=spaceid.Noise(angle=NOISE, rate=NOISE,
                                    base_rate=NOISE), samples=SAMPLES, runs=200, estimators=("ml", "ols"), jobs=1)
     paths = {name: folder / f"{name}.png" for name in FIGURES}
-    plot_trajectory(fine, q, qd, qdd, model.joints, paths["trajectory"], limits=limits, samples=times)
+    plot_trajectory(fine, q, qd, qdd, model.joints, paths["trajectory"], limits=limits, times=times)
     plot_validation(held_out, predicted, paths["validation"])
     plot_parameters(ident, paths["parameters"], true=param.true_values)
     plot_parameters(anchored, paths["parameters_anchored"], true=param.true_values)

@@ -384,7 +384,7 @@ def test_missing_topic_lists_the_topics(tmp_path, recording):
         read_recording(tmp_path / "r.bag", pose_topic="/mocap/pose")
     message = str(err.value)
     assert "no topic '/mocap/pose' in the bag" in message and "/joint_states (sensor_msgs/msg/JointState)" in message
-    assert bags.DEFAULT_POSE_TOPIC in message and "--pose-topic" in message and "\n" not in message
+    assert bags.DEFAULT_POSE_TOPIC in message and "`pose_topic`" in message and "\n" not in message
 
 
 def test_wrong_message_type(tmp_path, recording):
@@ -394,7 +394,7 @@ def test_wrong_message_type(tmp_path, recording):
         read_recording(tmp_path / "r", pose_topic="/joint_states")
     path = _raw_bag(tmp_path / "w.bag", [(0, [], [])], POSES, joint_type="geometry_msgs/msg/PoseStamped")
     with pytest.raises(SpaceidError, match=r"'/joint_states' carries geometry_msgs/msg/PoseStamped, expected "
-                                           r"sensor_msgs/msg/JointState: set joint_topic"):
+                                           r"sensor_msgs/msg/JointState: set `joint_topic`"):
         read_recording(path)
 
 

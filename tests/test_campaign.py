@@ -89,7 +89,7 @@ def test_same_numbers_on_every_scheduler(param, dask_cluster, monkeypatch):
     _assert_same(one, remote)
     # a multi-start design: the same trajectory from the remote worker as in this process
     options = dict(duration=5.0, harmonics=2, samples=35, momentum=H, seed=3, n_starts=2, n_grid=201)
-    here = design_excitation(param, **options, n_jobs=1, scheduler="processes")
+    here = design_excitation(param, **options, jobs=1, scheduler="processes")
     there = design_excitation(param, **options)
     assert there.value == here.value
     assert there.trajectory.to_dict()["a"] == here.trajectory.to_dict()["a"]
@@ -103,30 +103,30 @@ def test_a_resumed_campaign_equals_an_uninterrupted_one(param, tmp_path, monkeyp
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        study(param, folder=tmp_path, progress=interrupt)
+        study(param, out=tmp_path, progress=interrupt)
     assert len(list(task_folder(tmp_path).glob("*.pkl"))) == 2  # written as they completed, beside the folder
     chunk, ran = _Study.chunk, []
     monkeypatch.setattr(_Study, "chunk", lambda self, first, states: ran.append(first) or chunk(self, first, states))
-    resumed = study(param, folder=tmp_path, resume=True)
+    resumed = study(param, out=tmp_path, resume=True)
     assert len(ran) == 6 - 2
     _assert_same(whole, resumed)
     # a rerun without --resume runs every chunk again
     ran.clear()
-    study(param, folder=tmp_path)
+    study(param, out=tmp_path)
     assert len(ran) == 6
 
 
 def test_resume_refuses_results_of_other_settings(param, tmp_path):
-    study(param, folder=tmp_path)
-    with pytest.raises(SpaceidError, match="--resume: .* other settings"):
-        study(param, folder=tmp_path, resume=True, seed=8)
-    with pytest.raises(SpaceidError, match="--resume: needs the study folder"):
+    study(param, out=tmp_path)
+    with pytest.raises(SpaceidError, match="`resume`: .* other settings"):
+        study(param, out=tmp_path, resume=True, seed=8)
+    with pytest.raises(SpaceidError, match="`resume`: needs the study folder"):
         study(param, resume=True)
 
 
 def test_scheduler_names_and_seeds():
     assert resolve_scheduler("dask") == "dask" and resolve_scheduler("tcp://10.0.0.1:8786") == "tcp://10.0.0.1:8786"
-    with pytest.raises(SpaceidError, match="--scheduler: 'threads'"):
+    with pytest.raises(SpaceidError, match="`scheduler`: 'threads'"):
         resolve_scheduler("threads")
     seeds = task_seeds(5, 4)
     np.testing.assert_array_equal(seeds[:3], task_seeds(5, 3))  # task i's seed depends on (seed, i) alone
@@ -166,7 +166,7 @@ def test_sweep_on_a_small_grid_matches_direct_calls(param, tmp_path):
         np.testing.assert_allclose(r["crb_relative_worst"], relative.max(), rtol=1e-9)
         assert r["crb_worst_parameter"] == param.names[int(np.argmax(relative))]
     direct = design_excitation(param, duration=5.0, harmonics=2, samples=40, momentum=H, seed=rows[1]["seed"],
-                               n_starts=1, n_jobs=1)  # fmt: skip
+                               n_starts=1, jobs=1)  # fmt: skip
     assert direct.value == rows[1]["criterion_value"]
     table = (tmp_path / "table.txt").read_text().splitlines()
     assert max(map(len, table)) <= 80 and any("tf [s]" in line for line in table)

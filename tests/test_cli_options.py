@@ -94,7 +94,7 @@ def test_two_names_of_one_anchor_are_refused():
     """``--known`` by its minimal name and by the physical parameter it equals alone: one parameter twice."""
     param = minimal_parameters(load_model("cepheus-rw"))
     name = next(n for n, d in zip(param.names, param.definitions) if d.strip() == "Iczz_wheel")
-    with pytest.raises(SpaceidError, match=rf"--known {name} and --known Iczz_wheel both set {name} "
+    with pytest.raises(SpaceidError, match=rf"`known` {name} and `known` Iczz_wheel both set {name} "
                                            r"\(= Iczz_wheel\): give it once"):
         resolve_anchors(param, {name: 0.002, "Iczz_wheel": 0.00197}, "log.csv")
     assert resolve_anchors(param, {"Iczz_wheel": 0.00197}, "log.csv")  # once is fine

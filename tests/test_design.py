@@ -36,7 +36,7 @@ LIMITS = np.array([1.5, 1.5, 3.0])
 
 
 def design(**options):
-    return optimize_excitation(cepheus_regressor, JOINTS, **{**CEPHEUS, "n_jobs": 1, **options})
+    return optimize_excitation(cepheus_regressor, JOINTS, **{**CEPHEUS, "jobs": 1, **options})
 
 
 def cond(traj, samples=35):
@@ -98,7 +98,7 @@ def test_room_used_finds_the_peaks_between_grid_points():
 
 @pytest.mark.slow
 def test_same_seed_same_result_in_one_or_two_processes(short_run):
-    again = design(seed=3, n_starts=8, n_jobs=2)
+    again = design(seed=3, n_starts=8, jobs=2)
     assert again.trajectory == short_run.trajectory and again.value == short_run.value
     other = design(seed=4, n_starts=8)
     assert other.trajectory != short_run.trajectory
@@ -214,14 +214,14 @@ def test_convergence_takes_results_in_start_order():
 
 def test_unpicklable_regressor_runs_in_this_process():
     result = optimize_excitation(lambda q, qd: cepheus_regressor(q, qd), JOINTS, **CEPHEUS,
-                               n_starts=4, n_jobs=2)  # fmt: skip
+                               n_starts=4, jobs=2)  # fmt: skip
     assert result.value < 100
 
 
 @pytest.mark.parametrize(
     "options, match",
     [
-        ({"criterion": "aopt"}, "criterion must be one of cond, logdet"),
+        ({"criterion": "aopt"}, "`criterion` must be one of cond, logdet"),
         ({"samples": 7}, "at least 8 samples"),
         ({"harmonics": 0}, "harmonics"),
         ({"q_max": [1.5, 1.5, 1.5]}, "q_max"),
@@ -230,7 +230,7 @@ def test_unpicklable_regressor_runs_in_this_process():
         ({"boundary": {"q_start": [0.0, 0.0]}}, "q_start"),
         ({"time_budget": 0}, "time_budget"),
         ({"initial": load_trajectory("paper-table2"), "harmonics": 4}, "initial"),
-        ({"method": "newton"}, "method must be one of auto, slsqp, trust-region"),
+        ({"method": "newton"}, "`method` must be one of auto, slsqp, trust-region"),
         ({"max_steps": 0}, "max_steps"),
     ],
 )
@@ -245,7 +245,7 @@ def test_rank_deficient_regressor():
         return np.concatenate([Y, Y[..., :1]], axis=-1)
 
     with pytest.raises(SpaceidError, match="rank deficient"):
-        optimize_excitation(duplicated, JOINTS, **CEPHEUS, n_starts=2, n_jobs=1)
+        optimize_excitation(duplicated, JOINTS, **CEPHEUS, n_starts=2, jobs=1)
 
 
 # -- the trust-region search on a small spatial tree ---------------------------------------------
@@ -266,7 +266,7 @@ def chain():
 def spatial_design(chain, **options):
     joints, regressor = chain
     options = {"method": "trust-region", "seed": 0, "n_starts": 2, "max_steps": 8,
-               "n_screen": 16, "n_jobs": 1, **options}  # fmt: skip
+               "n_screen": 16, "jobs": 1, **options}  # fmt: skip
     return optimize_excitation(regressor, joints, **SPATIAL, **options)
 
 
@@ -311,7 +311,7 @@ def test_trust_region_keeps_the_limits_at_all_times(spatial_run):
 
 @pytest.mark.slow
 def test_trust_region_is_reproducible(chain, spatial_run):
-    again = spatial_design(chain, n_jobs=2)
+    again = spatial_design(chain, jobs=2)
     assert again.trajectory == spatial_run.trajectory and again.value == spatial_run.value
     assert spatial_design(chain, seed=1).trajectory != spatial_run.trajectory
 
@@ -350,7 +350,7 @@ def test_trust_region_progress_and_time_budget(chain):
 NOISE = Noise(angle=1e-4, rate=1e-4, base_rate=1e-4)
 H = np.array([0.0, 0.0, 0.4934])  # [N m s]
 NOISY = dict(duration=5.0, harmonics=3, samples=35, momentum=H, seed=0, noise=NOISE, n_starts=4,
-             n_jobs=1)  # fmt: skip
+             jobs=1)  # fmt: skip
 
 
 @pytest.fixture(scope="module")
@@ -501,7 +501,7 @@ def test_noise_and_predicted_bound_are_recorded(cepheus, noisy_designs):
 
 @pytest.mark.parametrize("noise", [None, Noise()])
 def test_noise_aware_criteria_need_the_noise(cepheus, noise):
-    with pytest.raises(SpaceidError, match="give --noise-angle, --noise-rate, --noise-base-rate"):
+    with pytest.raises(SpaceidError, match="give `noise.angle`, `noise.rate`, `noise.base_rate`"):
         design_excitation(cepheus, **{**NOISY, "criterion": "crb", "noise": noise})
 
 

@@ -152,7 +152,7 @@ def test_residual_test_silent_on_clean_logs_and_fires_on_drift(cepheus):
             fired += identify(cepheus, log, H).settings["drift_test"]["p_value"] < 1e-3
         assert fired == 0  # at alpha = 1e-3, 20 clean logs fire with probability 2 %
     drift = simulate(cepheus, cepheus.true_values, motion, t, H, drift={"viscous": 5e-4})  # 1 % of h
-    with pytest.warns(UserWarning, match="--drift"):
+    with pytest.warns(UserWarning, match="`drift`"):
         ident = identify(cepheus, add_noise(drift, angle=1e-4, rate=1e-3, seed=0), H)
     test = ident.settings["drift_test"]
     assert test["drift"] and test["p_value"] < 1e-3 and test["terms"] == ["torque_z", "viscous"]
@@ -195,7 +195,7 @@ def test_report_lists_the_drift_terms(cepheus, tmp_path):
     from spaceid.studies import write_markdown_report
 
     log = drifting(cepheus, ("torque",), np.linspace(0, 5, 201))
-    report = write_markdown_report(tmp_path, title="t", ident=identify(cepheus, log, H, drift=("torque",)),
+    report = write_markdown_report(tmp_path, title="t", result=identify(cepheus, log, H, drift=("torque",)),
                                    settings={}, figures={}).read_text()
     assert "| torque\\_z | N m | 0.001 |" in report
 
@@ -265,7 +265,7 @@ def test_experiment_with_friction_warns_and_drift_terms_reduce_the_error(tmp_pat
     model = spaceid.load_model("cepheus-rw")
     log = read_bag_log(tmp_path / "run.bag", joints=model.joints, planar=True, wheels=model.wheels,
                        joint_rates="differentiate", pose_latency=TwinSettings().mocap.latency)
-    with pytest.warns(UserWarning, match="model it with --drift"):
+    with pytest.warns(UserWarning, match="model it with `drift`"):
         ident = identify(minimal_parameters(model), log, np.zeros(3))
     assert ident.settings["drift_test"]["p_value"] < 1e-10
 

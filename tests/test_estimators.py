@@ -318,7 +318,7 @@ def test_crb_equals_brute_force_fisher(cepheus):
 @pytest.mark.parametrize("momentum", [np.zeros(3), None])
 def test_homogeneous_problem_needs_an_anchor(cepheus, momentum):
     param, make = cepheus
-    with pytest.raises(SpaceidError, match="homogeneous.*--known NAME=VALUE"):
+    with pytest.raises(SpaceidError, match="homogeneous.*`known` NAME=VALUE"):
         identify(param, make(51), momentum)
 
 
@@ -344,7 +344,7 @@ def test_reaction_wheel_spin_momentum_anchors_zero_momentum(cepheus_rw):
 
 def test_anchor_naming_an_unknown_parameter(cepheus_rw):
     param, log = cepheus_rw
-    with pytest.raises(SpaceidError, match="--known m_base: not a minimal parameter.*Iczz_wheel"):
+    with pytest.raises(SpaceidError, match="`known` m_base: not a minimal parameter.*Iczz_wheel"):
         identify(param, log, np.zeros(3), known={"m_base": 9.0})
 
 

@@ -200,7 +200,7 @@ def test_rehearsals_refine_the_reference():
 
 
 def test_rehearsals_option_is_checked():
-    with pytest.raises(SpaceidError, match="--rehearsals -1"):
+    with pytest.raises(SpaceidError, match="`rehearsals`: -1"):
         run_experiment(trajectory="paper-table2", rehearsals=-1)
 
 

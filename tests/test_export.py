@@ -148,7 +148,7 @@ def test_yaml_keeps_planar_mode_and_declared_zeros(cepheus, tmp_path):
     assert back.planar and [b.known_zero for b in back.bodies] == [b.known_zero for b in true.bodies]
     assert param.definitions == ident.definitions
     np.testing.assert_allclose(param.true_values, ident.values, rtol=1e-12)
-    with pytest.raises(spaceid.SpaceidError, match="--format step: not one of urdf, yaml"):
+    with pytest.raises(spaceid.SpaceidError, match="`fmt`: 'step' is not one of urdf, yaml"):
         write_export(res, path, fmt="step")
 
 
@@ -157,14 +157,14 @@ def test_infeasible_pi_is_one_line_naming_it(cepheus):
     values = ident.values.copy()
     values[7] = -abs(values[7])  # pi8 = Iczz_link2 + (positive terms): negative, no physical body has it
     bad = Identification(**{**ident.__dict__, "values": values})
-    with pytest.raises(spaceid.SpaceidError, match=r"not physically realisable.*pi8.*--region") as info:
+    with pytest.raises(spaceid.SpaceidError, match=r"not physically realisable.*pi8.*`region`") as info:
         export_model(bad, prior, where="bad.json")
     assert "\n" not in str(info.value)
 
 
 def test_bad_region_and_other_joints_are_refused(cepheus):
     _, prior, ident, _ = cepheus
-    with pytest.raises(spaceid.SpaceidError, match="--region 1.5: give a probability"):
+    with pytest.raises(spaceid.SpaceidError, match="`region`: 1.5 is not a probability"):
         export_model(ident, prior, region=1.5)
     with pytest.raises(spaceid.SpaceidError, match="joints .* differ from the identified model"):
         export_model(ident, "satellite-7dof", prior_name="satellite-7dof")

@@ -252,9 +252,12 @@ def test_round_trip_from_identify_on_the_command_line(cepheus, tmp_path, rng):
     write_log(tmp_path / "log.csv", log)
     args = ["identify", "cepheus", tmp_path / "log.csv", "--momentum", 0.4934, "-o", tmp_path / "r.json"]
     assert main([str(a) for a in args]) == 0
-    loaded = spaceid.load_result(tmp_path / "r.json")
+    loaded = spaceid.load_identified(tmp_path / "r.json")
     bare = load_identification(tmp_path / "r.json")
     assert isinstance(loaded, IdentifiedModel) and isinstance(bare, Identification)
+    # one name, one thing: spaceid.load_result is the record everywhere
+    assert spaceid.load_result is load_identification
+    assert spaceid.load_result(tmp_path / "r.json").to_dict() == bare.to_dict()
     # everything an Identification offers, still offered
     assert loaded.to_dict() == bare.to_dict() and loaded.model == "cepheus" and loaded.units == bare.units
     np.testing.assert_array_equal(loaded.std, bare.std)

@@ -84,7 +84,7 @@ def test_controller_hook_efforts_are_saturated_and_held():
 @pytest.mark.parametrize("law, message", [
     (lambda t, q, qd, yaw, wz: np.zeros(2), "must return 3 efforts"),
     (lambda t, q, qd, yaw, wz: np.full(3, np.nan), "NaN"),
-    ("pd", "controller must be a callable"),
+    ("pd", "`controller` must be a callable"),
 ])  # fmt: skip
 def test_controller_hook_bad_laws_are_one_line_errors(law, message):
     with pytest.raises(SpaceidError, match=message):
@@ -104,12 +104,12 @@ def test_computed_torque_tracks_with_the_true_model_and_not_with_a_cad_prior():
 
 
 def test_computed_torque_rejects_bad_times():
-    with pytest.raises(SpaceidError, match="times must be increasing"):
+    with pytest.raises(SpaceidError, match="`times` must be increasing"):
         computed_torque(_noise_free_model(), _arm_reference(0, 1.0), [0.0])
 
 
 def test_with_values_checks_the_shape():
-    with pytest.raises(SpaceidError, match="with_values: pi has shape"):
+    with pytest.raises(SpaceidError, match="with_values: `pi` has shape"):
         _noise_free_model().with_values(np.ones(2))
 
 

@@ -83,9 +83,9 @@ def test_statistics_follow_from_the_runs(param):
 
 
 def test_bad_options_are_named(param):
-    for kw, option in [({"runs": 1}, "--runs"), ({"estimators": ("ml", "lsq")}, "--estimator"),
-                       ({"jobs": 0}, "--jobs"), ({"seed": -1}, "--seed"), ({"momentum": [0, 0, 0]}, "--momentum"),
-                       ({"noise": Noise()}, "--noise-angle"), ({"samples": 1}, "--samples")]:
+    for kw, option in [({"runs": 1}, "`runs`"), ({"estimators": ("ml", "lsq")}, "`estimators`"),
+                       ({"jobs": 0}, "`jobs`"), ({"seed": -1}, "`seed`"), ({"momentum": [0, 0, 0]}, "`momentum`"),
+                       ({"noise": Noise()}, "`noise`"), ({"samples": 1}, "`samples`")]:
         with pytest.raises(SpaceidError, match=option):
             study(param, **kw)
 

@@ -249,7 +249,7 @@ def test_links_from_a_urdf_file_and_unknown_links(satellite, tmp_path):
     pmap = payload_map(path, "arm_ee")
     assert pmap.body == satellite[0].body and np.allclose(pmap.transform, satellite[0].transform)
     assert not np.allclose(pmap.transform, payload_map(path, pmap.param.model.bodies[pmap.body].name).transform)
-    with pytest.raises(spaceid.SpaceidError, match="--link names 'gripper', which is not a body"):
+    with pytest.raises(spaceid.SpaceidError, match="`link` names 'gripper', which is not a body"):
         payload_map("satellite-7dof", "gripper")
     with pytest.raises(spaceid.SpaceidError, match="differs from the payload map's link"):
         identify_payload(pmap, None, "other", [0, 0, 0])

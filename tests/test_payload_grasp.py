@@ -220,7 +220,7 @@ def test_configuration_covariance_is_carried_through_the_fit(cepheus):
                                                                                           np.eye(3), cov))
             for cov in (None, c)]  # fmt: skip
     np.testing.assert_array_equal(rest[1].cov, rest[0].cov)
-    with pytest.raises(spaceid.SpaceidError, match=r"grasp_motion.cov: shape \(2, 2\), expected \(3, 3\)"):
+    with pytest.raises(spaceid.SpaceidError, match=r"`grasp_motion.cov`: shape \(2, 2\), expected \(3, 3\)"):
         fit(cov=np.eye(2))
 
 

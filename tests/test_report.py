@@ -261,7 +261,7 @@ def test_parameter_units_label_the_ticks(ident):
 
 
 def test_parameter_figure_checks_lengths(tmp_path, ident):
-    with pytest.raises(SpaceidError, match=r"true: expected one value per parameter \(3"):
+    with pytest.raises(SpaceidError, match=r"`true`: expected one value per parameter \(3"):
         plot_parameters(ident, tmp_path / "p.png", true=TRUE[:2])
 
 
@@ -285,7 +285,7 @@ def test_trajectory_figure(tmp_path):
     qdd = np.stack([-0.6 * np.sin(t), -4 * np.sin(2 * t)], axis=1)
     limits = {"q": [0.66, 1.36], "qd": np.array([[-1.0, 1.0], [-2.5, np.nan]]), "qdd": 5.0}
     samples = np.linspace(0, 5, 35)
-    _assert_png(plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "trajectory.png", limits=limits, samples=samples),
+    _assert_png(plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "trajectory.png", limits=limits, times=samples),
                 min_width=900)  # fmt: skip
     fig = _draw_trajectory(t, q, qd, qdd, JOINTS, limits=limits, samples=samples)
     _assert_titled_and_labelled(fig)
@@ -304,7 +304,7 @@ def test_tracking_figure(tmp_path):
     designed = np.stack([0.6 * np.sin(t), np.sin(2 * t)], axis=1)
     executed = designed + np.stack([0.01 * np.ones_like(t), -0.002 * np.ones_like(t)], axis=1)
     samples = np.linspace(0, 5, 29)
-    _assert_png(plot_tracking(t, designed, executed, JOINTS, tmp_path / "tracking.png", samples=samples), min_width=900)
+    _assert_png(plot_tracking(t, designed, executed, JOINTS, tmp_path / "tracking.png", times=samples), min_width=900)
     fig = _draw_tracking(t, designed, executed, JOINTS, samples=samples, title="cond(Y) designed 76.6, executed 82.1")
     _assert_titled_and_labelled(fig)
     assert fig.get_suptitle() == "cond(Y) designed 76.6, executed 82.1"
@@ -401,7 +401,7 @@ def test_markdown_report(tmp_path, ident):
     settings = {"model": "cepheus", "trajectory": "paper_table2", "noise rate [rad/s]": 1e-4, "seed": 0}
     metrics = {"base_w_rms": 4.6e-4, "custom_metric": 1.5}
     out = write_markdown_report(
-        tmp_path, title="Cepheus identification", ident=ident, settings=settings,
+        tmp_path, title="Cepheus identification", result=ident, settings=settings,
         figures={"Parameter estimates": "parameters.png", "Singular values": sv.resolve()},
         true=TRUE, reference=REFERENCE, metrics=metrics,
     )
@@ -423,5 +423,5 @@ def test_markdown_report(tmp_path, ident):
 
 def test_markdown_report_refuses_missing_figures(tmp_path, ident):
     with pytest.raises(SpaceidError, match=r"figures\['Validation'\]: 'validation.png' not found"):
-        write_markdown_report(tmp_path, title="t", ident=ident, settings={}, figures={"Validation": "validation.png"})
+        write_markdown_report(tmp_path, title="t", result=ident, settings={}, figures={"Validation": "validation.png"})
     assert not (tmp_path / "report.md").exists()

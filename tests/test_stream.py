@@ -174,7 +174,7 @@ def test_the_regressor_is_never_built_for_more_than_a_chunk(spatial, monkeypatch
                                                       ("ols", 2.5, "positive whole number")])
 def test_bad_chunk_is_refused(spatial, estimator, chunk, match):
     param, log, h = spatial
-    with pytest.raises(SpaceidError, match=f"--chunk: .*{match}"):
+    with pytest.raises(SpaceidError, match=f"`chunk`: .*{match}"):
         identify(param, log, h, estimator=estimator, noise=NOISE, chunk=chunk)
 
 

@@ -409,15 +409,17 @@ def test_bad_settings(make, match):
          r"friction on joint 'left_elbow' is too stiff .* raise joint_friction.rate_scale"),
         (dict(settings=TwinSettings(model=load_model("cepheus-rw", planar=False))), r"is not planar"),
         (dict(settings=TwinSettings(tank=Tank(co2_mass=20.0))), r"tank.co2_mass = 20 kg leaves the base"),
-        (dict(duration=1e-5), r"duration = 1e-05 s is shorter than one control period"),
-        (dict(duration=-1.0), r"duration \[s\] must be greater than 0"),
+        (dict(duration=1e-5), r"`duration` = 1e-05 s is shorter than one control period"),
+        (dict(duration=-1.0), r"`duration` \[s\] must be greater than 0"),
         (dict(reference=load_trajectory("paper-table2"), settings=TwinSettings(
             controllers=Controllers(position={"left_shoulder": PID(0.1)}))),
-         r"reference drives joints \(left_shoulder, left_elbow\) but the position-controlled joints are \(left_shoulder\)"),
-        (dict(reference=lambda t: (np.zeros((len(t), 3)), np.zeros((len(t), 3)))), r"reference\(t\) returned 3 columns"),
+         r"`reference` drives joints \(left_shoulder, left_elbow\) but the position-controlled joints are "
+         r"\(left_shoulder\)"),
+        (dict(reference=lambda t: (np.zeros((len(t), 3)), np.zeros((len(t), 3)))),
+         r"`reference`\(t\) returned 3 columns"),
         (dict(state=TwinState(q=[0.0, 0.0])), r"twin: field 'state.q' must have shape \(3,\), got \(2,\)"),
         (dict(state=TwinState(co2_mass=1.0)), r"state.co2_mass = 1 kg exceeds the full tank"),
-        (dict(wheel_speed=float("nan")), r"wheel_speed \[rad/s\] must be a finite number"),
+        (dict(wheel_speed=float("nan")), r"`wheel_speed` \[rad/s\] must be a finite number"),
     ],
 )
 def test_bad_run_arguments(kwargs, match):
@@ -449,7 +451,7 @@ def test_planned_feedforward_tracks_like_the_true_state_one():
 
 
 def test_effort_input_is_checked():
-    with pytest.raises(SpaceidError, match="effort\\(t\\) must return an array of shape"):
+    with pytest.raises(SpaceidError, match="`effort`\\(t\\) must return an array of shape"):
         run_twin(None, duration=0.01, effort=lambda t: np.zeros((len(t), 3)))
-    with pytest.raises(SpaceidError, match="effort must be a callable"):
+    with pytest.raises(SpaceidError, match="`effort` must be a callable"):
         run_twin(None, duration=0.01, effort=np.zeros(2))

@@ -133,10 +133,11 @@ print(f"cond(Y) = {result.condition_number:.4g}, residual RMS {result.residual_r
 assert np.all(abs(rel) < 0.01)  # better than 1 % on every parameter at this noise level
 
 # %%
-# The result is saved as JSON (:doc:`/formats/result-json`); ``load_result`` reads it back.
+# The result is saved as JSON (:doc:`/formats/result-json`); ``load_identified`` reads it back
+# as the identified model (``load_result`` as the bare record).
 
 write_json(folder / "result.json", result.to_dict())
-again = spaceid.load_result(folder / "result.json")
+again = spaceid.load_identified(folder / "result.json")
 assert np.allclose(again.values, result.values, rtol=0, atol=1e-15)
 
 # %%
@@ -170,7 +171,7 @@ assert png.stat().st_size > 10_000
 # %%
 # Model-based control
 # -------------------
-# ``again`` is more than the numbers: ``spaceid.load_result`` gives the identified model with
+# ``again`` is more than the numbers: ``spaceid.load_identified`` gives the identified model with
 # the free-floating dynamics its parameters fix (:doc:`/theory/control`): the joints' inertia
 # with the base free to move, ``H*(q)``, with its standard deviations from the covariance of
 # the parameters, and the joint accelerations under motor torques with the momentum conserved.

@@ -16,7 +16,7 @@ steps are:
     spaceid experiment --out lab/            # the twin: spin-up, excitation, run.bag, result.json
     spaceid export lab/result.json --prior cad.yaml --region 0.95 -o identified.urdf
 
-and in Python ``spaceid.load_result("lab/result.json")`` gives the controller-ready model
+and in Python ``spaceid.load_identified("lab/result.json")`` gives the controller-ready model
 (:doc:`/theory/control`).
 """
 

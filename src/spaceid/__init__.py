@@ -7,7 +7,8 @@ The pipeline, one function a stage::
     design = spaceid.design_excitation(param, ...)        # exciting joint motion
     log = spaceid.simulate(param, pi, design.trajectory, ...)  # or spaceid.read_log(path, ...)
     result = spaceid.identify(param, log, momentum)       # estimate, standard errors
-    model = spaceid.load_result(path)                     # saved result -> controller-ready dynamics
+    result = spaceid.load_result(path)                    # a saved RESULT.json, the same record
+    model = spaceid.load_identified(path)                 # ... or its controller-ready dynamics
     spaceid.validate(result, log)                         # re-simulation against the log
 
 The subpackages hold the rest, stage by stage: :mod:`spaceid.models`, :mod:`spaceid.data`,
@@ -37,7 +38,8 @@ _HOME = {
     "cramer_rao_angles": "estimation",
     "monitor": "estimation",
     "Monitor": "estimation",
-    "load_result": ("identified", "load_identified"),  # the controller-ready model of a RESULT.json
+    "load_result": "estimation",  # the Identification record of a RESULT.json (in 0.1.0: load_identified's)
+    "load_identified": "identified",  # the controller-ready model of a RESULT.json
     "IdentifiedModel": "identified",
     "identify_com": "identified",
     "identify_payload": "identified",

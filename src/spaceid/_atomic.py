@@ -129,7 +129,7 @@ def check_output_folder(path, option: str, *, overwrite: bool = False, inputs=()
         if foreign and not overwrite:
             listed = ", ".join(shown_name(f) for f in foreign[:3]) + (", ..." if len(foreign) > 3 else "")
             raise SpaceidError(f"{option} {shown_name(path)} holds files spaceid did not write ({listed}): choose "
-                               "another folder, or pass --overwrite to write beside them")
+                               "another folder, or pass `overwrite` to write beside them")
         real = os.path.realpath(path)
         for label, source in inputs if not foreign else ():
             if os.path.commonpath([real, os.path.realpath(source)]) == real:
@@ -182,7 +182,7 @@ def _install(tmp: Path, target: Path, files: list, record: dict, *, overwrite: b
         return
     if not overwrite:  # foreign files appeared since the check
         raise SpaceidError(f"{shown_name(target)} now holds files spaceid did not write: choose another folder, or "
-                           "pass --overwrite")
+                           "pass `overwrite`")
     for name in files:  # beside the user's files: each one replaced atomically, the inputs never
         label = _is_input(target / name, inputs)
         if label is not None:

@@ -1,7 +1,7 @@
 """Campaigns: independent tasks mapped over a scheduler, with seeds, per-task results on disk
 (resume) and progress.
 
-A scheduler (``--scheduler``) is ``processes`` (a local process pool; one job runs in the calling
+A scheduler (``scheduler``) is ``processes`` (a local process pool; one job runs in the calling
 process), ``dask`` (a :class:`distributed.LocalCluster` of ``jobs`` worker processes, one thread
 each) or the address of a running ``dask scheduler`` (``tcp://HOST:PORT``); with none given,
 ``DASK_SCHEDULER_ADDRESS`` is used if set, else ``processes``. Every task runs with one BLAS
@@ -52,8 +52,8 @@ def resolve_scheduler(scheduler: str | None) -> str:
     scheduler = str(scheduler).strip()
     if scheduler in SCHEDULERS or _ADDRESS.match(scheduler):
         return scheduler
-    raise SpaceidError(f"--scheduler: {scheduler!r} is neither processes, dask nor a scheduler address: give e.g. "
-                       "--scheduler dask or --scheduler tcp://HOST:8786")  # fmt: skip
+    raise SpaceidError(f"`scheduler`: {scheduler!r} is neither processes, dask nor a scheduler address: give "
+                       "e.g. dask or tcp://HOST:8786")  # fmt: skip
 
 
 def task_seeds(seed: int, n: int) -> np.ndarray:
@@ -139,8 +139,8 @@ def _dask_client(scheduler: str, jobs: int):
             try:
                 client = stack.enter_context(distributed.Client(scheduler, timeout=_CONNECT_TIMEOUT))
             except (OSError, TimeoutError) as exc:
-                raise SpaceidError(f"--scheduler: cannot connect to {scheduler} ({exc}): start 'dask scheduler' "
-                                   "and 'dask worker' there, or use --scheduler dask") from None  # fmt: skip
+                raise SpaceidError(f"`scheduler`: cannot connect to {scheduler} ({exc}): start 'dask scheduler' "
+                                   "and 'dask worker' there, or use the scheduler dask") from None  # fmt: skip
         yield client
 
 
@@ -162,7 +162,7 @@ def open_workers(scheduler: str, jobs: int, shared):
         with _dask_client(scheduler, jobs) as client:
             n = sum(client.nthreads().values())
             if n == 0:
-                raise SpaceidError(f"--scheduler: {scheduler} has no workers: start 'dask worker {scheduler}'")
+                raise SpaceidError(f"`scheduler`: {scheduler} has no workers: start 'dask worker {scheduler}'")
             [remote] = client.scatter([shared], broadcast=True, hash=False)
             yield Workers(n, lambda function, *args: client.submit(_call_with, function, remote, *args, pure=False),
                           lambda pending: distributed.wait(pending, return_when="FIRST_COMPLETED").done,
@@ -208,8 +208,8 @@ class _TaskStore:
             with path.open("rb") as f:
                 record = pickle.load(f)  # our own files (the folder the user gave)
             if record.get("campaign") != self.campaign or record.get("key") != key:
-                raise SpaceidError(f"--resume: {path} holds a result of other settings: give the settings of the "
-                                   "interrupted campaign, or a new --out folder (or drop --resume)")  # fmt: skip
+                raise SpaceidError(f"`resume`: {path} holds a result of other settings: give the settings of the "
+                                   "interrupted campaign, or a new `out` folder (or do not resume)")  # fmt: skip
             results[key] = record["result"]
         return results
 
@@ -251,7 +251,7 @@ def run_campaign(function, shared, tasks: dict, *, scheduler=None, jobs: int = 1
     """
     store = None if folder is None else _TaskStore(folder, campaign)
     if resume and store is None:
-        raise SpaceidError("--resume: needs the study folder of the interrupted campaign (--out)")
+        raise SpaceidError("`resume`: needs the study folder of the interrupted campaign (`out`)")
     results = store.load(tasks) if resume else {}
     if store is not None and not resume:
         store.clear()

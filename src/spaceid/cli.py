@@ -277,17 +277,24 @@ class _Group(click.Group):
 
 
 # Python argument -> the option that sets it, where the option is not the argument's name with
-# dashes (``drift`` -> ``--drift``). The one place where library messages meet the CLI's grammar.
+# dashes (``drift`` -> ``--drift``, ``noise.base_rate`` -> ``--noise-base-rate``). The one place
+# where library messages meet the CLI's grammar.
 OPTION_OF = {
     "noise": "--noise-*",
+    "estimators": "--estimator",
+    "n_starts": "--starts",
+    "fmt": "--format",
+    "timeout": "--follow-timeout",
+    "payload_motion": "--payload-velocity, --payload-rate",
 }
-_ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*)`")
+_ARGUMENT = re.compile(r"`([A-Za-z_][A-Za-z0-9_]*(?:\.[A-Za-z_][A-Za-z0-9_]*)*)`")
 
 
 def for_the_command_line(text) -> str:
-    """A library message as the command line shows it: one line, each Python argument named in
-    backquotes (as in ``"`drift`: ..."``) shown as its option (``--drift``, see ``OPTION_OF``)."""
-    option = lambda m: OPTION_OF.get(m[1], "--" + m[1].replace("_", "-"))  # noqa: E731
+    r"""A library message as the command line shows it: one line, each Python argument named in
+    backquotes (``\`drift\```, or a field of one, ``\`noise.angle\```) shown as its option
+    (``--drift``, ``--noise-angle``; see ``OPTION_OF``)."""
+    option = lambda m: OPTION_OF.get(m[1], "--" + re.sub(r"[_.]", "-", m[1]))  # noqa: E731
     return one_line(_ARGUMENT.sub(option, str(text)))
 
 
@@ -623,7 +630,7 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
         res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
                          noise=noise, n_starts=starts, time_budget=time_budget, payload_link=payload_link,
-                         payload=nominal, n_jobs=jobs, scheduler=scheduler,
+                         payload=nominal, jobs=jobs, scheduler=scheduler,
                          status=None if err.is_terminal else _every(5.0, lambda line: err.print(f"design: {line}",
                                                                                                 highlight=False)))
     res.trajectory.save(output)
@@ -1170,7 +1177,7 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
     with _progress("designing, then runs" if trajectory == "designed" else "runs") as progress:
         res = run_montecarlo(param, trajectory, momentum=h, noise=noise or DEFAULT_NOISE, duration=duration,
                              samples=samples, runs=runs, estimators=estimators or ("ml", "ols"), seed=seed, jobs=jobs,
-                             progress=progress, angles_only=angles_only, scheduler=scheduler, folder=folder,
+                             progress=progress, angles_only=angles_only, scheduler=scheduler, out=folder,
                              resume=resume, design={"harmonics": harmonics, "criterion": criterion})
     out.print(montecarlo_table(res))
     for e in res.estimators:
@@ -1357,7 +1364,7 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
             "samples": _number_list(samples, "--samples", int)}  # fmt: skip
     with _progress("settings") as progress:
         res = run_sweep(param, momentum=h, **grid, noise=noise or DEFAULT_NOISE, criterion=criterion, n_starts=starts,
-                        seed=seed, scheduler=scheduler, jobs=jobs, folder=folder, resume=resume, progress=progress)
+                        seed=seed, scheduler=scheduler, jobs=jobs, out=folder, resume=resume, progress=progress)
     out.print(sweep_table(res))
     with _report_folder(folder, overwrite) as tmp:
         write_sweep(res, tmp)

@@ -140,8 +140,8 @@ def _bag_messages(path, joint_topic, pose_topic):
         connections = {
             topic: _topic_connections(reader, where, topic, msgtype, option)
             for topic, msgtype, option in (
-                (joint_topic, JOINT_STATE, "joint_topic (--joint-topic)"),
-                (pose_topic, POSE_STAMPED, "pose_topic (--pose-topic)"),
+                (joint_topic, JOINT_STATE, "`joint_topic`"),
+                (pose_topic, POSE_STAMPED, "`pose_topic`"),
             )
         }
 

@@ -108,7 +108,8 @@ def bag_chunks(path, *, joints, planar, wheels=(), mapping=None, joint_topic=Non
         As :func:`read_bag_log`; ``block`` not a positive number of seconds.
     """
     if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
-        raise SpaceidError(f"block = {block!r}: give the seconds of messages aligned at a time, a number > 0")
+        raise SpaceidError(f"`block`: {block!r} is not a positive number: give the seconds of messages aligned "
+                           "at a time")
     path = Path(path)
     topics, keywords = _bag_settings(mapping, joint_topic, pose_topic, options)
     held, done, origin, due = {topics["joint_topic"]: [], topics["pose_topic"]: []}, -np.inf, None, None

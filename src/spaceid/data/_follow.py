@@ -66,7 +66,7 @@ def follow_log(path, *, joints, planar, wheels=(), timeout: float = 10.0, poll: 
     deadline = time.monotonic() + timeout
     while not path.is_file():
         if time.monotonic() >= deadline:
-            raise SpaceidError(f"{path}: no such file after waiting {timeout:g} s (--follow-timeout): start the "
+            raise SpaceidError(f"{path}: no such file after waiting {timeout:g} s (`timeout`): start the "
                                "recording first or give the right path")
         time.sleep(poll)
     with open(path, encoding="utf-8-sig", errors="replace", newline="") as f:
@@ -75,7 +75,7 @@ def follow_log(path, *, joints, planar, wheels=(), timeout: float = 10.0, poll: 
             text = _wait(f, timeout, poll)
             if not text:
                 if header is None:
-                    raise SpaceidError(f"{path}: no header row within {timeout:g} s (--follow-timeout): the log must "
+                    raise SpaceidError(f"{path}: no header row within {timeout:g} s (`timeout`): the log must "
                                        "start with a header naming the columns")
                 return
             complete, newline, pending = (pending + text).rpartition("\n")

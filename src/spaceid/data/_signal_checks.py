@@ -68,8 +68,8 @@ def _check_quantum(quantum, name):
         return None
     if not (_finite_number(quantum, 0.0) and quantum > 0):
         raise SpaceidError(
-            f"{name}: quantum={quantum!r}: expected the sensor resolution per count, a number > 0 "
-            "(e.g. 2*pi/4096 rad for 4096 counts per revolution)"
+            f"{name}: `quantum` {quantum!r}: expected the sensor resolution per count, a number > 0 "
+            "(e.g. 0.00153 rad for 4096 counts per revolution)"
         )
     return float(quantum)
 
@@ -79,7 +79,7 @@ def _check_int(value, key, name, *, minimum):
     if value is None:
         return None
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise SpaceidError(f"{name}: {key}={value!r}: expected an integer >= {minimum}")
+        raise SpaceidError(f"{name}: `{key}` {value!r}: expected an integer >= {minimum}")
     return int(value)
 
 
@@ -89,7 +89,7 @@ def _require_samples(n, needed, name, what):
         raise SpaceidError(
             f"{name}: {n} samples are too few for {what}, which needs at least {needed}: a sample "
             "rate too low for the chosen differentiator; record longer or faster, or give a "
-            "smaller window or order"
+            "smaller `window` or `order`"
         )
 
 

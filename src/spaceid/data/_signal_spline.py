@@ -33,7 +33,7 @@ def _spline(t, y, lam, name):
         gamma = solve(lam, q_t(y[:, None]))
     except np.linalg.LinAlgError:
         raise SpaceidError(
-            f"{name}: smoothing={lam:.3g} makes the spline system numerically singular for this "
+            f"{name}: `smoothing` {lam:.3g} makes the spline system numerically singular for this "
             "record: give a smaller value"
         ) from None
     value = y - lam * q(gamma)[:, 0]

@@ -248,7 +248,7 @@ def _how(value):
 def _check_tuning(n, method, window, order, smoothing, name):
     """The resolved method and the validated window and order, or a SpaceidError."""
     if method not in METHODS:
-        raise SpaceidError(f"{name}: unknown method {method!r}: choose one of {', '.join(METHODS)}")
+        raise SpaceidError(f"{name}: `method` {method!r} is not one of {', '.join(METHODS)}")
     resolved = AUTO_METHOD if method == "auto" else method
     if resolved == "spline":
         _check_spline_tuning(n, window, order, smoothing, name)
@@ -262,11 +262,11 @@ def _check_spline_tuning(n, window, order, smoothing, name):
     for key, value in (("window", window), ("order", order)):
         if value is not None:
             raise SpaceidError(
-                f"{name}: {key}={value!r} applies to method='savgol', not 'spline': drop it or "
-                "set method='savgol' (the spline takes smoothing)"
+                f"{name}: `{key}` {value!r} applies to `method` 'savgol', not 'spline': drop it or "
+                "set `method` to 'savgol' (the spline takes `smoothing`)"
             )
     if smoothing is not None and not _finite_number(smoothing, 0.0):
-        raise SpaceidError(f"{name}: smoothing={smoothing!r}: expected a finite number >= 0 [s^3]")
+        raise SpaceidError(f"{name}: `smoothing` {smoothing!r}: expected a finite number >= 0 [s^3]")
     _require_samples(n, _NOISE_DIFFERENCE + 1, name, "method 'spline'")
 
 
@@ -274,23 +274,23 @@ def _check_savgol_tuning(n, method, window, order, smoothing, name):
     """The validated Savitzky-Golay (window, order), each None when automatic, or a SpaceidError."""
     if smoothing is not None:
         raise SpaceidError(
-            f"{name}: smoothing={smoothing!r} applies to method='spline', not {method!r}: "
-            "drop it or set method='spline' (Savitzky-Golay takes window and order)"
+            f"{name}: `smoothing` {smoothing!r} applies to `method` 'spline', not {method!r}: "
+            "drop it or set `method` to 'spline' (Savitzky-Golay takes `window` and `order`)"
         )
     order = _check_int(order, "order", name, minimum=1)
     window = _check_int(window, "window", name, minimum=(order or 0) + 1)
     if window is None:  # the bias pilot of the lowest order needs order + 4 samples
         needed = (order or min(_AUTO_ORDERS)) + _PILOT_EXTRA + 1
     elif window % 2 == 0:
-        raise SpaceidError(f"{name}: window={window} is even: give an odd number of samples")
+        raise SpaceidError(f"{name}: `window` {window} is even: give an odd number of samples")
     elif order is None and window <= min(_AUTO_ORDERS):
         raise SpaceidError(
-            f"{name}: window={window} is too short for the automatic orders {_AUTO_ORDERS}: "
-            f"give an order below {window} or a longer window"
+            f"{name}: `window` {window} is too short for the automatic orders {_AUTO_ORDERS}: "
+            f"give an `order` below {window} or a longer `window`"
         )
     elif window > n:
         raise SpaceidError(
-            f"{name}: window={window} is longer than the record ({n} samples): "
+            f"{name}: `window` {window} is longer than the record ({n} samples): "
             f"choose an odd window of at most {n - 1 + n % 2} samples"
         )
     else:

@@ -51,7 +51,7 @@ and joint at most) barely determined by their own joint's samples."""
 def _planar_only(param, what: str) -> None:
     if not param.model.planar:
         raise SpaceidError(f"{what}: the angles estimator and bound support planar models only; for spatial systems "
-                           "use a rate-based estimator (--estimator ml)")  # fmt: skip
+                           "use a rate-based `estimator`, e.g. ml")  # fmt: skip
 
 
 def _phi(eq, x):
@@ -64,7 +64,7 @@ def _knot_vector(t, spacing: float, where: str) -> np.ndarray:
     """Cubic-spline knots over ``[t[0], t[-1]]``: uniform spans of about ``spacing`` [s], the end
     knots repeated four times. Raises when the samples are too few for them."""
     if not spacing > 0:
-        raise SpaceidError(f"{where}: knot spacing {spacing!r} must be a positive time [s]")
+        raise SpaceidError(f"{where}: `knot_spacing` {spacing!r} must be a positive time [s]")
     duration = float(t[-1] - t[0])
     spans = max(1, round(duration / spacing))
     if len(t) - 1 < MIN_SAMPLES_PER_SPAN * spans:
@@ -166,8 +166,8 @@ def _levels(noise: Noise, where: str) -> tuple:
     """Joint-angle and yaw noise levels [rad] of ``noise`` (the yaw is the planar attitude)."""
     if not (noise.angle > 0 and noise.attitude > 0):
         raise SpaceidError(f"{where}: the angles estimator weights by the angle and attitude (yaw) noise levels, "
-                           f"given as {noise.angle:g} and {noise.attitude:g} rad: give both > 0 (--noise-angle, "
-                           "--noise-attitude)")  # fmt: skip
+                           f"given as {noise.angle:g} and {noise.attitude:g} rad: give both > 0 (`noise.angle`, "
+                           "`noise.attitude`)")  # fmt: skip
     return noise.angle, noise.attitude
 
 

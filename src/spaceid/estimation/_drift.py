@@ -39,13 +39,13 @@ _UNITS = {"torque": "N m", "viscous": "N m s/rad", "coulomb": "N m"}
 
 def check_drift_kinds(drift) -> tuple:
     """The drift kinds of ``drift`` (an iterable of names, or a ``"a,b"`` string) in
-    ``DRIFT_KINDS`` order, each once; raises naming ``--drift`` for an unknown one."""
+    ``DRIFT_KINDS`` order, each once; raises naming ``drift`` for an unknown one."""
     items = drift.split(",") if isinstance(drift, str) else list(drift or ())
     kinds = [str(k).strip().lower() for k in items if str(k).strip()]
     bad = [k for k in kinds if k not in DRIFT_KINDS]
     if bad:
-        raise SpaceidError(f"--drift: '{bad[0]}' is not a drift kind: use any of {', '.join(DRIFT_KINDS)} "
-                           "(comma-separated, e.g. --drift torque,viscous)")
+        raise SpaceidError(f"`drift`: '{bad[0]}' is not a drift kind: name any of {', '.join(DRIFT_KINDS)} "
+                           "(several: a list, or comma-separated)")
     return tuple(k for k in DRIFT_KINDS if k in kinds)
 
 
@@ -141,7 +141,7 @@ def drift_basis(log: Log, kinds) -> np.ndarray:
     return np.stack(cols, 1) if cols else np.zeros((n, 0, 3))
 
 
-def drift_terms(values: dict, planar: bool, where: str = "--drift", *, physical: bool = True) -> dict:
+def drift_terms(values: dict, planar: bool, where: str = "`drift`", *, physical: bool = True) -> dict:
     """Drift coefficients as the ``{"torque": (3,), "viscous": c, "coulomb": mu}`` that
     :func:`spaceid.motion.simulate` takes, from a dict keyed by kind (``torque`` a number for
     planar systems or 3 numbers) or by coefficient name (``torque_x``, ``torque_y``,
@@ -186,7 +186,7 @@ def drift_terms(values: dict, planar: bool, where: str = "--drift", *, physical:
 def drift_vector(terms: dict, kinds, planar: bool) -> np.ndarray:
     """The coefficients ``(n_d,)`` in :func:`drift_names` order of ``kinds`` from the
     :func:`drift_terms` dict ``terms`` (absent terms zero)."""
-    terms, out = drift_terms(terms, planar, where="drift", physical=False), []
+    terms, out = drift_terms(terms, planar, where="`drift`", physical=False), []
     for kind in check_drift_kinds(kinds):
         if kind == "torque":
             out += list(np.asarray(terms.get("torque", np.zeros(3)), float)[_axes(planar)])

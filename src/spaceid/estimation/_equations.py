@@ -71,11 +71,12 @@ def resolve_anchors(param: Parameterization, known: dict, where: str) -> dict:
         if i is None:
             hint = ", ".join(f"{param.names[j]} = {d}" for d, j in alone.items()) or "none"
             raise SpaceidError(
-                f"{where}: --known {name}: not a minimal parameter ({param.names[0]}..{param.names[-1]}) nor a "
-                f"physical parameter that one equals alone (those are: {hint}); see 'spaceid model' for the definitions"
+                f"{where}: `known` {name}: not a minimal parameter ({param.names[0]}..{param.names[-1]}) nor a "
+                f"physical parameter that one equals alone (those are: {hint}); the definitions: param.definitions, "
+                "or 'spaceid model'"
             )
         if i in given:
-            raise SpaceidError(f"{where}: --known {given[i]} and --known {name} both set {param.names[i]} "
+            raise SpaceidError(f"{where}: `known` {given[i]} and `known` {name} both set {param.names[i]} "
                                f"(= {param.definitions[i].strip()}): give it once")
         given[i] = name
         out[i] = (float(value), "given")
@@ -284,8 +285,8 @@ def _equations(param, log, momentum, known, where, drift=(), history=None) -> tu
         state = "unknown" if momentum is None else "zero"
         raise SpaceidError(
             f"{where}: the momentum is {state}, so the equations are homogeneous and fix the parameters only up to "
-            "scale: give the nonzero momentum of the run (--momentum), or anchor the scale with a known parameter "
-            "(--known NAME=VALUE, e.g. a reaction-wheel rotor inertia)"
+            "scale: give the nonzero momentum of the run (`momentum`), or anchor the scale with a known parameter "
+            "(`known` NAME=VALUE, e.g. a reaction-wheel rotor inertia)"
         )
     idx = np.array(sorted(anchors), int)
     free = np.setdiff1d(np.arange(param.n_params), idx)

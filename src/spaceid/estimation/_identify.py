@@ -19,7 +19,7 @@ import warnings
 
 import numpy as np
 
-from .._errors import SpaceidError
+from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
@@ -91,9 +91,9 @@ def _check_factor(factor, names, cond_limit: float, where: str) -> tuple:
     if not cond_scaled < cond_limit:
         bad = _unexcited(R[:-1, :-1], names, max(1e-8, 1 / cond_limit))
         drifts = set(drift_names(DRIFT_KINDS, False)[0])
-        fix = ("drop one of the drift terms the log cannot tell apart (--drift; a constant torque and Coulomb "
+        fix = ("drop one of the drift terms the log cannot tell apart (`drift`; a constant torque and Coulomb "
                "friction are the same while the base turns one way)" if drifts & set(bad) else
-               "use an exciting trajectory (spaceid design) that moves every joint")
+               "use an exciting trajectory (design_excitation, 'spaceid design') that moves every joint")
         raise SpaceidError(f"{where}: the regressor is rank-deficient (scaled cond {cond_scaled:.3g}); not excited: "
                            f"{', '.join(bad) or 'unclear'}: {fix}")
     return factor, cond_scaled
@@ -103,7 +103,7 @@ def _instrument_context(log: Log, instruments, where: str) -> dict:
     """The joint signals ``(q, qd)`` the ``iv`` instruments are built from, and their description."""
     ref = (log.q, log.qd) if instruments is None else tuple(np.asarray(a, float) for a in instruments)
     if ref[0].shape != log.q.shape or ref[1].shape != log.q.shape:
-        raise SpaceidError(f"{where}: instruments must be joint angles and rates of shape {log.q.shape}")
+        raise SpaceidError(f"{where}: `instruments` must be joint angles and rates of shape {log.q.shape}")
     return {"reference": ref, "instruments": "measured joints, predicted base rate" if instruments is None
             else "commanded joints, predicted base rate"}  # fmt: skip
 
@@ -147,7 +147,7 @@ def _drift_collinear(eq, cov_t, where) -> tuple:
         return worst, ""
     return worst, (f"{where}: drift terms {eq.drift[i]} and {eq.drift[j]} are nearly indistinguishable on this log "
                    f"(correlation {worst:.4f}): noise and model errors trade one for the other, which inflates their "
-                   "errors and the parameters'; keep one of them (--drift) unless the motion can tell them apart")
+                   "errors and the parameters'; keep one of them (`drift`) unless the motion can tell them apart")
 
 
 def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None, chunk=None) -> tuple:
@@ -165,8 +165,8 @@ def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitene
         f", and the residuals are correlated (lag-1 autocorrelation {test['lag1_autocorrelation']:.2f})")
     return test, (f"{where}: the equation residuals trend with time and attitude (Wald p = {test['p_value']:.2g} "
                   f"< {test['alpha']:g}, momentum drift {100 * test['relative_drift']:.2g} % of its RMS{white}): an "
-                  "external torque or base friction changes the momentum: model it with --drift (one term first, "
-                  "e.g. --drift viscous: terms that move alike are confounded; see the drift theory page)")
+                  "external torque or base friction changes the momentum: model it with `drift` (one term first, "
+                  "e.g. viscous: terms that move alike are confounded; see the drift theory page)")
 
 
 def _singular_values(factor) -> np.ndarray:
@@ -231,7 +231,7 @@ def _implausible(param: Parameterization, pi: np.ndarray, std: np.ndarray, where
                        for i in np.flatnonzero(bad))  # fmt: skip
     every = "every one of them negative: " if bad.sum() == like.sum() > 1 else ""
     return (f"{where}: physically impossible parameters, negative though they lead with a mass or moment of inertia: "
-            f"{listed}; {every}likely the wrong sign of the momentum (--momentum) or a wrong anchor (--known, the "
+            f"{listed}; {every}likely the wrong sign of the momentum (`momentum`) or a wrong anchor (`known`, the "
             "reaction-wheel inertia)")
 
 
@@ -341,11 +341,11 @@ def identify(
         estimator: one line naming the log and the fix.
     """
     if estimator not in ESTIMATORS:
-        raise SpaceidError(f"--estimator: '{estimator}' is not one of {', '.join(ESTIMATORS)}")
+        raise SpaceidError(f"`estimator`: {shown(estimator)} is not one of {', '.join(ESTIMATORS)}")
     momentum = None if momentum is None else np.asarray(momentum, float)
     drift = check_drift_kinds(drift)
     if drift and estimator == "angles":
-        raise SpaceidError("--drift: not available with --estimator angles (its equations do not carry drift "
+        raise SpaceidError("`drift`: not available with `estimator` angles (its equations do not carry drift "
                            "columns): use another estimator, or no drift terms")
     eq, anchors = _equations(param, log, momentum, known, where, drift, history)
     _check_sample_count(eq, log, where)
@@ -385,7 +385,7 @@ def identify(
         raise SpaceidError(
             f"{where}: estimator '{estimator}' met a singular or non-finite linear system ({exc}): check the log for "
             "NaN or frozen signals and use an exciting trajectory (spaceid design)"
-            + ("" if estimator == "ols" else ", or try --estimator ols")
+            + ("" if estimator == "ols" else ", or try `estimator` ols")
         ) from None
     if info.get("fallback"):
         warnings.warn(f"{where}: maximum likelihood failed, the estimate reported is {info['fallback']}", stacklevel=2)

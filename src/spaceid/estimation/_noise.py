@@ -55,7 +55,7 @@ class Noise:
         for name in ("angle", "rate", "base_rate", "attitude"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0):
-                raise SpaceidError(f"noise: {name} = {value!r} must be a finite standard deviation >= 0")
+                raise SpaceidError(f"`noise.{name}`: {value!r} must be a finite standard deviation >= 0")
 
     def to_dict(self) -> dict:
         return asdict(self)

@@ -24,20 +24,20 @@ def parse_momentum(value, *, planar: bool):
     try:
         parts = [float(v) for v in str(value).split(",")] if not np.ndim(value) else [float(v) for v in value]
     except ValueError:
-        raise SpaceidError(f"--momentum: '{value}' is not a number or a list hx,hy,hz [N m s]") from None
+        raise SpaceidError(f"`momentum`: '{value}' is not a number or a list hx,hy,hz [N m s]") from None
     if len(parts) == 1 and (planar or parts[0] == 0):
         parts = [0.0, 0.0, parts[0]]
     if len(parts) != 3 or not np.all(np.isfinite(parts)):
         single = "h or " if planar else "0 or "
-        raise SpaceidError(f"--momentum: expected {single}hx,hy,hz (finite, N m s), got '{value}'")
+        raise SpaceidError(f"`momentum`: expected {single}hx,hy,hz (finite, N m s), got '{value}'")
     if planar and any(parts[:2]):  # they would be ignored by the equations, yet kept in the result
-        raise SpaceidError(f"--momentum: '{value}' has in-plane components hx, hy, but a planar model carries only "
-                           f"the momentum about z: give --momentum {parts[2]:g}")
+        raise SpaceidError(f"`momentum`: '{value}' has in-plane components hx, hy, but a planar model carries only "
+                           f"the momentum about z: give `momentum` {parts[2]:g}")
     return np.array(parts)
 
 
 def parse_known(items) -> dict:
-    """``NAME=VALUE`` strings (``--known``) as ``{name: value}``; a name given twice is refused."""
+    """``NAME=VALUE`` strings (the command line's ``--known``) as ``{name: value}``; a name given twice is refused."""
     known = {}
     for item in items or ():
         name, sep, value = str(item).partition("=")
@@ -46,9 +46,9 @@ def parse_known(items) -> dict:
         except ValueError:
             number = np.nan
         if not sep or not name.strip() or not np.isfinite(number):
-            raise SpaceidError(f"--known: '{item}' is not NAME=VALUE with a finite number (e.g. Iczz_wheel=0.00197)")
+            raise SpaceidError(f"`known`: '{item}' is not NAME=VALUE with a finite number (e.g. Iczz_wheel=0.00197)")
         if name.strip() in known:
-            raise SpaceidError(f"--known: {name.strip()} is given twice ({known[name.strip()]:g} and {number:g}): "
+            raise SpaceidError(f"`known`: {name.strip()} is given twice ({known[name.strip()]:g} and {number:g}): "
                                "give each anchor once")
         known[name.strip()] = number
     return known

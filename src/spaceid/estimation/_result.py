@@ -128,7 +128,7 @@ class Identification:
             )
         except (KeyError, TypeError, ValueError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "
-                               "use a file written by 'spaceid identify'") from None
+                               "use a file written by 'spaceid identify' or from Identification.to_dict") from None
 
 
 def load_result(path) -> Identification:

@@ -60,10 +60,10 @@ STREAMED = ("ols", "wls", "iv", "ml")
 def check_chunk(chunk, estimator: str) -> int:
     """``chunk`` as a positive number of samples, or a SpaceidError naming the option and the fix."""
     if estimator not in STREAMED:
-        raise SpaceidError(f"--chunk: estimator '{estimator}' runs in memory only; streaming is available for "
-                           f"{', '.join(STREAMED)}: use one of those, or drop --chunk")
+        raise SpaceidError(f"`chunk`: estimator '{estimator}' runs in memory only; streaming is available for "
+                           f"{', '.join(STREAMED)}: use one of those, or no `chunk`")
     if isinstance(chunk, bool) or not isinstance(chunk, (int, np.integer)) or chunk < 1:
-        raise SpaceidError(f"--chunk: {chunk!r} is not a positive whole number of samples per chunk: give e.g. 4096")
+        raise SpaceidError(f"`chunk`: {chunk!r} is not a positive whole number of samples per chunk: give e.g. 4096")
     return int(chunk)
 
 

@@ -211,7 +211,7 @@ def _noise_model_warning(chi2, checks, log: Log, estimated: bool) -> str:
         return ""
     lo, hi = checks["chi2_band"]
     if chi2 < 1:
-        cause = "the noise levels are larger than the residuals show (check --noise-* or let them be estimated)"
+        cause = "the noise levels are larger than the residuals show (check `noise` or let them be estimated)"
     else:
         cause = ("the noise levels are too small for the residuals, or the equations miss something: unmodelled "
                  "drift or disturbances (gas jets, cables, air-bearing tilt), rates from one-tick differences or a "

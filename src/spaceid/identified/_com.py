@@ -68,7 +68,7 @@ def identify_com(model, log: Log, *, seed: int = 0):
     Parameters
     ----------
     model : IdentifiedModel
-        The momentum identification (``spaceid.load_result`` or
+        The momentum identification (``spaceid.load_identified`` or
         :func:`~spaceid.identified.identified_model`).
     log : Log
         The identification's log (or any other of the same system at zero linear momentum) with
@@ -94,7 +94,7 @@ def identify_com(model, log: Log, *, seed: int = 0):
     if log.base_position is None:
         cols = "base_x, base_y" if log.planar else "base_px, base_py, base_pz"
         raise SpaceidError(f"{where}: no base position ({cols} columns): the CM terms need the measured base "
-                           "position; log it (motion capture) or drop --com")
+                           "position: log it (motion capture), or identify without the CM terms")
     geometry = model.geometry
     names, definitions, _ = com_terms(geometry)
     cols, combination = _structural_columns(geometry, seed)
@@ -168,8 +168,8 @@ def frame_jacobians(model, q, frame: str, point=None):
     geometry = model.geometry
     bodies = [b.name for b in geometry.bodies]
     if frame not in bodies:
-        raise SpaceidError(f"frame '{frame}' is not a body of model '{model.identification.model}' (bodies: "
-                           f"{', '.join(bodies)}): name a body, and give a fixed child's offset as point")
+        raise SpaceidError(f"`frame` '{frame}' is not a body of model '{model.identification.model}' (bodies: "
+                           f"{', '.join(bodies)}): name a body, and give a fixed child's offset as `point`")
     c = com_position(model, q)
     cols, values = com_of(model)
     q = np.asarray(q, float)

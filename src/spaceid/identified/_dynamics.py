@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy.linalg import qr
 
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import quat_to_matrix
@@ -41,7 +42,7 @@ __all__ = ["IdentifiedModel", "identified_model", "load_identified", "parameteri
 _FIXES = {
     "total_mass": "a weighing of the whole system, or a thruster test with a known force",
     "system_com": "the total mass (pi fixes the rest), or the base position logged over a motion "
-                  "(spaceid.identified.identify_com, 'spaceid identify --com')",
+                  "(spaceid.identified.identify_com; 'spaceid identify' runs it on request)",
     "linear_velocity": "the system centre of mass (see 'system_com'): zero linear momentum fixes the base "
                        "linear velocity, hence any point's, relative to it",
     "base_force_response": "the total mass and the system centre of mass: a force on the base changes the "
@@ -63,32 +64,35 @@ _SLIDE = 0.1
 """Step [m] of the central difference for prismatic joints: exact for a quadratic, any step."""
 
 
-def parameterization_of(ident, *, where: str = "result") -> Parameterization:
-    """Rebuild the minimal parameter set that ``ident`` (an :class:`~spaceid.estimation.Identification`
+@deprecated_alias(old="ident", new="result")
+def parameterization_of(result, *, where: str = "result") -> Parameterization:
+    """Rebuild the minimal parameter set that ``result`` (an :class:`~spaceid.estimation.Identification`
     or :class:`IdentifiedModel`) was identified with, and check it against the result's names."""
-    if isinstance(ident, IdentifiedModel):
-        return ident.param
-    settings = ident.settings.get("parameterization", {})
-    model = load_model(ident.model, planar=ident.planar)
+    if isinstance(result, IdentifiedModel):
+        return result.param
+    settings = result.settings.get("parameterization", {})
+    model = load_model(result.model, planar=result.planar)
     param = minimal_parameters(model, tol=settings.get("rank_tol", 1e-9), seed=settings.get("seed", 0))
-    if param.names != ident.names or param.definitions != ident.definitions:
+    if param.names != result.names or param.definitions != result.definitions:
         raise SpaceidError(
-            f"{where}: its parameters do not match model '{ident.model}' as loaded now "
-            f"({len(ident.names)} vs {param.n_params}): identify again with this model"
+            f"{where}: its parameters do not match model '{result.model}' as loaded now "
+            f"({len(result.names)} vs {param.n_params}): identify again with this model"
         )
     return param
 
 
-def identified_model(ident: Identification, *, where: str = "result") -> IdentifiedModel:
+@deprecated_alias(old="ident", new="result")
+def identified_model(result: Identification, *, where: str = "result") -> IdentifiedModel:
     """The controller-ready model of an identification (its parameter set rebuilt and checked)."""
-    return IdentifiedModel(ident, parameterization_of(ident, where=where), where)
+    return IdentifiedModel(result, parameterization_of(result, where=where), where)
 
 
 def load_identified(path) -> IdentifiedModel:
     """An identification saved as RESULT.json, as a controller-ready :class:`IdentifiedModel`.
 
-    This is ``spaceid.load_result``; :func:`spaceid.estimation.load_result` gives the bare
-    :class:`~spaceid.estimation.Identification`.
+    This is ``spaceid.load_identified``; ``spaceid.load_result`` (that is,
+    :func:`spaceid.estimation.load_result`) gives the :class:`~spaceid.estimation.Identification`
+    record alone, and :func:`identified_model` turns one into this model.
 
     Parameters
     ----------
@@ -168,7 +172,7 @@ class IdentifiedModel:
         with the same joints), to compare controllers built on each."""
         pi = np.asarray(pi, float)
         if pi.shape != self.values.shape:
-            raise SpaceidError(f"with_values: pi has shape {pi.shape}, expected {self.values.shape} "
+            raise SpaceidError(f"with_values: `pi` has shape {pi.shape}, expected {self.values.shape} "
                                f"(the parameters {', '.join(self.names)})")  # fmt: skip
         return IdentifiedModel(replace(self.identification, values=pi), self.param, self.where)
 

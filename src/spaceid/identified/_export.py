@@ -18,7 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._errors import SpaceidError
+from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
 from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian, identifiability
 from ..dynamics import minimal_parameters
@@ -41,7 +41,7 @@ AUTO_REGIONS = (0.95, 0.99, 0.999)
 """The confidence ellipsoids tried in turn, smallest first, when an estimate is not physically
 realisable exactly and no region is given."""
 SHRINK = 1e-6
-"""``--region``: the ellipsoid used is this much smaller (relative radius), so the exported
+"""``region``: the ellipsoid used is this much smaller (relative radius), so the exported
 parameters lie inside the stated one despite the solver's tolerance."""
 
 
@@ -315,11 +315,11 @@ def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
         return SpaceidError(
             f"{where}: the identified parameters are not physically realisable (no positive masses, inertias and "
             f"triangle inequalities reproduce {', '.join(names) or 'them'}): export within the confidence ellipsoid "
-            "with --region P (e.g. 0.95), or check the identification")
+            "(`region`, a probability such as 0.95), or check the identification")
     outside = "" if x is None or program.excess.value <= 1e-9 else "the ellipsoid reaches no physical model; "
     return SpaceidError(
         f"{where}: no physical model within the {region:g} confidence ellipsoid ({outside}"
-        f"{', '.join(names) or 'the anchors'} cannot be met): try a larger --region, or check the identification")
+        f"{', '.join(names) or 'the anchors'} cannot be met): try a larger `region`, or check the identification")
 
 
 def _polish(param, theta, e, pi, slots_scale, g):
@@ -419,7 +419,7 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
         or no physical model meeting the conditions (the message names the parameters).
     """
     if region is not None and not 0 < region < 1:
-        raise SpaceidError(f"--region {region:g}: give a probability between 0 and 1 (e.g. 0.95)")
+        raise SpaceidError(f"`region`: {shown(region)} is not a probability between 0 and 1: give e.g. 0.95")
     prior, param = _checked_prior(result, prior, where, prior_name)
     with one_blas_thread():  # small dense factorisations: threads only wait on busy cores
         try:

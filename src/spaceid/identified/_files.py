@@ -12,7 +12,7 @@ import numpy as np
 
 from .._atomic import write_text_atomic
 from .._constants import EXPORT_FORMATS as FORMATS
-from .._errors import SpaceidError
+from .._errors import SpaceidError, shown
 from ..models import PRESETS, Model
 from ._export import Export, unphysical_bodies
 
@@ -186,11 +186,11 @@ def write_export(export: Export, path, *, fmt: str = "urdf", inputs=(), note: st
         An unknown format, ``path`` one of ``inputs``, or a path that cannot be written.
     """
     if fmt not in FORMATS:
-        raise SpaceidError(f"--format {fmt}: not one of {', '.join(FORMATS)}")
+        raise SpaceidError(f"`fmt`: {shown(fmt)} is not one of {', '.join(FORMATS)}")
     path = Path(path)
     for source in inputs:
         if Path(source).is_file() and path.resolve() == Path(source).resolve():
-            raise SpaceidError(f"-o {path}: that is an input file ({source}): give another file name")
+            raise SpaceidError(f"{path}: that is an input file ({source}): give another file name")
     bad = unphysical_bodies(export.model)
     if bad:  # checked here too: whatever reaches a file is physically consistent
         raise SpaceidError(f"{path}: not written: the bodies {', '.join(bad)} of the exported model are not "

@@ -160,20 +160,20 @@ def payload_after_grasp(model, log: Log, link: str, grasp: float, momentum, *, p
         The grasp outside the log, too few samples after it, or no hold before it.
     """
     if not log.t[0] < grasp < log.t[-1]:
-        raise SpaceidError(f"--grasp: {grasp:g} s is not inside {where} ({log.t[0]:.6g}..{log.t[-1]:.6g} s): give "
+        raise SpaceidError(f"`grasp`: {grasp:g} s is not inside {where} ({log.t[0]:.6g}..{log.t[-1]:.6g} s): give "
                            "the grasp instant on the log's clock")
     pmap = model if isinstance(model, PayloadMap) else payload_map(model, link, seed=seed)
     margin = correlation_length(log) / 2 * float(np.median(np.diff(log.t)))
     end = log.t[-1] if end is None else end
     after = (log.t > grasp + margin + 1e-9) & (log.t <= end + 1e-9)
     if after.sum() < 2:
-        raise SpaceidError(f"--grasp: {where} has no samples from {grasp + margin:.6g} s (the grasp plus half the "
+        raise SpaceidError(f"`grasp`: {where} has no samples from {grasp + margin:.6g} s (the grasp plus half the "
                            "differentiator's window) on: record longer after the grasp")
     window = replace(log.select(after), meta=dict(log.meta, window=[grasp + margin, float(end)]))
     record = {"time": float(grasp), "window": [float(window.t[0]), float(window.t[-1])],
               "window_start_after_grasp": float(window.t[0] - grasp), "hold": None}  # fmt: skip
     if isinstance(momentum, str) and momentum != "hold":
-        raise SpaceidError(f"--momentum: {momentum!r} is not a value, 'unknown' or 'hold'")
+        raise SpaceidError(f"`momentum`: {momentum!r} is not a value, None (unknown) or 'hold'")
     hold = _hold(log, grasp, margin, where) if isinstance(momentum, str) else None
     config = None if payload_motion is None else _configuration_at(log, grasp, pmap.planar)
     history, cov, motion = None, None, None
@@ -271,6 +271,6 @@ def _hold(log: Log, grasp: float, margin: float, where: str) -> np.ndarray:
     if hold.size < HOLD_SAMPLES:
         hold = np.sort(np.argsort(np.abs(log.t - (grasp - HOLD / 2)))[:HOLD_SAMPLES])
     if log.t[hold[0]] < grasp - HOLD - 1e-9 or log.t[0] > grasp - HOLD:
-        raise SpaceidError(f"--momentum hold: {where} does not hold {HOLD:g} s before the grasp at {grasp:g} s: "
-                           "give the momentum after the grasp, or 'unknown'")
+        raise SpaceidError(f"`momentum` 'hold': {where} does not hold {HOLD:g} s before the grasp at {grasp:g} s: "
+                           "give the momentum after the grasp, or leave it unknown")
     return hold

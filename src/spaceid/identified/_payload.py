@@ -163,10 +163,10 @@ def payload_map(model, link: str, *, seed: int = 0) -> PayloadMap:
         ``link`` is not a link of the model, or (planar) its z axis is not the base z axis.
     """
     model = load_model(model)
-    body, rotation, translation = link_frame(model, link, "--link")
+    body, rotation, translation = link_frame(model, link, "`link`")
     if model.planar and not abs(rotation[2, 2] - 1) < 1e-9:
-        raise SpaceidError(f"--link: the frame of '{link}' is tilted out of the plane: a planar payload needs its z "
-                           "axis along the base z axis (identify it spatially, --spatial)")
+        raise SpaceidError(f"`link`: the frame of '{link}' is tilted out of the plane: a planar payload needs its z "
+                           "axis along the base z axis (identify it with the spatial model)")
     bodies = list(model.bodies)
     bodies[body] = replace(bodies[body], known_zero=frozenset())  # the payload's moments are not zero
     model = replace(model, bodies=tuple(bodies))
@@ -271,7 +271,7 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     problem = cp.Problem(cp.Minimize(cp.sum_squares(z)), [0.5 * (matrix + matrix.T) >> margin * np.eye(len(lmi))])
     problem.solve(solver=cp.CLARABEL, **_CLARABEL)
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
-        raise SpaceidError(f"payload: the consistency projection failed ({problem.status}): check the log and --link")
+        raise SpaceidError(f"payload: the consistency projection failed ({problem.status}): check the log and `link`")
     return theta + root @ z.value, float(np.linalg.norm(z.value) / np.sqrt(top))
 
 
@@ -486,8 +486,8 @@ def _whitener(pmap, eq, x, sigma, theta, brought=None) -> tuple:
     try:
         return np.linalg.cholesky(equation_covariance(jac, sigma)), jac
     except np.linalg.LinAlgError:
-        raise SpaceidError("noise: the equation-error covariance is singular at some sample: give a nonzero "
-                           "--noise-base-rate, or no noise levels at all (estimated from the log)") from None
+        raise SpaceidError("`noise`: the equation-error covariance is singular at some sample: give a nonzero "
+                           "`noise.base_rate`, or no noise levels at all (estimated from the log)") from None
 
 
 def _whitened(pmap, eq, x, y, rhs, sigma, theta):
@@ -523,12 +523,13 @@ def _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where) -> tuple:
             delta = np.linalg.lstsq(flat / scale, -r.ravel(), rcond=None)[0]
         theta = theta + delta / scale
         if not np.all(np.isfinite(theta)):
-            raise SpaceidError(f"{where}: the payload fit diverged: check --link, --momentum and the log")
+            raise SpaceidError(f"{where}: the payload fit diverged: check `link`, `momentum` and the log")
         if np.linalg.norm(delta) <= STEP_TOL * max(np.linalg.norm(theta * scale), 1e-300):
             break
     else:
         raise SpaceidError(f"{where}: the payload fit did not converge in {MAX_STEPS} Gauss-Newton steps: check "
-                           "--link and --momentum, or design an exciting motion (spaceid design --payload-link)")
+                           "`link` and `momentum`, or design an exciting motion for the payload (design_excitation, "
+                           "'spaceid design', with `payload_link`)")
     r, a = _whitened(pmap, eq, x, y, rhs, sigma, theta)
     return theta, r, a, step
 
@@ -654,21 +655,21 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     """
     pmap = model if isinstance(model, PayloadMap) else payload_map(model, link, seed=seed)
     if pmap.link != link:
-        raise SpaceidError(f"--link: '{link}' differs from the payload map's link '{pmap.link}': use one link")
+        raise SpaceidError(f"`link`: '{link}' differs from the payload map's link '{pmap.link}': use one link")
     drift = check_drift_kinds(drift)
     if isinstance(momentum, str):
-        raise SpaceidError(f"momentum: {momentum!r} is not a value: 'hold' needs the grasp (payload_after_grasp, "
-                           "'spaceid payload --grasp T')")
+        raise SpaceidError(f"`momentum`: {momentum!r} is not a value: 'hold' needs the grasp instant "
+                           "(payload_after_grasp, with its `grasp`)")
     momentum = None if momentum is None else np.asarray(momentum, float)
     estimated = noise is None
     noise = noise_from_log(log) if estimated else noise
     if momentum is None and (momentum_cov is not None or grasp_motion is not None):
-        raise SpaceidError("momentum: estimated with the payload, so it takes neither a covariance nor the payload's "
+        raise SpaceidError("`momentum`: estimated with the payload, so it takes neither a covariance nor the payload's "
                            "motion at the grasp: give the servicer's momentum")
     momentum_cov = None if momentum_cov is None else np.asarray(momentum_cov, float).reshape(3, 3)
     n_c = pmap.param.model.n_joints + len(_attitude_axes(pmap.planar))
     if grasp_motion is not None and grasp_motion.cov is not None and np.shape(grasp_motion.cov) != (n_c, n_c):
-        raise SpaceidError(f"grasp_motion.cov: shape {np.shape(grasp_motion.cov)}, expected ({n_c}, {n_c}): the "
+        raise SpaceidError(f"`grasp_motion.cov`: shape {np.shape(grasp_motion.cov)}, expected ({n_c}, {n_c}): the "
                            "covariance of the joint positions and the attitude at the grasp (planar: the yaw)")
     brought = None if grasp_motion is None else _brought_momentum(pmap, grasp_motion)
     fit = _fit(pmap, log, momentum, momentum_cov, grasp_motion, brought, drift, history, noise, estimated, where,
@@ -685,8 +686,8 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     if correlation is not None and correlation > COLLINEAR:
         warnings.warn(f"{where}: the momentum estimated with the payload correlates with it at {correlation:.3f}: the "
                       "motion hardly tells them apart, and the rates' systematic errors move the mass along; give the "
-                      "momentum (--momentum H, or hold with --grasp) and a moving payload's velocity and rate "
-                      "(--payload-velocity, --payload-rate)", stacklevel=2)  # fmt: skip
+                      "momentum (`momentum`: a value, or 'hold' with the `grasp` instant) and a moving payload's "
+                      "velocity and rate (`payload_motion`)", stacklevel=2)  # fmt: skip
     units = drift_names(drift, pmap.planar)[1]
     terms = tuple({"name": nm, "value": float(v), "std": float(e), "unit": u} for nm, v, e, u in
                   zip(eq.drift, eq.drift_values(theta), std_all[len(theta) - len(eq.drift) :], units))  # fmt: skip
@@ -785,6 +786,6 @@ def nominal_payload(path, *, planar: bool) -> np.ndarray:
     std = data.get("standard_parameters") if isinstance(data, dict) else None
     if not isinstance(std, dict) or any(not isinstance(std.get(n), (int, float)) for n in INERTIAL_NAMES):
         raise SpaceidError(f"{path}: no standard_parameters with {', '.join(INERTIAL_NAMES)}: give a PAYLOAD.json "
-                           "that 'spaceid payload' wrote")
+                           "as 'spaceid payload' writes it (PayloadEstimate.to_dict)")
     values = np.array([std[n] for n in INERTIAL_NAMES], float)
     return values[list(PLANAR_SLOTS)] if planar else values

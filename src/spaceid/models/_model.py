@@ -176,12 +176,12 @@ class Model:
                 raise SpaceidError(
                     f"{self.source or self.name}: joint '{b.joint}' has axis {np.round(axis, 6).tolist()} "
                     "in base axes, not parallel to the base z axis: planar mode needs every revolute "
-                    "axis along z (drop --planar to treat the system as spatial)"
+                    "axis along z (drop `planar` to treat the system as spatial)"
                 )
             if b.joint_type == "prismatic" and abs(axis[2]) > _PLANAR_TOL:
                 raise SpaceidError(
                     f"{self.source or self.name}: prismatic joint '{b.joint}' moves out of the base "
-                    "x-y plane: planar mode needs in-plane motion (drop --planar)"
+                    "x-y plane: planar mode needs in-plane motion (drop `planar` to treat the system as spatial)"
                 )
         return replace(self, planar=True)
 

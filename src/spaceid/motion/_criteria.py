@@ -277,7 +277,7 @@ CRITERIA = {
 def _criterion_named(name):
     """``CRITERIA[name]``, or an error that lists the choices."""
     if name not in CRITERIA:
-        raise SpaceidError(f"criterion must be one of {', '.join(CRITERIA)}, got {name!r}")
+        raise SpaceidError(f"`criterion` must be one of {', '.join(CRITERIA)}, got {name!r}")
     return CRITERIA[name]
 
 
@@ -329,8 +329,8 @@ class whitened_regressor:  # noqa: N801 - used like a function; a class so it pi
 
         if noise.is_zero:
             raise SpaceidError(
-                "noise: every standard deviation is zero, so the Fisher information is "
-                "unbounded; give at least one of --noise-angle, --noise-rate, --noise-base-rate"
+                "`noise`: every standard deviation is zero, so the Fisher information is "
+                "unbounded; give at least one of `noise.angle`, `noise.rate`, `noise.base_rate`"
             )
         self.base = excitation_regressor(param, pi, momentum)
         self.noise, self.sigma = noise, signal_sigma(param, noise)
@@ -355,8 +355,8 @@ class whitened_regressor:  # noqa: N801 - used like a function; a class so it pi
             L = np.linalg.cholesky(S)
         except np.linalg.LinAlgError:
             raise SpaceidError(
-                "noise: the equation-error covariance is singular at some sample (the noisy "
-                "signals do not reach every equation); give a nonzero --noise-base-rate"
+                "`noise`: the equation-error covariance is singular at some sample (the noisy "
+                "signals do not reach every equation); give a nonzero `noise.base_rate`"
             ) from None
         Yw = np.linalg.solve(L, Y) * self.scale
         return Yw.reshape(*Yw.shape[:-3], -1, Yw.shape[-1])

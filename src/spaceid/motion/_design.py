@@ -31,6 +31,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..estimation import Noise
 from ..models import INERTIAL_NAMES
@@ -105,6 +106,7 @@ class DesignResult:
 # One BLAS thread for the whole design, set-up and final evaluations too (the search's workers
 # limit theirs): threads spinning on busy cores made the servicer's rank check on 8 starts take
 # 65 s, and a 30 s budget 120 s
+@deprecated_alias(old="n_jobs", new="jobs")
 @threadpool_limits.wrap(limits=1)
 def optimize_excitation(
     regressor,
@@ -119,7 +121,7 @@ def optimize_excitation(
     criterion="cond",
     seed=0,
     n_starts=None,
-    n_jobs=None,
+    jobs=None,
     progress=None,
     boundary=None,
     time_budget=None,
@@ -161,13 +163,13 @@ def optimize_excitation(
         ``crb`` minimises the trace of ``(Y^T Y)^-1``, the Cramer-Rao bound (A-optimality).
     seed : int
         Seed (an integer >= 0) of the random start points. The same seed gives the same
-        result, whatever ``n_jobs``, unless ``time_budget`` cuts the search short; a larger
+        result, whatever ``jobs``, unless ``time_budget`` cuts the search short; a larger
         ``n_starts`` adds starts to those of a smaller one.
     n_starts : int, optional
         Number of local searches (an upper bound when ``time_budget`` or ``patience`` ends the
         search earlier). Default: by the problem's size (``_default_starts``), 64 for
         Cepheus, fewer where a search costs more.
-    n_jobs : int, optional
+    jobs : int, optional
         Worker processes; default: one per core. 1 runs in this process.
     progress : callable, optional
         ``progress(done, total)``, called as local searches complete (``total = n_starts``;
@@ -210,8 +212,8 @@ def optimize_excitation(
         surrogate is evaluated; the ``n_starts`` best are searched from (so a larger
         ``n_starts`` adds the next best).
     scheduler : str, optional
-        Where the local searches run: ``processes`` (``n_jobs`` local processes), ``dask``
-        (a Dask LocalCluster of ``n_jobs`` workers) or a ``dask scheduler`` address
+        Where the local searches run: ``processes`` (``jobs`` local processes), ``dask``
+        (a Dask LocalCluster of ``jobs`` workers) or a ``dask scheduler`` address
         ``tcp://HOST:PORT`` (its workers); default ``DASK_SCHEDULER_ADDRESS`` if set, else
         ``processes`` (docs/campaigns.md).
     patience : int, optional
@@ -252,7 +254,7 @@ def optimize_excitation(
                    **({} if n_starts is None else {"n_starts": n_starts}),
                    **({} if patience is None else {"patience": patience}))  # fmt: skip
     if method not in _METHODS:
-        raise SpaceidError(f"method must be one of {', '.join(_METHODS)}, got {method!r}")
+        raise SpaceidError(f"`method` must be one of {', '.join(_METHODS)}, got {method!r}")
     limits = _limit_array(joints, q_max, qd_max, qdd_max)
     bc = _boundary_array(joints, boundary)
     problem = _set_up_problem(regressor, criterion, duration=float(duration),
@@ -270,9 +272,9 @@ def optimize_excitation(
     if initial is not None:
         z0 = _warm_start_coefficients(problem, initial, joints, duration, harmonics, bc)
         z_initial = problem.shrink_into_limits(z0)
-    n_jobs = min(os.cpu_count() or 1, n_starts) if n_jobs is None else int(n_jobs)
+    jobs = min(os.cpu_count() or 1, n_starts) if jobs is None else int(jobs)
     patience = max(8, n_starts // 2) if patience is None else patience
-    tally = _multistart_search(problem, method, seed=seed, n_starts=n_starts, n_jobs=n_jobs,
+    tally = _multistart_search(problem, method, seed=seed, n_starts=n_starts, n_jobs=jobs,
                                progress=progress, time_budget=time_budget, z_initial=z_initial,
                                max_steps=max_steps, n_screen=n_screen, t_start=t_start,
                                scheduler=scheduler, patience=patience, status=status)  # fmt: skip
@@ -333,13 +335,14 @@ def _check_options(criterion, duration, time_budget, **integers):
            "n_screen": 1, "patience": 1}
     for name, value in integers.items():
         if not isinstance(value, (int, np.integer)) or value < low[name]:
-            raise SpaceidError(f"{name} must be an integer >= {low[name]}, got {value!r}")
+            raise SpaceidError(f"`{name}` must be an integer >= {low[name]}, got {value!r}")
     if not (np.isfinite(duration) and duration > 0):
-        raise SpaceidError(f"duration must be a positive number of seconds, got {duration!r}")
+        raise SpaceidError(f"`duration` must be a positive number of seconds, got {duration!r}")
     if time_budget is not None and not time_budget > 0:
-        raise SpaceidError(f"time_budget must be a positive number of seconds, got {time_budget!r}")
+        raise SpaceidError(f"`time_budget` must be a positive number of seconds, got {time_budget!r}")
 
 
+@deprecated_alias(old="n_jobs", new="jobs")
 def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, progress=None,
                       criterion="cond", noise=None, payload_link=None, payload=None, **options):
     """Optimal exciting trajectory for ``param``'s model, joint limits from the model, the base
@@ -386,12 +389,12 @@ def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, 
     """
     crit = _criterion_named(criterion)
     if noise is not None and not isinstance(noise, Noise):
-        raise SpaceidError(f"noise must be a spaceid.estimation.Noise, got {type(noise).__name__}")
+        raise SpaceidError(f"`noise` must be a spaceid.estimation.Noise, got {type(noise).__name__}")
     if crit.noise_aware and (noise is None or noise.is_zero):
         raise SpaceidError(
-            f"criterion {criterion!r} minimises the estimation error under measurement noise: "
-            "give --noise-angle, --noise-rate, --noise-base-rate (rad, rad/s; spatial also "
-            "--noise-attitude), or use --criterion cond"
+            f"`criterion` {criterion!r} minimises the estimation error under measurement noise: "
+            "give `noise.angle`, `noise.rate`, `noise.base_rate` (rad, rad/s; spatial also "
+            "`noise.attitude`), or use `criterion` cond"
         )
     overrides = {key: options.pop(key, None) for key in ("q_max", "qd_max", "qdd_max")}
     limits = _model_limits(param.model, overrides)

@@ -369,7 +369,7 @@ def _set_up_problem(regressor, criterion, *, duration, harmonics, samples, limit
     )
     if np.abs(problem.signals_over_limits(np.zeros(problem.n))).max() > 1:
         raise SpaceidError(
-            "boundary: the quintic through the boundary values alone breaks a joint limit; "
+            "`boundary`: the quintic through the boundary values alone breaks a joint limit; "
             "bring the boundary values inside the limits or relax the limits"
         )
     return problem
@@ -399,10 +399,10 @@ def _limit_array(joints, q_max, qd_max, qdd_max):
         arr = np.asarray(value, dtype=float)
         if arr.ndim > 1 or arr.size not in (1, len(joints)):
             raise SpaceidError(
-                f"{name} must be a number or one value per joint ({len(joints)}), got {value!r}"
+                f"`{name}` must be a number or one value per joint ({len(joints)}), got {value!r}"
             )
         if not np.all(np.isfinite(arr) & (arr > 0)):
-            raise SpaceidError(f"{name} must be positive and finite, got {value!r}")
+            raise SpaceidError(f"`{name}` must be positive and finite, got {value!r}")
         rows.append(np.broadcast_to(arr, (len(joints),)))
     return np.array(rows)
 
@@ -413,7 +413,7 @@ def _boundary_array(joints, boundary):
     unknown = set(boundary) - set(BOUNDARY_FIELDS)
     if unknown:
         raise SpaceidError(
-            f"boundary: unknown key(s) {', '.join(sorted(unknown))}; "
+            f"`boundary`: unknown key(s) {', '.join(sorted(unknown))}; "
             f"expected some of {', '.join(BOUNDARY_FIELDS)}"
         )
     out = np.zeros((6, len(joints)))
@@ -422,7 +422,7 @@ def _boundary_array(joints, boundary):
             value = np.asarray(boundary[key], dtype=float)
             if value.shape != (len(joints),) or not np.all(np.isfinite(value)):
                 raise SpaceidError(
-                    f"boundary['{key}'] must be {len(joints)} finite values, got {boundary[key]!r}"
+                    f"`boundary` '{key}' must be {len(joints)} finite values, got {boundary[key]!r}"
                 )
             out[row] = value
     return out
@@ -437,7 +437,7 @@ def _warm_start_coefficients(problem, initial, joints, duration, harmonics, bc):
         and np.array_equal(initial.boundary, bc)
     ):
         raise SpaceidError(
-            "initial: the warm-start trajectory must have the design's joints, duration, "
+            "`initial`: the warm-start trajectory must have the design's joints, duration, "
             "number of harmonics and boundary values"
         )
     return (initial.coefficients / problem.S).ravel()
@@ -450,12 +450,12 @@ def _checked_regressor_columns(problem, n_joints, samples):
     shape = np.shape(problem.regressor(zeros, zeros))
     if len(shape) != 3 or shape[0] != 1 or shape[1] % samples:
         raise SpaceidError(
-            f"regressor must map (batch, {samples}, {n_joints}) joint arrays to "
+            f"`regressor` must map (batch, {samples}, {n_joints}) joint arrays to "
             f"(batch, {samples} * m, k); got shape {shape}"
         )
     if shape[1] < shape[2]:
         raise SpaceidError(
-            f"samples={samples} give {shape[1]} equations for {shape[2]} parameters; "
+            f"`samples`: {samples} give {shape[1]} equations for {shape[2]} parameters; "
             f"use at least {-(-shape[2] * samples // shape[1])} samples"
         )
     return shape[2], shape[1] // samples

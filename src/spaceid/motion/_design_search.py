@@ -70,7 +70,7 @@ def _choose_method(method, criterion, n_columns):
     if method == "auto":
         method = "slsqp" if n_columns <= _SLSQP_MAX_COLUMNS else "trust-region"
     if method == "trust-region" and CRITERIA[criterion].adjoint is None:
-        raise SpaceidError(f"criterion {criterion!r} has no adjoint: use method='slsqp'")
+        raise SpaceidError(f"`criterion` {criterion!r} has no adjoint: use `method` 'slsqp'")
     return method
 
 

@@ -133,7 +133,7 @@ def simulate(
     times = np.asarray(times, float)
     momentum = np.asarray(momentum, float)
     quat0 = np.array([1.0, 0, 0, 0]) if initial_quat is None else np.asarray(initial_quat, float)
-    terms = drift_terms(drift, param.model.planar, where="drift", physical=False)  # estimates may be < 0
+    terms = drift_terms(drift, param.model.planar, where="`drift`", physical=False)  # estimates may be < 0
     if any(np.any(v) for v in terms.values()):
         return _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol)
 
@@ -165,7 +165,7 @@ def simulate(
     position = None
     if base_position:
         if model is None:
-            raise SpaceidError("simulate: base_position=True needs the physical model (model=...): pi does not fix "
+            raise SpaceidError("simulate: `base_position` needs the physical model (`model`): pi does not fix "
                                "the system centre of mass")
         position = -np.einsum("nij,nj->ni", quat_to_matrix(quat), system_com(model, q))
     return Log(times, names, q, qd, quat, w0, param.model.planar, meta, position)
@@ -278,7 +278,7 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
         meta["momentum_rel_error"] = float(np.abs(angular_momentum(model, q, qd, w0, quat) - h).max() / scale)
     if meta["momentum_balance_error"] > BALANCE_TOLERANCE:
         warnings.warn(f"simulate: the samples are too sparse to integrate the drift (momentum balance off by "
-                      f"{meta['momentum_balance_error']:.2g} of the momentum): identification with --drift from this "
+                      f"{meta['momentum_balance_error']:.2g} of the momentum): identification with `drift` from this "
                       "log will be biased by as much; sample more finely", stacklevel=3)
     return replace(log, meta=meta)
 
@@ -291,7 +291,7 @@ def add_noise(log: Log, *, angle: float = 0.0, rate: float = 0.0, seed: int = 0)
     angular velocity.
     """
     if angle < 0 or rate < 0:
-        raise SpaceidError("noise levels must be non-negative (--noise-angle, --noise-rate)")
+        raise SpaceidError(f"`angle`, `rate`: noise levels must be non-negative, got {angle:g} and {rate:g}")
     rng = np.random.default_rng(seed)
     n, nj = log.q.shape
     q = log.q + angle * rng.standard_normal((n, nj))

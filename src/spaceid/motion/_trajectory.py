@@ -299,7 +299,7 @@ class FourierTrajectory:
         if not isinstance(data, dict) or data.get("format") != _FORMAT:
             raise SpaceidError(
                 f"{source}: not a spaceid trajectory (expected a JSON object with "
-                f'"format": "{_FORMAT}"); write one with `FourierTrajectory.save`'
+                f'"format": "{_FORMAT}"); write one with FourierTrajectory.save'
             )
         if data.get("version") != _VERSION:
             raise SpaceidError(

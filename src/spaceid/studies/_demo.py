@@ -147,7 +147,7 @@ def _write_report(result: DemoResult, log, fine, predicted) -> None:
         "Singular values of the regressor": "singular_values.png",
     }
     plot_trajectory(grid, q, qd, qdd, traj.joints, folder / figures["Exciting trajectory"], limits=limits,
-                    samples=log.t)
+                    times=log.t)
     plot_validation(fine, predicted, folder / figures["Validation: measured vs identified model"])
     plot_parameters(result.ident, folder / figures["Parameter estimates"], true=result.true,
                     reference=PAPER_TABLE3["relative_error_percent"])
@@ -166,7 +166,7 @@ def _write_report(result: DemoResult, log, fine, predicted) -> None:
         "rank tolerance": result.ident.settings["parameterization"]["rank_tol"],
     }
     write_markdown_report(
-        folder, title="spaceid: identification of Cepheus (paper simulation study)", ident=result.ident,
+        folder, title="spaceid: identification of Cepheus (paper simulation study)", result=result.ident,
         settings=settings, figures=figures, true=result.true, reference=PAPER_TABLE3["relative_error_percent"],
         reference_true=PAPER_TABLE3["true"], metrics=result.metrics,
     )

@@ -135,7 +135,7 @@ def _validation_trajectory(validation, identification: FourierTrajectory, *, mom
         validation = "designed" if identification.meta.get("name") == "paper-table2" else "paper-table2"
     traj = _trajectory(validation, momentum=momentum, samples=samples, seed=seed + 1, progress=progress)
     if traj == identification:
-        raise SpaceidError(f"--validation {validation}: it is the identification trajectory, and validation on the "
+        raise SpaceidError(f"`validation` {validation!r}: it is the identification trajectory, and validation on the "
                            "fitting motion cannot fail: choose a different motion")  # fmt: skip
     return traj, traj.meta.get("name", str(validation))
 
@@ -308,9 +308,9 @@ def run_experiment(
     ExperimentResult
     """
     if bag_format not in BAG_NAMES:
-        raise SpaceidError(f"--format: '{bag_format}' is not one of {', '.join(BAG_NAMES)}")
+        raise SpaceidError(f"`bag_format`: '{bag_format}' is not one of {', '.join(BAG_NAMES)}")
     if int(samples) < 10:
-        raise SpaceidError(f"--samples {samples}: identification of Cepheus needs at least 10 samples")
+        raise SpaceidError(f"`samples`: {samples!r} are too few: identification of Cepheus needs at least 10")
     rehearsals = check_rehearsals(rehearsals)
     settings = TwinSettings() if settings is None else settings
     drift = _experiment_drift(drift, settings)
@@ -481,7 +481,7 @@ def _plot_tracking(result: ExperimentResult, path) -> None:
     title = (f"Tracking of the exciting trajectory: {how}, "
              f"{len(result.settings['rehearsal runs (seed, tracking RMS [rad])'])} rehearsals\n"
              f"cond(Y), N = {result.ident.n_samples}: designed {d_n:.4g}, executed {e_n:.4g} (x {ratio:.3g})")
-    plot_tracking(t, designed, executed, traj.joints, path, samples=log.t[_nearest(log.t, start + sample_times(
+    plot_tracking(t, designed, executed, traj.joints, path, times=log.t[_nearest(log.t, start + sample_times(
         traj.duration, result.ident.n_samples))] - start, title=title)  # fmt: skip
 
 
@@ -525,7 +525,7 @@ def _write_report(result: ExperimentResult, run, held_out_run) -> None:
         sections["Capture: change detection and the payload"] = lines
         figures |= capture_figures
     write_markdown_report(
-        folder, title="spaceid: the Cepheus experiment on the digital twin", ident=result.ident, settings=settings,
+        folder, title="spaceid: the Cepheus experiment on the digital twin", result=result.ident, settings=settings,
         figures=figures, true=result.true, metrics=_labelled_metrics(result), sections=sections,
     )
 

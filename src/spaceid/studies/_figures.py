@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._atomic import atomic_path
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..data import Log
 from ..estimation import Identification
@@ -247,8 +248,8 @@ def _percent_errors(ident: Identification, true):
 @_styled
 def _draw_parameters(ident: Identification, true=None, reference=None, reference_label="paper") -> Figure:
     """The figure of :func:`plot_parameters`."""
-    true = _per_param(true, ident, "true")
-    reference = _per_param(reference, ident, "reference")
+    true = _per_param(true, ident, "`true`")
+    reference = _per_param(reference, ident, "`reference`")
     units = _units(ident)
     per_tick = units is not None and len(set(units)) > 1  # else one unit for the axis label
     anchored = _anchored(ident)
@@ -290,19 +291,20 @@ def _draw_parameters(ident: Identification, true=None, reference=None, reference
     return fig
 
 
-def plot_parameters(ident: Identification, path, *, true=None, reference=None, reference_label="paper") -> Path:
+@deprecated_alias(old="ident", new="result")
+def plot_parameters(result: Identification, path, *, true=None, reference=None, reference_label="paper") -> Path:
     """Estimates with 2-sigma error bars on one relative axis (parameters of different units).
 
     With the truth, the signed relative error ``(estimate - true) / |true|`` [%] with bars
     ``2 std / |true|``; without it (a real recording), the bars ``2 std / |estimate|`` [%] about
     the estimate. Parameters the identification fixed (``settings["anchors"]``, e.g. a
-    reaction wheel's rotor inertia) are marked apart; ``ident.units``, when the result has them,
+    reaction wheel's rotor inertia) are marked apart; ``result.units``, when the result has them,
     label the ticks (or the axis, when they are all the same). Linear axis, symmetric about
     zero; a zero true value gives no point.
 
     Parameters
     ----------
-    ident : Identification
+    result : Identification
     path : path-like
         Output PNG.
     true : array_like of shape (k,), optional
@@ -317,7 +319,7 @@ def plot_parameters(ident: Identification, path, *, true=None, reference=None, r
     -------
     Path
     """
-    return _save(_draw_parameters(ident, true, reference, reference_label), path)
+    return _save(_draw_parameters(result, true, reference, reference_label), path)
 
 
 # --- singular values ----------------------------------------------------------------------------
@@ -328,7 +330,8 @@ def _draw_singular_values(ident: Identification) -> Figure:
     """The figure of :func:`plot_singular_values`."""
     s = np.asarray(ident.singular_values, float)
     if s.size == 0:
-        raise SpaceidError("plot_singular_values: the result has no singular values: identify again (spaceid identify)")
+        raise SpaceidError("plot_singular_values: the result has no singular values: identify again (identify, "
+                           "'spaceid identify')")
     i = np.arange(1, s.size + 1)
     fig = _new_figure((5.0, 3.2))
     ax = fig.subplots()
@@ -341,7 +344,8 @@ def _draw_singular_values(ident: Identification) -> Figure:
     return fig
 
 
-def plot_singular_values(ident: Identification, path) -> Path:
+@deprecated_alias(old="ident", new="result")
+def plot_singular_values(result: Identification, path) -> Path:
     """Singular values of the stacked regressor relative to the largest, on a log scale.
 
     Relative, as the regressor's columns carry the units of momentum over those of their
@@ -351,7 +355,7 @@ def plot_singular_values(ident: Identification, path) -> Path:
     -------
     Path
     """
-    return _save(_draw_singular_values(ident), path)
+    return _save(_draw_singular_values(result), path)
 
 
 # --- trajectory ---------------------------------------------------------------------------------
@@ -411,7 +415,8 @@ def _draw_trajectory(t, q, qd, qdd, joints, limits=None, samples=None, title=Non
     return fig
 
 
-def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None, title=None) -> Path:
+@deprecated_alias(old="samples", new="times")
+def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, times=None, title=None) -> Path:
     """The exciting trajectory: position, rate and acceleration of each joint.
 
     Parameters
@@ -427,7 +432,7 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None, t
     limits : dict, optional
         ``{"q": ..., "qd": ..., "qdd": ...}`` (any subset), each a magnitude ``|x| <= limit``
         (scalar or one per joint) or ``(n_joints, 2)`` lower/upper pairs; NaN means none.
-    samples : array_like of shape (N,), optional
+    times : array_like of shape (N,), optional
         Sample instants [s] used for identification, marked on every curve.
     title : str, optional
         Figure title; default names the duration and the rows.
@@ -436,7 +441,7 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, samples=None, t
     -------
     Path
     """
-    return _save(_draw_trajectory(t, q, qd, qdd, joints, limits, samples, title), path)
+    return _save(_draw_trajectory(t, q, qd, qdd, joints, limits, times, title), path)
 
 
 # --- Monte Carlo --------------------------------------------------------------------------------
@@ -591,7 +596,8 @@ def _draw_tracking(t, designed, executed, joints, samples=None, title=None) -> F
     return fig
 
 
-def plot_tracking(t, designed, executed, joints, path, *, samples=None, title=None) -> Path:
+@deprecated_alias(old="samples", new="times")
+def plot_tracking(t, designed, executed, joints, path, *, times=None, title=None) -> Path:
     """The exciting trajectory as designed against the motion executed, joint by joint.
 
     Top row: the designed angle of each joint and the executed one; bottom row: their
@@ -608,7 +614,7 @@ def plot_tracking(t, designed, executed, joints, path, *, samples=None, title=No
         Joint names (columns).
     path : path-like
         Output PNG.
-    samples : array_like of shape (N,), optional
+    times : array_like of shape (N,), optional
         Sample instants identification uses [s], marked on the executed motion.
     title : str, optional
         Figure title; default names what is compared.
@@ -617,7 +623,7 @@ def plot_tracking(t, designed, executed, joints, path, *, samples=None, title=No
     -------
     Path
     """
-    return _save(_draw_tracking(t, designed, executed, joints, samples, title), path)
+    return _save(_draw_tracking(t, designed, executed, joints, times, title), path)
 
 
 # --- capture: change detection and the payload ---------------------------------------------------

@@ -54,6 +54,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from .._campaign import fingerprint, resolve_scheduler, run_campaign
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..dynamics import Parameterization
 from ..estimation import ESTIMATORS, Noise, cramer_rao, identify
@@ -214,10 +215,10 @@ def _check_int(value, option, minimum, fix):
 def _check_estimators(estimators) -> tuple:
     names = (estimators,) if isinstance(estimators, str) else tuple(estimators or ())
     if not names:
-        raise SpaceidError(f"--estimator: none given: name at least one of {', '.join(ESTIMATORS)}")
+        raise SpaceidError(f"`estimators`: none given: name at least one of {', '.join(ESTIMATORS)}")
     for e in names:
         if e not in ESTIMATORS:
-            raise SpaceidError(f"--estimator: '{e}' is not one of {', '.join(ESTIMATORS)}")
+            raise SpaceidError(f"`estimators`: '{e}' is not one of {', '.join(ESTIMATORS)}")
     return tuple(dict.fromkeys(names))
 
 
@@ -225,22 +226,22 @@ def _check_noise(noise, angles_only: bool) -> None:
     """Raise unless ``noise`` is a :class:`~spaceid.estimation.Noise` with a nonzero level on
     the signals that get noise."""
     if not isinstance(noise, Noise):
-        raise SpaceidError(f"noise must be a spaceid.estimation.Noise, got {type(noise).__name__}")
+        raise SpaceidError(f"`noise` must be a spaceid.estimation.Noise, got {type(noise).__name__}")
     relevant = (noise.angle, noise.attitude) + (() if angles_only else (noise.rate, noise.base_rate))
     if not any(relevant):
-        raise SpaceidError("--noise-angle, --noise-rate, --noise-base-rate, --noise-attitude: the noise is zero"
-                           + (" on the angles and attitude (--angles-only)" if angles_only else "")
-                           + ": a Monte Carlo study needs noise (e.g. --noise-angle 1e-4)")  # fmt: skip
+        raise SpaceidError("`noise`: the noise is zero"
+                           + (" on the angles and attitude (`angles_only`)" if angles_only else "")
+                           + ": a Monte Carlo study needs noise (e.g. `noise.angle` 1e-4)")  # fmt: skip
 
 
 def _check_sampling(samples, times, duration):
     """``samples`` as an int (or None when ``times`` are given); raises on a bad combination."""
     if (samples is None) == (times is None):
-        raise SpaceidError("--samples: give exactly one of samples N (equally spaced) or sample times")
+        raise SpaceidError("`samples`: give exactly one of `samples` (a number, equally spaced) or `times`")
     if samples is not None:
-        samples = _check_int(samples, "--samples", 2, "give the number of equally spaced samples, e.g. 35")
+        samples = _check_int(samples, "`samples`", 2, "give the number of equally spaced samples, e.g. 35")
     if duration is not None and not (np.isfinite(duration) and duration > 0):
-        raise SpaceidError(f"--duration: {duration!r} is not a positive number of seconds")
+        raise SpaceidError(f"`duration`: {duration!r} is not a positive number of seconds")
     return samples
 
 
@@ -248,7 +249,7 @@ def _check_momentum(momentum) -> np.ndarray:
     """``momentum`` as a finite, nonzero 3-vector [N m s]."""
     momentum = np.asarray(momentum, float).reshape(3)
     if not (np.all(np.isfinite(momentum)) and np.linalg.norm(momentum) > 0):
-        raise SpaceidError(f"--momentum: {momentum.tolist()} N m s: a Monte Carlo study needs the finite, nonzero "
+        raise SpaceidError(f"`momentum`: {momentum.tolist()} N m s: a Monte Carlo study needs the finite, nonzero "
                            "momentum of the simulated motion (it fixes the parameters' scale)")  # fmt: skip
     return momentum
 
@@ -263,7 +264,7 @@ def _trajectory(param, spec, *, duration, samples, momentum, noise, seed, design
         from ..motion import design_excitation
 
         if duration is None or samples is None:
-            raise SpaceidError("--trajectory designed: give --duration [s] and --samples N of the design")
+            raise SpaceidError("`trajectory` 'designed': give the `duration` [s] and the `samples` of the design")
         options = {"harmonics": 3, **dict(design or {})}
         traj = design_excitation(param, duration=duration, samples=samples, momentum=momentum, seed=seed,
                                  progress=progress, noise=noise, **options).trajectory  # fmt: skip
@@ -282,17 +283,17 @@ def _motion_and_times(traj, duration, samples, times) -> tuple:
         if duration is None:
             duration = traj.duration
         elif duration > traj.duration + 1e-12:
-            raise SpaceidError(f"--duration: {duration:g} s is longer than the trajectory ({traj.duration:g} s): "
-                               "omit --duration or give at most the trajectory's")  # fmt: skip
+            raise SpaceidError(f"`duration`: {duration:g} s is longer than the trajectory ({traj.duration:g} s): "
+                               "omit it or give at most the trajectory's")  # fmt: skip
     else:
         motion = traj
     if times is None:
         if duration is None:
-            raise SpaceidError("--duration: a motion callable needs the duration [s] (or sample times)")
+            raise SpaceidError("`duration`: a motion callable needs the duration [s] (or the sample `times`)")
         times = sample_times(duration, samples)
     times = np.asarray(times, float)
     if times.ndim != 1 or times.size < 2 or not np.all(np.isfinite(times)) or np.any(np.diff(times) <= 0):
-        raise SpaceidError("times: expected at least 2 finite, strictly increasing sample times [s]")
+        raise SpaceidError("`times`: expected at least 2 finite, strictly increasing sample times [s]")
     return motion, times
 
 
@@ -334,6 +335,7 @@ def _settings(study: _Study, trajectory: dict, times, differentiation, *, runs, 
     }  # fmt: skip
 
 
+@deprecated_alias(old="folder", new="out")
 def run_montecarlo(
     param: Parameterization,
     trajectory,
@@ -352,7 +354,7 @@ def run_montecarlo(
     differentiate: dict | None = None,
     design: dict | None = None,
     scheduler: str | None = None,
-    folder=None,
+    out=None,
     resume: bool = False,
 ) -> MonteCarloResult:
     """Repeat simulate-and-identify with fresh noise; statistics against the truth and the CRB.
@@ -403,10 +405,10 @@ def run_montecarlo(
         ``processes``, ``dask`` (a LocalCluster of ``jobs`` workers) or a ``dask scheduler``
         address ``tcp://HOST:PORT``; default ``DASK_SCHEDULER_ADDRESS`` if set, else
         ``processes``. The results do not depend on it.
-    folder : path, optional
+    out : path, optional
         Study folder: each chunk of runs is written beside it (:func:`spaceid._campaign.task_folder`) as it completes.
     resume : bool
-        Use the chunks in ``folder`` (they must be of the same settings) and run the others.
+        Use the chunks in ``out`` (they must be of the same settings) and run the others.
 
     Returns
     -------
@@ -419,20 +421,20 @@ def run_montecarlo(
         momentum, or every run of every estimator failing.
     """
     t_start = time.perf_counter()
-    runs = _check_int(runs, "--runs", 2, "the spread needs at least 2 noise draws (200 or more for stable statistics)")
-    seed = _check_int(seed, "--seed", 0, "give a non-negative integer")
-    jobs = _cores() if jobs is None else _check_int(jobs, "--jobs", 1, "give 1 or more worker processes")
+    runs = _check_int(runs, "`runs`", 2, "the spread needs at least 2 noise draws (200 or more for stable statistics)")
+    seed = _check_int(seed, "`seed`", 0, "give a non-negative integer")
+    jobs = _cores() if jobs is None else _check_int(jobs, "`jobs`", 1, "give 1 or more worker processes")
     scheduler = resolve_scheduler(scheduler)
     estimators = _check_estimators(estimators)
     _check_noise(noise, angles_only)
     samples = _check_sampling(samples, times, duration)
     diff_options = dict(differentiate or {})
     if diff_options and not angles_only:
-        raise SpaceidError("differentiate: options given without angles_only (--angles-only): the rates are measured")
+        raise SpaceidError("`differentiate`: options given without `angles_only`: the rates are measured")
     momentum = _check_momentum(momentum)
     traj, traj_record = _trajectory(param, trajectory, duration=duration, samples=samples, momentum=momentum,
                                     noise=noise, seed=seed, progress=progress,
-                                    design={"n_jobs": jobs, "scheduler": scheduler, **dict(design or {})})  # fmt: skip
+                                    design={"jobs": jobs, "scheduler": scheduler, **dict(design or {})})  # fmt: skip
     motion, times = _motion_and_times(traj, duration, samples, times)
 
     with threadpool_limits(1):
@@ -440,7 +442,7 @@ def run_montecarlo(
         # a noise-free identification first: rank deficiency and a zero momentum fail here, once
         identify(param, clean, momentum, estimator="ols", noise=noise, where=_WHERE)
     study = _Study(param, clean, momentum, noise, estimators, bool(angles_only), diff_options)
-    outputs = _execute(study, _noise_states(seed, runs), scheduler=scheduler, jobs=jobs, folder=folder, resume=resume,
+    outputs = _execute(study, _noise_states(seed, runs), scheduler=scheduler, jobs=jobs, folder=out, resume=resume,
                        campaign=_campaign_fingerprint(study, traj_record, seed, runs), progress=progress)  # fmt: skip
     estimates, predicted, failures, warned = _merge_chunks(outputs, estimators, runs, param.n_params)
 
@@ -457,7 +459,8 @@ def run_montecarlo(
                             stats, failures, warned, settings)  # fmt: skip
 
 
-def write_montecarlo(result: MonteCarloResult, folder) -> dict:
+@deprecated_alias(old="folder", new="out")
+def write_montecarlo(result: MonteCarloResult, out) -> dict:
     """Write ``montecarlo.json``, ``table.txt`` (the terminal table) and ``montecarlo.png`` into
     ``folder`` (created if needed), each atomically.
 
@@ -474,11 +477,11 @@ def write_montecarlo(result: MonteCarloResult, folder) -> dict:
     from .._atomic import write_text_atomic
     from ..data import write_json
 
-    folder = Path(folder)
+    folder = Path(out)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise SpaceidError(f"--out: cannot create {folder} ({exc.strerror or exc}): give a writable folder") from None
+        raise SpaceidError(f"`out`: cannot create {folder} ({exc.strerror or exc}): give a writable folder") from None
     paths = {"json": folder / "montecarlo.json", "table": folder / "table.txt", "figure": folder / "montecarlo.png"}
     write_json(paths["json"], result.to_dict())
     buffer = io.StringIO()

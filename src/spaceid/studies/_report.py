@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from .._atomic import write_text_atomic
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..estimation import Identification
 
@@ -57,11 +58,13 @@ def metric_label(key: str) -> str:
     return _METRIC_LABELS.get(key) or TORQUE_METRIC_LABELS.get(key, key)
 
 
+@deprecated_alias(old="folder", new="out")
+@deprecated_alias(old="ident", new="result")
 def write_markdown_report(
-    folder,
+    out,
     *,
     title: str,
-    ident: Identification,
+    result: Identification,
     settings: dict,
     figures: dict,
     true=None,
@@ -71,20 +74,20 @@ def write_markdown_report(
     reference_label: str = "paper",
     sections: dict | None = None,
 ) -> Path:
-    """Write ``folder/report.md``: settings, parameter table, fit quality, validation, further
+    """Write ``out/report.md``: settings, parameter table, fit quality, validation, further
     sections, figures.
 
     Parameters
     ----------
-    folder : path-like
+    out : path-like
         Report folder (created if needed).
     title : str
-    ident : Identification
+    result : Identification
     settings : dict
         Run settings shown as given (model, trajectory, momentum, samples, noise, seed,
         estimator, rank tolerance, ...), in insertion order.
     figures : dict of str to path-like
-        Caption -> PNG, relative to ``folder`` (as linked from the report) or absolute.
+        Caption -> PNG, relative to ``out`` (as linked from the report) or absolute.
     true, reference, reference_true, reference_label
         As in :func:`parameter_table`.
     metrics : dict, optional
@@ -97,10 +100,10 @@ def write_markdown_report(
     Path
         The written ``report.md``.
     """
-    folder = Path(folder)
-    true = _per_param(true, ident, "true")
-    reference = _per_param(reference, ident, "reference")
-    reference_true = _per_param(reference_true, ident, "reference_true")
+    folder = Path(out)
+    true = _per_param(true, result, "`true`")
+    reference = _per_param(reference, result, "`reference`")
+    reference_true = _per_param(reference_true, result, "`reference_true`")
     links = []
     for caption, fig_path in figures.items():
         full = folder / fig_path  # an absolute fig_path stays as it is
@@ -111,24 +114,24 @@ def write_markdown_report(
             )
         links.append((caption, Path(os.path.relpath(full, folder)).as_posix().replace(" ", "%20")))
 
-    header, rows = _columns(ident, true, reference, reference_label, reference_true)
+    header, rows = _columns(result, true, reference, reference_label, reference_true)
     rows = [(_md(r[0]), "`" + r[1].replace("|", "\\|").replace("`", "'") + "`", *r[2:]) for r in rows]
     lines = [f"# {title}", "", "## Settings", ""]
     lines += _md_table(["setting", "value"], [(_md(k), _md_value(v)) for k, v in settings.items()])
     lines += ["", "## Identified parameters", ""]
     lines += _md_table([_md(h) for h in header], rows)
-    if ident.drift:
+    if result.drift:
         lines += ["", ("Drift terms, estimated with the parameters (the momentum at the first sample and its change "
                        "by the external torque):"), ""]
-        lines += _md_table(["drift term", "unit", "estimate", "std"], [tuple(map(_md, r)) for r in drift_rows(ident)])
+        lines += _md_table(["drift term", "unit", "estimate", "std"], [tuple(map(_md, r)) for r in drift_rows(result)])
     lines += [
         "",
-        f"Estimator {_md(ident.estimator)}, {ident.n_samples} samples, momentum "
-        f"[{', '.join(f'{h:.6g}' for h in ident.momentum)}] N m s; std: one standard deviation"
+        f"Estimator {_md(result.estimator)}, {result.n_samples} samples, momentum "
+        f"[{', '.join(f'{h:.6g}' for h in result.momentum)}] N m s; std: one standard deviation"
         + ("; relative error: abs(estimate - true) / abs(true)." if true is not None else "."),
         "",
-        f"- Condition number of the stacked regressor: {ident.condition_number:.4g}",
-        f"- Residual RMS: {ident.residual_rms:.3g} N m s",
+        f"- Condition number of the stacked regressor: {result.condition_number:.4g}",
+        f"- Residual RMS: {result.residual_rms:.3g} N m s",
     ]
     if metrics:
         lines += ["", "## Validation", ""]
@@ -139,6 +142,6 @@ def write_markdown_report(
         lines += ["", "## Figures"]
         for caption, link in links:
             lines += ["", f"![{_md(caption)}]({link})", "", f"*{_md(caption)}*"]
-    out = folder / "report.md"
-    write_text_atomic(out, "\n".join(lines) + "\n")
-    return out
+    path = folder / "report.md"
+    write_text_atomic(path, "\n".join(lines) + "\n")
+    return path

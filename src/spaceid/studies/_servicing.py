@@ -37,6 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from .._inputs import MiB, read_input_text
 from .._yaml import parse_yaml
@@ -300,8 +301,9 @@ def _split_at_grasp(events: list, grasp: float, dt: float) -> tuple:
     return early, [e for e in events if e["detected_at"] + dt >= grasp - e["lead"]]
 
 
-def write_servicing(folder: Path, result: ServicingResult) -> tuple:
-    """The servicing files in ``folder`` (payload.json, events.json, capture_log.csv, capture_truth.csv
+@deprecated_alias(old="folder", new="out")
+def write_servicing(out: Path, result: ServicingResult) -> tuple:
+    """The servicing files in ``out`` (payload.json, events.json, capture_log.csv, capture_truth.csv
     of the post-capture phase, capture_trajectory.json, capture.png, payload.png).
 
     Returns
@@ -314,6 +316,7 @@ def write_servicing(folder: Path, result: ServicingResult) -> tuple:
     from ._figures import plot_capture_monitor, plot_payload
     from ._report import _md_table
 
+    folder = Path(out)
     write_json(folder / "payload.json", result.payload.to_dict())
     write_json(folder / "events.json", result.events)
     write_log(folder / "capture_log.csv", result.log)

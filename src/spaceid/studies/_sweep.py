@@ -23,6 +23,7 @@ import numpy as np
 
 from .._atomic import write_text_atomic
 from .._campaign import fingerprint, resolve_scheduler, run_campaign, task_seeds
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..dynamics import Parameterization, excitation_regressor
 from ..estimation import Noise
@@ -50,7 +51,7 @@ class _Sweep:
         docstring); the searches run in this process."""
         res = design_excitation(self.param, duration=duration, harmonics=harmonics, samples=samples,
                                 momentum=self.momentum, seed=int(seed), criterion=self.criterion, noise=self.noise,
-                                n_starts=self.n_starts, n_jobs=1, scheduler="processes")  # fmt: skip
+                                n_starts=self.n_starts, jobs=1, scheduler="processes")  # fmt: skip
         q, qd, _ = res.trajectory.evaluate(sample_times(duration, samples))
         cond = float(np.linalg.cond(excitation_regressor(self.param, self.param.true_values, self.momentum)(q, qd)))
         relative = {n: v for n, v in res.trajectory.meta["crb_relative_std"].items() if v is not None}
@@ -92,19 +93,20 @@ def _grid_values(values, option: str, kind) -> tuple:
     integers (``int``: harmonics >= 1, samples >= 2)."""
     values = tuple(dict.fromkeys(np.atleast_1d(np.asarray(values, dtype=object)).tolist()))
     if not values:
-        raise SpaceidError(f"{option}: no value given: give at least one (comma-separated)")
+        raise SpaceidError(f"{option}: no value given: give at least one")
     if kind is int:
-        minimum = 2 if option == "--samples" else 1
-        return tuple(_check_int(v, option, minimum, "give integers, comma-separated") for v in values)
+        minimum = 2 if option == "`samples`" else 1
+        return tuple(_check_int(v, option, minimum, "give integers") for v in values)
     for v in values:
         if isinstance(v, bool) or not isinstance(v, (int, float, np.number)) or not (np.isfinite(v) and v > 0):
             raise SpaceidError(f"{option}: {v!r} is not a positive number of seconds")
     return tuple(float(v) for v in values)
 
 
+@deprecated_alias(old="folder", new="out")
 def run_sweep(param: Parameterization, *, momentum, durations, harmonics, samples, noise: Noise = DEFAULT_NOISE,
               criterion: str = "cond", n_starts: int = 8, seed: int = 0, scheduler: str | None = None,
-              jobs: int | None = None, folder=None, resume: bool = False, progress=None) -> SweepResult:
+              jobs: int | None = None, out=None, resume: bool = False, progress=None) -> SweepResult:
     """Design an excitation for every setting of a grid; condition number and relative CRB of each.
 
     Parameters
@@ -127,7 +129,7 @@ def run_sweep(param: Parameterization, *, momentum, durations, harmonics, sample
         Local searches of each design.
     seed : int
         Root seed (>= 0); setting i designs from its i-th spawned seed.
-    scheduler, jobs, folder, resume
+    scheduler, jobs, out, resume
         As for :func:`spaceid.studies.run_montecarlo`: a setting is a task.
     progress : callable, optional
         ``progress(done, total)`` in settings.
@@ -143,13 +145,13 @@ def run_sweep(param: Parameterization, *, momentum, durations, harmonics, sample
         samples for the parameters).
     """
     t_start = time.perf_counter()
-    seed = _check_int(seed, "--seed", 0, "give a non-negative integer")
-    n_starts = _check_int(n_starts, "--starts", 1, "give 1 or more local searches")
-    jobs = _cores() if jobs is None else _check_int(jobs, "--jobs", 1, "give 1 or more worker processes")
+    seed = _check_int(seed, "`seed`", 0, "give a non-negative integer")
+    n_starts = _check_int(n_starts, "`n_starts`", 1, "give 1 or more local searches")
+    jobs = _cores() if jobs is None else _check_int(jobs, "`jobs`", 1, "give 1 or more worker processes")
     scheduler = resolve_scheduler(scheduler)
-    grid = list(itertools.product(_grid_values(durations, "--durations", float),
-                                  _grid_values(harmonics, "--harmonics", int),
-                                  _grid_values(samples, "--samples", int)))  # fmt: skip
+    grid = list(itertools.product(_grid_values(durations, "`durations`", float),
+                                  _grid_values(harmonics, "`harmonics`", int),
+                                  _grid_values(samples, "`samples`", int)))  # fmt: skip
     sweep = _Sweep(param, _check_momentum(momentum), noise, criterion, n_starts)
     seeds = task_seeds(seed, len(grid))
     tasks = {f"setting-{i:05d}": (*setting, int(s)) for i, (setting, s) in enumerate(zip(grid, seeds))}
@@ -160,7 +162,7 @@ def run_sweep(param: Parameterization, *, momentum, durations, harmonics, sample
                 "setting_seeds": "np.random.SeedSequence(seed).spawn(n_settings)[i].generate_state(1)[0], settings "
                                  "in grid order (durations slowest, samples fastest)"}  # fmt: skip
     campaign = fingerprint({**settings, "grid": grid}, param.true_values)
-    rows = run_campaign(_Sweep.setting, sweep, tasks, scheduler=scheduler, jobs=jobs, folder=folder,
+    rows = run_campaign(_Sweep.setting, sweep, tasks, scheduler=scheduler, jobs=jobs, folder=out,
                         campaign=campaign, resume=resume, progress=progress)  # fmt: skip
     settings |= {"scheduler": scheduler, "jobs": jobs, "wall_time_s": time.perf_counter() - t_start}
     return SweepResult(tuple(rows.values()), settings)
@@ -219,9 +221,10 @@ def _draw_sweep(result: SweepResult):
     return draw()
 
 
-def write_sweep(result: SweepResult, folder) -> dict:
+@deprecated_alias(old="folder", new="out")
+def write_sweep(result: SweepResult, out) -> dict:
     """Write ``sweep.json`` (settings and every row, trajectories included), ``sweep.csv`` (one
-    line a setting, the columns of the table), ``table.txt`` and ``sweep.png`` into ``folder``,
+    line a setting, the columns of the table), ``table.txt`` and ``sweep.png`` into ``out``,
     each atomically.
 
     Returns
@@ -234,11 +237,11 @@ def write_sweep(result: SweepResult, folder) -> dict:
     from ..data import write_json
     from ._figures import _save
 
-    folder = Path(folder)
+    folder = Path(out)
     try:
         folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise SpaceidError(f"--out: cannot create {folder} ({exc.strerror or exc}): give a writable folder") from None
+        raise SpaceidError(f"`out`: cannot create {folder} ({exc.strerror or exc}): give a writable folder") from None
     paths = {name: folder / f"sweep.{ext}" for name, ext in (("json", "json"), ("csv", "csv"), ("figure", "png"))}
     paths["table"] = folder / "table.txt"
     write_json(paths["json"], result.to_dict())

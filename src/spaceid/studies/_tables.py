@@ -8,6 +8,7 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..estimation import Identification
 
@@ -70,9 +71,10 @@ def drift_rows(ident: Identification) -> list:
     return [(d["name"], d["unit"], f"{d['value']:.6g}", f"{d['std']:.3g}") for d in ident.drift]
 
 
-def drift_lines(ident: Identification) -> list:
+@deprecated_alias(old="ident", new="result")
+def drift_lines(result: Identification) -> list:
     """One line per drift coefficient, ``drift: torque_z = 1e-4 +/- 2e-6 N m``, for the terminal."""
-    return [f"drift: {n} = {v} +/- {s} {u}" for n, u, v, s in drift_rows(ident)]
+    return [f"drift: {n} = {v} +/- {s} {u}" for n, u, v, s in drift_rows(result)]
 
 
 DEFINITIONS_SHOWN = 30
@@ -80,7 +82,8 @@ DEFINITIONS_SHOWN = 30
 496, many of them hundreds of characters long) point to ``spaceid model`` and the result file."""
 
 
-def parameter_table(ident: Identification, *, true=None, reference=None, reference_true=None,
+@deprecated_alias(old="ident", new="result")
+def parameter_table(result: Identification, *, true=None, reference=None, reference_true=None,
                     reference_label="paper") -> Group:
     """The estimates as a rich table, with the definitions listed below it.
 
@@ -90,7 +93,7 @@ def parameter_table(ident: Identification, *, true=None, reference=None, referen
 
     Parameters
     ----------
-    ident : Identification
+    result : Identification
     true : array_like of shape (k,), optional
         True values: adds columns ``true`` and ``rel. error [%]``.
     reference : array_like of shape (k,), optional
@@ -100,18 +103,18 @@ def parameter_table(ident: Identification, *, true=None, reference=None, referen
     reference_label : str
         Name of the reference in its column headers.
     """
-    true = _per_param(true, ident, "true")
-    reference = _per_param(reference, ident, "reference")
-    reference_true = _per_param(reference_true, ident, "reference_true")
-    header, rows = _columns(ident, true, reference, reference_label, reference_true)
+    true = _per_param(true, result, "`true`")
+    reference = _per_param(reference, result, "`reference`")
+    reference_true = _per_param(reference_true, result, "`reference_true`")
+    header, rows = _columns(result, true, reference, reference_label, reference_true)
     # one unit for all (every planar-basis pi is in kg m^2) goes in the caption, and the paper's
     # seven columns still fit 80
     shown = [i for i, name in enumerate(header)
-             if name != "definition" and (name != "unit" or len(set(ident.units)) > 1)]
-    same_unit = f"; all in {ident.units[0]}" if ident.units and len(set(ident.units)) == 1 else ""
+             if name != "definition" and (name != "unit" or len(set(result.units)) > 1)]
+    same_unit = f"; all in {result.units[0]}" if result.units and len(set(result.units)) == 1 else ""
     # under the table, not its caption: a caption wraps at the (often narrow) table's width
-    note = Text(f"cond(Y) {ident.condition_number:.4g}, N = {ident.n_samples}{same_unit}")
-    table = Table(title=f"{ident.estimator.upper()} estimates", title_justify="left")
+    note = Text(f"cond(Y) {result.condition_number:.4g}, N = {result.n_samples}{same_unit}")
+    table = Table(title=f"{result.estimator.upper()} estimates", title_justify="left")
     short = {"parameter": "", "rel. error [%]": "err [%]", f"{reference_label} true": reference_label,
              f"{reference_label} rel. error [%]": f"{reference_label} err [%]"}  # fits 80 columns
     for i in shown:
@@ -119,13 +122,13 @@ def parameter_table(ident: Identification, *, true=None, reference=None, referen
                          else "right", no_wrap=True)
     for row in rows:
         table.add_row(*(row[i] for i in shown))
-    if len(ident.names) > DEFINITIONS_SHOWN:
-        return Group(table, note, f"{len(ident.names)} parameters: their definitions are in the result file "
-                                  f"and in 'spaceid model {ident.model}'")
+    if len(result.names) > DEFINITIONS_SHOWN:
+        return Group(table, note, f"{len(result.names)} parameters: their definitions are in the result file "
+                                  f"and in 'spaceid model {result.model}'")
     definitions = Table.grid(padding=(0, 1))
     definitions.add_column(no_wrap=True)
     definitions.add_column(overflow="fold")
-    for name, definition in zip(ident.names, ident.definitions):
+    for name, definition in zip(result.names, result.definitions):
         definitions.add_row(f"{name} =", definition)
     return Group(table, note, definitions)
 

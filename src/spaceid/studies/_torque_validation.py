@@ -82,7 +82,7 @@ def _integrate(model: IdentifiedModel, log: Log, windows, momentum, max_step, ho
         out.append(y)
     states = np.stack(out, 1)  # (B, L, state)
     if not np.isfinite(states).all():
-        raise SpaceidError("torque validation: the predicted motion diverged: shorten --horizon or check the "
+        raise SpaceidError("torque validation: the predicted motion diverged: shorten the `horizon` or check the "
                            "log's efforts (columns tau_J, N m)")
     return np.concatenate([states[b, : len(w)] for b, w in enumerate(windows)])
 
@@ -125,15 +125,15 @@ def validate_torques(model, log: Log, *, horizon: float | None = None, momentum=
     source = log.meta.get("source", "log")
     if log.tau is None:
         raise SpaceidError(f"{source}: no joint efforts (columns {', '.join(f'tau_{j}' for j in log.joints)}): "
-                           "log the joint torques to validate at the torque level, or drop --torques")
+                           "log the joint torques to validate at the torque level, or validate the base rate only")
     if tuple(log.joints) != tuple(model.joints):
         raise SpaceidError(f"{source}: joints {list(log.joints)} differ from the model's {list(model.joints)}")
     span = float(log.t[-1] - log.t[0])
     horizon = span if horizon is None else float(horizon)
     if not horizon > 0:
-        raise SpaceidError(f"--horizon {horizon:g}: give a positive horizon in seconds")
+        raise SpaceidError(f"`horizon`: {horizon:g} s is not positive: give a positive horizon in seconds")
     if hold not in ("linear", "zero"):
-        raise SpaceidError(f"hold '{hold}': use 'linear' or 'zero'")
+        raise SpaceidError(f"`hold`: {hold!r} is neither 'linear' nor 'zero'")
     h = model.momentum if momentum is None else np.asarray(momentum, float)
     _check_positive_inertia(model, log, where)
     count = max(1, int(np.ceil(span / horizon - 1e-9)))  # the last stamp closes the last window
@@ -159,7 +159,7 @@ def _check_positive_inertia(model: IdentifiedModel, log: Log, where: str, n_chec
             f"{where}: the identified free-floating inertia H* is not positive definite at {bad.sum()} of "
             f"{len(rows)} samples checked (lowest eigenvalue {lowest.min():.3g}): these parameters are not "
             "physically consistent, so their forward dynamics diverge; identify from more samples or validate "
-            "a consistent model ('spaceid export')")
+            "a consistent model (export_model, 'spaceid export')")
 
 
 def torque_metrics(measured: Log, predicted: Log) -> dict:

@@ -48,7 +48,7 @@ def check_rehearsals(rehearsals) -> int:
     except (TypeError, ValueError):
         count = None
     if isinstance(rehearsals, bool) or count is None or count != rehearsals or count < 0:
-        raise SpaceidError(f"--rehearsals {rehearsals}: give a whole number of rehearsals, 0 or more")
+        raise SpaceidError(f"`rehearsals`: {rehearsals!r} is not a whole number of rehearsals, 0 or more")
     return count
 
 

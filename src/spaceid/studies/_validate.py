@@ -10,6 +10,7 @@ import warnings
 
 import numpy as np
 
+from .._deprecation import deprecated_alias
 from ..estimation import Identification
 from ..identified import parameterization_of
 from ..motion import hermite_motion, simulate
@@ -18,13 +19,14 @@ from ..data import Log, check_time_units, log_fingerprint
 __all__ = ["attitude_error_angle", "predict", "validate", "validation_metrics"]
 
 
-def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None, where: str = "result",
+@deprecated_alias(old="ident", new="result")
+def predict(result: Identification, t, q, qd, *, momentum=None, initial_quat=None, where: str = "result",
             drift=None) -> Log:
     """Base motion of the identified model for a joint motion.
 
     Parameters
     ----------
-    ident : Identification or IdentifiedModel
+    result : Identification or IdentifiedModel
     t : array_like of shape (n,)
         Time stamps [s].
     q, qd : array_like of shape (n, n_joints)
@@ -35,13 +37,13 @@ def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None
         Base attitude at ``t[0]``.
     drift : dict, optional
         Drift terms (as :func:`spaceid.motion.simulate` takes them) that replace the
-        identification's own (``ident.drift``, used by default): the momentum at ``t[0]`` is
+        identification's own (``result.drift``, used by default): the momentum at ``t[0]`` is
         ``momentum`` and changes by the external torque.
     """
-    param = parameterization_of(ident, where=where)
-    h = ident.momentum if momentum is None else np.asarray(momentum, float)
-    terms = {**ident.drift_terms(), **dict(drift or {})}
-    return simulate(param, ident.values, hermite_motion(t, q, qd), t, h, initial_quat=initial_quat, drift=terms)
+    param = parameterization_of(result, where=where)
+    h = result.momentum if momentum is None else np.asarray(momentum, float)
+    terms = {**result.drift_terms(), **dict(drift or {})}
+    return simulate(param, result.values, hermite_motion(t, q, qd), t, h, initial_quat=initial_quat, drift=terms)
 
 
 def attitude_error_angle(a, b) -> np.ndarray:
@@ -97,11 +99,12 @@ def _warn_if_fitting_log(ident: Identification, log: Log, where: str) -> None:
         )
 
 
-def validate(ident: Identification, log: Log, *, momentum=None, where: str = "result", drift=None):
-    """Re-simulate ``ident`` with the log's joint motion and initial attitude (and its drift
+@deprecated_alias(old="ident", new="result")
+def validate(result: Identification, log: Log, *, momentum=None, where: str = "result", drift=None):
+    """Re-simulate ``result`` with the log's joint motion and initial attitude (and its drift
     terms, or ``drift``: see :func:`predict`); compare.
 
-    A ``UserWarning`` when ``log`` is the log ``ident`` was identified from (its
+    A ``UserWarning`` when ``log`` is the log ``result`` was identified from (its
     ``settings["log_fingerprint"]``, :func:`spaceid.data.log_fingerprint`): a fit follows its own
     data, so only a different motion tests the model; another when the base-rate error exceeds
     :data:`POOR_VALIDATION` of the measured rate (the model does not predict the log).
@@ -112,15 +115,15 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
     metrics : dict
         See :func:`validation_metrics`.
     """
-    _warn_if_fitting_log(ident, log, where)
+    _warn_if_fitting_log(result, log, where)
     check_time_units(log, log.meta.get("source", "log"))  # re-simulated in time: stamps in ms would mislead
-    predicted = predict(ident, log.t, log.q, log.qd, momentum=momentum, initial_quat=log.base_quat[0], where=where,
+    predicted = predict(result, log.t, log.q, log.qd, momentum=momentum, initial_quat=log.base_quat[0], where=where,
                         drift=drift)
     metrics = validation_metrics(log, predicted)
     if metrics["base_w_nrms"] > POOR_VALIDATION:
         warnings.warn(
             f"{where}: the predicted base rate misses the measured one by {100 * metrics['base_w_nrms']:.3g} % "
             f"(RMS, above {100 * POOR_VALIDATION:.0f} %): the model does not predict this log: a result of another "
-            "robot or payload, a wrong --momentum, or a unit error in the log or the model (parameters 1000 times "
+            "robot or payload, a wrong `momentum`, or a unit error in the log or the model (parameters 1000 times "
             "off give ~100 %)", UserWarning, stacklevel=2)
     return predicted, metrics

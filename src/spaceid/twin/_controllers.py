@@ -94,11 +94,11 @@ def _setpoints(gains: _Gains, joints, reference, wheel_speed, tau, command0):
             q_ref, qd_ref, qdd_ref = _callable_setpoints(reference, wanted, tau)
         else:
             raise SpaceidError(
-                "reference must be a FourierTrajectory, a callable t -> (q_ref, qd_ref) or None, "
+                "`reference` must be a FourierTrajectory, a callable t -> (q_ref, qd_ref) or None, "
                 f"got {type(reference).__name__}"
             )
         if not (np.all(np.isfinite(q_ref)) and np.all(np.isfinite(qd_ref)) and np.all(np.isfinite(qdd_ref))):
-            raise SpaceidError("reference: the set points contain NaN or infinite values")
+            raise SpaceidError("`reference`: the set points contain NaN or infinite values")
         command[:, pos], rate[:, pos], accel[:, pos] = q_ref, qd_ref, qdd_ref
     vel = np.flatnonzero(gains.vel_mask)
     if wheel_speed is not None and len(vel):
@@ -111,7 +111,7 @@ def _trajectory_setpoints(trajectory: FourierTrajectory, wanted, tau):
     name), held at the end value after its duration."""
     if set(trajectory.joints) != set(wanted):
         raise SpaceidError(
-            f"reference drives joints ({', '.join(trajectory.joints)}) but the position-controlled "
+            f"`reference` drives joints ({', '.join(trajectory.joints)}) but the position-controlled "
             f"joints are ({', '.join(wanted)}): give a trajectory for these joints or change "
             "controllers.position"
         )
@@ -128,7 +128,7 @@ def _callable_setpoints(reference, wanted, tau):
     n_t = len(tau)
     out = reference(tau)
     if not isinstance(out, tuple) or len(out) not in (2, 3):
-        raise SpaceidError("reference(t) must return (q_ref, qd_ref) or (q_ref, qd_ref, qdd_ref)")
+        raise SpaceidError("`reference`(t) must return (q_ref, qd_ref) or (q_ref, qd_ref, qdd_ref)")
     try:
         q_ref, qd_ref = (np.asarray(x, float).reshape(n_t, -1) for x in out[:2])
         qdd_ref = (
@@ -138,11 +138,11 @@ def _callable_setpoints(reference, wanted, tau):
         )
     except (TypeError, ValueError):
         raise SpaceidError(
-            f"reference(t) must return arrays of shape (len(t), n_position_joints) = ({n_t}, {len(wanted)})"
+            f"`reference`(t) must return arrays of shape (len(t), n_position_joints) = ({n_t}, {len(wanted)})"
         ) from None
     if q_ref.shape[1] != len(wanted) or qd_ref.shape[1] != len(wanted):
         raise SpaceidError(
-            f"reference(t) returned {q_ref.shape[1]} columns; expected one per position-controlled "
+            f"`reference`(t) returned {q_ref.shape[1]} columns; expected one per position-controlled "
             f"joint ({', '.join(wanted)})"
         )
     return q_ref, qd_ref, qdd_ref
@@ -154,17 +154,17 @@ def _effort_setpoints(gains: _Gains, effort, tau) -> np.ndarray | None:
     if effort is None:
         return None
     if not callable(effort):
-        raise SpaceidError(f"effort must be a callable t -> efforts (e.g. from planned_feedforward) or None, "
+        raise SpaceidError(f"`effort` must be a callable t -> efforts (e.g. from planned_feedforward) or None, "
                            f"got {type(effort).__name__}")  # fmt: skip
     pos = np.flatnonzero(gains.pos_mask)
     values = effort(tau)
     try:
         values = np.asarray(values, float).reshape(len(tau), len(pos))
     except (TypeError, ValueError):
-        raise SpaceidError(f"effort(t) must return an array of shape (len(t), n_position_joints) = "
+        raise SpaceidError(f"`effort`(t) must return an array of shape (len(t), n_position_joints) = "
                            f"({len(tau)}, {len(pos)})") from None  # fmt: skip
     if not np.all(np.isfinite(values)):
-        raise SpaceidError("effort: the feed-forward efforts contain NaN or infinite values")
+        raise SpaceidError("`effort`: the feed-forward efforts contain NaN or infinite values")
     out = np.zeros((len(tau), len(gains.pos_mask)))
     out[:, pos] = values
     return out
@@ -177,9 +177,9 @@ def _velocity_setpoints(wheel_speed, tau, n_vel):
         w = np.asarray(wheel_speed(tau), float)
         w = np.broadcast_to(w.reshape(n_t, -1) if w.ndim else w, (n_t, n_vel))
     else:
-        w = np.full((n_t, n_vel), _number("wheel_speed [rad/s]", wheel_speed))
+        w = np.full((n_t, n_vel), _number("`wheel_speed` [rad/s]", wheel_speed))
     if not np.all(np.isfinite(w)):
-        raise SpaceidError("wheel_speed: the set points contain NaN or infinite values")
+        raise SpaceidError("`wheel_speed`: the set points contain NaN or infinite values")
     return w
 
 
@@ -293,7 +293,7 @@ def planned_feedforward(reference, t, *, settings, model=None, wheel_speed: floa
     joints = model.joints
     gains = _controller_gains(settings.controllers, joints)
     tau = np.atleast_1d(np.asarray(t, float))
-    q, qd, qdd = _setpoints(gains, joints, reference, _number("wheel_speed [rad/s]", wheel_speed), tau,
+    q, qd, qdd = _setpoints(gains, joints, reference, _number("`wheel_speed` [rad/s]", wheel_speed), tau,
                             np.zeros(len(joints)))  # fmt: skip
     q[:, gains.vel_mask] = 0.0  # commands of velocity joints are rates; the rotor angle does not matter
     qd[:, gains.vel_mask] = wheel_speed
@@ -350,9 +350,9 @@ def computed_torque(model, reference, times, *, kp=100.0, kd=20.0, momentum=(0.0
     """
     times = np.asarray(times, float)
     if times.ndim != 1 or len(times) < 2 or not np.all(np.diff(times) > 0):
-        raise SpaceidError("computed_torque: times must be increasing control ticks, shape (n_t,) with n_t >= 2")
+        raise SpaceidError("computed_torque: `times` must be increasing control ticks, shape (n_t,) with n_t >= 2")
     if int(stride) < 1:
-        raise SpaceidError(f"computed_torque: stride must be a positive number of ticks, got {stride!r}")
+        raise SpaceidError(f"computed_torque: `stride` must be a positive number of ticks, got {stride!r}")
     q_r, qd_r, qdd_r = (np.asarray(x, float) for x in reference(times))
     coarse = np.r_[np.arange(0, len(times) - 1, int(stride)), len(times) - 1]
     reduced_c = model.reduced_inertia(q_r[coarse])

@@ -223,7 +223,7 @@ def _start_state(setup: _Setup, state: TwinState | None, settings: TwinSettings)
     n = setup.n
     state = state if state is not None else TwinState()
     if not isinstance(state, TwinState):
-        raise SpaceidError(f"state must be a TwinState (e.g. a previous run's .state), got {type(state).__name__}")
+        raise SpaceidError(f"`state` must be a TwinState (e.g. a previous run's .state), got {type(state).__name__}")
     q = np.zeros(n) if state.q is None else _vector("state.q", state.q, n)
     qd = np.zeros(n) if state.qd is None else _vector("state.qd", state.qd, n)
     hold = np.where(setup.gains.pos_mask, q, qd)
@@ -362,10 +362,10 @@ def _feedback_efforts(feedback, t, qm, prev, dt, yaw, wz, n) -> list:
     try:
         out = np.asarray(out, float).reshape(n)
     except (TypeError, ValueError):
-        raise SpaceidError(f"controller(t, q, qd, base_yaw, base_wz) must return {n} efforts (one per joint, "
+        raise SpaceidError(f"`controller`(t, q, qd, base_yaw, base_wz) must return {n} efforts (one per joint, "
                            f"model order), got {np.shape(out)}") from None  # fmt: skip
     if not np.all(np.isfinite(out)):
-        raise SpaceidError(f"controller: the efforts at t = {t:g} s contain NaN or infinite values")
+        raise SpaceidError(f"`controller`: the efforts at t = {t:g} s contain NaN or infinite values")
     return out.tolist()
 
 
@@ -478,11 +478,11 @@ def run_twin(
     """
     settings = TwinSettings() if settings is None else settings
     if not isinstance(settings, TwinSettings):
-        raise SpaceidError(f"settings must be a TwinSettings(...), got {type(settings).__name__}")
+        raise SpaceidError(f"`settings` must be a TwinSettings(...), got {type(settings).__name__}")
     try:
         seed = int(seed)
     except (TypeError, ValueError):
-        raise SpaceidError(f"seed must be an integer, got {seed!r}") from None
+        raise SpaceidError(f"`seed` must be an integer, got {seed!r}") from None
     setup = _setup(settings, getattr(state, "grasp", None))  # the state is checked next
     state = _start_state(setup, state, settings)
     dt = 1.0 / settings.controllers.rate
@@ -492,7 +492,7 @@ def run_twin(
     planned = _effort_setpoints(setup.gains, effort, times - t0)
     valves = _valves(settings.thrusters, times, dt)
     if controller is not None and not callable(controller):
-        raise SpaceidError(f"controller must be a callable (t, q, qd, base_yaw, base_wz) -> efforts (e.g. "
+        raise SpaceidError(f"`controller` must be a callable (t, q, qd, base_yaw, base_wz) -> efforts (e.g. "
                            f"computed_torque) or None, got {type(controller).__name__}")  # fmt: skip
     Q, V, QM, EFF, CO2, i_term, grasp, jump = _integrate_phase(setup, settings, state, times, command, rate, accel,
                                                                valves, dt, planned, controller)
@@ -517,11 +517,11 @@ def run_twin(
 
 def _n_steps(duration, dt) -> int:
     """The number of control periods ``dt`` [s] in ``duration`` [s] (at least one)."""
-    duration = _number("duration [s]", duration, low=0.0, strict=True)
+    duration = _number("`duration` [s]", duration, low=0.0, strict=True)
     n_steps = int(round(duration / dt))
     if n_steps < 1:
         raise SpaceidError(
-            f"duration = {duration:g} s is shorter than one control period ({dt:g} s): give a longer duration"
+            f"`duration` = {duration:g} s is shorter than one control period ({dt:g} s): give a longer duration"
         )
     return n_steps
 
