@@ -250,6 +250,6 @@ def test_realistic_experiment_error_bars_cover_the_errors_with_drift():
         free = res.ident_all.std > 0
         z.append((res.ident_all.values[free] - res.true[free]) / res.ident_all.std[free])
         assert res.ident_all.drift[0]["name"] == "viscous" and res.ident_all.drift[0]["value"] > 0
-        assert "propagated" in res.ident_all.settings["covariance"]
+        assert "propagated" in res.ident_all.diagnostics.covariance
     z = np.abs(np.concatenate(z))
     assert z.max() < 3.0 and np.mean(z <= 2) >= 0.9, z

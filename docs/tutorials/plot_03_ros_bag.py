@@ -112,13 +112,13 @@ ax.set_title("Base angular velocity differentiated from the poses, minus the tru
 # The log from the bag identifies like any other. Its rates came from a differentiator, whose
 # errors are correlated over its window; the standard errors are then the angle noise propagated
 # through the differentiator, or the Newey-West estimate from the residuals where that is larger
-# (:doc:`/theory/noise`), as ``settings.covariance`` says.
+# (:doc:`/theory/noise`), as ``diagnostics.covariance`` says.
 
 result = spaceid.identify(param, log, h)
 rel = (result.values - param.true_values) / param.true_values
 for name, err, std in zip(result.names, rel, result.std / abs(param.true_values)):
     print(f"{name}: error {100 * err:+.3f} %  (std {100 * std:.3f} %)")
-print("covariance:", result.settings["covariance"])
+print("covariance:", result.diagnostics.covariance)
 assert np.all(abs(rel) < 0.03)
 assert np.all(abs(result.values - param.true_values) < 5 * result.std)
 

@@ -680,10 +680,11 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     if s["momentum_estimated"]:
         axes = [2] if ident.planar else [0, 1, 2]
         out.print("momentum (estimated): " + ", ".join(
-            f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {s['momentum_std'][i]:.2g}" for i in axes) + " N m s")
+            f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {ident.momentum_std[i]:.2g}" for i in axes) + " N m s")
     for line in drift_lines(ident):
         out.print(line, highlight=False)
-    chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g} "
+    chi2_dof = ident.diagnostics.chi2_dof
+    chi2 = "" if chi2_dof is None else f"chi2/dof = {chi2_dof:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
               f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
               f"result written to {shown_name(output)}")

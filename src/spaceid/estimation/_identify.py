@@ -24,6 +24,7 @@ from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
+from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _column_scale, _ols, _solve_factor, _triangular_factor
@@ -150,19 +151,20 @@ def _drift_collinear(eq, cov_t, where) -> tuple:
 
 
 def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None, chunk=None) -> tuple:
-    """The record of the residual test for an unmodelled drift (:func:`spaceid.estimation._residuals.drift_test`,
-    ``whitener`` the estimator's own, if any; streamed in chunks of ``chunk`` samples when given) and its warning
-    (``""`` when silent); not run when drift terms are modelled."""
+    """The :class:`~spaceid.estimation.DriftTest` of the residuals for an unmodelled drift
+    (:func:`spaceid.estimation._residuals.drift_test`, ``whitener`` the estimator's own, if any; streamed in chunks
+    of ``chunk`` samples when given) and its warning (``""`` when silent); not run when drift terms are modelled."""
     if drift:
-        return {"run": False, "reason": f"drift terms modelled: {', '.join(drift)}"}, ""
+        return DriftTest.skipped(f"drift terms modelled: {', '.join(drift)}"), ""
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
-        return {"run": False, "reason": "not defined for the angles estimator"}, ""
-    test = dict(drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk), run=True)
+        return DriftTest.skipped("not defined for the angles estimator"), ""
+    test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk)
+    record = DriftTest.from_dict(test)
     if not test["drift"]:
-        return test, ""
+        return record, ""
     white = "" if test["whiteness_p_value"] >= test["alpha"] else (
         f", and the residuals are correlated (lag-1 autocorrelation {test['lag1_autocorrelation']:.2f})")
-    return test, (f"{where}: the equation residuals trend with time and attitude (Wald p = {test['p_value']:.2g} "
+    return record, (f"{where}: the equation residuals trend with time and attitude (Wald p = {test['p_value']:.2g} "
                   f"< {test['alpha']:g}, momentum drift {100 * test['relative_drift']:.2g} % of its RMS{white}): an "
                   "external torque or base friction changes the momentum: model it with --drift (one term first, "
                   "e.g. --drift viscous: terms that move alike are confounded; see the drift theory page)")
@@ -324,13 +326,15 @@ def identify(
     -------
     Identification
         ``values``/``std``/``cov`` over all minimal parameters (known ones with zero
-        variance); ``drift``: the drift coefficients; the estimated momentum, anchors, noise
-        model, ``chi2_dof`` and how the covariance was obtained (``covariance``,
+        variance); ``drift``: the drift coefficients; ``momentum_std``: the standard errors of
+        an estimated momentum; the anchors, the noise model and the log's provenance in
+        ``settings``; in ``diagnostics`` (:class:`~spaceid.estimation.Diagnostics`) ``chi2_dof``
+        and how the covariance was obtained (``covariance_method``, ``covariance``,
         ``residual_checks``, ``noise_model_warning``: what a ``chi2_dof`` far from 1 means), the
         estimator's record (``estimator_info``: for ``ml`` its convergence and ``fallback``, the
         estimate reported when it failed), ``plausibility`` (the warning about inertia-like
         parameters that came out negative) and ``drift_test`` (the residual test for an
-        unmodelled drift) in ``settings``; the warnings are also issued as ``UserWarning``.
+        unmodelled drift); the warnings are also issued as ``UserWarning``.
 
     Raises
     ------
@@ -400,22 +404,26 @@ def identify(
         "parameterization": param.to_dict(),
         "log": dict(log.meta),
         "log_fingerprint": log_fingerprint(log),  # validation warns when given this same log
-        "condition_number_scaled": cond_scaled,
         "anchors": anchors,
         "momentum_estimated": momentum is None,
         **({"history": {"source": str(history.meta.get("source", "log")), "start": float(history.t[0]),
                         "momentum": eq.full(theta)[1].tolist()}} if history is not None and drift else {}),
-        "momentum_std": h_std.tolist(),
         "noise": noise.to_dict(),
-        **uncertainty,
-        "estimator_info": {k: v for k, v in info.items() if v is None or np.isscalar(v) or isinstance(v, (str, list))},
-        "plausibility": implausible or "no inertia-like parameter negative",
-        "drift_test": drift_record,
-        **({"drift_correlation": correlation} if correlation is not None else {}),
     }
+    diagnostics = Diagnostics(
+        chi2_dof=uncertainty["chi2_dof"], variance_factor=uncertainty["variance_factor"],
+        covariance_method=uncertainty["covariance_method"], covariance=uncertainty["covariance"],
+        covariance_from_residuals=uncertainty["covariance_from_residuals"],
+        residual_checks=ResidualChecks.from_dict(uncertainty["residual_checks"]),
+        noise_model_warning=uncertainty["noise_model_warning"],
+        plausibility=implausible or "no inertia-like parameter negative", drift_test=drift_record,
+        drift_correlation=correlation, condition_number_scaled=cond_scaled,
+        estimator_info={k: v for k, v in info.items() if v is None or np.isscalar(v) or isinstance(v, (str, list))},
+    )
     return Identification(
         names=param.names, definitions=param.definitions, values=pi, std=np.sqrt(np.diag(cov)), cov=cov,
         condition_number=float(s[0] / s[-1]) if s[-1] > 0 else np.inf, singular_values=s, residual_rms=rms,
         n_samples=log.n_samples, estimator=estimator, momentum=h, model=param.model.source or param.model.name,
-        planar=param.model.planar, settings=settings, units=param.units, drift=terms,
+        planar=param.model.planar, settings=settings, units=param.units, drift=terms, momentum_std=h_std,
+        diagnostics=diagnostics,
     )

@@ -832,7 +832,7 @@ class Monitor:
                 "parameters": None if ident is None else [
                     {"name": n, "value": float(v), "std": float(e)} for n, v, e in zip(names, ident.values, ident.std)],
                 "drift": None if ident is None else [dict(d) for d in ident.drift],
-                "chi2_dof": None if ident is None else ident.settings.get("chi2_dof"),
+                "chi2_dof": None if ident is None else ident.diagnostics.chi2_dof,
                 "recursive": None if rec is None else {k: v.tolist() for k, v in rec.items()},
             }
 

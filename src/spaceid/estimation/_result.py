@@ -9,6 +9,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ..data import read_json
+from ._diagnostics import Diagnostics
 from ._drift import drift_terms
 
 __all__ = ["Identification", "compare", "load_result"]
@@ -39,7 +40,8 @@ class Identification:
         Model source (preset name or path) and planar flag, to rebuild the regressor.
     planar : bool
     settings : dict
-        Rank tolerance, seeds, log provenance: everything needed to reproduce the result.
+        Provenance: the parameter set (rank tolerance, seed), the log, the anchors, the noise
+        model: everything needed to reproduce the result.
     units : tuple of str
         Each parameter's unit (``kg``, ``kg m``, ``kg m^2``; see ``Parameterization.units``);
         empty for results written before units were recorded.
@@ -50,6 +52,12 @@ class Identification:
     com : dict or None
         The system-CM terms identified from the base position (``spaceid.identified.identify_com``:
         names, definitions, values, std, covariance, ...); None when not identified.
+    momentum_std : ndarray of shape (3,) or None
+        Standard errors of ``momentum`` [N m s]: zeros when it was given; None when not recorded.
+    diagnostics : Diagnostics
+        How well the data agreed with the model: ``chi2_dof``, the residual tests, the drift
+        test, the plausibility of the estimates, how the covariance was obtained
+        (:class:`~spaceid.estimation.Diagnostics`).
     """
 
     names: tuple
@@ -69,6 +77,8 @@ class Identification:
     units: tuple = ()
     drift: tuple = ()
     com: dict | None = None
+    momentum_std: np.ndarray | None = None
+    diagnostics: Diagnostics = field(default_factory=Diagnostics)
 
     def drift_terms(self) -> dict:
         """The drift coefficients as :func:`spaceid.motion.simulate` takes them (empty without drift)."""
@@ -77,12 +87,14 @@ class Identification:
 
     def to_dict(self) -> dict:
         """JSON-ready RESULT.json form: parameters with 95 % confidence intervals, covariance,
-        conditioning, residual and settings (read back by :meth:`from_dict`)."""
+        conditioning, residual, settings and diagnostics (read back by :meth:`from_dict`;
+        docs/formats/result-json.md)."""
         return {
             "model": self.model,
             "planar": self.planar,
             "estimator": self.estimator,
             "momentum": self.momentum.tolist(),
+            **({"momentum_std": np.asarray(self.momentum_std).tolist()} if self.momentum_std is not None else {}),
             "parameters": [
                 {"name": n, "definition": d, "value": float(v), "std": float(s),
                  "ci95": [float(v - Z95 * s), float(v + Z95 * s)], **({"unit": self.units[i]} if self.units else {})}
@@ -95,15 +107,24 @@ class Identification:
             "residual_rms": self.residual_rms,
             "n_samples": self.n_samples,
             "settings": self.settings,
+            "diagnostics": self.diagnostics.to_dict(),
             **({"com": self.com} if self.com is not None else {}),
         }
 
     @classmethod
     def from_dict(cls, data: dict, where: str = "result") -> Identification:
         """The identification of a :meth:`to_dict` record; ``where`` names it in errors
-        (:class:`~spaceid.SpaceidError` for a missing or bad field)."""
+        (:class:`~spaceid.SpaceidError` for a missing or bad field).
+
+        Records written before ``diagnostics`` and ``momentum_std`` had their own places keep them in
+        ``settings``: they are moved over (:data:`Diagnostics.KEYS`, ``momentum_std``)."""
         try:
             params = data["parameters"]
+            settings = dict(data.get("settings", {}))
+            diagnostics = data.get("diagnostics")
+            if diagnostics is None:  # an older file: the diagnostics were settings
+                diagnostics = {k: settings.pop(k) for k in Diagnostics.KEYS if k in settings}
+            h_std = data.get("momentum_std", settings.pop("momentum_std", None))
             k = len(params)
             cov = np.asarray(data.get("covariance", np.diag([p["std"] ** 2 for p in params])), float).reshape(k, k)
             return cls(
@@ -120,13 +141,15 @@ class Identification:
                 np.asarray(data["momentum"], float).reshape(3),
                 str(data["model"]),
                 bool(data["planar"]),
-                dict(data.get("settings", {})),
+                settings,
                 tuple(p["unit"] for p in params) if all("unit" in p for p in params) else (),
                 tuple({"name": str(d["name"]), "value": float(d["value"]), "std": float(d["std"]),
                        "unit": str(d["unit"])} for d in data.get("drift", [])),
                 data.get("com"),
+                None if h_std is None else np.asarray(h_std, float).reshape(3),
+                Diagnostics.from_dict(diagnostics),
             )
-        except (KeyError, TypeError, ValueError) as exc:
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "
                                "use a file written by 'spaceid identify'") from None
 

@@ -130,6 +130,11 @@ def write_markdown_report(
         f"- Condition number of the stacked regressor: {ident.condition_number:.4g}",
         f"- Residual RMS: {ident.residual_rms:.3g} N m s",
     ]
+    d = ident.diagnostics  # how well the data agreed with the model (empty for a bare record)
+    if d.chi2_dof is not None:
+        lines.append(f"- chi2/dof: {d.chi2_dof:.3g}")
+    if d.covariance:
+        lines.append(f"- Covariance: {_md(d.covariance)}")
     if metrics:
         lines += ["", "## Validation", ""]
         lines += _md_table(["metric", "value"], [(_md(metric_label(k)), _md_value(v)) for k, v in metrics.items()])

@@ -242,7 +242,7 @@ def _monitor(model, log: Log, before: Identification, drift, seed: int) -> dict:
     coefficients estimated with its parameters (without them the friction raised 16 alarms before
     the grasp in 24 runs)."""
     levels = before.settings["noise"]
-    scale = np.sqrt(before.settings.get("chi2_dof") or 1.0)
+    scale = np.sqrt(before.diagnostics.chi2_dof or 1.0)
     noise = Noise(**{k: levels[k] * scale for k in ("angle", "rate", "base_rate", "attitude")},
                   source=f"{levels['source']}, scaled by sqrt(chi2/dof) = {scale:.3g} of the identification before")
     momentum = initial_momentum(before, log) if drift else np.zeros(3)
