@@ -369,7 +369,7 @@ def test_tls_is_consistent_under_its_own_assumptions():
         errors = []
         for _ in range(40):
             stub.a = a0 + rng.normal(size=a0.shape) * d
-            errors.append(estimate._tls(stub, None, None, None, {"phi": stub.phi(None)})[0] - theta)
+            errors.append(estimate._tls(stub, None, None, None, estimate._FitContext(stub.phi(None)))[0] - theta)
     finally:
         estimate._column_noise = original
     errors = np.array(errors)
