@@ -109,8 +109,8 @@ def _refit_unknown(s, settings):
 
     grasp = s.scores["grasp time [s]"]
     end = grasp + s.trajectory.duration
-    estimate, _ = payload_after_grasp(s.servicer, s.log, s.truth["link"], grasp, None, end=end,
-                                      drift=_experiment_drift(None, settings), seed=s.scores["phase seed"])
+    estimate = payload_after_grasp(s.servicer, s.log, s.truth["link"], grasp, None, end=end,
+                                   drift=_experiment_drift(None, settings), seed=s.scores["phase seed"]).estimate
     return s.scores | {"payload": _scores(estimate, s.truth, s.events, s.log, grasp)["payload"]}
 
 

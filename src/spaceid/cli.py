@@ -1198,7 +1198,7 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
             res = identify_payload(model, log, link, h, noise=noise, drift=kinds, seed=seed, where=str(log_path))
         else:
             res = payload_after_grasp(model, log, link, grasp, h, payload_motion=motion, noise=noise, drift=kinds,
-                                      seed=seed, where=str(log_path))[0]  # fmt: skip
+                                      seed=seed, where=str(log_path)).estimate  # fmt: skip
     write_json(output, res.to_dict())
     for name, value, std in zip(res.names, res.values, res.std):
         unit = {"m": "kg"}.get(name, "m" if name.startswith("c") else "kg m^2")

@@ -2,8 +2,8 @@
 the signal noise model, the Cramer-Rao bounds (rate and angle measurements).
 """
 
-from . import (_noise, _drift, _equations, _estimators, _angles, _uncertainty, _residuals, _diagnostics, _result, _stream,
-               _identify, _parse, _monitor)
+from . import (_noise, _drift, _equations, _estimators, _angles, _uncertainty, _residuals, _diagnostics, _result,
+               _stream, _identify, _parse, _monitor)
 from ._noise import *  # noqa: F403
 from ._drift import *  # noqa: F403
 from ._equations import *  # noqa: F403

@@ -205,9 +205,9 @@ def _payload(servicer, log: Log, link: str, grasp: float, duration: float, drift
     Returns the estimate, its window of ``log`` and the record for the scores.
     """
     momentum = "hold" if drift else np.zeros(3)
-    estimate, window = payload_after_grasp(servicer, log, link, grasp, momentum, payload_motion=motion,
-                                           end=grasp + duration, drift=drift, seed=seed, where=where)  # fmt: skip
-    g = estimate.settings["grasp"]
+    cut = payload_after_grasp(servicer, log, link, grasp, momentum, payload_motion=motion, end=grasp + duration,
+                              drift=drift, seed=seed, where=where)  # fmt: skip
+    estimate, window, g = cut.estimate, cut.window, cut.grasp
     record = {"payload window [s]": g["window"],
               "payload window start after the grasp [s]": g["window_start_after_grasp"],
               "payload velocity, rate at the grasp": None if motion is None else [v.tolist() for v in motion],
