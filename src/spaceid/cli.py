@@ -988,21 +988,22 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     out.print(f"report written to {shown_name(folder)}/report.md")
 
 
-def _print_servicing(scores: dict) -> None:
-    """The payload against its truth and the detected change against the grasp, as printed."""
-    for p in scores["payload"]:
-        z = "" if p["z"] is None else f", z = {p['z']:+.2f}"
-        out.print(f"payload {p['name']:>3s} = {p['estimate']:.5g} +/- {p['std']:.2g} (truth {p['true']:.5g}{z})",
+def _print_servicing(scores) -> None:
+    """The payload against its truth and the detected change against the grasp (a
+    :class:`~spaceid.studies.ServicingScores`), as printed."""
+    for p in scores.payload:
+        z = "" if p.z is None else f", z = {p.z:+.2f}"
+        out.print(f"payload {p.name:>3s} = {p.estimate:.5g} +/- {p.std:.2g} (truth {p.true:.5g}{z})",
                   highlight=False)
-    if scores["detected change time [s]"] is None:
-        out.print(f"change detection: no change found near the grasp ({scores['events']} events)")
+    if scores.detected_change_time is None:
+        out.print(f"change detection: no change found near the grasp ({scores.events} events)")
         return
-    lead = scores["change time lead [s]"]
-    out.print(f"change detected {scores['change time error [s]']:+.3g} s from the grasp "
-              f"({scores['change time error [samples]']:+g} samples; the differentiated rates show it up to "
+    lead = scores.change_time_lead
+    out.print(f"change detected {scores.change_time_error:+.3g} s from the grasp "
+              f"({scores.change_time_error_samples:+g} samples; the differentiated rates show it up to "
               f"{lead:.3g} s early), alarm at "
-              f"{scores['alarm time from the grasp [s]']:+.3g} s from it; "
-              f"{scores['events before the grasp (false alarms)']} false alarms before it", highlight=False)
+              f"{scores.alarm_time_from_grasp:+.3g} s from it; "
+              f"{scores.false_alarms} false alarms before it", highlight=False)
 
 
 @app.command(short_help="How the parameters changed between two identifications.")

@@ -624,21 +624,22 @@ def plot_tracking(t, designed, executed, joints, path, *, samples=None, title=No
 
 
 @_styled
-def _draw_capture_monitor(log: Log, scores: dict, joints) -> Figure:
+def _draw_capture_monitor(log: Log, scores, joints) -> Figure:
     """The figure of :func:`plot_capture_monitor`."""
-    t = log.t - scores["grasp time [s]"]
+    grasp = scores.grasp_time
+    t = log.t - grasp
     arm = list(joints)
     fig = _new_figure((7.2, 5.2))
     top, bottom = fig.subplots(2, 1, sharex=True)
     for j, name in enumerate(arm):
         top.plot(t, log.q[:, log.joints.index(name)], color=(_MEASURED, _ANCHOR)[j % 2], label=f"{name} (encoders)")
     bottom.plot(t, log.base_w[:, -1], color=_MEASURED, label="base yaw rate (motion capture)")
-    detected = scores["detected change time [s]"]
+    detected = scores.detected_change_time
     for ax in (top, bottom):
         ax.axvline(0.0, color=_TRUE, linewidth=2.0, label="grasp (twin's truth)")
         if detected is not None:
-            ax.axvline(detected - scores["grasp time [s]"], color=_MODEL, linestyle="--", label="detected change")
-            ax.axvline(scores["detected at [s]"] - scores["grasp time [s]"], color=_LIMIT, linestyle=":",
+            ax.axvline(detected - grasp, color=_MODEL, linestyle="--", label="detected change")
+            ax.axvline(scores.detected_at - grasp, color=_LIMIT, linestyle=":",
                        label="alarm (threshold crossed)")  # fmt: skip
     top.set_ylabel("joint angle $q$ [rad]")
     bottom.set_ylabel(r"base yaw rate $\omega_z$ [rad/s]")
@@ -648,25 +649,24 @@ def _draw_capture_monitor(log: Log, scores: dict, joints) -> Figure:
         entries.update(zip(*reversed(ax.get_legend_handles_labels())))
     fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncols=3)
     found = "no change detected" if detected is None else (
-        f"change at {scores['change time error [s]']:+.3g} s from the grasp "
-        f"({scores['change time error [samples]']:+g} samples), alarm at "
-        f"{scores['detected at [s]'] - scores['grasp time [s]']:+.3g} s")
+        f"change at {scores.change_time_error:+.3g} s from the grasp "
+        f"({scores.change_time_error_samples:+g} samples), alarm at "
+        f"{scores.detected_at - grasp:+.3g} s")
     fig.suptitle(f"Change detection over the servicing recording (held-out motion, grasp, post-capture "
                  f"excitation)\n{found}")
     return fig
 
 
-def plot_capture_monitor(log: Log, scores: dict, path, *, joints) -> Path:
+def plot_capture_monitor(log: Log, scores, path, *, joints) -> Path:
     """The servicing recording with the grasp, the detected change and the alarm marked.
 
     Parameters
     ----------
     log : Log
         The recording (held-out motion, grasp, post-capture excitation).
-    scores : dict
-        The keys ``grasp time [s]``, ``detected change time [s]``, ``detected at [s]``,
-        ``change time error [s]`` and ``change time error [samples]`` (None: no change found),
-        times on ``log``'s clock.
+    scores : ServicingScores
+        Its ``grasp_time``, ``detected_change_time``, ``detected_at``, ``change_time_error`` and
+        ``change_time_error_samples`` (None: no change found), times on ``log``'s clock.
     path : path-like
         Output PNG.
     joints : sequence of str

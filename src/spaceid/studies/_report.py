@@ -15,7 +15,7 @@ from ..estimation import Identification
 from ._tables import _columns, _per_param, drift_rows
 from ._torque_validation import TORQUE_METRIC_LABELS
 
-__all__ = ["write_markdown_report", "metric_label"]
+__all__ = ["write_markdown_report", "metric_label", "servicing_label"]
 
 
 def _md(text) -> str:
@@ -49,6 +49,38 @@ _METRIC_LABELS = {
     "base_attitude_rms": "base attitude, RMS error angle [rad]",
     "base_attitude_max": "base attitude, largest error angle [rad]",
 }
+
+
+SERVICING_LABELS = {
+    "grasp_time": ("grasp time", "s"),
+    "detected_change_time": ("detected change time", "s"),
+    "detected_at": ("detected at", "s"),
+    "change_time_error": ("change time error", "s"),
+    "change_time_error_samples": ("change time error", "samples"),
+    "change_time_lead": ("change time lead", "s"),
+    "alarm_time_from_grasp": ("alarm time from the grasp", "s"),
+    "false_alarms": ("events before the grasp (false alarms)", None),
+    "events": ("events", None),
+    "monitor_drift_terms": ("monitor drift terms", None),
+    "sample_period": ("sample period", "s"),
+    "payload_window": ("payload window", "s"),
+    "payload_window_start_after_grasp": ("payload window start after the grasp", "s"),
+    "payload_motion": ("payload velocity, rate at the grasp", "m/s, rad/s"),
+    "momentum_before_grasp": ("momentum before the grasp", "N m s"),
+    "momentum_before_grasp_std": ("momentum before the grasp std", "N m s"),
+    "momentum_from": ("momentum from", "s"),
+    "phase_seed": ("phase seed", None),
+    "not_identifiable": ("not identifiable", None),
+}
+"""Readable name and unit (None: none) of each :class:`spaceid.studies.ServicingScores` key, as the report and
+the command line show them."""
+
+
+def servicing_label(key: str) -> str:
+    """Readable name, with its unit, of a :class:`spaceid.studies.ServicingScores` key (``grasp_time`` ->
+    ``grasp time [s]``; other keys are returned as given)."""
+    label, unit = SERVICING_LABELS.get(key, (key, None))
+    return label if unit is None else f"{label} [{unit}]"
 
 
 def metric_label(key: str) -> str:
