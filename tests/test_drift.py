@@ -185,9 +185,9 @@ def test_result_round_trip_and_validation_with_the_identified_drift(cepheus, tmp
     back = load_result(tmp_path / "r.json")
     assert back.drift == ident.drift and back.drift_terms().keys() == {"torque", "viscous"}
     assert Identification.from_dict({k: v for k, v in record.items() if k != "drift"}).drift == ()
-    _, metrics = validate(back, log)  # the identified drift is used
+    metrics = validate(back, log).metrics  # the identified drift is used
     assert metrics["base_w_nrms"] < 1e-8
-    _, without = validate(back, log, drift={"torque": 0.0, "viscous": 0.0})  # override
+    without = validate(back, log, drift={"torque": 0.0, "viscous": 0.0}).metrics  # override
     assert without["base_w_nrms"] > 1e-3
 
 

@@ -56,7 +56,7 @@ def test_report_folder(ideal):
 
 def _nrms(pi, res, log):
     """Base-rate NRMS of the model ``pi`` re-simulated on ``log`` of the experiment ``res``."""
-    return validate(replace(res.ident, values=pi), log, momentum=np.zeros(3))[1]["base_w_nrms"]
+    return validate(replace(res.ident, values=pi), log, momentum=np.zeros(3)).metrics["base_w_nrms"]
 
 
 @pytest.mark.slow
@@ -73,7 +73,7 @@ def test_validation_is_on_a_held_out_motion(ideal):
     assert np.abs(res.predicted.q - res.validation_log.q).max() <= 1e-14 * np.abs(res.validation_log.q).max()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the experiment never validates on a fitting log itself
-        kinematic = validate(res.ident, res.validation_log, momentum=np.zeros(3))[1]
+        kinematic = validate(res.ident, res.validation_log, momentum=np.zeros(3)).metrics
     assert kinematic == {k: v for k, v in res.metrics.items() if k in kinematic}  # beside them: the torque level
 
 

@@ -95,3 +95,41 @@ def test_diagnostics_of_skipped_tests_and_the_angles_estimator(cepheus):
     back = Identification.from_dict(json.loads(json.dumps(drift.to_dict())))
     assert back.diagnostics == drift.diagnostics
     assert Diagnostics.from_dict({}) == Diagnostics()  # a file with neither: the defaults
+
+
+def test_comparison_record(cepheus):
+    from spaceid.estimation import Comparison, compare
+
+    param, log, ident = cepheus
+    moved = dataclasses.replace(ident, values=ident.values + np.where(np.arange(len(ident.values)) == 2, 10 * ident.std,
+                                                                      0.0))
+    diff = compare(ident, moved)
+    assert isinstance(diff, Comparison) and diff.names == ident.names
+    assert diff.changed() == (ident.names[2],) and diff.z[2] == pytest.approx(10 / np.sqrt(2))
+    rows = json.loads(json.dumps(diff.to_dict()))["parameters"]  # spaceid compare --json
+    assert [r["name"] for r in rows] == list(ident.names) and rows[2]["change"] == pytest.approx(10 * ident.std[2])
+    assert set(rows[0]) == {"name", "definition", "before", "after", "change", "relative_change", "z"}
+
+
+def test_identifiability_record():
+    from spaceid.dynamics import Identifiability, identifiability
+
+    report = identifiability(minimal_parameters(spaceid.load_model("cepheus")))
+    assert isinstance(report, Identifiability) and report.determines_dynamics
+    data = json.loads(json.dumps(report.to_dict()))
+    assert data["no_effect"] == list(report.no_effect) and data["determines_dynamics"] is True
+    assert set(data) == {"no_effect", "individually_identifiable", "in_combinations", "determines_dynamics",
+                         "energy_residual"}
+
+
+def test_validation_record(cepheus):
+    from spaceid.studies import Validation, validate
+
+    param, log, ident = cepheus
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the fitting log
+        check = validate(ident, log, momentum=H)
+    assert isinstance(check, Validation) and check.measured is log and check.predicted.n_samples == log.n_samples
+    data = json.loads(json.dumps(check.to_dict()))
+    assert data["metrics"] == pytest.approx(check.metrics) and data["n_samples"] == log.n_samples
+    assert data["planar"] is True and data["joints"] == list(log.joints) and data["end"] == pytest.approx(5.0)

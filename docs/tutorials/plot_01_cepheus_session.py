@@ -147,7 +147,8 @@ assert np.allclose(again.values, result.values, rtol=0, atol=1e-15)
 # attitude and compares the base motion it predicts with the measured one (the paper's Fig. 6;
 # see :doc:`/figures/validation`).
 
-predicted, metrics = spaceid.validate(again, log, momentum=h)
+check = spaceid.validate(again, log, momentum=h)  # a spaceid.studies.Validation
+predicted, metrics = check.predicted, check.metrics
 for key, value in metrics.items():
     print(f"{key:>12s} = {value:.3g}")
 assert metrics["base_w_nrms"] < 1e-3  # the noise level, not a model error

@@ -133,7 +133,7 @@ second = spaceid.design_excitation(param, duration=5.0, harmonics=3, samples=35,
                                    n_starts=4).trajectory
 record(second, folder / "second.bag", seed=4)
 held_out = spaceid.read_log(folder / "second.bag", joints=model.joints, planar=True, bag_options={"mapping": mapping})
-predicted, metrics = spaceid.validate(result, held_out, momentum=h)
+metrics = spaceid.validate(result, held_out, momentum=h).metrics
 print(f"base rate RMS error of the identified model on the second motion: {metrics['base_w_rms']:.2g} rad/s "
       f"({100 * metrics['base_w_nrms']:.2g} % of its RMS)")
 assert metrics["base_w_nrms"] < 0.01

@@ -434,7 +434,7 @@ def model(model_src, planar, as_json, show_all, definitions_file):
         "n_full_parameters": len(full_parameter_names(m)),
         "n_minimal_parameters": param.n_params,
         **description,
-        "identifiability": ident,
+        "identifiability": ident.to_dict(),
     }
     if definitions_file is not None:
         _write_definitions(definitions_file, info, model_src)
@@ -844,7 +844,8 @@ def validate(result, log_path, momentum, drift, torques, horizon, output, overwr
     log = read_log(log_path, joints=model.joints, planar=ident.planar, wheels=model.wheels, bag_options=bag)
     _print_joint_rates(log)
     with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
-        predicted, metrics = run(ident, log, momentum=h, where=str(result), drift=terms)
+        check = run(ident, log, momentum=h, where=str(result), drift=terms)
+    predicted, metrics = check.predicted, check.metrics
     with _report_folder(output, overwrite) as folder:
         write_log(folder / "predicted.csv", predicted)
         write_json(folder / "metrics.json", metrics)
@@ -1020,7 +1021,7 @@ def compare(before, after, as_json, show_all):
     from .estimation import load_result
 
     first = load_result(before)
-    res = run(first, load_result(after), where=f"{before}, {after}")
+    res = run(first, load_result(after), where=f"{before}, {after}").to_dict()
     if as_json:
         print(json.dumps(res, indent=2))
         return

@@ -585,7 +585,7 @@ class Monitor:
         if self._pending is None:
             return []
         before = self.segments[-1]["identification"]  # None: a segment too short to identify
-        res = [] if before is None else compare(before, self._ident, where=self.where)["parameters"]
+        res = [] if before is None else compare(before, self._ident, where=self.where).to_dict()["parameters"]
         event = MonitorEvent(**self._pending, changed=tuple(p["name"] for p in res if abs(p["z"]) > Z_CHANGED),
                              parameters=tuple(res))
         self._pending = None
@@ -805,7 +805,7 @@ class Monitor:
         self._close(None)
         if self._pending is not None:  # an alarm too close to the end for a warm-up: compare with what there is
             before, after = (s["identification"] for s in self.segments[-2:])
-            res = compare(before, after, where=self.where)["parameters"] if before and after else []
+            res = compare(before, after, where=self.where).to_dict()["parameters"] if before and after else []
             self.events.append(MonitorEvent(**self._pending, parameters=tuple(res),
                                             changed=tuple(p["name"] for p in res if abs(p["z"]) > Z_CHANGED)))
             self._pending = None
@@ -818,7 +818,7 @@ class Monitor:
         pair = self.segments[k : k + 2]
         if len(pair) < 2 or None in (pair[0]["identification"], pair[1]["identification"]):
             return None
-        res = compare(pair[0]["identification"], pair[1]["identification"], where=self.where)["parameters"]
+        res = compare(pair[0]["identification"], pair[1]["identification"], where=self.where).to_dict()["parameters"]
         return {"changed": [q["name"] for q in res if abs(q["z"]) > Z_CHANGED], "parameters": res}
 
     def record(self) -> dict:

@@ -1,5 +1,6 @@
 """The result of an identification: :class:`Identification`, its RESULT.json form
-(:meth:`Identification.to_dict`, :func:`load_result`) and the comparison of two (:func:`compare`)."""
+(:meth:`Identification.to_dict`, :func:`load_result`) and the comparison of two (:func:`compare`,
+:class:`Comparison`)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ from ..data import read_json
 from ._diagnostics import Diagnostics
 from ._drift import drift_terms
 
-__all__ = ["Identification", "compare", "load_result"]
+__all__ = ["Comparison", "Identification", "compare", "load_result"]
 
 Z95 = 1.959963984540054  # two-sided 95 % normal quantile, for confidence intervals
 
@@ -171,7 +172,51 @@ def load_result(path) -> Identification:
     return Identification.from_dict(read_json(path, what="result file"), where=str(path))
 
 
-def compare(before: Identification, after: Identification, *, where: str = "results") -> dict:
+@dataclass(frozen=True)
+class Comparison:
+    """How the parameters changed between two identifications of the same structure (:func:`compare`).
+
+    Attributes
+    ----------
+    names, definitions : tuple of str
+        The minimal parameters.
+    before, after : ndarray of shape (k,)
+        Their estimates in the first and the second identification.
+    change : ndarray of shape (k,)
+        ``after - before``.
+    relative_change : ndarray of shape (k,)
+        ``change / |before|`` (infinite where ``before`` is zero).
+    z : ndarray of shape (k,)
+        ``change / sqrt(std_before^2 + std_after^2)``: whether the change stands out from the
+        estimation noise (infinite where both standard errors are zero).
+    """
+
+    names: tuple
+    definitions: tuple
+    before: np.ndarray
+    after: np.ndarray
+    change: np.ndarray
+    relative_change: np.ndarray
+    z: np.ndarray
+
+    def changed(self, threshold: float = 3.0) -> tuple:
+        """The names of the parameters whose ``|z|`` exceeds ``threshold``."""
+        return tuple(n for n, z in zip(self.names, self.z) if abs(z) > threshold)
+
+    def to_dict(self) -> dict:
+        """JSON-ready (``spaceid compare --json``): ``parameters``, per parameter ``name``, ``definition``,
+        ``before``, ``after``, ``change``, ``relative_change`` and ``z``."""
+        return {
+            "parameters": [
+                {"name": n, "definition": d, "before": float(b), "after": float(a), "change": float(c),
+                 "relative_change": float(r), "z": float(s)}
+                for n, d, b, a, c, r, s in zip(self.names, self.definitions, self.before, self.after, self.change,
+                                               self.relative_change, self.z)
+            ]
+        }
+
+
+def compare(before: Identification, after: Identification, *, where: str = "results") -> Comparison:
     """How the parameters changed between two identifications of the same structure.
 
     For the on-orbit servicing case: identify before and after a capture (or a fuel burn) and
@@ -180,9 +225,9 @@ def compare(before: Identification, after: Identification, *, where: str = "resu
 
     Returns
     -------
-    dict
-        ``parameters``: per parameter ``name``, ``definition``, ``before``, ``after``,
-        ``change``, ``relative_change`` and ``z``.
+    Comparison
+        Per parameter the estimates ``before`` and ``after``, the ``change``, the
+        ``relative_change`` and ``z``; :meth:`Comparison.changed` names those beyond 3.
     """
     if before.names != after.names or before.definitions != after.definitions:
         raise SpaceidError(
@@ -194,12 +239,5 @@ def compare(before: Identification, after: Identification, *, where: str = "resu
     with np.errstate(divide="ignore", invalid="ignore"):
         rel = np.where(before.values != 0, change / np.abs(before.values), np.inf)
         z = np.where(noise > 0, change / noise, np.inf * np.sign(change))
-    return {
-        "parameters": [
-            {"name": n, "definition": d, "before": float(b), "after": float(a), "change": float(c),
-             "relative_change": float(r), "z": float(s)}
-            for n, d, b, a, c, r, s in zip(
-                before.names, before.definitions, before.values, after.values, change, rel, z
-            )
-        ]
-    }
+    return Comparison(tuple(before.names), tuple(before.definitions), np.array(before.values, float),
+                      np.array(after.values, float), change, rel, z)

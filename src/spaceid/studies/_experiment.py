@@ -177,9 +177,9 @@ def _held_out_validation(ident: Identification, log: Log, held_out: Log, momentu
     momentum, the held-out motion, later, from the identified model's momentum over its first
     samples (friction changed it in between)."""
     start = momentum if momentum is not None or not ident.drift else initial_momentum(ident, held_out)
-    predicted, metrics = validate(ident, held_out, momentum=start, where=f"{where} (held-out motion)")
-    _, fit_metrics = validate(ident, log, momentum=momentum, where=f"{where} (fitting window)")
-    return predicted, metrics, fit_metrics
+    check = validate(ident, held_out, momentum=start, where=f"{where} (held-out motion)")
+    fit_metrics = validate(ident, log, momentum=momentum, where=f"{where} (fitting window)").metrics
+    return check.predicted, check.metrics, fit_metrics
 
 
 def _held_out_seed(seed: int, rehearsals: int) -> int:

@@ -7,6 +7,7 @@ and momentum; the base angular velocity and attitude it predicts are compared wi
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -15,7 +16,7 @@ from ..identified import parameterization_of
 from ..motion import hermite_motion, simulate
 from ..data import Log, log_fingerprint
 
-__all__ = ["attitude_error_angle", "predict", "validate", "validation_metrics"]
+__all__ = ["Validation", "attitude_error_angle", "predict", "validate", "validation_metrics"]
 
 
 def predict(ident: Identification, t, q, qd, *, momentum=None, initial_quat=None, where: str = "result",
@@ -97,7 +98,35 @@ def _warn_if_fitting_log(ident: Identification, log: Log, where: str) -> None:
         )
 
 
-def validate(ident: Identification, log: Log, *, momentum=None, where: str = "result", drift=None):
+@dataclass(frozen=True)
+class Validation:
+    """An identified model's prediction against a measured log (:func:`validate`).
+
+    Attributes
+    ----------
+    measured : Log
+        The log validated on.
+    predicted : Log
+        The identified model's base motion for its joint motion, at its time stamps.
+    metrics : dict of str to float
+        :func:`validation_metrics` of the two: ``base_w_rms``, ``base_w_nrms``, ``base_w_max``
+        and the yaw's (planar) or attitude's (spatial) errors.
+    """
+
+    measured: Log
+    predicted: Log
+    metrics: dict
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the ``metrics``, and the log's ``source``, ``n_samples``, ``start`` and ``end`` [s],
+        ``joints`` and ``planar`` flag (the logs themselves are written as log CSV files)."""
+        return {"metrics": dict(self.metrics), "source": self.measured.meta.get("source"),
+                "n_samples": int(self.measured.n_samples), "start": float(self.measured.t[0]),
+                "end": float(self.measured.t[-1]), "joints": list(self.measured.joints),
+                "planar": bool(self.measured.planar)}
+
+
+def validate(ident: Identification, log: Log, *, momentum=None, where: str = "result", drift=None) -> Validation:
     """Re-simulate ``ident`` with the log's joint motion and initial attitude (and its drift
     terms, or ``drift``: see :func:`predict`); compare.
 
@@ -108,9 +137,8 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
 
     Returns
     -------
-    predicted : Log
-    metrics : dict
-        See :func:`validation_metrics`.
+    Validation
+        ``measured`` (the log), ``predicted`` and ``metrics`` (see :func:`validation_metrics`).
     """
     _warn_if_fitting_log(ident, log, where)
     predicted = predict(ident, log.t, log.q, log.qd, momentum=momentum, initial_quat=log.base_quat[0], where=where,
@@ -122,4 +150,4 @@ def validate(ident: Identification, log: Log, *, momentum=None, where: str = "re
             f"(RMS, above {100 * POOR_VALIDATION:.0f} %): the model does not predict this log: a result of another "
             "robot or payload, a wrong --momentum, or a unit error in the log or the model (parameters 1000 times "
             "off give ~100 %)", UserWarning, stacklevel=2)
-    return predicted, metrics
+    return Validation(log, predicted, metrics)
