@@ -86,6 +86,35 @@ class Identification:
         return drift_terms({d["name"]: d["value"] for d in self.drift}, self.planar, where="result drift",
                            physical=False)
 
+    def plot(self, ax=None, *, kind: str = "parameters", true=None, reference=None, reference_label: str = "paper"):
+        """Draw the identification and return the :class:`matplotlib.figure.Figure`.
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+            Draw on it (its legend on it too); default: a new figure (no pyplot state: show it, or
+            ``fig.savefig(path)``).
+        kind : {"parameters", "singular_values"}
+            The estimates with 2-sigma error bars on one relative axis
+            (:func:`spaceid.studies.plot_parameters`), or the singular values of the stacked
+            regressor (:func:`spaceid.studies.plot_singular_values`).
+        true, reference, reference_label
+            ``parameters`` only: the true values (errors relative to them) and reference relative
+            errors in percent, as :func:`spaceid.studies.plot_parameters` takes them.
+
+        Returns
+        -------
+        matplotlib.figure.Figure
+            The figure drawn (the one that holds ``ax`` when given).
+        """
+        from ._plots import _draw_parameters, _draw_singular_values
+
+        if kind == "parameters":
+            return _draw_parameters(self, true, reference, reference_label, ax)
+        if kind == "singular_values":
+            return _draw_singular_values(self, ax)
+        raise SpaceidError(f"plot: kind {kind!r} is not 'parameters' or 'singular_values'")
+
     def to_dict(self) -> dict:
         """JSON-ready RESULT.json form: parameters with 95 % confidence intervals, covariance,
         conditioning, residual, settings and diagnostics (read back by :meth:`from_dict`;

@@ -320,6 +320,22 @@ class PayloadEstimate:
             return out
         return np.array(_matrix(self.values[4:]))
 
+    def plot(self, fig=None, *, true=None):
+        """Draw the estimate with one standard error, a panel per parameter, against ``true`` when
+        given (:func:`spaceid.studies.plot_payload`), and return the :class:`matplotlib.figure.Figure`.
+
+        Parameters
+        ----------
+        fig : matplotlib.figure.Figure or SubFigure, optional
+            Draw into it (one row of panels); default: a new figure.
+        true : dict or array_like, optional
+            The true values [kg, m, kg m^2], by name (``{"m": 0.5, ...}``) or in ``names`` order:
+            drawn as lines, with the z-scores in the panels' titles.
+        """
+        from ._plots import _draw_payload, _rows
+
+        return _draw_payload(_rows(self, true), self.link, fig)
+
     def to_dict(self) -> dict:
         """The PAYLOAD.json object."""
         std = dict(zip(self.names, self.std))

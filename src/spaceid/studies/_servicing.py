@@ -433,7 +433,8 @@ def write_servicing(folder: Path, result: ServicingResult) -> tuple:
     result.trajectory.save(folder / "capture_trajectory.json")
     s = result.scores
     plot_capture_monitor(result.log, s, folder / "capture.png", joints=result.trajectory.joints)
-    plot_payload([p.to_dict() for p in s.payload], folder / "payload.png", link=result.truth["link"])
+    plot_payload([p.to_dict() for p in s.payload], folder / "payload.png", link=result.truth["link"],
+                 truth_label="truth (twin)")
     units = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"}
     rows = [(p.name, units.get(p.name, "kg m^2"), f"{p.true:.6g}", f"{p.estimate:.6g}", f"{p.std:.2g}",
              "" if p.z is None else f"{p.z:+.2f}") for p in s.payload]  # fmt: skip

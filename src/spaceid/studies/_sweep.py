@@ -187,7 +187,7 @@ def _draw_sweep(result: SweepResult):
     duration, one line per (harmonics, samples)."""
     from matplotlib.ticker import FuncFormatter
 
-    from ._figures import _new_figure, _styled
+    from .._figure_style import _new_figure, _styled
 
     @_styled
     def draw():
@@ -232,7 +232,7 @@ def write_sweep(result: SweepResult, folder) -> dict:
     from rich.console import Console
 
     from ..data import write_json
-    from ._figures import _save
+    from .._figure_style import _save
 
     folder = Path(folder)
     try:

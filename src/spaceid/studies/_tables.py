@@ -8,31 +8,11 @@ from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 
-from .._errors import SpaceidError
 from ..estimation import Identification
+from ..estimation._plots import _per_param, _relative_errors  # noqa: F401  (shared with the figures)
 
 
 __all__ = ["parameter_table", "montecarlo_table", "drift_lines"]
-
-
-def _per_param(values, ident: Identification, name: str):
-    """``values`` as a float array of shape ``(k,)``, or None; a clear error on a wrong length."""
-    if values is None:
-        return None
-    arr = np.asarray(values, float).reshape(-1)
-    if arr.shape != (len(ident.names),):
-        raise SpaceidError(
-            f"{name}: expected one value per parameter ({len(ident.names)}: {', '.join(ident.names)}), "
-            f"got {arr.size}: pass them in the order of the identification's names"
-        )
-    return arr
-
-
-def _relative_errors(ident: Identification, true):
-    """``|estimate - true| / |true|`` and ``std / |true|`` as fractions; NaN where ``true`` is 0."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(true != 0, np.abs(true), np.nan)
-        return np.abs(ident.values - true) / scale, ident.std / scale
 
 
 # --- figures ----------------------------------------------------------------------------------

@@ -117,6 +117,21 @@ class Validation:
     predicted: Log
     metrics: dict
 
+    def plot(self, fig=None, *, title: str | None = None):
+        """Draw the measured base motion against the predicted one, with the residuals (the paper's
+        Fig. 6, :func:`spaceid.studies.plot_validation`), and return the :class:`matplotlib.figure.Figure`.
+
+        Parameters
+        ----------
+        fig : matplotlib.figure.Figure or SubFigure, optional
+            Draw into it (two rows of panels); default: a new figure.
+        title : str, optional
+            Figure title; default names what is compared.
+        """
+        from ._figures import _draw_validation  # the figures read this module
+
+        return _draw_validation(self.measured, self.predicted, title, fig)
+
     def to_dict(self) -> dict:
         """JSON-ready: the ``metrics``, and the log's ``source``, ``n_samples``, ``start`` and ``end`` [s],
         ``joints`` and ``planar`` flag (the logs themselves are written as log CSV files)."""
