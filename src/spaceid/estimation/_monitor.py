@@ -543,7 +543,7 @@ class Monitor:
         pair = self.segments[k : k + 2]
         if len(pair) < 2 or None in (pair[0].identification, pair[1].identification):
             return None
-        res = compare(pair[0].identification, pair[1].identification, where=self.where)["parameters"]
+        res = compare(pair[0].identification, pair[1].identification, where=self.where).to_dict()["parameters"]
         return {"changed": [q["name"] for q in res if abs(q["z"]) > Z_CHANGED], "parameters": res}
 
 
