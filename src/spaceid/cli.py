@@ -896,9 +896,9 @@ def _trajectory_times(traj, samples, rate, command, model):
 
 def _require_sample_memory(what, n, model):
     """Refuse ``n`` samples of ``model`` that would not fit in the available memory, before any
-    work. Simulating evaluates the regressor of every full parameter on a grid 8 times denser than
-    the samples: about 8 x 8 x (joints + 6) x (full parameters) bytes a sample (cepheus: estimate
-    32 kB, measured peak 22 kB a sample; design and identification take less)."""
+    work: a bound of 8 x 8 x (joints + 6) x (full parameters) bytes a sample (the regressor of every
+    full parameter on a grid 8 times denser than the samples; cepheus: 15 kB). Simulation, which
+    evaluates it in blocks, takes far less (cepheus: 1.5 kB a sample, measured)."""
     from ._memory import require_memory
     from .dynamics import full_parameter_names
 
