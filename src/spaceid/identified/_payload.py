@@ -269,7 +269,13 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     z = cp.Variable(len(theta))  # whitened step: t = theta + root z, so the objective is |z|^2 (times top)
     matrix = lmi + sum((root @ z)[i] * basis[i] for i in range(len(theta)))
     problem = cp.Problem(cp.Minimize(cp.sum_squares(z)), [0.5 * (matrix + matrix.T) >> margin * np.eye(len(lmi))])
-    problem.solve(solver=cp.CLARABEL, **_CLARABEL)
+    try:
+        problem.solve(solver=cp.CLARABEL, **_CLARABEL)
+    except cp.SolverError:  # the tight tolerances fail on a covariance spanning many decades: the defaults
+        try:
+            problem.solve(solver=cp.CLARABEL)
+        except cp.SolverError:
+            pass  # the status below says it failed
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         raise SpaceidError(f"payload: the consistency projection failed ({problem.status}): check the log and `link`")
     return theta + root @ z.value, float(np.linalg.norm(z.value) / np.sqrt(top))
