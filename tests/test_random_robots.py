@@ -19,7 +19,7 @@ from spaceid.estimation import identify
 from spaceid.identified import export_model, pseudo_inertia, write_export
 
 SEEDS = st.integers(0, 2**31 - 1)
-FAST = settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+FAST = settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                       HealthCheck.function_scoped_fixture])
 SLOW = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                        HealthCheck.function_scoped_fixture])
