@@ -82,6 +82,7 @@ def test_a_bag_mapping_rate_beyond_memory_names_the_key(tmp_path, truth, capsys)
     assert not (tmp_path / "result.json").exists()
 
 
+@pytest.mark.slow
 def test_simulate_memory_grows_with_the_log_only():
     """``simulate --samples 100000`` peaked at 2.1 GB for a 14 MB log: the quadrature evaluated the
     base rate at every node of the log at once. In blocks, the peak grows by a few times the log."""

@@ -86,12 +86,6 @@ def test_pipeline_on_random_robots(seed, planar, tmp_path):
     _check_pipeline(seed, planar, tmp_path)
 
 
-@FAST
-@given(seed=SEEDS, planar=st.booleans())
-def test_payload_on_random_robots(seed, planar, tmp_path):
-    _check_payload(seed, planar, tmp_path)
-
-
 @pytest.mark.slow
 @SLOW
 @given(seed=SEEDS, planar=st.booleans())
