@@ -55,7 +55,9 @@ def _model(urdf: Path, timestep: float):
     spec.option.gravity = [0.0, 0.0, 0.0]
     spec.option.timestep = timestep
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_RK4
-    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT  # no limits, no contacts
+    spec.option.disableflags |= (
+        mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
+    )  # no limits, no contacts
     spec.worldbody.first_body().add_freejoint()
     return spec.compile()
 
@@ -64,8 +66,12 @@ def _joints(m, names) -> tuple:
     """qpos and qvel addresses of the named joints."""
     ids = [mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, name) for name in names]
     if min(ids) < 0:
-        raise KeyError(f"joints missing in MuJoCo's model: {[n for n, i in zip(names, ids) if i < 0]}")
-    return np.array([m.jnt_qposadr[i] for i in ids]), np.array([m.jnt_dofadr[i] for i in ids])
+        raise KeyError(
+            f"joints missing in MuJoCo's model: {[n for n, i in zip(names, ids) if i < 0]}"
+        )
+    return np.array([m.jnt_qposadr[i] for i in ids]), np.array(
+        [m.jnt_dofadr[i] for i in ids]
+    )
 
 
 def _momentum(m, d) -> np.ndarray:
@@ -102,8 +108,16 @@ def _torque(m, d, qa, va, ref, inertia_scale, wn) -> np.ndarray:
     return inertia_scale * inertia @ accel + bias
 
 
-def fly(urdf, trajectory, times, *, base_w=(0.0, 0.0, 0.0), inertia_error=0.15, bandwidth=20.0,
-        timestep=1e-3) -> Flight:
+def fly(
+    urdf,
+    trajectory,
+    times,
+    *,
+    base_w=(0.0, 0.0, 0.0),
+    inertia_error=0.15,
+    bandwidth=20.0,
+    timestep=1e-3,
+) -> Flight:
     """Fly ``trajectory`` (anything with ``joints`` and ``evaluate(t) -> (q, qd, qdd)``) in MuJoCo.
 
     Parameters
@@ -135,14 +149,33 @@ def fly(urdf, trajectory, times, *, base_w=(0.0, 0.0, 0.0), inertia_error=0.15, 
         while step < target:
             ref = (x[0] for x in trajectory.evaluate(np.array([d.time])))
             d.qfrc_applied[:] = 0.0
-            d.qfrc_applied[va] = _torque(m, d, qa, va, tuple(ref), 1.0 - inertia_error, bandwidth)
+            d.qfrc_applied[va] = _torque(
+                m, d, qa, va, tuple(ref), 1.0 - inertia_error, bandwidth
+            )
             mujoco.mj_step(m, d)
             step += 1
-        rows.append((d.qpos[qa].copy(), d.qvel[va].copy(), d.qpos[3:7].copy(), d.qvel[3:6].copy(), _momentum(m, d)))
+        rows.append(
+            (
+                d.qpos[qa].copy(),
+                d.qvel[va].copy(),
+                d.qpos[3:7].copy(),
+                d.qvel[3:6].copy(),
+                _momentum(m, d),
+            )
+        )
     q, qd, quat, w, h = (np.array(x) for x in zip(*rows))
     scale = max(np.linalg.norm(h[0]), np.abs(h).max(), 1e-300)
     drift = float(np.abs(h - h[0]).max() / scale)
-    log = Log(times, names, q, qd, quat, w, False, {"source": f"mujoco:{Path(urdf).name}", "engine": "mujoco"})
+    log = Log(
+        times,
+        names,
+        q,
+        qd,
+        quat,
+        w,
+        False,
+        {"source": f"mujoco:{Path(urdf).name}", "engine": "mujoco"},
+    )
     return Flight(log, h, drift)
 
 
@@ -157,10 +190,18 @@ def sense(log: Log, sensors: Sensors, seed: int) -> Log:
         qd = np.full_like(log.qd, np.nan)
     else:
         qd = log.qd + sensors.joint_rate * rng.standard_normal((n, nj))
-    w = log.base_w + np.asarray(sensors.gyro_bias, float) + sensors.gyro * rng.standard_normal((n, 3))
+    w = (
+        log.base_w
+        + np.asarray(sensors.gyro_bias, float)
+        + sensors.gyro * rng.standard_normal((n, 3))
+    )
     tilt = sensors.star_tracker * rng.standard_normal((n, 3))
     quat = _times(log.base_quat, _rotation_quat(tilt))
-    meta = dict(log.meta, sensors={k: getattr(sensors, k) for k in sensors.__dataclass_fields__}, sensor_seed=seed)
+    meta = dict(
+        log.meta,
+        sensors={k: getattr(sensors, k) for k in sensors.__dataclass_fields__},
+        sensor_seed=seed,
+    )
     if sensors.joint_rate is None:
         meta.update(rates="missing", missing_rates=[f"qd_{j}" for j in log.joints])
     return replace(log, q=q, qd=qd, base_quat=quat, base_w=w, meta=meta)
@@ -175,5 +216,12 @@ def _times(a, b) -> np.ndarray:
     """Quaternion products ``a b`` (scalar first), row by row."""
     w1, x1, y1, z1 = a.T
     w2, x2, y2, z2 = b.T
-    return np.stack([w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2, w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
-                     w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2, w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2], -1)
+    return np.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ],
+        -1,
+    )
