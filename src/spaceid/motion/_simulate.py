@@ -9,6 +9,7 @@ identified model (only ``pi`` is needed) for prediction and validation.
 from __future__ import annotations
 
 import functools
+import gc
 import warnings
 from dataclasses import replace
 
@@ -41,11 +42,15 @@ many, and the memory stays bounded whatever its length."""
 
 def _in_blocks(f, t):
     """``f(t)`` of a function of each time alone, evaluated on blocks of ``POINTS`` times of ``t
-    (n,)`` and concatenated along the first axis (the same values as one call)."""
+    (n,)`` and concatenated along the first axis (the same values as one call; a tuple of arrays
+    element by element)."""
     t = np.asarray(t, float)
     if len(t) <= POINTS:
         return f(t)
-    return np.concatenate([f(t[i : i + POINTS]) for i in range(0, len(t), POINTS)])
+    parts = [f(t[i : i + POINTS]) for i in range(0, len(t), POINTS)]
+    if isinstance(parts[0], tuple):
+        return tuple(np.concatenate(p) for p in zip(*parts))
+    return np.concatenate(parts)
 
 
 def _cumulative_integral(f, times, rtol):
@@ -158,19 +163,22 @@ def simulate(
         quat = yaw_to_quat(2 * np.arctan2(quat0[3], quat0[0]) + _cumulative_integral(rate, times, rtol))
     else:
         # w0 = A(t)^-1 (R0^T h - b(t)): the locked inertia A and free momentum b depend on the
-        # joint motion only, so they are evaluated once on a dense grid (batched) and splined;
-        # the output rates are then solved exactly at the samples, so momentum holds there.
-        locked, offset = _rate_splines(param, pi, motion, times)
+        # joint motion only, so they are evaluated on a dense grid (batched) and splined, a block
+        # of the log at a time; the output rates are then solved exactly at the samples, so
+        # momentum holds there.
+        def advance(locked, offset, quat, block):
+            def rhs(t, quat):
+                h_base = quat_to_matrix(quat / np.linalg.norm(quat)).T @ momentum
+                return _quat_rate(quat, np.linalg.solve(locked(t), h_base - offset(t)))
 
-        def rhs(t, quat):
-            h_base = quat_to_matrix(quat / np.linalg.norm(quat)).T @ momentum
-            return _quat_rate(quat, np.linalg.solve(locked(t), h_base - offset(t)))
+            sol = solve_ivp(rhs, (block[0], block[-1]), quat, method="DOP853", t_eval=block, rtol=rtol, atol=1e-14)
+            if not sol.success:
+                raise SpaceidError(f"simulation failed: {sol.message}")
+            return sol.y.T
 
-        sol = solve_ivp(rhs, (times[0], times[-1]), quat0, method="DOP853", t_eval=times, rtol=rtol, atol=1e-14)
-        if not sol.success:
-            raise SpaceidError(f"simulation failed: {sol.message}")
-        quat = sol.y.T / np.linalg.norm(sol.y.T, axis=1, keepdims=True)
-    q, qd = motion(times)
+        quat = _in_spline_blocks(param, pi, motion, times, quat0, advance)
+        quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+    q, qd = _in_blocks(motion, times)
     h_base = np.einsum("nji,j->ni", quat_to_matrix(quat), momentum)
     w0 = _in_blocks(lambda k: base_rate(param, pi, q[k.astype(int)], qd[k.astype(int)], h_base[k.astype(int)]),
                     np.arange(len(times)))
@@ -193,6 +201,26 @@ def simulate(
 
 BALANCE_TOLERANCE = 1e-6
 """Largest relative momentum-balance error of a drifting simulation without a warning."""
+
+
+SPLINE_SAMPLES = 4096
+"""Output samples per block of the spatial attitude integration: the rate splines of a block span
+about 8 times as many grid points, so memory is bounded by the block whatever the log's length."""
+
+
+def _in_spline_blocks(param, pi, motion, times, y0, advance) -> np.ndarray:
+    """States ``(n, len(y0))`` at ``times``, integrated a block of :data:`SPLINE_SAMPLES` samples at a
+    time: ``advance(locked, offset, y, block)`` integrates from ``block[0]``, where the state is
+    ``y``, with that block's rate splines (:func:`_rate_splines`) and returns the states at
+    ``block``; consecutive blocks share their boundary sample."""
+    parts, y = [], np.asarray(y0, float)
+    for start in range(0, max(len(times) - 1, 1), SPLINE_SAMPLES):
+        block = times[start : start + SPLINE_SAMPLES + 1]
+        part = advance(*_rate_splines(param, pi, motion, block), y, block)
+        parts.append(part if start == 0 else part[1:])
+        y = part[-1]
+        gc.collect()  # solve_ivp's solver and its right-hand side form a cycle holding the block's splines
+    return np.concatenate(parts)
 
 
 def _rate_splines(param, pi, motion, times):
@@ -277,18 +305,21 @@ def _integrate_drifting(rhs, rate, y0, times, rtol, coulomb):
 
 def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol) -> Log:
     """:func:`simulate` with the momentum a state driven by the external torque ``terms``."""
-    locked, offset = _rate_splines(param, pi, motion, times)
-    rhs, rate = _drift_rhs(param, locked, offset, terms)
     if param.model.planar:
         y0 = [2 * np.arctan2(quat0[3], quat0[0]), momentum[2]]
     else:
         y0 = np.concatenate([quat0, momentum])
-    y = _integrate_drifting(rhs, rate, y0, times, rtol, coulomb=bool(terms.get("coulomb")))
+
+    def advance(locked, offset, y, block):
+        rhs, rate = _drift_rhs(param, locked, offset, terms)
+        return _integrate_drifting(rhs, rate, y, block, rtol, coulomb=bool(terms.get("coulomb")))
+
+    y = _in_spline_blocks(param, pi, motion, times, y0, advance)
     if param.model.planar:
         quat, h = yaw_to_quat(y[:, 0]), np.outer(y[:, 1], [0.0, 0.0, 1.0])
     else:
         quat, h = y[:, :4] / np.linalg.norm(y[:, :4], axis=1, keepdims=True), y[:, 4:]
-    q, qd = motion(times)
+    q, qd = _in_blocks(motion, times)
     rot = quat_to_matrix(quat)
     w0 = base_rate(param, pi, q, qd, np.einsum("nji,nj->ni", rot, h))
     log = Log(times, tuple(joints or param.model.joints), q, qd, quat, w0, param.model.planar, {})
