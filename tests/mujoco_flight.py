@@ -49,16 +49,18 @@ class Sensors:
     joint_rate: float | None = None
 
 
-def _model(urdf: Path, timestep: float):
-    spec = mujoco.MjSpec.from_file(str(urdf))
+def _model(path: Path, timestep: float):
+    """MuJoCo's model of a URDF (a free joint added on its root link) or of an MJCF file that has
+    its free joint already (spaceid's export)."""
+    spec = mujoco.MjSpec.from_file(str(path))
     spec.compiler.fusestatic = False
     spec.option.gravity = [0.0, 0.0, 0.0]
     spec.option.timestep = timestep
     spec.option.integrator = mujoco.mjtIntegrator.mjINT_RK4
-    spec.option.disableflags |= (
-        mujoco.mjtDisableBit.mjDSBL_CONSTRAINT
-    )  # no limits, no contacts
-    spec.worldbody.first_body().add_freejoint()
+    spec.option.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONSTRAINT  # no limits, no contacts
+    root = spec.worldbody.first_body()
+    if not any(j.type == mujoco.mjtJoint.mjJNT_FREE for j in root.joints):
+        root.add_freejoint()
     return spec.compile()
 
 
@@ -108,21 +110,14 @@ def _torque(m, d, qa, va, ref, inertia_scale, wn) -> np.ndarray:
     return inertia_scale * inertia @ accel + bias
 
 
-def fly(
-    urdf,
-    trajectory,
-    times,
-    *,
-    base_w=(0.0, 0.0, 0.0),
-    inertia_error=0.15,
-    bandwidth=20.0,
-    timestep=1e-3,
-) -> Flight:
+def fly(path, trajectory, times, *, base_w=(0.0, 0.0, 0.0), inertia_error=0.15, bandwidth=20.0,
+        timestep=1e-3) -> Flight:
     """Fly ``trajectory`` (anything with ``joints`` and ``evaluate(t) -> (q, qd, qdd)``) in MuJoCo.
 
     Parameters
     ----------
-    urdf : path
+    path : path
+        A URDF (a free joint is added on its root link) or a free-floating MJCF file.
     trajectory : FourierTrajectory
         The joints' reference; the joints start on it.
     times : array_like of shape (n,)
@@ -136,7 +131,7 @@ def fly(
     timestep : float
         MuJoCo's RK4 step [s].
     """
-    m = _model(Path(urdf), timestep)
+    m = _model(Path(path), timestep)
     d = mujoco.MjData(m)
     names = tuple(trajectory.joints)
     qa, va = _joints(m, names)
@@ -174,7 +169,7 @@ def fly(
         quat,
         w,
         False,
-        {"source": f"mujoco:{Path(urdf).name}", "engine": "mujoco"},
+        {"source": f"mujoco:{Path(path).name}", "engine": "mujoco"},
     )
     return Flight(log, h, drift)
 

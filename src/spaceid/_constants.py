@@ -42,7 +42,7 @@ DEFAULT_JOINT_TOPIC = "/joint_states"
 DEFAULT_POSE_TOPIC = "/vrpn_client_node/cepheus/pose"
 """Topic of the base's ``geometry_msgs/PoseStamped`` (``vrpn_client_ros``, rigid body ``cepheus``)."""
 
-EXPORT_FORMATS = ("urdf", "yaml")
+EXPORT_FORMATS = ("urdf", "yaml", "mjcf")
 """Output formats of :func:`spaceid.identified.write_export`."""
 
 FALSE_ALARM_RATE = 1e-5

@@ -1207,7 +1207,8 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
 @click.option("--format", "fmt", type=click.Choice(EXPORT_FORMATS), default="urdf", show_default=True,
               help="Output format: urdf (a URDF prior keeps its file but the <inertial> elements; a YAML prior is "
               "written out as URDF) or yaml (spaceid's YAML model: keeps the planar flag, reaction wheels and "
-              "declared zeros, no visuals).")
+              "declared zeros, no visuals) or mjcf (a free-floating MuJoCo model: a free joint on the base, or an air "
+              "bearing's x, y and yaw for a planar model; zero gravity; no geometry).")
 @output("File to write (never over RESULT.json or the prior).")
 def export(result, prior_src, region, fmt, output):
     """Standard inertial parameters of every body (mass, CoM, inertia) that reproduce the identified

@@ -1,6 +1,6 @@
 """The exported model as a file: URDF (the prior's own file with new ``<inertial>`` elements, or a
-URDF written from the model) or spaceid's YAML model (:func:`urdf_text`, :func:`yaml_text`,
-:func:`write_export`)."""
+URDF written from the model), spaceid's YAML model or a free-floating MuJoCo model (MJCF)
+(:func:`urdf_text`, :func:`yaml_text`, :func:`mjcf_text`, :func:`write_export`)."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ from .._errors import SpaceidError, shown
 from ..models import PRESETS, Model
 from ._export import Export, unphysical_bodies
 
-__all__ = ["FORMATS", "urdf_text", "write_export", "yaml_text"]
+__all__ = ["FORMATS", "mjcf_text", "urdf_text", "write_export", "yaml_text"]
 
 NOTE = "inertial parameters identified by spaceid export"
 
@@ -177,8 +177,8 @@ def yaml_text(export: Export, note: str = NOTE) -> str:
 
 
 def write_export(export: Export, path, *, fmt: str = "urdf", inputs=(), note: str = NOTE) -> None:
-    """Write the exported model to ``path`` atomically as ``fmt`` (``FORMATS``: :func:`urdf_text`
-    or :func:`yaml_text`), never over one of the ``inputs`` files.
+    """Write the exported model to ``path`` atomically as ``fmt`` (``FORMATS``: :func:`urdf_text`,
+    :func:`yaml_text` or :func:`mjcf_text`), never over one of the ``inputs`` files.
 
     Raises
     ------
@@ -195,8 +195,63 @@ def write_export(export: Export, path, *, fmt: str = "urdf", inputs=(), note: st
     if bad:  # checked here too: whatever reaches a file is physically consistent
         raise SpaceidError(f"{path}: not written: the bodies {', '.join(bad)} of the exported model are not "
                            "physically consistent (a mass, an inertia about the CoM or a triangle inequality)")
-    text = urdf_text(export, note) if fmt == "urdf" else yaml_text(export, note)
+    text = {"urdf": urdf_text, "yaml": yaml_text, "mjcf": mjcf_text}[fmt](export, note)
     try:
         write_text_atomic(path, text)
     except OSError as err:
         raise SpaceidError(f"{path}: cannot write ({err.strerror or err}): check the path is writable") from None
+
+
+def _mjcf_inertial(inertial, indent: str) -> str:
+    """``<inertial>`` of a body's standard parameters: mass, CoM and the inertia about the CoM in the
+    body axes (MuJoCo's ``fullinertia`` order: xx yy zz xy xz yz)."""
+    m, c, i_c = _about_com(inertial)
+    full = _vec([i_c[0, 0], i_c[1, 1], i_c[2, 2], i_c[0, 1], i_c[0, 2], i_c[1, 2]])
+    return f'{indent}<inertial pos="{_vec(c)}" mass="{_num(m)}" fullinertia="{full}"/>\n'
+
+
+def _mjcf_joint(body, indent: str) -> str:
+    kind = "slide" if body.joint_type == "prismatic" else "hinge"
+    limits = body.limits
+    span = (f' range="{_num(limits["lower"])} {_num(limits["upper"])}"'
+            if {"lower", "upper"} <= set(limits) and limits["lower"] < limits["upper"] else "")
+    return f'{indent}<joint name="{_attr(body.joint)}" type="{kind}" axis="{_vec(body.axis)}"{span}/>\n'
+
+
+def _mjcf_body(model: Model, index: int, children: dict, depth: int) -> str:
+    import pinocchio as pin
+
+    body, indent = model.bodies[index], "  " * depth
+    inner = indent + "  "
+    if body.parent < 0:
+        # the floating base: a free joint, or on an air bearing (planar) x, y and the yaw
+        joints = (f'{inner}<freejoint name="{_attr(body.name)}_free"/>\n' if not model.planar else
+                  "".join(f'{inner}<joint name="{_attr(body.name)}_{n}" type="{k}" axis="{a}"/>\n'
+                          for n, k, a in (("x", "slide", "1 0 0"), ("y", "slide", "0 1 0"), ("yaw", "hinge", "0 0 1"))))
+        head = f'{indent}<body name="{_attr(body.name)}">\n{joints}'
+    else:
+        quat = pin.Quaternion(body.rotation).coeffs()  # x y z w
+        head = (f'{indent}<body name="{_attr(body.name)}" pos="{_vec(body.translation)}" '
+                f'quat="{_vec([quat[3], quat[0], quat[1], quat[2]])}">\n{_mjcf_joint(body, inner)}')
+    nested = "".join(_mjcf_body(model, k, children, depth + 1) for k in children.get(index, []))
+    return f"{head}{_mjcf_inertial(body.inertial, inner)}{nested}{indent}</body>\n"
+
+
+def mjcf_text(export: Export, note: str = NOTE) -> str:
+    """The exported model as a free-floating MuJoCo model (MJCF).
+
+    The base carries a free joint (a planar model: two slides and a hinge about z, the air
+    bearing's degrees of freedom), gravity is zero and the integrator RK4; every body has the
+    exported inertial (mass, CoM, full inertia about the CoM) and the prior's joint placements,
+    axes and position limits (``range``). No geometry: the model is for dynamics (add visuals
+    from the URDF if wanted). A URDF compiled by MuJoCo instead fixes its root link to the world.
+    """
+    model = export.model
+    children: dict = {}
+    for k, body in enumerate(model.bodies):
+        children.setdefault(body.parent, []).append(k)
+    (root,) = children[-1]
+    return (f'<?xml version="1.0"?>\n{_comment(note)}\n<mujoco model="{_attr(model.name)}">\n'
+            '  <compiler angle="radian" autolimits="true"/>\n'
+            '  <option gravity="0 0 0" integrator="RK4"/>\n  <worldbody>\n'
+            f"{_mjcf_body(model, root, children, 2)}  </worldbody>\n</mujoco>\n")
