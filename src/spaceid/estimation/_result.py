@@ -115,6 +115,12 @@ class Identification:
             return draw_singular_values(self, ax)
         raise SpaceidError(f"plot: kind {kind!r} is not 'parameters' or 'singular_values'")
 
+    def _repr_html_(self) -> str:
+        """The identification in a notebook: setting, diagnostics and the parameter table."""
+        from ._html import identification_html
+
+        return identification_html(self)
+
     def to_dict(self) -> dict:
         """JSON-ready RESULT.json form: parameters with 95 % confidence intervals, covariance,
         conditioning, residual, settings and diagnostics (read back by :meth:`from_dict`;
