@@ -98,9 +98,14 @@ def _large(param, log, truth) -> np.ndarray:
 
 
 def _held_out_error(param, values, held, h) -> float:
-    """Largest base attitude error [rad] over the held-out flight, predicted from its joint motion."""
-    pred = simulate(param, values, hermite_motion(held.t, held.q, held.qd), held.t, h,
-                    initial_quat=held.base_quat[0])
+    """Largest base attitude error [rad] over the held-out flight, predicted from its joint motion
+    (NaN when the model cannot be simulated: the message is printed)."""
+    try:
+        pred = simulate(param, values, hermite_motion(held.t, held.q, held.qd), held.t, h,
+                        initial_quat=held.base_quat[0])
+    except spaceid.SpaceidError as err:
+        print(f"    held-out prediction: {err}")
+        return float("nan")
     return float(attitude_error_angle(pred.base_quat, held.base_quat).max())
 
 
