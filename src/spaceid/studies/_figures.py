@@ -26,7 +26,7 @@ from ..data import Log
 from ..estimation import Identification
 from ..estimation.internal import draw_parameters, draw_singular_values
 from ..identified.internal import draw_payload
-from ._validate import attitude_error_angle
+from ._validate import attitude_error_angle, validation_title
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -37,7 +37,6 @@ __all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_t
 
 # --- validation (the paper's Fig. 6) -----------------------------------------------------------
 
-_VALIDATION_TITLE = "Validation: measured base motion vs the identified model driven by the measured joint motion"
 
 
 def _check_same_motion(measured: Log, predicted: Log) -> None:
@@ -97,7 +96,7 @@ def _draw_validation(measured: Log, predicted: Log, title: str | None = None, fi
         bottom.set_ylabel(f"{residual_label} [{unit}]")
         bottom.set_xlabel("time $t$ [s]")
     figure_legend(fig, list(axes.flat))
-    fig.suptitle(title or _VALIDATION_TITLE)
+    fig.suptitle(title or validation_title(predicted))
     return fig
 
 
