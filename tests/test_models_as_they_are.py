@@ -13,8 +13,7 @@ from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Identification
 from spaceid.identified import identified_model
 from spaceid.models import load_model
-from spaceid.motion import FourierTrajectory, simulate
-from spaceid.motion import _simulate
+from spaceid.motion import FourierTrajectory, _simulate, simulate
 from spaceid.studies import predict, predictor, validate
 
 pytestmark = pytest.mark.filterwarnings("ignore::UserWarning")

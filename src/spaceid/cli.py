@@ -614,7 +614,7 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
     standard deviations are recorded in the trajectory."""
-    from .motion import design_excitation
+    from .motion import bound_summary, design_excitation
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
@@ -636,15 +636,13 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     res.trajectory.save(output)
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}, {res.n_starts} starts, stopped: "
               f"{res.trajectory.meta['stop']}); trajectory written to {shown_name(output)}")
-    rel = {k: v for k, v in res.trajectory.meta.get("crb_relative_std", {}).items() if v is not None}
     if payload_link is not None:
         bound = res.trajectory.meta.get("payload_crb_std")
         if bound:
             err.print("predicted payload CRB std: " + ", ".join(f"{k} {v:.3g}" for k, v in bound.items()),
                       highlight=False)
-    elif rel:
-        worst = max(rel, key=rel.get)
-        err.print(f"predicted CRB: worst relative std {100 * rel[worst]:.3g} % ({worst})", highlight=False)
+    elif bound_summary(res.trajectory.meta):
+        err.print(bound_summary(res.trajectory.meta), highlight=False)
 
 
 @app.command(short_help="Free-floating motion for a prescribed joint motion, as a log CSV.")
