@@ -156,8 +156,9 @@ def simulate(
     ------
     SpaceidError
         ``pi`` gives a locked inertia (the base rate to angular momentum map at fixed joints) that
-        is not positive definite somewhere along the motion: checked, vectorised, on the
-        output times and a grid 8 times denser before anything is integrated; the message names
+        is not positive definite somewhere along the motion: checked, vectorised, at the output
+        times before anything is integrated and on a grid 8 times denser before each block of
+        the attitude integration; the message names
         the time, the eigenvalue's direction in base axes and the parameters that make it
         negative. Or the attitude integration fails or exceeds :data:`MAX_EVALUATIONS`.
     """
@@ -167,9 +168,12 @@ def simulate(
     momentum = np.asarray(momentum, float)
     quat0 = np.array([1.0, 0, 0, 0]) if initial_quat is None else np.asarray(initial_quat, float)
     terms = drift_terms(drift, param.model.planar, where="`drift`", physical=False)  # estimates may be < 0
-    _in_blocks(lambda t: _check_locked_inertia(param, pi, motion, t, where), _grid(times))  # before integrating
+    # before integrating: at the samples here (planar: on the denser grid too, a 1 x 1 inertia), and
+    # on each block's spline grid as it is built (the pieces are evaluated there anyway)
+    check = _grid(times) if param.model.planar else times
+    _in_blocks(lambda t: _check_locked_inertia(param, pi, motion, t, where), check)
     if any(np.any(v) for v in terms.values()):
-        return _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol)
+        return _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol, where)
 
     if param.model.planar:
         # the base rate does not depend on the yaw: the yaw is a quadrature, done vectorised
@@ -187,7 +191,7 @@ def simulate(
 
             return _solve(rhs, (block[0], block[-1]), quat, block, rtol).y.T
 
-        quat = _in_spline_blocks(param, pi, motion, times, quat0, advance)
+        quat = _in_spline_blocks(param, pi, motion, times, quat0, advance, where)
         quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     q, qd = _in_blocks(motion, times)
     h_base = np.einsum("nji,j->ni", quat_to_matrix(quat), momentum)
@@ -219,7 +223,7 @@ SPLINE_SAMPLES = 4096
 about 8 times as many grid points, so memory is bounded by the block whatever the log's length."""
 
 
-def _in_spline_blocks(param, pi, motion, times, y0, advance) -> np.ndarray:
+def _in_spline_blocks(param, pi, motion, times, y0, advance, where) -> np.ndarray:
     """States ``(n, len(y0))`` at ``times``, integrated a block of :data:`SPLINE_SAMPLES` samples at a
     time: ``advance(locked, offset, y, block)`` integrates from ``block[0]``, where the state is
     ``y``, with that block's rate splines (:func:`_rate_splines`) and returns the states at
@@ -227,7 +231,7 @@ def _in_spline_blocks(param, pi, motion, times, y0, advance) -> np.ndarray:
     parts, y = [], np.asarray(y0, float)
     for start in range(0, max(len(times) - 1, 1), SPLINE_SAMPLES):
         block = times[start : start + SPLINE_SAMPLES + 1]
-        part = advance(*_rate_splines(param, pi, motion, block), y, block)
+        part = advance(*_rate_splines(param, pi, motion, block, where), y, block)
         parts.append(part if start == 0 else part[1:])
         y = part[-1]
         gc.collect()  # solve_ivp's solver and its right-hand side form a cycle holding the block's splines
@@ -240,14 +244,16 @@ def _grid(times):
     return np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
 
 
-def _rate_splines(param, pi, motion, times):
+def _rate_splines(param, pi, motion, times, where):
     """Splines of the locked inertia ``(rows, n_axes)`` and free momentum ``(rows,)`` of the joint
-    motion on :func:`_grid` (the output times among its nodes): the base rate for a momentum
-    ``h_base`` in base axes is ``locked^-1 (h_base[rows] - offset)``."""
+    motion on :func:`_grid` (the output times among its nodes), the inertia refused where it is not
+    positive definite (:func:`_refuse_indefinite`): the base rate for a momentum ``h_base`` in base
+    axes is ``locked^-1 (h_base[rows] - offset)``."""
     grid = _grid(times)
 
     def pieces(t):  # (n, rows, 1 + axes): the free momentum, then the locked inertia's columns
         free, unit, _ = rate_pieces(param, *motion(t), functools.partial(param.momentum, pi=pi))
+        _refuse_indefinite(param, pi, motion, t, np.stack(unit, -1), where)
         return np.stack([free, *unit], -1)
 
     both = _in_blocks(pieces, grid)
@@ -394,7 +400,7 @@ def _integrate_drifting(rhs, rate, y0, times, rtol, coulomb):
     return np.concatenate(out)
 
 
-def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol) -> Log:
+def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol, where) -> Log:
     """:func:`simulate` with the momentum a state driven by the external torque ``terms``."""
     if param.model.planar:
         y0 = [2 * np.arctan2(quat0[3], quat0[0]), momentum[2]]
@@ -405,7 +411,7 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
         rhs, rate = _drift_rhs(param, locked, offset, terms)
         return _integrate_drifting(rhs, rate, y, block, rtol, coulomb=bool(terms.get("coulomb")))
 
-    y = _in_spline_blocks(param, pi, motion, times, y0, advance)
+    y = _in_spline_blocks(param, pi, motion, times, y0, advance, where)
     if param.model.planar:
         quat, h = yaw_to_quat(y[:, 0]), np.outer(y[:, 1], [0.0, 0.0, 1.0])
     else:
