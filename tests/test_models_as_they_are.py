@@ -109,6 +109,9 @@ def test_predict_and_validate_a_model_as_it_is(tmp_path):
     check = validate(model, log, momentum=[0, 0, 0.05])
     assert check.metrics["base_w_nrms"] < 1e-9
     assert check.to_dict()["predicted_by"].startswith("model cepheus")
+    fig = check.plot()
+    assert "model cepheus as it is" in fig._suptitle.get_text()
+    assert "model cepheus (predicted)" in fig.legends[0].get_texts()[1].get_text()
     assert predictor(_result(param, param.true_values, [0, 0, 0.05])).kind == "identification"
     with pytest.raises(spaceid.SpaceidError, match=r"^`momentum`: cepheus is a model"):
         predict("cepheus", log.t, log.q, log.qd)

@@ -26,7 +26,7 @@ from ..data import Log
 from ..estimation import Identification
 from ..estimation.internal import draw_parameters, draw_singular_values
 from ..identified.internal import draw_payload
-from ._validate import attitude_error_angle, validation_title
+from ._validate import attitude_error_angle, predicted_label, validation_title
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -86,7 +86,7 @@ def _draw_validation(measured: Log, predicted: Log, title: str | None = None, fi
     for c, (panel_title, symbol, unit, y_meas, y_pred, residual, residual_label) in enumerate(signals):
         top, bottom = axes[0, c], axes[1, c]
         top.plot(measured.t, y_meas, color=COLOR_MEASURED, label="measured", **marker)
-        top.plot(predicted.t, y_pred, color=COLOR_MODEL, linestyle="--", label="identified model (predicted)")
+        top.plot(predicted.t, y_pred, color=COLOR_MODEL, linestyle="--", label=predicted_label(predicted))
         top.set_title(panel_title, loc="left")
         top.set_ylabel(f"{symbol} [{unit}]")
         top.tick_params(labelbottom=False)

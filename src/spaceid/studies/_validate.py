@@ -238,13 +238,26 @@ class Validation:
                 "planar": bool(self.measured.planar)}
 
 
+def _model_source(predicted: Log) -> str | None:
+    """The model a predicted log came from as it is (``meta["predicted_by"]``), None for an identification's."""
+    by = predicted.meta.get("predicted_by", "")
+    return Path(by.split(" as it is")[0].removeprefix("model ")).name if by.startswith("model ") else None
+
+
 def validation_title(predicted: Log) -> str:
     """The validation figure's default title: what predicted (``predicted.meta["predicted_by"]``,
     :attr:`Predictor.label`) against the measured motion."""
-    by = predicted.meta.get("predicted_by", "")
-    if by.startswith("model "):
-        return f"Validation: measured base motion vs the {by},\ndriven by the measured joint motion"
+    model = _model_source(predicted)
+    if model is not None:
+        return (f"Validation: measured base motion vs model {model} as it is (its standard parameters,\n"
+                "not identified), driven by the measured joint motion")
     return "Validation: measured base motion vs the identified model driven by the measured joint motion"
+
+
+def predicted_label(predicted: Log) -> str:
+    """The legend entry of the predicted motion: the identified model's, or the model's as it is."""
+    model = _model_source(predicted)
+    return "identified model (predicted)" if model is None else f"model {model} (predicted)"
 
 
 @deprecated_alias(old="ident", new="result")
