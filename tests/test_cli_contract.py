@@ -296,7 +296,7 @@ def test_any_numerical_failure_names_the_inputs(work, capsys, monkeypatch):
     monkeypatch.setattr(spaceid.studies, "validate", singular)
     result, log = work / "result.json", work / "log.csv"
     _refused(capsys, ["validate", result, log, "--momentum", MOMENTUM, "--out", work / "v"],
-             f"error: numerical failure on RESULT.json {result}, LOG {log} (Singular matrix): the data are too "
+             f"error: numerical failure on RESULT.json|MODEL {result}, LOG {log} (Singular matrix): the data are too "
              "ill-conditioned for this computation: check their excitation, noise and units", work)
 
 

@@ -6,6 +6,7 @@ wall-clock assertions: timings live in benchmarks/bench_design.py,
 benchmarks/bench_design_spatial.py and benchmarks/bench_design_noise.py."""
 
 import json
+import re
 import time
 
 import numpy as np
@@ -19,7 +20,7 @@ from spaceid.cli import main
 from spaceid.motion._design import CRITERIA, optimize_excitation, design_excitation, whitened_regressor
 from spaceid.motion._design_problem import _set_up_problem
 from spaceid.motion._design_search import _linearized_surrogate
-from spaceid.estimation import Noise, equation_covariance, signal_jacobian, signal_sigma
+from spaceid.estimation import Noise, equation_covariance, momentum_scale, signal_jacobian, signal_sigma
 from spaceid.dynamics import minimal_parameters
 from spaceid.dynamics import base_rate, excitation_regressor
 from spaceid.motion._trajectory import (
@@ -496,6 +497,10 @@ def test_noise_and_predicted_bound_are_recorded(cepheus, noisy_designs):
         rel = np.sqrt(np.diag(whitened_regressor(cepheus, pi, H, NOISE).crb(q, qd)))
         np.testing.assert_allclose(list(meta["crb_relative_std"].values()), rel, rtol=1e-9)
         np.testing.assert_allclose(list(meta["crb_std"].values()), rel * np.abs(pi), rtol=1e-9)
+        w0 = excitation_regressor(cepheus, pi, H).with_rate(q, qd)[1]  # the nominal base rate
+        scale = momentum_scale(cepheus, q, qd, w0)
+        assert meta["momentum_scale"] == scale.to_dict()
+        np.testing.assert_allclose(list(meta["crb_scaled_std"].values()), rel * np.abs(pi) * scale.per_unit, rtol=1e-9)
     json.dumps(result.to_dict())  # JSON-ready
 
 
@@ -524,7 +529,9 @@ def test_cli_design_with_noise(tmp_path, capsys):
     assert not (tmp_path / "none.json").exists()
     noise = ["--noise-angle", "1e-4", "--noise-rate", "1e-4", "--noise-base-rate", "1e-4"]
     assert main([*args, *noise, "-o", str(tmp_path / "traj.json")]) == 0
-    assert "predicted CRB: worst relative std" in capsys.readouterr().err
+    line = " ".join(capsys.readouterr().err.split())  # rich wraps at the terminal's width
+    assert re.search(r"predicted CRB: worst std \S+ % of the momentum scale \(pi\d\); worst relative std of "
+                     r"the 8 large parameters \S+ % \(pi\d\)", line), line
     meta = load_trajectory(tmp_path / "traj.json").meta
     assert meta["criterion"] == "crb" and meta["noise"] == NOISE.to_dict()
 

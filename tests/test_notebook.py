@@ -43,3 +43,6 @@ def test_identification_shows_its_diagnostics_and_every_parameter():
         row = cells.index(name)
         assert float(cells[row + 1]) == float(f"{value:.6g}")
     assert "scaled condition number" in cells and "drift test" in cells
+    for name, scaled in zip(result.names, result.scaled_std):  # std as the momentum it causes
+        assert float(cells[cells.index(name) + 3]) == float(f"{100 * scaled:.3g}")
+    assert "std [% H]" in result._repr_html_()

@@ -614,7 +614,7 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
     standard deviations are recorded in the trajectory."""
-    from .motion import design_excitation
+    from .motion import bound_summary, design_excitation
 
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
@@ -636,15 +636,13 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
     res.trajectory.save(output)
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}, {res.n_starts} starts, stopped: "
               f"{res.trajectory.meta['stop']}); trajectory written to {shown_name(output)}")
-    rel = {k: v for k, v in res.trajectory.meta.get("crb_relative_std", {}).items() if v is not None}
     if payload_link is not None:
         bound = res.trajectory.meta.get("payload_crb_std")
         if bound:
             err.print("predicted payload CRB std: " + ", ".join(f"{k} {v:.3g}" for k, v in bound.items()),
                       highlight=False)
-    elif rel:
-        worst = max(rel, key=rel.get)
-        err.print(f"predicted CRB: worst relative std {100 * rel[worst]:.3g} % ({worst})", highlight=False)
+    elif bound_summary(res.trajectory.meta):
+        err.print(bound_summary(res.trajectory.meta), highlight=False)
 
 
 @app.command(short_help="Free-floating motion for a prescribed joint motion, as a log CSV.")
@@ -818,9 +816,10 @@ def _identify_com(ident, log):
     return dataclasses.replace(ident, com=com)
 
 
-@app.command(short_help="Base motion of an identified model for a joint motion.")
-@click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
+@app.command(short_help="Base motion of an identified model, or of a model as it is, for a joint motion.")
+@click.argument("result", metavar="RESULT.json|MODEL", type=click.Path(path_type=Path))
 @click.argument("trajectory", metavar="TRAJ", type=click.Path(path_type=Path))
+@PLANAR
 @MOMENTUM
 @click.option("--samples", type=SAMPLES, help="TRAJ from 'design': N samples equally spaced over [0, tf] [default: "
               "the design's N].")
@@ -830,19 +829,19 @@ def _identify_com(ident, log):
 @drift_option("Drift terms replacing those of RESULT.json (used by default): torque=TAU, viscous=C, coulomb=MU, "
               "as for 'spaceid simulate'.", values=True)
 @output("Predicted log CSV to write.")
-def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_quat, drift, output):
-    """Base motion of an identified model for a joint motion TRAJ: a joint-trajectory CSV
-    (columns t, q_J, qd_J) or a trajectory from 'design' (JSON, or a named one such as
+def predict(result, trajectory, planar, momentum, samples, rate, initial_yaw, initial_quat, drift, output):
+    """Base motion of an identified model (RESULT.json) or of a model as it is (MODEL: a preset,
+    URDF or YAML file, with its standard parameters) for a joint motion TRAJ: a joint-trajectory
+    CSV (columns t, q_J, qd_J) or a trajectory from 'design' (JSON, or a named one such as
     paper-table2), sampled like 'simulate' does."""
     from .data import read_joint_trajectory, write_log
     from .data import yaw_to_quat
-    from .estimation import load_result
     from .studies import predict as run
 
-    ident = load_result(result)
-    h = _momentum(momentum, ident.planar)
-    terms = _drift(drift, ident.planar, values=True)
-    model = _result_model(ident)
+    source = _predictor(result, planar)
+    model = source.param.model
+    h = _momentum(momentum, model.planar)
+    terms = _drift(drift, model.planar, values=True)
     joints = model.joints
     if trajectory.suffix.lower() == ".csv":
         if samples is not None or rate is not None:
@@ -866,9 +865,21 @@ def predict(result, trajectory, momentum, samples, rate, initial_yaw, initial_qu
             raise SpaceidError(f"--initial-quat: expected a unit quaternion w,x,y,z, got '{initial_quat}'")
     else:
         quat0 = yaw_to_quat(initial_yaw or 0.0)
-    log = run(ident, t, q, qd, momentum=h, initial_quat=quat0, where=str(result), drift=terms)
+    log = run(source, t, q, qd, momentum=h, initial_quat=quat0, drift=terms)
     write_log(output, log)
-    err.print(f"{log.n_samples} predicted samples written to {shown_name(output)}")
+    err.print(f"{log.n_samples} predicted samples written to {shown_name(output)} (by the {source.label})",
+              highlight=False)
+
+
+def _predictor(result, planar):
+    """``predict``/``validate``'s RESULT.json|MODEL as a :class:`spaceid.studies.Predictor`; --planar
+    is for a model (a result records its mode)."""
+    from .studies import predictor
+
+    source = predictor(result, planar=planar, where=str(result))
+    if source.kind == "identification" and planar is not None:
+        raise SpaceidError(f"--planar/--spatial: {result} is a result, which records its mode: drop the option")
+    return source
 
 
 def _trajectory_times(traj, samples, rate, command, model):
@@ -906,9 +917,10 @@ def _require_sample_memory(what, n, model):
     require_memory(float(n) * per_sample, what, "give fewer samples" + (" or a lower --rate" if "rate" in what else ""))
 
 
-@app.command(short_help="Re-simulate an identified model against a log: metrics and plots.")
-@click.argument("result", metavar="RESULT.json", type=click.Path(path_type=Path))
+@app.command(short_help="Re-simulate an identified model, or a model as it is, against a log: metrics and plots.")
+@click.argument("result", metavar="RESULT.json|MODEL", type=click.Path(path_type=Path))
 @click.argument("log_path", metavar="LOG", type=click.Path(path_type=Path))
+@PLANAR
 @MOMENTUM
 @drift_option("Drift terms replacing those of RESULT.json (used by default): torque=TAU, viscous=C, coulomb=MU, "
               "as for 'spaceid simulate'; --momentum is the momentum at the log's first sample.", values=True)
@@ -921,32 +933,33 @@ def _require_sample_memory(what, n, model):
 @click.option("-o", "--output", cls=_Deprecated, instead="--out DIR (-o/--output names a file, --out a folder)",
               into="folder")
 @OVERWRITE
-def validate(result, log_path, momentum, drift, torques, horizon, folder, overwrite, reading):
-    """Re-simulate an identified model against a measured log: metrics and Fig. 6 plots."""
+def validate(result, log_path, planar, momentum, drift, torques, horizon, folder, overwrite, reading):
+    """Re-simulate an identified model (RESULT.json) or a model as it is (MODEL: a preset, URDF or
+    YAML file, with its standard parameters) against a measured log: metrics and Fig. 6 plots."""
     if horizon is not None and not torques:
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
     from .studies import plot_validation
     from .data import write_json, write_log
-    from .estimation import load_result
     from .studies import metric_label
     from .studies import validate as run
 
-    ident = load_result(result)
-    h = _momentum(momentum, ident.planar)
-    terms = _drift(drift, ident.planar, values=True)
-    from .models import load_model
-
-    model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
+    source = _predictor(result, planar)
+    if torques and source.identification is None:
+        raise SpaceidError(f"--torques: {result} is a model; the torque-level validation takes a RESULT.json")
+    ident, model = source.identification, source.param.model  # its wheels are exempt from the degrees check
+    h = _momentum(momentum, model.planar)
+    terms = _drift(drift, model.planar, values=True)
     log = _measured_log(model, log_path, reading)
     with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
-        check = run(ident, log, momentum=h, where=str(result), drift=terms)
+        check = run(source, log, momentum=h, where=str(result), drift=terms)
     predicted, metrics = check.predicted, check.metrics
     with _report_folder(folder, overwrite) as tmp:
         write_log(tmp / "predicted.csv", predicted)
-        write_json(tmp / "metrics.json", metrics)
+        write_json(tmp / "metrics.json", {**metrics, "predicted_by": check.predicted_by})
         plot_validation(log, predicted, tmp / "validation.png")
         if torques:
             torque_metrics = _validate_torques(ident, log, h, horizon, tmp, str(result))
+    out.print(f"predicted by the {check.predicted_by}", highlight=False)
     for key, value in metrics.items():
         out.print(f"{metric_label(key)} = {value:.4g}", highlight=False)
     if torques:
@@ -1478,13 +1491,6 @@ def _print_event(event):
     out.print(f"change {event.index} at t = {event.time:.6g} s{lead} (detected at {event.detected_at:.6g} s, "
               f"{event.delay} samples; statistic {event.statistic:.4g} > {event.threshold:.4g}); changed: {changed}",
               highlight=False)
-
-
-def _result_model(ident):
-    """The model an identification was made on (its joints, wheels and parameters)."""
-    from .models import load_model
-
-    return load_model(ident.model, planar=ident.planar)
 
 
 def main(argv=None) -> int:

@@ -43,12 +43,16 @@ def identification_html(result) -> str:
             f"samples, estimator <code>{escape(result.estimator)}</code>")
     diag = "".join(f'<tr><td>{escape(k)}</td><td{" class=warn" if w else ""} style="text-align:left">'
                    f"{escape(str(v))}</td></tr>" for k, v, w in _diagnostic_rows(result))
-    rel = np.abs(result.std) / np.maximum(np.abs(result.values), 1e-300)
+    # std as the momentum it causes (near-zero parameters do not dominate; docs/theory/momentum-scale.md),
+    # relative to the value for results written before the scale
+    scaled = result.scale is not None
+    rel = result.scaled_std if scaled else np.abs(result.std) / np.maximum(np.abs(result.values), 1e-300)
     rows = "".join(f"<tr><td>{escape(n)}</td><td>{v:.6g}</td><td>{s:.3g}</td><td>{100 * r:.3g}</td>"
                    f"<td>{escape(u)}</td></tr>"
                    for n, v, s, r, u in zip(result.names, result.values, result.std, rel,
                                             result.units or [""] * len(result.values)))  # fmt: skip
     table = ("<div style='max-height:24em;overflow:auto'><table><thead><tr><th>parameter</th><th>value</th>"
-             f"<th>std</th><th>std [%]</th><th>unit</th></tr></thead><tbody>{rows}</tbody></table></div>")
+             f"<th>std</th><th>{'std [% H]' if scaled else 'std [%]'}</th><th>unit</th></tr></thead><tbody>{rows}"
+             "</tbody></table></div>")
     return (f"{_STYLE}<div class='spaceid-id'><p>{head}</p><table>{diag}</table>"
             f"<details open><summary>parameters</summary>{table}</details></div>")

@@ -33,6 +33,7 @@ from ._linalg import _column_scale, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
 from ._residuals import drift_test
 from ._result import Identification
+from ._scales import log_momentum_scale
 from ._stream import check_chunk, streamed_covariance, streamed_estimate, streamed_ols_factor
 from ._uncertainty import _reported_covariance
 
@@ -457,5 +458,5 @@ def identify(
         condition_number=float(s[0] / s[-1]) if s[-1] > 0 else np.inf, singular_values=s, residual_rms=fit.rms,
         n_samples=log.n_samples, estimator=estimator, momentum=h, model=param.model.source or param.model.name,
         planar=param.model.planar, settings=settings, units=param.units, drift=terms, momentum_std=h_std,
-        diagnostics=diagnostics,
+        diagnostics=diagnostics, scale=log_momentum_scale(param, log),
     )

@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._errors import SpaceidError
-from .._figure_style import (COLOR_ANCHOR, COLOR_MEASURED, COLOR_REFERENCE, COLOR_TRUE, new_axes, figure_legend,
-                             styled, tex_name, tex_unit)
+from .._figure_style import (COLOR_ANCHOR, COLOR_MEASURED, COLOR_MODEL, COLOR_REFERENCE, COLOR_TRUE, figure_legend,
+                             new_axes, new_figure, styled, tex_name, tex_unit)
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -67,12 +67,24 @@ def _percent_errors(ident: Identification, true):
     return signed, 200 * rel_std, r"signed error $(\hat\pi_i - \pi_i)\,/\,|\pi_i|$ [%]"
 
 
+MANY = 40
+"""Above this many parameters the figure ranks them (:func:`_draw_ranked`) instead of giving each a
+tick: a per-parameter axis grows with the count (11,175 pixels at 120) and is unreadable."""
+LABELLED = 8
+"""Parameters named on a ranked figure: the worst this many."""
+RANKED_SIZE = (8.0, 6.2)
+"""Size [in] of a ranked figure, whatever the number of parameters (1200 x 930 pixels at 150 dpi)."""
+
+
 @styled
 def draw_parameters(ident: Identification, true=None, reference=None, reference_label="paper", ax=None) -> Figure:
     """The figure of :func:`spaceid.studies.plot_parameters`, on ``ax`` when given (the legend then on
-    ``ax``), else on a new figure (the legend below the axes)."""
+    ``ax``), else on a new figure (the legend below the axes). Above :data:`MANY` parameters, the
+    ranked figure of :func:`_draw_ranked` (``reference`` is not drawn there)."""
     true = per_parameter(true, ident, "`true`")
     reference = per_parameter(reference, ident, "`reference`")
+    if len(ident.names) > MANY:
+        return _draw_ranked(ident, true, ax)
     units = _units(ident)
     per_tick = units is not None and len(set(units)) > 1  # else one unit for the axis label
     anchored = _anchored(ident)
@@ -132,3 +144,80 @@ def draw_singular_values(ident: Identification, ax=None) -> Figure:
     ax.set_title(rf"Singular values of the stacked regressor $\hat Y$ (N = {ident.n_samples}):" "\n"
                  rf"cond$(\hat Y) = \sigma_1/\sigma_k$ = {ident.condition_number:.4g}")  # fmt: skip
     return fig
+
+
+def _mark_worst(ax, x, y, names, order, unit: str, corner: str) -> None:
+    """Mark the points ``order[:LABELLED]`` (the worst first) and list their names and values in a
+    box at ``corner`` ("upper right", ...): labels beside crowded points would overlap."""
+    worst = order[:LABELLED]
+    ax.plot(x[worst], y[worst], "o", markersize=5, markerfacecolor="none", markeredgecolor=COLOR_MODEL,
+            label=f"the worst {len(worst)}")  # fmt: skip
+    lines = [f"{tex_name(names[i])}: {y[i]:.3g}{unit}" for i in worst]
+    top, right = corner.startswith("upper"), corner.endswith("right")
+    ax.text(0.99 if right else 0.01, 0.97 if top else 0.03, "worst\n" + "\n".join(lines), transform=ax.transAxes,
+            ha="right" if right else "left", va="top" if top else "bottom", fontsize=7, color=COLOR_MODEL,
+            bbox={"boxstyle": "round", "facecolor": "white", "edgecolor": "0.8", "alpha": 0.9})  # fmt: skip
+
+
+def _draw_ranked(ident: Identification, true, ax) -> Figure:
+    """Many parameters ranked, at a fixed size: with ``true``, their z-scores ``(estimate - true) /
+    std`` sorted (the 2-sigma band marked) over their errors as the momentum they cause (a fraction of
+    the momentum scale, :class:`~spaceid.estimation.MomentumScale`), sorted; without, the standard
+    deviations so scaled (relative to the estimate for results without a scale). The worst
+    :data:`LABELLED` are named."""
+    free = np.flatnonzero(~_anchored(ident) & (ident.std > 0))
+    names = list(ident.names)
+    panels = 2 if true is not None else 1
+    if ax is not None:
+        fig, axes = ax.figure, [ax]
+        panels = 1
+    else:
+        fig = new_figure(RANKED_SIZE if panels == 2 else (RANKED_SIZE[0], RANKED_SIZE[1] / 2 + 0.4))
+        axes = list(np.atleast_1d(fig.subplots(panels, 1)))
+    k = len(names)
+    title = f"{ident.estimator.upper()} estimates of the {k} minimal parameters (N = {ident.n_samples} samples, " \
+            f"cond = {ident.condition_number:.4g}), ranked"
+    if true is not None:
+        z = (ident.values[free] - true[free]) / ident.std[free]
+        order = np.argsort(z)
+        rank = np.arange(1, len(z) + 1)
+        top = axes[0]
+        top.axhspan(-2, 2, color=COLOR_TRUE, alpha=0.12, label=r"$|z| \leq 2$")
+        top.plot(rank, z[order], "o", color=COLOR_MEASURED, markersize=3,
+                 label=r"$z = (\hat\pi_i - \pi_i)\,/\,\sigma_i$, sorted")  # fmt: skip
+        worst = np.argsort(-np.abs(z[order]))
+        _mark_worst(top, rank, z[order], [names[i] for i in free[order]], worst, "", "lower right")
+        within = np.mean(np.abs(z) <= 2)
+        top.set_ylabel("z-score [-]")
+        top.set_xlabel(f"rank of the {len(z)} estimated parameters (anchored ones left out)")
+        top.set_title(f"{title}\n{100 * within:.0f} % within 2 sigma, max |z| {np.abs(z).max():.3g}", loc="left")
+        top.legend(loc="upper left")
+    if ax is not None and true is not None:
+        return fig
+    bottom = axes[-1]
+    values, label = _ranked_sizes(ident, true, free)
+    order = np.argsort(-values)
+    rank = np.arange(1, len(values) + 1)
+    bottom.semilogy(rank, values[order], "o", color=COLOR_MEASURED, markersize=3, label=label)
+    _mark_worst(bottom, rank, values[order], [names[i] for i in free[order]], np.arange(len(values)), " %",
+                "upper right")
+    bottom.set_xlabel(f"rank of the {len(values)} estimated parameters, largest first")
+    bottom.set_ylabel(label.split(":")[0])
+    if true is None:
+        bottom.set_title(title, loc="left")
+    bottom.legend(loc="lower left")
+    return fig
+
+
+def _ranked_sizes(ident: Identification, true, free) -> tuple:
+    """``(values, label)`` of the lower ranked panel: errors (with ``true``) or 2-sigma half-widths,
+    as the momentum they cause over the log (percent of the momentum scale), or for results without a
+    scale relative to the estimate."""
+    size = np.abs(ident.values - true) if true is not None else 2 * ident.std
+    what = "|error|" if true is not None else r"2$\sigma$"
+    if ident.scale is not None:
+        label = f"{what} as momentum [% of the scale]: " r"$e_i\,r_i / H$, sorted"
+        return 100 * ident.scale.scaled(size)[free], label
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = 100 * size[free] / np.abs(ident.values[free])
+    return np.where(np.isfinite(rel), rel, np.nan), f"{what} relative to the estimate [%]: sorted"

@@ -12,6 +12,7 @@ from .._errors import SpaceidError
 from ..data import read_json
 from ._diagnostics import Diagnostics
 from ._drift import drift_terms
+from ._scales import MomentumScale
 
 __all__ = ["Comparison", "Identification", "compare", "load_result"]
 
@@ -59,6 +60,9 @@ class Identification:
         How well the data agreed with the model: ``chi2_dof``, the residual tests, the drift
         test, the plausibility of the estimates, how the covariance was obtained
         (:class:`~spaceid.estimation.Diagnostics`).
+    scale : MomentumScale or None
+        The momentum scale of the log (:func:`~spaceid.estimation.log_momentum_scale`): errors
+        and standard deviations as the momentum they cause; None for results written before it.
     """
 
     names: tuple
@@ -80,6 +84,12 @@ class Identification:
     com: dict | None = None
     momentum_std: np.ndarray | None = None
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    scale: MomentumScale | None = None
+
+    @property
+    def scaled_std(self) -> np.ndarray | None:
+        """``std`` as fractions of the momentum scale (:attr:`scale`), shape ``(k,)``; None without it."""
+        return None if self.scale is None else self.scale.scaled(self.std)
 
     def drift_terms(self) -> dict:
         """The drift coefficients as :func:`spaceid.motion.simulate` takes them (empty without drift)."""
@@ -133,9 +143,11 @@ class Identification:
             **({"momentum_std": np.asarray(self.momentum_std).tolist()} if self.momentum_std is not None else {}),
             "parameters": [
                 {"name": n, "definition": d, "value": float(v), "std": float(s),
-                 "ci95": [float(v - Z95 * s), float(v + Z95 * s)], **({"unit": self.units[i]} if self.units else {})}
+                 "ci95": [float(v - Z95 * s), float(v + Z95 * s)], **({"unit": self.units[i]} if self.units else {}),
+                 **({"scaled_std": float(self.scaled_std[i])} if self.scale is not None else {})}
                 for i, (n, d, v, s) in enumerate(zip(self.names, self.definitions, self.values, self.std))
             ],
+            **({"momentum_scale": self.scale.to_dict()} if self.scale is not None else {}),
             "drift": [dict(d) for d in self.drift],
             "covariance": self.cov.tolist(),
             "condition_number": self.condition_number,
@@ -184,6 +196,7 @@ class Identification:
                 data.get("com"),
                 None if h_std is None else np.asarray(h_std, float).reshape(3),
                 Diagnostics.from_dict(diagnostics),
+                MomentumScale.from_dict(data["momentum_scale"]) if "momentum_scale" in data else None,
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "

@@ -33,7 +33,8 @@ from threadpoolctl import threadpool_limits
 
 from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
-from ..estimation import Noise
+from ..dynamics import excitation_regressor
+from ..estimation import LARGE_SHARE, Noise, momentum_scale
 from ..models import INERTIAL_NAMES
 from ._criteria import CRITERIA, _criterion_named, whitened_regressor
 from ._design_problem import (
@@ -48,7 +49,7 @@ from ._design_problem import (
 from ._design_search import _METHODS, _choose_method, _multistart_search
 from ._trajectory import BOUNDARY_FIELDS, FourierTrajectory, sample_times
 
-__all__ = ["DesignResult", "optimize_excitation", "design_excitation"]
+__all__ = ["DesignResult", "bound_summary", "optimize_excitation", "design_excitation"]
 
 
 @dataclass(frozen=True)
@@ -361,8 +362,10 @@ def design_excitation(param, *, duration, harmonics, samples, momentum, seed=0, 
     noise : Noise, optional
         Measurement noise. When given (not all zero), the trajectory's ``meta`` also records
         it and the predicted Cramer-Rao standard deviation of every parameter, absolute
-        (``crb_std``) and relative to its nominal value (``crb_relative_std``, None where
-        that is zero), whatever the criterion.
+        (``crb_std``), relative to its nominal value (``crb_relative_std``, None where
+        that is zero) and as the momentum it causes, a fraction of the motion's momentum scale
+        (``crb_scaled_std``; the scale itself in ``momentum_scale``:
+        :func:`spaceid.estimation.momentum_scale`), whatever the criterion.
     payload_link : str, optional
         Design for the parameters of a payload held by this link (a body, or a URDF link on
         fixed joints below one) instead of the minimal parameters: the criterion is on their
@@ -478,18 +481,42 @@ def _model_limits(model, overrides):
     return limits
 
 
+def bound_summary(meta: dict) -> str | None:
+    """One line on a design's predicted Cramer-Rao bound (its trajectory's ``meta``): the worst
+    standard deviation as the momentum it causes (a percentage of the momentum scale), and the
+    worst relative one among the large parameters (:data:`spaceid.estimation.LARGE_SHARE`); None
+    when the meta has no bound (no noise given)."""
+    scaled, scale = meta.get("crb_scaled_std"), meta.get("momentum_scale")
+    if not scaled or not scale:
+        return None
+    names = list(scaled)
+    worst = max(names, key=lambda n: scaled[n])
+    line = f"predicted CRB: worst std {100 * scaled[worst]:.3g} % of the momentum scale ({worst})"
+    relative = meta.get("crb_relative_std", {})
+    large = [n for n, share in zip(names, scale["share"]) if share >= LARGE_SHARE and relative.get(n) is not None]
+    if large:
+        top = max(large, key=lambda n: relative[n])
+        line += f"; worst relative std of the {len(large)} large parameters {100 * relative[top]:.3g} % ({top})"
+    return line
+
+
 def _with_predicted_bound(result, param, momentum, noise, *, duration, samples):
     """``result`` with ``noise`` and, in its trajectory's ``meta``, the noise and the predicted
     Cramer-Rao standard deviation of every parameter, absolute (defined for zero nominal
-    values too) and relative to its nominal value."""
+    values too), relative to its nominal value, and as a fraction of the momentum scale of the
+    designed motion (:func:`spaceid.estimation.momentum_scale`, at the nominal base rate)."""
     q, qd, _ = result.trajectory.evaluate(sample_times(duration, samples))
     bound = whitened_regressor(param, param.true_values, momentum, noise, relative=False)
     std = np.sqrt(np.diag(bound.crb(q, qd)))
     pi = np.abs(param.true_values)
+    w0 = excitation_regressor(param, param.true_values, momentum).with_rate(q, qd)[1]
+    scale = momentum_scale(param, q, qd, w0)
     meta = {
         **result.trajectory.meta,
         "noise": noise.to_dict(),
         "crb_std": dict(zip(param.names, std.tolist())),
         "crb_relative_std": {n: s / p if p > 0 else None for n, s, p in zip(param.names, std, pi)},
+        "crb_scaled_std": dict(zip(param.names, scale.scaled(std).tolist())),
+        "momentum_scale": scale.to_dict(),
     }
     return replace(result, trajectory=replace(result.trajectory, meta=meta), noise=noise)

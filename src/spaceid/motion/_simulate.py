@@ -102,6 +102,7 @@ def simulate(
     rtol: float = 1e-12,
     drift=None,
     base_position: bool = False,
+    where: str = "`pi`",
 ) -> Log:
     """Simulate the base motion for a prescribed joint motion and a constant or drifting momentum.
 
@@ -143,10 +144,23 @@ def simulate(
         zero linear momentum with the system CM fixed at the inertial origin, so the base origin
         is at ``-R0 c(q)`` (:func:`spaceid.dynamics.system_com`).
 
+    where : str
+        What ``pi`` is, for the error message (e.g. the result file it came from).
+
     Returns
     -------
     Log
         Noise-free joint and base motion at ``times``.
+
+    Raises
+    ------
+    SpaceidError
+        ``pi`` gives a locked inertia (the base rate to angular momentum map at fixed joints) that
+        is not positive definite somewhere along the motion: checked, vectorised, at the output
+        times before anything is integrated and on a grid 8 times denser before each block of
+        the attitude integration; the message names
+        the time, the eigenvalue's direction in base axes and the parameters that make it
+        negative. Or the attitude integration fails or exceeds :data:`MAX_EVALUATIONS`.
     """
     if hasattr(motion, "evaluate"):
         motion = functools.partial(_angles_and_rates, motion)
@@ -154,8 +168,12 @@ def simulate(
     momentum = np.asarray(momentum, float)
     quat0 = np.array([1.0, 0, 0, 0]) if initial_quat is None else np.asarray(initial_quat, float)
     terms = drift_terms(drift, param.model.planar, where="`drift`", physical=False)  # estimates may be < 0
+    # before integrating: at the samples here (planar: on the denser grid too, a 1 x 1 inertia), and
+    # on each block's spline grid as it is built (the pieces are evaluated there anyway)
+    check = _grid(times) if param.model.planar else times
+    _in_blocks(lambda t: _check_locked_inertia(param, pi, motion, t, where), check)
     if any(np.any(v) for v in terms.values()):
-        return _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol)
+        return _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol, where)
 
     if param.model.planar:
         # the base rate does not depend on the yaw: the yaw is a quadrature, done vectorised
@@ -171,12 +189,9 @@ def simulate(
                 h_base = quat_to_matrix(quat / np.linalg.norm(quat)).T @ momentum
                 return _quat_rate(quat, np.linalg.solve(locked(t), h_base - offset(t)))
 
-            sol = solve_ivp(rhs, (block[0], block[-1]), quat, method="DOP853", t_eval=block, rtol=rtol, atol=1e-14)
-            if not sol.success:
-                raise SpaceidError(f"simulation failed: {sol.message}")
-            return sol.y.T
+            return _solve(rhs, (block[0], block[-1]), quat, block, rtol).y.T
 
-        quat = _in_spline_blocks(param, pi, motion, times, quat0, advance)
+        quat = _in_spline_blocks(param, pi, motion, times, quat0, advance, where)
         quat /= np.linalg.norm(quat, axis=1, keepdims=True)
     q, qd = _in_blocks(motion, times)
     h_base = np.einsum("nji,j->ni", quat_to_matrix(quat), momentum)
@@ -208,7 +223,7 @@ SPLINE_SAMPLES = 4096
 about 8 times as many grid points, so memory is bounded by the block whatever the log's length."""
 
 
-def _in_spline_blocks(param, pi, motion, times, y0, advance) -> np.ndarray:
+def _in_spline_blocks(param, pi, motion, times, y0, advance, where) -> np.ndarray:
     """States ``(n, len(y0))`` at ``times``, integrated a block of :data:`SPLINE_SAMPLES` samples at a
     time: ``advance(locked, offset, y, block)`` integrates from ``block[0]``, where the state is
     ``y``, with that block's rate splines (:func:`_rate_splines`) and returns the states at
@@ -216,25 +231,110 @@ def _in_spline_blocks(param, pi, motion, times, y0, advance) -> np.ndarray:
     parts, y = [], np.asarray(y0, float)
     for start in range(0, max(len(times) - 1, 1), SPLINE_SAMPLES):
         block = times[start : start + SPLINE_SAMPLES + 1]
-        part = advance(*_rate_splines(param, pi, motion, block), y, block)
+        part = advance(*_rate_splines(param, pi, motion, block, where), y, block)
         parts.append(part if start == 0 else part[1:])
         y = part[-1]
         gc.collect()  # solve_ivp's solver and its right-hand side form a cycle holding the block's splines
     return np.concatenate(parts)
 
 
-def _rate_splines(param, pi, motion, times):
+def _grid(times):
+    """The output times and a grid 8 times denser, shape ``(m,)``: where the joint motion's
+    locked inertia is splined (spatial) and checked (:func:`_check_locked_inertia`)."""
+    return np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
+
+
+def _rate_splines(param, pi, motion, times, where):
     """Splines of the locked inertia ``(rows, n_axes)`` and free momentum ``(rows,)`` of the joint
-    motion on a grid 8 times denser than ``times`` (the output times among its nodes): the base
-    rate for a momentum ``h_base`` in base axes is ``locked^-1 (h_base[rows] - offset)``."""
-    grid = np.unique(np.concatenate([times, np.linspace(times[0], times[-1], 8 * len(times) + 2001)]))
+    motion on :func:`_grid` (the output times among its nodes), the inertia refused where it is not
+    positive definite (:func:`_refuse_indefinite`): the base rate for a momentum ``h_base`` in base
+    axes is ``locked^-1 (h_base[rows] - offset)``."""
+    grid = _grid(times)
 
     def pieces(t):  # (n, rows, 1 + axes): the free momentum, then the locked inertia's columns
         free, unit, _ = rate_pieces(param, *motion(t), functools.partial(param.momentum, pi=pi))
+        _refuse_indefinite(param, pi, motion, t, np.stack(unit, -1), where)
         return np.stack([free, *unit], -1)
 
     both = _in_blocks(pieces, grid)
     return CubicSpline(grid, both[..., 1:]), CubicSpline(grid, both[..., 0])
+
+
+MAX_EVALUATIONS = (100_000, 200)
+"""An attitude integration stops with an error after ``a + b n`` right-hand-side evaluations for
+``n`` output times. A smooth base rate needs ~10 a sample even at ``rtol`` 1e-12 (a random 20 s
+motion of servicer-dual or satellite-7dof at 401 samples: 3,800); a base rate that grows without
+bound (a locked inertia singular between the checked times) would otherwise step ever smaller
+for hours."""
+
+
+def _solve(rhs, span, y0, t_eval, rtol, **kwargs):
+    """``solve_ivp`` (DOP853) of ``rhs`` over ``span`` at the times ``t_eval``, stopped with a
+    :class:`SpaceidError` after :data:`MAX_EVALUATIONS` or on the integrator's failure."""
+    calls, budget = [0], MAX_EVALUATIONS[0] + MAX_EVALUATIONS[1] * len(t_eval)
+
+    def counted(t, y, *args):
+        calls[0] += 1
+        if calls[0] > budget:
+            raise _Runaway(t)
+        return rhs(t, y, *args)
+
+    try:
+        sol = solve_ivp(counted, span, y0, method="DOP853", t_eval=t_eval, rtol=rtol, atol=1e-14, **kwargs)
+    except _Runaway as stop:
+        raise SpaceidError(f"simulation failed: the base rate is too steep to integrate near t = {stop.args[0]:.6g} s "
+                           f"({budget} evaluations): a locked inertia near singular there; check the parameters "
+                           "against a physical model, or sample the motion more finely") from None
+    if not sol.success:
+        raise SpaceidError(f"simulation failed near t = {sol.t[-1]:.6g} s: {sol.message}")
+    return sol
+
+
+class _Runaway(Exception):
+    """The integration of :func:`_solve` exceeded its evaluations (carries the time reached)."""
+
+
+def _check_locked_inertia(param, pi, motion, t, where):
+    """Refuse ``pi`` when the locked inertia of the joint motion is not positive definite at one of
+    the times ``t (n,)`` (:func:`_refuse_indefinite`); an empty array otherwise (for :func:`_in_blocks`)."""
+    q, qd = motion(t)
+    _, unit, _ = rate_pieces(param, q, np.zeros_like(qd), functools.partial(param.momentum, pi=pi))
+    _refuse_indefinite(param, pi, motion, t, np.stack(unit, -1), where)
+    return np.zeros(0)
+
+
+INDEFINITE_TOLERANCE = 1e-9
+"""A locked inertia whose smallest eigenvalue is below this fraction of its largest counts as
+singular: the base rate a momentum gives grows past what an integration can follow."""
+
+
+def _refuse_indefinite(param, pi, motion, t, locked, where):
+    """Raise when the locked inertia ``locked (n, rows, axes)`` (base rate to angular momentum in
+    base axes, joints fixed) is not positive definite at one of the times ``t (n,)``: one line with
+    the time, the eigenvalue and its direction in base axes, and the parameters whose terms make
+    it negative."""
+    if param.model.planar:
+        locked = locked[..., -1:, :]  # the z row (about the plane's normal)
+    sym = 0.5 * (locked + np.swapaxes(locked, -1, -2))
+    eig, vec = np.linalg.eigh(sym)
+    size = np.abs(eig).max(-1)
+    bad = ~(eig[:, 0] > INDEFINITE_TOLERANCE * size)  # NaN counts as bad
+    if not bad.any():
+        return
+    i = int(np.nanargmin(np.where(bad, eig[:, 0] / np.maximum(size, 1e-300), np.inf)))
+    v = vec[i, :, 0]
+    q, qd = (np.atleast_2d(a)[0] for a in motion(t[i : i + 1]))
+    per = np.stack(rate_pieces(param, q, np.zeros_like(qd), param.regressor)[1], -1)  # (rows, k, axes)
+    per = per[-1:] if param.model.planar else per
+    share = np.asarray(pi, float) * np.einsum("a,akb,b->k", v, per, v)  # eigenvalue = sum of shares
+    worst = [k for k in np.argsort(share)[:3] if share[k] < 0]
+    axis = "about the base z axis" if param.model.planar else "along base axes (" + ", ".join(f"{x:.3g}" for x in v) + ")"
+    names = ", ".join(f"{param.names[k]} ({share[k]:.3g})" for k in worst) or "none negative alone"
+    raise SpaceidError(
+        f"{where}: the locked inertia (base rate to momentum, joints fixed) is not positive definite along the "
+        f"motion: eigenvalue {eig[i, 0]:.3g} kg m^2 (largest magnitude {size[i]:.3g}) {axis} at t = {t[i]:.6g} s ({int(bad.sum())} "
+        f"of {len(t)} times checked); the parameters whose terms make it negative: {names}: physically impossible "
+        "parameters, whose base rate diverges: use a physical model or an identification that is one")
 
 
 def _drift_rhs(param, locked, offset, terms):
@@ -287,10 +387,7 @@ def _integrate_drifting(rhs, rate, y0, times, rtol, coulomb):
         if coulomb and rate is not None:
             events = lambda t, yy, s=s: s * rate(t, yy)  # noqa: E731 - positive until the rate crosses zero
             events.terminal, events.direction = True, -1
-        sol = solve_ivp(rhs, (t0, times[-1]), y, method="DOP853", t_eval=times[times >= t0], rtol=rtol, atol=1e-14,
-                        args=(s,), events=events)  # fmt: skip
-        if not sol.success:
-            raise SpaceidError(f"simulation failed: {sol.message}")
+        sol = _solve(rhs, (t0, times[-1]), y, times[times >= t0], rtol, args=(s,), events=events)
         done = sol.t_events[0] if events is not None and len(sol.t_events[0]) else []
         out.append(sol.y.T[sol.t < done[0]] if len(done) else sol.y.T)
         if not len(done):
@@ -303,7 +400,7 @@ def _integrate_drifting(rhs, rate, y0, times, rtol, coulomb):
     return np.concatenate(out)
 
 
-def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol) -> Log:
+def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol, where) -> Log:
     """:func:`simulate` with the momentum a state driven by the external torque ``terms``."""
     if param.model.planar:
         y0 = [2 * np.arctan2(quat0[3], quat0[0]), momentum[2]]
@@ -314,7 +411,7 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
         rhs, rate = _drift_rhs(param, locked, offset, terms)
         return _integrate_drifting(rhs, rate, y, block, rtol, coulomb=bool(terms.get("coulomb")))
 
-    y = _in_spline_blocks(param, pi, motion, times, y0, advance)
+    y = _in_spline_blocks(param, pi, motion, times, y0, advance, where)
     if param.model.planar:
         quat, h = yaw_to_quat(y[:, 0]), np.outer(y[:, 1], [0.0, 0.0, 1.0])
     else:

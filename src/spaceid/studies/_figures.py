@@ -26,7 +26,7 @@ from ..data import Log
 from ..estimation import Identification
 from ..estimation.internal import draw_parameters, draw_singular_values
 from ..identified.internal import draw_payload
-from ._validate import attitude_error_angle
+from ._validate import attitude_error_angle, predicted_label, validation_title
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -37,7 +37,6 @@ __all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_t
 
 # --- validation (the paper's Fig. 6) -----------------------------------------------------------
 
-_VALIDATION_TITLE = "Validation: measured base motion vs the identified model driven by the measured joint motion"
 
 
 def _check_same_motion(measured: Log, predicted: Log) -> None:
@@ -87,7 +86,7 @@ def _draw_validation(measured: Log, predicted: Log, title: str | None = None, fi
     for c, (panel_title, symbol, unit, y_meas, y_pred, residual, residual_label) in enumerate(signals):
         top, bottom = axes[0, c], axes[1, c]
         top.plot(measured.t, y_meas, color=COLOR_MEASURED, label="measured", **marker)
-        top.plot(predicted.t, y_pred, color=COLOR_MODEL, linestyle="--", label="identified model (predicted)")
+        top.plot(predicted.t, y_pred, color=COLOR_MODEL, linestyle="--", label=predicted_label(predicted))
         top.set_title(panel_title, loc="left")
         top.set_ylabel(f"{symbol} [{unit}]")
         top.tick_params(labelbottom=False)
@@ -97,7 +96,7 @@ def _draw_validation(measured: Log, predicted: Log, title: str | None = None, fi
         bottom.set_ylabel(f"{residual_label} [{unit}]")
         bottom.set_xlabel("time $t$ [s]")
     figure_legend(fig, list(axes.flat))
-    fig.suptitle(title or _VALIDATION_TITLE)
+    fig.suptitle(title or validation_title(predicted))
     return fig
 
 

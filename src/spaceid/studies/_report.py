@@ -13,7 +13,7 @@ from .._errors import SpaceidError
 from ..estimation import Identification
 
 
-from ._tables import _columns, per_parameter, drift_rows
+from ._tables import _columns, drift_rows, per_parameter, scale_note
 from ._torque_validation import TORQUE_METRIC_LABELS
 
 __all__ = ["write_markdown_report", "metric_label", "servicing_label"]
@@ -160,7 +160,8 @@ def write_markdown_report(
         "",
         f"Estimator {_md(result.estimator)}, {result.n_samples} samples, momentum "
         f"[{', '.join(f'{h:.6g}' for h in result.momentum)}] N m s; std: one standard deviation"
-        + ("; relative error: abs(estimate - true) / abs(true)." if true is not None else "."),
+        + ("; relative error: abs(estimate - true) / abs(true)." if true is not None else ".")
+        + (f" {scale_note(result, true)}." if result.scale is not None else ""),
         "",
         f"- Condition number of the stacked regressor: {result.condition_number:.4g}",
         f"- Residual RMS: {result.residual_rms:.3g} N m s",
