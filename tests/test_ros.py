@@ -125,3 +125,87 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
     written = json.loads((tmp_path / "events.json").read_text())
     assert [e["index"] for e in written["events"]] == [e["index"] for e in listener.got["events"]]
     assert json.loads((tmp_path / "result.json").read_text())["parameters"]
+
+
+@pytest.fixture(scope="module")
+def twin_bag(tmp_path_factory):
+    """The end-to-end test's twin run (grasp 4 s into 12 s) as an MCAP bag, and the grasp time."""
+    from spaceid.data import write_bag
+    from spaceid.ros import twin_recording
+    from spaceid.studies import capture_protocol
+
+    run = twin_recording(capture=capture_protocol(), ideal=True, duration=12.0, seed=1)
+    bag = tmp_path_factory.mktemp("ros") / "twin.mcap"
+    write_bag(bag, run.recording, format="mcap")
+    return bag, run.meta["capture"]["time"]
+
+
+def _live(**options):
+    import numpy as np
+
+    from spaceid import load_model, minimal_parameters
+    from spaceid.estimation import Noise
+    from spaceid.ros import LiveMonitor
+
+    param = minimal_parameters(load_model("cepheus-rw"))
+    return LiveMonitor(param, np.zeros(3), reading={"window": 25}, known={"Iczz_wheel": float(ROTOR)}, warmup=100,
+                       noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2), **options)  # fmt: skip
+
+
+def _bag_messages(bag):
+    """The bag's (topic, message) pairs in order, deserialised by rosbags (no ROS needed)."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        for connection, _, raw in reader.messages():
+            yield connection.topic, reader.deserialize(raw, connection.msgtype)
+
+
+@pytest.mark.slow
+def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag):
+    """Messages fed one by one to LiveMonitor give the events of the bag read in parts of the same
+    block and fed to the monitor; the grasp's event within 0.5 s of it, the payload after it
+    within 2 sigma of 0.5 kg; each estimate has one standard error per parameter."""
+    import numpy as np
+
+    from spaceid import load_model, minimal_parameters
+    from spaceid.data import bag_chunks
+    from spaceid.estimation import Noise, monitor
+
+    bag, grasp = twin_bag
+    live = _live(link="link2")
+    outputs = []
+    for topic, msg in _bag_messages(bag):
+        outputs += live.add(topic, msg)
+        payload = live.payload()
+        outputs += [payload] if payload is not None else []
+    rest, record = live.finish()
+    outputs += rest
+    m = load_model("cepheus-rw")
+    expected = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels, block=2.0,
+                                                         window=25),
+                       np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
+                       noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
+    assert [e.time for e in record.events] == [e.time for e in expected.events] and record.events
+    events = [o.data for o in outputs if o.kind == "event"]
+    assert [e["time"] for e in events] == [e.time for e in record.events]
+    origin = events[0]["time_origin_ns"] / 1e9
+    near = [e for e in events if abs(e["time"] + origin - grasp) <= 0.5]
+    assert near, ([e["time"] + origin for e in events], grasp)
+    payloads = [o.data for o in outputs if o.kind == "payload" and o.data["event"] == near[0]["index"]]
+    assert payloads and all(abs(p["mass"] - 0.5) <= 2 * p["std"]["mass"] for p in payloads), payloads
+    estimates = [o.data for o in outputs if o.kind == "estimate"]
+    assert estimates and all(len(e["std"]) == len(e["values"]) == len(e["names"]) for e in estimates)
+
+
+def test_a_silent_pose_topic_is_named(monkeypatch, twin_bag):
+    import spaceid.ros._live as live_module
+    from spaceid import SpaceidError
+
+    bag, _ = twin_bag
+    monkeypatch.setattr(live_module, "MAX_HELD", 50)
+    live = _live()
+    joints = (pair for pair in _bag_messages(bag) if pair[0] == live.aligner.joint_topic)
+    with pytest.raises(SpaceidError, match=r"`pose_topic`: 51 messages wait for a base pose on '/vrpn"):
+        for topic, msg in joints:
+            live.add(topic, msg)

@@ -1516,6 +1516,9 @@ SUBSCRIBERS = click.option("--subscribers", type=click.IntRange(min=0), default=
               help="False alarms per sample when nothing changes, as for 'spaceid monitor'.")
 @click.option("--warmup", type=SAMPLES, help="Samples of each segment identified in batch before its test starts, "
               "as for 'spaceid monitor'.")
+@click.option("--estimator", type=click.Choice([e for e in ESTIMATORS if e != "angles"]), default="ml",
+              show_default=True, help="Estimator of the segments' batch identifications, as for 'spaceid monitor' "
+              "(wls takes about half ml's time: benchmarks/bench_ros.py).")
 @click.option("--block", type=SECONDS, default=2.0, show_default=True, metavar="SECONDS",
               help="Seconds of joint states aligned at a time (the messages held are bounded by it).")
 @click.option("--joint-rates", type=click.Choice(["differentiate", "auto", "velocity"]), default="differentiate",
@@ -1527,7 +1530,7 @@ SUBSCRIBERS = click.option("--subscribers", type=click.IntRange(min=0), default=
 @click.option("--result", type=_OutputPath(), metavar="PATH", help="RESULT.json written at Ctrl-C: the last "
               "segment's identification [default: result.json beside -o].")
 def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, pose_type, link, known, noise, drift,
-                false_alarm_rate, warmup, block, joint_rates, window, output, result):
+                false_alarm_rate, warmup, estimator, block, joint_rates, window, output, result):
     """Subscribe to the robot's joint states and base attitude, align them by their header stamps
     (as a bag is read, with its mapping file), identify recursively and detect changes as the
     messages arrive: publish the estimate with its standard errors on /spaceid/estimate, one
@@ -1544,7 +1547,7 @@ def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, p
                        reading={"joint_rates": joint_rates, "window": window},
                        where="ros2", known=parse_known(known), noise=noise,
                        drift=_drift(drift, param.model.planar, values=False), false_alarm_rate=false_alarm_rate,
-                       warmup=warmup)  # fmt: skip
+                       warmup=warmup, estimator=estimator)  # fmt: skip
     result = result or output.with_name("result.json")
     err.print(f"listening on {live.aligner.joint_topic} and {live.aligner.pose_topic}; Ctrl-C ends", highlight=False)
 

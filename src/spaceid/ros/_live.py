@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import collections
 import time
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -123,7 +124,11 @@ class LiveMonitor:
         received = time.monotonic() if received is None else received
         start = time.perf_counter()
         self.n_messages += 1
-        part = self.aligner.add(topic, msg)
+        try:
+            part = self.aligner.add(topic, msg)
+        except SpaceidError as err:  # a block the differentiator refuses: retried with the next block's messages
+            warnings.warn(f"{err}: the samples wait for the next block", stacklevel=2)
+            part = None
         if part is None and self.aligner.held > MAX_HELD:
             raise SpaceidError(f"`pose_topic`: {self.aligner.held} messages wait for a base pose on "
                                f"'{self.aligner.pose_topic}': publish the base attitude there, or map its topic")
@@ -173,14 +178,14 @@ class LiveMonitor:
             return None
         from ..identified import payload_after_grasp
 
-        log = _concatenate(list(self._recent))
         grasp = event.time + event.lead  # the change lies in [time, time + lead]
-        after = int(np.sum(log.t > grasp))
-        if after < max(self._payload_due, self.monitor.warmup):
-            return None
-        if log.t[0] >= grasp:  # the history no longer reaches back to the change
+        if self._recent[0].t[0] >= grasp:  # the history no longer reaches back to the change
             self._payload_event = None
             return None
+        after = sum(int(np.sum(p.t > grasp)) for p in self._recent)
+        if after < max(self._payload_due, self.monitor.warmup):
+            return None
+        log = _concatenate(list(self._recent))
         self._payload_due = 2 * after
         mon = self.monitor
         try:
