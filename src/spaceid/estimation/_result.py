@@ -115,6 +115,25 @@ class Identification:
             return draw_singular_values(self, ax)
         raise SpaceidError(f"plot: kind {kind!r} is not 'parameters' or 'singular_values'")
 
+    def _repr_html_(self) -> str:
+        """The parameter table and the diagnostics, as a notebook shows the result."""
+        from .._html import html_table, html_view
+
+        units = self.units or ("",) * len(self.names)
+        rows = [(n, f"{v:.6g}", f"{s:.3g}", f"{100 * s / abs(v):.3g}" if v else "", u, d)
+                for n, v, s, u, d in zip(self.names, self.values, self.std, units, self.definitions)]  # fmt: skip
+        rows += [(d["name"], f"{d['value']:.6g}", f"{d['std']:.3g}", "", d.get("unit", ""), "drift") for d in self.drift]
+        diag = self.diagnostics
+        facts = [("model", f"{self.model} ({'planar' if self.planar else 'spatial'})"), ("estimator", self.estimator),
+                 ("samples", self.n_samples), ("condition number", f"{self.condition_number:.4g}"),
+                 ("residual RMS [N m s]", f"{self.residual_rms:.3g}"),
+                 ("variance factor (chi2/dof)", "" if diag.variance_factor is None else f"{diag.variance_factor:.3g}"),
+                 ("covariance", diag.covariance), ("noise model", diag.noise_model_warning or "consistent with the residuals"),
+                 ("plausibility", diag.plausibility or "no warning")]  # fmt: skip
+        return html_view(f"Identification: {len(self.names)} parameters",
+                         ("Parameters", html_table(("name", "value", "std", "std [%]", "unit", "definition"), rows)),
+                         ("Diagnostics", html_table(("", ""), facts)))
+
     def to_dict(self) -> dict:
         """JSON-ready RESULT.json form: parameters with 95 % confidence intervals, covariance,
         conditioning, residual, settings and diagnostics (read back by :meth:`from_dict`;
