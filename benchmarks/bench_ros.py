@@ -10,6 +10,8 @@ levels given).
     to :class:`spaceid.ros.LiveMonitor` as fast as it takes them, ``--repeats`` times: joint-state
     samples per second of wall time (alignment, differentiation, the monitor, the estimate after
     each part and the payload after each event included), median and range;
+    Then a steady run without a change (``--steady-samples`` at 100 Hz on Cepheus, the sine motion
+    of bench_monitor.py; one warm-up, then only the test): where the per-sample costs dominate;
 (b) over DDS on the loopback (localhost discovery, a domain of its own): ``spaceid ros play`` of
     the run's bag at ``--rate-factor`` times real time (50 x F joint samples/s in, plus 100 x F
     poses/s), the monitor in its own process, this process subscribed to its topics: whether it
@@ -23,7 +25,8 @@ levels given).
 
 Prints only; never fails on the figures.
 
-    python benchmarks/bench_ros.py [--duration 30] [--repeats 3] [--rate-factor 10] [--parts a b]
+    python benchmarks/bench_ros.py [--duration 12] [--repeats 3] [--rate-factor 1] [--steady-samples 6000]
+        [--estimator ml] [--parts a b]
 """
 
 import argparse
@@ -87,6 +90,46 @@ def capacity(run, grasp, repeats, label):
     print(f"(a) {label}: {record.n_samples} joint samples, {len(messages)} messages: {statistics.median(rates):.0f} "
           f"samples/s (range {min(rates):.0f}..{max(rates):.0f}, {repeats} runs); events "
           f"{events}{' s from the grasp' if grasp is not None else ''}; {len(record.segments)} segments identified")
+
+
+def steady(n, repeats):
+    """Joint samples per second that LiveMonitor takes a long run without a change at: Cepheus at
+    100 Hz, the two-joint sine motion of bench_monitor.py (h = 0.5 N m s, 1e-4 rad on the angles
+    and the attitude), published as joint states and poses, the rates differentiated over 31
+    samples; one warm-up, then the test phase (false-alarm rate 1e-9)."""
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import JointState
+
+    from spaceid.motion import add_noise, simulate
+    from spaceid.ros import recording_of_log
+    from spaceid.ros._node import _messages
+
+    model = load_model("cepheus")
+    param = minimal_parameters(model)
+    h = np.array([0.0, 0.0, 0.5])
+
+    def motion(t):
+        arg = 2 * np.pi * np.array([0.3, 0.45]) * np.asarray(t)[:, None] + np.array([0.0, 1.0])
+        return 0.5 * np.sin(arg), 0.5 * 2 * np.pi * np.array([0.3, 0.45]) * np.cos(arg)
+
+    log = add_noise(simulate(param, param.true_values, motion, np.arange(n) / 100.0, h, model=model), angle=1e-4,
+                    rate=1e-3, seed=0)
+    messages = list(_messages(recording_of_log(log), 0, JointState, PoseStamped))
+    rates = []
+    for _ in range(repeats + 1):
+        live = LiveMonitor(param, h, reading={"window": 31}, noise=Noise(angle=1e-4, rate=1e-3, attitude=1e-4,
+                                                                          base_rate=1e-3),
+                           false_alarm_rate=1e-9, estimator=ESTIMATOR)
+        topics = (live.aligner.joint_topic, live.aligner.pose_topic)
+        start = time.perf_counter()
+        for _, is_joint, msg in messages:
+            live.add(topics[0] if is_joint else topics[1], msg)
+        _, record = live.finish()
+        rates.append(record.n_samples / (time.perf_counter() - start))
+    rates = rates[1:]
+    print(f"(a) steady, Cepheus at 100 Hz without a change: {record.n_samples} joint samples, {len(record.events)} "
+          f"events: {statistics.median(rates):.0f} samples/s (range {min(rates):.0f}..{max(rates):.0f}, "
+          f"{repeats} runs)")
 
 
 def over_dds(run, grasp, rate_factor, block):
@@ -156,11 +199,12 @@ def over_dds(run, grasp, rate_factor, block):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--duration", type=float, default=30.0)
+    ap.add_argument("--duration", type=float, default=12.0)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--rate-factor", type=float, default=10.0)
+    ap.add_argument("--rate-factor", type=float, default=1.0)
     ap.add_argument("--block", type=float, default=2.0)
     ap.add_argument("--parts", nargs="+", default=["a", "b"])
+    ap.add_argument("--steady-samples", type=int, default=6000)
     ap.add_argument("--estimator", default="ml", help="of the monitor's batch identifications")
     args = ap.parse_args()
     global ESTIMATOR
@@ -170,6 +214,7 @@ def main():
         quiet, _ = _run(args.duration, capture=False)
         capacity(quiet, None, args.repeats, "no change")
         capacity(run, grasp, args.repeats, "grasp 4 s in")
+        steady(args.steady_samples, args.repeats)
     if "b" in args.parts:
         over_dds(run, grasp, args.rate_factor, args.block)
 
