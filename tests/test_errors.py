@@ -177,7 +177,6 @@ def test_no_library_string_names_a_command_line_option():
 # never shows them (it checks the value first, or never passes the argument).
 NO_OPTION = {
     "angle": "add_noise's angle noise: simulate checks --noise-angle before it adds noise",
-    "block": "bag_chunks' block of seconds: the monitor reads bags with the default",
     "boundary": "optimize_excitation's boundary values: the design command keeps the default",
     "initial": "optimize_excitation's warm start: the design command gives none",
     "method": "optimize_excitation's search method, differentiate's differentiator: the commands keep 'auto'",
@@ -213,9 +212,15 @@ DYNAMIC = ("harmonics", "samples", "n_starts", "n_grid", "seed", "max_steps", "n
            "qd_max", "qdd_max", "window", "order")
 
 
+def _commands(group):
+    """Every command of ``group``, those of its subgroups (``spaceid ros ...``) too."""
+    for command in group.commands.values():
+        yield from _commands(command) if isinstance(command, click.Group) else [command]
+
+
 def _options():
     options = set()
-    for command in cli.app.commands.values():
+    for command in _commands(cli.app):
         for param in command.params:
             if isinstance(param, click.Option):
                 options |= {o for o in (*param.opts, *param.secondary_opts) if o.startswith("--")}

@@ -21,7 +21,8 @@ import spaceid
 
 SRC = Path(spaceid.__file__).parent
 # Lowest first: a module may import from its own layer or a lower one, never a higher one.
-LAYERS = ["_utilities", "models", "data", "dynamics", "estimation", "identified", "motion", "twin", "studies", "cli"]
+LAYERS = ["_utilities", "models", "data", "dynamics", "estimation", "identified", "motion", "twin", "studies", "ros",
+          "cli"]
 
 
 def _layer(parts):

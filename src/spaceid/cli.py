@@ -1493,6 +1493,180 @@ def _print_event(event):
               highlight=False)
 
 
+@app.group(cls=_Group, short_help="Live on ROS 2: the monitor as a node; logs, bags and the twin published.")
+def ros():
+    """Live on ROS 2 (docs: live monitoring): 'ros monitor' identifies and detects changes on the
+    robot's topics as the messages arrive; 'ros play' and 'ros twin' publish a recording or the
+    Cepheus twin's sensors on the same topics. Needs the ros extra: pip install "spaceid[ros]"."""
+
+
+ROS_JOINT_TOPIC = click.option("--joint-topic", help=f"sensor_msgs/JointState topic [default: {DEFAULT_JOINT_TOPIC}, "
+                               "or the mapping's].")
+ROS_POSE_TOPIC = click.option("--pose-topic", help=f"Base attitude topic [default: {DEFAULT_POSE_TOPIC}, or the "
+                              "mapping's].")
+RATE_FACTOR = click.option("--rate-factor", type=POSITIVE, default=1.0, show_default=True,
+                           help="Speed-up over real time (the header stamps keep the recorded times).")
+SUBSCRIBERS = click.option("--subscribers", type=click.IntRange(min=0), default=1, show_default=True,
+                           help="Wait for this many subscribers on each topic before publishing (at most 60 s).")
+
+
+@ros.command("monitor")
+@MODEL
+@PLANAR
+@MOMENTUM
+@click.option("--mapping", type=click.Path(path_type=Path), help="The bag mapping file (YAML): joint_topic, "
+              "pose_topic, joints {published name: model name}, rate, pose_latency, max_gap, max_tilt.")
+@ROS_JOINT_TOPIC
+@ROS_POSE_TOPIC
+@click.option("--pose-type", type=click.Choice(["pose", "odometry", "imu"]), default="pose", show_default=True,
+              help="Message of the attitude topic: geometry_msgs/PoseStamped, nav_msgs/Odometry or sensor_msgs/Imu "
+                   "(its orientation; the base rate is the attitude differentiated).")
+@click.option("--link", help="The link that grasps: after each change the payload it holds is identified and "
+              "published on /spaceid/payload.")
+@click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid monitor'.")
+@noise_options
+@drift_option("External torques, as for 'spaceid monitor'.", values=False)
+@click.option("--false-alarm-rate", type=PROBABILITY, default=FALSE_ALARM_RATE, show_default=True,
+              help="False alarms per sample when nothing changes, as for 'spaceid monitor'.")
+@click.option("--warmup", type=SAMPLES, help="Samples of each segment identified in batch before its test starts, "
+              "as for 'spaceid monitor'.")
+@click.option("--estimator", type=click.Choice([e for e in ESTIMATORS if e != "angles"]), default="ml",
+              show_default=True, help="Estimator of the segments' batch identifications, as for 'spaceid monitor' "
+              "(wls takes about half ml's time: benchmarks/bench_ros.py).")
+@click.option("--block", type=SECONDS, default=2.0, show_default=True, metavar="SECONDS",
+              help="Seconds of joint states aligned at a time (the messages held are bounded by it).")
+@click.option("--joint-rates", type=click.Choice(["differentiate", "auto", "velocity"]), default="differentiate",
+              show_default=True, help="Joint rates differentiated from the angles, or the published velocities.")
+@click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Savitzky-Golay window of every "
+              "differentiated series [samples, odd; default: chosen per aligned block, which varies from block to "
+              "block: give one for a steady test].")
+@output("EVENTS.json to write: after each event and at Ctrl-C.")
+@click.option("--result", type=_OutputPath(), metavar="PATH", help="RESULT.json written at Ctrl-C: the last "
+              "segment's identification [default: result.json beside -o].")
+def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, pose_type, link, known, noise, drift,
+                false_alarm_rate, warmup, estimator, block, joint_rates, window, output, result):
+    """Subscribe to the robot's joint states and base attitude, align them by their header stamps
+    (as a bag is read, with its mapping file), identify recursively and detect changes as the
+    messages arrive: publish the estimate with its standard errors on /spaceid/estimate, one
+    message per change on /spaceid/events and, with --link, the payload on /spaceid/payload
+    (std_msgs/String holding JSON). Ctrl-C writes EVENTS.json and RESULT.json of what was seen."""
+    from .data import write_json
+    from .estimation import parse_known
+    from .ros import LiveMonitor, require_rclpy, run_monitor
+
+    require_rclpy()
+    param = _param(model_src, planar)
+    live = LiveMonitor(param, _momentum(momentum, param.model.planar), mapping=mapping, joint_topic=joint_topic,
+                       pose_topic=pose_topic, link=link, block=block,
+                       reading={"joint_rates": joint_rates, "window": window},
+                       where="ros2", known=parse_known(known), noise=noise,
+                       drift=_drift(drift, param.model.planar, values=False), false_alarm_rate=false_alarm_rate,
+                       warmup=warmup, estimator=estimator)  # fmt: skip
+    result = result or output.with_name("result.json")
+    err.print(f"listening on {live.aligner.joint_topic} and {live.aligner.pose_topic}; Ctrl-C ends", highlight=False)
+
+    def shown(item):
+        if item.kind == "event":
+            d = item.data
+            out.print(f"change {d['index']} at t = {d['time']:.6g} s (detected at {d['detected_at']:.6g} s); changed: "
+                      f"{', '.join(d['changed']) or 'none'}", highlight=False)
+            write_json(output, live.monitor.record().to_dict())
+        elif item.kind == "payload" and "mass" in item.data:
+            out.print(f"payload after change {item.data['event']}: mass {item.data['mass']:.4g} +/- "
+                      f"{item.data['std']['mass']:.2g} kg", highlight=False)
+
+    with _warnings_to_stderr():
+        _, record = run_monitor(live, pose_type=pose_type, on_output=shown)
+    write_json(output, record.to_dict())
+    ident = live.result(record)
+    if ident is not None:
+        write_json(result, ident.to_dict())
+    out.print(f"{len(record.events)} change(s) in {record.n_samples} samples; written to {output}"
+              + (f" and {result}" if ident is not None else " (no segment identified: no RESULT.json)"),
+              highlight=False)
+
+
+@ros.command("play")
+@click.argument("log_path", metavar="LOG|BAG", type=click.Path(path_type=Path))
+@click.argument("model_src", metavar="[MODEL]", required=False)
+@ROS_JOINT_TOPIC
+@ROS_POSE_TOPIC
+@RATE_FACTOR
+@SUBSCRIBERS
+def ros_play(log_path, model_src, joint_topic, pose_topic, rate_factor, subscribers):
+    """Publish a recorded bag's joint states and base poses (or the angles, rates and attitude of
+    a CSV log of MODEL) as sensor_msgs/JointState and geometry_msgs/PoseStamped, paced by their
+    stamps."""
+    from .data import is_bag, read_log, read_recording
+    from .ros import recording_of_log, require_rclpy
+
+    require_rclpy()
+    if is_bag(log_path):
+        rec = read_recording(log_path, **{k: v for k, v in (("joint_topic", joint_topic), ("pose_topic", pose_topic))
+                                         if v is not None})  # fmt: skip
+    else:
+        if model_src is None:
+            raise SpaceidError(f"{log_path}: a CSV log is read with its model's joints: give MODEL after it")
+        m = _param(model_src, None).model
+        rec = recording_of_log(read_log(log_path, joints=m.joints, planar=m.planar, wheels=m.wheels))
+    _publish(rec, joint_topic, pose_topic, rate_factor, subscribers)
+
+
+@ros.command("twin")
+@click.option("--capture", is_flag=True, help="Grasp a free-floating payload during the motion.")
+@click.option("--capture-settings", type=click.Path(path_type=Path), metavar="FILE", help="With --capture: the "
+              "payload, as for 'spaceid experiment --capture-settings'.")
+@click.option("--capture-time", type=SECONDS, default=4.0, show_default=True, help="With --capture: the grasp, "
+              "seconds after the recording starts.")
+@click.option("--duration", type=SECONDS, default=9.0, show_default=True, help="Seconds recorded.")
+@click.option("--trajectory", default="paper-table2", show_default=True, help="paper-table2 or a file from 'design'.")
+@click.option("--wheel-speed", type=FINITE, default=170.0, show_default=True, help="Wheel speed [rad/s].")
+@click.option("--ideal", is_flag=True, help="Switch off friction, torque limits, thrusters and tank drain.")
+@SEED
+@ROS_JOINT_TOPIC
+@ROS_POSE_TOPIC
+@RATE_FACTOR
+@SUBSCRIBERS
+def ros_twin(capture, capture_settings, capture_time, duration, trajectory, wheel_speed, ideal, seed, joint_topic,
+             pose_topic, rate_factor, subscribers):
+    """Run the Cepheus twin (cepheus-rw, the wheel spun up first) and publish its encoders and
+    motion capture as sensor_msgs/JointState and geometry_msgs/PoseStamped on the twin's clock;
+    with --capture the grasp time is printed first."""
+    from .ros import require_rclpy, twin_recording
+    from .studies import capture_protocol
+
+    require_rclpy()
+    if not capture and capture_settings is not None:
+        raise SpaceidError("--capture-settings needs --capture")
+    protocol = capture_protocol(capture_settings) if capture else None
+    with _warnings_to_stderr():
+        run = twin_recording(trajectory=trajectory, duration=duration, wheel_speed=wheel_speed, capture=protocol,
+                             capture_time=capture_time, ideal=ideal, seed=seed)  # fmt: skip
+    if capture:
+        out.print(f"grasp at {run.meta['capture']['time']:.9g} s", highlight=False)
+    _publish(run.recording, joint_topic, pose_topic, rate_factor, subscribers)
+
+
+def _publish(rec, joint_topic, pose_topic, rate_factor, subscribers):
+    """Publish ``rec`` (:func:`spaceid.ros.play_recording`) and say how much."""
+    from .ros import play_recording
+
+    n = rec.joints.t.size + rec.base.t.size
+    err.print(f"publishing {n} messages ({rec.joints.t[-1] - rec.joints.t[0]:.3g} s) at {rate_factor:g}x",
+              highlight=False)
+    sent = play_recording(rec, joint_topic=joint_topic or DEFAULT_JOINT_TOPIC,
+                          pose_topic=pose_topic or DEFAULT_POSE_TOPIC, rate_factor=rate_factor,
+                          subscribers=subscribers, wait=60.0)  # fmt: skip
+    out.print(f"published {sent} messages", highlight=False)
+
+
+def _result_model(ident):
+    """The model an identification was made on (its joints, wheels and parameters)."""
+    from .models import load_model
+
+    return load_model(ident.model, planar=ident.planar)
+
+
 def main(argv=None) -> int:
     """Entry point: run the app and return its exit code (see :meth:`_Group.invoke`); SIGTERM
     unwinds the command like Ctrl-C does."""

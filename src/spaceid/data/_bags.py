@@ -18,7 +18,7 @@ from ._bag_read import _bag_messages, _recording, _stamp, read_mapping, read_rec
 from ._bag_to_log import to_log
 from ._timeseries import Log
 
-__all__ = ["is_bag", "read_bag_log", "bag_chunks"]
+__all__ = ["is_bag", "read_bag_log", "bag_chunks", "MessageAligner"]
 
 BLOCK = 10.0
 """Seconds of joint states that :func:`bag_chunks` aligns at a time."""
@@ -77,13 +77,14 @@ def bag_chunks(path, *, joints, planar, wheels=(), mapping=None, joint_topic=Non
                **options):
     """Yield the log of a bag in parts as its messages are read: bounded memory, samples early.
 
-    The messages are read one at a time; each time ``block`` seconds of joint states have
-    gathered, the messages held are aligned and differentiated as :func:`read_bag_log` does a
-    whole bag, and the samples that no later message can change are yielded: those more than half
-    the widest differentiator window (plus one joint-state step) before the last stamp held. The
-    messages that the next part's differentiator still needs (that half window again, before the
-    first sample not yet yielded) are kept, the rest dropped, so memory holds about ``block`` plus
-    one differentiator window of messages however long the bag. The rest is yielded at the end.
+    The messages are read one at a time and handed to a :class:`MessageAligner`: each time
+    ``block`` seconds of joint states have gathered, the messages held are aligned and
+    differentiated as :func:`read_bag_log` does a whole bag, and the samples that no later message
+    can change are yielded: those more than half the widest differentiator window (plus one
+    joint-state step) before the last stamp held. The messages that the next part's differentiator
+    still needs (that half window again, before the first sample not yet yielded) are kept, the
+    rest dropped, so memory holds about ``block`` plus one differentiator window of messages
+    however long the bag. The rest is yielded at the end.
 
     Each part's differentiator chooses its window from its own samples, so the smoothed angles and
     the rates can differ from those of a whole-bag read by about their noise; the stamps are the same.
@@ -107,36 +108,103 @@ def bag_chunks(path, *, joints, planar, wheels=(), mapping=None, joint_topic=Non
     SpaceidError
         As :func:`read_bag_log`; ``block`` not a positive number of seconds.
     """
-    if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
-        raise SpaceidError(f"`block`: {block!r} is not a positive number: give the seconds of messages aligned "
-                           "at a time")
     path = Path(path)
-    topics, keywords = _bag_settings(mapping, joint_topic, pose_topic, options)
-    held, done, origin, due = {topics["joint_topic"]: [], topics["pose_topic"]: []}, -np.inf, None, None
-    with _bag_messages(path, topics["joint_topic"], topics["pose_topic"]) as (messages, publishers):
+    aligner = MessageAligner(path, joints=joints, planar=planar, wheels=wheels, mapping=mapping,
+                             joint_topic=joint_topic, pose_topic=pose_topic, block=block, **options)
+    with _bag_messages(path, aligner.joint_topic, aligner.pose_topic) as (messages, publishers):
+        aligner.publishers = publishers
         for topic, msg in messages:
-            held[topic].append(msg)
-            joint_msgs, pose_msgs = held.values()
-            due = due if due is not None or topic != topics["joint_topic"] else _stamp(msg) + int(block * 1e9)
-            if not (pose_msgs and len(joint_msgs) > 1 and _stamp(joint_msgs[-1]) > due):
-                continue
-            due = _stamp(joint_msgs[-1]) + int(block * 1e9)  # the next part: ``block`` more seconds of joint states
-            origin = origin if origin is not None else min(_stamp(joint_msgs[0]), _stamp(pose_msgs[0])) // _NS * _NS
-            log = to_log(_recording(path, joint_msgs, pose_msgs, publishers, **topics, time_origin_ns=origin),
-                         joints=joints, planar=planar, wheels=wheels, **keywords)  # fmt: skip
-            half = _settled(log)
-            part = log.select((log.t > done) & (log.t <= log.t[-1] - half))
-            if part.n_samples:
-                done = float(part.t[-1])
+            part = aligner.add(topic, msg)
+            if part is not None:
                 yield part
-            keep = origin + int((done - half) * 1e9)  # the left half window of the next part's first sample
-            held = {t: [m for m in msgs if _stamp(m) >= keep] for t, msgs in held.items()}
-        joint_msgs, pose_msgs = held.values()  # the rest (origin None: a bag shorter than one block)
-        log = to_log(_recording(path, joint_msgs, pose_msgs, publishers, **topics, time_origin_ns=origin),
-                     joints=joints, planar=planar, wheels=wheels, **keywords)  # fmt: skip
-        part = log.select(log.t > done)
-        if part.n_samples:
+        part = aligner.flush()
+        if part is not None:
             yield part
+
+
+class MessageAligner:
+    """Joint-state and pose messages in, aligned log parts out, in bounded memory: the engine of
+    :func:`bag_chunks`, fed by a bag or, message by message, by a live ROS 2 subscription.
+
+    :meth:`add` holds each message; once ``block`` seconds of joint states have gathered (and a
+    pose), the messages held are aligned and differentiated (:func:`to_log`) and the samples that
+    no later message can change are returned; the messages the next part's differentiator still
+    needs are kept, the rest dropped (:func:`bag_chunks` describes the parts). :meth:`flush`
+    returns the rest.
+
+    Parameters
+    ----------
+    source : str or Path
+        The bag, or a name of the live source (a name without a bag suffix); the messages' ``where``.
+    joints, planar, wheels, mapping, joint_topic, pose_topic, **options
+        As :func:`read_bag_log`.
+    block : float
+        Seconds of joint states [s] aligned at a time.
+    kind : str, optional
+        The ``format`` recorded in each part's ``meta`` (default: the bag's, from ``source``).
+
+    Attributes
+    ----------
+    joint_topic, pose_topic : str
+        The topics, from the mapping or the defaults.
+    publishers : int
+        Publishers of the joint topic (recorded in the parts' ``meta``).
+    held : int
+        Messages held now.
+
+    The messages are ``sensor_msgs/JointState`` and ``geometry_msgs/PoseStamped`` as rosbags
+    deserialises them or rclpy receives them (any object with their fields).
+    """
+
+    def __init__(self, source, *, joints, planar, wheels=(), mapping=None, joint_topic=None, pose_topic=None,
+                 block=BLOCK, kind=None, **options):
+        if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
+            raise SpaceidError(f"`block`: {block!r} is not a positive number: give the seconds of messages aligned "
+                               "at a time")
+        self.source, self.block, self.kind = Path(source), float(block), kind
+        self._topics, self._keywords = _bag_settings(mapping, joint_topic, pose_topic, options)
+        self.joint_topic, self.pose_topic = self._topics["joint_topic"], self._topics["pose_topic"]
+        self._model = {"joints": joints, "planar": planar, "wheels": wheels}
+        self.publishers = 1
+        self._held = {self.joint_topic: [], self.pose_topic: []}
+        self._done, self._origin, self._due = -np.inf, None, None
+
+    @property
+    def held(self) -> int:
+        return sum(len(msgs) for msgs in self._held.values())
+
+    def add(self, topic: str, msg) -> Log | None:
+        """Hold one message of ``topic``; the log of the samples it completes, or None."""
+        self._held[topic].append(msg)
+        joint_msgs, pose_msgs = self._held.values()
+        if self._due is None and topic == self.joint_topic:
+            self._due = _stamp(msg) + int(self.block * 1e9)
+        if not (pose_msgs and len(joint_msgs) > 1 and _stamp(joint_msgs[-1]) > self._due):
+            return None
+        self._due = _stamp(joint_msgs[-1]) + int(self.block * 1e9)  # the next part: ``block`` more seconds
+        if self._origin is None:
+            self._origin = min(_stamp(joint_msgs[0]), _stamp(pose_msgs[0])) // _NS * _NS
+        log = self._log(joint_msgs, pose_msgs)
+        half = _settled(log)
+        part = log.select((log.t > self._done) & (log.t <= log.t[-1] - half))
+        if part.n_samples:
+            self._done = float(part.t[-1])
+        keep = self._origin + int((self._done - half) * 1e9)  # the left half window of the next part's first sample
+        self._held = {t: [m for m in msgs if _stamp(m) >= keep] for t, msgs in self._held.items()}
+        return part if part.n_samples else None
+
+    def flush(self) -> Log | None:
+        """The samples not yet returned, from the messages held (origin None: fewer than one block)."""
+        log = self._log(*self._held.values())
+        part = log.select(log.t > self._done)
+        return part if part.n_samples else None
+
+    def _log(self, joint_msgs, pose_msgs) -> Log:
+        recording = _recording(self.source, joint_msgs, pose_msgs, self.publishers, **self._topics,
+                               time_origin_ns=self._origin)
+        if self.kind is not None:
+            recording.meta["format"] = self.kind
+        return to_log(recording, **self._model, **self._keywords)
 
 
 def _settled(log: Log) -> float:

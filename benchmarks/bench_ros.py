@@ -1,0 +1,223 @@
+"""The live monitor on ROS 2 (``spaceid ros monitor``): the input rate it keeps up with, and the
+time from the message that reveals a change to the published event.
+
+The ideal Cepheus twin (cepheus-rw, wheel at 170 rad/s) grasps 0.5 kg 4 s into a ``--duration``
+s run of paper-table2: encoders at 50 Hz, motion capture at 100 Hz. The monitor's settings are
+those of tests/test_ros.py (rates differentiated over 25 samples, 100-sample warm-ups, noise
+levels given).
+
+(a) capacity, no middleware: the run's messages (rclpy message objects, built beforehand) fed
+    to :class:`spaceid.ros.LiveMonitor` as fast as it takes them, ``--repeats`` times: joint-state
+    samples per second of wall time (alignment, differentiation, the monitor, the estimate after
+    each part and the payload after each event included), median and range;
+    Then a steady run without a change (``--steady-samples`` at 100 Hz on Cepheus, the sine motion
+    of bench_monitor.py; one warm-up, then only the test): where the per-sample costs dominate;
+(b) over DDS on the loopback (localhost discovery, a domain of its own): ``spaceid ros play`` of
+    the run's bag at ``--rate-factor`` times real time (50 x F joint samples/s in, plus 100 x F
+    poses/s), the monitor in its own process, this process subscribed to its topics: whether it
+    kept up (the samples of the last estimate published before the player ended, against those
+    aligned by then) and, per event, ``latency_s``: from the arrival of the message that completed
+    the aligned part holding the revealing samples to the event's publication; with the event's
+    time on the data clock after the grasp. The parts are aligned every ``--block`` s of data: the
+    revealing sample waits up to that (over F in wall time) plus half a differentiator window
+    for its part, and an event is complete a warm-up (100 samples) after the alarm; those waits
+    are the data's, printed apart.
+
+Prints only; never fails on the figures.
+
+    python benchmarks/bench_ros.py [--duration 12] [--repeats 3] [--rate-factor 1] [--steady-samples 6000]
+        [--estimator ml] [--parts a b]
+"""
+
+import argparse
+import json
+import os
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from spaceid import load_model, minimal_parameters
+from spaceid.estimation import Noise
+from spaceid.ros import LiveMonitor, twin_recording
+from spaceid.studies import capture_protocol
+
+ROTOR = 0.00197372
+NOISE = Noise(angle=1e-3, rate=1e-2, base_rate=1e-2)
+
+
+def _run(duration, capture=True):
+    run = twin_recording(capture=capture_protocol() if capture else None, ideal=True, duration=duration, seed=1)
+    return run, run.meta["capture"]["time"] if capture else None
+
+
+ESTIMATOR = "ml"
+
+
+def _live():
+    param = minimal_parameters(load_model("cepheus-rw"))
+    return LiveMonitor(param, np.zeros(3), link="link2", reading={"window": 25}, known={"Iczz_wheel": ROTOR},
+                       warmup=100, noise=NOISE, estimator=ESTIMATOR)
+
+
+def capacity(run, grasp, repeats, label):
+    """Joint samples per second of wall time that LiveMonitor takes the run's messages at."""
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import JointState
+
+    from spaceid.ros._node import _messages
+
+    messages = list(_messages(run.recording, 0, JointState, PoseStamped))
+    rates, payloads = [], 0
+    for _ in range(repeats + 1):  # the first warms the compiled kernels up: not counted
+        live = _live()
+        topics = (live.aligner.joint_topic, live.aligner.pose_topic)
+        start = time.perf_counter()
+        for _, is_joint, msg in messages:
+            live.add(topics[0] if is_joint else topics[1], msg)
+            payloads += live.payload() is not None
+        _, record = live.finish()
+        rates.append(record.n_samples / (time.perf_counter() - start))
+    rates = rates[1:]
+    origin = live._origin / 1e9
+    events = ", ".join(f"{e.time + origin - grasp:+.2f}" for e in record.events) if grasp is not None else \
+        str(len(record.events))
+    print(f"(a) {label}: {record.n_samples} joint samples, {len(messages)} messages: {statistics.median(rates):.0f} "
+          f"samples/s (range {min(rates):.0f}..{max(rates):.0f}, {repeats} runs); events "
+          f"{events}{' s from the grasp' if grasp is not None else ''}; {len(record.segments)} segments identified")
+
+
+def steady(n, repeats):
+    """Joint samples per second that LiveMonitor takes a long run without a change at: Cepheus at
+    100 Hz, the two-joint sine motion of bench_monitor.py (h = 0.5 N m s, 1e-4 rad on the angles
+    and the attitude), published as joint states and poses, the rates differentiated over 31
+    samples; one warm-up, then the test phase (false-alarm rate 1e-9)."""
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import JointState
+
+    from spaceid.motion import add_noise, simulate
+    from spaceid.ros import recording_of_log
+    from spaceid.ros._node import _messages
+
+    model = load_model("cepheus")
+    param = minimal_parameters(model)
+    h = np.array([0.0, 0.0, 0.5])
+
+    def motion(t):
+        arg = 2 * np.pi * np.array([0.3, 0.45]) * np.asarray(t)[:, None] + np.array([0.0, 1.0])
+        return 0.5 * np.sin(arg), 0.5 * 2 * np.pi * np.array([0.3, 0.45]) * np.cos(arg)
+
+    log = add_noise(simulate(param, param.true_values, motion, np.arange(n) / 100.0, h, model=model), angle=1e-4,
+                    rate=1e-3, seed=0)
+    messages = list(_messages(recording_of_log(log), 0, JointState, PoseStamped))
+    rates = []
+    for _ in range(repeats + 1):
+        live = LiveMonitor(param, h, reading={"window": 31}, noise=Noise(angle=1e-4, rate=1e-3, attitude=1e-4,
+                                                                          base_rate=1e-3),
+                           false_alarm_rate=1e-9, estimator=ESTIMATOR)
+        topics = (live.aligner.joint_topic, live.aligner.pose_topic)
+        start = time.perf_counter()
+        for _, is_joint, msg in messages:
+            live.add(topics[0] if is_joint else topics[1], msg)
+        _, record = live.finish()
+        rates.append(record.n_samples / (time.perf_counter() - start))
+    rates = rates[1:]
+    print(f"(a) steady, Cepheus at 100 Hz without a change: {record.n_samples} joint samples, {len(record.events)} "
+          f"events: {statistics.median(rates):.0f} samples/s (range {min(rates):.0f}..{max(rates):.0f}, "
+          f"{repeats} runs)")
+
+
+def over_dds(run, grasp, rate_factor, block):
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from std_msgs.msg import String
+
+    from spaceid.data import write_bag
+
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(1 + os.getpid() % 100))
+    folder = Path(tempfile.mkdtemp(prefix="bench_ros_"))
+    write_bag(folder / "run.mcap", run.recording, format="mcap")
+    context = Context()
+    rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
+    node = rclpy.create_node("bench_listener", context=context)
+    got = {"estimate": [], "events": []}
+    for name in got:
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL if name == "events" else DurabilityPolicy.VOLATILE)
+        node.create_subscription(String, f"/spaceid/{name}",
+                                 lambda m, name=name: got[name].append((time.monotonic(), json.loads(m.data))), qos)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(node)
+    cli = [sys.executable, "-m", "spaceid.cli", "ros"]
+    monitor = subprocess.Popen(cli + ["monitor", "cepheus-rw", "--momentum", "0", "--known", f"Iczz_wheel={ROTOR}",
+                                      "--warmup", "100", "--noise-angle", "1e-3", "--noise-rate", "1e-2",
+                                      "--noise-base-rate", "1e-2", "--window", "25", "--link", "link2",
+                                      "--block", str(block), "--estimator", ESTIMATOR,
+                                      "-o", str(folder / "events.json")],
+                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    play = subprocess.Popen(cli + ["play", str(folder / "run.mcap"), "--rate-factor", str(rate_factor)], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    while play.poll() is None:
+        executor.spin_once(timeout_sec=0.05)
+    ended = time.monotonic()
+    settle = ended + max(5.0, 2 * block / rate_factor + 2.0)
+    while time.monotonic() < settle:
+        executor.spin_once(timeout_sec=0.05)
+    monitor.send_signal(signal.SIGINT)
+    while monitor.poll() is None:  # the rest is published at the interrupt: keep listening
+        executor.spin_once(timeout_sec=0.05)
+    _, err = monitor.communicate()
+    if monitor.returncode != 0:
+        print(f"monitor exit code {monitor.returncode}: {err.strip().splitlines()[-1:]}")
+    executor.shutdown()
+    node.destroy_node()
+    context.try_shutdown()
+    n = run.recording.joints.t.size
+    by_end = [d["n_samples"] for t, d in got["estimate"] if t <= ended + 0.01]
+    last = max((d["n_samples"] for _, d in got["estimate"]), default=0)
+    print(f"(b) {rate_factor:g}x real time: {50 * rate_factor:.0f} joint samples/s in ({n} in {play.returncode=}); "
+          f"estimates published {len(got['estimate'])}; samples in the last estimate before the player ended "
+          f"{max(by_end, default=0)}, after it {last} (the last {block:g} s block waits for the next messages "
+          f"or Ctrl-C)")
+    for _, e in got["events"]:
+        t = e["time"] + e["time_origin_ns"] / 1e9
+        print(f"    event {e['index']} at {t - grasp:+.3f} s from the grasp (data clock; detected at "
+              f"{e['detected_at'] + e['time_origin_ns'] / 1e9 - grasp:+.3f} s): latency {1000 * e['latency_s']:.1f} ms "
+              f"from the completing message to the publication")
+    lat = [e["latency_s"] for _, e in got["events"]]
+    if lat:
+        print(f"    latency median {1000 * statistics.median(lat):.1f} ms, max {1000 * max(lat):.1f} ms "
+              f"({len(lat)} events)")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=12.0)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--rate-factor", type=float, default=1.0)
+    ap.add_argument("--block", type=float, default=2.0)
+    ap.add_argument("--parts", nargs="+", default=["a", "b"])
+    ap.add_argument("--steady-samples", type=int, default=6000)
+    ap.add_argument("--estimator", default="ml", help="of the monitor's batch identifications")
+    args = ap.parse_args()
+    global ESTIMATOR
+    ESTIMATOR = args.estimator
+    run, grasp = _run(args.duration)
+    if "a" in args.parts:
+        quiet, _ = _run(args.duration, capture=False)
+        capacity(quiet, None, args.repeats, "no change")
+        capacity(run, grasp, args.repeats, "grasp 4 s in")
+        steady(args.steady_samples, args.repeats)
+    if "b" in args.parts:
+        over_dds(run, grasp, args.rate_factor, args.block)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,219 @@
+"""The live monitor's engine, without ROS: messages in (as a subscription receives them), the
+messages to publish out. :func:`spaceid.ros.run_monitor` feeds it from rclpy subscriptions.
+
+Each message goes to a :class:`~spaceid.data.MessageAligner` (the bag reader's, with the same
+mapping: topics, joint names, latency, rate); each aligned part to a
+:class:`~spaceid.estimation.Monitor`. After each part the running estimate is published; each
+event as the monitor completes it; with a ``link``, the payload after each change, identified
+from the samples after it (:func:`~spaceid.identified.payload_after_grasp`) and refined each time
+they double.
+"""
+
+from __future__ import annotations
+
+import collections
+import time
+import warnings
+from dataclasses import dataclass
+
+import numpy as np
+
+from .._errors import SpaceidError
+from ..data import Log, MessageAligner
+
+__all__ = ["LIVE_BLOCK", "LiveMonitor", "LiveOutput"]
+
+LIVE_BLOCK = 2.0
+"""Seconds of joint states the live monitor aligns at a time (:class:`~spaceid.data.MessageAligner`):
+a part reaches the monitor this long after its first message, plus half a differentiator window."""
+MAX_HELD = 50_000
+"""Most messages held unaligned: more means the pose topic is silent (the joint states wait for it)."""
+HISTORY = 6000
+"""Most recent samples kept for the payload's identification."""
+
+
+@dataclass(frozen=True)
+class LiveOutput:
+    """One message to publish.
+
+    Attributes
+    ----------
+    kind : {"estimate", "event", "payload"}
+        The topic it goes to (``/spaceid/estimate``, ``/spaceid/events``, ``/spaceid/payload``).
+    data : dict
+        Its JSON object (docs/tutorials and the live-monitoring page list the keys).
+    """
+
+    kind: str
+    data: dict
+
+
+def _plain(value):
+    """NumPy arrays and scalars as lists and numbers, NaN and infinities as None, for JSON."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def _concatenate(parts) -> Log:
+    """One log of consecutive parts (the first part's ``meta``)."""
+    first = parts[0]
+    stack = lambda name: np.concatenate([getattr(p, name) for p in parts])  # noqa: E731
+    return Log(stack("t"), first.joints, stack("q"), stack("qd"), stack("base_quat"), stack("base_w"),
+               planar=first.planar, meta=dict(first.meta))
+
+
+class LiveMonitor:
+    """Change detection and identification on messages as they arrive.
+
+    Parameters
+    ----------
+    param : Parameterization
+        Minimal parameter set of the model.
+    momentum : array_like of shape (3,)
+        Inertial angular momentum [N m s], as for :class:`~spaceid.estimation.Monitor`.
+    mapping : str, Path or dict, optional
+        The bag mapping file (:func:`~spaceid.data.read_mapping`): topics, joint names,
+        ``pose_latency``, ``rate``, ``max_gap``, ``max_tilt``.
+    joint_topic, pose_topic : str, optional
+        Override the mapping's topics.
+    link : str, optional
+        The link that grasps: the payload is identified after each change.
+    block : float
+        Seconds of joint states aligned at a time (``LIVE_BLOCK``).
+    reading : dict, optional
+        Further :func:`~spaceid.data.to_log` keywords (``joint_rates``, ``window``, ``quantum``).
+    where : str
+        Name of the source, for messages.
+    **options
+        Keywords of :class:`~spaceid.estimation.Monitor` (``known``, ``noise``, ``drift``, ...).
+    """
+
+    def __init__(self, param, momentum, *, mapping=None, joint_topic=None, pose_topic=None, link=None,
+                 block=LIVE_BLOCK, reading=None, where="ros2", **options):
+        from ..estimation import Monitor
+
+        m = param.model
+        self.param, self.link, self.where = param, link, where
+        self.monitor = Monitor(param, momentum, where=where, **options)
+        self.aligner = MessageAligner(where, joints=m.joints, planar=m.planar, wheels=m.wheels, mapping=mapping,
+                                      joint_topic=joint_topic, pose_topic=pose_topic, block=block, kind="ros2-live",
+                                      **(reading or {}))  # fmt: skip
+        self._pmap = None
+        if link is not None:
+            from ..identified import payload_map
+
+            self._pmap = payload_map(m, link)
+        self._recent = collections.deque()  # the latest parts, at most HISTORY samples
+        self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
+        self.n_messages, self.busy = 0, 0.0
+        self._origin = None  # the published times are seconds after this ROS time [ns]
+
+    def add(self, topic: str, msg, received: float | None = None) -> list:
+        """Take one message of ``topic``; the :class:`LiveOutput` it completes (the estimate after
+        each aligned part, the events), in order. ``received``: its arrival [s, ``time.monotonic``],
+        from which each event's ``latency_s`` is counted (default now)."""
+        received = time.monotonic() if received is None else received
+        start = time.perf_counter()
+        self.n_messages += 1
+        try:
+            part = self.aligner.add(topic, msg)
+        except SpaceidError as err:  # a block the differentiator refuses: retried with the next block's messages
+            warnings.warn(f"{err}: the samples wait for the next block", stacklevel=2)
+            part = None
+        if part is None and self.aligner.held > MAX_HELD:
+            raise SpaceidError(f"`pose_topic`: {self.aligner.held} messages wait for a base pose on "
+                               f"'{self.aligner.pose_topic}': publish the base attitude there, or map its topic")
+        outputs = [] if part is None else self._take(part, received)
+        self.busy += time.perf_counter() - start
+        return outputs
+
+    def _take(self, part: Log, received: float) -> list:
+        """The outputs of one aligned part."""
+        self._origin = part.meta.get("time_origin_ns", self._origin)
+        self._remember(part)
+        events = self.monitor.update(part)
+        outputs = [self._event(e, received) for e in events]
+        estimate = self.estimate()
+        if estimate is not None:
+            outputs.insert(0, LiveOutput("estimate", estimate))
+        return outputs
+
+    def _remember(self, part: Log):
+        self._recent.append(part)
+        while sum(p.n_samples for p in self._recent) - self._recent[0].n_samples >= HISTORY:
+            self._recent.popleft()
+
+    def _event(self, event, received) -> LiveOutput:
+        if self._pmap is not None:
+            self._payload_event, self._payload_due = event, 0
+        data = event.to_dict() | {"time_origin_ns": self._origin, "latency_s": time.monotonic() - received}
+        return LiveOutput("event", _plain(data))
+
+    def estimate(self) -> dict | None:
+        """The running segment's recursive estimate: ``time`` (its last sample [s]),
+        ``time_origin_ns``, ``n_samples``, ``segment``, ``names``, ``values``, ``std`` (and the
+        drift's); None before the segment's test began."""
+        est = self.monitor.estimate()
+        if est is None:
+            return None
+        extra = {k: est[k] for k in ("drift", "drift_std") if k in est}
+        return _plain({"time": self._recent[-1].t[-1], "time_origin_ns": self._origin,
+                       "n_samples": self.monitor.n_samples, "segment": len(self.monitor.segments),
+                       "names": list(self.param.names), "values": est["values"], "std": est["std"]} | extra)  # fmt: skip
+
+    def payload(self) -> LiveOutput | None:
+        """The payload after the last change, when due: once the samples after it allow, then
+        each time they double (while the history holds them); None otherwise or without ``link``."""
+        event = self._payload_event
+        if event is None:
+            return None
+        from ..identified import payload_after_grasp
+
+        grasp = event.time + event.lead  # the change lies in [time, time + lead]
+        if self._recent[0].t[0] >= grasp:  # the history no longer reaches back to the change
+            self._payload_event = None
+            return None
+        after = sum(int(np.sum(p.t > grasp)) for p in self._recent)
+        if after < max(self._payload_due, self.monitor.warmup):
+            return None
+        log = _concatenate(list(self._recent))
+        self._payload_due = 2 * after
+        mon = self.monitor
+        try:
+            res = payload_after_grasp(self._pmap, log, self.link, grasp, mon.momentum, noise=mon.noise,
+                                      drift=mon.drift, where=self.where).estimate
+        except SpaceidError as err:
+            return LiveOutput("payload", {"event": event.index, "time": grasp, "error": str(err)})
+        data = {"event": event.index, "time": grasp, "time_origin_ns": self._origin, "n_samples": after,
+                "names": list(res.names), "values": res.values, "std": res.std} | res.to_dict()
+        return LiveOutput("payload", _plain(data))
+
+    def finish(self):
+        """The rest of the messages held, then the run's record: ``(outputs, record)``, the record a
+        :class:`~spaceid.estimation.MonitorRecord` (EVENTS.json). A tail too short to align is left out."""
+        outputs = []
+        try:
+            part = self.aligner.flush()
+        except SpaceidError:  # fewer messages than the differentiator needs: nothing to add
+            part = None
+        if part is not None:
+            outputs = self._take(part, time.monotonic())
+        seen = len(self.monitor.events)
+        record = self.monitor.finish()
+        outputs += [self._event(e, time.monotonic()) for e in record.events[seen:]]
+        return outputs, record
+
+    def result(self, record):
+        """The last identified segment's :class:`~spaceid.estimation.Identification` (RESULT.json), or None."""
+        found = [s.identification for s in record.segments if s.identification is not None]
+        return found[-1] if found else None
+

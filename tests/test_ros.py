@@ -1,0 +1,211 @@
+"""spaceid on ROS 2: without the extra the commands say how to install it; with it, the twin, the
+live monitor and a plain rclpy subscriber in three processes over real DDS traffic on the loopback.
+
+The end-to-end test limits discovery to this machine (ROS_AUTOMATIC_DISCOVERY_RANGE=LOCALHOST)
+and takes a ROS domain of its own per run, so that parallel runs do not hear each other. Its only
+waits are bounded event-driven ones (generous: the machine may be loaded).
+"""
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+from spaceid.cli import main
+
+ROTOR = "0.00197372"  # cepheus-rw's reaction-wheel rotor inertia, the scale anchor at zero momentum
+MONITOR = ["ros", "monitor", "cepheus-rw", "--momentum", "0", "--known", f"Iczz_wheel={ROTOR}", "--warmup", "100",
+           "--noise-angle", "1e-3", "--noise-rate", "1e-2", "--noise-base-rate", "1e-2", "--window", "25",
+           "--link", "link2"]  # fmt: skip
+TIMEOUT = 600.0
+
+
+def test_without_rclpy_the_commands_say_how_to_install_it(monkeypatch, capsys, tmp_path):
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # import rclpy raises ImportError
+    assert main(["ros", "twin"]) == 2
+    assert main(["ros", "monitor", "cepheus-rw", "--momentum", "0", "-o", str(tmp_path / "e.json")]) == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 2 and all('pip install "spaceid[ros]"' in line for line in lines), lines
+    import spaceid.ros  # noqa: F401  (the subpackage itself imports without rclpy)
+
+
+def _environment():
+    """This run's ROS environment: localhost discovery, a domain of its own (0..101 are valid)."""
+    env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(1 + os.getpid() % 100),
+               PYTHONUNBUFFERED="1")  # fmt: skip
+    env.pop("ROS_STATIC_PEERS", None)
+    src = os.path.dirname(os.path.dirname(os.path.abspath(sys.modules["spaceid"].__file__)))
+    env["PYTHONPATH"] = os.pathsep.join([src] + [p for p in env.get("PYTHONPATH", "").split(os.pathsep) if p])
+    return env
+
+
+class _Listener:
+    """A plain rclpy subscriber to the monitor's three topics, in this process."""
+
+    def __init__(self, rclpy, env):
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+        from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+        from std_msgs.msg import String
+
+        self.context = Context()
+        rclpy.init(context=self.context, domain_id=int(env["ROS_DOMAIN_ID"]))
+        self.node = rclpy.create_node("spaceid_test_listener", context=self.context)
+        self.got = {"estimate": [], "events": [], "payload": []}
+        latched = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)  # fmt: skip
+        for name in self.got:
+            qos = latched if name != "estimate" else QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+            self.node.create_subscription(String, f"/spaceid/{name}",
+                                          lambda msg, name=name: self.got[name].append(json.loads(msg.data)), qos)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+
+    def wait(self, done, timeout, processes=()):
+        """Spin until ``done()``; False after ``timeout`` s or when one of ``processes`` ended."""
+        deadline = time.monotonic() + timeout
+        while not done():
+            if time.monotonic() > deadline or any(p.poll() not in (None, 0) for p in processes):
+                return False
+            self.executor.spin_once(timeout_sec=0.1)
+        return True
+
+    def close(self):
+        self.executor.shutdown()
+        self.node.destroy_node()
+        self.context.try_shutdown()
+
+
+def _start(args, env, cwd):
+    return subprocess.Popen([sys.executable, "-m", "spaceid.cli", *args], env=env, cwd=cwd, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+
+
+@pytest.mark.slow
+def test_twin_monitor_and_subscriber_over_dds(tmp_path):
+    """The twin grasps 0.5 kg 4 s into a 12 s motion; the monitor, fed over DDS in real time,
+    publishes an event within 0.5 s of the grasp and the payload mass within its 2-sigma bar; all
+    stop cleanly (the twin at its end, the monitor on SIGINT, writing EVENTS.json and RESULT.json)."""
+    rclpy = pytest.importorskip("rclpy")
+    pytest.importorskip("sensor_msgs.msg")
+    env = _environment()
+    listener = _Listener(rclpy, env)
+    monitor = _start([*MONITOR, "-o", "events.json"], env, tmp_path)
+    twin = None
+    try:
+        twin = _start(["ros", "twin", "--capture", "--ideal", "--seed", "1", "--duration", "12"], env, tmp_path)
+        assert listener.wait(lambda: twin.poll() is not None, TIMEOUT, [monitor]), "the twin did not finish"
+        out, err_text = twin.communicate()
+        assert twin.returncode == 0, err_text
+        grasp = float(re.search(r"grasp at (\S+) s", out)[1])
+
+        def found():
+            near = [e for e in listener.got["events"] if abs(e["time"] + e["time_origin_ns"] / 1e9 - grasp) <= 0.5]
+            return near and any(p["event"] == near[0]["index"] and "mass" in p for p in listener.got["payload"])
+
+        assert listener.wait(found, TIMEOUT, [monitor]), (listener.got["events"], listener.got["payload"])
+        assert listener.got["estimate"] and all(len(e["values"]) == len(e["std"]) for e in listener.got["estimate"])
+        event = next(e for e in listener.got["events"] if abs(e["time"] + e["time_origin_ns"] / 1e9 - grasp) <= 0.5)
+        payload = [p for p in listener.got["payload"] if p["event"] == event["index"] and "mass" in p][-1]
+        assert abs(payload["mass"] - 0.5) <= 2 * payload["std"]["mass"], payload
+        monitor.send_signal(signal.SIGINT)
+        out, err_text = monitor.communicate(timeout=TIMEOUT)
+        assert monitor.returncode == 0, err_text
+    finally:
+        for p in (monitor, twin):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.communicate()
+        listener.close()
+    written = json.loads((tmp_path / "events.json").read_text())
+    assert [e["index"] for e in written["events"]] == [e["index"] for e in listener.got["events"]]
+    assert json.loads((tmp_path / "result.json").read_text())["parameters"]
+
+
+@pytest.fixture(scope="module")
+def twin_bag(tmp_path_factory):
+    """The end-to-end test's twin run (grasp 4 s into 12 s) as an MCAP bag, and the grasp time."""
+    from spaceid.data import write_bag
+    from spaceid.ros import twin_recording
+    from spaceid.studies import capture_protocol
+
+    run = twin_recording(capture=capture_protocol(), ideal=True, duration=12.0, seed=1)
+    bag = tmp_path_factory.mktemp("ros") / "twin.mcap"
+    write_bag(bag, run.recording, format="mcap")
+    return bag, run.meta["capture"]["time"]
+
+
+def _live(**options):
+    import numpy as np
+
+    from spaceid import load_model, minimal_parameters
+    from spaceid.estimation import Noise
+    from spaceid.ros import LiveMonitor
+
+    param = minimal_parameters(load_model("cepheus-rw"))
+    return LiveMonitor(param, np.zeros(3), reading={"window": 25}, known={"Iczz_wheel": float(ROTOR)}, warmup=100,
+                       noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2), **options)  # fmt: skip
+
+
+def _bag_messages(bag):
+    """The bag's (topic, message) pairs in order, deserialised by rosbags (no ROS needed)."""
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([bag]) as reader:
+        for connection, _, raw in reader.messages():
+            yield connection.topic, reader.deserialize(raw, connection.msgtype)
+
+
+@pytest.mark.slow
+def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag):
+    """Messages fed one by one to LiveMonitor give the events of the bag read in parts of the same
+    block and fed to the monitor; the grasp's event within 0.5 s of it, the payload after it
+    within 2 sigma of 0.5 kg; each estimate has one standard error per parameter."""
+    import numpy as np
+
+    from spaceid import load_model, minimal_parameters
+    from spaceid.data import bag_chunks
+    from spaceid.estimation import Noise, monitor
+
+    bag, grasp = twin_bag
+    live = _live(link="link2")
+    outputs = []
+    for topic, msg in _bag_messages(bag):
+        outputs += live.add(topic, msg)
+        payload = live.payload()
+        outputs += [payload] if payload is not None else []
+    rest, record = live.finish()
+    outputs += rest
+    m = load_model("cepheus-rw")
+    expected = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels, block=2.0,
+                                                         window=25),
+                       np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
+                       noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
+    assert [e.time for e in record.events] == [e.time for e in expected.events] and record.events
+    events = [o.data for o in outputs if o.kind == "event"]
+    assert [e["time"] for e in events] == [e.time for e in record.events]
+    origin = events[0]["time_origin_ns"] / 1e9
+    near = [e for e in events if abs(e["time"] + origin - grasp) <= 0.5]
+    assert near, ([e["time"] + origin for e in events], grasp)
+    payloads = [o.data for o in outputs if o.kind == "payload" and o.data["event"] == near[0]["index"]]
+    assert payloads and all(abs(p["mass"] - 0.5) <= 2 * p["std"]["mass"] for p in payloads), payloads
+    estimates = [o.data for o in outputs if o.kind == "estimate"]
+    assert estimates and all(len(e["std"]) == len(e["values"]) == len(e["names"]) for e in estimates)
+
+
+def test_a_silent_pose_topic_is_named(monkeypatch, twin_bag):
+    import spaceid.ros._live as live_module
+    from spaceid import SpaceidError
+
+    bag, _ = twin_bag
+    monkeypatch.setattr(live_module, "MAX_HELD", 50)
+    live = _live()
+    joints = (pair for pair in _bag_messages(bag) if pair[0] == live.aligner.joint_topic)
+    with pytest.raises(SpaceidError, match=r"`pose_topic`: 51 messages wait for a base pose on '/vrpn"):
+        for topic, msg in joints:
+            live.add(topic, msg)
