@@ -190,7 +190,6 @@ NO_OPTION = {
     "frame": "IdentifiedModel.frame_velocity's frame: no command computes frame velocities",
     "point": "IdentifiedModel.frame_velocity's point: no command computes frame velocities",
     "pi": "IdentifiedModel.with_values' parameters and simulate's: no command gives them as numbers",
-    "result": "predict and validate's source when neither an identification nor a model: the commands pass a path",
     "grasp_motion.cov": "identify_payload's grasp motion: payload_after_grasp builds it from --payload-velocity, "
                         "--payload-rate",
     "hold": "validate_torques' effort interpolation: the validate command keeps 'linear'",
