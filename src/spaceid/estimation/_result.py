@@ -12,6 +12,7 @@ from .._errors import SpaceidError
 from ..data import read_json
 from ._diagnostics import Diagnostics
 from ._drift import drift_terms
+from ._prior import PriorRecord
 
 __all__ = ["Comparison", "Identification", "compare", "load_result"]
 
@@ -59,6 +60,10 @@ class Identification:
         How well the data agreed with the model: ``chi2_dof``, the residual tests, the drift
         test, the plausibility of the estimates, how the covariance was obtained
         (:class:`~spaceid.estimation.Diagnostics`).
+    prior : PriorRecord or None
+        The CAD prior of a maximum a posteriori estimate (``identify(..., prior=...)``): the prior's
+        and the data's own values, and per direction whether the data or the prior set it; None
+        without a prior (``values``/``cov`` are then the data's alone).
     """
 
     names: tuple
@@ -80,6 +85,7 @@ class Identification:
     com: dict | None = None
     momentum_std: np.ndarray | None = None
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    prior: PriorRecord | None = None
 
     def drift_terms(self) -> dict:
         """The drift coefficients as :func:`spaceid.motion.simulate` takes them (empty without drift)."""
@@ -145,6 +151,7 @@ class Identification:
             "settings": self.settings,
             "diagnostics": self.diagnostics.to_dict(),
             **({"com": self.com} if self.com is not None else {}),
+            **({"prior": self.prior.to_dict()} if self.prior is not None else {}),
         }
 
     @classmethod
@@ -184,6 +191,7 @@ class Identification:
                 data.get("com"),
                 None if h_std is None else np.asarray(h_std, float).reshape(3),
                 Diagnostics.from_dict(diagnostics),
+                PriorRecord.from_dict(data.get("prior")),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "
