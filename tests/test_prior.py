@@ -65,7 +65,8 @@ def as_result(param, values, h):
     """A bare result with ``values`` (the prior's own prediction)."""
     k = len(values)
     return Identification(param.names, param.definitions, values, np.zeros(k), np.zeros((k, k)), 1.0, np.ones(1), 0.0,
-                          0, "prior", h, str(param.model.source or param.model.name), param.model.planar, {"parameterization": param.to_dict()})
+                          0, "prior", h, str(param.model.source or param.model.name), param.model.planar,
+                          {"parameterization": param.to_dict()})
 
 
 def map_model(res, prior):
@@ -218,3 +219,15 @@ def test_cli_bad_prior_input_is_one_line_exit_2(cli_log, capsys, args, words):
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and words in err[0]
     assert not (cli_log / "bad.json").exists()
+
+
+def test_the_report_has_a_section_on_the_prior(cepheus, tmp_path):
+    from spaceid.studies import write_markdown_report
+
+    param, log, h = flown(cepheus, 6.0, 5.0, 10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(param, log, h, estimator="wls", prior=cad_prior(cepheus, 0.15, 6))
+    text = write_markdown_report(tmp_path, title="t", result=res, settings={}, figures={}).read_text()
+    assert "## CAD prior" in text and res.prior.summary() in text
+    assert text.count("| prior |") + text.count("| data |") == min(len(res.prior.directions), 12)

@@ -376,7 +376,8 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
             out = program.solve(data.L @ jac[data.free], data.r, jac[idx], cv)
             if out is None:
                 raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
-                                   f"({', '.join(param.names[i] for i in idx) or 'none'}) near the prior: check `known` "
+                                   f"({', '.join(param.names[i] for i in idx) or 'none'}) near the prior: check "
+                                   "`known` "
                                    "and the prior (`prior`)")
             new, value_new = out[0], objective(out[0])
             for _ in range(30):  # a Gauss-Newton step that does not lower the objective is halved (convex set)
