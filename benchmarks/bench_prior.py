@@ -10,7 +10,7 @@ refuses, which is printed), from the CAD prior alone (masses and principal momen
 motion (``spaceid.studies.predict``) and the largest attitude error over it is printed, with the
 directions that the data and the prior set. Prints only.
 
-    python benchmarks/bench_prior.py [--seed 0] [--duration 20] [--held-out 60] [--off 0.15]
+    python benchmarks/bench_prior.py [--seed 0] [--duration 60] [--held-out 60] [--off 0.15]
 """
 
 import argparse
@@ -61,7 +61,7 @@ def held_out_error(result, truth_log, t, motion):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--duration", type=float, default=20.0)
+    parser.add_argument("--duration", type=float, default=60.0)
     parser.add_argument("--held-out", type=float, default=60.0)
     parser.add_argument("--rate-hz", type=float, default=10.0)
     parser.add_argument("--off", type=float, default=0.15)

@@ -377,8 +377,7 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
             if out is None:
                 raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
                                    f"({', '.join(param.names[i] for i in idx) or 'none'}) near the prior: check "
-                                   "`known` "
-                                   "and the prior (`prior`)")
+                                   "`known` and the prior (`prior`)")
             new, value_new = out[0], objective(out[0])
             for _ in range(30):  # a Gauss-Newton step that does not lower the objective is halved (convex set)
                 if value_new <= value * (1 + 1e-12) or not np.isfinite(value):
@@ -522,7 +521,10 @@ def identify_with_prior(identify, param: Parameterization, log, momentum, *, pri
         if len(data.L) == len(eq.free):
             pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard,
                                            where=where)
-            return replace(data_fit, values=pi, cov=cov, std=np.sqrt(np.clip(np.diag(cov), 0, None)), prior=record)
+            d = data_fit.diagnostics
+            diagnostics = replace(d, covariance=f"posterior of the CAD prior and the data's: {d.covariance}")
+            return replace(data_fit, values=pi, cov=cov, std=np.sqrt(np.clip(np.diag(cov), 0, None)), prior=record,
+                           diagnostics=diagnostics)
         # a covariance of lower rank claims exact knowledge the data cannot have (a sandwich of few samples)
         reason = (f"the {estimator} covariance ({data_fit.diagnostics.covariance_method}) has rank {len(data.L)} "
                   f"for {len(eq.free)} parameters")
