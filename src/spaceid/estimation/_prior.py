@@ -514,9 +514,16 @@ def identify_with_prior(identify, param: Parameterization, log, momentum, *, pri
     minimal, standard = split_known(param, known, where)
     model = _prior_model(param, prior, where)
     reason, eq = _undetermined(param, log, momentum, minimal, where, cond_limit, drift, history)
+    data_fit = None
     if not reason:
-        data_fit = identify(param, log, momentum, known=minimal, estimator=estimator, noise=noise, where=where,
-                            cond_limit=cond_limit, drift=drift, history=history, **options)
+        try:
+            data_fit = identify(param, log, momentum, known=minimal, estimator=estimator, noise=noise, where=where,
+                                cond_limit=cond_limit, drift=drift, history=history, **options)
+        except SpaceidError as exc:  # the estimator's system is singular though the condition number passed
+            if "singular or non-finite" not in str(exc):
+                raise
+            reason = f"the {estimator} estimate failed on a singular system"
+    if data_fit is not None:
         data = data_from_estimate(data_fit.values, data_fit.cov, eq.free, dict(zip(eq.known, eq.known_values)))
         if len(data.L) == len(eq.free):
             pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard,
