@@ -49,6 +49,14 @@ def cad_prior(model, off, seed):
     return model.with_inertials(rows)
 
 
+def coverage(values, std, true):
+    """Share of the large minimal parameters (|true| above 1e-3 of the largest) within 2 standard
+    deviations of the truth, and the largest |z| among them."""
+    big = np.abs(true) > 1e-3 * np.abs(true).max()
+    z = np.abs(values - true)[big] / np.where(std[big] > 0, std[big], np.nan)
+    return f"{100 * np.mean(z < 2):.0f} % of {big.sum()} large parameters within 2 std, max |z| {np.nanmax(z):.3g}"
+
+
 def held_out_error(result, truth_log, t, motion):
     q, qd, _ = motion.evaluate(t)
     try:
@@ -90,12 +98,14 @@ def main():
                               np.zeros((len(prior_pi),) * 2), 1.0, np.ones(1), 0.0, 0, "prior", h, "servicer-dual",
                               False, {"parameterization": param.to_dict()})
     rows = [("CAD prior", held_out_error(as_prior, truth, t_held, held))]
+    notes = []
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         start = time.perf_counter()
         try:
             data = identify(param, log, h, estimator=args.estimator)
             rows.append((f"data alone ({args.estimator})", held_out_error(data, truth, t_held, held)))
+            notes.append(f"data alone: {coverage(data.values, data.std, param.true_values)}")
         except SpaceidError as exc:
             rows.append((f"data alone ({args.estimator})", f"refused: {str(exc)[:110]}..."))
         mid = time.perf_counter()
@@ -104,6 +114,10 @@ def main():
     rows.append((f"MAP with the prior ({args.estimator})", held_out_error(map_, truth, t_held, held)))
     for name, err in rows:
         print(f"  {name:28s} max held-out attitude error: " + (f"{err:.3g} rad" if isinstance(err, float) else err))
+    notes += [f"prior: {coverage(map_.prior.prior_values, map_.prior.prior_std_values, param.true_values)}",
+              f"MAP: {coverage(map_.values, map_.std, param.true_values)}"]
+    for note in notes:
+        print(f"  {note}")
     print(f"  {map_.prior.summary()}")
     print(f"  time: data alone {mid - start:.1f} s, MAP {end - mid:.1f} s ({map_.prior.steps} convex steps)")
 

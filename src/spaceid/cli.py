@@ -691,7 +691,7 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @PLANAR
 @click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
               "whole system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to "
-              "estimate it (both need an anchor, --known or a reaction wheel).")
+              "estimate it (both need an anchor, --known or a reaction wheel, or a --prior).")
 @click.option("--estimator", type=click.Choice(ESTIMATORS), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
               "parameter one equals alone, e.g. Iczz_wheel=0.00197): anchors the scale; repeatable.")

@@ -39,6 +39,10 @@ ACTIVE = 1e-4
 """A body's physical constraint counts as active at the MAP when its whitened pseudo-inertia (the
 prior at the identity) has an eigenvalue below this."""
 STEP_TOL = 1e-9
+"""The convex steps stop when ``theta`` moves less than this many prior standard deviations ..."""
+VALUE_TOL = 1e-12
+"""... or the objective falls by less than this fraction: in directions that neither data nor prior
+pin down the solver's noise (a part in 1e8 of the whitened parameters) moves it without end."""
 MAX_STEPS = 40
 TOTAL_MASS = "m_total"
 """The name of the total mass in ``known``."""
@@ -113,6 +117,9 @@ class PriorRecord:
         with the constraints inactive, overstates the uncertainty towards the boundary).
     steps : int
         Convex programs solved.
+    theta : dict
+        The standard parameters: ``names``, the estimate ``map``, the ``prior`` and its deviations
+        ``prior_std`` (lists in ``names`` order) [kg, kg m, kg m^2].
     """
 
     source: str
@@ -257,7 +264,7 @@ def split_known(param: Parameterization, known: dict | None, where: str) -> tupl
         target = standard if (name in names and name not in param.names and name not in alone) else minimal
         target[name] = value
     for name, value in standard.items():
-        if not (np.isfinite(value) and value > 0) and name.startswith("m"):
+        if not (np.isfinite(value) and value > 0) and name.startswith("m_"):  # m_total too
             raise SpaceidError(f"{where}: `known` {name}={shown(value)}: a mass must be positive and finite")
     return minimal, standard
 
@@ -384,9 +391,12 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
                     break
                 new = 0.5 * (theta + new)
                 value_new = objective(new)
-            step, theta, value = moved(new, theta), new, value_new
-            if step < STEP_TOL:
+            step, gain, theta, value = moved(new, theta), value - value_new, new, value_new
+            if step < STEP_TOL or gain <= VALUE_TOL * value:  # settled, or only the solver's noise moves it
                 break
+        else:
+            warnings.warn(f"{where}: the MAP did not settle in {MAX_STEPS} convex steps (last move {step:.2g} prior "
+                          "standard deviations)", stacklevel=3)
     theta = _polish(param, data, D, d, theta, idx, cv, s, g, z)
     cov, jac = _posterior(param, data, D, theta, idx)
     least = [_least_whitened(g, z, th) for th in (theta, theta0)]
