@@ -406,7 +406,7 @@ def identify(
                                    history=history, instruments=instruments, knot_spacing=knot_spacing, chunk=chunk)
     standard = split_known(param, known, where)[1]
     if standard:
-        raise standard_anchor_error(next(iter(standard)), where)
+        raise standard_anchor_error(next(iter(standard)), param, where)
     momentum = None if momentum is None else np.asarray(momentum, float)
     drift = check_drift_kinds(drift)
     if drift and estimator == "angles":

@@ -16,6 +16,7 @@ halved when a step does not lower the objective).
 
 from __future__ import annotations
 
+import re
 import warnings
 from dataclasses import dataclass, field
 
@@ -269,12 +270,13 @@ def split_known(param: Parameterization, known: dict | None, where: str) -> tupl
     return minimal, standard
 
 
-def standard_anchor_error(name: str, where: str) -> SpaceidError:
+def standard_anchor_error(name: str, param: Parameterization, where: str) -> SpaceidError:
     """The error for a known standard parameter without a prior: why the momentum cannot take it."""
+    alone = ", ".join(d.strip() for d in param.definitions if re.fullmatch(r"\s*[A-Za-z_][A-Za-z_0-9]*\s*", d))
     return SpaceidError(
-        f"{where}: `known` {name}: the momentum fixes only the minimal parameters, and {name} enters them only in "
-        "combinations with other bodies' parameters (none equals it alone), so no equation can take it as an anchor: "
-        "give a CAD prior (`prior`), with which it is a tight prior on that mass")
+        f"{where}: `known` {name}: not a minimal parameter, and the momentum fixes it only in combinations with other "
+        f"bodies' parameters, so no equation takes it alone (those that do: {alone or 'none'}): give a CAD prior "
+        "(`prior`), with which it is a tight prior on that mass")
 
 
 def _prior_terms(prior: Model, rel: float, known_standard: dict, where: str) -> tuple:
