@@ -689,7 +689,7 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @PLANAR
 @click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
               "whole system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to "
-              "estimate it (both need an anchor, --known or a reaction wheel).")
+              "estimate it (both need an anchor, --known or a reaction wheel, or a --prior).")
 @click.option("--estimator", type=click.Choice(ESTIMATORS), default="ml", show_default=True, help=ESTIMATOR_HELP)
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
               "parameter one equals alone, e.g. Iczz_wheel=0.00197): anchors the scale; repeatable.")
@@ -710,10 +710,17 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "equations this many samples at a time, so that memory does not grow with the regressor (e.g. 4096 for "
               "long logs of large robots); the result agrees with the in-memory one to round-off, the drift residual "
               "test and the covariance of differentiated rates included.")
+@click.option("--prior", "prior_src", metavar="MODEL", help="A CAD model of the robot (URDF, YAML or preset; same "
+              "joints and geometry): the estimate is then the maximum a posteriori over physically consistent models, "
+              "on any motion; RESULT.json field 'prior' says per direction whether the data or the prior set it. "
+              "--known may then also give a body mass (m_base=180) or the total mass (m_total=...).")
+@click.option("--prior-std", type=float, default=0.2, show_default=True, metavar="REL", help="--prior: relative "
+              "standard deviation of its masses and principal moments; its CoMs' is REL times each body's radius of "
+              "gyration.")
 @log_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, knot_spacing, drift,
-             with_com, chunk, output, reading):
+             with_com, chunk, prior_src, prior_std, output, reading):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -743,7 +750,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         reference = traj.evaluate(log.t - log.t[0])[:2]
     with _warnings_to_stderr():
         ident = run(param, log, h, estimator=estimator, known=known, noise=noise, instruments=reference,
-                    where=str(log_path), knot_spacing=knot_spacing, drift=kinds, chunk=chunk)
+                    where=str(log_path), knot_spacing=knot_spacing, drift=kinds, chunk=chunk, prior=prior_src,
+                    prior_std=prior_std)
     if with_com:
         ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())
@@ -759,6 +767,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
             f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {ident.momentum_std[i]:.2g}" for i in axes) + " N m s")
     for line in drift_lines(ident):
         out.print(line, highlight=False)
+    if ident.prior is not None:
+        out.print(ident.prior.summary(), highlight=False)
     chi2_dof = ident.diagnostics.chi2_dof
     chi2 = "" if chi2_dof is None else f"chi2/dof = {chi2_dof:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "

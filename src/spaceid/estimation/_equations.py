@@ -275,13 +275,14 @@ def drift_basis_at(log, drift, history, where):
                      for k in range(g.shape[1])], 1)
 
 
-def _equations(param, log, momentum, known, where, drift=(), history=None) -> tuple:
+def _equations(param, log, momentum, known, where, drift=(), history=None, *, scale_free=False) -> tuple:
     """The equations of ``log`` (with the drift kinds ``drift``, integrated over ``history`` if
     given) and the anchors used, as records for the settings of a result (see
-    :func:`spaceid.estimation.identify`)."""
+    :func:`spaceid.estimation.identify`); ``scale_free``: homogeneous equations allowed (a prior
+    sets the scale)."""
     anchors = resolve_anchors(param, dict(known or {}), where)
     homogeneous = momentum is None or not np.linalg.norm(momentum) > 0
-    if homogeneous and not anchors:
+    if homogeneous and not anchors and not scale_free:
         state = "unknown" if momentum is None else "zero"
         raise SpaceidError(
             f"{where}: the momentum is {state}, so the equations are homogeneous and fix the parameters only up to "

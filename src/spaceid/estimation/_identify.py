@@ -31,6 +31,7 @@ from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _FitContext, _ols
 from ._linalg import _column_scale, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
+from ._prior import PRIOR_STD, identify_with_prior, split_known, standard_anchor_error
 from ._residuals import drift_test
 from ._result import Identification
 from ._scales import log_momentum_scale
@@ -76,6 +77,16 @@ def check_excitation(phi, names, cond_limit: float, where: str) -> tuple:
     # depend on units). R is formed once: excitation check, singular values and the OLS solution.
     scale = _column_scale(A)
     return _check_factor((scale, _triangular_factor(A, b, scale)), names, cond_limit, where)
+
+
+def excitation_condition(phi) -> float:
+    """The condition number of the column-scaled regressor of ``phi (n, rows, p + 1)`` (infinite when
+    singular), as :func:`check_excitation` judges it."""
+    A, b = _split(phi)
+    scale = _column_scale(A)
+    with one_blas_thread():
+        sv = np.linalg.svd(_triangular_factor(A, b, scale)[:-1, :-1], compute_uv=False)
+    return float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
 
 
 def _check_right_hand_side(nonzero: bool, where: str) -> None:
@@ -304,6 +315,8 @@ def identify(
     drift=(),
     history: Log | None = None,
     chunk: int | None = None,
+    prior=None,
+    prior_std: float = PRIOR_STD,
 ) -> Identification:
     """Estimate the minimal parameters from a measured motion.
 
@@ -354,6 +367,16 @@ def identify(
         regressor (:mod:`spaceid.estimation._stream`); the result agrees with the in-memory one
         to round-off, the residual test for an unmodelled drift and the covariance of
         differentiated rates included. Default: in memory.
+    prior : Model or str or Path, optional
+        A CAD model of the robot (same joints and geometry): the estimate is then the maximum a
+        posteriori over physically consistent models, with an independent Gaussian prior on every
+        body's mass, first moments and inertia about the CAD values (:mod:`spaceid.estimation._prior`,
+        docs/theory/prior.md); ``known`` may then also name a body's mass (``m_base``) or the total
+        mass (``m_total``), held to a relative std of 1e-6. Works on any motion, even one that does
+        not determine the parameters.
+    prior_std : float
+        The prior's relative standard deviation of masses and principal moments (default 0.2); the
+        CoMs' is ``prior_std`` times each body's radius of gyration.
 
     Returns
     -------
@@ -378,6 +401,13 @@ def identify(
     """
     if estimator not in ESTIMATORS:
         raise SpaceidError(f"`estimator`: {shown(estimator)} is not one of {', '.join(ESTIMATORS)}")
+    if prior is not None:
+        return identify_with_prior(identify, param, log, momentum, prior=prior, prior_std=prior_std, known=known,
+                                   estimator=estimator, noise=noise, where=where, cond_limit=cond_limit, drift=drift,
+                                   history=history, instruments=instruments, knot_spacing=knot_spacing, chunk=chunk)
+    standard = split_known(param, known, where)[1]
+    if standard:
+        raise standard_anchor_error(next(iter(standard)), param, where)
     momentum = None if momentum is None else np.asarray(momentum, float)
     drift = check_drift_kinds(drift)
     if drift and estimator == "angles":

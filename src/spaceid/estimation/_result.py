@@ -13,6 +13,7 @@ from ..data import read_json
 from ._diagnostics import Diagnostics
 from ._drift import drift_terms
 from ._scales import MomentumScale
+from ._prior import PriorRecord
 
 __all__ = ["Comparison", "Identification", "compare", "load_result"]
 
@@ -63,6 +64,10 @@ class Identification:
     scale : MomentumScale or None
         The momentum scale of the log (:func:`~spaceid.estimation.log_momentum_scale`): errors
         and standard deviations as the momentum they cause; None for results written before it.
+    prior : PriorRecord or None
+        The CAD prior of a maximum a posteriori estimate (``identify(..., prior=...)``): the prior's
+        and the data's own values, and per direction whether the data or the prior set it; None
+        without a prior (``values``/``cov`` are then the data's alone).
     """
 
     names: tuple
@@ -85,6 +90,7 @@ class Identification:
     momentum_std: np.ndarray | None = None
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     scale: MomentumScale | None = None
+    prior: PriorRecord | None = None
 
     @property
     def scaled_std(self) -> np.ndarray | None:
@@ -157,6 +163,7 @@ class Identification:
             "settings": self.settings,
             "diagnostics": self.diagnostics.to_dict(),
             **({"com": self.com} if self.com is not None else {}),
+            **({"prior": self.prior.to_dict()} if self.prior is not None else {}),
         }
 
     @classmethod
@@ -197,6 +204,7 @@ class Identification:
                 None if h_std is None else np.asarray(h_std, float).reshape(3),
                 Diagnostics.from_dict(diagnostics),
                 MomentumScale.from_dict(data["momentum_scale"]) if "momentum_scale" in data else None,
+                PriorRecord.from_dict(data.get("prior")),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "

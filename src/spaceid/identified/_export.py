@@ -24,74 +24,21 @@ from ..dynamics import Parameterization, full_parameter_names, full_values, full
 from ..dynamics import minimal_parameters
 from ..estimation import Identification
 from ..models import INERTIAL_NAMES, Model, load_model
+from ..models.internal import (CLARABEL_TOLERANCES, MARGIN, inertial_from_pseudo, pseudo_inertia,
+                               pseudo_whitening, reference_pseudo, theta_slots, whitened_physical, with_theta)
 
 __all__ = ["Export", "export_model", "inertial_from_pseudo", "pseudo_divergence", "pseudo_inertia", "unphysical_bodies"]
 
-MARGIN = 1e-6
-"""Every exported pseudo-inertia satisfies ``J - MARGIN J_prior`` positive semidefinite: strictly
-physical, by a margin relative to the prior's own mass distribution (free of units)."""
 STEP_TOL = 1e-7
 """The convex steps stop when the whitened parameters (the prior at the identity) move less (the
 solver's own noise is ~3e-9); the last Newton steps then meet the equalities to round-off."""
 MAX_STEPS = 60
-SPREAD = 1e-6
-"""A prior body whose pseudo-inertia has an eigenvalue below this fraction of its largest (a plate,
-a rod) is measured against a copy with ``SPREAD tr(Sigma)`` of isotropic second moment added."""
 AUTO_REGIONS = (0.95, 0.99, 0.999)
 """The confidence ellipsoids tried in turn, smallest first, when an estimate is not physically
 realisable exactly and no region is given."""
 SHRINK = 1e-6
 """``region``: the ellipsoid used is this much smaller (relative radius), so the exported
 parameters lie inside the stated one despite the solver's tolerance."""
-
-
-def pseudo_inertia(inertial) -> np.ndarray:
-    """Pseudo-inertia (second moments of mass) of a body, shape (4, 4).
-
-    Parameters
-    ----------
-    inertial : array_like of shape (10,)
-        ``[m, mcx, mcy, mcz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz]``, inertia about the frame origin.
-
-    Returns
-    -------
-    ndarray of shape (4, 4)
-        ``[[Sigma, h], [h^T, m]]`` with ``Sigma = tr(I)/2 1 - I`` [kg m^2] and ``h = m c`` [kg m].
-        Positive definite exactly when the mass is positive, the inertia about the CoM positive
-        definite and its principal moments obey the triangle inequality (strictly).
-    """
-    m, hx, hy, hz, ixx, ixy, iyy, ixz, iyz, izz = np.asarray(inertial, float)
-    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    out = np.empty((4, 4))
-    out[:3, :3] = 0.5 * np.trace(inertia) * np.eye(3) - inertia
-    out[:3, 3] = out[3, :3] = hx, hy, hz
-    out[3, 3] = m
-    return out
-
-
-def inertial_from_pseudo(pseudo) -> np.ndarray:
-    """Inverse of :func:`pseudo_inertia`: the standard parameters (10,) of a (4, 4) pseudo-inertia
-    (its symmetric part)."""
-    j = 0.5 * (np.asarray(pseudo, float) + np.asarray(pseudo, float).T)
-    inertia = np.trace(j[:3, :3]) * np.eye(3) - j[:3, :3]
-    return np.array([j[3, 3], *j[:3, 3], inertia[0, 0], inertia[0, 1], inertia[1, 1], inertia[0, 2],
-                     inertia[1, 2], inertia[2, 2]])  # fmt: skip
-
-
-def _reference_pseudo(inertial, where: str, name: str) -> np.ndarray:
-    """The pseudo-inertia of a reference (prior) body, positive definite: a degenerate one (a
-    plate such as a reaction-wheel disc with ``Izz = Ixx + Iyy``, or a rod) gets the isotropic
-    second moment ``SPREAD tr(Sigma)`` added; a point mass is refused."""
-    pseudo = pseudo_inertia(inertial)
-    eig = np.linalg.eigvalsh(pseudo)
-    if eig[0] > SPREAD * eig[-1]:
-        return pseudo
-    spread = SPREAD * np.trace(pseudo[:3, :3])
-    pseudo[:3, :3] += spread * np.eye(3)
-    if not np.linalg.eigvalsh(pseudo)[0] > 0.1 * spread > 0:
-        raise SpaceidError(f"{where}: body '{name}' of the prior is a point mass or not physical (pseudo-inertia "
-                           "not positive definite): give it a plausible inertia")
-    return pseudo
 
 
 def pseudo_divergence(model: Model, reference: Model) -> float:
@@ -104,7 +51,7 @@ def pseudo_divergence(model: Model, reference: Model) -> float:
     """
     total = 0.0
     for body, ref in zip(model.bodies, reference.bodies):
-        ref_pseudo = _reference_pseudo(ref.inertial, reference.name, ref.name)
+        ref_pseudo = reference_pseudo(ref.inertial, reference.name, ref.name)
         ratio = np.linalg.solve(ref_pseudo, pseudo_inertia(body.inertial))
         eig = np.linalg.eigvals(ratio).real
         total += np.inf if eig.min() <= 0 else float(eig.sum() - np.log(eig).sum() - 4)
@@ -164,37 +111,6 @@ class Export:
         return out
 
 
-def _theta_slots(model: Model):
-    """``(body, index into INERTIAL_NAMES)`` of each standard parameter in ``theta``, the order of
-    ``full_parameter_names`` (declared zeros left out)."""
-    return [(b, k) for b, body in enumerate(model.bodies)
-            for k, n in enumerate(INERTIAL_NAMES) if n not in body.known_zero]
-
-
-def _with_theta(model: Model, theta) -> Model:
-    inertials = np.zeros((len(model.bodies), 10))
-    for (b, k), value in zip(_theta_slots(model), theta):
-        inertials[b, k] = value
-    return model.with_inertials(inertials)
-
-
-def _whitening(prior: Model, where: str):
-    """The linear maps of the stacked ``vec(X_b)`` (column-major) to ``theta`` and to the declared
-    zeros, ``G (n_theta, 16 nb)`` and ``Z (n_zero, 16 nb)``, where ``J_b = L_b X_b L_b^T`` with
-    ``L_b`` the Cholesky factor of the prior's pseudo-inertia (the prior is at ``X_b = 1``)."""
-    factors = [np.linalg.cholesky(_reference_pseudo(b.inertial, where, b.name)) for b in prior.bodies]
-    nb = len(prior.bodies)
-    full = np.zeros((10 * nb, 16 * nb))
-    for b, low in enumerate(factors):
-        for col in range(16):
-            unit = np.zeros(16)
-            unit[col] = 1.0
-            full[10 * b : 10 * b + 10, 16 * b + col] = inertial_from_pseudo(low @ unit.reshape(4, 4, order="F") @ low.T)
-    slots = [10 * b + k for b, k in _theta_slots(prior)]
-    zeros = np.setdiff1d(np.arange(10 * nb), slots)
-    return full[slots], full[zeros]
-
-
 def _constraint_rows(result: Identification, region):
     """The conditions on ``r = P theta - pi`` as ``E r = 0`` and ``|W r| <= radius``.
 
@@ -220,11 +136,6 @@ def _constraint_rows(result: Identification, region):
     w[:, var] = (v[:, ~null] / np.sqrt(s[~null]) / std[var, None]).T
     dof = int((~null).sum())
     return e, labels, w, float(np.sqrt(chi2.ppf(region, dof))) if dof else 0.0
-
-
-_CLARABEL = {"tol_gap_abs": 1e-13, "tol_gap_rel": 1e-13, "tol_feas": 1e-12, "tol_ktratio": 1e-10}
-"""Clarabel's tolerances: its defaults (1e-8) leave ~5e-5 of noise in the whitened solution (the
-objective is flat to second order), enough to keep the steps from settling."""
 
 
 class _Program:
@@ -264,7 +175,7 @@ class _Program:
         try:
             with warnings.catch_warnings():  # "may be inaccurate": the steps repeat and the polish follows
                 warnings.simplefilter("ignore", UserWarning)
-                self.problem.solve(solver=cp.CLARABEL, **_CLARABEL)
+                self.problem.solve(solver=cp.CLARABEL, **CLARABEL_TOLERANCES)
         except cp.SolverError:
             return None
         if self.problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
@@ -286,7 +197,7 @@ def _conditions(param, g, theta, e, w, pi, *, project=True):
     ones, so the linearised equalities alone are overdetermined and met only at the solution.
     They are at most ``n_theta`` (``len(theta)``) rows, padded with zero rows to that number (or to
     the number of rows of ``E``, if fewer), so the program keeps its shape."""
-    jac = param.projection @ full_values_jacobian(_with_theta(param.model, theta))
+    jac = param.projection @ full_values_jacobian(with_theta(param.model, theta))
     a_eq, b_eq = e @ jac, e @ pi
     scale = np.linalg.norm(a_eq @ g, axis=1)
     scale = np.where(scale > 0, scale, 1.0)
@@ -331,17 +242,17 @@ def _polish(param, theta, e, pi, slots_scale, g):
     them became a step of tens of per cent that left a body unphysical. A step that would leave a
     body unphysical or raise the residual is halved."""
     def residual(th):
-        return e @ (param.projection @ full_values(_with_theta(param.model, th)) - pi)
+        return e @ (param.projection @ full_values(with_theta(param.model, th)) - pi)
 
     for _ in range(4 if len(e) else 0):  # no equalities (a region and no anchors): nothing to polish
         r = residual(theta)
-        a = e @ param.projection @ full_values_jacobian(_with_theta(param.model, theta)) * slots_scale
+        a = e @ param.projection @ full_values_jacobian(with_theta(param.model, theta)) * slots_scale
         row = np.linalg.norm(a, axis=1)
         row = np.where(row > 0, row, 1.0)
         step = np.linalg.lstsq(a / row[:, None], -r / row, rcond=1e-10)[0] * slots_scale
         for _halving in range(30):
             trial = theta + step
-            if _physical(g, trial) and np.abs(residual(trial)).max() <= np.abs(r).max():
+            if whitened_physical(g, trial) and np.abs(residual(trial)).max() <= np.abs(r).max():
                 break
             step = step / 2
         else:
@@ -350,14 +261,6 @@ def _polish(param, theta, e, pi, slots_scale, g):
         if np.abs(step).max() <= 1e-15 * np.abs(theta).max():
             break
     return theta
-
-
-def _physical(g, theta) -> bool:
-    """Whether every body's whitened pseudo-inertia ``X_b`` (``theta = G vec X``, the prior at the
-    identity) is positive definite: mass, inertia about the CoM and triangle inequalities."""
-    x = np.linalg.lstsq(g, theta, rcond=None)[0]
-    return all(np.linalg.eigvalsh(0.5 * (b + b.T)).min() > 0
-               for b in x.reshape(-1, 4, 4).transpose(0, 2, 1))  # column-major vec per body
 
 
 def unphysical_bodies(model: Model) -> list:
@@ -441,7 +344,7 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
 def _export(result, prior, param, region, where, prior_name) -> Export:
     """:func:`export_model` once the prior is checked."""
     pi = np.asarray(result.values, float)
-    g, z = _whitening(prior, prior_name)
+    g, z = pseudo_whitening(prior, prior_name)
     e, labels, w, radius = _constraint_rows(result, region)
     program = _Program(g, z, _projected_rows((len(e), g.shape[0])), len(w), radius * (1 - SHRINK))
     theta = prior_theta = full_values(prior)[: g.shape[0]]
@@ -470,12 +373,12 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
     a_eq, b_eq, *_ = _conditions(param, g, theta, e, w, pi, project=False)
     if len(a_eq) and np.abs(a_eq @ theta - b_eq).max() > 1e-9:  # in units of the prior's distribution
         raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
-    model = _with_theta(prior, theta)
+    model = with_theta(prior, theta)
     if unphysical_bodies(model):  # never hand on (or write) an unphysical model as a result
         raise SpaceidError(f"{where}: the export ended on a model whose bodies {', '.join(unphysical_bodies(model))} "
                            "are not physically consistent: nothing was written; please report this")
     values = param.projection @ full_values(model)
-    seen = {b.name: tuple(INERTIAL_NAMES[k] for (i, k), h in zip(_theta_slots(prior), hidden) if i == n and not h)
+    seen = {b.name: tuple(INERTIAL_NAMES[k] for (i, k), h in zip(theta_slots(prior), hidden) if i == n and not h)
             for n, b in enumerate(prior.bodies)}  # fmt: skip
     return Export(model, prior, param, values, region, float(np.sum((w @ (values - pi)) ** 2)),
                   float(radius**2) if region is not None else None, pseudo_divergence(model, prior), steps, seen)
@@ -484,4 +387,4 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
 def _hidden(param: Parameterization) -> np.ndarray:
     """Which standard parameters (``theta``) do not enter the momentum at all, shape (n_theta,)."""
     hidden = set(identifiability(param).no_effect)
-    return np.array([name in hidden for name in full_parameter_names(param.model)[: len(_theta_slots(param.model))]])
+    return np.array([name in hidden for name in full_parameter_names(param.model)[: len(theta_slots(param.model))]])

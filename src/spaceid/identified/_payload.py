@@ -51,7 +51,7 @@ from ..estimation.internal import (
 )
 from ..models import INERTIAL_NAMES, Model, link_frame, load_model
 from ..models.internal import add_to_body, symbol_suffix
-from ._export import _CLARABEL, MARGIN, inertial_from_pseudo, pseudo_inertia
+from ..models.internal import CLARABEL_TOLERANCES, MARGIN, inertial_from_pseudo, pseudo_inertia
 
 __all__ = ["GraspMotion", "PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent",
            "nominal_payload", "payload_units"]
@@ -270,7 +270,7 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     matrix = lmi + sum((root @ z)[i] * basis[i] for i in range(len(theta)))
     problem = cp.Problem(cp.Minimize(cp.sum_squares(z)), [0.5 * (matrix + matrix.T) >> margin * np.eye(len(lmi))])
     try:
-        problem.solve(solver=cp.CLARABEL, **_CLARABEL)
+        problem.solve(solver=cp.CLARABEL, **CLARABEL_TOLERANCES)
     except cp.SolverError:  # the tight tolerances fail on a covariance spanning many decades: the defaults
         try:
             problem.solve(solver=cp.CLARABEL)

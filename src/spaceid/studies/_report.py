@@ -90,6 +90,28 @@ def metric_label(key: str) -> str:
     return _METRIC_LABELS.get(key) or TORQUE_METRIC_LABELS.get(key, key)
 
 
+PRIOR_ROWS = 12
+"""Directions of a CAD prior's attribution listed in a report (the largest data shares first)."""
+
+
+def _prior_lines(result: Identification) -> list:
+    """The report's section on a CAD prior: its summary and who set each direction (the first
+    ``PRIOR_ROWS``, largest data share first); empty without a prior."""
+    prior = result.prior
+    if prior is None:
+        return []
+    lines = ["", "## CAD prior", "", _md(prior.summary()) + ".", "",
+             ("Directions of the standard parameters, whitened by the prior: the data's information relative to the "
+              "prior's along each; the data set a direction where it exceeds 1."), ""]  # fmt: skip
+    rows = [(str(i + 1), f"{d['ratio']:.3g}", f"{d['data_share']:.3f}", d["set_by"],
+             _md(", ".join(f"{n} ({w:+.2f})" for n, w in d["leading"])))
+            for i, d in enumerate(prior.directions[:PRIOR_ROWS])]  # fmt: skip
+    lines += _md_table(["direction", "data/prior information", "data share", "set by", "leading parameters"], rows)
+    if len(prior.directions) > PRIOR_ROWS:
+        lines += ["", f"({len(prior.directions) - PRIOR_ROWS} more directions in RESULT.json, field 'prior'.)"]
+    return lines
+
+
 @deprecated_alias(old="folder", new="out")
 @deprecated_alias(old="ident", new="result")
 def write_markdown_report(
@@ -171,6 +193,7 @@ def write_markdown_report(
         lines.append(f"- chi2/dof: {d.chi2_dof:.3g}")
     if d.covariance:
         lines.append(f"- Covariance: {_md(d.covariance)}")
+    lines += _prior_lines(result)
     if metrics:
         lines += ["", "## Validation", ""]
         lines += _md_table(["metric", "value"], [(_md(metric_label(k)), _md_value(v)) for k, v in metrics.items()])

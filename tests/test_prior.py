@@ -1,0 +1,250 @@
+"""The CAD prior (``identify(..., prior=...)``): the MAP over physically consistent models against
+known truth, on presets and random robots."""
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.stats import chi2
+from random_robots import random_robot
+
+import spaceid
+from spaceid import SpaceidError
+from spaceid.cli import main
+from spaceid.data import write_log
+from spaceid.dynamics import full_values, full_values_jacobian, minimal_parameters
+from spaceid.estimation import Identification, PriorRecord, identify, prior_deviations
+from spaceid.estimation._prior import attribution
+from spaceid.identified import pseudo_inertia, unphysical_bodies
+from spaceid.models import inertial_vector
+from spaceid.models.internal import with_theta
+from spaceid.motion import FourierTrajectory, add_noise, simulate
+from spaceid.studies import attitude_error_angle, predict
+
+H = np.array([0.3, -0.2, 0.5])
+
+
+def random_motion(joints, duration, seed, amplitude=0.05, harmonics=3):
+    """An undesigned motion: random Fourier coefficients of the joint rates [rad/s]."""
+    rng = np.random.default_rng(seed)
+    a, b = (rng.normal(0, amplitude, (len(joints), harmonics)) for _ in range(2))
+    return FourierTrajectory(joints, duration, a, b, meta={"source": f"random {seed}"})
+
+
+def cad_prior(model, off, seed):
+    """Every mass and every body's principal moments off by ``off`` (relative, random signs)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for b in model.bodies:
+        i_c = pseudo_inertia(b.inertial)[:3, :3] - b.mass * np.outer(b.com, b.com)
+        w, v = np.linalg.eigh(np.trace(i_c) * np.eye(3) - i_c)
+        f = 1 + off * rng.choice([-1.0, 1.0])
+        rows.append(inertial_vector(b.mass * (1 + off * rng.choice([-1.0, 1.0])), b.com, v @ np.diag(w * f) @ v.T))
+    return model.with_inertials(rows)
+
+
+def flown(true, duration, rate_hz, seed, *, noise=(1e-4, 1e-5), amplitude=0.05, h=H):
+    param = minimal_parameters(true)
+    h = h[2:] * np.r_[0, 0, 1] if true.planar else h
+    t = np.linspace(0, duration, int(duration * rate_hz) + 1)
+    log = simulate(param, param.true_values, random_motion(true.joints, duration, seed, amplitude), t, h, model=true)
+    return param, add_noise(log, angle=noise[0], rate=noise[1], seed=seed + 1), h
+
+
+def held_out_error(result, true, h, seed, duration=30.0):
+    param = minimal_parameters(true)
+    motion = random_motion(true.joints, duration, seed + 100, 0.1)
+    t = np.linspace(0, duration, 151)
+    truth = simulate(param, param.true_values, motion, t, h, model=true)
+    q, qd, _ = motion.evaluate(t)
+    return float(attitude_error_angle(predict(result, t, q, qd).base_quat, truth.base_quat).max())
+
+
+def as_result(param, values, h):
+    """A bare result with ``values`` (the prior's own prediction)."""
+    k = len(values)
+    return Identification(param.names, param.definitions, values, np.zeros(k), np.zeros((k, k)), 1.0, np.ones(1), 0.0,
+                          0, "prior", h, str(param.model.source or param.model.name), param.model.planar,
+                          {"parameterization": param.to_dict()})
+
+
+def map_model(res, prior):
+    return with_theta(prior, res.prior.theta["map"])
+
+
+@pytest.fixture(scope="module")
+def cepheus():
+    return spaceid.load_model("cepheus", planar=True)
+
+
+def test_prior_deviations_follow_the_documented_scales():
+    body = inertial_vector(2.0, [0.0, 0.0, 0.0], np.diag([0.1, 0.2, 0.25]))
+    model = spaceid.load_model("cepheus", planar=True).with_inertials([body] * 3)
+    s = prior_deviations(model, 0.1)[:10]
+    radius = np.sqrt(0.55 / 4)  # sqrt(tr(I_c) / 2m)
+    assert s[0] == pytest.approx(0.2)  # 10 % of the mass
+    assert s[1] == pytest.approx(2.0 * 0.1 * radius)  # m L at the CoM, L = 10 % of the radius of gyration
+    assert s[4] == pytest.approx(np.hypot(0.01, 2.0 * (0.1 * radius) ** 2))  # Ixx: 10 % and the CoM's m L^2
+
+
+def test_prior_only_returns_the_prior_with_its_covariance(cepheus):
+    """A log at rest (momentum zero, no anchor): the data say nothing; the MAP is the prior."""
+    param = minimal_parameters(cepheus)
+    prior = cad_prior(cepheus, 0.15, 1)
+    t = np.linspace(0, 5, 51)
+    rest = simulate(param, param.true_values, lambda t: (np.full((len(t), 2), 0.3), np.zeros((len(t), 2))), t,
+                    np.zeros(3), model=cepheus)
+    res = identify(param, add_noise(rest, angle=1e-4, rate=1e-4, seed=3), np.zeros(3), prior=prior)
+    np.testing.assert_allclose(res.values, param.projection @ full_values(prior), rtol=1e-6)
+    np.testing.assert_allclose(res.std, res.prior.prior_std_values, rtol=1e-3)
+    assert res.prior.n_data == 0 and res.prior.data_term == "equations" and not res.prior.active
+
+
+@pytest.mark.parametrize("name, planar", [("cepheus", True), ("satellite-7dof", False)])
+def test_rich_data_return_the_data_estimate(name, planar):
+    """Informative data and a wide prior: the MAP is the data's estimate on the models that exist.
+
+    The minimal parameters are dependent functions of the standard ones (Cepheus: 8 of rank 7; the
+    satellite: 153 of rank 59), so the MAP is the data's estimate projected onto them in the data's
+    metric: its distance there is chi-square with ``k - rank`` degrees of freedom, its standard errors
+    are at most the data's, it covers the truth, and the data set exactly ``rank`` directions."""
+    true = spaceid.load_model(name, planar=planar)
+    param, log, h = flown(true, 20.0, 20.0, 4, noise=(1e-5, 1e-5), amplitude=0.4)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        data = identify(param, log, h, estimator="wls")
+        res = identify(param, log, h, estimator="wls", prior=cad_prior(true, 0.15, 2), prior_std=1.0)
+    assert res.prior.data_term == "estimator"
+    rank = np.linalg.matrix_rank(param.projection @ full_values_jacobian(true), tol=1e-9)
+    change = res.values - data.values
+    assert change @ np.linalg.pinv(data.cov) @ change < chi2.ppf(0.999, param.n_params - rank)
+    assert np.all(res.std <= 1.01 * data.std)
+    assert np.sqrt(np.mean(((res.values - param.true_values) / res.std) ** 2)) < 1.5
+    assert res.prior.n_data == rank
+
+
+def test_the_attribution_names_who_set_each_direction():
+    """A constructed case: the data know the first variable 9 times better than the prior, the second
+    half as well; a prior that is not the identity is accounted for."""
+    prior = np.diag([4.0, 1.0, 2.0])
+    data = np.diag([36.0, 0.5, 0.0])
+    out = attribution(data, prior, ["a", "b", "c"])
+    assert [d["set_by"] for d in out] == ["data", "prior", "prior"]
+    np.testing.assert_allclose([d["ratio"] for d in out], [9.0, 0.5, 0.0], atol=1e-12)
+    assert [d["leading"][0][0] for d in out] == ["a", "b", "c"]
+    assert out[0]["data_share"] == pytest.approx(0.9)
+    rot = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]  # a rotated case: the same ratios
+    out = attribution(rot @ data @ rot.T, rot @ prior @ rot.T, ["a", "b", "c"])
+    np.testing.assert_allclose([d["ratio"] for d in out], [9.0, 0.5, 0.0], atol=1e-10)
+
+
+def _weak_case(seed, planar, tmp_path):
+    true = random_robot(seed, planar=planar, max_arms=2, max_joints=3).load(tmp_path)
+    param, log, h = flown(true, 6.0, 5.0, seed)  # short, slow, undesigned: the data alone do not determine pi
+    prior = cad_prior(true, 0.15, seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(param, log, h, estimator="wls", prior=prior)
+    return true, param, prior, res, h
+
+
+@pytest.mark.parametrize("seed, planar", [(1, True), (2, False), (5, False), (10, True), (13, False), (15, False),
+                                          (16, True)])
+def test_weak_data_predict_no_worse_than_the_prior(seed, planar, tmp_path):
+    """Undesigned weak motion, a prior 15 % off: the MAP is physical, its covariance positive
+    definite, and it predicts a held-out motion's attitude no worse than the prior."""
+    true, param, prior, res, h = _weak_case(seed, planar, tmp_path)
+    assert not unphysical_bodies(map_model(res, prior))
+    assert np.linalg.eigvalsh(res.cov).min() > -1e-12 * np.abs(res.cov).max()
+    ours = held_out_error(res, true, h, seed)
+    theirs = held_out_error(as_result(param, param.projection @ full_values(prior), h), true, h, seed)
+    assert ours <= theirs
+
+
+def test_a_known_body_or_total_mass_anchors_the_scale_with_a_prior(cepheus):
+    param, log, _ = flown(cepheus, 10.0, 10.0, 7, amplitude=0.3)
+    prior = cad_prior(cepheus, 0.15, 3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(param, log, None, estimator="wls", prior=prior, known={"m_base": 11.5})
+        total = identify(param, log, None, estimator="wls", prior=prior, known={"m_total": cepheus.mass})
+    assert map_model(res, prior).bodies[0].mass == pytest.approx(11.5, rel=1e-5)
+    assert map_model(total, prior).mass == pytest.approx(cepheus.mass, rel=1e-5)
+    assert res.prior.known == {"m_base": 11.5}
+    with pytest.raises(SpaceidError, match=r"`known` m_base: not a minimal parameter.*combinations.*`prior`"):
+        identify(param, log, None, estimator="wls", known={"m_base": 11.5})
+
+
+def test_result_json_keeps_the_prior_and_old_files_load(cepheus):
+    param, log, h = flown(cepheus, 6.0, 5.0, 8)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(param, log, h, estimator="wls", prior=cad_prior(cepheus, 0.15, 4))
+    back = Identification.from_dict(json.loads(json.dumps(res.to_dict())))
+    assert isinstance(back.prior, PriorRecord) and back.prior.directions == res.prior.directions
+    np.testing.assert_allclose(back.prior.prior_values, res.prior.prior_values)
+    old = res.to_dict()
+    del old["prior"]
+    assert Identification.from_dict(old).prior is None
+
+
+@pytest.fixture(scope="module")
+def cli_log(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("prior_cli")
+    true = spaceid.load_model("cepheus", planar=True)
+    _, log, _ = flown(true, 6.0, 5.0, 9)
+    write_log(folder / "log.csv", log)
+    return folder
+
+
+def test_cli_identify_with_a_prior_prints_the_attribution(cli_log, capsys):
+    code = main(["identify", "cepheus", str(cli_log / "log.csv"), "--momentum", "0.5", "--estimator", "wls",
+                 "--prior", "cepheus", "--prior-std", "0.3", "-o", str(cli_log / "r.json")])
+    assert code == 0
+    assert "prior cepheus at 30 %: the data set" in capsys.readouterr().out
+    assert json.loads((cli_log / "r.json").read_text())["prior"]["prior_std"] == 0.3
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--prior", "missing.urdf"], "missing.urdf"),
+    (["--prior", "satellite-7dof"], "satellite-7dof"),
+    (["--prior", "cepheus", "--prior-std", "-1"], "--prior-std"),
+    (["--prior", "cepheus", "--prior-std", "nan"], "--prior-std"),
+    (["--known", "m_base=11"], "--prior"),
+    (["--prior", "cepheus", "--known", "m_base=-3"], "m_base"),
+])  # fmt: skip
+def test_cli_bad_prior_input_is_one_line_exit_2(cli_log, capsys, args, words):
+    code = main(["identify", "cepheus", str(cli_log / "log.csv"), "--momentum", "0.5", "--estimator", "wls", *args,
+                 "-o", str(cli_log / "bad.json")])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and words in err[0]
+    assert not (cli_log / "bad.json").exists()
+
+
+def test_the_report_has_a_section_on_the_prior(cepheus, tmp_path):
+    from spaceid.studies import write_markdown_report
+
+    param, log, h = flown(cepheus, 6.0, 5.0, 10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(param, log, h, estimator="wls", prior=cad_prior(cepheus, 0.15, 6))
+    text = write_markdown_report(tmp_path, title="t", result=res, settings={}, figures={}).read_text()
+    assert "## CAD prior" in text and res.prior.summary() in text
+    assert text.count("| prior |") + text.count("| data |") == min(len(res.prior.directions), 12)
+
+
+@settings(max_examples=20, deadline=None)
+@given(st.integers(0, 2**31 - 1), st.integers(1, 6))
+def test_the_attribution_ratios_are_the_generalised_eigenvalues(seed, n):
+    """Any prior and data information: the ratios are the eigenvalues of ``prior^-1 data``, and the
+    data set exactly the directions where the ratio exceeds one."""
+    rng = np.random.default_rng(seed)
+    a, b = rng.normal(size=(n, n)), rng.normal(size=(n, n - 1 if n > 1 else 1))
+    prior, data = a @ a.T + 0.1 * np.eye(n), b @ b.T * rng.uniform(0.01, 10)
+    out = attribution(data, prior, [f"x{i}" for i in range(n)])
+    expected = np.sort(np.linalg.eigvals(np.linalg.solve(prior, data)).real)[::-1]
+    np.testing.assert_allclose([d["ratio"] for d in out], np.clip(expected, 0, None), atol=1e-8 * expected.max())
+    assert all((d["set_by"] == "data") == (d["ratio"] > 1) for d in out)
