@@ -104,6 +104,28 @@ NOISE = [
     click.option("--noise-rate", type=NOISE_LEVEL, default=0.0, help="White noise on rates [rad/s]."),
 ]
 
+SENSORS = [
+    click.option("--noise-attitude", type=NOISE_LEVEL, help="Star-tracker noise, a small rotation per base axis "
+                 "[rad] (planar: the yaw) [default: --noise-angle]."),
+    click.option("--noise-base-rate", type=NOISE_LEVEL, help="Gyro white noise per axis [rad/s] "
+                 "[default: --noise-rate]."),
+    click.option("--quantum", type=POSITIVE, metavar="RAD", help="Encoder resolution [rad or m per count]: the joint angles are "
+                 "rounded to it after the noise."),
+    click.option("--gyro-bias", metavar="B|BX,BY,BZ", help="Constant gyro bias added to the measured base rate "
+                 "[rad/s]: about z (planar) or base axes (spatial); 'identify --gyro-bias' estimates it."),
+    click.option("--joint-rate-sensors/--no-joint-rate-sensors", default=True, show_default=True,
+                 help="Whether the joints have rate sensors; without, the log has no qd_ columns (identify "
+                 "differentiates the angles or uses --estimator angles)."),
+]
+
+
+def _gyro_bias(value) -> list:
+    """``--gyro-bias B|BX,BY,BZ`` as a list of numbers (checked against the model by ``add_noise``)."""
+    try:
+        return [float(v) for v in value.split(",")]
+    except ValueError:
+        raise SpaceidError(f"`gyro_bias`: {value!r} is not a number or three comma-separated numbers [rad/s]") from None
+
 
 def drift_option(help_text, *, values):
     """The ``--drift`` option, one grammar in every command: a comma list where a bare ``KIND``
@@ -654,14 +676,14 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 @MOMENTUM
 @click.option("--samples", type=SAMPLES, help="N samples equally spaced over [0, tf] [default: the design's N].")
 @click.option("--rate", type=RATE, help="Sample rate [Hz] (instead of --samples).")
-@_options(*NOISE)
+@_options(*NOISE, *SENSORS)
 @DRIFT_VALUES
 @click.option("--base-position", is_flag=True, help="Also write the base position (base_x, base_y or base_px, "
               "base_py, base_pz [m]; system CM at the origin), which 'identify --com' needs.")
 @SEED
 @output("Log CSV to write.")
-def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, drift, base_position,
-             seed, output):
+def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, noise_attitude,
+             noise_base_rate, quantum, gyro_bias, joint_rate_sensors, drift, base_position, seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
     from .data import write_log
     from .motion import add_noise, simulate as run
@@ -675,8 +697,15 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model, drift=terms,
               base_position=base_position)
     log.meta.update(trajectory=trajectory, seed=seed)
-    if noise_angle or noise_rate:
-        log = add_noise(log, angle=noise_angle, rate=noise_rate, seed=seed)
+    sensors = {"angle": noise_angle, "rate": noise_rate, "attitude": noise_attitude, "base_rate": noise_base_rate}
+    if any(v for v in sensors.values()) or quantum or gyro_bias is not None or not joint_rate_sensors:
+        from .estimation import Noise
+
+        sensors = Noise(**(sensors | {"attitude": noise_angle if noise_attitude is None else noise_attitude,
+                                      "base_rate": noise_rate if noise_base_rate is None else noise_base_rate}))
+        bias = None if gyro_bias is None else _gyro_bias(gyro_bias)
+        log = add_noise(log, noise=sensors, quantum=quantum or 0.0, gyro_bias=bias, seed=seed,
+                        joint_rate_sensors=joint_rate_sensors)
     write_log(output, log)
     balance = log.meta.get("momentum_balance_error")
     balance = "" if balance is None else f", momentum balance with the drift {balance:.1e}"
