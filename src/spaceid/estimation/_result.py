@@ -59,6 +59,11 @@ class Identification:
         How well the data agreed with the model: ``chi2_dof``, the residual tests, the drift
         test, the plausibility of the estimates, how the covariance was obtained
         (:class:`~spaceid.estimation.Diagnostics`).
+    gyro_bias : tuple of dict
+        The constant gyro bias estimated with the parameters (``identify(..., gyro_bias=True)``),
+        each axis ``{name, value, std, unit}`` (``gyro_bias_x``.., rad/s, base axes; z only for
+        planar systems); empty when not estimated. ``cov`` and ``std`` then include the parameters'
+        coupling with it.
     """
 
     names: tuple
@@ -80,6 +85,7 @@ class Identification:
     com: dict | None = None
     momentum_std: np.ndarray | None = None
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
+    gyro_bias: tuple = ()
 
     def drift_terms(self) -> dict:
         """The drift coefficients as :func:`spaceid.motion.simulate` takes them (empty without drift)."""
@@ -131,6 +137,7 @@ class Identification:
                 for i, (n, d, v, s) in enumerate(zip(self.names, self.definitions, self.values, self.std))
             ],
             "drift": [dict(d) for d in self.drift],
+            **({"gyro_bias": [dict(d) for d in self.gyro_bias]} if self.gyro_bias else {}),
             "covariance": self.cov.tolist(),
             "condition_number": self.condition_number,
             "singular_values": self.singular_values.tolist(),
@@ -178,6 +185,8 @@ class Identification:
                 data.get("com"),
                 None if h_std is None else np.asarray(h_std, float).reshape(3),
                 Diagnostics.from_dict(diagnostics),
+                tuple({"name": str(d["name"]), "value": float(d["value"]), "std": float(d["std"]),
+                       "unit": str(d["unit"])} for d in data.get("gyro_bias", [])),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "
