@@ -741,10 +741,14 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "equations this many samples at a time, so that memory does not grow with the regressor (e.g. 4096 for "
               "long logs of large robots); the result agrees with the in-memory one to round-off, the drift residual "
               "test and the covariance of differentiated rates included.")
+@click.option("--gyro-bias", "gyro_bias", is_flag=True, help="Estimate a constant gyro bias (base axes [rad/s]) "
+              "with the parameters, from the momentum equations and the attitude samples (--estimator ml, wls or "
+              "ols); the base rate must be the gyro's (a CSV without joint-rate columns: the joint angles alone are "
+              "differentiated).")
 @log_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, knot_spacing, drift,
-             with_com, chunk, output, reading):
+             with_com, chunk, gyro_bias, output, reading):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -760,7 +764,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     kinds = _drift(drift, param.model.planar, values=False)
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
-    log = _measured_log(param.model, log_path, reading, angles_only=angles_only)
+    log = _measured_log(param.model, log_path, reading, angles_only=angles_only, gyro=gyro_bias)
     reference = None
     if instruments is not None:
         if estimator != "iv":
@@ -774,7 +778,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         reference = traj.evaluate(log.t - log.t[0])[:2]
     with _warnings_to_stderr():
         ident = run(param, log, h, estimator=estimator, known=known, noise=noise, instruments=reference,
-                    where=str(log_path), knot_spacing=knot_spacing, drift=kinds, chunk=chunk)
+                    where=str(log_path), knot_spacing=knot_spacing, drift=kinds, chunk=chunk, gyro_bias=gyro_bias)
     if with_com:
         ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())
@@ -790,6 +794,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
             f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {ident.momentum_std[i]:.2g}" for i in axes) + " N m s")
     for line in drift_lines(ident):
         out.print(line, highlight=False)
+    for d in ident.gyro_bias:
+        out.print(f"gyro bias: {d['name']} = {d['value']:.6g} +/- {d['std']:.2g} {d['unit']}", highlight=False)
     chi2_dof = ident.diagnostics.chi2_dof
     chi2 = "" if chi2_dof is None else f"chi2/dof = {chi2_dof:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
@@ -797,13 +803,14 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
               f"result written to {shown_name(output)}")
 
 
-def _measured_log(model, log_path, reading, *, angles_only=False):
+def _measured_log(model, log_path, reading, *, angles_only=False, gyro=False):
     """The log at ``log_path`` for ``model``, read as ``reading`` (:func:`log_options`) says. A bag:
     as its reader aligns and differentiates it (``measured``: the published joint velocities); the
     joint rates' sources are printed. A CSV: its rate columns (``measured``, the default), or its
     angles and attitude differentiated (``differentiate``; by default when it has no rate column;
     ``auto`` when some are missing), with ``--window`` and ``--quantum``; ``angles_only``: left as
-    read (the angles estimator uses no rates)."""
+    read (the angles estimator uses no rates); ``gyro``: the base rate is kept as measured (its bias is
+    estimated), only the joint angles are differentiated."""
     from .data import differentiate_log, is_bag, read_log
 
     rates = reading["joint_rates"]
@@ -817,7 +824,8 @@ def _measured_log(model, log_path, reading, *, angles_only=False):
     missing = log.meta.get("missing_rates", [])
     if angles_only:
         return log
-    no_rates = len(missing) == log.q.shape[1] + (1 if log.planar else 3)
+    no_rates = len(missing) == log.q.shape[1] + (1 if log.planar else 3) or gyro and all(
+        f"qd_{j}" in missing for j in log.joints)  # a gyro without joint-rate sensors
     if not (rates == "differentiate" or rates == "auto" and missing or rates is None and no_rates):
         if missing:
             raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
@@ -828,6 +836,8 @@ def _measured_log(model, log_path, reading, *, angles_only=False):
                                f"{rates or 'measured'}), none is differentiated: add --joint-rates differentiate, or "
                                f"drop {given}")
         return log
+    if gyro and not np.isnan(log.base_w[:, [2] if log.planar else [0, 1, 2]]).any():
+        return differentiate_log(log, window=reading["window"], quantum=reading["quantum"], base=False)
     return differentiate_log(log, window=reading["window"], quantum=reading["quantum"])
 
 
