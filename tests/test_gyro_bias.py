@@ -59,7 +59,7 @@ def _random(seed, planar, folder):
 
 
 def test_each_sensor_has_its_own_noise(cepheus):
-    param, clean = cepheus
+    _, clean = cepheus
     log = add_noise(clean, noise=SENSORS, quantum=1e-3, gyro_bias=BIAS, seed=4)
     assert np.all(np.abs(log.q / 1e-3 - np.round(log.q / 1e-3)) < 1e-9)  # on the encoder's grid
     error = log.q - clean.q  # noise then quantisation: variance sigma^2 + quantum^2 / 12

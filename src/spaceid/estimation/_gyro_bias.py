@@ -246,6 +246,7 @@ def identify_gyro_bias(run, param, log: Log, *, estimator: str, noise, chunk, wh
         warnings.warn(w.message, w.category, stacklevel=3)
     record = {"passes": passes, "corrections": history, "attitude": {
         "value": attitude["value"].tolist(), "std": attitude["std"], "quadrature": attitude["quadrature"],
+        "variance_factor": attitude["variance_factor"],
         "noise": attitude["noise"]}}
     settings = dict(result.settings, gyro_bias=record, log_fingerprint=log_fingerprint(log))
     return replace(result, settings=settings)
