@@ -37,8 +37,13 @@ def cepheus():
 
 
 def _random(seed, planar, folder):
-    model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(folder)
+    return _flown(random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(folder), seed)
+
+
+def _flown(model, seed):
+    """``model``'s parameters, momentum and noise-free log of a sum of three sines per joint (20 s, 50 Hz)."""
     param = minimal_parameters(model)
+    planar = model.planar
     h = H if planar else H_SPATIAL
     rng = np.random.default_rng(seed)
     n = len(model.joints)
@@ -129,6 +134,16 @@ def test_noise_free_recovery_planar(cepheus, estimator):
     assert b["name"] == "gyro_bias_z" and b["unit"] == "rad/s"
     assert abs(b["value"] - BIAS) <= 1e-14 * res.condition_number
     assert res.settings["gyro_bias"]["passes"] <= 5
+
+
+def test_noise_free_recovery_spatial_preset():
+    param, h, clean = _flown(spaceid.load_model("satellite-7dof"), 0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = identify(param, add_noise(clean, gyro_bias=SPATIAL_BIAS), h, estimator="ols", gyro_bias=True)
+    true = param.true_values
+    assert np.abs(res.values - true).max() <= 1e-12 * res.condition_number * np.abs(true).max()
+    assert np.abs([d["value"] for d in res.gyro_bias] - SPATIAL_BIAS).max() <= 1e-14 * res.condition_number
 
 
 @pytest.mark.parametrize("planar", [False, True])
