@@ -114,7 +114,7 @@ SENSORS = [
     click.option("--gyro-bias", metavar="B|BX,BY,BZ", help="Constant gyro bias added to the measured base rate "
                  "[rad/s]: about z (planar) or base axes (spatial); 'identify --gyro-bias' estimates it."),
     click.option("--joint-rate-sensors/--no-joint-rate-sensors", default=True, show_default=True,
-                 help="Whether the joints have rate sensors; without, the log has no qd_ columns (identify "
+                 help="Whether the joints have rate sensors; without, the log has no joint-rate columns (identify "
                  "differentiates the angles or uses --estimator angles)."),
 ]
 
