@@ -252,28 +252,46 @@ def identify_gyro_bias(run, param, log: Log, *, estimator: str, noise, chunk, wh
     return replace(result, settings=settings)
 
 
-def bias_test(eq, x, phi, sigma, theta, estimator, log: Log, whitener, chunk, drift: dict | None,
+COLLINEAR = 1e-4
+"""The bias test is not run when a bias column is this close to the span of the regressor's
+(relative residual of its least-squares fit by them, whitened): the log does not tell a bias from
+the parameters there (e.g. a base turning at a nearly constant rate), and the test's Gram matrix
+would be singular to working precision."""
+
+
+def bias_test(eq, x, phi, sigma, theta, estimator, log: Log, whitener, chunk, drift: dict,
               where: str) -> tuple:
-    """Whether a constant gyro bias, not estimated, explains the residuals: the drift test's Wald test
+    """Whether a constant gyro bias, not estimated, explains the residuals that the drift test
+    (``drift``, its record, which rejected) took for a momentum drift: the same Wald test
     (:func:`spaceid.estimation._residuals.drift_test`, its level and its covariance of correlated
-    residuals) with the bias columns ``-A(q; pi)`` as the candidates. When it rejects and the
-    bias explains the residuals better than the drift terms (a larger Wald statistic per
-    coefficient; ``drift`` the drift test's record, None when it did not reject), returns the fitted
-    bias ``(n_b,)`` [rad/s] and the warning naming it; else ``((), "")``. Not run on a base rate
-    differentiated from the attitude (no gyro)."""
+    residuals) with the bias columns ``-A(q; pi)`` as the candidates. When it rejects and the bias
+    explains the residuals better than the drift terms (a larger Wald statistic per coefficient),
+    returns the fitted bias ``(n_b,)`` [rad/s] and the warning naming it; else ``((), "")``. Not run
+    on a base rate differentiated from the attitude (no gyro), streamed (``chunk``), or when the bias
+    columns are within ``COLLINEAR`` of the regressor's span."""
+    from ._linalg import _equation_whitener, _whitened
     from ._residuals import drift_test
 
-    if "base" in log.meta.get("differentiation", {}):
+    if "base" in log.meta.get("differentiation", {}) or chunk or phi is None:
         return (), ""
     pi, axes = eq.full(theta)[0], _axes(eq.planar)
     columns = bias_columns(eq.param, pi, log)
+    L = None if estimator == "ols" else whitener if whitener is not None else _equation_whitener(eq, x, theta, sigma)
+    both = np.concatenate([phi[..., :-1], columns], -1)
+    both = (both if L is None else _whitened(L, both)).reshape(-1, both.shape[-1])
+    A, C = both[:, : eq.p], both[:, eq.p :]
+    scale = np.linalg.norm(A, axis=0)
+    scale[scale == 0] = 1.0
+    fit = (A / scale) @ np.linalg.lstsq(A / scale, C, rcond=None)[0]
+    if np.min(np.linalg.norm(C - fit, axis=0) / np.maximum(np.linalg.norm(C, axis=0), 1e-300)) < COLLINEAR:
+        return (), ""
     test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
                       ([f"gyro_bias_{'xyz'[a]}" for a in axes], lambda sl: columns[sl]))
-    if not test["drift"] or drift and test["wald"] / test["dof"] < drift["wald"] / drift["dof"]:
+    if not test["drift"] or test["wald"] / test["dof"] < drift["wald"] / drift["dof"]:
         return (), ""
     bias = tuple(test["trend"].values())
     shown = ", ".join(f"{v:.2g}" for v in bias)
-    than = (f", better than a momentum drift (Wald statistic per term {test['wald'] / test['dof']:.3g} against "
-            f"{drift['wald'] / drift['dof']:.3g} for the drift terms)" if drift else "")
-    return bias, (f"{where}: a gyro bias of about [{shown}] rad/s (base axes) explains the equation residuals (Wald "
-                  f"p = {test['p_value']:.2g} < {test['alpha']:g}){than}: identify with `gyro_bias`")
+    return bias, (f"{where}: the equation residuals trend (drift test p = {drift['p_value']:.2g}), but a gyro bias of "
+                  f"about [{shown}] rad/s (base axes) explains them better than a momentum drift (Wald p = "
+                  f"{test['p_value']:.2g}, statistic per term {test['wald'] / test['dof']:.3g} against "
+                  f"{drift['wald'] / drift['dof']:.3g} for the drift terms): identify with `gyro_bias`")

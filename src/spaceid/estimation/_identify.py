@@ -428,9 +428,9 @@ def identify(
         whitener = info.pop("whitener", None)
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
                                                    whitener, chunk)
-        if drift_record.run and not gyro_bias:  # an unestimated gyro bias leaves residuals too: name it if it fits
+        if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
             bias, warning = bias_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
-                                      drift_record.to_dict() if drift_record.drift else None, where)
+                                      drift_record.to_dict(), where)
             drift_record, drift_warning = replace(drift_record, gyro_bias=bias), warning or drift_warning
         pi, h = eq.full(theta)
         if history is not None and drift:  # the momentum at the log's first sample
