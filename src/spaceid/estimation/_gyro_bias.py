@@ -268,27 +268,18 @@ def bias_test(eq, x, phi, sigma, theta, estimator, log: Log, whitener, chunk, dr
     residuals) with the bias columns ``-A(q; pi)`` as the candidates. When it rejects and the bias
     explains the residuals better than the drift terms (a larger Wald statistic per coefficient),
     returns the fitted bias ``(n_b,)`` [rad/s] and the warning naming it; else ``((), "")``. Not run
-    on a base rate differentiated from the attitude (no gyro), streamed (``chunk``), or when the bias
-    columns are within ``COLLINEAR`` of the regressor's span."""
-    from ._linalg import _equation_whitener, _whitened
+    on a base rate differentiated from the attitude (no gyro); silent when a bias column is within
+    ``COLLINEAR`` of the span of the equations' columns (whitened; streamed alike)."""
     from ._residuals import drift_test
 
-    if "base" in log.meta.get("differentiation", {}) or chunk or phi is None:
+    if "base" in log.meta.get("differentiation", {}):
         return (), ""
     pi, axes = eq.full(theta)[0], _axes(eq.planar)
     columns = bias_columns(eq.param, pi, log)
-    L = None if estimator == "ols" else whitener if whitener is not None else _equation_whitener(eq, x, theta, sigma)
-    both = np.concatenate([phi[..., :-1], columns], -1)
-    both = (both if L is None else _whitened(L, both)).reshape(-1, both.shape[-1])
-    A, C = both[:, : eq.p], both[:, eq.p :]
-    scale = np.linalg.norm(A, axis=0)
-    scale[scale == 0] = 1.0
-    fit = (A / scale) @ np.linalg.lstsq(A / scale, C, rcond=None)[0]
-    if np.min(np.linalg.norm(C - fit, axis=0) / np.maximum(np.linalg.norm(C, axis=0), 1e-300)) < COLLINEAR:
-        return (), ""
     test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
                       ([f"gyro_bias_{'xyz'[a]}" for a in axes], lambda sl: columns[sl]))
-    if not test["drift"] or test["wald"] / test["dof"] < drift["wald"] / drift["dof"]:
+    if not test["drift"] or test["span_residual"] < COLLINEAR or test["wald"] / test["dof"] < drift["wald"] / drift[
+            "dof"]:
         return (), ""
     bias = tuple(test["trend"].values())
     shown = ", ".join(f"{v:.2g}" for v in bias)

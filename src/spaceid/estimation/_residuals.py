@@ -102,7 +102,9 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         ``alpha``, ``terms`` (the drift coefficients tried), ``trend`` (their fitted values),
         ``wald``, ``dof``, ``p_value``, ``relative_drift`` (largest fitted momentum change /
         RMS right-hand side), ``lag1_autocorrelation``, ``durbin_watson``, ``whiteness_p_value``
-        and ``drift`` (True when the test rejects: the caller warns).
+        and ``drift`` (True when the test rejects: the caller warns); ``span_residual``: the
+        smallest part of a candidate column outside the span of the equations' (relative to its norm;
+        not recorded).
     """
     if candidates is None:
         rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
@@ -132,7 +134,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
 
     # From the Gram matrix without refinement passes: its rounding, eps cond^2, is relative to the correction
     # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
-    step, ginv = _solve_factor(*_streamed_factor(corrections, p + q, refined=False)[::-1])
+    factor = _streamed_factor(corrections, p + q, refined=False)
+    step, ginv = _solve_factor(*factor[::-1])
+    # each candidate column's part outside the equations' span, relative to its norm (the factor is column-scaled)
+    beyond = np.linalg.norm(factor[1][p : p + q, p : p + q], axis=0)
     est, d = np.append(theta, np.zeros(q)) + step, step[p:]
     change = []
 
@@ -161,4 +166,5 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         "durbin_watson": float(differences / max(square, 1e-300)),
         "whiteness_p_value": float(norm.sf(rho * np.sqrt(n))),
         "drift": bool(p_value < DRIFT_ALPHA and change > DRIFT_FLOOR),
+        "span_residual": float(beyond.min()),
     }
