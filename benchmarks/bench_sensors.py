@@ -107,7 +107,8 @@ def main():
     biases, stds, attitude = np.array(biases), np.array(stds), np.array(attitude)
     print(f"\nbias recovered over {args.runs} seeds (truth {BIAS.tolist()} rad/s):")
     print(f"  mean estimate      {np.round(biases.mean(0), 9).tolist()}")
-    print(f"  spread (std)       {np.array2string(biases.std(0, ddof=1) if args.runs > 1 else np.zeros(3), precision=3)}")
+    spread = biases.std(0, ddof=1) if args.runs > 1 else np.zeros(3)
+    print(f"  spread (std)       {np.array2string(spread, precision=3)}")
     print(f"  reported std       {np.array2string(np.median(stds, 0), precision=3)}")
     z = (biases - BIAS) / stds
     print(f"  z of the bias      RMS {np.sqrt(np.mean(z**2)):.3g}, max |z| {np.abs(z).max():.3g}")

@@ -127,7 +127,8 @@ def test_noise_free_recovery_planar(cepheus, estimator):
     log = add_noise(clean, gyro_bias=BIAS)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # chi2 of a noise-free log
-        res = identify(param, log, H, estimator=estimator, gyro_bias=True, noise=None if estimator == "ols" else Noise())
+        res = identify(param, log, H, estimator=estimator, gyro_bias=True,
+                       noise=None if estimator == "ols" else Noise())
     true = param.true_values
     assert np.abs(res.values - true).max() <= 1e-12 * res.condition_number * np.abs(true).max()
     (b,) = res.gyro_bias

@@ -109,8 +109,8 @@ SENSORS = [
                  "[rad] (planar: the yaw) [default: --noise-angle]."),
     click.option("--noise-base-rate", type=NOISE_LEVEL, help="Gyro white noise per axis [rad/s] "
                  "[default: --noise-rate]."),
-    click.option("--quantum", type=POSITIVE, metavar="RAD", help="Encoder resolution [rad or m per count]: the joint angles are "
-                 "rounded to it after the noise."),
+    click.option("--quantum", type=POSITIVE, metavar="RAD", help="Encoder resolution [rad or m per count]: the joint "
+                 "angles are rounded to it after the noise."),
     click.option("--gyro-bias", metavar="B|BX,BY,BZ", help="Constant gyro bias added to the measured base rate "
                  "[rad/s]: about z (planar) or base axes (spatial); 'identify --gyro-bias' estimates it."),
     click.option("--joint-rate-sensors/--no-joint-rate-sensors", default=True, show_default=True,

@@ -169,7 +169,8 @@ def attitude_information(log: Log, noise: Noise) -> dict:
     factor = max(1.0, chi2 / (m * len(t)))  # innovations larger than the model says (e.g. noise-free): scaled up
     cov = P[m:, m:] * factor + quadrature**2 * eye
     return {"value": start + x[m:], "cov": cov, "std": float(np.sqrt(np.diag(cov)).max()),
-            "quadrature": quadrature, "variance_factor": factor, "noise": {"attitude": noise.attitude, "base_rate": noise.base_rate}}
+            "quadrature": quadrature, "variance_factor": factor,
+            "noise": {"attitude": noise.attitude, "base_rate": noise.base_rate}}
 
 
 def _derivative_term(w, dt, order: int, factor: float) -> np.ndarray:
@@ -240,7 +241,8 @@ def identify_gyro_bias(run, param, log: Log, *, estimator: str, noise, chunk, wh
     else:
         caught.append(warnings.WarningMessage(
             f"{where}: the gyro bias did not converge in {MAX_PASSES} passes (last corrections "
-            f"{', '.join(f'{c:.2g}' for c in history[-3:])} standard errors): the bias and the parameters are poorly determined "
+            f"{', '.join(f'{c:.2g}' for c in history[-3:])} standard errors): the bias and the parameters are "
+            "poorly determined "
             "together; record a longer log or a richer motion", UserWarning, "", 0))
     for w in caught:
         warnings.warn(w.message, w.category, stacklevel=3)

@@ -385,9 +385,11 @@ def identify(
     if estimator not in ESTIMATORS:
         raise SpaceidError(f"`estimator`: {shown(estimator)} is not one of {', '.join(ESTIMATORS)}")
     if gyro_bias is True:  # Gauss-Newton passes, each an identification with the bias columns (a BiasPass)
-        run = lambda lg, step: identify(param, lg, momentum, estimator=estimator, known=known, noise=noise,  # noqa: E731
-                                        instruments=instruments, where=where, cond_limit=cond_limit,
-                                        knot_spacing=knot_spacing, drift=drift, history=history, gyro_bias=step)
+        def run(lg, step):
+            return identify(param, lg, momentum, estimator=estimator, known=known, noise=noise, instruments=instruments,
+                            where=where, cond_limit=cond_limit, knot_spacing=knot_spacing, drift=drift,
+                            history=history, gyro_bias=step)
+
         return identify_gyro_bias(run, param, log, estimator=estimator, noise=noise, chunk=chunk, where=where)
     momentum = None if momentum is None else np.asarray(momentum, float)
     drift = check_drift_kinds(drift)
