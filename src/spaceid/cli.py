@@ -104,6 +104,28 @@ NOISE = [
     click.option("--noise-rate", type=NOISE_LEVEL, default=0.0, help="White noise on rates [rad/s]."),
 ]
 
+SENSORS = [
+    click.option("--noise-attitude", type=NOISE_LEVEL, help="Star-tracker noise, a small rotation per base axis "
+                 "[rad] (planar: the yaw) [default: --noise-angle]."),
+    click.option("--noise-base-rate", type=NOISE_LEVEL, help="Gyro white noise per axis [rad/s] "
+                 "[default: --noise-rate]."),
+    click.option("--quantum", type=POSITIVE, metavar="RAD", help="Encoder resolution [rad or m per count]: the joint "
+                 "angles are rounded to it after the noise."),
+    click.option("--gyro-bias", metavar="B|BX,BY,BZ", help="Constant gyro bias added to the measured base rate "
+                 "[rad/s]: about z (planar) or base axes (spatial); 'identify --gyro-bias' estimates it."),
+    click.option("--joint-rate-sensors/--no-joint-rate-sensors", default=True, show_default=True,
+                 help="Whether the joints have rate sensors; without, the log has no joint-rate columns (identify "
+                 "differentiates the angles or uses --estimator angles)."),
+]
+
+
+def _gyro_bias(value) -> list:
+    """``--gyro-bias B|BX,BY,BZ`` as a list of numbers (checked against the model by ``add_noise``)."""
+    try:
+        return [float(v) for v in value.split(",")]
+    except ValueError:
+        raise SpaceidError(f"`gyro_bias`: {value!r} is not a number or three comma-separated numbers [rad/s]") from None
+
 
 def drift_option(help_text, *, values):
     """The ``--drift`` option, one grammar in every command: a comma list where a bare ``KIND``
@@ -652,14 +674,14 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 @MOMENTUM
 @click.option("--samples", type=SAMPLES, help="N samples equally spaced over [0, tf] [default: the design's N].")
 @click.option("--rate", type=RATE, help="Sample rate [Hz] (instead of --samples).")
-@_options(*NOISE)
+@_options(*NOISE, *SENSORS)
 @DRIFT_VALUES
 @click.option("--base-position", is_flag=True, help="Also write the base position (base_x, base_y or base_px, "
               "base_py, base_pz [m]; system CM at the origin), which 'identify --com' needs.")
 @SEED
 @output("Log CSV to write.")
-def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, drift, base_position,
-             seed, output):
+def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle, noise_rate, noise_attitude,
+             noise_base_rate, quantum, gyro_bias, joint_rate_sensors, drift, base_position, seed, output):
     """Free-floating motion for a prescribed joint motion and momentum, as a log CSV."""
     from .data import write_log
     from .motion import add_noise, simulate as run
@@ -673,8 +695,15 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     log = run(param, param.true_values, lambda t: traj.evaluate(t)[:2], times, h, model=param.model, drift=terms,
               base_position=base_position)
     log.meta.update(trajectory=trajectory, seed=seed)
-    if noise_angle or noise_rate:
-        log = add_noise(log, angle=noise_angle, rate=noise_rate, seed=seed)
+    sensors = {"angle": noise_angle, "rate": noise_rate, "attitude": noise_attitude, "base_rate": noise_base_rate}
+    if any(v for v in sensors.values()) or quantum or gyro_bias is not None or not joint_rate_sensors:
+        from .estimation import Noise
+
+        sensors = Noise(**(sensors | {"attitude": noise_angle if noise_attitude is None else noise_attitude,
+                                      "base_rate": noise_rate if noise_base_rate is None else noise_base_rate}))
+        bias = None if gyro_bias is None else _gyro_bias(gyro_bias)
+        log = add_noise(log, noise=sensors, quantum=quantum or 0.0, gyro_bias=bias, seed=seed,
+                        joint_rate_sensors=joint_rate_sensors)
     write_log(output, log)
     balance = log.meta.get("momentum_balance_error")
     balance = "" if balance is None else f", momentum balance with the drift {balance:.1e}"
@@ -717,10 +746,14 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--prior-std", type=float, default=0.2, show_default=True, metavar="REL", help="--prior: relative "
               "standard deviation of its masses and principal moments; its CoMs' is REL times each body's radius of "
               "gyration.")
+@click.option("--gyro-bias", "gyro_bias", is_flag=True, help="Estimate a constant gyro bias (base axes [rad/s]) "
+              "with the parameters, from the momentum equations and the attitude samples (--estimator ml, wls or "
+              "ols); the base rate must be the gyro's (a CSV without joint-rate columns: the joint angles alone are "
+              "differentiated).")
 @log_options
 @output("RESULT.json to write.")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, knot_spacing, drift,
-             with_com, chunk, prior_src, prior_std, output, reading):
+             with_com, chunk, prior_src, prior_std, gyro_bias, output, reading):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -736,7 +769,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     kinds = _drift(drift, param.model.planar, values=False)
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
-    log = _measured_log(param.model, log_path, reading, angles_only=angles_only)
+    log = _measured_log(param.model, log_path, reading, angles_only=angles_only, gyro=gyro_bias)
     reference = None
     if instruments is not None:
         if estimator != "iv":
@@ -751,7 +784,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     with _warnings_to_stderr():
         ident = run(param, log, h, estimator=estimator, known=known, noise=noise, instruments=reference,
                     where=str(log_path), knot_spacing=knot_spacing, drift=kinds, chunk=chunk, prior=prior_src,
-                    prior_std=prior_std)
+                    prior_std=prior_std, gyro_bias=gyro_bias)
     if with_com:
         ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())
@@ -769,6 +802,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         out.print(line, highlight=False)
     if ident.prior is not None:
         out.print(ident.prior.summary(), highlight=False)
+    for d in ident.gyro_bias:
+        out.print(f"gyro bias: {d['name']} = {d['value']:.6g} +/- {d['std']:.2g} {d['unit']}", highlight=False)
     chi2_dof = ident.diagnostics.chi2_dof
     chi2 = "" if chi2_dof is None else f"chi2/dof = {chi2_dof:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
@@ -776,13 +811,14 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
               f"result written to {shown_name(output)}")
 
 
-def _measured_log(model, log_path, reading, *, angles_only=False):
+def _measured_log(model, log_path, reading, *, angles_only=False, gyro=False):
     """The log at ``log_path`` for ``model``, read as ``reading`` (:func:`log_options`) says. A bag:
     as its reader aligns and differentiates it (``measured``: the published joint velocities); the
     joint rates' sources are printed. A CSV: its rate columns (``measured``, the default), or its
     angles and attitude differentiated (``differentiate``; by default when it has no rate column;
     ``auto`` when some are missing), with ``--window`` and ``--quantum``; ``angles_only``: left as
-    read (the angles estimator uses no rates)."""
+    read (the angles estimator uses no rates); ``gyro``: the base rate is kept as measured (its bias is
+    estimated), only the joint angles are differentiated."""
     from .data import differentiate_log, is_bag, read_log
 
     rates = reading["joint_rates"]
@@ -796,7 +832,8 @@ def _measured_log(model, log_path, reading, *, angles_only=False):
     missing = log.meta.get("missing_rates", [])
     if angles_only:
         return log
-    no_rates = len(missing) == log.q.shape[1] + (1 if log.planar else 3)
+    no_rates = len(missing) == log.q.shape[1] + (1 if log.planar else 3) or gyro and all(
+        f"qd_{j}" in missing for j in log.joints)  # a gyro without joint-rate sensors
     if not (rates == "differentiate" or rates == "auto" and missing or rates is None and no_rates):
         if missing:
             raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
@@ -807,6 +844,8 @@ def _measured_log(model, log_path, reading, *, angles_only=False):
                                f"{rates or 'measured'}), none is differentiated: add --joint-rates differentiate, or "
                                f"drop {given}")
         return log
+    if gyro and not np.isnan(log.base_w[:, [2] if log.planar else [0, 1, 2]]).any():
+        return differentiate_log(log, window=reading["window"], quantum=reading["quantum"], base=False)
     return differentiate_log(log, window=reading["window"], quantum=reading["quantum"])
 
 

@@ -453,7 +453,8 @@ def savgol_weights(t, rows, window: int, order: int):
     return idx, pinv[:, 0], pinv[:, 1] / scale[:, None]
 
 
-def differentiate_log(log, *, method: str = "auto", window=None, order=None, smoothing=None, quantum=None):
+def differentiate_log(log, *, method: str = "auto", window=None, order=None, smoothing=None, quantum=None,
+                      base: bool = True):
     """A log whose joint rates and base angular velocity come from its angles and attitude.
 
     Joint angles are differentiated channel by channel (``quantum`` [rad per count] for
@@ -465,6 +466,9 @@ def differentiate_log(log, *, method: str = "auto", window=None, order=None, smo
     log : spaceid.Log
     method, window, order, smoothing, quantum
         As in :func:`differentiate` (``quantum`` applies to the joints only).
+    base : bool
+        Also the base attitude; False: the base rate stays as measured (a gyro's, whose bias
+        ``identify(..., gyro_bias=True)`` estimates), the attitude as sampled.
 
     Returns
     -------
@@ -474,6 +478,9 @@ def differentiate_log(log, *, method: str = "auto", window=None, order=None, smo
 
     q, qd, info_q = differentiate(log.t, log.q, method=method, window=window, order=order, smoothing=smoothing,
                                   quantum=quantum, name="joint angles")
+    if not base:
+        meta = dict(log.meta, differentiation={"joints": info_q})
+        return replace(log, q=q.reshape(log.q.shape), qd=qd.reshape(log.q.shape), meta=meta)
     quat, w, info_b = differentiate_quaternion(log.t, log.base_quat, method=method, window=window, order=order,
                                                smoothing=smoothing)
     meta = dict(log.meta, differentiation={"joints": info_q, "base": info_b})

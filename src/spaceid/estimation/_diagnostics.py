@@ -95,6 +95,10 @@ class DriftTest:
         Serial correlation of the whitened residuals.
     drift : bool
         The test rejects: a warning was issued.
+    gyro_bias : tuple of float
+        When it rejects and a constant gyro bias explains the residuals better than the drift terms
+        (:func:`spaceid.estimation._gyro_bias.bias_or_drift`): that bias [rad/s] (base axes; z only
+        for planar systems), which the warning names; empty otherwise.
     """
 
     run: bool
@@ -110,6 +114,7 @@ class DriftTest:
     durbin_watson: float | None = None
     whiteness_p_value: float | None = None
     drift: bool = False
+    gyro_bias: tuple = ()
 
     @classmethod
     def skipped(cls, reason: str) -> DriftTest:
@@ -123,7 +128,8 @@ class DriftTest:
         return {"alpha": self.alpha, "terms": list(self.terms), "trend": dict(self.trend), "wald": self.wald,
                 "dof": self.dof, "p_value": self.p_value, "relative_drift": self.relative_drift,
                 "lag1_autocorrelation": self.lag1_autocorrelation, "durbin_watson": self.durbin_watson,
-                "whiteness_p_value": self.whiteness_p_value, "drift": self.drift, "run": True}
+                "whiteness_p_value": self.whiteness_p_value, "drift": self.drift, "run": True,
+                **({"gyro_bias": list(self.gyro_bias)} if self.gyro_bias else {})}
 
     @classmethod
     def from_dict(cls, data: dict) -> DriftTest | None:
@@ -136,7 +142,8 @@ class DriftTest:
         return cls(True, "", float(data["alpha"]), tuple(data["terms"]), dict(data["trend"]), float(data["wald"]),
                    int(data["dof"]), float(data["p_value"]), float(data["relative_drift"]),
                    float(data["lag1_autocorrelation"]), float(data["durbin_watson"]),
-                   float(data["whiteness_p_value"]), bool(data["drift"]))
+                   float(data["whiteness_p_value"]), bool(data["drift"]),
+                   tuple(float(v) for v in data.get("gyro_bias", ())))
 
 
 @dataclass(frozen=True)

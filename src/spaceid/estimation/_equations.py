@@ -97,7 +97,9 @@ class Equations:
     """The momentum equations of a log as ``Phi_n(x) [theta; 1] = 0``, sample by sample.
 
     ``theta`` holds the free minimal parameters, then, when the momentum is unknown, its inertial
-    components at the first sample (z only for planar systems), then the drift coefficients
+    components at the first sample (z only for planar systems), then with ``bias`` a correction
+    ``db`` of the gyro bias already subtracted from the measured base rate (per base axis; z only for
+    planar systems; :mod:`spaceid.estimation._gyro_bias`), then the drift coefficients
     (:mod:`spaceid.estimation._drift`): the momentum at sample n is ``h0 + sum_k d_k g_k(t_n)``.
     ``x (n, n_x)`` are the signals
     ``[q, qd, w0 (z only if planar), dtheta (spatial)]``, ``dtheta`` a small rotation of the
@@ -112,6 +114,7 @@ class Equations:
     momentum: np.ndarray | None  # (3,) inertial [N m s] at the first sample, None when estimated
     drift: tuple = ()  # names of the drift coefficients (torque_z, viscous, ...)
     basis: np.ndarray | None = None  # (n, n_d, 3) their momentum change per unit, inertial axes
+    bias: np.ndarray | None = None  # (n, rows, n_b) the columns of db: minus the locked inertia, base rate -> momentum
 
     @property
     def planar(self):
@@ -126,12 +129,22 @@ class Equations:
         return 0 if self.momentum is not None else len(self.axes)
 
     @property
+    def n_b(self):
+        return 0 if self.bias is None else self.bias.shape[-1]
+
+    @property
     def p(self):
-        return len(self.free) + self.n_h + len(self.drift)
+        return len(self.free) + self.n_h + self.n_b + len(self.drift)
 
     def names(self):
         h = [f"h_{'xyz'[a]}" for a in self.axes] if self.n_h else []
-        return [self.param.names[i] for i in self.free] + h + list(self.drift)
+        b = [f"gyro_bias_{'xyz'[a]}" for a in self.axes] if self.n_b else []
+        return [self.param.names[i] for i in self.free] + h + b + list(self.drift)
+
+    def bias_values(self, theta):
+        """The gyro-bias correction ``db (n_b,)`` of ``theta`` [rad/s] (empty without ``bias``)."""
+        start = len(self.free) + self.n_h
+        return np.asarray(theta[start : start + self.n_b], float)
 
     def signals(self, log: Log) -> np.ndarray:
         att = np.zeros((log.n_samples, 0 if self.planar else 3))
@@ -172,10 +185,11 @@ class Equations:
         q, qd, w, rot = self.unpack(x)
         return self._stack(lambda out: self.param.regressor(q, qd, w, out=out), np.swapaxes(rot, -1, -2))
 
-    def _stack(self, regressor, rot_t) -> np.ndarray:
+    def _stack(self, regressor, rot_t, primal=True) -> np.ndarray:
         """``[A | -b]`` from the regressor, ``regressor(out)`` of shape ``(n, rows, k)`` (written
         into ``out`` when that is not None), and the transposed base rotations ``rot_t (n, 3, 3)``:
-        linear in the pair, so derivatives of both give that of :meth:`phi`."""
+        linear in the pair, so derivatives of both give that of :meth:`phi` (``primal`` False: the
+        gyro-bias columns, fixed, have none)."""
         rot_t = rot_t[:, 2:3] if self.planar else rot_t  # R0^T, the rows of the equations
         out = np.empty((len(rot_t), self.param.rows, self.p + 1))
         if not len(self.known):  # every parameter free: the regressor is written in place
@@ -188,14 +202,17 @@ class Equations:
         b = -(y[..., self.known] @ self.known_values)
         if self.momentum is not None:
             b = b + rot_t @ self.momentum
-        out[..., at:-1] = self._attitude_columns(rot_t)
+        out[..., at:-1] = self._attitude_columns(rot_t, primal)
         out[..., -1] = -b
         return out
 
-    def _attitude_columns(self, rot_t):
-        """The columns of the unknown momentum and of the drift, ``(n, rows, n_h + n_d)``, from
-        the rows ``rot_t`` of ``R0^T``: minus the momentum's components in base axes, per unit."""
+    def _attitude_columns(self, rot_t, primal=True):
+        """The columns of the unknown momentum, the gyro-bias correction and the drift, ``(n, rows,
+        n_h + n_b + n_d)``, from the rows ``rot_t`` of ``R0^T``: minus the momentum's components in
+        base axes, per unit; the bias columns as given (zero when not ``primal``: a derivative)."""
         columns = [-rot_t[..., self.axes]] if self.momentum is None else []
+        if self.n_b:
+            columns.append(self.bias if primal else np.zeros_like(self.bias))
         if self.drift:  # the momentum change, in base axes, per unit drift coefficient
             columns.append(-np.einsum("nri,nki->nrk", rot_t, self.basis))
         return np.concatenate(columns, -1) if columns else np.zeros(rot_t.shape[:-1] + (0,))
@@ -222,7 +239,7 @@ class Equations:
             return self.param.linearized_regressor(q, qd, w, direction, step=FD_STEP, primal=primal, out=out)
 
         d_rot_t = self._rotation_derivative(x, v)
-        return self._stack(regressor, np.swapaxes(rot, -1, -2) + d_rot_t if primal else d_rot_t)
+        return self._stack(regressor, np.swapaxes(rot, -1, -2) + d_rot_t if primal else d_rot_t, primal)
 
     def dphi(self, x, v) -> np.ndarray:
         """Directional derivative of :meth:`phi` along ``v (n, n_x)`` (:meth:`linearized`)."""
@@ -235,7 +252,7 @@ class Equations:
         q, qd, w, _ = self.unpack(x)
         y = self.param.contracted_tangent(q, qd, w, self.unpack(v)[:3], u, step=FD_STEP)
         d_rot_t = self._rotation_derivative(x, v)
-        extra = self._attitude_columns(d_rot_t[:, 2:3] if self.planar else d_rot_t)
+        extra = self._attitude_columns(d_rot_t[:, 2:3] if self.planar else d_rot_t, primal=False)
         return np.concatenate([y[self.free], np.einsum("nrk,nr->k", extra, u)])
 
     def jacobian(self, x, theta) -> np.ndarray:
@@ -250,11 +267,13 @@ class Equations:
         nj = len(self.param.model.joints)
         rates = slice(nj, 2 * nj + len(self.axes))
         h = self.base_momentum(theta, self.unpack(x)[3])
-        return np.einsum("nrx,nx->nr", jac[..., rates], x[:, rates]) - (h[:, 2:3] if self.planar else h)
+        error = np.einsum("nrx,nx->nr", jac[..., rates], x[:, rates]) - (h[:, 2:3] if self.planar else h)
+        return error + self.bias @ self.bias_values(theta) if self.n_b else error
 
     def select(self, rows: slice) -> "Equations":
         """The equations of the samples ``rows`` (their attitudes and drift basis)."""
-        return replace(self, rot=self.rot[rows], basis=None if self.basis is None else self.basis[rows])
+        return replace(self, rot=self.rot[rows], basis=None if self.basis is None else self.basis[rows],
+                       bias=None if self.bias is None else self.bias[rows])
 
 
 def _split(phi):

@@ -29,6 +29,7 @@ from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _FitContext, _ols
+from ._gyro_bias import bias_test, identify_gyro_bias
 from ._linalg import _column_scale, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
 from ._prior import PRIOR_STD, identify_with_prior, split_known, standard_anchor_error
@@ -317,6 +318,7 @@ def identify(
     chunk: int | None = None,
     prior=None,
     prior_std: float = PRIOR_STD,
+    gyro_bias: bool = False,
 ) -> Identification:
     """Estimate the minimal parameters from a measured motion.
 
@@ -377,6 +379,11 @@ def identify(
     prior_std : float
         The prior's relative standard deviation of masses and principal moments (default 0.2); the
         CoMs' is ``prior_std`` times each body's radius of gyration.
+    gyro_bias : bool
+        Estimate a constant gyro bias ``b`` (base axes [rad/s]; z only for planar systems) with the
+        parameters: the base rate is taken as ``w_meas - b`` (``ml``, ``wls``, ``ols``, in memory;
+        :mod:`spaceid.estimation._gyro_bias`, docs/theory/sensors.md). The result's ``gyro_bias``
+        holds it with its standard errors, and ``cov`` includes its coupling with the parameters.
 
     Returns
     -------
@@ -402,18 +409,30 @@ def identify(
     if estimator not in ESTIMATORS:
         raise SpaceidError(f"`estimator`: {shown(estimator)} is not one of {', '.join(ESTIMATORS)}")
     if prior is not None:
+        if gyro_bias:
+            raise SpaceidError("`gyro_bias`: not estimated with a `prior` yet: estimate the bias without the "
+                               "prior, correct the log's base rate by it, then identify with the prior")
         return identify_with_prior(identify, param, log, momentum, prior=prior, prior_std=prior_std, known=known,
                                    estimator=estimator, noise=noise, where=where, cond_limit=cond_limit, drift=drift,
                                    history=history, instruments=instruments, knot_spacing=knot_spacing, chunk=chunk)
     standard = split_known(param, known, where)[1]
     if standard:
         raise standard_anchor_error(next(iter(standard)), param, where)
+    if gyro_bias is True:  # Gauss-Newton passes, each an identification with the bias columns (a BiasPass)
+        def run(lg, step):
+            return identify(param, lg, momentum, estimator=estimator, known=known, noise=noise, instruments=instruments,
+                            where=where, cond_limit=cond_limit, knot_spacing=knot_spacing, drift=drift,
+                            history=history, gyro_bias=step)
+
+        return identify_gyro_bias(run, param, log, estimator=estimator, noise=noise, chunk=chunk, where=where)
     momentum = None if momentum is None else np.asarray(momentum, float)
     drift = check_drift_kinds(drift)
     if drift and estimator == "angles":
         raise SpaceidError("`drift`: not available with `estimator` angles (its equations do not carry drift "
                            "columns): use another estimator, or no drift terms")
     eq, anchors = _equations(param, log, momentum, known, where, drift, history)
+    if gyro_bias:
+        eq = replace(eq, bias=gyro_bias.columns)
     _check_sample_count(eq, log, where)
     x = eq.signals(log)
     estimated = noise is None and estimator != "ols"  # ols needs no noise model
@@ -435,13 +454,20 @@ def identify(
                           **(_instrument_context(log, instruments, where) if estimator == "iv" else {}))
         sigma = signal_sigma(param, noise)
         fit = _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk)
+        if gyro_bias:
+            fit = gyro_bias.fused(eq, fit)
         fit = replace(fit, implausible=_implausible_estimate(eq, fit.theta, fit.cov, where))
         if fit.implausible and estimator == "ml" and not fit.info.get("fallback"):
             fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
         theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
         s = _singular_values(factor)
+        whitener = info.pop("whitener", None)
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
-                                                   info.pop("whitener", None), chunk)
+                                                   whitener, chunk)
+        if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
+            bias, warning = bias_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
+                                      drift_record.to_dict(), where)
+            drift_record, drift_warning = replace(drift_record, gyro_bias=bias), warning or drift_warning
         pi, h = eq.full(theta)
         if history is not None and drift:  # the momentum at the log's first sample
             h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])
@@ -489,4 +515,5 @@ def identify(
         n_samples=log.n_samples, estimator=estimator, momentum=h, model=param.model.source or param.model.name,
         planar=param.model.planar, settings=settings, units=param.units, drift=terms, momentum_std=h_std,
         diagnostics=diagnostics, scale=log_momentum_scale(param, log),
+        gyro_bias=gyro_bias.terms(eq, theta, fit.cov) if gyro_bias else (),
     )

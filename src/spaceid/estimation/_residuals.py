@@ -57,18 +57,16 @@ def _leverage_adjusted(M, ginv, r):
     return np.einsum("nrs,ns->nr", np.linalg.pinv(np.eye(M.shape[1]) - H), r)  # pinv: a sample fitted exactly
 
 
-def _drift_equations(phi, rot_t, basis, L) -> tuple:
-    """The equations of ``phi = [A | -b] (k, rows, p + 1)`` with the drift columns ``C (k, rows, q)``
-    of the momentum change ``basis (k, q, 3)`` seen in the base axes ``rot_t (k, rows, 3)``: ``[A | C]``
-    and ``-b (k, rows)`` whitened by ``L (k, rows, rows)`` (None: as they are), ``C`` and ``|b|^2``."""
-    cols = -np.einsum("nri,nki->nrk", rot_t, basis)
+def _drift_equations(phi, cols, L) -> tuple:
+    """The equations of ``phi = [A | -b] (k, rows, p + 1)`` with the candidate columns ``C (k, rows, q)``:
+    ``[A | C]`` and ``-b (k, rows)`` whitened by ``L (k, rows, rows)`` (None: as they are), ``C`` and ``|b|^2``."""
     M, rhs = np.concatenate([phi[..., :-1], cols], -1), phi[..., -1]
     if L is not None:
         M, rhs = _whitened(L, M), _whitened(L, rhs[..., None])[..., 0]
     return M, rhs, cols, float(np.sum(phi[..., -1] ** 2))
 
 
-def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None) -> dict:
+def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None, candidates=None) -> dict:
     """Whether the residuals of a drift-free identification show an unmodelled drift.
 
     Parameters
@@ -93,6 +91,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         and their correlation with the residuals of ``theta``, whose least squares is the refit's
         correction to ``theta`` (as accurate as one refinement step from the refined ``theta``: no
         passes to refine it), then the scores and the fitted drift.
+    candidates : tuple, optional
+        Other columns to test instead of the drift's: ``(names, columns)``, ``columns(rows)`` those of
+        the samples ``rows`` (a slice), ``(k, rows, q)`` (the gyro bias's:
+        :func:`spaceid.estimation._gyro_bias.bias_test`).
 
     Returns
     -------
@@ -100,18 +102,23 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         ``alpha``, ``terms`` (the drift coefficients tried), ``trend`` (their fitted values),
         ``wald``, ``dof``, ``p_value``, ``relative_drift`` (largest fitted momentum change /
         RMS right-hand side), ``lag1_autocorrelation``, ``durbin_watson``, ``whiteness_p_value``
-        and ``drift`` (True when the test rejects: the caller warns).
+        and ``drift`` (True when the test rejects: the caller warns); ``span_residual``: the
+        smallest part of a candidate column outside the span of the equations' (relative to its norm;
+        not recorded).
     """
-    names = drift_names(_CANDIDATES, eq.planar)[0]
+    if candidates is None:
+        rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
+        basis = drift_basis(log, _CANDIDATES)
+        candidates = (drift_names(_CANDIDATES, eq.planar)[0],
+                      lambda sl: -np.einsum("nri,nki->nrk", rot_t[sl], basis[sl]))  # the momentum change, base axes
+    names, columns = candidates
     n, p, q = len(x), eq.p, len(names)
-    rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
-    basis = drift_basis(log, _CANDIDATES)
 
     def chunks():  # :func:`_drift_equations` of each chunk, after its rows
         for sl, e, xc in [(slice(None), eq, x)] if phi is not None else _chunks(eq, x, chunk):
             L = None if estimator == "ols" else whitener[sl] if whitener is not None else _equation_whitener(
                 e, xc, theta, sigma)
-            yield sl, *_drift_equations(e.phi(xc) if phi is None else phi, rot_t[sl], basis[sl], L)
+            yield sl, *_drift_equations(e.phi(xc) if phi is None else phi, columns(sl), L)
 
     if phi is not None:  # in memory: built once for both passes
         built = list(chunks())
@@ -127,7 +134,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
 
     # From the Gram matrix without refinement passes: its rounding, eps cond^2, is relative to the correction
     # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
-    step, ginv = _solve_factor(*_streamed_factor(corrections, p + q, refined=False)[::-1])
+    factor = _streamed_factor(corrections, p + q, refined=False)
+    step, ginv = _solve_factor(*factor[::-1])
+    # each candidate column's part outside the equations' span, relative to its norm (the factor is column-scaled)
+    beyond = np.linalg.norm(factor[1][p : p + q, p : p + q], axis=0)
     est, d = np.append(theta, np.zeros(q)) + step, step[p:]
     change = []
 
@@ -156,4 +166,5 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         "durbin_watson": float(differences / max(square, 1e-300)),
         "whiteness_p_value": float(norm.sf(rho * np.sqrt(n))),
         "drift": bool(p_value < DRIFT_ALPHA and change > DRIFT_FLOOR),
+        "span_residual": float(beyond.min()),
     }

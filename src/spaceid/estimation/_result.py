@@ -68,6 +68,11 @@ class Identification:
         The CAD prior of a maximum a posteriori estimate (``identify(..., prior=...)``): the prior's
         and the data's own values, and per direction whether the data or the prior set it; None
         without a prior (``values``/``cov`` are then the data's alone).
+    gyro_bias : tuple of dict
+        The constant gyro bias estimated with the parameters (``identify(..., gyro_bias=True)``),
+        each axis ``{name, value, std, unit}`` (``gyro_bias_x``.., rad/s, base axes; z only for
+        planar systems); empty when not estimated. ``cov`` and ``std`` then include the parameters'
+        coupling with it.
     """
 
     names: tuple
@@ -91,6 +96,7 @@ class Identification:
     diagnostics: Diagnostics = field(default_factory=Diagnostics)
     scale: MomentumScale | None = None
     prior: PriorRecord | None = None
+    gyro_bias: tuple = ()
 
     @property
     def scaled_std(self) -> np.ndarray | None:
@@ -155,6 +161,7 @@ class Identification:
             ],
             **({"momentum_scale": self.scale.to_dict()} if self.scale is not None else {}),
             "drift": [dict(d) for d in self.drift],
+            **({"gyro_bias": [dict(d) for d in self.gyro_bias]} if self.gyro_bias else {}),
             "covariance": self.cov.tolist(),
             "condition_number": self.condition_number,
             "singular_values": self.singular_values.tolist(),
@@ -205,6 +212,8 @@ class Identification:
                 Diagnostics.from_dict(diagnostics),
                 MomentumScale.from_dict(data["momentum_scale"]) if "momentum_scale" in data else None,
                 PriorRecord.from_dict(data.get("prior")),
+                tuple({"name": str(d["name"]), "value": float(d["value"]), "std": float(d["std"]),
+                       "unit": str(d["unit"])} for d in data.get("gyro_bias", [])),
             )
         except (KeyError, TypeError, ValueError, AttributeError) as exc:
             raise SpaceidError(f"{where}: not a spaceid result file (bad or missing field {exc}): "

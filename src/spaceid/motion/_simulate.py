@@ -22,7 +22,7 @@ from ..dynamics import angular_momentum, system_com
 from ..dynamics import base_rate, rate_pieces
 from ..dynamics import Parameterization
 from ..data import Log, quat_to_matrix, yaw_to_quat
-from ..estimation import drift_basis, drift_terms, drift_vector
+from ..estimation import Noise, drift_basis, drift_terms, drift_vector
 
 __all__ = ["simulate", "hermite_motion", "add_noise"]
 
@@ -437,24 +437,84 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
     return replace(log, meta=meta)
 
 
-def add_noise(log: Log, *, angle: float = 0.0, rate: float = 0.0, seed: int = 0) -> Log:
-    """White Gaussian noise on the measured signals, seeded and recorded in ``meta``.
+def _gyro_bias_vector(bias, planar: bool, where: str = "`gyro_bias`") -> np.ndarray:
+    """A gyro bias as a 3-vector in base axes [rad/s]: ``bias`` 3 components, or for a planar log a
+    number, about z (a planar gyro measures the yaw rate only)."""
+    try:
+        b = np.atleast_1d(np.asarray(bias, float))
+    except (TypeError, ValueError):
+        b = np.full(0, np.nan)
+    if b.shape == (1,) and planar:
+        b = np.array([0.0, 0.0, b[0]])
+    if b.shape != (3,) or not np.all(np.isfinite(b)):
+        form = "a number (about z) or 3 components" if planar else "3 components (base axes)"
+        raise SpaceidError(f"{where}: {bias!r} is not a gyro bias: give {form} [rad/s]")
+    if planar and np.any(b[:2]):
+        raise SpaceidError(f"{where}: a planar log's gyro measures the yaw rate only: give the bias about z alone")
+    return b
 
-    ``angle`` [rad] on joint angles and on the base attitude (a small rotation about each
-    base axis; about z only for planar logs), ``rate`` [rad/s] on joint rates and the base
-    angular velocity.
+
+def add_noise(log: Log, *, angle: float = 0.0, rate: float = 0.0, seed: int = 0, noise: Noise | None = None,
+              quantum: float = 0.0, gyro_bias=None, joint_rate_sensors: bool = True) -> Log:
+    """Each sensor's measurement model applied to a noise-free log, seeded and recorded in ``meta``.
+
+    The sensors (docs/theory/sensors.md): joint encoders (white noise, then quantisation to
+    ``quantum``), joint-rate sensors (white noise; none without ``joint_rate_sensors``), a star
+    tracker (white noise as a small rotation about each base axis; about z only for planar logs)
+    and gyros (white noise per axis plus a constant bias).
+
+    Parameters
+    ----------
+    log : Log
+        The true motion.
+    angle, rate : float
+        One level for joints and base alike: ``angle`` [rad] on the joint angles and the attitude,
+        ``rate`` [rad/s] on the joint and base rates (``noise`` gives each sensor its own).
+    seed : int
+        Seed of the noise; the draws do not depend on how the levels were given.
+    noise : Noise, optional
+        Each sensor's level: ``angle`` the encoders [rad or m], ``rate`` the joint-rate sensors
+        [rad/s or m/s], ``attitude`` the star tracker [rad per axis], ``base_rate`` the gyros'
+        white noise [rad/s per axis]; instead of ``angle`` and ``rate``.
+    quantum : float
+        Encoder resolution [rad or m per count]: the noisy angles are rounded to it (0: none);
+        its error is uniform, of std ``quantum / sqrt(12)``.
+    gyro_bias : float or array_like of shape (3,), optional
+        Constant gyro bias in base axes [rad/s], added to the measured base rate; for a planar
+        log a number, about z.
+    joint_rate_sensors : bool
+        False: no joint-rate sensors: the joint rates are NaN, ``meta["missing_rates"]`` names them
+        and :func:`spaceid.data.write_log` leaves their columns out (as a log that had none).
+
+    Returns
+    -------
+    Log
+        The measured log; ``meta`` records ``noise_angle``, ``noise_rate`` (the joints'),
+        ``noise_attitude``, ``noise_base_rate``, ``encoder_quantum``, ``gyro_bias`` (3 components,
+        base axes), ``joint_rate_sensors`` and ``noise_seed``.
     """
-    if angle < 0 or rate < 0:
-        raise SpaceidError(f"`angle`, `rate`: noise levels must be non-negative, got {angle:g} and {rate:g}")
+    if not (np.isfinite(angle) and np.isfinite(rate) and angle >= 0 and rate >= 0):
+        raise SpaceidError(f"`angle`, `rate`: noise levels must be finite and non-negative, got {angle:g} and {rate:g}")
+    if noise is None:
+        noise = Noise(angle, rate, rate, angle)
+    elif angle or rate:
+        raise SpaceidError("`angle`, `rate`: give one level for joints and base alike, or `noise` per sensor, not both")
+    if not (np.isfinite(quantum) and quantum >= 0):
+        raise SpaceidError(f"`quantum`: {quantum!r} is not an encoder resolution: give a number >= 0 (0: none)")
+    bias = np.zeros(3) if gyro_bias is None else _gyro_bias_vector(gyro_bias, log.planar)
     rng = np.random.default_rng(seed)
     n, nj = log.q.shape
-    q = log.q + angle * rng.standard_normal((n, nj))
-    qd = log.qd + rate * rng.standard_normal((n, nj))
+    q = log.q + noise.angle * rng.standard_normal((n, nj))
+    if quantum:
+        q = quantum * np.round(q / quantum)
+    qd = log.qd + noise.rate * rng.standard_normal((n, nj))
+    if not joint_rate_sensors:
+        qd = np.full_like(qd, np.nan)
     axes = slice(2, 3) if log.planar else slice(None)
     w = log.base_w.copy()
-    w[:, axes] += rate * rng.standard_normal(w[:, axes].shape)
+    w[:, axes] += noise.base_rate * rng.standard_normal(w[:, axes].shape) + bias[axes]
     tilt = np.zeros((n, 3))
-    tilt[:, axes] = angle * rng.standard_normal(tilt[:, axes].shape)
+    tilt[:, axes] = noise.attitude * rng.standard_normal(tilt[:, axes].shape)
     # small rotation exp(tilt/2) applied in base axes: q_meas = q_true * dq
     half = np.linalg.norm(tilt, axis=1, keepdims=True) / 2
     dq = np.hstack([np.cos(half), np.sinc(half / np.pi) * tilt / 2])
@@ -464,5 +524,9 @@ def add_noise(log: Log, *, angle: float = 0.0, rate: float = 0.0, seed: int = 0)
         [w0_ * w1 - x0 * x1 - y0 * y1 - z0 * z1, w0_ * x1 + x0 * w1 + y0 * z1 - z0 * y1,
          w0_ * y1 - x0 * z1 + y0 * w1 + z0 * x1, w0_ * z1 + x0 * y1 - y0 * x1 + z0 * w1], -1
     )
-    meta = dict(log.meta, noise_angle=angle, noise_rate=rate, noise_seed=seed)
+    meta = dict(log.meta, noise_angle=noise.angle, noise_rate=noise.rate, noise_attitude=noise.attitude,
+                noise_base_rate=noise.base_rate, encoder_quantum=float(quantum), gyro_bias=bias.tolist(),
+                joint_rate_sensors=bool(joint_rate_sensors), noise_seed=seed)
+    if not joint_rate_sensors:
+        meta.update(rates="missing", missing_rates=[f"qd_{j}" for j in log.joints])
     return Log(log.t, log.joints, q, qd, quat, w, log.planar, meta, log.base_position, log.tau)

@@ -178,6 +178,11 @@ def write_markdown_report(
         lines += ["", ("Drift terms, estimated with the parameters (the momentum at the first sample and its change "
                        "by the external torque):"), ""]
         lines += _md_table(["drift term", "unit", "estimate", "std"], [tuple(map(_md, r)) for r in drift_rows(result)])
+    if result.gyro_bias:
+        lines += ["", ("Gyro bias, estimated with the parameters (base axes; the parameters' standard errors include "
+                       "their coupling with it):"), ""]
+        lines += _md_table(["gyro bias", "unit", "estimate", "std"], [
+            (_md(d["name"]), _md(d["unit"]), f"{d['value']:.6g}", f"{d['std']:.3g}") for d in result.gyro_bias])
     lines += [
         "",
         f"Estimator {_md(result.estimator)}, {result.n_samples} samples, momentum "
