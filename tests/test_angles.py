@@ -348,3 +348,45 @@ def test_spatial_bound_matches_a_brute_force_fisher_matrix(tree3):
     np.testing.assert_allclose(np.sqrt(np.diag(bound)), np.sqrt(np.diag(brute)), rtol=1e-4)
     scale = np.sqrt(np.outer(np.diag(brute), np.diag(brute)))
     np.testing.assert_allclose(bound / scale, brute / scale, atol=5e-4)  # correlations
+
+
+@pytest.mark.slow
+def test_cli_identifies_a_spatial_robot_from_angles_alone_by_default(tmp_path):
+    """A spatial CSV of encoders and star tracker (no rate column, no --estimator): identify uses the
+    angles estimator, and its estimate is within its standard errors of the truth."""
+    from random_robots import random_robot
+
+    from spaceid.data import write_log
+
+    model = random_robot(3, planar=False, max_arms=1, max_joints=2).load(tmp_path)
+    param = minimal_parameters(model)
+    t = np.linspace(0, 5, 501)  # 3 s are too short for this robot: the fit then stops in a local minimum
+    clean = simulate(param, param.true_values, harmonics(len(model.joints), 2), t, H3, initial_quat=QUAT0)
+    log = star_tracker(clean, 0)
+    write_log(tmp_path / "angles.csv", replace(log, qd=np.full_like(log.qd, np.nan), base_w=np.full_like(log.base_w,
+                                                                                                           np.nan)))
+    out = tmp_path / "r.json"
+    assert main(["identify", str(tmp_path / f"robot{3}.urdf"), str(tmp_path / "angles.csv"), "--momentum",
+                 ",".join(map(str, H3)), "--noise-angle", "1e-4", "--noise-attitude", "5e-5", "-o", str(out)]) == 0
+    result = json.loads(out.read_text())
+    assert result["estimator"] == "angles"
+    values = np.array([p["value"] for p in result["parameters"]])
+    std = np.array([p["std"] for p in result["parameters"]])
+    assert np.all(np.abs(values - param.true_values) < 5 * std)
+
+
+@pytest.mark.slow
+def test_spatial_spread_matches_predicted_std_and_reaches_the_bound(tree3):
+    """30 draws of encoder (1e-4 rad) and star-tracker (5e-5 rad) noise on a spatial tree, 5 s at
+    100 Hz: the spread agrees with the predicted standard errors (a 30-draw std is good to ~13 %),
+    the RMSE is at the bound, and no estimate is more than 4.5 standard errors off."""
+    t = np.linspace(0, 5, 501)
+    clean = simulate(tree3, tree3.true_values, harmonics(2, 1), t, H3, initial_quat=QUAT0)
+    _, bound = cramer_rao_angles(tree3, clean, H3, NOISE3)
+    runs = [identify(tree3, star_tracker(clean, s), H3, estimator="angles", noise=NOISE3) for s in range(30)]
+    est = np.array([r.values for r in runs])
+    ratio = est.std(axis=0) / np.mean([r.std for r in runs], axis=0)
+    assert np.all((ratio > 0.65) & (ratio < 1.4)), ratio
+    rmse = np.sqrt(np.mean((est - tree3.true_values) ** 2, axis=0)) / np.sqrt(np.diag(bound))
+    assert np.all((rmse > 0.65) & (rmse < 1.4)), rmse
+    assert np.abs((est - tree3.true_values) / np.array([r.std for r in runs])).max() < 4.5

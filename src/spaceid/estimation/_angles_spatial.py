@@ -67,9 +67,12 @@ class _Grid:
     """The integration stages of one log: the panel edges (sample times and knots), their
     midpoints, the spline bases there (``B, dB (m, c)`` at the ``m = 2 P + 1`` stages, edges at even
     indices), the four basis functions active at each stage (``first (m,)``, ``local, dlocal
-    (m, 4)``), and the edge of each sample (``at (n,)``)."""
+    (m, 4)``), the edge of each sample (``at (n,)``), and the segments of the attitude's propagation,
+    ``starts`` (edge: segment number): one from the first sample (the likelihood), or with
+    ``segment`` [s] one from a sample every ``segment`` seconds (multiple shooting, for tests and
+    studies of the likelihood's shape)."""
 
-    def __init__(self, path):
+    def __init__(self, path, segment=None):
         self.path = path
         edges = np.unique(np.concatenate([path.t, path.knots]))
         self.dt = np.diff(edges)
@@ -82,6 +85,8 @@ class _Grid:
         self.local = np.take_along_axis(self.B, cols, 1)
         self.dlocal = np.take_along_axis(self.dB, cols, 1)
         self.at = np.searchsorted(edges, path.t)
+        first = [0] if segment is None else np.unique(np.searchsorted(path.t, path.t[0] + np.arange(0, path.t[-1] - path.t[0], segment)))
+        self.starts, self.first_samples = {int(self.at[i]): k for k, i in enumerate(first)}, np.asarray(first)
 
 
 def _pieces(param, pi, q, qd):
@@ -94,24 +99,28 @@ def _pieces(param, pi, q, qd):
 
 
 def _propagate(grid, inverse, a, h, rot0):
-    """The attitude ``(m, 3, 3)`` at every stage from ``rot0`` at the first: exact (to the scheme's
-    fourth order) at the edges, to third order at the midpoints (where only the variational
-    equation uses it)."""
+    """The attitude ``(m, 3, 3)`` at every stage from ``rot0 (segments, 3, 3)`` at the segments' first
+    edges (:class:`_Grid`): to the scheme's fourth
+    order at the edges, and at the midpoints (where only the variational equation uses it) from the
+    quadratic through the stage rates, local error ``O(dt^4)``, which keeps the derivatives at
+    fourth order too (a second-order midpoint leaves them at second order, and Gauss-Newton then
+    crawls on ill-conditioned problems)."""
     out = np.empty((len(grid.times), 3, 3))
-    rot = out[0] = rot0
 
     def rate(i, r):
         return a[i] + inverse[i] @ (r.T @ h)
 
     for k, dt in enumerate(grid.dt):
         i = 2 * k
+        if k in grid.starts:  # a segment's initial attitude
+            rot = out[i] = rot0[grid.starts[k]]
         s1 = rate(i, rot)
         s2 = _dexpinv(dt / 2 * s1, rate(i + 1, rot @ _exp(dt / 2 * s1)))
-        mid = rot @ _exp(dt / 2 * s2)
-        s3 = _dexpinv(dt / 2 * s2, rate(i + 1, mid))
+        s3 = _dexpinv(dt / 2 * s2, rate(i + 1, rot @ _exp(dt / 2 * s2)))
         s4 = _dexpinv(dt * s3, rate(i + 2, rot @ _exp(dt * s3)))
-        out[i + 1], rot = mid, rot @ _exp(dt / 6 * (s1 + 2 * s2 + 2 * s3 + s4))
-        out[i + 2] = rot
+        # the midpoint by the quadratic through the three stage rates (Hermite-Simpson): third order
+        out[i + 1] = rot @ _exp(dt / 24 * (5 * s1 + 4 * (s2 + s3) - s4))
+        rot = out[i + 2] = rot @ _exp(dt / 6 * (s1 + 2 * s2 + 2 * s3 + s4))
     return out
 
 
@@ -134,13 +143,13 @@ def _forcing(eq, grid, theta, coef, rot, inverse, a):
 
 
 def _sensitivity(grid, M, d_theta, d_coef):
-    """Derivatives ``(n, 3, p + n_joints c + 3)`` of the attitude at the samples (a small rotation in
-    base axes) in ``u = [theta, coef (joint by joint), e]``: the variational equation integrated by
-    the classical Runge-Kutta scheme on the stages, from ``d(t0) = e``."""
+    """Derivatives ``(n, 3, p + n_joints c + 3 segments)`` of the attitude at the samples (a small
+    rotation in base axes) in ``u = [theta, coef (joint by joint), e (segment by segment)]``: the
+    variational equation integrated by the classical Runge-Kutta scheme on the stages, from
+    ``d = e_k`` at the start of segment ``k``."""
     p, nj, c = d_theta.shape[-1], d_coef.shape[2], grid.B.shape[1]
-    S = np.zeros((3, p + nj * c + 3))
-    S[:, -3:] = np.eye(3)
-    out = np.empty((len(grid.at), 3, S.shape[1]))
+    size = p + nj * c + 3 * len(grid.starts)
+    out = np.empty((len(grid.at), 3, size))
     sample = dict(zip(grid.at.tolist(), range(len(grid.at))))
     offsets = p + c * np.arange(nj)[:, None] + np.arange(4)
 
@@ -150,9 +159,13 @@ def _sensitivity(grid, M, d_theta, d_coef):
         k[:, offsets + grid.first[i]] += d_coef[i]
         return k
 
-    out[0] = S
     for e, dt in enumerate(grid.dt):
         i = 2 * e
+        if e in grid.starts:
+            S = np.zeros((3, size))
+            S[:, size - 3 * (len(grid.starts) - grid.starts[e]) :][:, :3] = np.eye(3)
+            if e in sample:
+                out[sample[e]] = S
         k1 = deriv(i, S)
         k2 = deriv(i + 1, S + dt / 2 * k1)
         k3 = deriv(i + 1, S + dt / 2 * k2)
@@ -165,15 +178,17 @@ def _sensitivity(grid, M, d_theta, d_coef):
 
 def _predict(eq, grid, theta, coef, rot0, jacobian=True):
     """The attitude ``(n, 3, 3)`` that momentum conservation gives at the samples for joint splines
-    ``coef (c, n_joints)``, unknowns ``theta (p,)`` and the initial attitude ``rot0 (3, 3)``, and
-    with ``jacobian`` its derivatives (:func:`_sensitivity`), else None."""
+    ``coef (c, n_joints)``, unknowns ``theta (p,)`` and the segments' initial attitudes ``rot0 (segments,
+    3, 3)``, and
+    with ``jacobian`` its derivatives (:func:`_sensitivity`), else a callable that returns them."""
     pi, h = eq.full(theta)
     inverse, a = _pieces(eq.param, pi, grid.B @ coef, grid.dB @ coef)
     rot = _propagate(grid, inverse, a, h, rot0)
-    if not jacobian:
-        return rot[2 * grid.at], None
-    M, d_theta, d_coef, _ = _forcing(eq, grid, theta, coef, rot, inverse, a)
-    return rot[2 * grid.at], _sensitivity(grid, M, d_theta, d_coef)
+
+    def derivatives():
+        return _sensitivity(grid, *_forcing(eq, grid, theta, coef, rot, inverse, a)[:3])
+
+    return rot[2 * grid.at], derivatives() if jacobian else derivatives
 
 
 def _residuals(path, q, rot_meas, coef, rot, sigma_q, sigma_a):
@@ -182,17 +197,19 @@ def _residuals(path, q, rot_meas, coef, rot, sigma_q, sigma_a):
     return (q - path.B @ coef) / sigma_q, rotation_log(np.swapaxes(rot, -1, -2) @ rot_meas) / sigma_a
 
 
-def _step(path, S, r_q, r_a, sigma_q, sigma_a, p):
-    """The Gauss-Newton step ``(n_u,)`` in ``u = [theta, nuisance]``, the covariance ``(p, p)`` of
-    ``theta`` (the leading block of ``(J^T J)^-1``) and ``J^T r``, from the attitude derivatives
-    ``S (n, 3, n_u)`` and the whitened residuals.
+def _linearised(path, S, r_q, r_a, sigma_q, sigma_a, p):
+    """The Gauss-Newton system at one point, with the nuisance eliminated: a callable
+    ``solve(damping)`` returning the step ``(n_u,)`` in ``u = [theta, nuisance]`` and the covariance
+    ``(p, p)`` of ``theta`` (undamped: the leading block of ``(J^T J)^-1``), and ``J^T r``; from the
+    attitude derivatives ``S (n, 3, n_u)`` and the whitened residuals.
 
     The nuisance (spline coefficients and initial attitude) is eliminated first: its normal matrix
     is well conditioned (each joint's samples pin its spline; the joint rows are the spline basis of
     that joint's coefficients alone, so their blocks are added without forming them), and its
     Cholesky factor projects the nuisance out of the parameter columns and the residuals. The
     parameters, whose conditioning is the data's, are then solved by the Householder QR of the
-    projected columns, which squares no condition number: the covariance holds ``eps cond``."""
+    projected columns, which squares no condition number (the covariance holds ``eps cond``), with
+    Levenberg-Marquardt rows ``sqrt(damping)`` times the column norms appended when damped."""
     Sa = S.reshape(-1, S.shape[-1]) / sigma_a
     St, Sc = Sa[:, :p], Sa[:, p:]
     c, nj = path.B.shape[1], r_q.shape[1]
@@ -209,45 +226,65 @@ def _step(path, S, r_q, r_a, sigma_q, sigma_a, p):
     joints = [path.B @ X[j * c : (j + 1) * c] / sigma_q for j in range(nj)]
     fitted = (path.B @ y[: nj * c].reshape(nj, c).T) / sigma_q
     A = np.vstack([St - Sc @ X, -np.vstack(joints)])
-    scale = _column_scale(A)  # Householder QR: its inverse Gram matrix holds eps cond, not eps cond^2
-    factor = _blockwise(A, np.concatenate([r_a.ravel() - Sc @ y, (r_q - fitted).T.ravel()]), scale,
-                        _accumulate_factor, _accumulate_factor)  # fmt: skip
-    step, cov = _solve_factor(factor, scale)
-    return np.concatenate([step, y - X @ step]), cov, np.concatenate([St.T @ r_a.ravel(), g])
+    b = np.concatenate([r_a.ravel() - Sc @ y, (r_q - fitted).T.ravel()])
+    norms = _column_scale(A)
+
+    def solve(damping=0.0):
+        rows = (A, np.sqrt(damping) * np.diag(norms)) if damping else (A,)
+        factor = _blockwise(np.vstack(rows), np.concatenate([b, np.zeros(p if damping else 0)]), norms,
+                            _accumulate_factor, _accumulate_factor)  # fmt: skip
+        step, cov = _solve_factor(factor, norms)
+        return np.concatenate([step, y - X @ step]), cov
+
+    return solve, np.concatenate([St.T @ r_a.ravel(), g])
 
 
-def _gauss_newton(eq, path, q, rot_meas, theta, sigma_q, sigma_a, max_iter=30, tol=1e-6):
-    """Gauss-Newton on the whitened residuals from ``theta``, the splines fitted to the joint samples
-    and the measured initial attitude; stops when a step's length in the metric of ``J^T J`` is below
-    ``tol`` standard errors. Returns ``theta``, the splines, the covariance of ``theta`` (inverse Fisher
-    block, at the last step's start: it moved by less than ``tol`` standard errors since), the
-    residuals and the iterations and whether they converged."""
-    grid = _Grid(path)
-    coef, rot0 = path.fit(q), rot_meas[0]
+def _gauss_newton(eq, path, q, rot_meas, theta, sigma_q, sigma_a):
+    """Maximum likelihood from ``theta`` (:func:`_levenberg_marquardt`, the attitude propagated from the
+    first sample): ``theta``, the splines, the covariance of ``theta``, the residuals, the iterations
+    and whether they converged."""
+    theta, coef, _, cov, r, info = _levenberg_marquardt(eq, _Grid(path), q, rot_meas, theta, path.fit(q), sigma_q,
+                                                        sigma_a)  # fmt: skip
+    return theta, coef, cov, r, info
+
+
+def _levenberg_marquardt(eq, grid, q, rot_meas, theta, coef, sigma_q, sigma_a, max_iter=50, tol=1e-4):
+    """Levenberg-Marquardt on the whitened residuals from ``theta``, the splines fitted to the joint
+    samples and the measured initial attitude: Gauss-Newton steps while they lower the cost, damped
+    in the parameters (tenfold per refusal, a tenth per success) where they do not. Stops when an
+    undamped step's length in the metric of ``J^T J`` is below ``tol`` standard errors. Returns
+    ``theta``, the splines, the segments' initial attitudes, the covariance of ``theta`` (inverse
+    Fisher block, at the last step's start: it moved by less than ``tol`` standard errors since),
+    the residuals and the iterations and whether they converged."""
+    path, rot0 = grid.path, rot_meas[grid.first_samples]
     p, (c, nj) = len(theta), coef.shape
     rot, S = _predict(eq, grid, theta, coef, rot0)
     r = _residuals(path, q, rot_meas, coef, rot, sigma_q, sigma_a)
+    solve, g = _linearised(path, S, *r, sigma_q, sigma_a, p)
+    cost, damping, converged = sum(x.ravel() @ x.ravel() for x in r), 0.0, False
     for it in range(1, max_iter + 1):
-        step, cov, g = _step(path, S, *r, sigma_q, sigma_a, p)
-        cost, lam = sum(x.ravel() @ x.ravel() for x in r), 1.0
-        while True:  # halve the step while the cost grows: a safeguard against a poor start
-            trial = (theta + lam * step[:p], coef + lam * step[p:-3].reshape(nj, c).T, rot0 @ _exp(lam * step[-3:]))
-            rot, S_new = _predict(eq, grid, *trial)
-            r_new = _residuals(path, q, rot_meas, trial[1], rot, sigma_q, sigma_a)
-            # a rise of 1e-6 in chi2 is round-off, not a worse fit (noise-free data: the cost is ~0)
-            if sum(x.ravel() @ x.ravel() for x in r_new) <= cost * (1 + 1e-12) + 1e-6 or lam < 1e-3:
-                break
-            lam /= 2
-        (theta, coef, rot0), S, r = trial, S_new, r_new
-        converged = bool(lam * np.sqrt(max(step @ g, 0.0)) < tol)
+        step, cov = solve(damping)
+        turns = np.array([_exp(e) for e in step[p + nj * c :].reshape(-1, 3)])
+        trial = (theta + step[:p], coef + step[p : p + nj * c].reshape(nj, c).T, rot0 @ turns)
+        rot, derivatives = _predict(eq, grid, *trial, jacobian=False)
+        r_new = _residuals(path, q, rot_meas, trial[1], rot, sigma_q, sigma_a)
+        cost_new = sum(x.ravel() @ x.ravel() for x in r_new)
+        # a rise of 1e-6 in chi2 is round-off, not a worse fit (noise-free data: the cost is ~0)
+        if not cost_new <= cost * (1 + 1e-12) + 1e-6:
+            damping = max(10 * damping, 1e-6)
+            continue
+        converged = not damping and bool(np.sqrt(max(step @ g, 0.0)) < tol)
+        (theta, coef, rot0), r, cost, damping = trial, r_new, cost_new, damping / 10 if damping > 1e-9 else 0.0
         if converged:
             break
-    return theta, coef, cov, r, (it, converged)
+        solve, g = _linearised(path, derivatives(), *r, sigma_q, sigma_a, p)
+    return theta, coef, rot0, cov, r, (it, converged)
 
 
 def _bound(eq, path, log, theta, sigma_q, sigma_a):
     """The Cramer-Rao bound ``(p, p)`` on ``theta`` at the true values: the inverse Fisher block at
     the least-squares splines of the noise-free joint angles and the log's initial attitude."""
     coef = path.fit(log.q)
-    _, S = _predict(eq, _Grid(path), theta, coef, eq.rot[0])
-    return _step(path, S, np.zeros(log.q.shape), np.zeros((len(log.t), 3)), sigma_q, sigma_a, len(theta))[1]
+    _, S = _predict(eq, _Grid(path), theta, coef, eq.rot[:1])
+    solve, _ = _linearised(path, S, np.zeros(log.q.shape), np.zeros((len(log.t), 3)), sigma_q, sigma_a, len(theta))
+    return solve()[1]
