@@ -287,7 +287,7 @@ def test_spatial_attitude_propagation_is_fourth_order(tree3, tree3_log):
     errors = []
     for every in (2, 1):  # 50 Hz, 100 Hz
         path = _Path(tree3_log.t[::every], KNOT_SPACING, "test")
-        rot, _ = spatial._predict(eq, spatial._Grid(path), tree3.true_values, coef, eq.rot[0], jacobian=False)
+        rot, _ = spatial._predict(eq, spatial._Grid(path), tree3.true_values, coef, eq.rot[:1], jacobian=False)
         errors.append(np.abs(spatial.rotation_log(np.swapaxes(rot, -1, -2) @ eq.rot[::every])).max())
     assert 8 < errors[0] / errors[1] < 24 and errors[1] < 1e-10, errors
 
