@@ -201,6 +201,9 @@ def spatial_study(label, param, motion, t, runs):
         walls.append(time.perf_counter() - t0)
         est.append(ident.values)
         std.append(ident.std)
+    if len(est) < 2:
+        print(f"\n{label}: FAILED {len(failed)} of {runs} fits: " + "; ".join(failed[:2]))
+        return
     est, std = np.array(est), np.array(std)
     rmse = np.sqrt(np.mean((est - param.true_values) ** 2, 0)) / bound
     spread = est.std(0) / std.mean(0)
@@ -212,9 +215,9 @@ def spatial_study(label, param, motion, t, runs):
     print(f"  RMSE / bound: median {np.median(rmse):.3f}, range {rmse.min():.3f} .. {rmse.max():.3f}")
     print(f"  actual / predicted std: median {np.median(spread):.3f}, range {spread.min():.3f} .. {spread.max():.3f}")
     print(f"  |z| max {np.abs(z).max():.2f}, RMS z {np.sqrt(np.mean(z**2)):.3f}")
-    verdict("max RMSE / bound <= 1.5", f"{rmse.max():.3f}", rmse.max() <= 1.5)
+    verdict("max RMSE / bound <= 1.5", f"{rmse.max():.3f}", rmse.max() <= 1.5 and not failed)
     worst = farthest_from_one(spread)
-    verdict("actual / predicted std within 20 %", f"{worst:.3f}", abs(worst - 1) <= 0.2)
+    verdict("actual / predicted std within 20 %", f"{worst:.3f}", abs(worst - 1) <= 0.2 and not failed)
 
 
 def spatial(runs):
