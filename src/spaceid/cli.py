@@ -157,7 +157,7 @@ ESTIMATOR_HELP = ("ml: maximum likelihood, errors in variables (unbiased, effici
                   "(noise-model weights, small bias); iv: instrumental variables (signals free of the measurement "
                   "noise as instruments); tls: total least squares (for comparison with the literature); ols: "
                   "ordinary least squares, the paper's Eq. 11 (fast, no noise model, biased by noise); angles: maximum "
-                  "likelihood on the joint angles and base yaw alone, no rates (planar, >= 40 Hz).")
+                  "likelihood on the joint angles and base attitude alone, no rates (>= 40 Hz).")
 
 
 class _OutputPath(click.Path):
@@ -719,7 +719,8 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
               "whole system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to "
               "estimate it (both need an anchor, --known or a reaction wheel, or a --prior).")
-@click.option("--estimator", type=click.Choice(ESTIMATORS), default="ml", show_default=True, help=ESTIMATOR_HELP)
+@click.option("--estimator", type=click.Choice(ESTIMATORS), help=ESTIMATOR_HELP + " [default: angles for a planar "
+              "CSV log without joint-rate columns (and no --joint-rates or --gyro-bias), else ml]")
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
               "parameter one equals alone, e.g. Iczz_wheel=0.00197): anchors the scale; repeatable.")
 @click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (the JSON 'spaceid "
@@ -768,8 +769,14 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     kinds = _drift(drift, param.model.planar, values=False)
+    log = _measured_log(param.model, log_path, reading, angles_only=estimator in ("angles", None), gyro=gyro_bias)
+    if estimator is None:  # the angles alone where no joint rate was measured: nothing to differentiate
+        # (planar: spatial angles-only fits do not yet converge from their start on every servicer motion)
+        planar_angles = param.model.planar and not gyro_bias and _without_joint_rates(param.model, log, reading)
+        estimator = "angles" if planar_angles else "ml"
+        if estimator == "ml" and "joint_rates" not in log.meta:  # a CSV (a bag's rates are set when read)
+            log = _csv_rates(log, log_path, reading, gyro=gyro_bias)
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
-    log = _measured_log(param.model, log_path, reading, angles_only=angles_only, gyro=gyro_bias)
     reference = None
     if instruments is not None:
         if estimator != "iv":
@@ -819,9 +826,8 @@ def _measured_log(model, log_path, reading, *, angles_only=False, gyro=False):
     ``auto`` when some are missing), with ``--window`` and ``--quantum``; ``angles_only``: left as
     read (the angles estimator uses no rates); ``gyro``: the base rate is kept as measured (its bias is
     estimated), only the joint angles are differentiated."""
-    from .data import differentiate_log, is_bag, read_log
+    from .data import is_bag, read_log
 
-    rates = reading["joint_rates"]
     if is_bag(log_path):
         log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels,
                        bag_options=_bag_reading(reading))
@@ -829,9 +835,16 @@ def _measured_log(model, log_path, reading, *, angles_only=False, gyro=False):
         return log
     log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels, require_rates=False,
                    bag_options={k: reading[k] for k in BAG_ONLY})  # topics or a mapping: refused for a CSV
+    return log if angles_only else _csv_rates(log, log_path, reading, gyro=gyro)
+
+
+def _csv_rates(log, log_path, reading, *, gyro=False):
+    """A CSV ``log`` with its rates as ``reading`` says (:func:`_measured_log`): its rate columns, or
+    its angles and attitude differentiated."""
+    from .data import differentiate_log
+
+    rates = reading["joint_rates"]
     missing = log.meta.get("missing_rates", [])
-    if angles_only:
-        return log
     no_rates = len(missing) == log.q.shape[1] + (1 if log.planar else 3) or gyro and all(
         f"qd_{j}" in missing for j in log.joints)  # a gyro without joint-rate sensors
     if not (rates == "differentiate" or rates == "auto" and missing or rates is None and no_rates):
@@ -847,6 +860,15 @@ def _measured_log(model, log_path, reading, *, angles_only=False, gyro=False):
     if gyro and not np.isnan(log.base_w[:, [2] if log.planar else [0, 1, 2]]).any():
         return differentiate_log(log, window=reading["window"], quantum=reading["quantum"], base=False)
     return differentiate_log(log, window=reading["window"], quantum=reading["quantum"])
+
+
+def _without_joint_rates(model, log, reading) -> bool:
+    """Whether ``log`` is a CSV log without any joint-rate column (``qd_*`` of the non-wheel joints)
+    read without ``--joint-rates``: ``identify``'s estimator is then ``angles`` by default."""
+    missing = set(log.meta.get("missing_rates", ()))
+    joints = [j for j in model.joints if j not in model.wheels]
+    return reading["joint_rates"] is None and "joint_rates" not in log.meta and all(f"qd_{j}" in missing
+                                                                                      for j in joints)  # fmt: skip
 
 
 def _bag_reading(reading) -> dict:

@@ -19,8 +19,10 @@ allow. Here the angles are the data:
   Its covariance is the inverse Fisher information with the nuisance eliminated, which at the
   true values is the bound :func:`cramer_rao_angles`.
 
-Planar models only (the yaw is a quadrature of the base rate; a spatial attitude would follow
-an ODE on the rotation group).
+Spatial models (:mod:`spaceid.estimation._angles_spatial`): the attitude samples (a star tracker)
+replace the yaw, the base rotation increments ``log(R_n^T R_n+1)`` the yaw increments of the
+integral form, and the predicted attitude follows ``dR0/dt = R0 [w0]x`` from a nuisance initial
+attitude, integrated on the rotation group.
 """
 
 from __future__ import annotations
@@ -28,95 +30,24 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.interpolate import BSpline
 
 from .._constants import KNOT_SPACING
 from .._errors import SpaceidError
 from ..data import Log, quat_to_yaw
 from ..dynamics import base_rate
+from . import _angles_spatial as spatial
+from ._angle_path import _cumulative, _Path
 from ._equations import _equations
 from ._linalg import _inverse_gram, _solve
 from ._noise import Noise, signal_jacobian
 
 __all__ = ["KNOT_SPACING", "cramer_rao_angles"]
 
-GAUSS_NODES = 4
-"""Gauss-Legendre nodes per quadrature panel: exact for the spline pieces to ~1e-13 at 100 Hz."""
 
-MIN_SAMPLES_PER_SPAN = 2
-"""Fewest samples per knot span on average: fewer leave the splines (two coefficients per span
-and joint at most) barely determined by their own joint's samples."""
-
-
-def _planar_only(param, what: str) -> None:
-    if not param.model.planar:
-        raise SpaceidError(f"{what}: the angles estimator and bound support planar models only; for spatial systems "
-                           "use a rate-based `estimator`, e.g. ml")  # fmt: skip
-
-
-def _phi(eq, x):
-    """``eq.phi`` at signals ``x (m, n_x)`` that are not the log's samples (planar: the yaw leaves
-    the z row alone, so the base rotation is taken as the identity)."""
-    return replace(eq, rot=np.broadcast_to(np.eye(3), (len(x), 3, 3))).phi(x)
-
-
-def _knot_vector(t, spacing: float, where: str) -> np.ndarray:
-    """Cubic-spline knots over ``[t[0], t[-1]]``: uniform spans of about ``spacing`` [s], the end
-    knots repeated four times. Raises when the samples are too few for them."""
-    if not spacing > 0:
-        raise SpaceidError(f"{where}: `knot_spacing` {spacing!r} must be a positive time [s]")
-    duration = float(t[-1] - t[0])
-    spans = max(1, round(duration / spacing))
-    if len(t) - 1 < MIN_SAMPLES_PER_SPAN * spans:
-        raise SpaceidError(
-            f"{where}: {len(t)} samples over {duration:.4g} s are too few for spline knots every {spacing:g} s "
-            f"({spans} spans): the angles estimator needs at least {MIN_SAMPLES_PER_SPAN * spans + 1} samples "
-            f"(sample at {MIN_SAMPLES_PER_SPAN / spacing:g} Hz or more)"
-        )
-    inner = np.linspace(t[0], t[-1], spans + 1)
-    return np.concatenate([[t[0]] * 3, inner, [t[-1]] * 3])
-
-
-def _basis(knots, s, deriv=0) -> np.ndarray:
-    """Cubic B-spline basis (or its derivative) at times ``s (m,)``: ``(m, n_coef)``."""
-    n_coef = len(knots) - 4
-    spline = BSpline(knots, np.eye(n_coef), 3)
-    return (spline.derivative(deriv) if deriv else spline)(s)
-
-
-def _quadrature(t, knots):
-    """Gauss-Legendre nodes ``(m,)`` and weights ``(m,)`` on the panels between the sample times
-    and the knots (the splines are smooth on each), and the panel index after which each sample
-    time comes: ``cumsum`` of the panel sums at ``ends`` integrates from ``t[0]`` to each sample."""
-    edges = np.unique(np.concatenate([t, knots]))
-    x, w = np.polynomial.legendre.leggauss(GAUSS_NODES)
-    half = np.diff(edges)[:, None] / 2
-    nodes = (edges[:-1, None] + half * (x + 1)).ravel()
-    weights = (half * w).ravel()
-    return nodes, weights, np.searchsorted(edges, t)
-
-
-def _cumulative(values, weights, ends):
-    """``int_{t0}^{t_n} f dt`` at the sample times of node values ``(m, ...)``: ``(n, ...)``."""
-    panels = (values * weights.reshape((-1,) + (1,) * (values.ndim - 1))).reshape((-1, GAUSS_NODES) + values.shape[1:])
-    total = np.concatenate([np.zeros((1,) + values.shape[1:]), np.cumsum(panels.sum(1), 0)])
-    return total[ends]
-
-
-class _Path:
-    """The sample times, knots and quadrature of one log, with the spline bases at the samples
-    ``B (n, c)`` and at the quadrature nodes ``Bs, dBs (m, c)``."""
-
-    def __init__(self, t, spacing, where):
-        self.t = np.asarray(t, float)
-        self.knots = _knot_vector(self.t, spacing, where)
-        self.nodes, self.weights, self.ends = _quadrature(self.t, self.knots)
-        self.B = _basis(self.knots, self.t)
-        self.Bs, self.dBs = _basis(self.knots, self.nodes), _basis(self.knots, self.nodes, 1)
-
-    def fit(self, q):
-        """Least-squares spline coefficients ``(c, n_joints)`` of joint samples ``q (n, n_joints)``."""
-        return np.linalg.lstsq(self.B, q, rcond=None)[0]
+def _phi(eq, x, rot=None):
+    """``eq.phi`` at signals ``x (m, n_x)`` that are not the log's samples, with the base rotations
+    ``rot (m, 3, 3)`` (planar: the yaw leaves the z row alone, so the identity)."""
+    return replace(eq, rot=np.broadcast_to(np.eye(3), (len(x), 3, 3)) if rot is None else rot).phi(x)
 
 
 def _yaw_and_jacobian(eq, path: _Path, theta, coef):
@@ -163,9 +94,9 @@ def _residuals(path, q, yaw_meas, coef, yaw0, yaw, sigma_q, sigma_yaw):
 
 
 def _levels(noise: Noise, where: str) -> tuple:
-    """Joint-angle and yaw noise levels [rad] of ``noise`` (the yaw is the planar attitude)."""
+    """Joint-angle and attitude noise levels [rad] of ``noise`` (planar: the yaw; spatial: per axis)."""
     if not (noise.angle > 0 and noise.attitude > 0):
-        raise SpaceidError(f"{where}: the angles estimator weights by the angle and attitude (yaw) noise levels, "
+        raise SpaceidError(f"{where}: the angles estimator weights by the angle and attitude noise levels, "
                            f"given as {noise.angle:g} and {noise.attitude:g} rad: give both > 0 (`noise.angle`, "
                            "`noise.attitude`)")  # fmt: skip
     return noise.angle, noise.attitude
@@ -208,27 +139,40 @@ def _angles_ml(eq, x, sigma, theta, ctx):
     likelihood on the angle samples from the integral-form start ``theta``; the rates in ``x``
     are not used. Its covariance (``info["covariance"]``) is the inverse Fisher block of theta."""
     data = ctx.angles
-    path, q, yaw_meas = data.path, data.q, data.yaw
-    sigma_q, sigma_yaw = _levels(data.noise, data.where)
-    theta, coef, _, cov, r, (it, converged) = _gauss_newton(eq, path, q, yaw_meas, theta, sigma_q, sigma_yaw)
-    p, dof = len(theta), max(len(r) - cov.shape[0], 1)
-    raw = np.concatenate([(r[: q.size] * sigma_q), r[q.size :] * sigma_yaw])
-    covariance = (cov[:p, :p], float(r @ r / dof), float(np.sqrt(np.mean(raw**2))))  # cov, chi2_dof, RMS [rad]
+    path, q = data.path, data.q
+    sigma_q, sigma_a = _levels(data.noise, data.where)
+    if eq.planar:
+        theta, coef, _, cov, r, (it, converged) = _gauss_newton(eq, path, q, data.attitude, theta, sigma_q, sigma_a)
+        cov, n_u, r = cov[: len(theta), : len(theta)], cov.shape[0], (r[: q.size], r[q.size :])
+    else:
+        theta, coef, cov, r, (it, converged) = spatial._gauss_newton(eq, path, q, data.attitude, theta, sigma_q,
+                                                                     sigma_a)  # fmt: skip
+        n_u = len(theta) + coef.size + 3
+    chi2, size = sum(x.ravel() @ x.ravel() for x in r), sum(x.size for x in r)
+    raw = np.concatenate([r[0].ravel() * sigma_q, r[1].ravel() * sigma_a])
+    covariance = (cov, float(chi2 / max(size - n_u, 1)), float(np.sqrt(np.mean(raw**2))))  # cov, chi2_dof, RMS [rad]
     info = {"iterations": it, "converged": converged, "knot_spacing": float(path.knots[4] - path.knots[3]),
             "spline_coefficients": coef.size, "covariance": covariance}  # fmt: skip
     return theta, info
 
 
-def _integral_equations(eq, path: _Path, q, yaw) -> np.ndarray:
-    """The integral form of the momentum equations, ``[A | -b]`` per knot span ``(spans, 1, p + 1)``:
+def _integral_equations(eq, path: _Path, q, attitude) -> np.ndarray:
+    """The integral form of the momentum equations, ``[A | -b]`` per knot span ``(spans, rows, p + 1)``:
     ``int_span (Y(q, qd, w0) theta_bar) dt`` by the trapezoid rule on the sample path, where on
     each step the rates are the angle increments over the step (the regressor is linear in the
-    rates, so ``dt Phi(q, dq / dt, dyaw / dt)`` is ``Y_j(q) dq_j + Y_w(q) dyaw`` and ``R0^T h dt``)."""
+    rates, so ``dt Phi(q, dq / dt, dphi / dt)`` is ``Y_j(q) dq_j + Y_w(q) dphi`` and ``R0^T h dt``),
+    ``dphi`` the yaw increment (planar; ``attitude (n,)``) or the base rotation ``log(R_n^T R_n+1)``
+    in base axes (spatial; ``attitude (n, 3, 3)``, the rotations at both ends)."""
     dt = np.diff(path.t)[:, None]
-    rates = np.hstack([np.diff(q, axis=0), np.diff(yaw)[:, None]]) / dt
-    nj = q.shape[1]
-    ends = [np.hstack([q[k], rates[:, :nj], rates[:, nj:]]) for k in (slice(None, -1), slice(1, None))]
-    steps = 0.5 * dt[..., None] * (_phi(eq, ends[0]) + _phi(eq, ends[1]))
+    if eq.planar:
+        turn, rots = np.diff(attitude)[:, None], (None, None)
+    else:
+        turn = spatial.rotation_log(np.swapaxes(attitude[:-1], -1, -2) @ attitude[1:])
+        turn = np.hstack([turn, np.zeros_like(turn)])  # no attitude perturbation: the signals' last columns
+        rots = (attitude[:-1], attitude[1:])
+    rates = np.hstack([np.diff(q, axis=0), turn]) / dt
+    ends = [np.hstack([q[k], rates]) for k in (slice(None, -1), slice(1, None))]
+    steps = 0.5 * dt[..., None] * (_phi(eq, ends[0], rots[0]) + _phi(eq, ends[1], rots[1]))
     span = np.clip(np.searchsorted(path.knots[3:-3], 0.5 * (path.t[1:] + path.t[:-1])) - 1, 0, None)
     out = np.zeros((span.max() + 1,) + steps.shape[1:])
     np.add.at(out, span, steps)
@@ -238,51 +182,52 @@ def _integral_equations(eq, path: _Path, q, yaw) -> np.ndarray:
 @dataclass(frozen=True)
 class _AngleData:
     """What the ``angles`` kernel fits (``_FitContext.angles``): the joint paths' splines, the measured
-    joint angles ``q (n, n_joints)`` and unwrapped yaw ``(n,)`` [rad], the noise levels, and the log's
-    name for errors."""
+    joint angles ``q (n, n_joints)``, the attitude (planar: the unwrapped yaw ``(n,)`` [rad]; spatial:
+    the base-to-inertial rotations ``(n, 3, 3)``), the noise levels, and the log's name for errors."""
 
     path: _Path
     q: np.ndarray
-    yaw: np.ndarray
+    attitude: np.ndarray
     noise: Noise
     where: str
 
 
 def _angle_context(eq, log: Log, noise: Noise, where: str, spacing: float) -> tuple:
     """The integral-form equations of ``log`` (the start and excitation check) and the
-    :class:`_AngleData` of the ``angles`` kernel: path, measured joint angles, unwrapped yaw, noise levels."""
-    _planar_only(eq.param, where)
+    :class:`_AngleData` of the ``angles`` kernel: path, measured joint angles and attitude, noise levels."""
     path = _Path(log.t, spacing, where)
-    yaw = np.unwrap(quat_to_yaw(log.base_quat))
-    phi = _integral_equations(eq, path, log.q, yaw)
-    if len(phi) < eq.p + 1:
-        raise SpaceidError(f"{where}: {len(phi)} knot spans give {len(phi)} integral equations for {eq.p} unknowns: "
-                           f"record at least {eq.p + 1} spans of {spacing:g} s")  # fmt: skip
-    return phi, _AngleData(path, log.q, yaw, noise, where)
+    attitude = np.unwrap(quat_to_yaw(log.base_quat)) if eq.planar else eq.rot
+    phi = _integral_equations(eq, path, log.q, attitude)
+    if phi.shape[0] * phi.shape[1] < eq.p + 1:
+        rows, spans = phi.shape[1], -(-(eq.p + 1) // phi.shape[1])
+        raise SpaceidError(f"{where}: {len(phi)} knot spans give {len(phi) * rows} integral equations for {eq.p} "
+                           f"unknowns: record at least {spans} spans of {spacing:g} s")  # fmt: skip
+    return phi, _AngleData(path, log.q, attitude, noise, where)
 
 
 def cramer_rao_angles(param, log: Log, momentum, noise: Noise, *, known=None, estimate_momentum=False,
                       knot_spacing: float = KNOT_SPACING):  # fmt: skip
     """Cramer-Rao bound on the parameters from angle measurements.
 
-    The measurements are the joint angles and the base yaw at the log's sample times, with
-    white Gaussian noise ``noise.angle`` and ``noise.attitude`` [rad]. The true joint paths are a
-    nuisance, cubic splines with knots every ``knot_spacing`` (their true values: the
-    least-squares splines of the noise-free angles), with the initial yaw; the yaw follows from
-    momentum conservation with the parameters. The bound is the parameter block of the inverse
+    The measurements are the joint angles and the base attitude at the log's sample times (planar:
+    the yaw; spatial: the rotation, e.g. a star tracker's, with the noise a small rotation about
+    each base axis), with white Gaussian noise ``noise.angle`` and ``noise.attitude`` [rad]. The
+    true joint paths are a nuisance, cubic splines with knots every ``knot_spacing`` (their true
+    values: the least-squares splines of the noise-free angles), with the initial attitude; the
+    attitude follows from momentum conservation with the parameters. The bound is the parameter block of the inverse
     Fisher information ``J^T J`` of the whitened predictions, i.e. the inverse of its Schur
     complement with the nuisance eliminated.
 
     Parameters
     ----------
     param : Parameterization
-        Planar; its ``true_values`` are the true parameters.
+        Its ``true_values`` are the true parameters.
     log : Log
         The noise-free motion.
     momentum : array_like of shape (3,)
         True inertial momentum [N m s].
     noise : Noise
-        ``angle`` (joints) and ``attitude`` (yaw) levels [rad], both > 0.
+        ``angle`` (joints) and ``attitude`` (yaw, or per base axis) levels [rad], both > 0.
     known : dict, optional
         Known parameters, as for :func:`spaceid.estimation.identify`.
     estimate_momentum : bool
@@ -293,14 +238,15 @@ def cramer_rao_angles(param, log: Log, momentum, noise: Noise, *, known=None, es
     Returns
     -------
     names : list of str
-        The unknowns (free parameters, then ``h_z`` if estimated).
+        The unknowns (free parameters, then the momentum's components if estimated).
     cov : ndarray of shape (p, p)
     """
-    _planar_only(param, "cramer_rao_angles")
     momentum = np.asarray(momentum, float)
     eq, _ = _equations(param, log, None if estimate_momentum else momentum, known, "cramer_rao_angles")
     theta = np.concatenate([param.true_values[eq.free], momentum[eq.axes] if estimate_momentum else []])
     path = _Path(log.t, knot_spacing, "cramer_rao_angles")
-    sigma_q, sigma_yaw = _levels(noise, "cramer_rao_angles")
-    J, _ = _model_jacobian(eq, path, theta, path.fit(log.q), sigma_q, sigma_yaw)
+    sigma_q, sigma_a = _levels(noise, "cramer_rao_angles")
+    if not eq.planar:
+        return eq.names(), spatial._bound(eq, path, log, theta, sigma_q, sigma_a)
+    J, _ = _model_jacobian(eq, path, theta, path.fit(log.q), sigma_q, sigma_a)
     return eq.names(), _inverse_gram(J)[: eq.p, : eq.p]

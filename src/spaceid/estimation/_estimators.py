@@ -38,8 +38,9 @@ solution; ``ESTIMATORS`` names them and ``_KERNELS`` dispatches on the name:
     Jacobian at the corrected signals and a contracted derivative (:func:`_ml_fit`), and it
     streams (:mod:`spaceid.estimation._stream`).
 ``angles``
-    Maximum likelihood on the joint angles and base yaw alone, the joint paths a spline nuisance;
-    no rates (:mod:`spaceid.estimation._angles`: planar models, at least 40 Hz). Its covariance
+    Maximum likelihood on the joint angles and base attitude alone, the joint paths a spline nuisance;
+    no rates (:mod:`spaceid.estimation._angles`, spatial models :mod:`spaceid.estimation._angles_spatial`; at
+    least 40 Hz). Its covariance
     is the Cramer-Rao bound for angle measurements, which it reaches where the rate-based
     estimators on differentiated angles stay 1.3 to 2.2 times above (Cepheus, 100 Hz).
 

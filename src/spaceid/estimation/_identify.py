@@ -334,8 +334,8 @@ def identify(
         ``drift`` is given); None: unknown, estimated with the parameters.
     estimator : {"ml", "wls", "iv", "tls", "ols", "angles"}
         Maximum likelihood (efficient, the default), weighted, instrumental-variables, total or
-        ordinary least squares; ``angles``: maximum likelihood on the angles alone (the log's
-        rates unused; planar); ``spaceid.estimation._estimators`` describes each one's
+        ordinary least squares; ``angles``: maximum likelihood on the joint angles and base attitude
+        alone (the log's rates unused); ``spaceid.estimation._estimators`` describes each one's
         assumptions and cost.
     known : dict, optional
         Known parameter values ``{name: value}``, by minimal-parameter name or by the physical
