@@ -720,7 +720,8 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "whole system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to "
               "estimate it (both need an anchor, --known or a reaction wheel, or a --prior).")
 @click.option("--estimator", type=click.Choice(ESTIMATORS), help=ESTIMATOR_HELP + " [default: angles for a planar "
-              "CSV log without joint-rate columns (and no --joint-rates or --gyro-bias), else ml]")
+              "CSV log without joint-rate columns, sampled densely enough for its knots (and no --joint-rates or "
+              "--gyro-bias), else ml]")
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
               "parameter one equals alone, e.g. Iczz_wheel=0.00197): anchors the scale; repeatable.")
 @click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (the JSON 'spaceid "
@@ -772,7 +773,10 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     log = _measured_log(param.model, log_path, reading, angles_only=estimator in ("angles", None), gyro=gyro_bias)
     if estimator is None:  # the angles alone where no joint rate was measured: nothing to differentiate
         # (planar: spatial angles-only fits do not yet converge from their start on every servicer motion)
-        planar_angles = param.model.planar and not gyro_bias and _without_joint_rates(param.model, log, reading)
+        from .estimation.internal import enough_samples_for_knots
+
+        planar_angles = (param.model.planar and not gyro_bias and _without_joint_rates(param.model, log, reading)
+                         and enough_samples_for_knots(log.t, knot_spacing))  # else: the rates differentiated
         estimator = "angles" if planar_angles else "ml"
         if estimator == "ml" and "joint_rates" not in log.meta:  # a CSV (a bag's rates are set when read)
             log = _csv_rates(log, log_path, reading, gyro=gyro_bias)

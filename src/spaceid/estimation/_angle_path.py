@@ -17,14 +17,24 @@ MIN_SAMPLES_PER_SPAN = 2
 and joint at most) barely determined by their own joint's samples."""
 
 
+def _spans(t, spacing: float) -> int:
+    return max(1, round(float(t[-1] - t[0]) / spacing))
+
+
+def enough_samples_for_knots(t, spacing: float) -> bool:
+    """Whether the stamps ``t`` hold at least :data:`MIN_SAMPLES_PER_SPAN` samples per knot span of
+    about ``spacing`` [s] (what the ``angles`` estimator needs)."""
+    return len(t) - 1 >= MIN_SAMPLES_PER_SPAN * _spans(t, spacing)
+
+
 def _knot_vector(t, spacing: float, where: str) -> np.ndarray:
     """Cubic-spline knots over ``[t[0], t[-1]]``: uniform spans of about ``spacing`` [s], the end
     knots repeated four times. Raises when the samples are too few for them."""
     if not spacing > 0:
         raise SpaceidError(f"{where}: `knot_spacing` {spacing!r} must be a positive time [s]")
     duration = float(t[-1] - t[0])
-    spans = max(1, round(duration / spacing))
-    if len(t) - 1 < MIN_SAMPLES_PER_SPAN * spans:
+    spans = _spans(t, spacing)
+    if not enough_samples_for_knots(t, spacing):
         raise SpaceidError(
             f"{where}: {len(t)} samples over {duration:.4g} s are too few for spline knots every {spacing:g} s "
             f"({spans} spans): the angles estimator needs at least {MIN_SAMPLES_PER_SPAN * spans + 1} samples "

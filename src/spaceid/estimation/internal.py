@@ -25,6 +25,8 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
 ``differentiated_series``, ``propagated_covariance``
     The raw angle series behind differentiated rates, and the covariance of an estimate with
     their noise carried through the differentiating filters.
+``enough_samples_for_knots``
+    Whether a log's stamps are dense enough for the ``angles`` estimator's spline knots.
 ``draw_parameters``, ``draw_singular_values``
     The figures of an identification (``Identification.plot``), which :mod:`spaceid.studies`
     saves (``plot_parameters``, ``plot_singular_values``).
@@ -33,6 +35,7 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
     their standard deviations against a truth: shared by its figure and the report's tables.
 """
 
+from ._angle_path import enough_samples_for_knots
 from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import check_drift_kinds
 from ._equations import Equations, drift_basis_at
@@ -50,6 +53,7 @@ __all__ = [
     "newey_west_covariance",
     "differentiated_series",
     "propagated_covariance",
+    "enough_samples_for_knots",
     "draw_parameters",
     "draw_singular_values",
     "per_parameter",
