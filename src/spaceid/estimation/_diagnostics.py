@@ -95,6 +95,13 @@ class DriftTest:
         Serial correlation of the whitened residuals.
     drift : bool
         The test rejects: a warning was issued.
+    bandwidth : int or None
+        Newey-West lags [samples] of the Wald test's covariance: the differentiator's window, or longer
+        when the refit's residuals stay correlated (None: results written before it was recorded).
+    confounded : float or None
+        Largest share of a drift coefficient's variance from directions the data do not determine
+        (the regressor's noise as large as its signal); above ``CONFOUNDED`` (0.5) the test does not
+        decide: a drift cannot be told from those parameters (None: not recorded).
     """
 
     run: bool
@@ -110,6 +117,8 @@ class DriftTest:
     durbin_watson: float | None = None
     whiteness_p_value: float | None = None
     drift: bool = False
+    bandwidth: int | None = None
+    confounded: float | None = None
 
     @classmethod
     def skipped(cls, reason: str) -> DriftTest:
@@ -123,7 +132,8 @@ class DriftTest:
         return {"alpha": self.alpha, "terms": list(self.terms), "trend": dict(self.trend), "wald": self.wald,
                 "dof": self.dof, "p_value": self.p_value, "relative_drift": self.relative_drift,
                 "lag1_autocorrelation": self.lag1_autocorrelation, "durbin_watson": self.durbin_watson,
-                "whiteness_p_value": self.whiteness_p_value, "drift": self.drift, "run": True}
+                "whiteness_p_value": self.whiteness_p_value, "drift": self.drift, "bandwidth": self.bandwidth,
+                "confounded": self.confounded, "run": True}
 
     @classmethod
     def from_dict(cls, data: dict) -> DriftTest | None:
@@ -136,7 +146,9 @@ class DriftTest:
         return cls(True, "", float(data["alpha"]), tuple(data["terms"]), dict(data["trend"]), float(data["wald"]),
                    int(data["dof"]), float(data["p_value"]), float(data["relative_drift"]),
                    float(data["lag1_autocorrelation"]), float(data["durbin_watson"]),
-                   float(data["whiteness_p_value"]), bool(data["drift"]))
+                   float(data["whiteness_p_value"]), bool(data["drift"]),
+                   None if data.get("bandwidth") is None else int(data["bandwidth"]),
+                   None if data.get("confounded") is None else float(data["confounded"]))
 
 
 @dataclass(frozen=True)
@@ -175,6 +187,12 @@ class Diagnostics:
     estimator_info : dict
         What the estimator reports: ``iterations``, ``converged``, ``fallback`` (``ml``: the estimate
         reported when it failed), ``knot_spacing`` (``angles``), ``chunk`` (streamed), ...
+    undetermined : tuple of dict
+        The directions of parameter space the data do not determine (the regressor's noise at least as
+        large as its signal, :mod:`spaceid.estimation._determined`), worst first: ``noise_to_signal``
+        and the ``parameters`` that lead each; their estimates are pulled towards zero and their
+        standard errors do not hold. Empty when every direction is determined, or not computed (a
+        streamed identification, the ``angles`` estimator).
     """
 
     chi2_dof: float | None = None
@@ -189,10 +207,11 @@ class Diagnostics:
     drift_correlation: float | None = None
     condition_number_scaled: float | None = None
     estimator_info: dict = field(default_factory=dict)
+    undetermined: tuple = ()
 
     KEYS = ("chi2_dof", "variance_factor", "covariance_method", "covariance", "covariance_from_residuals",
             "residual_checks", "noise_model_warning", "plausibility", "drift_test", "drift_correlation",
-            "condition_number_scaled", "estimator_info")
+            "condition_number_scaled", "estimator_info", "undetermined")
     """The keys of the JSON form; RESULT.json files written before ``diagnostics`` existed hold them in
     ``settings`` (:meth:`from_dict` reads those)."""
 
@@ -211,6 +230,7 @@ class Diagnostics:
             "drift_correlation": self.drift_correlation,
             "condition_number_scaled": self.condition_number_scaled,
             "estimator_info": dict(self.estimator_info),
+            "undetermined": [dict(d) for d in self.undetermined],
         }
 
     @classmethod
@@ -230,4 +250,5 @@ class Diagnostics:
             _optional_float(data.get("drift_correlation")),
             _optional_float(data.get("condition_number_scaled")),
             dict(data.get("estimator_info") or {}),
+            tuple(dict(d) for d in data.get("undetermined") or ()),
         )

@@ -25,6 +25,7 @@ from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
+from ._determined import undetermined_directions, undetermined_warning
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
@@ -409,8 +410,11 @@ def identify(
             fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
         theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
         s = _singular_values(factor)
-        drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
-                                                   info.pop("whitener", None), chunk)
+        whitener = info.pop("whitener", None)
+        weak = [] if chunk or estimator == "angles" else undetermined_directions(
+            eq, x, phi, sigma, theta, estimator, log, whitener)
+        drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener,
+                                                   chunk)
         pi, h = eq.full(theta)
         if history is not None and drift:  # the momentum at the log's first sample
             h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])
@@ -426,7 +430,7 @@ def identify(
         warnings.warn(f"{where}: maximum likelihood failed, the estimate reported is {info['fallback']}", stacklevel=2)
     if uncertainty["noise_model_warning"]:
         warnings.warn(f"{where}: {uncertainty['noise_model_warning']}", stacklevel=2)
-    for warning in (fit.implausible, drift_warning, collinear):
+    for warning in (fit.implausible, drift_warning, collinear, undetermined_warning(weak, eq.p, where)):
         if warning:
             warnings.warn(warning, stacklevel=2)
     units = drift_names(drift, param.model.planar)[1]
@@ -451,6 +455,7 @@ def identify(
         plausibility=fit.implausible or "no inertia-like parameter negative", drift_test=drift_record,
         drift_correlation=correlation, condition_number_scaled=cond_scaled,
         estimator_info={k: v for k, v in info.items() if v is None or np.isscalar(v) or isinstance(v, (str, list))},
+        undetermined=tuple(weak),
     )
     return Identification(
         names=param.names, definitions=param.definitions, values=pi, std=np.sqrt(np.diag(cov)), cov=cov,
