@@ -15,12 +15,15 @@ directions leave. The data do not determine such a direction: its value comes fr
 model) or from a motion that excites it.
 
 The ratios are the generalised eigenvalues of ``(N, G)``: in the frame where ``G`` is the identity,
-``N``'s eigenvalues, with eigenvectors ``v_k`` normalised so that ``v_k^T G v_k = 1``.
+``N``'s eigenvalues, with eigenvectors ``v_k`` normalised so that ``v_k^T G v_k = 1``; the frame from
+the regressor's triangular factor, not from ``G`` (whose rounding, ``eps cond^2``, took directions of
+a noise-free satellite log at scaled condition number 5e6 for unheld).
 """
 
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import solve_triangular
 
 from .._threads import one_blas_thread
 from ._noise import FD_STEP
@@ -73,22 +76,19 @@ def signal_levels(param, log, sigma: np.ndarray) -> np.ndarray:
     return differentiated_sigma(log, sigma if np.any(sigma) else signal_sigma(param, noise_from_log(log)))
 
 
-def noise_to_signal(gram: np.ndarray, noise: np.ndarray) -> tuple:
+def noise_to_signal(factor: np.ndarray, noise: np.ndarray) -> tuple:
     """The noise-to-signal ratios ``mu (k,)`` (ascending) of the directions of parameter space and the
-    directions, the columns of ``T (k, k)`` with ``T^T gram T = I``: ``gram`` the Gram matrix of the
-    (whitened) regressor, ``noise`` its noise's (:func:`noise_gram`), both ``(k, k)``. Directions
-    that ``gram`` does not hold at all (zero columns, rank deficiency to round-off) come out with
-    ``mu`` infinite."""
-    scale = np.sqrt(np.diag(gram))
-    scale = np.where(scale > 0, scale, 1.0)
+    directions, the columns of ``T (k, k)`` with ``T^T G T = I``: ``factor`` an upper triangular ``R``
+    of the (whitened) regressor, ``R^T R = G`` its Gram matrix (from an orthogonal factorisation: the
+    regressor's condition number, not its square), ``noise`` its noise's (:func:`noise_gram`), both
+    ``(k, k)``. A column the regressor does not hold (a zero pivot) counts as one at ``eps`` of the
+    largest: its ratio comes out huge."""
+    pivots = np.abs(np.diag(factor))
+    R = factor + np.diag(np.where(pivots > 0, 0.0, np.finfo(float).eps * max(pivots.max(), 1e-300)))
     with one_blas_thread():
-        g, U = np.linalg.eigh(gram / np.outer(scale, scale))
-        held = g > g.max() * 1e-15 * len(g)
-        half = U / np.sqrt(np.where(held, g, 1.0))  # G^-1/2 on the directions G holds
-        mu, V = np.linalg.eigh(half.T @ (noise / np.outer(scale, scale)) @ half)
-        mu = np.where(np.abs(V[~held]).max(axis=0, initial=0) > 0.5, np.inf, np.maximum(mu, 0.0))
-        order = np.argsort(mu)
-    return mu[order], (half @ V)[:, order] / scale[:, None]
+        inverse = solve_triangular(R, np.eye(len(R)))
+        mu, V = np.linalg.eigh(inverse.T @ noise @ inverse)
+    return np.maximum(mu, 0.0), inverse @ V
 
 
 def undetermined(mu: np.ndarray, directions: np.ndarray, names, top: int = 3) -> list:
@@ -122,9 +122,11 @@ def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, white
         A = part.phi(signals)[..., :-1]
         return A if L is None else _whitened(L[rows], A)
 
+    columns = np.sqrt(np.einsum("ij,ij->j", A, A))
+    columns[columns == 0] = 1.0
     with one_blas_thread():
-        gram = A.T @ A
-    return undetermined(*noise_to_signal(gram, noise_gram(build, x[rows], sigma, scale)), eq.names())
+        R = np.linalg.qr(A / columns, mode="r") * columns
+    return undetermined(*noise_to_signal(R, noise_gram(build, x[rows], sigma, scale)), eq.names())
 
 
 def undetermined_warning(directions: list, p: int, where: str) -> str:

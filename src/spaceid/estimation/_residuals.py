@@ -94,11 +94,11 @@ def _drift_equations(phi, rot_t, basis, L) -> tuple:
     return M, rhs, cols, float(np.sum(phi[..., -1] ** 2))
 
 
-def _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, gram) -> float:
+def _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, R) -> float:
     """The largest share of a drift coefficient's first-order variance that comes from directions of
     ``[A | C]`` the data do not determine (:mod:`spaceid.estimation._determined`: the regressor's noise
-    as large as its signal, at :func:`~spaceid.estimation._determined.signal_levels`), ``gram (p + q, p + q)``
-    the Gram matrix of the whitened ``[A | C]``.
+    as large as its signal, at :func:`~spaceid.estimation._determined.signal_levels`), ``R (p + q, p + q)``
+    the triangular factor of the whitened ``[A | C]``.
 
     Along such directions the estimate is pulled towards zero, and the drift columns, which carry no
     noise of their own beyond the attitude's, take up the momentum they leave: the test would read a
@@ -114,7 +114,7 @@ def _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, gram) -> f
         rot_t = np.swapaxes(part.unpack(signals)[3], -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
         return _drift_equations(part.phi(signals), rot_t, basis[rows], L)[0]
 
-    mu, directions = noise_to_signal(gram, noise_gram(build, x[rows], sigma, scale))
+    mu, directions = noise_to_signal(R, noise_gram(build, x[rows], sigma, scale))
     d = directions[eq.p :]
     return float(np.max(np.sum(d[:, mu >= UNDETERMINED] ** 2, 1) / np.maximum(np.sum(d**2, 1), 1e-300)))
 
@@ -170,19 +170,19 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     if phi is not None:  # in memory: built once for both passes
         built = list(chunks())
         chunks = lambda: iter(built)  # noqa: E731
-    sums = {"b2": 0.0, "serial": np.zeros(3), "last": None, "gram": 0.0}  # of b, of the residuals of theta, [A | C]
+    sums = {"b2": 0.0, "serial": np.zeros(3), "last": None}  # of b and of the whitened residuals of theta
 
     def corrections():  # the refit as a correction of theta: [A | C] (delta, d) = -white, in least squares
         for _, M, rhs, _, b2 in chunks():
             white = M @ np.append(theta, np.zeros(q)) + rhs
             sums["b2"], sums["serial"] = sums["b2"] + b2, sums["serial"] + _serial_sums(white, sums["last"])
-            sums["last"], flat = white[-1], M.reshape(-1, p + q)
-            sums["gram"] = sums["gram"] + flat.T @ flat
-            yield flat, -white.ravel()
+            sums["last"] = white[-1]
+            yield M.reshape(-1, p + q), -white.ravel()
 
     # From the Gram matrix without refinement passes: its rounding, eps cond^2, is relative to the correction
     # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
-    step, ginv = _solve_factor(*_streamed_factor(corrections, p + q, refined=False)[::-1])
+    factor = _streamed_factor(corrections, p + q, refined=False)  # (column scale, R of [A | C | -white])
+    step, ginv = _solve_factor(*factor[::-1])
     est, d = np.append(theta, np.zeros(q)) + step, step[p:]
     change, refit = [], {"serial": np.zeros(3), "last": None}
 
@@ -204,7 +204,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         cdd = _larger_of(propagated_covariance(series, log.t, scored, ginv[p:], sigma), cdd)[0]
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     size = n * eq.param.rows
-    confounded = _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, sums["gram"])
+    confounded = _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, factor[1][:-1, :-1] * factor[0])
     p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))
     change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
     square, lagged, differences = sums["serial"]
