@@ -96,8 +96,8 @@ class DriftTest:
     drift : bool
         The test rejects: a warning was issued.
     bandwidth : int or None
-        Newey-West lags [samples] of the Wald test's covariance: the differentiator's window, or longer
-        when the refit's residuals stay correlated (None: results written before it was recorded).
+        Newey-West lags [samples] of the Wald test's covariance: the differentiator's window, 0 for
+        measured rates (None: results written before it was recorded).
     confounded : float or None
         Largest share of a drift coefficient's variance from directions the data do not determine
         (the regressor's noise as large as its signal); above ``CONFOUNDED`` (0.5) the test does not

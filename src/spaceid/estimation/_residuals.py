@@ -29,7 +29,7 @@ from ._determined import UNDETERMINED, noise_gram, noise_rows, noise_to_signal, 
 from ._drift import drift_basis, drift_names
 from ._linalg import _equation_whitener, _solve_factor, _whitened
 from ._stream import _chunks, _streamed_factor
-from ._uncertainty import _hac, _hac_bandwidth, _larger_of, _mapped_scores, correlation_length
+from ._uncertainty import _hac, _larger_of, _mapped_scores, correlation_length
 
 DRIFT_ALPHA = 1e-3
 """Significance level of the drift test: the probability that it warns on a log without drift."""
@@ -53,23 +53,6 @@ def _serial_sums(white, before) -> np.ndarray:
     the first): the lag-1 autocorrelation and the Durbin-Watson statistic are ratios of their totals."""
     w = white if before is None else np.vstack([before, white])
     return np.array([np.sum(white**2), np.sum(w[1:] * w[:-1]), np.sum(np.diff(w, axis=0) ** 2)])
-
-
-def _bandwidth(serial, n: int, window: int) -> int:
-    """Newey-West lags [samples] of the drift test: the differentiator's ``window`` (its errors'
-    correlation), or Andrews' AR(1) plug-in rule for the lag-1 autocorrelation of the refit's residuals
-    when that is longer and the autocorrelation significant (one-sided, at ``DRIFT_ALPHA``), from their
-    :func:`_serial_sums` ``serial`` over ``n`` samples.
-
-    A drift that the drift columns fit leaves white residuals; what they leave correlated is a misfit
-    that is not a drift: rates smoothed by a differentiator (its bias follows the motion), the
-    errors-in-variables bias of directions the data barely determine. Ignoring that correlation, the
-    test took such a smooth misfit for a drift on every conserved spatial log (p down to 1e-300 on
-    the 7-DOF satellite's, docs/theory/drift.md)."""
-    rho = float(serial[1] / serial[0]) if serial[0] > 0 else 0.0
-    if rho * np.sqrt(n) <= norm.isf(DRIFT_ALPHA):
-        return window
-    return max(window, _hac_bandwidth(rho, n))
 
 
 def _leverage_adjusted(M, ginv, r):
@@ -184,17 +167,14 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     factor = _streamed_factor(corrections, p + q, refined=False)  # (column scale, R of [A | C | -white])
     step, ginv = _solve_factor(*factor[::-1])
     est, d = np.append(theta, np.zeros(q)) + step, step[p:]
-    change, refit = [], {"serial": np.zeros(3), "last": None}
+    change = []
 
     def scores():  # the leverage-adjusted scores of the fit with the drift columns, mapped by ginv's drift rows
         for _, M, rhs, cols, _ in chunks():
             change.append(float(np.abs(cols @ d).max()))
             yield _mapped_scores(ginv[p:], M, _leverage_adjusted(M, ginv, M @ est + rhs))
 
-    for _, M, rhs, _, _ in chunks():  # the serial correlation of the refit's residuals: what the drift columns leave
-        white = M @ est + rhs
-        refit["serial"], refit["last"] = refit["serial"] + _serial_sums(white, refit["last"]), white[-1]
-    bandwidth = _bandwidth(refit["serial"], n, correlation_length(log))
+    bandwidth = correlation_length(log)
     # only the drift block of the sandwich is tested: its q rows of ginv, not all p + q (q^2, not (p + q)^2, a lag)
     cdd = _hac(scores(), bandwidth, q, dof_scale=False)
     series = differentiated_series(log, attitude=True)
