@@ -249,34 +249,31 @@ def _mapped_gram(K, bread):
 def differentiated_sigma(log: Log, sigma: np.ndarray) -> np.ndarray:
     """The signal noise levels ``sigma (n_x,)`` (``x = [q, qd, w0, attitude]``) with those of the
     differentiated signals raised to their filters' own: the raw noise level the differentiator
-    estimated times the root-mean-square noise gain of the smoothed value or the derivative
-    (:func:`spaceid.data.noise_gains`). Levels estimated from differentiated rates understate
-    them (the filter smooths the sample-to-sample differences); a spatial attitude's small rotation
-    carries twice the quaternion's vector noise. Savitzky-Golay channels only; the others as given."""
-    from ..data import noise_gains
-
+    estimated times the noise gain of the centred filter's smoothed value or derivative, on the
+    record's uniform grid (the log may be a window cut from a longer record). Levels estimated from
+    differentiated rates understate them (the filter smooths the sample-to-sample differences); a
+    spatial attitude's small rotation carries twice the quaternion's vector noise. Savitzky-Golay
+    channels only; the others as given."""
     info = log.meta.get("differentiation") or {}
     nj, out = len(log.joints), np.array(sigma, float)
 
-    def raised(record, k, value, rate, factor=1.0):
-        if record.get("method") != "savgol" or not record.get("window") or not record.get("noise"):
-            return
-        smooth, slope = noise_gains(log.t, "savgol", window=int(record["window"][k]), order=int(record["order"][k]))
-        level = factor * float(record["noise"][k])
+    def raised(record, value, rate, factor=1.0):
+        window = record["window"]
+        _, smooth, slope = savgol_weights(record["step"] * np.arange(window), [window // 2], window, record["order"])
         for column, gain in ((value, smooth), (rate, slope)):
             if column is not None and column < len(out):
-                out[column] = max(out[column], level * float(np.sqrt(np.mean(gain**2))))
+                out[column] = max(out[column], factor * record["noise"] * float(np.linalg.norm(gain)))
 
     joints = info.get("joints") or {}
-    if "method" in joints:
-        for j in range(min(nj, len(joints.get("window") or ()))):
-            raised(joints, j, j, nj + j)
+    records = _channels(joints) if "method" in joints else None
+    for j, record in enumerate((records or [])[:nj]):
+        raised(record, j, nj + j)
     base = info.get("base") or {}
-    if base.get("method") == "savgol" and base.get("noise"):
-        if log.planar:
-            raised(base, 0, None, 2 * nj)
-        elif len(out) >= 2 * nj + 6:  # each component of the quaternion, its vector noise a half rotation
-            for k in range(len(base["noise"])):
-                for axis in range(3):
-                    raised(base, k, 2 * nj + 3 + axis, 2 * nj + axis, 2.0)
+    records = _channels(base) if base else None
+    if records and log.planar:
+        raised(records[0], None, 2 * nj)
+    elif records and len(out) >= 2 * nj + 6:  # each quaternion component: its vector noise a half rotation
+        for record in records:
+            for axis in range(3):
+                raised(record, 2 * nj + 3 + axis, 2 * nj + axis, 2.0)
     return out
