@@ -77,27 +77,29 @@ def _drift_equations(phi, rot_t, basis, L) -> tuple:
     return M, rhs, cols, float(np.sum(phi[..., -1] ** 2))
 
 
-def _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, R) -> float:
+def _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, R, chunk=None) -> float:
     """The largest share of a drift coefficient's first-order variance that comes from directions of
     ``[A | C]`` the data do not determine (:mod:`spaceid.estimation._determined`: the regressor's noise
     as large as its signal, at :func:`~spaceid.estimation._determined.signal_levels`), ``R (p + q, p + q)``
-    the triangular factor of the whitened ``[A | C]``.
+    the triangular factor of the whitened ``[A | C]``; ``chunk``: built at most that many samples at a time.
 
     Along such directions the estimate is pulled towards zero, and the drift columns, which carry no
     noise of their own beyond the attitude's, take up the momentum they leave: the test would read a
     parameter the log does not determine as a drift (on the 7-DOF satellite's undesigned conserved
     log 57 of 153 directions were noise, and 92-97 % of each drift coefficient's variance theirs)."""
-    rows, scale = noise_rows(len(x))
-    part = eq.select(rows)
-    L = None if estimator == "ols" else whitener[rows] if whitener is not None else _equation_whitener(
-        part, x[rows], theta, sigma)  # the estimator's whitening, at its levels
-    sigma = signal_levels(eq.param, log, sigma)
+    every, scale = noise_rows(len(x))
+    levels, noise = signal_levels(eq.param, log, sigma), 0.0
+    for rows in np.array_split(every, -(-len(every) // (chunk or len(every)))):  # streamed: a chunk at a time
+        part = eq.select(rows)
+        L = None if estimator == "ols" else whitener[rows] if whitener is not None else _equation_whitener(
+            part, x[rows], theta, sigma)  # the estimator's whitening, at its levels
 
-    def build(signals):  # the whitened [A | C] of the noise rows at the signals (attitude included)
-        rot_t = np.swapaxes(part.unpack(signals)[3], -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
-        return _drift_equations(part.phi(signals), rot_t, basis[rows], L)[0]
+        def build(signals, part=part, rows=rows, L=L):  # the whitened [A | C] of the rows (attitude included)
+            rot_t = np.swapaxes(part.unpack(signals)[3], -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
+            return _drift_equations(part.phi(signals), rot_t, basis[rows], L)[0]
 
-    mu, directions = noise_to_signal(R, noise_gram(build, x[rows], sigma, scale))
+        noise = noise + noise_gram(build, x[rows], levels, scale)
+    mu, directions = noise_to_signal(R, noise)
     d = directions[eq.p :]
     return float(np.max(np.sum(d[:, mu >= UNDETERMINED] ** 2, 1) / np.maximum(np.sum(d**2, 1), 1e-300)))
 
@@ -184,7 +186,8 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         cdd = _larger_of(propagated_covariance(series, log.t, scored, ginv[p:], sigma), cdd)[0]
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     size = n * eq.param.rows
-    confounded = _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, factor[1][:-1, :-1] * factor[0])
+    confounded = _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, factor[1][:-1, :-1] * factor[0],
+                             None if phi is not None else chunk)
     p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))
     change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
     square, lagged, differences = sums["serial"]
