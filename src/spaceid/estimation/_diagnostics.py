@@ -99,6 +99,13 @@ class DriftTest:
         When it rejects and a constant gyro bias explains the residuals better than the drift terms
         (:func:`spaceid.estimation._gyro_bias.bias_or_drift`): that bias [rad/s] (base axes; z only
         for planar systems), which the warning names; empty otherwise.
+    bandwidth : int or None
+        Newey-West lags [samples] of the Wald test's covariance: the differentiator's window, 0 for
+        measured rates (None: results written before it was recorded).
+    confounded : float or None
+        Largest share of a drift coefficient's variance from directions the data do not determine
+        (the regressor's noise as large as its signal); above ``CONFOUNDED`` (0.01) the test does not
+        decide: a drift cannot be told from those parameters (None: not recorded).
     """
 
     run: bool
@@ -115,6 +122,8 @@ class DriftTest:
     whiteness_p_value: float | None = None
     drift: bool = False
     gyro_bias: tuple = ()
+    bandwidth: int | None = None
+    confounded: float | None = None
 
     @classmethod
     def skipped(cls, reason: str) -> DriftTest:
@@ -128,7 +137,8 @@ class DriftTest:
         return {"alpha": self.alpha, "terms": list(self.terms), "trend": dict(self.trend), "wald": self.wald,
                 "dof": self.dof, "p_value": self.p_value, "relative_drift": self.relative_drift,
                 "lag1_autocorrelation": self.lag1_autocorrelation, "durbin_watson": self.durbin_watson,
-                "whiteness_p_value": self.whiteness_p_value, "drift": self.drift, "run": True,
+                "whiteness_p_value": self.whiteness_p_value, "drift": self.drift, "bandwidth": self.bandwidth,
+                "confounded": self.confounded, "run": True,
                 **({"gyro_bias": list(self.gyro_bias)} if self.gyro_bias else {})}
 
     @classmethod
@@ -143,7 +153,9 @@ class DriftTest:
                    int(data["dof"]), float(data["p_value"]), float(data["relative_drift"]),
                    float(data["lag1_autocorrelation"]), float(data["durbin_watson"]),
                    float(data["whiteness_p_value"]), bool(data["drift"]),
-                   tuple(float(v) for v in data.get("gyro_bias", ())))
+                   tuple(float(v) for v in data.get("gyro_bias", ())),
+                   None if data.get("bandwidth") is None else int(data["bandwidth"]),
+                   None if data.get("confounded") is None else float(data["confounded"]))
 
 
 @dataclass(frozen=True)
@@ -182,6 +194,12 @@ class Diagnostics:
     estimator_info : dict
         What the estimator reports: ``iterations``, ``converged``, ``fallback`` (``ml``: the estimate
         reported when it failed), ``knot_spacing`` (``angles``), ``chunk`` (streamed), ...
+    undetermined : tuple of dict
+        The directions of parameter space the data do not determine (the regressor's noise at least as
+        large as its signal, :mod:`spaceid.estimation._determined`), worst first: ``noise_to_signal``
+        and the ``parameters`` that lead each; their estimates are pulled towards zero and their
+        standard errors do not hold. Empty when every direction is determined, or not computed (a
+        streamed identification, the ``angles`` estimator).
     """
 
     chi2_dof: float | None = None
@@ -196,10 +214,11 @@ class Diagnostics:
     drift_correlation: float | None = None
     condition_number_scaled: float | None = None
     estimator_info: dict = field(default_factory=dict)
+    undetermined: tuple = ()
 
     KEYS = ("chi2_dof", "variance_factor", "covariance_method", "covariance", "covariance_from_residuals",
             "residual_checks", "noise_model_warning", "plausibility", "drift_test", "drift_correlation",
-            "condition_number_scaled", "estimator_info")
+            "condition_number_scaled", "estimator_info", "undetermined")
     """The keys of the JSON form; RESULT.json files written before ``diagnostics`` existed hold them in
     ``settings`` (:meth:`from_dict` reads those)."""
 
@@ -218,6 +237,7 @@ class Diagnostics:
             "drift_correlation": self.drift_correlation,
             "condition_number_scaled": self.condition_number_scaled,
             "estimator_info": dict(self.estimator_info),
+            "undetermined": [dict(d) for d in self.undetermined],
         }
 
     @classmethod
@@ -237,4 +257,5 @@ class Diagnostics:
             _optional_float(data.get("drift_correlation")),
             _optional_float(data.get("condition_number_scaled")),
             dict(data.get("estimator_info") or {}),
+            tuple(dict(d) for d in data.get("undetermined") or ()),
         )

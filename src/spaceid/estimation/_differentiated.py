@@ -16,8 +16,10 @@ the residuals.
 The raw stamps are not in the log: each series is rebuilt as a uniform grid at its recorded step
 (the window's span over its samples), extended by half a window beyond the log when the log was
 cut from a longer record (the excitation of a bag), each log sample at its nearest grid point.
-Jitter and dropped samples change the weights only slightly. Spline differentiators and a spatial
-base (a differentiated quaternion) are not covered: their covariance stays the Newey-West one.
+Jitter and dropped samples change the weights only slightly. A spatial base's differentiated
+quaternion is three series, the star tracker's small rotations, each through the four components'
+filters (:func:`_attitude_series`). Spline differentiators are not covered: their covariance stays
+the Newey-West one.
 """
 
 from __future__ import annotations
@@ -40,12 +42,17 @@ def _channels(info) -> list:
             for w, p, s, span in zip(info["window"], info["order"], info["noise"], info["window_s"])]  # fmt: skip
 
 
-def differentiated_series(log: Log) -> list | None:
+def differentiated_series(log: Log, attitude: bool = False) -> list | None:
     """The raw angle series behind the log's differentiated signals: a list of ``(record, value,
     rate)``, ``record`` as :func:`_channels` gives it, ``value`` and ``rate`` the columns of the
     signals ``x = [q, qd, w0]`` that the series' smoothed angle and derivative are (``value`` None
     for the base yaw, which planar equations do not contain). None when the log's rates cannot be
-    propagated (no record, a spline, a spatial base)."""
+    propagated (no record, a spline, a spatial base unless ``attitude``).
+
+    ``attitude``: a spatial base's differentiated quaternion as well, its three series the star
+    tracker's small rotations about the base axes (:func:`_attitude_series`: ``value`` and ``rate``
+    lists of three columns, ``record["parts"]`` the quaternion components' filters and how each
+    mixes the columns); only :func:`propagated_covariance` takes those."""
     info = log.meta.get("differentiation")
     if not info:
         return None
@@ -68,31 +75,87 @@ def differentiated_series(log: Log) -> list | None:
     base = info.get("base")
     if base:
         records = _channels(base)
-        if records is None or not base.get("planar", log.planar) or not log.planar:
+        if records is None or base.get("planar", log.planar) != log.planar or not (log.planar or attitude):
             return None
-        series.append((records[0], None, 2 * nj))
+        series += [(records[0], None, 2 * nj)] if log.planar else _attitude_series(log, records, nj)
     return series or None
 
 
-def _grid(record: dict, t: np.ndarray) -> tuple:
+def _attitude_series(log: Log, records: list, nj: int) -> list:
+    """The three series of a spatial base whose quaternion components were differentiated by the
+    filters ``records`` (four): the star tracker's small rotations ``eps_i`` about the base axes.
+
+    A raw sample ``q_k (x) exp(eps_k / 2)`` errs by ``E(q_k) eps_k / 2`` (``E(q) u = q (x) [0, u]``,
+    four by three), component ``j`` through its own filter ``W_j``. The smoothed attitude's small
+    rotation is ``2 E(q_n)^T dq_n`` and the body rate's error ``2 E(q_n)^T dqdot_n`` to leading order,
+    so ``eps_i`` reaches the attitude columns as ``sum_j P_j(n)[:, i] (W_j eps_i)_n`` and the base-rate
+    columns through the derivative weights alike, ``P_j = E_j^T E_j`` the outer product of ``E(q_n)``'s
+    row ``j`` (``sum_j P_j = I``: one filter for all components gives the joints' form). Neglected:
+    the base's turn over a window (``|w0|`` times the window's span, relative) and the rate's
+    dependence on the smoothed quaternion (``|w0|`` times the attitude error). Each component's
+    recorded noise is ``sigma sqrt(1 - q_j^2) / 2`` on average, so ``sigma = 2 sqrt(sum_j noise_j^2 / 3)``."""
+    s, v = log.base_quat[:, :1], log.base_quat[:, 1:]
+    E = np.concatenate([-v[:, None, :], s[:, :, None] * np.eye(3) + _skew(v)], axis=1)  # (n, 4, 3)
+    P = np.einsum("nja,njb->njab", E, E)
+    sigma = 2 * np.sqrt(sum(r["noise"] ** 2 for r in records) / 3)
+    values, rates = [2 * nj + 3 + c for c in range(3)], [2 * nj + c for c in range(3)]
+    return [({**records[0], "noise": sigma, "parts": [(r, P[:, j, :, i]) for j, r in enumerate(records)]},
+             values, rates) for i in range(3)]  # fmt: skip
+
+
+def _skew(v):
+    """``[v]x`` ``(n, 3, 3)`` of ``v (n, 3)``."""
+    out = np.zeros(v.shape[:-1] + (3, 3))
+    out[..., 0, 1], out[..., 0, 2], out[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return out - np.swapaxes(out, -1, -2)
+
+
+def _grid(record: dict, t: np.ndarray, pad: int | None = None) -> tuple:
     """Where the Savitzky-Golay filter of one series reads the raw samples for the log's stamps
     ``t (n,)``, on a uniform grid at the series' step (see the module's description): the first
     grid index of each sample's window ``(n,)`` and the sample's place in it ``(n,)`` (centred, or
     shifted inwards at the ends, as the differentiator's)."""
     step, window = record["step"], record["window"]
-    whole = t[-1] - t[0] >= (record["n_samples"] - 1.5) * step  # the log is the whole record
-    pad = 0 if whole else window // 2
+    if pad is None:  # the grid's extension beyond the log: none when the log is the whole record
+        pad = 0 if _whole(record, t) else window // 2
     count = max(int(round((t[-1] - t[0]) / step)) + 1 + 2 * pad, window)
     rows = np.clip(np.rint((t - t[0]) / step).astype(int) + pad, 0, count - 1)
     first = np.clip(rows - window // 2, 0, count - window)
     return first, rows - first
 
 
-def _series_part(record, value, rate, first, place, M, J) -> tuple:
+def _whole(record: dict, t: np.ndarray) -> bool:
+    """Whether the log's stamps ``t`` span the whole differentiated record."""
+    return t[-1] - t[0] >= (record["n_samples"] - 1.5) * record["step"]
+
+
+def _terms(entry, t: np.ndarray) -> list:
+    """The filters of one series ``(record, value, rate)``: ``(record, values, rates, mix, grid)`` each,
+    ``values``/``rates`` lists of signal columns, ``mix (n, columns)`` how the filtered series enters
+    them (None: once each) and ``grid`` :func:`_grid`'s, the parts of an attitude series on one grid."""
+    record, value, rate = entry
+    if "parts" not in record:
+        return [(record, [] if value is None else [value], [rate], None, _grid(record, t))]
+    parts = record["parts"]
+    pad = 0 if all(_whole(r, t) for r, _ in parts) else max(r["window"] // 2 for r, _ in parts)
+    return [(r, value, rate, mix, _grid(r, t, pad)) for r, mix in parts]
+
+
+def _summed(parts) -> tuple:
+    """The sum of parts ``(first grid index, rows)`` of one ``K_s`` that may start anywhere."""
+    start = min(p[0] for p in parts)
+    K = np.zeros((max(p[0] + len(p[1]) for p in parts) - start, parts[0][1].shape[1]))
+    for first, rows in parts:
+        K[first - start : first - start + len(rows)] += rows
+    return start, K
+
+
+def _series_part(record, value, rate, first, place, M, J, mix=None) -> tuple:
     """The part of ``K_s`` that samples ``(k,)`` give, their windows at grid indices ``first`` and
     their places ``place`` (:func:`_grid`), ``M (k, rows, p)``, ``J (k, rows, n_x)``: the grid index
     of its first row and its rows ``W_c^T U_c`` for the smoothed angle ``value`` and rate ``rate``
-    columns. On a uniform grid a row's weights depend only on its place: one fit per place."""
+    columns (lists of columns, mixed by ``mix (k, columns)`` when given). On a uniform grid a row's
+    weights depend only on its place: one fit per place."""
     window = record["window"]
     places, which = np.unique(place, return_inverse=True)
     _, smooth, slope = savgol_weights(record["step"] * np.arange(window), places, window, record["order"])
@@ -101,16 +164,20 @@ def _series_part(record, value, rate, first, place, M, J) -> tuple:
     rows = np.repeat(np.arange(len(first)), window)
     shape = (len(first), int(idx.max()) + 1)
     K = 0.0
-    for weights, column in ((smooth[which], value), (slope[which], rate)):
-        if column is not None:
+    for weights, columns in ((smooth[which], value), (slope[which], rate)):
+        if len(columns):
             W = sparse.csr_matrix((weights.ravel(), (rows, idx.ravel())), shape=shape)
-            K = K + W.T @ _rows(M, J, column)
+            K = K + W.T @ _rows(M, J, columns, mix)
     return start, K
 
 
-def _rows(M, J, column):
-    """``U_c (n, p)``: the score's derivative with respect to signal ``column`` at each sample."""
-    return np.einsum("nrp,nr->np", M, J[:, :, column])
+def _rows(M, J, column, mix=None):
+    """``U_c (n, p)``: the score's derivative with respect to signal ``column`` at each sample (a list
+    of columns: their sum, weighted by ``mix (n, columns)`` when given)."""
+    if np.ndim(column) == 0:
+        return np.einsum("nrp,nr->np", M, J[:, :, column])
+    Jc = J[:, :, column] if mix is None else J[:, :, column] * mix[:, None, :]
+    return np.einsum("nrp,nr->np", M, Jc.sum(-1))
 
 
 def _joined(open_part, part) -> tuple:
@@ -146,20 +213,24 @@ def propagated_covariance(series, t, chunks, bread, sigma) -> np.ndarray:
         ``(rows, M_c, J_c)`` in time order: the slice of samples, the estimator's weights
         ``M_c (k, rows, p)`` (:func:`spaceid.estimation._uncertainty._covariance_terms`) and the equation
         errors' derivatives ``J_c (k, rows, n_x)`` with respect to the signals.
-    bread : ndarray of shape (p, p)
+    bread : ndarray of shape (k, p)
+        ``(p, p)`` for the estimate; fewer rows for combinations of it (the drift test's coefficients).
     sigma : ndarray of shape (n_x,)
     """
-    covered = {c for _, value, rate in series for c in (value, rate) if c is not None}
-    grids = [_grid(record, t) for record, _, _ in series]
+    covered = {c for _, value, rate in series for c in np.ravel([value, rate]).tolist() if c is not None}
+    terms = [_terms(entry, t) for entry in series]
     # the first grid row that a sample at or after each one reads: rows before it are complete
-    reach = [np.append(np.minimum.accumulate(first[::-1])[::-1], np.iinfo(int).max) for first, _ in grids]
+    reach = [np.append(np.minimum.accumulate(np.min([g[0] for *_, g in parts], 0)[::-1])[::-1], np.iinfo(int).max)
+             for parts in terms]  # fmt: skip
     open_parts = [None] * len(series)
-    cov = np.zeros(bread.shape)
+    cov = np.zeros((len(bread), len(bread)))  # bread (k, p): the covariance of k combinations of the estimate
     with one_blas_thread():  # one series or signal at a time: never every signal's rows at once
         for sl, M, J in chunks:
             stop = len(t) if sl.stop is None else sl.stop
-            for i, ((record, value, rate), (first, place)) in enumerate(zip(series, grids)):
-                start, K = _joined(open_parts[i], _series_part(record, value, rate, first[sl], place[sl], M, J))
+            for i, ((record, _, _), parts) in enumerate(zip(series, terms)):
+                start, K = _joined(open_parts[i], _summed([
+                    _series_part(r, value, rate, first[sl], place[sl], M, J, None if mix is None else mix[sl])
+                    for r, value, rate, mix, (first, place) in parts]))  # fmt: skip
                 done = min(max(reach[i][stop] - start, 0), len(K))
                 cov += _mapped_gram(record["noise"] * K[:done], bread)
                 open_parts[i] = (start + done, K[done:]) if done < len(K) else None
@@ -173,3 +244,36 @@ def _mapped_gram(K, bread):
     """``bread K^T K bread^T``, as the Gram matrix of ``K bread^T``: positive semi-definite whatever the round-off."""
     x = K @ bread.T
     return x.T @ x
+
+
+def differentiated_sigma(log: Log, sigma: np.ndarray) -> np.ndarray:
+    """The signal noise levels ``sigma (n_x,)`` (``x = [q, qd, w0, attitude]``) with those of the
+    differentiated signals raised to their filters' own: the raw noise level the differentiator
+    estimated times the noise gain of the centred filter's smoothed value or derivative, on the
+    record's uniform grid (the log may be a window cut from a longer record). Levels estimated from
+    differentiated rates understate them (the filter smooths the sample-to-sample differences); a
+    spatial attitude's small rotation carries twice the quaternion's vector noise. Savitzky-Golay
+    channels only; the others as given."""
+    info = log.meta.get("differentiation") or {}
+    nj, out = len(log.joints), np.array(sigma, float)
+
+    def raised(record, value, rate, factor=1.0):
+        window = record["window"]
+        _, smooth, slope = savgol_weights(record["step"] * np.arange(window), [window // 2], window, record["order"])
+        for column, gain in ((value, smooth), (rate, slope)):
+            if column is not None and column < len(out):
+                out[column] = max(out[column], factor * record["noise"] * float(np.linalg.norm(gain)))
+
+    joints = info.get("joints") or {}
+    records = _channels(joints) if "method" in joints else None
+    for j, record in enumerate((records or [])[:nj]):
+        raised(record, j, nj + j)
+    base = info.get("base") or {}
+    records = _channels(base) if base else None
+    if records and log.planar:
+        raised(records[0], None, 2 * nj)
+    elif records and len(out) >= 2 * nj + 6:  # each quaternion component: its vector noise a half rotation
+        for record in records:
+            for axis in range(3):
+                raised(record, 2 * nj + 3 + axis, 2 * nj + axis, 2.0)
+    return out

@@ -25,6 +25,7 @@ from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
+from ._determined import undetermined_directions, undetermined_warning
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
@@ -462,6 +463,8 @@ def identify(
         theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
         s = _singular_values(factor)
         whitener = info.pop("whitener", None)
+        weak = [] if chunk or estimator == "angles" else undetermined_directions(
+            eq, x, phi, sigma, theta, estimator, log, whitener)
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
                                                    whitener, chunk)
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
@@ -483,7 +486,7 @@ def identify(
         warnings.warn(f"{where}: maximum likelihood failed, the estimate reported is {info['fallback']}", stacklevel=2)
     if uncertainty["noise_model_warning"]:
         warnings.warn(f"{where}: {uncertainty['noise_model_warning']}", stacklevel=2)
-    for warning in (fit.implausible, drift_warning, collinear):
+    for warning in (fit.implausible, drift_warning, collinear, undetermined_warning(weak, eq.p, where)):
         if warning:
             warnings.warn(warning, stacklevel=2)
     units = drift_names(drift, param.model.planar)[1]
@@ -508,6 +511,7 @@ def identify(
         plausibility=fit.implausible or "no inertia-like parameter negative", drift_test=drift_record,
         drift_correlation=correlation, condition_number_scaled=cond_scaled,
         estimator_info={k: v for k, v in info.items() if v is None or np.isscalar(v) or isinstance(v, (str, list))},
+        undetermined=tuple(weak),
     )
     return Identification(
         names=param.names, definitions=param.definitions, values=pi, std=np.sqrt(np.diag(cov)), cov=cov,

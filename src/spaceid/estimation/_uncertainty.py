@@ -272,7 +272,7 @@ def _with_propagated(cov_t, choice, log, estimator, bread, sigma, chunks):
     (:func:`_larger_of`) of it and the angle noise propagated through the filters, ``choice["covariance"]``
     then saying so. ``chunks()`` gives ``(rows, M_c, L_c, J_c)`` in time order (the whole log, or a
     stream: :func:`~spaceid.estimation._differentiated.propagated_covariance`), not called otherwise."""
-    series = differentiated_series(log)
+    series = differentiated_series(log, attitude=True)
     if series is None:
         return cov_t
     scores = ((sl, _inverse_times(L, M) if estimator in WEIGHTED else M, J) for sl, M, L, J in chunks())  # M^T e

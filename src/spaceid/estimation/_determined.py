@@ -1,0 +1,141 @@
+"""The directions of parameter space that a log does not determine (docs/theory/noise.md, "What the
+standard errors mean").
+
+Every estimator here regresses the momentum on a regressor built from measured signals, so the
+regressor carries the signals' noise. Its Gram matrix ``G = sum_n A_n^T A_n`` (whitened) is the sum of
+the motion's information and of that noise's, ``N = sum_n sum_c sigma_c^2 D_nc^T D_nc`` with
+``D_nc = dA_n/dx_c``: in a direction ``v`` of parameter space the regressor's signal is
+``v^T G v - v^T N v`` and its noise ``v^T N v``. The first-order (Cramer-Rao) standard errors hold
+where the noise-to-signal ratio ``mu = v^T N v / v^T G v`` is small. Where it reaches about one, the
+column combination ``A v`` is noise: the estimate along ``v`` is pulled towards zero by the
+errors in variables whatever the noise level (1e-7 rad/s of gyro noise alone moved a 7-DOF
+satellite's undesigned estimate by 19 first-order standard errors, 1e-5 by 55), and a column that
+carries no noise (a drift term, a function of time and attitude) takes up the momentum those
+directions leave. The data do not determine such a direction: its value comes from a prior (a CAD
+model) or from a motion that excites it.
+
+The ratios are the generalised eigenvalues of ``(N, G)``: in the frame where ``G`` is the identity,
+``N``'s eigenvalues, with eigenvectors ``v_k`` normalised so that ``v_k^T G v_k = 1``; the frame from
+the regressor's triangular factor, not from ``G`` (whose rounding, ``eps cond^2``, took directions of
+a noise-free satellite log at scaled condition number 5e6 for unheld).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.linalg import solve_triangular
+
+from .._threads import one_blas_thread
+from ._noise import FD_STEP
+
+UNDETERMINED = 0.5
+"""Noise-to-signal ratio ``mu`` at or above which a direction is taken as not determined by the data:
+the regressor's noise along it is at least as large as its signal (``mu / (1 - mu)`` with ``G``'s
+noise share ``mu``; a direction determined to first order has ``mu`` near 0)."""
+
+
+NOISE_SAMPLES = 1000
+"""Samples over which :func:`noise_gram` sums (evenly spread, the sum scaled to the log's): the ratios
+decide only whether a direction is noise (at 0.5), which a tenth of accuracy settles, and the
+derivatives cost two equation builds per signal channel."""
+
+
+def noise_rows(n: int) -> tuple:
+    """The rows ``(m,)`` of a log of ``n`` samples that :func:`noise_gram` sums over and the scale
+    ``n / m`` that makes their sum the log's."""
+    rows = np.unique(np.linspace(0, n - 1, min(n, NOISE_SAMPLES)).round().astype(int))
+    return rows, n / max(len(rows), 1)
+
+
+def noise_gram(build, x: np.ndarray, sigma: np.ndarray, scale: float = 1.0) -> np.ndarray:
+    """``scale sum_n sum_c sigma_c^2 D_nc^T D_nc`` ``(c, c)``: the Gram matrix of the noise that the
+    signals ``x (n, n_x)``, of standard deviations ``sigma (n_x,)``, put into the equations ``build(x)``
+    ``(n, rows, c)`` (whitened ones), ``D_nc`` their derivatives with respect to signal ``c`` by
+    central differences (the momentum is linear in the rates, smooth in the angles and attitude)."""
+    out = 0.0
+    with one_blas_thread():
+        for c in np.flatnonzero(sigma > 0):
+            up, down = x.copy(), x.copy()
+            up[:, c] += FD_STEP
+            down[:, c] -= FD_STEP
+            D = build(up) - build(down)
+            D = D.reshape(-1, D.shape[-1]) * (sigma[c] / (2 * FD_STEP))
+            out = out + D.T @ D
+    return out * scale
+
+
+def signal_levels(param, log, sigma: np.ndarray) -> np.ndarray:
+    """The noise levels ``(n_x,)`` of the signals that the regressor's noise is judged by: the estimator's
+    ``sigma``, or those estimated from ``log`` when it has none (``ols`` without given levels), the
+    differentiated signals' raised to their filters' own
+    (:func:`~spaceid.estimation._differentiated.differentiated_sigma`: levels estimated from
+    differentiated rates understate them)."""
+    from ._differentiated import differentiated_sigma
+    from ._noise import noise_from_log, signal_sigma
+
+    return differentiated_sigma(log, sigma if np.any(sigma) else signal_sigma(param, noise_from_log(log)))
+
+
+def noise_to_signal(factor: np.ndarray, noise: np.ndarray) -> tuple:
+    """The noise-to-signal ratios ``mu (k,)`` (ascending) of the directions of parameter space and the
+    directions, the columns of ``T (k, k)`` with ``T^T G T = I``: ``factor`` an upper triangular ``R``
+    of the (whitened) regressor, ``R^T R = G`` its Gram matrix (from an orthogonal factorisation: the
+    regressor's condition number, not its square), ``noise`` its noise's (:func:`noise_gram`), both
+    ``(k, k)``. A column the regressor does not hold (a zero pivot) counts as one at ``eps`` of the
+    largest: its ratio comes out huge."""
+    pivots = np.abs(np.diag(factor))
+    R = factor + np.diag(np.where(pivots > 0, 0.0, np.finfo(float).eps * max(pivots.max(), 1e-300)))
+    with one_blas_thread():
+        inverse = solve_triangular(R, np.eye(len(R)))
+        mu, V = np.linalg.eigh(inverse.T @ noise @ inverse)
+    return np.maximum(mu, 0.0), inverse @ V
+
+
+def undetermined(mu: np.ndarray, directions: np.ndarray, names, top: int = 3) -> list:
+    """The directions with ``mu`` at or above :data:`UNDETERMINED`, worst first: a list of dicts with
+    ``noise_to_signal`` and ``parameters``, the ``top`` names that lead each direction (largest
+    share of it in units of each parameter's own scale, ``directions`` from :func:`noise_to_signal`)."""
+    out = []
+    for k in np.flatnonzero(mu >= UNDETERMINED)[::-1]:
+        v = np.abs(directions[:, k])
+        share = v / max(v.max(), 1e-300)
+        lead = np.argsort(-share)[:top]
+        out.append({"noise_to_signal": float(mu[k]), "parameters": [str(names[i]) for i in lead if share[i] > 0.1]})
+    return out
+
+
+def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, whitener=None) -> list:
+    """:func:`undetermined` of the equations ``eq`` at the signals ``x (n, n_x)`` (built: ``phi (n, rows,
+    p + 1)``) and estimate ``theta``: whitened by ``whitener`` (the estimator's own Cholesky factors,
+    ``(n, rows, rows)``) or the noise model's at ``theta`` for the weighted estimators, as they are for
+    ``ols``; the noise at :func:`signal_levels` of ``sigma (n_x,)``, the estimator's levels. The noise
+    Gram matrix from :func:`noise_rows`' samples."""
+    from ._linalg import _equation_whitener, _whitened
+
+    L = None if estimator == "ols" else whitener if whitener is not None else _equation_whitener(eq, x, theta, sigma)
+    sigma = signal_levels(eq.param, log, sigma)
+    A = (phi if L is None else _whitened(L, phi))[..., :-1].reshape(-1, eq.p)
+    rows, scale = noise_rows(len(x))
+    part = eq.select(rows)
+
+    def build(signals):  # the (whitened) regressor of the noise rows
+        A = part.phi(signals)[..., :-1]
+        return A if L is None else _whitened(L[rows], A)
+
+    columns = np.sqrt(np.einsum("ij,ij->j", A, A))
+    columns[columns == 0] = 1.0
+    with one_blas_thread():
+        R = np.linalg.qr(A / columns, mode="r") * columns
+    return undetermined(*noise_to_signal(R, noise_gram(build, x[rows], sigma, scale)), eq.names())
+
+
+def undetermined_warning(directions: list, p: int, where: str) -> str:
+    """The warning for the :func:`undetermined` ``directions`` of ``p`` unknowns (``""`` when none)."""
+    if not directions:
+        return ""
+    lead = list(dict.fromkeys(name for d in directions for name in d["parameters"]))
+    shown = ", ".join(lead[:8]) + (", ..." if len(lead) > 8 else "")
+    return (f"{where}: {len(directions)} of {p} directions of parameter space are not determined by the data (the "
+            f"regressor's noise as large as its signal, worst ratio {directions[0]['noise_to_signal']:.2g}; led by "
+            f"{shown}): their estimates are pulled towards zero whatever the noise level and their standard errors "
+            "do not hold: excite them with a designed motion (spaceid design) or give a prior")

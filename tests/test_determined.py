@@ -1,0 +1,201 @@
+"""Directions the data do not determine (spaceid.estimation._determined): the noise-to-signal ratios of
+constructed Gram matrices, a joint that barely moves reported by name, and the drift test that does not
+read such directions as a drift on conserved spatial logs (docs/theory/noise.md, "What the standard
+errors mean"; docs/theory/drift.md)."""
+
+import dataclasses
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from random_robots import random_robot
+
+import spaceid
+from spaceid.data import differentiate_log
+from spaceid.dynamics import minimal_parameters
+from spaceid.estimation import Diagnostics, Noise, identify
+from spaceid.estimation._determined import UNDETERMINED, noise_to_signal
+from spaceid.motion import FourierTrajectory, add_noise, design_excitation, load_trajectory, simulate
+
+H = np.array([0.0, 0.0, 0.4934])
+H_SPATIAL = np.array([1.0, -2.0, 3.0])
+SENSORS = Noise(angle=1e-4, rate=1e-4, base_rate=1e-5, attitude=5e-5)
+
+
+def test_noise_to_signal_of_constructed_directions():
+    """Directions ``W[:, i]`` with signal ``s_i^2`` and noise ``n_i^2``: the ratios ``n^2 / (s^2 + n^2)``,
+    the directions themselves (up to sign, ``T^T G T = I``), and a column the regressor does not hold at
+    all as undetermined."""
+    rng = np.random.default_rng(0)
+    k = 6
+    W = rng.standard_normal((k, k)) * np.logspace(0, 3, k)  # badly scaled parameters
+    signal, noise = np.logspace(-4, 2, k), rng.uniform(0.5, 2.0, k)
+    Wi = np.linalg.inv(W)
+    gram, noisy = Wi.T @ np.diag(signal**2 + noise**2) @ Wi, Wi.T @ np.diag(noise**2) @ Wi
+    mu, T = noise_to_signal(np.linalg.cholesky(gram).T, noisy)
+    want = noise**2 / (signal**2 + noise**2)
+    order = np.argsort(want)
+    np.testing.assert_allclose(mu, want[order], rtol=1e-8)
+    expected = W[:, order] / np.sqrt(signal**2 + noise**2)[order]
+    np.testing.assert_allclose(np.abs(T), np.abs(expected), rtol=1e-6, atol=1e-9 * np.abs(expected).max())
+    np.testing.assert_allclose(T.T @ gram @ T, np.eye(k), atol=1e-8)
+    assert np.sum(mu >= UNDETERMINED) == np.sum(signal < noise)
+    held = np.zeros((k + 1, k + 1))
+    held[:k, :k] = np.linalg.cholesky(gram).T  # and a parameter whose column is zero, its noise not
+    noisy = np.pad(noisy, (0, 1))
+    noisy[k, k] = 1e-6
+    assert noise_to_signal(held, noisy)[0][-1] >= UNDETERMINED
+
+
+def _cepheus(scale):
+    """A noisy Cepheus log (100 Hz, 5 s, measured rates) whose elbow moves ``scale`` times the paper's motion."""
+    param = minimal_parameters(spaceid.load_model("cepheus"))
+    trajectory = load_trajectory("paper-table2")
+
+    def motion(t):
+        q, qd, _ = trajectory.evaluate(t)
+        return q * [1.0, scale], qd * [1.0, scale]
+
+    log = simulate(param, param.true_values, motion, np.linspace(0, 5, 501), H)
+    return param, add_noise(log, angle=1e-4, rate=1e-3, seed=0)
+
+
+def test_a_joint_that_barely_moves_is_reported_by_name():
+    """The elbow moving a thousandth of the paper's motion: its rates are below the rate sensor's noise,
+    the columns of the elbow link's parameters are noise (the regressor is still full rank: the noise
+    itself excites it), and the report names the direction; on the paper's motion nothing is reported.
+    The record survives its JSON form."""
+    noise = Noise(1e-4, 1e-3, 1e-3)
+    param, log = _cepheus(1.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert identify(param, log, H, noise=noise).diagnostics.undetermined == ()
+    param, log = _cepheus(1e-3)
+    with pytest.warns(UserWarning, match="not determined by the data") as record:
+        result = identify(param, log, H, estimator="wls", noise=noise)
+    weak = result.diagnostics.undetermined
+    elbow = {"pi6", "pi7", "pi8"}  # the parameters that hold the elbow link's mass and inertia (pi8: Iczz_link2 + ...)
+    assert weak and all(d["noise_to_signal"] >= UNDETERMINED and set(d["parameters"]) <= elbow for d in weak)
+    assert any(d["parameters"][0] == "pi8" for d in weak) and any("pi8" in str(w.message) for w in record)
+    assert result.diagnostics.condition_number_scaled < 1e10  # not refused as rank deficient
+    back = Diagnostics.from_dict(result.diagnostics.to_dict())
+    assert back.undetermined == weak
+
+
+def _satellite_log(duration=20.0, rate=100.0):
+    """The 7-DOF satellite preset on an undesigned motion (random Fourier, 0.05 rad/s per harmonic),
+    momentum conserved to round-off."""
+    model = spaceid.load_model(Path(spaceid.__file__).parent / "models" / "presets" / "satellite-7dof.urdf")
+    param = minimal_parameters(model)
+    a, b = 0.05 * np.random.default_rng(123).standard_normal((2, model.n_joints, 5))
+    t = np.arange(0.0, duration + 0.5 / rate, 1 / rate)
+    log = simulate(param, param.true_values, FourierTrajectory(model.joints, duration, a, b), t, H_SPATIAL,
+                   model=model)  # fmt: skip
+    assert log.meta["momentum_rel_error"] < 1e-12
+    return param, log
+
+
+def with_sensors(log, seed):
+    """``log`` with each sensor's own noise (:data:`SENSORS`): encoders, joint rates, gyro per axis,
+    star tracker as a small rotation per base axis."""
+    rng = np.random.default_rng(seed)
+    n, nj = log.q.shape
+    tilt = SENSORS.attitude * rng.standard_normal((n, 3))
+    half = np.linalg.norm(tilt, axis=1, keepdims=True) / 2
+    dq = np.hstack([np.cos(half), np.sinc(half / np.pi) * tilt / 2])
+    w0, x0, y0, z0 = log.base_quat.T
+    w1, x1, y1, z1 = dq.T
+    quat = np.stack([w0 * w1 - x0 * x1 - y0 * y1 - z0 * z1, w0 * x1 + x0 * w1 + y0 * z1 - z0 * y1,
+                     w0 * y1 - x0 * z1 + y0 * w1 + z0 * x1, w0 * z1 + x0 * y1 - y0 * x1 + z0 * w1], -1)  # fmt: skip
+    return dataclasses.replace(log, q=log.q + SENSORS.angle * rng.standard_normal((n, nj)),
+                               qd=log.qd + SENSORS.rate * rng.standard_normal((n, nj)),
+                               base_w=log.base_w + SENSORS.base_rate * rng.standard_normal((n, 3)), base_quat=quat)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("rates", ["measured", "differentiated"])
+def test_no_drift_alarm_on_the_satellites_undesigned_conserved_log(rates):
+    """57 of the 153 directions are noise on this log; the drift columns took up the momentum they leave
+    (p = 0 for every estimator, a fitted drift of 86 % of the momentum's RMS, before the test knew of
+    them). Now the drift coefficients' variance is shown to come from those directions and the test is
+    silent; the directions are reported."""
+    param, log = _satellite_log()
+    noisy = with_sensors(log, 0)
+    if rates == "differentiated":
+        noisy = differentiate_log(noisy)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = identify(param, noisy, H_SPATIAL, estimator="wls", noise=SENSORS if rates == "measured" else None)
+    test = result.diagnostics.drift_test
+    assert test.confounded > 0.5 and not test.drift, test
+    assert len(result.diagnostics.undetermined) > 10
+
+
+def _conserved_random_logs(folder, seeds, differentiated):
+    """``(param, noisy log)`` of random spatial robots (heavy bases of 10 to 300 kg, 1-2 arms of 1-4
+    joints) on undesigned random motions (10 s at 50 Hz), momentum conserved, each sensor at its own
+    level, rates measured or differentiated from the angles."""
+    for seed in seeds:
+        model = random_robot(seed, planar=False, max_arms=2, max_joints=4).load(folder)
+        param = minimal_parameters(model)
+        a, b = 0.1 * np.random.default_rng(seed).standard_normal((2, model.n_joints, 4))
+        t = np.arange(0.0, 10.0 + 1e-9, 0.02)
+        log = simulate(param, param.true_values, FourierTrajectory(model.joints, 10.0, a, b), t, H_SPATIAL,
+                       model=model)  # fmt: skip
+        noisy = with_sensors(log, seed)
+        yield param, differentiate_log(noisy) if differentiated else noisy
+
+
+def _alarms(cases, noise):
+    """The drift test's alarms over ``cases`` (maximum likelihood; a random motion that leaves a
+    parameter unexcited is refused, not tested) and the p-values."""
+    alarms, p_values = 0, []
+    for param, log in cases:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            try:
+                test = identify(param, log, H_SPATIAL, noise=noise).diagnostics.drift_test
+            except spaceid.SpaceidError:
+                continue
+        alarms += bool(test.drift)
+        p_values.append(test.p_value)
+    return alarms, p_values
+
+
+@pytest.mark.slow
+def test_drift_test_level_on_50_conserved_spatial_logs(tmp_path):
+    """50 conserved logs of random spatial robots on undesigned motions, rates measured, levels given:
+    at most one alarm. At twice the stated level (2e-3) two or more alarms in 50 logs have probability
+    0.5 %. With a share of one half for ``CONFOUNDED`` (0.01 now), 13 of 50 logs (half of them with
+    differentiated rates) fired, p down to 1e-129; seed 0 here at p = 3e-7 with a share of 7 %."""
+    alarms, p_values = _alarms(_conserved_random_logs(tmp_path, range(50), False), SENSORS)
+    assert len(p_values) >= 40
+    assert alarms <= 1, (alarms, sorted(p_values)[:5])
+
+
+@pytest.mark.slow
+def test_drift_test_level_on_conserved_spatial_logs_with_differentiated_rates(tmp_path):
+    """The same robots with every rate differentiated from the angles and attitude, levels estimated
+    from the log: at most one alarm in 20 (twice the level: 0.1 % for two or more)."""
+    alarms, p_values = _alarms(_conserved_random_logs(tmp_path, range(20), True), None)
+    assert alarms <= 1, (alarms, sorted(p_values)[:5])
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(strict=True, reason="open (issue 27 item 5): on a designed motion with rates differentiated from "
+                   "the angles the drift coefficients spread about three times their reported standard errors, the "
+                   "differentiators' propagated covariance included; cause not found")
+def test_drift_test_level_on_a_designed_motion_with_differentiated_rates(tmp_path):
+    """Random robot 3 (28 parameters) on a designed motion (20 s, scaled condition number 92), rates
+    differentiated, levels estimated: no alarm expected on three conserved logs (each 1e-3); it fires on
+    every one (``benchmarks/bench_coverage.py``: 5 of 5 for ``ols`` and ``ml``)."""
+    model = random_robot(3, planar=False, max_arms=2, max_joints=4).load(tmp_path)
+    param = minimal_parameters(model)
+    lower, upper = model.joint_limits("lower"), model.joint_limits("upper")
+    design = design_excitation(param, duration=20.0, harmonics=5, samples=200, momentum=H_SPATIAL, seed=0,
+                               time_budget=20.0, q_max=np.nan_to_num(np.fmin(np.abs(lower), np.abs(upper)), nan=1.0),
+                               qd_max=np.nan_to_num(model.joint_limits("velocity"), nan=1.0), qdd_max=0.5)  # fmt: skip
+    log = simulate(param, param.true_values, design.trajectory, np.arange(0.0, 20.005, 0.01), H_SPATIAL, model=model)
+    alarms, _ = _alarms(((param, differentiate_log(with_sensors(log, seed))) for seed in range(3)), None)
+    assert alarms == 0
