@@ -82,8 +82,8 @@ def one_run(seed, twin, moving, unknown=False, changes=(), window=None, window_o
         r = run_experiment(trajectory="paper-table2", validation=HELD_OUT, settings=settings, bag_format="mcap",
                            seed=seed, capture=protocol)  # fmt: skip
     s = r.servicing
-    grasp = s.scores["grasp time [s]"]
-    step = s.scores["sample period [s]"]
+    grasp = s.scores.grasp_time
+    step = s.scores.sample_period
     before, _ = _split_at_grasp(s.events["events"], grasp, step)
     early = [e["time"] - grasp for e in before]
     # the whitening of the segment each of them was raised in (the last one starting before it)
@@ -93,12 +93,9 @@ def one_run(seed, twin, moving, unknown=False, changes=(), window=None, window_o
     warmup = s.events["settings"]["warmup"]
     tested = sum(max(0, round((min(g["end"] or grasp, grasp) - g["start"]) / step) - warmup)
                  for g in s.events["segments"] if g["start"] < grasp)  # segments' samples after their warm-ups
-    return (_refit_unknown(s, settings) if unknown else s.scores) | {"events before the grasp [s]": early,
-                                                                      "first warm-up": warm,
-                                                                      "their whitening": whitening,
-                                                                      "tested before the grasp": tested,
-                                                                      "false-alarm rate": s.events["settings"][
-                                                                          "false_alarm_rate"]}
+    scores = _refit_unknown(s, settings) if unknown else s.scores.to_dict()
+    return scores | {"events before the grasp [s]": early, "first warm-up": warm, "their whitening": whitening,
+                     "tested before the grasp": tested, "false-alarm rate": s.events["settings"]["false_alarm_rate"]}
 
 
 def _refit_unknown(s, settings):
@@ -107,11 +104,12 @@ def _refit_unknown(s, settings):
     from spaceid.studies._experiment import _experiment_drift
     from spaceid.studies._servicing import _scores
 
-    grasp = s.scores["grasp time [s]"]
+    grasp = s.scores.grasp_time
     end = grasp + s.trajectory.duration
-    estimate, _ = payload_after_grasp(s.servicer, s.log, s.truth["link"], grasp, None, end=end,
-                                      drift=_experiment_drift(None, settings), seed=s.scores["phase seed"])
-    return s.scores | {"payload": _scores(estimate, s.truth, s.events, s.log, grasp)["payload"]}
+    estimate = payload_after_grasp(s.servicer, s.log, s.truth["link"], grasp, None, end=end,
+                                   drift=_experiment_drift(None, settings), seed=s.scores.phase_seed).estimate
+    return s.scores.to_dict() | {"payload": [p.to_dict() for p in _scores(estimate, s.truth, s.events, s.log,
+                                                                         grasp)["payload"]]}
 
 
 def summarise(label, runs):
@@ -128,9 +126,9 @@ def summarise(label, runs):
     for i, name in enumerate(names):
         print(f"  {name:<10}{rel[:, i].mean():>9.2f}{np.sqrt((rel[:, i] ** 2).mean()):>9.2f}{ratio[i]:>10.2f}"
               f"{np.mean(np.abs(z[:, i]) <= 2):>8.2f}{np.abs(z[:, i]).max():>8.1f}")
-    delay = np.array([np.nan if r["change time error [samples]"] is None else r["change time error [samples]"]
+    delay = np.array([np.nan if r["change_time_error_samples"] is None else r["change_time_error_samples"]
                       for r in runs])  # fmt: skip
-    alarms = [r["events before the grasp (false alarms)"] for r in runs]
+    alarms = [r["false_alarms"] for r in runs]
     print(f"  change time error [samples]: median {np.nanmedian(delay):.1f}, range {np.nanmin(delay):.0f} to "
           f"{np.nanmax(delay):.0f}, missed {int(np.isnan(delay).sum())}; events before the grasp: {sum(alarms)} in "
           f"{len(runs)} runs")

@@ -89,7 +89,7 @@ def main():
         elapsed, result = timed(lambda: identify(param, log, h, estimator="ml", noise=noise))
         times["identify(ml)"].append(elapsed)
     ratio = float(np.median(np.array(times["identify(ml)"]) / np.array(times["identify(ols)"])))
-    info = result.settings["estimator_info"]
+    info = result.diagnostics.estimator_info
     z = np.abs(result.values - param.true_values) / result.std
     print(f"dual-arm servicer: {param.model.n_joints} joints, {param.n_params} minimal parameters; {args.samples} "
           f"samples, noise {level:g} on q, qd, w0; medians of {args.repeats} alternating repeats; load "

@@ -295,7 +295,7 @@ def main():
     t_ml = time.perf_counter() - start
     z = np.abs(r.values - param.true_values) / r.std
     print(f"  identify(ml) from {n} samples  {t_ml:8.3f} s  (one run, noise {level:g} on q, qd, w0; "
-          f"{r.settings['estimator_info']['iterations']} iterations; max |error| / std {z.max():.2f})")
+          f"{r.diagnostics.estimator_info['iterations']} iterations; max |error| / std {z.max():.2f})")
 
 
 if __name__ == "__main__":

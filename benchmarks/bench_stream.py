@@ -74,7 +74,7 @@ def child(n, estimator, chunk):
                           chunk=chunk or None)  # fmt: skip
     wall, cpu = time.perf_counter() - start, time.process_time() - cpu
     z = np.abs(result.values - param.true_values) / result.std
-    info = result.settings["estimator_info"]
+    info = result.diagnostics.estimator_info
     print(json.dumps({"wall": wall, "cpu": cpu, "rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
                       "rss_log_mb": rss_log, "z_max": float(z.max()), "load": os.getloadavg()[0],
                       "iterations": info.get("iterations", 0)}))  # fmt: skip

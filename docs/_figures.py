@@ -39,7 +39,7 @@ def make_figures(folder) -> dict:
     noise = spaceid.Noise(angle=NOISE, rate=NOISE, base_rate=NOISE)
     ident = spaceid.identify(param, measured, MOMENTUM, noise=noise)
     held_out = _held_out_motion(param, model)
-    predicted, _ = spaceid.validate(ident, held_out, momentum=MOMENTUM)
+    predicted = spaceid.validate(ident, held_out, momentum=MOMENTUM).predicted
     at_rest = spaceid.simulate(param, param.true_values, traj, times, np.zeros(3), model=model)
     at_rest = spaceid.add_noise(at_rest, angle=NOISE, rate=NOISE, seed=3)
     anchored = spaceid.identify(param, at_rest, np.zeros(3), noise=noise, known={"pi5": param.true_values[4]})

@@ -44,7 +44,7 @@ def main():
         results.append(identify(minimal_parameters(before), log, h))
 
     diff = compare(*results)
-    rows = sorted(diff["parameters"], key=lambda p: -abs(p["z"]))
+    rows = sorted(diff.to_dict()["parameters"], key=lambda p: -abs(p["z"]))
     changed = [p for p in rows if abs(p["z"]) > 3]
     table = Table("", "before", "after", "change [%]", "z",
                   title=f"{len(changed)} of {len(rows)} parameters changed beyond 3 standard errors (top 12)")

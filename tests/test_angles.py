@@ -54,7 +54,7 @@ def test_noise_free_recovery(param, spline_log):
     log = replace(spline_log, qd=np.zeros_like(spline_log.qd), base_w=np.zeros_like(spline_log.base_w))
     ident = identify(param, log, H, estimator="angles", noise=NOISE)
     assert np.abs(ident.values / param.true_values - 1).max() < 1e-10
-    assert ident.settings["estimator_info"]["knot_spacing"] == pytest.approx(KNOT_SPACING)
+    assert ident.diagnostics.estimator_info["knot_spacing"] == pytest.approx(KNOT_SPACING)
 
 
 def test_noise_free_recovery_with_unknown_momentum(param, spline_log):
@@ -162,7 +162,7 @@ def test_coarser_knots_for_slower_sampling(param):
     with pytest.raises(SpaceidError, match=r"needs at least 201 samples \(sample at 40 Hz or more\)"):
         identify(param, log, H, estimator="angles", noise=NOISE)
     ident = identify(param, log, H, estimator="angles", noise=NOISE, knot_spacing=0.1)
-    assert ident.settings["estimator_info"]["knot_spacing"] == pytest.approx(0.1)
+    assert ident.diagnostics.estimator_info["knot_spacing"] == pytest.approx(0.1)
     assert np.all(np.abs(ident.values - param.true_values) < 1e-2 * ident.std)  # spline error 3e-6 rad: 3e-4 std
     assert cli_default == KNOT_SPACING
 

@@ -40,6 +40,8 @@ RENAMED = {
     ("spaceid.identified", "parameterization_of"): {"ident": "result"},
     ("spaceid.motion", "optimize_excitation"): {"n_jobs": "jobs"},
     ("spaceid.motion", "design_excitation"): {"n_jobs": "jobs"},
+    ("spaceid.estimation", "monitor"): {"samples": "log"},
+    ("spaceid.estimation", "log_chunks"): {"samples": "log"},
 }
 
 

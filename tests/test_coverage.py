@@ -63,5 +63,5 @@ def test_two_sigma_coverage(case, estimator):
     assert np.mean(np.abs(z) <= 2) >= 0.85, (name, np.mean(np.abs(z) <= 2))
     assert np.abs(z).max() <= 4.5, (name, np.abs(z).max())
     if name == "cepheus differentiated":  # Newey-West from the residuals alone: 94 %, |z| up to 3.8
-        assert all("propagated" in r.settings["covariance"] for r in runs)
+        assert all("propagated" in r.diagnostics.covariance for r in runs)
         assert np.mean(np.abs(z) <= 2) >= 0.95 and np.abs(z).max() <= 3.0, (np.mean(np.abs(z) <= 2), np.abs(z).max())

@@ -11,7 +11,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from spaceid import SpaceidError
-from spaceid import _inputs
+from spaceid import _inputs, _memory
 from spaceid.data import _tables, follow_log, read_log, read_joint_trajectory
 
 JOINTS = ("left_shoulder", "left_elbow")
@@ -150,11 +150,11 @@ def test_the_text_held_is_one_block(tmp_path, monkeypatch):
 
 def test_limits_of_a_table(tmp_path, monkeypatch):
     path = _csv(tmp_path, [HEADER, *_rows(3)])
-    monkeypatch.setattr(_tables, "MAX_TABLE_CELLS", 20)  # 4 lines of 7 columns
-    with pytest.raises(SpaceidError, match=r"log\.csv: 4 lines of 7 columns, beyond the 20 cells a log may have: "
-                                           r"split the run, downsample it or drop columns"):
+    monkeypatch.setattr(_memory, "available_memory", lambda: 8.0 * _tables.TABLE_COPIES * 27)  # 4 lines of 7
+    with pytest.raises(SpaceidError, match=r"log\.csv: 4 lines of 7 columns would need about .* GiB of memory, more "
+                                           r"than the .* available: split the run, downsample it or drop columns"):
         read_log(path, joints=JOINTS, planar=True)
-    monkeypatch.setattr(_tables, "MAX_TABLE_CELLS", 28)
+    monkeypatch.setattr(_memory, "available_memory", lambda: 8.0 * _tables.TABLE_COPIES * 28)
     read_log(path, joints=JOINTS, planar=True)
     monkeypatch.setattr(_tables, "count_input_lines", lambda *args, **kwargs: (1, 0))  # the file grew since
     with pytest.raises(SpaceidError, match=r"log\.csv: the log grew while it was read: read it once it is complete"):

@@ -13,7 +13,7 @@ from test_simulate_estimate import motion
 import spaceid
 from spaceid.cli import main
 from spaceid.dynamics import angular_momentum, minimal_parameters
-from spaceid.estimation import Identification, Noise, cramer_rao, identify, load_result
+from spaceid.estimation import DriftTest, Identification, Noise, cramer_rao, identify, load_result
 from spaceid.motion import FourierTrajectory, add_noise, simulate
 from spaceid.studies import validate
 
@@ -57,7 +57,7 @@ def test_planar_noise_free_recovers_pi_and_drift(cepheus, kinds):
         for name, v in values(ident).items():
             assert v == pytest.approx(expected[name], rel=1e-8)
         np.testing.assert_allclose(ident.momentum, H, atol=1e-10)
-        assert ident.settings["drift_test"] == {"run": False, "reason": f"drift terms modelled: {', '.join(kinds)}"}
+        assert ident.diagnostics.drift_test == DriftTest(False, f"drift terms modelled: {', '.join(kinds)}")
 
 
 def test_simulated_momentum_balances_the_external_torque(cepheus):
@@ -145,18 +145,18 @@ def test_residual_test_silent_on_clean_logs_and_fires_on_drift(cepheus):
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # any warning fails
         ident = identify(cepheus, clean, H)
-        assert ident.settings["drift_test"]["drift"] is False
+        assert ident.diagnostics.drift_test.drift is False
         fired = 0
         for seed in range(20):
             log = add_noise(clean, angle=1e-4, rate=1e-3, seed=seed)
-            fired += identify(cepheus, log, H).settings["drift_test"]["p_value"] < 1e-3
+            fired += identify(cepheus, log, H).diagnostics.drift_test.p_value < 1e-3
         assert fired == 0  # at alpha = 1e-3, 20 clean logs fire with probability 2 %
     drift = simulate(cepheus, cepheus.true_values, motion, t, H, drift={"viscous": 5e-4})  # 1 % of h
     with pytest.warns(UserWarning, match="`drift`"):
         ident = identify(cepheus, add_noise(drift, angle=1e-4, rate=1e-3, seed=0), H)
-    test = ident.settings["drift_test"]
-    assert test["drift"] and test["p_value"] < 1e-3 and test["terms"] == ["torque_z", "viscous"]
-    assert test["alpha"] == 1e-3 and test["durbin_watson"] < 1.8  # white: 2 +- 0.09
+    test = ident.diagnostics.drift_test
+    assert test.drift and test.p_value < 1e-3 and test.terms == ("torque_z", "viscous")
+    assert test.alpha == 1e-3 and test.durbin_watson < 1.8  # white: 2 +- 0.09
 
 
 @pytest.mark.slow
@@ -170,7 +170,7 @@ def test_residual_test_keeps_its_level_on_short_clean_logs(cepheus):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         p = np.array([identify(cepheus, add_noise(log, angle=1e-4, rate=1e-4, seed=s), H_SIMULATE)
-                      .settings["drift_test"]["p_value"] for s in range(400)])  # fmt: skip
+                      .diagnostics.drift_test.p_value for s in range(400)])  # fmt: skip
     assert np.sum(p < 1e-3) <= 3 and np.sum(p < 1e-2) <= 9 and np.sum(p < 0.05) <= 30, np.sort(p)[:30]
 
 
@@ -185,9 +185,9 @@ def test_result_round_trip_and_validation_with_the_identified_drift(cepheus, tmp
     back = load_result(tmp_path / "r.json")
     assert back.drift == ident.drift and back.drift_terms().keys() == {"torque", "viscous"}
     assert Identification.from_dict({k: v for k, v in record.items() if k != "drift"}).drift == ()
-    _, metrics = validate(back, log)  # the identified drift is used
+    metrics = validate(back, log).metrics  # the identified drift is used
     assert metrics["base_w_nrms"] < 1e-8
-    _, without = validate(back, log, drift={"torque": 0.0, "viscous": 0.0})  # override
+    without = validate(back, log, drift={"torque": 0.0, "viscous": 0.0}).metrics  # override
     assert without["base_w_nrms"] > 1e-3
 
 
@@ -247,7 +247,7 @@ def test_drift_terms_the_log_cannot_tell_apart(cepheus):
         identify(cepheus, log, h, drift=("torque", "coulomb"))
     with pytest.warns(UserWarning, match="torque_z and viscous are nearly indistinguishable"):
         ident = identify(cepheus, add_noise(log, angle=1e-4, rate=1e-3, seed=0), h, drift=("torque", "viscous"))
-    assert ident.settings["drift_correlation"] > 0.99
+    assert ident.diagnostics.drift_correlation > 0.99
 
 
 @pytest.mark.slow
@@ -267,7 +267,7 @@ def test_experiment_with_friction_warns_and_drift_terms_reduce_the_error(tmp_pat
                        joint_rates="differentiate", pose_latency=TwinSettings().mocap.latency)
     with pytest.warns(UserWarning, match="model it with `drift`"):
         ident = identify(minimal_parameters(model), log, np.zeros(3))
-    assert ident.settings["drift_test"]["p_value"] < 1e-10
+    assert ident.diagnostics.drift_test.p_value < 1e-10
 
 
 def test_drift_integrated_over_a_history(cepheus):

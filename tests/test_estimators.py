@@ -116,9 +116,9 @@ def test_ml_stops_close_to_its_fixed_point(cepheus, monkeypatch):
     default = identify(param, log, H, estimator="ml", noise=noise)
     monkeypatch.setitem(estimate._KERNELS, "ml", lambda *args: estimate._ml(*args, tol=1e-10))
     tight = identify(param, log, H, estimator="ml", noise=noise)
-    assert tight.settings["estimator_info"]["iterations"] > default.settings["estimator_info"]["iterations"] >= 3
+    assert tight.diagnostics.estimator_info["iterations"] > default.diagnostics.estimator_info["iterations"] >= 3
     assert (np.abs(default.values - tight.values) / default.std).max() < 1e-3
-    info = default.settings["estimator_info"]
+    info = default.diagnostics.estimator_info
     assert info["converged"] and info["fallback"] is None and info["objective_end"] < info["objective_start"]
 
 
@@ -134,7 +134,7 @@ def test_ml_that_does_not_converge_falls_back(cepheus, monkeypatch):
     with pytest.warns(UserWarning, match=r"maximum likelihood failed, the estimate reported is (wls|ols): .*did not "
                                          r"converge in 1 iterations"):  # fmt: skip
         ml = identify(param, log, H, estimator="ml", noise=noise)
-    info = ml.settings["estimator_info"]
+    info = ml.diagnostics.estimator_info
     fallback = info["fallback"].split(":")[0]
     assert not info["converged"] and fallback in ("wls", "ols")
     assert info["objective_end"] <= info["objective_start"]
@@ -159,12 +159,12 @@ def test_ml_never_reports_physically_impossible_parameters_when_wls_has_none(cep
     with pytest.warns(UserWarning) as record:
         ml = identify(param, log, H, estimator="ml")
     messages = [str(w.message) for w in record]
-    info = ml.settings["estimator_info"]
+    info = ml.diagnostics.estimator_info
     assert info["converged"] and info["fallback"].startswith("wls: the maximum-likelihood estimate converged to")
     assert any("the estimate reported is wls" in m for m in messages)
     assert not any("physically impossible parameters, negative" in m for m in messages)  # no longer reported
     assert ml.values == pytest.approx(wls.values, rel=1e-12) and ml.std == pytest.approx(wls.std, rel=1e-9)
-    assert ml.settings["chi2_dof"] > 1e3 and any("contradict the noise model" in m for m in messages)
+    assert ml.diagnostics.chi2_dof > 1e3 and any("contradict the noise model" in m for m in messages)
 
 
 def _reference_ml(eq, x, sigma, theta, iterations=40):
@@ -221,7 +221,7 @@ def test_ml_builds_the_regressor_once(cepheus, monkeypatch):
                             built.append(_n) or _f(self, *a, **k))  # fmt: skip
     ml = identify(param, add_noise(make(201), angle=1e-3, rate=1e-3, seed=1), H, estimator="ml",
                   noise=Noise(1e-3, 1e-3, 1e-3))  # fmt: skip
-    assert ml.settings["estimator_info"]["converged"] and built == ["phi"]
+    assert ml.diagnostics.estimator_info["converged"] and built == ["phi"]
 
 
 def test_ml_on_threads_equals_serial(cepheus, monkeypatch):
@@ -271,10 +271,10 @@ def test_chi2_far_from_one_warns_and_the_covariance_follows_the_residuals(cepheu
     with pytest.warns(UserWarning, match=r"chi2_dof = .*contradict the noise model: the noise levels are too small.*"
                                          r"unmodelled drift.*one-tick differences"):  # fmt: skip
         wrong = identify(param, log, H, estimator="wls", noise=Noise(1e-5, 1e-5, 1e-5))
-    assert wrong.settings["chi2_dof"] > 1e3 and wrong.settings["covariance_from_residuals"]
-    assert "sandwich of the residuals" in wrong.settings["covariance"]
-    assert wrong.settings["noise_model_warning"].startswith("chi2_dof")
-    assert not right.settings["covariance_from_residuals"] and right.settings["noise_model_warning"] == ""
+    assert wrong.diagnostics.chi2_dof > 1e3 and wrong.diagnostics.covariance_from_residuals
+    assert "sandwich of the residuals" in wrong.diagnostics.covariance
+    assert wrong.diagnostics.noise_model_warning.startswith("chi2_dof")
+    assert not right.diagnostics.covariance_from_residuals and right.diagnostics.noise_model_warning == ""
     assert np.all((wrong.std / right.std > 0.6) & (wrong.std / right.std < 1.6)), wrong.std / right.std
 
 
@@ -287,9 +287,9 @@ def test_autocorrelated_residuals_give_a_newey_west_covariance(cepheus):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # chi2_dof far from 1 as well
         ident = identify(param, log, H, estimator="wls", noise=Noise(1e-4, 1e-4, 1e-4))
-    checks = ident.settings["residual_checks"]
-    assert checks["ljung_box_p"] < 1e-3 and checks["lag1_autocorrelation"] > 0.5
-    assert "residuals autocorrelated" in ident.settings["covariance"] and ident.settings["covariance_from_residuals"]
+    checks = ident.diagnostics.residual_checks
+    assert checks.ljung_box_p < 1e-3 and checks.lag1_autocorrelation > 0.5
+    assert "residuals autocorrelated" in ident.diagnostics.covariance and ident.diagnostics.covariance_from_residuals
 
 
 def test_crb_equals_brute_force_fisher(cepheus):
@@ -369,7 +369,7 @@ def test_tls_is_consistent_under_its_own_assumptions():
         errors = []
         for _ in range(40):
             stub.a = a0 + rng.normal(size=a0.shape) * d
-            errors.append(estimate._tls(stub, None, None, None, {"phi": stub.phi(None)})[0] - theta)
+            errors.append(estimate._tls(stub, None, None, None, estimate._FitContext(stub.phi(None)))[0] - theta)
     finally:
         estimate._column_noise = original
     errors = np.array(errors)
@@ -388,7 +388,7 @@ def test_standard_errors_stay_honest_with_differentiated_rates(cepheus):
     log = simulate(param, param.true_values, paper_motion, np.arange(0, 5.0001, 0.01), H)
     runs = [identify(param, differentiate_log(add_noise(log, angle=1e-4, seed=s), window=101, order=5), H)
             for s in range(30)]  # fmt: skip
-    assert "Newey-West" in runs[0].settings["covariance"]
+    assert "Newey-West" in runs[0].diagnostics.covariance
     error = np.array([r.values for r in runs]) - param.true_values
     ratio = np.mean([r.std for r in runs], axis=0) / np.sqrt(np.mean(error**2, axis=0))
     assert np.all((ratio > 0.55) & (ratio < 1.6)), ratio
@@ -408,7 +408,7 @@ def test_wrong_sign_of_the_momentum_warns_of_negative_inertias(cepheus):
     with pytest.warns(UserWarning, match=r"physically impossible .*pi5 = .*Izz_base.*pi7.*pi8.*wrong sign of the momentum"):
         ident = identify(param, make(101), -H, estimator="ols")
     assert np.allclose(ident.values, -param.true_values)
-    assert "pi5" in ident.settings["plausibility"] and "pi1 " not in ident.settings["plausibility"]
+    assert "pi5" in ident.diagnostics.plausibility and "pi1 " not in ident.diagnostics.plausibility
 
 
 def test_wrong_sign_of_the_momentum_warns_spatial():
@@ -427,7 +427,7 @@ def test_wrong_sign_of_the_momentum_warns_spatial():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         ident = identify(param, log, h, estimator="ols")
-    assert ident.settings["plausibility"] == "no inertia-like parameter negative"
+    assert ident.diagnostics.plausibility == "no inertia-like parameter negative"
 
 
 @pytest.mark.parametrize("estimator", RATE_BASED)
@@ -436,4 +436,4 @@ def test_correct_identification_gives_no_plausibility_warning(cepheus, estimator
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         ident = identify(param, add_noise(make(101), angle=1e-3, rate=1e-3, seed=1), H, estimator=estimator)
-    assert ident.settings["plausibility"] == "no inertia-like parameter negative"
+    assert ident.diagnostics.plausibility == "no inertia-like parameter negative"

@@ -56,7 +56,7 @@ def test_report_folder(ideal):
 
 def _nrms(pi, res, log):
     """Base-rate NRMS of the model ``pi`` re-simulated on ``log`` of the experiment ``res``."""
-    return validate(replace(res.ident, values=pi), log, momentum=np.zeros(3))[1]["base_w_nrms"]
+    return validate(replace(res.ident, values=pi), log, momentum=np.zeros(3)).metrics["base_w_nrms"]
 
 
 @pytest.mark.slow
@@ -73,7 +73,7 @@ def test_validation_is_on_a_held_out_motion(ideal):
     assert np.abs(res.predicted.q - res.validation_log.q).max() <= 1e-14 * np.abs(res.validation_log.q).max()
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the experiment never validates on a fitting log itself
-        kinematic = validate(res.ident, res.validation_log, momentum=np.zeros(3))[1]
+        kinematic = validate(res.ident, res.validation_log, momentum=np.zeros(3)).metrics
     assert kinematic == {k: v for k, v in res.metrics.items() if k in kinematic}  # beside them: the torque level
 
 
@@ -250,6 +250,6 @@ def test_realistic_experiment_error_bars_cover_the_errors_with_drift():
         free = res.ident_all.std > 0
         z.append((res.ident_all.values[free] - res.true[free]) / res.ident_all.std[free])
         assert res.ident_all.drift[0]["name"] == "viscous" and res.ident_all.drift[0]["value"] > 0
-        assert "propagated" in res.ident_all.settings["covariance"]
+        assert "propagated" in res.ident_all.diagnostics.covariance
     z = np.abs(np.concatenate(z))
     assert z.max() < 3.0 and np.mean(z <= 2) >= 0.9, z

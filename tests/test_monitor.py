@@ -593,7 +593,7 @@ def test_monitor_takes_the_differentiator_window_of_a_bag(capture_bag, tmp_path,
     assert "rates are its rate columns (--joint-rates measured)" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("rows", [1, 3])
+@pytest.mark.parametrize("rows", [1, pytest.param(3, marks=pytest.mark.slow)])
 def test_recursive_innovations_against_direct_least_squares(rows):
     """Each innovation is the residual at the least-squares estimate of the samples before it over its
     standard deviation (checked by a direct fit for some samples); with unit noise they are N(0, I),

@@ -90,7 +90,7 @@ def _relative_error(param, values):
 def test_noise_free_recovery_at_high_condition_numbers(dual_arm, chain, system, amplitude, duration, target):
     param, log, h = _case(system, amplitude, duration, dual_arm, chain)
     ident = identify(param, log, h, estimator="ols")
-    cond = ident.settings["condition_number_scaled"]
+    cond = ident.diagnostics.condition_number_scaled
     assert target / 5 < cond < target * 5
     assert _relative_error(param, ident.values) <= 1e-10 * max(1.0, cond / 1e6)
 
@@ -112,7 +112,7 @@ def test_orthogonal_factorisation_beats_the_normal_equations(dual_arm, chain, sy
     old = _relative_error(param, _normal_equations(*_split(eq.phi(eq.signals(log)))))
     ident = identify(param, log, h, estimator="ols")
     new = _relative_error(param, ident.values)
-    assert ident.settings["condition_number_scaled"] > 1e6
+    assert ident.diagnostics.condition_number_scaled > 1e6
     assert new <= 1e-10 and old > 1e-7 and new < 1e-3 * old
 
 

@@ -298,8 +298,8 @@ def test_moving_payload_placed_at_the_grasp_instant_of_a_turning_base(cepheus):
               np.r_[np.zeros((n, q0.size)), after.qd[1:]],
               np.r_[yaw_to_quat(w0 * (before - grasp)), after.base_quat[1:]],
               np.r_[np.tile([0, 0, w0], (n, 1)), after.base_w[1:]], planar=True)  # fmt: skip
-    est, _ = payload_after_grasp(pmap, log, "link2", grasp, h_servicer, payload_motion=(VELOCITY, RATE),
-                                 noise=spaceid.Noise())  # fmt: skip
+    est = payload_after_grasp(pmap, log, "link2", grasp, h_servicer, payload_motion=(VELOCITY, RATE),
+                              noise=spaceid.Noise()).estimate  # fmt: skip
     np.testing.assert_allclose(est.values, TRUTH, rtol=1e-8)  # 0.6 % and 6 % off from the sample before
     assert est.settings["grasp"]["payload_motion"]["configuration_from"] == pytest.approx([0.97] * (q0.size + 1))
     # differentiated: the samples whose windows (joints 0.1 s, base 0.3 s) hold the grasp are smeared
@@ -309,8 +309,8 @@ def test_moving_payload_placed_at_the_grasp_instant_of_a_turning_base(cepheus):
     per_joint = {j: {"method": "savgol", "window_s": [0.1]} for j in log.joints}  # a bag's; differentiate_log's:
     for joints in (per_joint, {"method": "savgol", "window_s": [0.1] * q0.size}):
         meta = {"differentiation": {"base": {"method": "savgol", "window_s": [0.3]}, "joints": joints}}
-        est, _ = payload_after_grasp(pmap, replace(smeared, meta=meta), "link2", grasp, h_servicer,
-                                     payload_motion=(VELOCITY, RATE), noise=spaceid.Noise())  # fmt: skip
+        est = payload_after_grasp(pmap, replace(smeared, meta=meta), "link2", grasp, h_servicer,
+                                  payload_motion=(VELOCITY, RATE), noise=spaceid.Noise()).estimate  # fmt: skip
         np.testing.assert_allclose(est.values, TRUTH, rtol=1e-6)
         assert est.settings["grasp"]["payload_motion"]["configuration_from"] == pytest.approx([0.92] * q0.size + [0.82])
 
@@ -384,10 +384,13 @@ def test_grasp_window_leaves_out_the_differentiator_s_blend(cepheus):
     pmap, traj = cepheus
     log, grasp = _grasp_log(pmap, traj, 1.5, np.zeros(3), _theta(*PAYLOAD))
     rates = differentiate_log(add_noise(log, angle=1e-5, seed=0), method="savgol", window=11, order=3)
-    est, window = payload_after_grasp(pmap, rates, "link2", grasp, np.zeros(3))
+    cut = payload_after_grasp(pmap, rates, "link2", grasp, np.zeros(3))
+    est, window = cut.estimate, cut.window
     margin = 5 * 0.05  # half the 11-sample window
     assert margin < window.t[0] - grasp <= margin + 0.05 + 1e-9
-    assert est.settings["grasp"]["hold"] is None and "propagated" in est.settings["covariance"]
+    assert cut.grasp["hold"] is None and "propagated" in est.settings["covariance"]
+    assert cut.grasp["window"] == pytest.approx([window.t[0], window.t[-1]])
+    assert cut.to_dict()["settings"]["grasp"] == cut.grasp
     z = (est.values - TRUTH) / est.std
     assert np.all(np.abs(z) < 4), z
     with pytest.raises(spaceid.SpaceidError, match="does not hold"):

@@ -203,10 +203,11 @@ def test_identifiability_report():
     from spaceid.dynamics import identifiability
 
     rw = identifiability(minimal_parameters(spaceid.load_model("cepheus-rw")))
-    assert rw["determines_dynamics"] and rw["individually_identifiable"] == ["Izz_wheel"]
-    assert "Ixx_link1" in rw["no_effect"] and "m_base" not in rw["no_effect"]  # masses act through M
+    assert rw.determines_dynamics and rw.individually_identifiable == ("Izz_wheel",)
+    assert "Ixx_link1" in rw.no_effect and "m_base" not in rw.no_effect  # masses act through M
+    assert rw.to_dict()["individually_identifiable"] == ["Izz_wheel"]
     spatial = identifiability(minimal_parameters(random_tree(np.random.default_rng(3), [0, 1], planar=False)))
-    assert spatial["determines_dynamics"] and spatial["energy_residual"] < 1e-10
+    assert spatial.determines_dynamics and spatial.energy_residual < 1e-10
 
 
 def test_dynamics_not_determined_when_energy_escapes():
@@ -217,7 +218,7 @@ def test_dynamics_not_determined_when_energy_escapes():
 
     param = minimal_parameters(spaceid.load_model("cepheus"))
     report = identifiability(replace(param, projection=param.projection[:-1]))
-    assert not report["determines_dynamics"] and report["energy_residual"] > 1e-3
+    assert not report.determines_dynamics and report.energy_residual > 1e-3
 
 
 @pytest.mark.slow

@@ -68,15 +68,15 @@ def test_streamed_equals_in_memory(request, system, estimator, noisy):
         assert np.abs(streamed.values - param.true_values).max() <= 1e-11 * size
         return  # the covariance of round-off residuals is round-off
     assert streamed.std == pytest.approx(memory.std, rel=1e-9)
-    for key in ("covariance", "covariance_from_residuals"):
-        assert streamed.settings[key] == memory.settings[key]
+    for key in ("covariance_method", "covariance", "covariance_from_residuals"):
+        assert getattr(streamed.diagnostics, key) == getattr(memory.diagnostics, key)
     assert streamed.residual_rms == pytest.approx(memory.residual_rms, rel=1e-9)
-    assert streamed.settings["estimator_info"]["chunk"] == 337
+    assert streamed.diagnostics.estimator_info["chunk"] == 337
     if estimator == "ml":
-        assert streamed.settings["estimator_info"]["iterations"] == memory.settings["estimator_info"]["iterations"]
-        assert streamed.settings["estimator_info"]["converged"] and memory.settings["estimator_info"]["converged"]
+        assert streamed.diagnostics.estimator_info["iterations"] == memory.diagnostics.estimator_info["iterations"]
+        assert streamed.diagnostics.estimator_info["converged"] and memory.diagnostics.estimator_info["converged"]
     if estimator != "ols":
-        assert streamed.settings["chi2_dof"] == pytest.approx(memory.settings["chi2_dof"], rel=1e-9)
+        assert streamed.diagnostics.chi2_dof == pytest.approx(memory.diagnostics.chi2_dof, rel=1e-9)
     _same_drift_test(streamed, memory)
 
 
@@ -109,7 +109,7 @@ def _same_drift_test(streamed, memory):
     1e-7, the p-value's
     logarithm to 1e-6 (see :func:`test_streamed_differentiated_rates_equal_in_memory`), the residuals' whiteness
     figures to 1e-10."""
-    got, want = streamed.settings["drift_test"], memory.settings["drift_test"]
+    got, want = streamed.diagnostics.drift_test.to_dict(), memory.diagnostics.drift_test.to_dict()
     assert got["run"] and want["run"] and got.keys() == want.keys()
     for key, value in want.items():
         if key in ("wald", "relative_drift"):
@@ -141,12 +141,12 @@ def test_streamed_differentiated_rates_equal_in_memory(system, estimator, planar
     when every factor is taken by QR instead (covariance 3e-12 to 2e-11 planar, 7e-9 spatial; Wald 1e-9 to 4e-9)."""
     param, log, h = _differentiated(system, planar, spatial_motion)
     memory, streamed = _both(param, log, h, estimator, None, chunk=29)
-    assert log.n_samples % 29 and "propagated" in memory.settings["covariance"]
-    larger = re.search(r"in (\d+) of (\d+) directions", memory.settings["covariance"])
+    assert log.n_samples % 29 and "propagated" in memory.diagnostics.covariance
+    larger = re.search(r"in (\d+) of (\d+) directions", memory.diagnostics.covariance)
     assert larger is None or larger[1] != larger[2]  # the propagated covariance counts somewhere
-    assert streamed.settings["covariance"] == memory.settings["covariance"]
+    assert streamed.diagnostics.covariance == memory.diagnostics.covariance
     eps = np.finfo(float).eps
-    cond = memory.settings["condition_number_scaled"]
+    cond = memory.diagnostics.condition_number_scaled
     assert np.abs(streamed.values - memory.values).max() <= 10 * eps * cond * np.abs(memory.values).max()
     assert np.abs(streamed.cov - memory.cov).max() <= 10 * eps * cond**2 * np.abs(memory.cov).max()
     _same_drift_test(streamed, memory)

@@ -54,7 +54,7 @@ def test_validation_on_the_fitting_log_warns(fitted, tmp_path):
 def test_validation_on_another_motion_does_not_warn(fitted):
     param, log, ident = fitted
     other = simulate(param, param.true_values, _motion(0.7), np.linspace(0, 5, 35), H, model=param.model)
-    _, metrics = _no_warning(ident, other)
+    metrics = _no_warning(ident, other).metrics
     assert metrics["base_w_nrms"] < 1e-9  # the true model, noise-free
     _no_warning(ident, log.select(slice(1, None)))  # other samples: not the fitting log itself
     assert log_fingerprint(other) != log_fingerprint(log)

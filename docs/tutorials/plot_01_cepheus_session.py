@@ -133,6 +133,19 @@ print(f"cond(Y) = {result.condition_number:.4g}, residual RMS {result.residual_r
 assert np.all(abs(rel) < 0.01)  # better than 1 % on every parameter at this noise level
 
 # %%
+# The result draws itself: ``result.plot()`` returns a matplotlib figure of the estimates with
+# their 2-sigma error bars (relative to the truth when given; ``kind="singular_values"`` for the
+# regressor's singular values), on new axes or on the ones given. How well the data agreed with
+# the model is in ``result.diagnostics`` (:class:`~spaceid.estimation.Diagnostics`).
+
+fig, ax = plt.subplots(figsize=(6.4, 3.6), layout="constrained")
+assert result.plot(ax=ax, true=param.true_values) is fig
+d = result.diagnostics
+print(f"chi2/dof = {d.chi2_dof:.3g}; covariance: {d.covariance_method}; {d.plausibility}; "
+      f"unmodelled drift: {d.drift_test.drift}")
+assert not d.drift_test.drift
+
+# %%
 # The result is saved as JSON (:doc:`/formats/result-json`); ``load_identified`` reads it back
 # as the identified model (``load_result`` as the bare record).
 
@@ -148,25 +161,25 @@ assert np.allclose(again.values, result.values, rtol=0, atol=1e-15)
 # attitude and compares the base motion it predicts with the measured one (the paper's Fig. 6;
 # see :doc:`/figures/validation`).
 
-predicted, metrics = spaceid.validate(again, log, momentum=h)
+check = spaceid.validate(again, log, momentum=h)  # a spaceid.studies.Validation
+predicted, metrics = check.predicted, check.metrics
 for key, value in metrics.items():
     print(f"{key:>12s} = {value:.3g}")
 assert metrics["base_w_nrms"] < 1e-3  # the noise level, not a model error
 
-fig, ax = plt.subplots(figsize=(6.4, 3.0), layout="constrained")
-ax.plot(log.t, log.base_w[:, 2], "o", color="0.2", markersize=3, label="measured")
-ax.plot(predicted.t, predicted.base_w[:, 2], "--", color="tab:red", label="identified model")
-ax.set_xlabel("t [s]")
-ax.set_ylabel(r"base rate $\omega_{0z}$ [rad/s]")
-ax.legend()
-ax.set_title("Validation: base angular velocity")
+# %%
+# The validation draws itself too: measured against predicted base motion, the residuals below
+# (a figure of several panels: ``check.plot()`` makes its own, ``check.plot(fig=...)`` fills the
+# figure or subfigure given).
+
+check.plot(fig=plt.figure(figsize=(7.2, 4.6), layout="constrained"))
 
 # %%
 # ``spaceid validate`` also writes ``predicted.csv``, ``metrics.json`` and ``validation.png``
-# into its output folder; ``plot_validation`` draws that figure:
+# into its output folder; ``plot_validation`` draws that figure, and writes it when given a path:
 
-png = plot_validation(log, predicted, folder / "validation.png")
-assert png.stat().st_size > 10_000
+plot_validation(log, predicted, folder / "validation.png")
+assert (folder / "validation.png").stat().st_size > 10_000
 
 # %%
 # Model-based control

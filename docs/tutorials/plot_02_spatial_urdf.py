@@ -82,11 +82,11 @@ n_full = len(spaceid.dynamics.full_parameter_names(model))
 print(f"standard parameters: {10 * len(model.bodies)}; with the lumped products: {n_full}; "
       f"minimal set: {param.n_params} (basis '{param.basis}', rank tolerance {param.rank_tol:g}, seed {param.seed})")
 print(f"pi1 = {param.definitions[0][:240]} ...")
-print(f"no effect on the momentum: {len(report['no_effect'])}; identifiable alone: "
-      f"{len(report['individually_identifiable'])}; only in combinations: {len(report['in_combinations'])}")
-print(f"determines the reduced dynamics: {report['determines_dynamics']} "
-      f"(energy residual {report['energy_residual']:.1e})")
-assert param.n_params == 153 and param.basis == "columns" and report["determines_dynamics"]
+print(f"no effect on the momentum: {len(report.no_effect)}; identifiable alone: "
+      f"{len(report.individually_identifiable)}; only in combinations: {len(report.in_combinations)}")
+print(f"determines the reduced dynamics: {report.determines_dynamics} "
+      f"(energy residual {report.energy_residual:.1e})")
+assert param.n_params == 153 and param.basis == "columns" and report.determines_dynamics
 
 # %%
 # A design within the joint limits

@@ -112,13 +112,13 @@ ax.set_title("Base angular velocity differentiated from the poses, minus the tru
 # The log from the bag identifies like any other. Its rates came from a differentiator, whose
 # errors are correlated over its window; the standard errors are then the angle noise propagated
 # through the differentiator, or the Newey-West estimate from the residuals where that is larger
-# (:doc:`/theory/noise`), as ``settings.covariance`` says.
+# (:doc:`/theory/noise`), as ``diagnostics.covariance`` says.
 
 result = spaceid.identify(param, log, h)
 rel = (result.values - param.true_values) / param.true_values
 for name, err, std in zip(result.names, rel, result.std / abs(param.true_values)):
     print(f"{name}: error {100 * err:+.3f} %  (std {100 * std:.3f} %)")
-print("covariance:", result.settings["covariance"])
+print("covariance:", result.diagnostics.covariance)
 assert np.all(abs(rel) < 0.03)
 assert np.all(abs(result.values - param.true_values) < 5 * result.std)
 
@@ -133,7 +133,7 @@ second = spaceid.design_excitation(param, duration=5.0, harmonics=3, samples=35,
                                    n_starts=4).trajectory
 record(second, folder / "second.bag", seed=4)
 held_out = spaceid.read_log(folder / "second.bag", joints=model.joints, planar=True, bag_options={"mapping": mapping})
-predicted, metrics = spaceid.validate(result, held_out, momentum=h)
+metrics = spaceid.validate(result, held_out, momentum=h).metrics
 print(f"base rate RMS error of the identified model on the second motion: {metrics['base_w_rms']:.2g} rad/s "
       f"({100 * metrics['base_w_nrms']:.2g} % of its RMS)")
 assert metrics["base_w_nrms"] < 0.01

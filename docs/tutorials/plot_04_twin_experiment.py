@@ -98,7 +98,7 @@ print(f"N = {real.ident.n_samples}: cond(Y) = {real.ident.condition_number:.4g},
 print(f"validation on the held-out motion ({real.settings['validation trajectory']}): base rate RMS error "
       f"{real.metrics['base_w_rms']:.2g} rad/s ({100 * real.metrics['base_w_nrms']:.2g} %); on the fitting log "
       f"{100 * real.fit_metrics['base_w_nrms']:.2g} %")
-_, floor = spaceid.validate(replace(real.ident, values=real.true), real.validation_log, momentum=np.zeros(3))
+floor = spaceid.validate(replace(real.ident, values=real.true), real.validation_log, momentum=np.zeros(3)).metrics
 print(f"the twin's true parameters on the held-out motion: {100 * floor['base_w_nrms']:.2g} %")
 designed, executed = real.settings["cond(Y) designed / executed, N samples"]
 print(f"tracking RMS (encoders vs design): {real.settings['tracking RMS, encoders vs design [rad]']} rad; "

@@ -63,24 +63,25 @@ for k, model in enumerate((before, after)):
 # %%
 # Comparing
 # ---------
-# ``compare`` gives per parameter the change, the relative change and a z-score, the change
-# divided by the combined standard error ``sqrt(std_before^2 + std_after^2)``; ``|z| > 3``
-# stands out from the estimation noise.
+# ``compare`` gives a :class:`~spaceid.estimation.Comparison`: per parameter the change, the
+# relative change and a z-score, the change divided by the combined standard error
+# ``sqrt(std_before^2 + std_after^2)``; ``|z| > 3`` stands out from the estimation noise
+# (``diff.changed()`` names those parameters, ``diff.to_dict()`` is what ``spaceid compare --json``
+# prints).
 
 diff = compare(*results)
-rows = diff["parameters"]
-z = np.array([p["z"] for p in rows])
+z = diff.z
 changed = np.flatnonzero(abs(z) > 3)
-print(f"{changed.size} of {len(rows)} parameters changed beyond 3 standard errors; the largest:")
+assert len(diff.changed()) == changed.size
+print(f"{changed.size} of {len(diff.names)} parameters changed beyond 3 standard errors; the largest:")
 for i in changed[np.argsort(-abs(z[changed]))][:8]:
-    p = rows[i]
-    print(f"  {p['name']:>6s}: {p['before']:10.5g} -> {p['after']:10.5g}  z = {p['z']:8.1f}")
+    print(f"  {diff.names[i]:>6s}: {diff.before[i]:10.5g} -> {diff.after[i]:10.5g}  z = {z[i]:8.1f}")
 
 # %%
 # The parameter with the largest change, in physical terms (the start of its definition):
 
-top = rows[int(np.argmax(abs(z)))]
-print(f"{top['name']} = {top['definition'][:300]} ...")
+top = int(np.argmax(abs(z)))
+print(f"{diff.names[top]} = {diff.definitions[top][:300]} ...")
 
 # %%
 # Here the truth is known, so the comparison can be checked: the true change of every
@@ -105,4 +106,4 @@ ax.axhspan(-3, 3, color="0.85", label="|z| <= 3")
 ax.set_xlabel("true change / combined std")
 ax.set_ylabel("z-score from the identifications")
 ax.legend(loc="upper left")
-ax.set_title(f"{changed.size} of {len(rows)} parameters changed by the capture")
+ax.set_title(f"{changed.size} of {len(diff.names)} parameters changed by the capture")

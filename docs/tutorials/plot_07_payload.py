@@ -68,6 +68,12 @@ print(f"{est.settings['gauss_newton_steps']} Gauss-Newton steps, chi2/dof = {est
 assert np.all(abs(z) < 4) and est.not_identifiable[0] == "cz"
 
 # %%
+# The estimate draws itself, a panel per parameter with one standard error, against the truth
+# when it is given (here the simulation's; the z-scores in the panels' titles):
+
+est.plot(fig=plt.figure(figsize=(8.6, 3.0), layout="constrained"), true=dict(zip(est.names, truth)))
+
+# %%
 # Are the standard errors right?
 # ------------------------------
 # Forty more noise draws: the spread of the estimates against the standard error each run

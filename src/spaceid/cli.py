@@ -516,7 +516,7 @@ def model(model_src, planar, as_json, show_all, definitions_file):
         "n_full_parameters": len(full_parameter_names(m)),
         "n_minimal_parameters": param.n_params,
         **description,
-        "identifiability": ident,
+        "identifiability": ident.to_dict(),
     }
     if definitions_file is not None:
         _write_definitions(definitions_file, info, model_src)
@@ -758,10 +758,11 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     if s["momentum_estimated"]:
         axes = [2] if ident.planar else [0, 1, 2]
         out.print("momentum (estimated): " + ", ".join(
-            f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {s['momentum_std'][i]:.2g}" for i in axes) + " N m s")
+            f"h_{'xyz'[i]} = {ident.momentum[i]:.6g} +/- {ident.momentum_std[i]:.2g}" for i in axes) + " N m s")
     for line in drift_lines(ident):
         out.print(line, highlight=False)
-    chi2 = "" if s["chi2_dof"] is None else f"chi2/dof = {s['chi2_dof']:.3g} "
+    chi2_dof = ident.diagnostics.chi2_dof
+    chi2 = "" if chi2_dof is None else f"chi2/dof = {chi2_dof:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
               f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
               f"result written to {shown_name(output)}")
@@ -895,9 +896,9 @@ def _trajectory_times(traj, samples, rate, command, model):
 
 def _require_sample_memory(what, n, model):
     """Refuse ``n`` samples of ``model`` that would not fit in the available memory, before any
-    work. Simulating evaluates the regressor of every full parameter on a grid 8 times denser than
-    the samples: about 8 x 8 x (joints + 6) x (full parameters) bytes a sample (cepheus: estimate
-    32 kB, measured peak 22 kB a sample; design and identification take less)."""
+    work: a bound of 8 x 8 x (joints + 6) x (full parameters) bytes a sample (the regressor of every
+    full parameter on a grid 8 times denser than the samples; cepheus: 15 kB). Simulation, which
+    evaluates it in blocks, takes far less (cepheus: 1.5 kB a sample, measured)."""
     from ._memory import require_memory
     from .dynamics import full_parameter_names
 
@@ -938,7 +939,8 @@ def validate(result, log_path, momentum, drift, torques, horizon, folder, overwr
     model = load_model(ident.model, planar=ident.planar)  # its wheels are exempt from the degrees check
     log = _measured_log(model, log_path, reading)
     with _warnings_to_stderr():  # e.g. that LOG is the log RESULT was fitted to
-        predicted, metrics = run(ident, log, momentum=h, where=str(result), drift=terms)
+        check = run(ident, log, momentum=h, where=str(result), drift=terms)
+    predicted, metrics = check.predicted, check.metrics
     with _report_folder(folder, overwrite) as tmp:
         write_log(tmp / "predicted.csv", predicted)
         write_json(tmp / "metrics.json", metrics)
@@ -1082,21 +1084,22 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     out.print(f"report written to {shown_name(folder)}/report.md")
 
 
-def _print_servicing(scores: dict) -> None:
-    """The payload against its truth and the detected change against the grasp, as printed."""
-    for p in scores["payload"]:
-        z = "" if p["z"] is None else f", z = {p['z']:+.2f}"
-        out.print(f"payload {p['name']:>3s} = {p['estimate']:.5g} +/- {p['std']:.2g} (truth {p['true']:.5g}{z})",
+def _print_servicing(scores) -> None:
+    """The payload against its truth and the detected change against the grasp (a
+    :class:`~spaceid.studies.ServicingScores`), as printed."""
+    for p in scores.payload:
+        z = "" if p.z is None else f", z = {p.z:+.2f}"
+        out.print(f"payload {p.name:>3s} = {p.estimate:.5g} +/- {p.std:.2g} (truth {p.true:.5g}{z})",
                   highlight=False)
-    if scores["detected change time [s]"] is None:
-        out.print(f"change detection: no change found near the grasp ({scores['events']} events)")
+    if scores.detected_change_time is None:
+        out.print(f"change detection: no change found near the grasp ({scores.events} events)")
         return
-    lead = scores["change time lead [s]"]
-    out.print(f"change detected {scores['change time error [s]']:+.3g} s from the grasp "
-              f"({scores['change time error [samples]']:+g} samples; the differentiated rates show it up to "
+    lead = scores.change_time_lead
+    out.print(f"change detected {scores.change_time_error:+.3g} s from the grasp "
+              f"({scores.change_time_error_samples:+g} samples; the differentiated rates show it up to "
               f"{lead:.3g} s early), alarm at "
-              f"{scores['alarm time from the grasp [s]']:+.3g} s from it; "
-              f"{scores['events before the grasp (false alarms)']} false alarms before it", highlight=False)
+              f"{scores.alarm_time_from_grasp:+.3g} s from it; "
+              f"{scores.false_alarms} false alarms before it", highlight=False)
 
 
 @app.command(short_help="How the parameters changed between two identifications.")
@@ -1113,7 +1116,7 @@ def compare(before, after, as_json, show_all):
     from .estimation import load_result
 
     first = load_result(before)
-    res = run(first, load_result(after), where=f"{before}, {after}")
+    res = run(first, load_result(after), where=f"{before}, {after}").to_dict()
     if as_json:
         print(json.dumps(res, indent=2))
         return
@@ -1287,7 +1290,7 @@ def payload(model_src, log_path, planar, link, momentum, grasp, payload_velocity
             res = identify_payload(model, log, link, h, noise=noise, drift=kinds, seed=seed, where=str(log_path))
         else:
             res = payload_after_grasp(model, log, link, grasp, h, payload_motion=motion, noise=noise, drift=kinds,
-                                      seed=seed, where=str(log_path))[0]  # fmt: skip
+                                      seed=seed, where=str(log_path)).estimate  # fmt: skip
     write_json(output, res.to_dict())
     for name, value, std, unit in zip(res.names, res.values, res.std, payload_units(res.names)):
         out.print(f"{name:>4s} = {value:12.6g} +/- {std:.3g} {unit}", highlight=False)

@@ -18,7 +18,8 @@ from ._bag_to_log import *  # noqa: F403
 from ._bags import *  # noqa: F403
 
 __all__ = (
-    _timeseries.__all__ + _recording.__all__ + _signal_checks.__all__ + _signal_noise.__all__ + _signals.__all__ + _files.__all__
+    _timeseries.__all__ + _recording.__all__ + _signal_checks.__all__ + _signal_noise.__all__ + _signals.__all__
+    + _files.__all__
     + _bag_format.__all__ + _bag_write.__all__ + _bag_read.__all__ + _bag_to_log.__all__ + _bags.__all__
     + _follow.__all__
 )

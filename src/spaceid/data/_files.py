@@ -83,9 +83,9 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
     Raises
     ------
     SpaceidError
-        Missing or unreadable file; a CSV beyond ``MAX_TABLE_BYTES``, ``MAX_TABLE_ROWS`` lines or
-        ``MAX_TABLE_CELLS`` cells (:mod:`spaceid.data._tables`; it is parsed in blocks of rows into
-        floats, 8 bytes a cell); empty file or no data rows; missing required columns;
+        Missing or unreadable file; a CSV beyond ``MAX_TABLE_BYTES`` or whose cells (8 bytes each
+        as floats, ``TABLE_COPIES`` copies: :mod:`spaceid.data._tables`, parsed in blocks of rows)
+        would not fit in the available memory; empty file or no data rows; missing required columns;
         a ``q_X``/``qd_X`` column for a joint X the model lacks; non-numeric, NaN or infinite
         cells; time stamps not strictly increasing; angles apparently in degrees; a base
         quaternion whose norm departs from 1 by more than 1e-2; a median time step above a day

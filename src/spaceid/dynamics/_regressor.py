@@ -59,6 +59,7 @@ __all__ = [
     "full_parameter_names",
     "full_values",
     "full_values_jacobian",
+    "Identifiability",
     "identifiability",
 ]
 
@@ -858,7 +859,40 @@ def _dependency_coefficients(y: np.ndarray, indep, dep, basis: np.ndarray, tol: 
     return beta
 
 
-def identifiability(param: Parameterization, *, tol: float | None = None) -> dict:
+@dataclass(frozen=True)
+class Identifiability:
+    """What a minimal set says about the physical parameters and the dynamics (:func:`identifiability`).
+
+    Attributes
+    ----------
+    no_effect : tuple of str
+        Standard parameters that do not enter the momentum at all.
+    individually_identifiable : tuple of str
+        Standard parameters fixed by ``pi`` on their own.
+    in_combinations : tuple of str
+        The rest: identifiable only through the combinations ``pi``.
+    determines_dynamics : bool
+        Whether ``pi`` fixes the kinetic energy with zero linear momentum for every state (its
+        regressor lies in the row space of the momentum regressor, docs/theory/general-tree.md), hence
+        the reduced inertia matrix that model-based control and the Generalized Jacobian need.
+    energy_residual : float
+        The relative size of the part of the energy regressor outside that row space.
+    """
+
+    no_effect: tuple
+    individually_identifiable: tuple
+    in_combinations: tuple
+    determines_dynamics: bool
+    energy_residual: float
+
+    def to_dict(self) -> dict:
+        """JSON-ready (``spaceid model --json``'s ``identifiability``): the attributes by name, lists for tuples."""
+        return {"no_effect": list(self.no_effect), "individually_identifiable": list(self.individually_identifiable),
+                "in_combinations": list(self.in_combinations), "determines_dynamics": self.determines_dynamics,
+                "energy_residual": self.energy_residual}
+
+
+def identifiability(param: Parameterization, *, tol: float | None = None) -> Identifiability:
     """What the minimal set says about the physical parameters and the dynamics.
 
     Parameters
@@ -869,7 +903,7 @@ def identifiability(param: Parameterization, *, tol: float | None = None) -> dic
 
     Returns
     -------
-    dict
+    Identifiability
         ``no_effect``: standard parameters that do not enter the momentum at all;
         ``individually_identifiable``: standard parameters fixed by ``pi`` on their own;
         ``in_combinations``: the rest (identifiable only through the combinations ``pi``);
@@ -900,10 +934,10 @@ def identifiability(param: Parameterization, *, tol: float | None = None) -> dic
     no_effect = [n for n, a in zip(names, acts) if not a]
     alone = [n for j, n in enumerate(names[:n_theta])
              if n not in no_effect and 1 - rowspace[:, j] @ rowspace[:, j] < tol]
-    return {
-        "no_effect": no_effect,
-        "individually_identifiable": alone,
-        "in_combinations": [n for n in names[:n_theta] if n not in no_effect and n not in alone],
-        "determines_dynamics": energy_residual < 1e3 * tol,
-        "energy_residual": energy_residual,
-    }
+    return Identifiability(
+        no_effect=tuple(no_effect),
+        individually_identifiable=tuple(alone),
+        in_combinations=tuple(n for n in names[:n_theta] if n not in no_effect and n not in alone),
+        determines_dynamics=bool(energy_residual < 1e3 * tol),
+        energy_residual=energy_residual,
+    )

@@ -25,7 +25,7 @@ an ODE on the rotation group).
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.interpolate import BSpline
@@ -207,8 +207,9 @@ def _angles_ml(eq, x, sigma, theta, ctx):
     """Kernel of estimator ``angles`` (see :mod:`spaceid.estimation._estimators`): maximum
     likelihood on the angle samples from the integral-form start ``theta``; the rates in ``x``
     are not used. Its covariance (``info["covariance"]``) is the inverse Fisher block of theta."""
-    path, q, yaw_meas = ctx["path"], ctx["q"], ctx["yaw"]
-    sigma_q, sigma_yaw = _levels(ctx["noise"], ctx["where"])
+    data = ctx.angles
+    path, q, yaw_meas = data.path, data.q, data.yaw
+    sigma_q, sigma_yaw = _levels(data.noise, data.where)
     theta, coef, _, cov, r, (it, converged) = _gauss_newton(eq, path, q, yaw_meas, theta, sigma_q, sigma_yaw)
     p, dof = len(theta), max(len(r) - cov.shape[0], 1)
     raw = np.concatenate([(r[: q.size] * sigma_q), r[q.size :] * sigma_yaw])
@@ -234,9 +235,22 @@ def _integral_equations(eq, path: _Path, q, yaw) -> np.ndarray:
     return out
 
 
+@dataclass(frozen=True)
+class _AngleData:
+    """What the ``angles`` kernel fits (``_FitContext.angles``): the joint paths' splines, the measured
+    joint angles ``q (n, n_joints)`` and unwrapped yaw ``(n,)`` [rad], the noise levels, and the log's
+    name for errors."""
+
+    path: _Path
+    q: np.ndarray
+    yaw: np.ndarray
+    noise: Noise
+    where: str
+
+
 def _angle_context(eq, log: Log, noise: Noise, where: str, spacing: float) -> tuple:
-    """The integral-form equations of ``log`` (the start and excitation check) and the context of
-    the ``angles`` kernel: path, measured joint angles, unwrapped yaw, noise levels."""
+    """The integral-form equations of ``log`` (the start and excitation check) and the
+    :class:`_AngleData` of the ``angles`` kernel: path, measured joint angles, unwrapped yaw, noise levels."""
     _planar_only(eq.param, where)
     path = _Path(log.t, spacing, where)
     yaw = np.unwrap(quat_to_yaw(log.base_quat))
@@ -244,7 +258,7 @@ def _angle_context(eq, log: Log, noise: Noise, where: str, spacing: float) -> tu
     if len(phi) < eq.p + 1:
         raise SpaceidError(f"{where}: {len(phi)} knot spans give {len(phi)} integral equations for {eq.p} unknowns: "
                            f"record at least {eq.p + 1} spans of {spacing:g} s")  # fmt: skip
-    return phi, {"path": path, "q": log.q, "yaw": yaw, "noise": noise, "where": where}
+    return phi, _AngleData(path, log.q, yaw, noise, where)
 
 
 def cramer_rao_angles(param, log: Log, momentum, noise: Noise, *, known=None, estimate_momentum=False,

@@ -55,6 +55,9 @@ References
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
 import numpy as np
 from scipy.linalg import solve_triangular
 from scipy.optimize import brentq
@@ -68,20 +71,50 @@ from ._linalg import (_column_scale, _equation_whitener, _gram_matrix_factor, _i
                       _solve_factor, _triangular_factor, _whiten, _whitened, _whitened_gram)  # fmt: skip
 from ._noise import FD_STEP, equation_covariance
 
+if TYPE_CHECKING:
+    from ._angles import _AngleData
+
 __all__ = ["ESTIMATORS"]
 
 
 # --- the kernels: (eq, x, sigma, theta, ctx) -> (theta, info) -----------------------------------
 
 
+@dataclass(frozen=True)
+class _FitContext:
+    """What a kernel takes besides the equations, signals, noise levels and start (``ctx``).
+
+    Attributes
+    ----------
+    phi : ndarray of shape (n, rows, p + 1) or None
+        The stacked equations ``[A | -b]`` (the ``angles`` estimator: its integral form); None when
+        streamed (:mod:`spaceid.estimation._stream`: built a chunk at a time).
+    factor : tuple or None
+        ``(scale, R)``, the orthogonal factor of the column-scaled equations (:func:`_triangular_factor`).
+    reference : tuple of 2 ndarray or None
+        ``iv``: the joint signals ``(q, qd)`` the instruments are built from.
+    instruments : str or None
+        ``iv``: which signals those are, in words (recorded in the estimator's info).
+    angles : _AngleData or None
+        ``angles``: the spline path, the measured angles and the noise levels
+        (:func:`spaceid.estimation._angles._angle_context`).
+    """
+
+    phi: np.ndarray | None
+    factor: tuple | None = None
+    reference: tuple | None = None
+    instruments: str | None = None
+    angles: _AngleData | None = None
+
+
 def _ols(eq, x, sigma, theta, ctx):
-    A, b = _split(ctx["phi"])
-    theta, ginv = _solve(A, b, factor=ctx.get("factor"))
+    A, b = _split(ctx.phi)
+    theta, ginv = _solve(A, b, factor=ctx.factor)
     return theta, {"ginv": ginv}  # reused by the covariance
 
 
 def _wls(eq, x, sigma, theta, ctx, iterations=2):
-    phi = ctx["phi"]
+    phi = ctx.phi
     for _ in range(iterations):
         L = _equation_whitener(eq, x, theta, sigma)
         theta, _ = _solve(*_split(_whitened(L, phi)))
@@ -100,7 +133,7 @@ def _column_noise(eq, x, sigma):
 
 
 def _tls(eq, x, sigma, theta, ctx):
-    A, b = _split(ctx["phi"])
+    A, b = _split(ctx.phi)
     noise = _column_noise(eq, x, sigma)
     d_a = np.where(noise[:-1] > 0, noise[:-1], np.linalg.norm(A, axis=0) * 1e-12 + 1e-300)
     As = A / d_a
@@ -128,16 +161,16 @@ def _instrument_rows(eq, x, theta, reference):
 
 
 def _iv(eq, x, sigma, theta, ctx, iterations=2):
-    A, b = _split(ctx["phi"])
+    A, b = _split(ctx.phi)
     for _ in range(iterations):
-        Z = _instrument_rows(eq, x, theta, ctx["reference"])
+        Z = _instrument_rows(eq, x, theta, ctx.reference)
         # (Z^T A) theta = Z^T b, solved as least squares in the instruments' orthonormal basis:
         # conditioned like A, not like A^T Z
         scale = np.linalg.norm(A, axis=0)
         scale[scale == 0] = 1.0
         basis = np.linalg.qr(Z / scale)[0]
         theta = np.linalg.lstsq(basis.T @ (A / scale), basis.T @ b, rcond=None)[0] / scale
-    return theta, {"iterations": iterations, "instruments": ctx["instruments"], "Z": Z}
+    return theta, {"iterations": iterations, "instruments": ctx.instruments, "Z": Z}
 
 
 ML_PART = 1024
@@ -314,13 +347,13 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
 
 def _ml(eq, x, sigma, theta, ctx, **options):
     """Maximum likelihood in memory (:func:`_ml_fit`, ``options`` its own): the columns of the
-    equations ``ctx["phi"]`` are built once, at the measured signals; the corrected signals enter
+    equations ``ctx.phi`` are built once, at the measured signals; the corrected signals enter
     through the residuals, the weights and the weights' derivative, taken halfway between measured
     and corrected signals: that cancels the columns' own change to second order in the corrections
     (docs/theory/scale.md; the fixed point is that of re-linearised columns to 4e-8 standard errors
     on the servicer at 1e-3 noise). Converged, ``info["terms"]`` holds the covariance's terms at the
     estimate (:func:`spaceid.estimation._uncertainty._covariance_terms`)."""
-    phi = ctx["phi"]
+    phi = ctx.phi
 
     def factor(L):  # the preconditioner and the bread: no refined solution needed
         scaled = _gram_matrix_factor(_whitened_gram(L, phi))

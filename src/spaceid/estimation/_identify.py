@@ -16,6 +16,7 @@ References
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -24,9 +25,10 @@ from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
+from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
-from ._estimators import _KERNELS, ESTIMATORS, _ols
+from ._estimators import _KERNELS, ESTIMATORS, _FitContext, _ols
 from ._linalg import _column_scale, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
 from ._residuals import drift_test
@@ -100,12 +102,41 @@ def _check_factor(factor, names, cond_limit: float, where: str) -> tuple:
 
 
 def _instrument_context(log: Log, instruments, where: str) -> dict:
-    """The joint signals ``(q, qd)`` the ``iv`` instruments are built from, and their description."""
+    """The joint signals ``(q, qd)`` the ``iv`` instruments are built from, and their description (the
+    ``reference`` and ``instruments`` of :class:`~spaceid.estimation._estimators._FitContext`)."""
     ref = (log.q, log.qd) if instruments is None else tuple(np.asarray(a, float) for a in instruments)
     if ref[0].shape != log.q.shape or ref[1].shape != log.q.shape:
         raise SpaceidError(f"{where}: `instruments` must be joint angles and rates of shape {log.q.shape}")
     return {"reference": ref, "instruments": "measured joints, predicted base rate" if instruments is None
             else "commanded joints, predicted base rate"}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class _Fit:
+    """An estimate and how it was obtained, as the steps of :func:`identify` pass it on.
+
+    Attributes
+    ----------
+    theta : ndarray of shape (p,)
+        The unknowns of the equations (free parameters, estimated momentum, drift coefficients).
+    info : dict
+        The estimator's record (``fallback``, ``iterations``, ...; its whitener until the drift test).
+    cov : ndarray of shape (p, p)
+        The covariance of ``theta`` that is reported (:func:`_reported_covariance`).
+    rms : float
+        RMS of the equation residuals.
+    uncertainty : dict
+        How the covariance was obtained (the record of :func:`_reported_covariance`).
+    implausible : str
+        The warning of :func:`_implausible` for this estimate (``""``: none, or not checked yet).
+    """
+
+    theta: np.ndarray
+    info: dict
+    cov: np.ndarray
+    rms: float
+    uncertainty: dict
+    implausible: str = ""
 
 
 def _full_covariance(eq, cov_t, k: int) -> tuple:
@@ -151,19 +182,20 @@ def _drift_collinear(eq, cov_t, where) -> tuple:
 
 
 def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None, chunk=None) -> tuple:
-    """The record of the residual test for an unmodelled drift (:func:`spaceid.estimation._residuals.drift_test`,
-    ``whitener`` the estimator's own, if any; streamed in chunks of ``chunk`` samples when given) and its warning
-    (``""`` when silent); not run when drift terms are modelled."""
+    """The :class:`~spaceid.estimation.DriftTest` of the residuals for an unmodelled drift
+    (:func:`spaceid.estimation._residuals.drift_test`, ``whitener`` the estimator's own, if any; streamed in chunks
+    of ``chunk`` samples when given) and its warning (``""`` when silent); not run when drift terms are modelled."""
     if drift:
-        return {"run": False, "reason": f"drift terms modelled: {', '.join(drift)}"}, ""
+        return DriftTest.skipped(f"drift terms modelled: {', '.join(drift)}"), ""
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
-        return {"run": False, "reason": "not defined for the angles estimator"}, ""
-    test = dict(drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk), run=True)
+        return DriftTest.skipped("not defined for the angles estimator"), ""
+    test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk)
+    record = DriftTest.from_dict(test)
     if not test["drift"]:
-        return test, ""
+        return record, ""
     white = "" if test["whiteness_p_value"] >= test["alpha"] else (
         f", and the residuals are correlated (lag-1 autocorrelation {test['lag1_autocorrelation']:.2f})")
-    return test, (f"{where}: the equation residuals trend with time and attitude (Wald p = {test['p_value']:.2g} "
+    return record, (f"{where}: the equation residuals trend with time and attitude (Wald p = {test['p_value']:.2g} "
                   f"< {test['alpha']:g}, momentum drift {100 * test['relative_drift']:.2g} % of its RMS{white}): an "
                   "external torque or base friction changes the momentum: model it with `drift` (one term first, "
                   "e.g. viscous: terms that move alike are confounded; see the drift theory page)")
@@ -177,13 +209,14 @@ def _singular_values(factor) -> np.ndarray:
         return np.linalg.svd(R[:-1, :-1] * scale, compute_uv=False)
 
 
-def _estimate(eq, x, log: Log, sigma, ctx: dict, estimator: str, estimated: bool, chunk=None) -> tuple:
-    """``theta``, the estimator's record and :func:`_reported_covariance`'s ``(cov, rms,
-    record)``, from the OLS start, streamed over chunks of ``chunk`` samples when given
-    (:mod:`spaceid.estimation._stream`); raises ``LinAlgError`` when the estimate is not finite (as the
-    factorisations do on singular systems), which :func:`identify` turns into a ``SpaceidError``."""
+def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimated: bool, chunk=None) -> _Fit:
+    """The :class:`_Fit` of ``estimator`` (not yet checked for plausibility): ``theta``, the estimator's record
+    and :func:`_reported_covariance`'s covariance, RMS and record, from the OLS start, streamed over chunks of
+    ``chunk`` samples when given (:mod:`spaceid.estimation._stream`); raises ``LinAlgError`` when the estimate is
+    not finite (as the factorisations do on singular systems), which :func:`identify` turns into a
+    ``SpaceidError``."""
     if chunk:
-        theta, ginv = _solve_factor(*ctx["factor"][::-1])
+        theta, ginv = _solve_factor(*ctx.factor[::-1])
         info = {"ginv": ginv}
     else:
         theta, info = _ols(eq, x, sigma, None, ctx)
@@ -200,8 +233,8 @@ def _estimate(eq, x, log: Log, sigma, ctx: dict, estimator: str, estimated: bool
         reported = streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimated, chunk)
         info["chunk"] = chunk
     else:
-        reported = _reported_covariance(eq, x, ctx["phi"], sigma, theta, estimator, info, log, estimated)
-    return theta, info, reported
+        reported = _reported_covariance(eq, x, ctx.phi, sigma, theta, estimator, info, log, estimated)
+    return _Fit(theta, info, *reported)
 
 
 def _leading_parameters(param: Parameterization) -> list:
@@ -241,18 +274,18 @@ def _implausible_estimate(eq, theta, cov_t, where: str) -> str:
     return _implausible(eq.param, eq.full(theta)[0], std, where)
 
 
-def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml, where):
-    """ML's ``(theta, info, cov_t, rms, uncertainty, implausible)`` when its converged estimate is
-    physically impossible: WLS's instead when WLS's is not (with a wrong noise model the likelihood
-    can have a local minimum far from the truth, e.g. rates differentiated from noisy angles, levels
-    estimated), ``info["fallback"]`` saying so; else ML's, whose warning then stands."""
-    theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, "wls", estimated, chunk)
-    if _implausible_estimate(eq, theta, cov_t, where):
+def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, where) -> _Fit:
+    """ML's :class:`_Fit` ``ml`` when its converged estimate is physically impossible: WLS's instead
+    when WLS's is not (with a wrong noise model the likelihood can have a local minimum far from the
+    truth, e.g. rates differentiated from noisy angles, levels estimated), ``info["fallback"]`` saying
+    so; else ML's, whose warning then stands."""
+    wls = _estimate(eq, x, log, sigma, ctx, "wls", estimated, chunk)
+    if _implausible_estimate(eq, wls.theta, wls.cov, where):
         return ml
-    ml_info = {k: v for k, v in ml[1].items() if k != "whitener"}  # ML's weights are not WLS's
+    ml_info = {k: v for k, v in ml.info.items() if k != "whitener"}  # ML's weights are not WLS's
     info = ml_info | {"fallback": (f"wls: the maximum-likelihood estimate converged to physically impossible "
                                    f"parameters (objective {ml_info['objective_end']:.4g}); WLS's are not")}
-    return theta, info, cov_t, rms, uncertainty, ""
+    return replace(wls, info=info)
 
 
 def identify(
@@ -325,13 +358,15 @@ def identify(
     -------
     Identification
         ``values``/``std``/``cov`` over all minimal parameters (known ones with zero
-        variance); ``drift``: the drift coefficients; the estimated momentum, anchors, noise
-        model, ``chi2_dof`` and how the covariance was obtained (``covariance``,
+        variance); ``drift``: the drift coefficients; ``momentum_std``: the standard errors of
+        an estimated momentum; the anchors, the noise model and the log's provenance in
+        ``settings``; in ``diagnostics`` (:class:`~spaceid.estimation.Diagnostics`) ``chi2_dof``
+        and how the covariance was obtained (``covariance_method``, ``covariance``,
         ``residual_checks``, ``noise_model_warning``: what a ``chi2_dof`` far from 1 means), the
         estimator's record (``estimator_info``: for ``ml`` its convergence and ``fallback``, the
         estimate reported when it failed), ``plausibility`` (the warning about inertia-like
         parameters that came out negative) and ``drift_test`` (the residual test for an
-        unmodelled drift) in ``settings``; the warnings are also issued as ``UserWarning``.
+        unmodelled drift); the warnings are also issued as ``UserWarning``.
 
     Raises
     ------
@@ -354,9 +389,10 @@ def identify(
     noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
     chunk = None if chunk is None else check_chunk(chunk, estimator)
     if chunk:
-        phi, ctx = None, {}
+        phi, angles = None, None
     else:
-        phi, ctx = _angle_context(eq, log, noise, where, knot_spacing) if estimator == "angles" else (eq.phi(x), {})
+        phi, angles = (_angle_context(eq, log, noise, where, knot_spacing) if estimator == "angles" else
+                       (eq.phi(x), None))  # fmt: skip
     try:
         if chunk:
             factor, nonzero = streamed_ols_factor(eq, x, chunk)
@@ -364,23 +400,22 @@ def identify(
             factor, cond_scaled = _check_factor(factor, eq.names(), cond_limit, where)
         else:
             factor, cond_scaled = check_excitation(phi, eq.names(), cond_limit, where)
-        ctx |= {"phi": phi, "factor": factor}
-        if estimator == "iv":
-            ctx |= _instrument_context(log, instruments, where)
+        ctx = _FitContext(phi, factor, angles=angles,
+                          **(_instrument_context(log, instruments, where) if estimator == "iv" else {}))
         sigma = signal_sigma(param, noise)
-        theta, info, (cov_t, rms, uncertainty) = _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk)
-        implausible = _implausible_estimate(eq, theta, cov_t, where)
-        if implausible and estimator == "ml" and not info.get("fallback"):
-            theta, info, cov_t, rms, uncertainty, implausible = _plausible_fallback(
-                eq, x, log, sigma, ctx, estimated, chunk, (theta, info, cov_t, rms, uncertainty, implausible), where)
+        fit = _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk)
+        fit = replace(fit, implausible=_implausible_estimate(eq, fit.theta, fit.cov, where))
+        if fit.implausible and estimator == "ml" and not fit.info.get("fallback"):
+            fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
+        theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
         s = _singular_values(factor)
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
                                                    info.pop("whitener", None), chunk)
         pi, h = eq.full(theta)
         if history is not None and drift:  # the momentum at the log's first sample
             h = np.einsum("ij,i->j", eq.rot[0], eq.base_momentum(theta)[0])
-        cov, h_std, d_std = _full_covariance(eq, cov_t, param.n_params)
-        correlation, collinear = _drift_collinear(eq, cov_t, where)
+        cov, h_std, d_std = _full_covariance(eq, fit.cov, param.n_params)
+        correlation, collinear = _drift_collinear(eq, fit.cov, where)
     except np.linalg.LinAlgError as exc:  # singular or non-finite systems, at any step: one line, not a traceback
         raise SpaceidError(
             f"{where}: estimator '{estimator}' met a singular or non-finite linear system ({exc}): check the log for "
@@ -391,7 +426,7 @@ def identify(
         warnings.warn(f"{where}: maximum likelihood failed, the estimate reported is {info['fallback']}", stacklevel=2)
     if uncertainty["noise_model_warning"]:
         warnings.warn(f"{where}: {uncertainty['noise_model_warning']}", stacklevel=2)
-    for warning in (implausible, drift_warning, collinear):
+    for warning in (fit.implausible, drift_warning, collinear):
         if warning:
             warnings.warn(warning, stacklevel=2)
     units = drift_names(drift, param.model.planar)[1]
@@ -401,22 +436,26 @@ def identify(
         "parameterization": param.to_dict(),
         "log": dict(log.meta),
         "log_fingerprint": log_fingerprint(log),  # validation warns when given this same log
-        "condition_number_scaled": cond_scaled,
         "anchors": anchors,
         "momentum_estimated": momentum is None,
         **({"history": {"source": str(history.meta.get("source", "log")), "start": float(history.t[0]),
                         "momentum": eq.full(theta)[1].tolist()}} if history is not None and drift else {}),
-        "momentum_std": h_std.tolist(),
         "noise": noise.to_dict(),
-        **uncertainty,
-        "estimator_info": {k: v for k, v in info.items() if v is None or np.isscalar(v) or isinstance(v, (str, list))},
-        "plausibility": implausible or "no inertia-like parameter negative",
-        "drift_test": drift_record,
-        **({"drift_correlation": correlation} if correlation is not None else {}),
     }
+    diagnostics = Diagnostics(
+        chi2_dof=uncertainty["chi2_dof"], variance_factor=uncertainty["variance_factor"],
+        covariance_method=uncertainty["covariance_method"], covariance=uncertainty["covariance"],
+        covariance_from_residuals=uncertainty["covariance_from_residuals"],
+        residual_checks=ResidualChecks.from_dict(uncertainty["residual_checks"]),
+        noise_model_warning=uncertainty["noise_model_warning"],
+        plausibility=fit.implausible or "no inertia-like parameter negative", drift_test=drift_record,
+        drift_correlation=correlation, condition_number_scaled=cond_scaled,
+        estimator_info={k: v for k, v in info.items() if v is None or np.isscalar(v) or isinstance(v, (str, list))},
+    )
     return Identification(
         names=param.names, definitions=param.definitions, values=pi, std=np.sqrt(np.diag(cov)), cov=cov,
-        condition_number=float(s[0] / s[-1]) if s[-1] > 0 else np.inf, singular_values=s, residual_rms=rms,
+        condition_number=float(s[0] / s[-1]) if s[-1] > 0 else np.inf, singular_values=s, residual_rms=fit.rms,
         n_samples=log.n_samples, estimator=estimator, momentum=h, model=param.model.source or param.model.name,
-        planar=param.model.planar, settings=settings, units=param.units, drift=terms,
+        planar=param.model.planar, settings=settings, units=param.units, drift=terms, momentum_std=h_std,
+        diagnostics=diagnostics,
     )

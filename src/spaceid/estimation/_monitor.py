@@ -64,6 +64,7 @@ import numpy as np
 from scipy.linalg import lapack, solve_triangular
 
 from .._constants import WARMUP
+from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log
@@ -217,26 +218,27 @@ class Monitor:
 
     # --- taking samples ----------------------------------------------------------------------
 
-    def update(self, samples: Log) -> list:
-        """Feed new samples (a :class:`~spaceid.data.Log` of one or more rows, after those fed
-        before); returns the events they complete, in order (often none).
+    @deprecated_alias(old="samples", new="log")
+    def update(self, log: Log) -> list:
+        """Feed new samples: ``log``, a :class:`~spaceid.data.Log` of one or more rows after those fed
+        before; returns the events they complete, in order (often none).
 
         A sample is taken once its rates are final: with differentiated rates, once half the
         differentiator's window of samples has come after it (the rates of the log's first and last
         half windows come from one-sided windows: extrapolations, never taken)."""
-        if self._intake.t0 is None and samples.n_samples:
-            self._intake.t0 = self._segment.start = float(samples.t[0])
-        self.n_samples += samples.n_samples
-        self._read_differentiation(samples)
-        rows = self._intake.final(samples)
+        if self._intake.t0 is None and log.n_samples:
+            self._intake.t0 = self._segment.start = float(log.t[0])
+        self.n_samples += log.n_samples
+        self._read_differentiation(log)
+        rows = self._intake.final(log)
         if not rows:
             return []
         self._last_time = float(rows[-1].t)
         if self._intake.half:
-            samples = dataclasses.replace(log_of(rows, self.param.model, self.where), meta=samples.meta)
+            log = dataclasses.replace(log_of(rows, self.param.model, self.where), meta=log.meta)
         if self._segment.origin is None:  # the log's first sample: the first segment's origin
             self._segment.origin = rows[0]
-        return self._take(samples, rows)
+        return self._take(log, rows)
 
     def _read_differentiation(self, samples: Log):
         """The differentiator's window from the first samples, and its filters from each part's
@@ -642,25 +644,28 @@ class Monitor:
         pair = self.segments[k : k + 2]
         if len(pair) < 2 or None in (pair[0].identification, pair[1].identification):
             return None
-        res = compare(pair[0].identification, pair[1].identification, where=self.where)["parameters"]
+        res = compare(pair[0].identification, pair[1].identification, where=self.where).to_dict()["parameters"]
         return {"changed": [q["name"] for q in res if abs(q["z"]) > Z_CHANGED], "parameters": res}
 
 
-def log_chunks(samples):
-    """``samples`` as an iterable of logs: a whole :class:`~spaceid.data.Log` in ``CHUNK`` rows."""
-    if isinstance(samples, Log):
-        return (samples.select(slice(i, i + CHUNK)) for i in range(0, samples.n_samples, CHUNK))
-    return samples
+@deprecated_alias(old="samples", new="log")
+def log_chunks(log):
+    """``log`` as an iterable of logs: a whole :class:`~spaceid.data.Log` in ``CHUNK`` rows, an
+    iterable of logs as it is."""
+    if isinstance(log, Log):
+        return (log.select(slice(i, i + CHUNK)) for i in range(0, log.n_samples, CHUNK))
+    return log
 
 
-def monitor(param: Parameterization, samples, momentum, *, on_event=None, **options) -> MonitorRecord:
+@deprecated_alias(old="samples", new="log")
+def monitor(param: Parameterization, log, momentum, *, on_event=None, **options) -> MonitorRecord:
     """Follow a log for changes as its samples arrive.
 
     Parameters
     ----------
     param : Parameterization
         Minimal parameter set of the model.
-    samples : Log or iterable of Log
+    log : Log or iterable of Log
         The samples, in time order: a whole log, or logs of one or more new rows each (a growing
         file, :func:`spaceid.data.follow_log`).
     momentum : array_like of shape (3,)
@@ -679,7 +684,7 @@ def monitor(param: Parameterization, samples, momentum, *, on_event=None, **opti
     """
     found = on_event or (lambda event: None)
     mon = Monitor(param, momentum, **options)
-    for chunk in log_chunks(samples):
+    for chunk in log_chunks(log):
         for event in mon.update(chunk):
             found(event)
     seen = len(mon.events)

@@ -73,7 +73,7 @@ class Alarm:
     def event(self, before: Identification | None, after: Identification | None, where: str) -> MonitorEvent:
         """The event, with the change from ``before`` to ``after`` (none when either is missing:
         a segment too short to identify)."""
-        res = [] if before is None or after is None else compare(before, after, where=where)["parameters"]
+        res = [] if before is None or after is None else compare(before, after, where=where).to_dict()["parameters"]
         changed = tuple(p["name"] for p in res if abs(p["z"]) > Z_CHANGED)
         return MonitorEvent(**dataclasses.asdict(self), changed=changed, parameters=tuple(res))
 
@@ -132,7 +132,7 @@ class SegmentRecord:
             "parameters": None if ident is None else [
                 {"name": n, "value": float(v), "std": float(e)} for n, v, e in zip(names, ident.values, ident.std)],
             "drift": None if ident is None else [dict(d) for d in ident.drift],
-            "chi2_dof": None if ident is None else ident.settings.get("chi2_dof"),
+            "chi2_dof": None if ident is None else ident.diagnostics.chi2_dof,
             "recursive": None if rec is None else {k: v.tolist() for k, v in rec.items()},
         }
 

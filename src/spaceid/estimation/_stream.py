@@ -145,8 +145,8 @@ def _streamed_iv(eq, x, theta, ctx, chunk, iterations=2):
     orthonormal basis ``Q_Z`` of the scaled instruments ``Z_s``, read from the factor of
     ``[Z_s | A_s | b]``, whose blocks right of ``R_ZZ`` are ``Q_Z^T A_s`` and ``Q_Z^T b`` (as
     accurate as the in-memory products with ``Q_Z``)."""
-    scale, p = ctx["factor"][0], eq.p
-    q, qd = ctx["reference"]
+    scale, p = ctx.factor[0], eq.p
+    q, qd = ctx.reference
 
     def blocks(theta):
         for rows, e, xc in _chunks(eq, x, chunk):
@@ -158,7 +158,7 @@ def _streamed_iv(eq, x, theta, ctx, chunk, iterations=2):
         with one_blas_thread():
             theta_z, theta = theta, np.linalg.lstsq(R[:p, p:-1], R[:p, -1], rcond=None)[0] / scale
             cross = R[:p, :p].T @ R[:p, p:-1]  # Z_s^T A_s, the bread of the covariance
-    return theta, {"iterations": iterations, "instruments": ctx["instruments"], "cross": cross, "theta_z": theta_z}
+    return theta, {"iterations": iterations, "instruments": ctx.instruments, "cross": cross, "theta_z": theta_z}
 
 
 def _streamed_ml(eq, x, sigma, theta, chunk):
@@ -206,7 +206,7 @@ def _residual_pass(eq, x, sigma, theta, estimator, info, ctx, chunk) -> tuple:
         return r, L, _solve_factor(*_streamed_factor(blocks, eq.p, refined=False)[::-1])[1]
     for _ in blocks():
         pass
-    scale = ctx["factor"][0]
+    scale = ctx.factor[0]
     return r, L, (info.pop("ginv") if estimator == "ols" else np.linalg.inv(info.pop("cross")) / np.outer(scale, scale))
 
 
@@ -227,7 +227,7 @@ def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimate
             info["whitener"] = L
     white = None if L is None else _whitened(L, r[..., None])[..., 0]
     chi2, checks, choice = _covariance_choice(eq, r, white, estimator, log, estimated)
-    q, qd = ctx.get("reference", (None, None))
+    q, qd = ctx.reference or (None, None)
     theta_z = info.pop("theta_z", None)
 
     def influence():  # M_c of each chunk, its samples and their equations

@@ -233,14 +233,15 @@ def _own_covariance(cov_t, chi2, rms, estimated) -> tuple:
     factor = chi2 if estimated else 1.0
     how = "inverse Fisher information of the angle likelihood" + (
         ", times the variance factor chi2_dof (levels estimated from the log)" if estimated else " (levels given)")
-    return cov_t * factor, rms, {"chi2_dof": chi2, "variance_factor": factor, "covariance": how,
-                                 "covariance_from_residuals": False, "residual_checks": {}, "noise_model_warning": ""}
+    return cov_t * factor, rms, {"chi2_dof": chi2, "variance_factor": factor, "covariance_method": "fisher",
+                                 "covariance": how, "covariance_from_residuals": False, "residual_checks": {},
+                                 "noise_model_warning": ""}  # fmt: skip
 
 
 def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimated):
     """The covariance ``(p, p)`` of ``theta`` that :func:`spaceid.estimation.identify` reports,
-    the RMS residual, and the record of how it was obtained for the result's settings
-    (``chi2_dof``, ``variance_factor``, ``covariance``, ``covariance_from_residuals``,
+    the RMS residual, and the record of how it was obtained for the result's diagnostics
+    (``chi2_dof``, ``variance_factor``, ``covariance_method``, ``covariance``, ``covariance_from_residuals``,
     ``residual_checks`` and ``noise_model_warning``). ``estimated``: the noise levels came from the log.
 
     The noise model's covariance is reported only while the residuals agree with it; otherwise
@@ -277,6 +278,7 @@ def _with_propagated(cov_t, choice, log, estimator, bread, sigma, chunks):
     scores = ((sl, _inverse_times(L, M) if estimator in WEIGHTED else M, J) for sl, M, L, J in chunks())  # M^T e
     cov_t, larger = _larger_of(propagated_covariance(series, log.t, scores, bread, sigma), cov_t)
     choice["covariance"] = _propagated_how(series, larger, len(cov_t), choice["bandwidth"])
+    choice["method"] = "propagated"
     return cov_t
 
 
@@ -304,7 +306,7 @@ def _larger_of(base, other) -> tuple:
 
 
 def _propagated_how(series, larger: int, p: int, bandwidth: int) -> str:
-    """``settings.covariance`` for the covariance of :func:`_larger_of` with the propagated one."""
+    """``diagnostics.covariance`` for the covariance of :func:`_larger_of` with the propagated one."""
     how = (f"the angle noise of {len(series)} differentiated series propagated through their Savitzky-Golay "
            "filters (its correlation over the windows)")
     if larger:
@@ -322,8 +324,9 @@ def _model_covariance(estimator, bread, M, L):
 
 
 def _covariance_record(chi2, checks, choice, log, estimated):
-    """The record of :func:`_reported_covariance` for the result's settings."""
-    return {"chi2_dof": chi2, "variance_factor": choice["variance_factor"], "covariance": choice["covariance"],
+    """The record of :func:`_reported_covariance` for the result's diagnostics."""
+    return {"chi2_dof": chi2, "variance_factor": choice["variance_factor"], "covariance_method": choice["method"],
+            "covariance": choice["covariance"],
             "covariance_from_residuals": choice["covariance_from_residuals"], "residual_checks": checks,
             "noise_model_warning": _noise_model_warning(chi2, checks, log, estimated)}  # fmt: skip
 
@@ -337,7 +340,7 @@ def _covariance_choice(eq, r, white, estimator, log, estimated):
     chi2 = None if white is None else float(np.sum(white**2) / dof)
     checks = _residual_checks(r if white is None else white, dof, chi2)
     window = correlation_length(log)
-    factor, follows = 1.0, True
+    factor, follows, method = 1.0, True, "newey-west"
     if window:  # a differentiator's errors are positively correlated over about half its window, negatively
         bandwidth = max(1, window // 2)  # beyond (they sum to zero): the whole window understated the std by ~16 %
         how = f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (differentiated rates)"
@@ -347,20 +350,20 @@ def _covariance_choice(eq, r, white, estimator, log, estimated):
                f"Ljung-Box p = {checks['ljung_box_p']:.2g}, "
                f"lag-1 autocorrelation {checks['lag1_autocorrelation']:.2f})")
     else:
-        bandwidth = 0
+        bandwidth, method = 0, "sandwich"
         if estimator == "ols":
             how = "heteroscedasticity-consistent (White) from the residuals"
         elif checks["chi2_p"] < SIGNIFICANCE:
             how = (f"sandwich of the residuals' scores (White): chi2_dof = {chi2:.3g} contradicts the noise model "
                    f"(p = {checks['chi2_p']:.2g})")
         else:
-            follows = False
+            follows, method = False, "noise-model"
             how = "noise model (levels given)"
             if estimated:  # levels from the log are rough (sparse logs mix signal into them): let the
                 factor = chi2  # residuals set the overall scale (a posteriori variance factor)
                 how = "noise model (levels estimated from the log) times the variance factor chi2_dof"
     return chi2, checks, {"bandwidth": bandwidth, "covariance_from_residuals": follows, "variance_factor": factor,
-                          "covariance": how}  # fmt: skip
+                          "covariance": how, "method": method}  # fmt: skip
 
 
 def cramer_rao(param: Parameterization, log: Log, momentum, noise: Noise, *, known=None, estimate_momentum=False,

@@ -25,12 +25,19 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
 ``differentiated_series``, ``propagated_covariance``
     The raw angle series behind differentiated rates, and the covariance of an estimate with
     their noise carried through the differentiating filters.
+``draw_parameters``, ``draw_singular_values``
+    The figures of an identification (``Identification.plot``), which :mod:`spaceid.studies`
+    saves (``plot_parameters``, ``plot_singular_values``).
+``per_parameter``, ``relative_errors``
+    Values given per parameter checked against an identification, and its relative errors and
+    their standard deviations against a truth: shared by its figure and the report's tables.
 """
 
 from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import check_drift_kinds
 from ._equations import Equations, drift_basis_at
 from ._identify import check_excitation
+from ._plots import draw_parameters, draw_singular_values, per_parameter, relative_errors
 from ._uncertainty import correlation_length, newey_west_covariance, window_spans
 
 __all__ = [
@@ -43,4 +50,8 @@ __all__ = [
     "newey_west_covariance",
     "differentiated_series",
     "propagated_covariance",
+    "draw_parameters",
+    "draw_singular_values",
+    "per_parameter",
+    "relative_errors",
 ]

@@ -296,10 +296,10 @@ class IdentifiedModel:
             proj = self.param.projection
             cols = np.sort(qr(proj, mode="r", pivoting=True)[1][: proj.shape[0]])
             inverse = np.linalg.inv(proj[:, cols])
-        if not report["determines_dynamics"]:
+        if not report.determines_dynamics:
             raise SpaceidError(
                 f"{self.where}: the minimal set of model '{self.identification.model}' does not determine the kinetic "
-                f"energy (relative residual {report['energy_residual']:.2g}): no reduced dynamics from it"
+                f"energy (relative residual {report.energy_residual:.2g}): no reduced dynamics from it"
             )
         return cols, inverse
 

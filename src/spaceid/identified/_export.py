@@ -483,5 +483,5 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
 
 def _hidden(param: Parameterization) -> np.ndarray:
     """Which standard parameters (``theta``) do not enter the momentum at all, shape (n_theta,)."""
-    hidden = set(identifiability(param)["no_effect"])
+    hidden = set(identifiability(param).no_effect)
     return np.array([name in hidden for name in full_parameter_names(param.model)[: len(_theta_slots(param.model))]])

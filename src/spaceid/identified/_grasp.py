@@ -14,7 +14,7 @@ grasp, whose error (from the same samples before the grasp as the hold's) joins 
 
 from __future__ import annotations
 
-from dataclasses import replace
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -25,6 +25,7 @@ from ..estimation import Noise, noise_from_log, signal_sigma
 from ..estimation.internal import correlation_length, differentiated_series, propagated_covariance, window_spans
 from ._payload import (
     GraspMotion,
+    PayloadEstimate,
     PayloadMap,
     _attitude_axes,
     _central_jacobian,
@@ -33,7 +34,7 @@ from ._payload import (
     payload_map,
 )
 
-__all__ = ["HOLD", "hold_momentum", "mean_momentum", "payload_after_grasp"]
+__all__ = ["HOLD", "GraspEstimate", "hold_momentum", "mean_momentum", "payload_after_grasp"]
 
 HOLD = 1.0
 """How long [s] before the grasp the servicer holds still (the study's arm at the end of the
@@ -113,9 +114,36 @@ def _signal_covariance(pmap: PayloadMap, log: Log, gain, noise: Noise) -> np.nda
                                  sigma)  # fmt: skip
 
 
+@dataclass(frozen=True)
+class GraspEstimate:
+    """The payload identified from a log cut at a grasp (:func:`payload_after_grasp`).
+
+    Attributes
+    ----------
+    estimate : PayloadEstimate
+        The payload; its ``settings["grasp"]`` (:attr:`grasp`) records the cut.
+    window : Log
+        The samples of the log it was identified from.
+    """
+
+    estimate: PayloadEstimate
+    window: Log
+
+    @property
+    def grasp(self) -> dict:
+        """The record of the cut: ``time``, ``window``, ``window_start_after_grasp`` [s], ``hold`` (None unless
+        the momentum was the hold's) and, for a payload that moved, ``payload_motion``
+        (docs/formats/payload-json.md)."""
+        return self.estimate.settings["grasp"]
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the estimate's PAYLOAD.json object (its ``settings.grasp`` holds the window's ends)."""
+        return self.estimate.to_dict()
+
+
 def payload_after_grasp(model, log: Log, link: str, grasp: float, momentum, *, payload_motion=None,
                         end: float | None = None, noise: Noise | None = None, drift=(), seed: int = 0,
-                        where: str = "log") -> tuple:
+                        where: str = "log") -> GraspEstimate:
     """The payload identified from the samples of ``log`` after a grasp at ``grasp`` [s].
 
     The window runs from half the longest differentiator window after the grasp to ``end``.
@@ -150,7 +178,7 @@ def payload_after_grasp(model, log: Log, link: str, grasp: float, momentum, *, p
 
     Returns
     -------
-    (PayloadEstimate, Log)
+    GraspEstimate
         The estimate (``settings["grasp"]`` records the window, the hold and the payload's motion
         with the configuration's standard errors) and its window of ``log``.
 
@@ -195,7 +223,7 @@ def payload_after_grasp(model, log: Log, link: str, grasp: float, momentum, *, p
                                     "configuration_std": np.sqrt(np.diag(motion.cov)).tolist()}  # fmt: skip
     estimate = identify_payload(pmap, window, link, momentum, grasp_motion=motion, momentum_cov=cov, noise=noise,
                                 drift=drift, history=history, seed=seed, where=where)  # fmt: skip
-    return replace(estimate, settings=estimate.settings | {"grasp": record}), window
+    return GraspEstimate(replace(estimate, settings=estimate.settings | {"grasp": record}), window)
 
 
 def _configuration_at(log: Log, t: float, planar: bool) -> tuple:

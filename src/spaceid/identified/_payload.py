@@ -269,7 +269,13 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     z = cp.Variable(len(theta))  # whitened step: t = theta + root z, so the objective is |z|^2 (times top)
     matrix = lmi + sum((root @ z)[i] * basis[i] for i in range(len(theta)))
     problem = cp.Problem(cp.Minimize(cp.sum_squares(z)), [0.5 * (matrix + matrix.T) >> margin * np.eye(len(lmi))])
-    problem.solve(solver=cp.CLARABEL, **_CLARABEL)
+    try:
+        problem.solve(solver=cp.CLARABEL, **_CLARABEL)
+    except cp.SolverError:  # the tight tolerances fail on a covariance spanning many decades: the defaults
+        try:
+            problem.solve(solver=cp.CLARABEL)
+        except cp.SolverError:
+            pass  # the status below says it failed
     if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
         raise SpaceidError(f"payload: the consistency projection failed ({problem.status}): check the log and `link`")
     return theta + root @ z.value, float(np.linalg.norm(z.value) / np.sqrt(top))
@@ -332,6 +338,22 @@ class PayloadEstimate:
             out[2, 2] = self.values[3]
             return out
         return np.array(_matrix(self.values[4:]))
+
+    def plot(self, fig=None, *, true=None):
+        """Draw the estimate with one standard error, a panel per parameter, against ``true`` when
+        given (:func:`spaceid.studies.plot_payload`), and return the :class:`matplotlib.figure.Figure`.
+
+        Parameters
+        ----------
+        fig : matplotlib.figure.Figure or SubFigure, optional
+            Draw into it (one row of panels); default: a new figure.
+        true : dict or array_like, optional
+            The true values [kg, m, kg m^2], by name (``{"m": 0.5, ...}``) or in ``names`` order:
+            drawn as lines, with the z-scores in the panels' titles.
+        """
+        from ._plots import draw_payload, _rows
+
+        return draw_payload(_rows(self, true), self.link, fig)
 
     def to_dict(self) -> dict:
         """The PAYLOAD.json object."""
@@ -674,14 +696,14 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     brought = None if grasp_motion is None else _brought_momentum(pmap, grasp_motion)
     fit = _fit(pmap, log, momentum, momentum_cov, grasp_motion, brought, drift, history, noise, estimated, where,
                cond_limit)
-    eq, theta, cov_all = fit["equations"], fit["theta"], fit["cov"]
+    eq, theta, cov_all = fit.equations, fit.theta, fit.cov
     n = pmap.n
     standard, cov_std = theta[:n], cov_all[:n, :n]
     consistent, moved = project_consistent(standard, cov_std, pmap.planar)
     jac = _physical_jacobian(consistent, pmap.planar)
     cov = jac @ cov_std @ jac.T
     std_all = np.sqrt(np.maximum(np.diag(cov_all), 0))
-    nw = fit["newey_west"]
+    nw = fit.newey_west
     correlation = _largest_correlation(cov_all, n, eq.n_h) if momentum is None else None
     if correlation is not None and correlation > COLLINEAR:
         warnings.warn(f"{where}: the momentum estimated with the payload correlates with it at {correlation:.3f}: the "
@@ -695,14 +717,14 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     settings = {
         "model": pmap.param.model.source or pmap.param.model.name,
         "body": pmap.param.model.bodies[pmap.body].name,
-        "estimator": fit["estimator"],
+        "estimator": fit.estimator,
         "noise": noise.to_dict(),
-        "covariance": fit["covariance"],
+        "covariance": fit.covariance,
         "newey_west_std": None if nw is None else np.sqrt(np.maximum(np.diag(jac @ nw[:n, :n] @ jac.T), 0)).tolist(),
-        "chi2_dof": fit["chi2_dof"],
-        "residual_rms": fit["residual_rms"],
-        "gauss_newton_steps": fit["steps"],
-        "condition_number_scaled": fit["cond"],
+        "chi2_dof": fit.chi2_dof,
+        "residual_rms": fit.residual_rms,
+        "gauss_newton_steps": fit.steps,
+        "condition_number_scaled": fit.cond,
         "consistency": {"projected": moved > 0, "mahalanobis_distance": moved,
                         "unconstrained": dict(zip(physical, _physical(standard, pmap.planar).tolist()))},
         "momentum_estimated": momentum is None,
@@ -711,8 +733,8 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         "momentum_covariance": None if momentum_cov is None else momentum_cov.tolist(),
         "momentum_payload_correlation": correlation,
         "payload_momentum": None if brought is None else brought(standard).tolist(),
-        "payload_momentum_std": None if fit["configuration_share"] is None else
-                                np.sqrt(np.diag(fit["configuration_share"])).tolist(),
+        "payload_momentum_std": None if fit.configuration_share is None else
+                                np.sqrt(np.diag(fit.configuration_share)).tolist(),
         "n_samples": log.n_samples,
         "seed": pmap.param.seed,
         "minimal_set": {"basis": pmap.param.basis, "rank_tol": pmap.param.rank_tol, "n_params": pmap.param.n_params},
@@ -733,10 +755,51 @@ def _largest_correlation(cov, n: int, n_h: int) -> float:
     return float(np.abs(corr).max())
 
 
+@dataclass(frozen=True)
+class _PayloadFit:
+    """The unconstrained fit of ``[payload, momentum, drift]`` (:func:`_fit`).
+
+    Attributes
+    ----------
+    equations : Equations
+        The momentum equations, the payload's parameters ahead of their unknowns.
+    theta : ndarray of shape (n + p,)
+        The estimate: the payload's standard parameters (``n``), then the equations' unknowns.
+    cov : ndarray of shape (n + p, n + p)
+        Its covariance, with a given momentum's and a moving payload's configuration's carried through.
+    newey_west : ndarray or None
+        The Newey-West covariance of differentiated rates, for comparison; None otherwise.
+    chi2_dof : float or None
+        Whitened residual sum of squares per degree of freedom; None unweighted.
+    steps : int
+        Gauss-Newton steps.
+    cond : float
+        Condition number of the column-scaled first-order equations.
+    residual_rms : float
+        RMS of the unwhitened residuals [N m s].
+    estimator, covariance : str
+        The fit and how its covariance was obtained, in words.
+    configuration_share : ndarray of shape (3, 3) or None
+        The covariance of the momentum a moving payload brought, from its configuration's at the grasp.
+    """
+
+    equations: Equations
+    theta: np.ndarray
+    cov: np.ndarray
+    newey_west: np.ndarray | None
+    chi2_dof: float | None
+    steps: int
+    cond: float
+    residual_rms: float
+    estimator: str
+    covariance: str
+    configuration_share: np.ndarray | None
+
+
 def _fit(pmap, log, momentum, momentum_cov, motion, brought, drift, history, noise, estimated, where,
-         cond_limit) -> dict:
-    """The unconstrained fit of ``[payload, momentum, drift]``: the equations, the estimate, its
-    covariance (with that of a given momentum, ``momentum_cov``, and of a moving payload's
+         cond_limit) -> _PayloadFit:
+    """The unconstrained :class:`_PayloadFit` of ``[payload, momentum, drift]``: the equations, the estimate,
+    its covariance (with that of a given momentum, ``momentum_cov``, and of a moving payload's
     configuration, ``motion.cov``, carried through) and the record of how they were obtained (see
     :func:`identify_payload`; ``brought``: :func:`_brought_momentum` of ``motion``)."""
     eq = _equations(pmap, log, momentum, drift, where, history)
@@ -764,13 +827,12 @@ def _fit(pmap, log, momentum, momentum_cov, motion, brought, drift, history, noi
         cov = cov + d @ given[np.ix_(eq.axes, eq.axes)] @ d.T
         how += "; plus the given momentum's covariance carried through d(estimate)/d(momentum)"
         how += "" if share is None else " (with the moving payload's, from its configuration's at the grasp)"
-    return {
-        "equations": eq, "theta": theta, "cov": cov, "newey_west": newey_west, "chi2_dof": chi2, "steps": steps,
-        "cond": cond,
-        "residual_rms": float(np.sqrt(np.mean(_whitened(pmap, eq, x, y, rhs, None, theta)[0] ** 2))),
-        "estimator": "wls (Gauss-Newton, errors-in-variables weights)" if sigma is not None else "ols (Gauss-Newton)",
-        "covariance": how, "configuration_share": share,
-    }  # fmt: skip
+    return _PayloadFit(
+        equations=eq, theta=theta, cov=cov, newey_west=newey_west, chi2_dof=chi2, steps=steps, cond=cond,
+        residual_rms=float(np.sqrt(np.mean(_whitened(pmap, eq, x, y, rhs, None, theta)[0] ** 2))),
+        estimator="wls (Gauss-Newton, errors-in-variables weights)" if sigma is not None else "ols (Gauss-Newton)",
+        covariance=how, configuration_share=share,
+    )  # fmt: skip
 
 
 def nominal_payload(path, *, planar: bool) -> np.ndarray:

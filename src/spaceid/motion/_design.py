@@ -473,7 +473,7 @@ def _model_limits(model, overrides):
             raise SpaceidError(
                 f"{model.source}: no {key.replace('_max', '')} limit for joint(s) "
                 f"{', '.join(missing)}: "
-                f"give --{key.replace('_', '-')} (rad, rad/s, rad/s^2)"
+                f"give `{key}` (rad, rad/s, rad/s^2)"
             )
     return limits
 

@@ -116,10 +116,10 @@ def run_demo(
                           noise_rate=noise_rate)
     # validation on a fine grid: the true system vs the identified model for the same joint motion
     fine = simulate(param, param.true_values, motion, np.linspace(0, traj.duration, 501), momentum, model=model)
-    predicted, metrics = validate(ident, fine, momentum=momentum, where="demo")
-    result = DemoResult(ident, param.true_values, traj, metrics, Path(out) if out else None)
+    check = validate(ident, fine, momentum=momentum, where="demo")
+    result = DemoResult(ident, param.true_values, traj, check.metrics, Path(out) if out else None)
     if out:
-        _write_report(result, log, fine, predicted)
+        _write_report(result, log, fine, check.predicted)
     return result
 
 

@@ -41,7 +41,7 @@ from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ..twin import TwinSettings, drained_model, join_runs, run_twin
 from ._tracking import (check_rehearsals, designed_condition_numbers, execute_excitation, readable_settings,
                         regressor_condition_number)
-from ._servicing import CaptureProtocol, initial_momentum, run_servicing, write_servicing
+from ._servicing import CaptureProtocol, ServicingResult, initial_momentum, run_servicing, write_servicing
 from ._torque_validation import validate_torques
 from ._validate import validate
 
@@ -97,7 +97,7 @@ class ExperimentResult:
     fit_metrics: dict
     settings: dict
     folder: Path | None = None
-    servicing: object = None
+    servicing: ServicingResult | None = None
 
     def to_dict(self) -> dict:
         def errors(ident):
@@ -110,7 +110,7 @@ class ExperimentResult:
             "relative_error_percent_all_samples": errors(self.ident_all),
             "validation": self.metrics,
             "validation_fit_log": self.fit_metrics,
-        } | ({} if self.servicing is None else {"capture": self.servicing.scores})
+        } | ({} if self.servicing is None else {"capture": self.servicing.scores.to_dict()})
 
 
 def _trajectory(trajectory, *, momentum, samples, seed, progress):
@@ -177,9 +177,9 @@ def _held_out_validation(ident: Identification, log: Log, held_out: Log, momentu
     momentum, the held-out motion, later, from the identified model's momentum over its first
     samples (friction changed it in between)."""
     start = momentum if momentum is not None or not ident.drift else initial_momentum(ident, held_out)
-    predicted, metrics = validate(ident, held_out, momentum=start, where=f"{where} (held-out motion)")
-    _, fit_metrics = validate(ident, log, momentum=momentum, where=f"{where} (fitting window)")
-    return predicted, metrics, fit_metrics
+    check = validate(ident, held_out, momentum=start, where=f"{where} (held-out motion)")
+    fit_metrics = validate(ident, log, momentum=momentum, where=f"{where} (fitting window)").metrics
+    return check.predicted, check.metrics, fit_metrics
 
 
 def _held_out_seed(seed: int, rehearsals: int) -> int:
@@ -447,7 +447,7 @@ def _capture_record(capture: CaptureProtocol, servicing, choice, bag_format: str
                                             else "given"),
         "capture trajectory seed": traj.meta.get("seed"),
         "capture bag": f"{BAG_NAMES[bag_format].replace('run', 'capture', 1)} ({bag_format})",
-        "capture phase seed": servicing.scores["phase seed"],
+        "capture phase seed": servicing.scores.phase_seed,
         "capture payload servicer model": "the twin's (CAD) servicer, tank as at the grasp",
     }  # fmt: skip
 

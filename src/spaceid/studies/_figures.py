@@ -1,27 +1,31 @@
-"""Figures of an identification, a validation, a trajectory, its tracking and a Monte Carlo study.
+"""Figures of a validation, a trajectory, its tracking, a Monte Carlo study and a capture; those of an
+identification (:mod:`spaceid.estimation._plots`) and of a payload (:mod:`spaceid.identified._plots`)
+are drawn in their own layers, which these ``plot_*`` functions call.
 
-Every figure is drawn on its own :class:`matplotlib.figure.Figure` with the Agg canvas (no
-pyplot state, no GUI), in one style, and written atomically as a 150 dpi PNG. Figures read
-result objects only. Each public ``plot_*`` writes the Figure its private ``_draw_*`` returns
-(the tests inspect those). Matplotlib is imported when a figure is drawn, not with this module:
-commands that draw none (``spaceid identify``) do not pay its import (0.3-0.6 s).
+Every ``plot_*`` returns the :class:`matplotlib.figure.Figure` it drew: on its own figure with the
+Agg canvas (no pyplot state, no GUI), or on the axes (``ax``, one-panel figures) or into the
+figure or subfigure (``fig``, several panels) it is given, in one style
+(:mod:`spaceid._figure_style`), and writes it atomically as a 150 dpi PNG only when given a
+``path``. Figures read result objects only; the records draw themselves the same way
+(``Identification.plot``, ``Validation.plot``, ``MonteCarloResult.plot``, ``PayloadEstimate.plot``).
+Matplotlib is imported when a figure is drawn, not with this module: commands that draw none
+(``spaceid identify``) do not pay its import (0.3-0.6 s).
 """
 
 from __future__ import annotations
 
-import functools
-import re
-from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._atomic import atomic_path
 from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
+from .._figure_style import (COLOR_ANCHOR, COLOR_LIMIT, COLOR_MEASURED, COLOR_MODEL, COLOR_REFERENCE, COLOR_TRUE,
+                             canvas, figure_legend, finish_figure, rms, styled, tex_name)
 from ..data import Log
 from ..estimation import Identification
-from ._tables import _per_param, _relative_errors
+from ..estimation.internal import draw_parameters, draw_singular_values
+from ..identified.internal import draw_payload
 from ._validate import attitude_error_angle
 
 if TYPE_CHECKING:
@@ -29,97 +33,6 @@ if TYPE_CHECKING:
 
 __all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_tracking", "plot_trajectory",
            "plot_validation", "plot_capture_monitor", "plot_payload"]
-
-DPI = 150
-_STYLE = {
-    "font.size": 9,
-    "axes.titlesize": 9,
-    "figure.titlesize": 10,
-    "axes.labelsize": 9,
-    "legend.fontsize": 8,
-    "xtick.labelsize": 8,
-    "ytick.labelsize": 8,
-    "axes.grid": True,
-    "axes.axisbelow": True,
-    "axes.formatter.useoffset": False,  # an offset ("+1.7e2") lands on the panel title
-    "grid.alpha": 0.3,
-    "grid.linewidth": 0.5,
-    "axes.spines.top": False,
-    "axes.spines.right": False,
-    "lines.linewidth": 1.3,
-    "lines.markersize": 4,
-    "errorbar.capsize": 3,
-    "legend.frameon": False,
-}
-# one colour per role, the same in every figure
-_MEASURED, _MODEL, _TRUE, _REF, _LIMIT, _ANCHOR = "0.15", "tab:red", "tab:green", "0.55", "tab:orange", "tab:blue"
-
-
-def _styled(draw):
-    """Run a ``_draw_*`` function under the house style (artists take their style when created)."""
-
-    @functools.wraps(draw)
-    def wrapper(*args, **kwargs) -> Figure:
-        import matplotlib as mpl
-
-        with mpl.rc_context(_STYLE):
-            return draw(*args, **kwargs)
-
-    return wrapper
-
-
-def _new_figure(size) -> Figure:
-    """An empty constrained-layout figure of ``size`` [in] on an Agg canvas."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=size, layout="constrained")
-    FigureCanvasAgg(fig)
-    return fig
-
-
-def _save(fig: Figure, path) -> Path:
-    """Write ``fig`` atomically as a PNG at ``path``; the style again, as ticks are made when drawn."""
-    import matplotlib as mpl
-
-    with mpl.rc_context(_STYLE), atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=DPI)
-    return Path(path)
-
-
-def _legend_columns(labels, width: float) -> int:
-    """Most legend columns (filled column by column) whose estimated widths fit ``width`` [in]."""
-    plain = [re.sub(r"\\[A-Za-z]+|[${}^_]", "", label) for label in labels]  # mathtext renders shorter
-    size = [0.55 + 0.058 * len(text) for text in plain]  # handle and gaps + 8 pt characters [in]
-    for ncols in range(len(labels), 1, -1):
-        rows = -(-len(labels) // ncols)
-        if sum(max(size[c * rows : (c + 1) * rows]) for c in range(-(-len(labels) // rows))) <= width - 0.3:
-            return ncols
-    return 1
-
-
-def _figure_legend(fig: Figure, axes) -> None:
-    """One figure legend below the panels, one entry per label from whichever panel has it."""
-    entries = {}
-    for ax in axes:
-        entries.update(zip(*reversed(ax.get_legend_handles_labels())))
-    ncols = _legend_columns(list(entries), fig.get_figwidth())
-    fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncols=ncols)
-
-
-def _tex_name(name: str) -> str:
-    """``pi12`` -> ``$\\pi_{12}$`` for axis ticks; other names unchanged."""
-    match = re.fullmatch(r"pi(\d+)", name)
-    return rf"$\pi_{{{match.group(1)}}}$" if match else name
-
-
-def _tex_unit(unit: str) -> str:
-    """``kg m^2`` -> ``kg m$^{2}$``: exponents raised, the rest as written."""
-    return re.sub(r"\^\{?(-?\d+)\}?", r"$^{\1}$", unit)
-
-
-def _rms(x) -> float:
-    return float(np.sqrt(np.mean(np.square(x))))
 
 
 # --- validation (the paper's Fig. 6) -----------------------------------------------------------
@@ -163,32 +76,32 @@ def _base_signals(measured: Log, predicted: Log) -> list:
                      "error angle")]
 
 
-@_styled
-def _draw_validation(measured: Log, predicted: Log, title: str | None = None) -> Figure:
-    """The figure of :func:`plot_validation`."""
+@styled
+def _draw_validation(measured: Log, predicted: Log, title: str | None = None, fig=None) -> Figure:
+    """The figure of :func:`plot_validation`, into ``fig`` when given."""
     _check_same_motion(measured, predicted)
     signals = _base_signals(measured, predicted)
     marker = {"marker": "o", "linestyle": "none", "markersize": 3} if measured.n_samples <= 120 else {}
-    fig = _new_figure((7.2 if measured.planar else 11.0, 4.6))
+    fig = canvas(fig, (7.2 if measured.planar else 11.0, 4.6))
     axes = fig.subplots(2, len(signals), sharex=True, gridspec_kw={"height_ratios": [2, 1]}, squeeze=False)
     for c, (panel_title, symbol, unit, y_meas, y_pred, residual, residual_label) in enumerate(signals):
         top, bottom = axes[0, c], axes[1, c]
-        top.plot(measured.t, y_meas, color=_MEASURED, label="measured", **marker)
-        top.plot(predicted.t, y_pred, color=_MODEL, linestyle="--", label="identified model (predicted)")
+        top.plot(measured.t, y_meas, color=COLOR_MEASURED, label="measured", **marker)
+        top.plot(predicted.t, y_pred, color=COLOR_MODEL, linestyle="--", label="identified model (predicted)")
         top.set_title(panel_title, loc="left")
         top.set_ylabel(f"{symbol} [{unit}]")
         top.tick_params(labelbottom=False)
-        bottom.axhline(0, color=_REF, linewidth=0.8)
-        bottom.plot(measured.t, residual, color=_MODEL, linewidth=1.0, label="residual")
-        bottom.set_title(f"residual, RMS {_rms(residual):.2g} {unit}", loc="left", fontsize=8, color="0.35")
+        bottom.axhline(0, color=COLOR_REFERENCE, linewidth=0.8)
+        bottom.plot(measured.t, residual, color=COLOR_MODEL, linewidth=1.0, label="residual")
+        bottom.set_title(f"residual, RMS {rms(residual):.2g} {unit}", loc="left", fontsize=8, color="0.35")
         bottom.set_ylabel(f"{residual_label} [{unit}]")
         bottom.set_xlabel("time $t$ [s]")
-    _figure_legend(fig, list(axes.flat))
+    figure_legend(fig, list(axes.flat))
     fig.suptitle(title or _VALIDATION_TITLE)
     return fig
 
 
-def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
+def plot_validation(measured: Log, predicted: Log, path=None, *, title=None, fig=None) -> Figure:
     """Measured base motion vs the identified model's prediction (the paper's Fig. 6).
 
     What the model predicts, one column each: the base angular velocity in base axes (planar
@@ -202,97 +115,27 @@ def plot_validation(measured: Log, predicted: Log, path, *, title=None) -> Path:
     measured, predicted : Log
         Same joints, planar flag and time stamps (``predicted`` is typically
         ``spaceid.studies.predict`` on ``measured``'s joint motion).
-    path : path-like
-        Output PNG.
+    path : path-like, optional
+        Output PNG; none: nothing is written.
     title : str, optional
         Figure title; default names what is compared.
+    fig : Figure or SubFigure, optional
+        Draw into it (two rows of panels) instead of a new figure.
 
     Returns
     -------
-    Path
-        ``path``.
+    Figure
+        The figure drawn (``fig`` when given). :meth:`spaceid.studies.Validation.plot` draws the same.
     """
-    return _save(_draw_validation(measured, predicted, title), path)
+    return finish_figure(_draw_validation(measured, predicted, title, fig), path)
 
 
-# --- parameters ---------------------------------------------------------------------------------
-
-
-def _units(ident: Identification) -> tuple | None:
-    """The parameters' units (``ident.units``, e.g. ``"kg m^2"``); None for results written without them."""
-    units = tuple(ident.units or ())
-    if units and len(units) != len(ident.names):
-        raise SpaceidError(f"plot_parameters: the result has {len(units)} units for {len(ident.names)} parameters: "
-                           "identify again to rebuild it")  # fmt: skip
-    return units or None
-
-
-def _anchored(ident: Identification) -> np.ndarray:
-    """Mask of the parameters the identification fixed (``settings["anchors"]``) instead of estimating."""
-    names = {a["name"] for a in ident.settings.get("anchors", ())}
-    return np.array([n in names for n in ident.names], bool)
-
-
-def _percent_errors(ident: Identification, true):
-    """``(y, half, label)``: the signed error ``(estimate - true) / |true|`` and ``2 std / |true|`` [%];
-    without the truth, 0 and ``2 std / |estimate|`` [%] (the truth's interval about the estimate)."""
-    if true is None:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            half = 200 * ident.std / np.where(ident.values != 0, np.abs(ident.values), np.nan)
-        return np.zeros(len(ident.names)), half, r"about the estimate, $(\pi_i - \hat\pi_i)\,/\,|\hat\pi_i|$ [%]"
-    rel, rel_std = _relative_errors(ident, true)
-    signed = 100 * np.sign(ident.values - true) * rel
-    return signed, 200 * rel_std, r"signed error $(\hat\pi_i - \pi_i)\,/\,|\pi_i|$ [%]"
-
-
-@_styled
-def _draw_parameters(ident: Identification, true=None, reference=None, reference_label="paper") -> Figure:
-    """The figure of :func:`plot_parameters`."""
-    true = _per_param(true, ident, "`true`")
-    reference = _per_param(reference, ident, "`reference`")
-    units = _units(ident)
-    per_tick = units is not None and len(set(units)) > 1  # else one unit for the axis label
-    anchored = _anchored(ident)
-    y, half, ylabel = _percent_errors(ident, true)
-    k = len(ident.names)
-    x = np.arange(k)
-    dx = 0.15 if reference is not None else 0.0
-    fig = _new_figure((max(6.0, 0.6 * k + 2.5), 3.9 if per_tick else 3.6))
-    ax = fig.subplots()
-    ax.axhline(0, color=_TRUE if true is not None else _REF, linewidth=1.0,
-               label="true value (zero error)" if true is not None else None)  # fmt: skip
-    free = ~anchored
-    ax.errorbar(x[free] - dx, y[free], yerr=half[free], fmt="o", color=_MEASURED,
-                label=r"estimate $\pm 2\sigma$" + ("" if true is not None else " (truth unknown)"))  # fmt: skip
-    if anchored.any():
-        ax.plot(x[anchored] - dx, y[anchored], "s", markersize=7, markerfacecolor="none", markeredgecolor=_ANCHOR,
-                markeredgewidth=1.5, label="anchored: known, not estimated")  # fmt: skip
-    if reference is not None:  # magnitudes: both signs, beside ours
-        ax.plot(np.repeat(x + dx, 2), np.stack([reference, -reference], axis=1).ravel(), "D", markersize=4,
-                markerfacecolor="none", color=_REF, label=rf"{reference_label}: $\pm$|error|")  # fmt: skip
-    reach = np.concatenate([np.abs(y) + np.nan_to_num(half), [] if reference is None else np.abs(reference)])
-    reach = reach[np.isfinite(reach)]
-    if reach.size and reach.max() > 0:
-        ax.set_ylim(-1.15 * reach.max(), 1.15 * reach.max())  # symmetric: over- and underestimates alike
-    ax.set_ylabel(ylabel)
-    labels = [_tex_name(n) for n in ident.names]
-    if per_tick:
-        labels = [f"{name}\n[{_tex_unit(u)}]" for name, u in zip(labels, units)]
-    ax.set_xticks(x, labels)
-    common = f" (all in {_tex_unit(units[0])})" if units else ""
-    ax.set_xlabel("minimal parameter" + (" [unit]" if per_tick else common))
-    for tick, fixed in zip(ax.get_xticklabels(), anchored):
-        if fixed:
-            tick.set_color(_ANCHOR)
-    worst = f", max |error| {np.nanmax(np.abs(y[free])):.2g} %" if true is not None and free.any() else ""
-    ax.set_title(f"{ident.estimator.upper()} estimates of the {k} minimal parameters\n"
-                 f"N = {ident.n_samples} samples, cond = {ident.condition_number:.4g}{worst}", loc="left")  # fmt: skip
-    _figure_legend(fig, [ax])
-    return fig
+# --- parameters and singular values (drawn by spaceid.estimation._plots) --------------------------
 
 
 @deprecated_alias(old="ident", new="result")
-def plot_parameters(result: Identification, path, *, true=None, reference=None, reference_label="paper") -> Path:
+def plot_parameters(result: Identification, path=None, *, true=None, reference=None, reference_label="paper",
+                    ax=None) -> Figure:
     """Estimates with 2-sigma error bars on one relative axis (parameters of different units).
 
     With the truth, the signed relative error ``(estimate - true) / |true|`` [%] with bars
@@ -305,8 +148,8 @@ def plot_parameters(result: Identification, path, *, true=None, reference=None, 
     Parameters
     ----------
     result : Identification
-    path : path-like
-        Output PNG.
+    path : path-like, optional
+        Output PNG; none: nothing is written.
     true : array_like of shape (k,), optional
         True parameter values.
     reference : array_like of shape (k,), optional
@@ -314,48 +157,38 @@ def plot_parameters(result: Identification, path, *, true=None, reference=None, 
         at plus and minus beside ours.
     reference_label : str
         Legend name of ``reference``.
+    ax : Axes, optional
+        Draw on it (its legend on it too) instead of a new figure.
 
     Returns
     -------
-    Path
+    Figure
+        The figure drawn (the one that holds ``ax`` when given). ``ident.plot()`` draws the same.
     """
-    return _save(_draw_parameters(result, true, reference, reference_label), path)
-
-
-# --- singular values ----------------------------------------------------------------------------
-
-
-@_styled
-def _draw_singular_values(ident: Identification) -> Figure:
-    """The figure of :func:`plot_singular_values`."""
-    s = np.asarray(ident.singular_values, float)
-    if s.size == 0:
-        raise SpaceidError("plot_singular_values: the result has no singular values: identify again (identify, "
-                           "'spaceid identify')")
-    i = np.arange(1, s.size + 1)
-    fig = _new_figure((5.0, 3.2))
-    ax = fig.subplots()
-    ax.semilogy(i, s / s[0], "o-", color=_MEASURED)
-    ax.set_xticks(i)
-    ax.set_xlabel("index $i$ (decreasing order)")
-    ax.set_ylabel(r"$\sigma_i / \sigma_1$ of $\hat Y$ [-]")
-    ax.set_title(rf"Singular values of the stacked regressor $\hat Y$ (N = {ident.n_samples}):" "\n"
-                 rf"cond$(\hat Y) = \sigma_1/\sigma_k$ = {ident.condition_number:.4g}")  # fmt: skip
-    return fig
+    return finish_figure(draw_parameters(result, true, reference, reference_label, ax), path)
 
 
 @deprecated_alias(old="ident", new="result")
-def plot_singular_values(result: Identification, path) -> Path:
+def plot_singular_values(result: Identification, path=None, *, ax=None) -> Figure:
     """Singular values of the stacked regressor relative to the largest, on a log scale.
 
     Relative, as the regressor's columns carry the units of momentum over those of their
     parameters; the smallest is ``1 / cond``, the condition number in the title.
 
+    Parameters
+    ----------
+    ident : Identification
+    path : path-like, optional
+        Output PNG; none: nothing is written.
+    ax : Axes, optional
+        Draw on it instead of a new figure.
+
     Returns
     -------
-    Path
+    Figure
+        The figure drawn. ``ident.plot(kind="singular_values")`` draws the same.
     """
-    return _save(_draw_singular_values(result), path)
+    return finish_figure(draw_singular_values(result, ax), path)
 
 
 # --- trajectory ---------------------------------------------------------------------------------
@@ -376,9 +209,9 @@ def _limit_band(value, n_joints: int, key: str) -> np.ndarray:
     )
 
 
-@_styled
-def _draw_trajectory(t, q, qd, qdd, joints, limits=None, samples=None, title=None) -> Figure:
-    """The figure of :func:`plot_trajectory`."""
+@styled
+def _draw_trajectory(t, q, qd, qdd, joints, limits=None, samples=None, title=None, fig=None) -> Figure:
+    """The figure of :func:`plot_trajectory`, into ``fig`` when given."""
     t = np.asarray(t, float)
     rows = [("q", "rad", q), ("qd", "rad/s", qd), ("qdd", "rad/s$^2$", qdd)]
     rows = [(key, unit, np.asarray(y, float).reshape(t.size, -1)) for key, unit, y in rows]
@@ -392,23 +225,23 @@ def _draw_trajectory(t, q, qd, qdd, joints, limits=None, samples=None, title=Non
     bands = {key: _limit_band(value, nj, key) for key, value in limits.items() if value is not None}
     ts = None if samples is None else np.asarray(samples, float)
     symbols = {"q": "q", "qd": r"\dot q", "qdd": r"\ddot q"}
-    fig = _new_figure((3.4 * nj + 0.6, 6.7))
+    fig = canvas(fig, (3.4 * nj + 0.6, 6.7))
     axes = fig.subplots(3, nj, sharex=True, squeeze=False)
     for r, (key, unit, y) in enumerate(rows):
         for j in range(nj):
             ax = axes[r, j]
-            ax.plot(t, y[:, j], color=_MEASURED, label="trajectory")
+            ax.plot(t, y[:, j], color=COLOR_MEASURED, label="trajectory")
             if key in bands:
                 for bound in bands[key][j][np.isfinite(bands[key][j])]:
-                    ax.axhline(bound, color=_LIMIT, linestyle=":", linewidth=1.2, label="limit")
+                    ax.axhline(bound, color=COLOR_LIMIT, linestyle=":", linewidth=1.2, label="limit")
             if ts is not None:
-                ax.plot(ts, np.interp(ts, t, y[:, j]), "o", color=_MODEL, markersize=3,
+                ax.plot(ts, np.interp(ts, t, y[:, j]), "o", color=COLOR_MODEL, markersize=3,
                         label=f"sample instants (N = {ts.size})")  # fmt: skip
             ax.set_ylabel(rf"${symbols[key]}_{{{j + 1}}}$ [{unit}]")
     for j, name in enumerate(joints):
         axes[0, j].set_title(name)
         axes[-1, j].set_xlabel("time $t$ [s]")
-    _figure_legend(fig, axes.flat)
+    figure_legend(fig, axes.flat)
     default = (f"Exciting trajectory over {t[-1] - t[0]:.3g} s" + (": " if nj > 1 else ":\n")  # narrow: two lines
                + "angle, rate and acceleration of each joint")
     fig.suptitle(title or default)
@@ -416,7 +249,7 @@ def _draw_trajectory(t, q, qd, qdd, joints, limits=None, samples=None, title=Non
 
 
 @deprecated_alias(old="samples", new="times")
-def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, times=None, title=None) -> Path:
+def plot_trajectory(t, q, qd, qdd, joints, path=None, *, limits=None, times=None, title=None, fig=None) -> Figure:
     """The exciting trajectory: position, rate and acceleration of each joint.
 
     Parameters
@@ -427,8 +260,8 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, times=None, tit
         Joint positions [rad], rates [rad/s] and accelerations [rad/s^2] on ``t``.
     joints : sequence of str
         Joint names (columns).
-    path : path-like
-        Output PNG.
+    path : path-like, optional
+        Output PNG; none: nothing is written.
     limits : dict, optional
         ``{"q": ..., "qd": ..., "qdd": ...}`` (any subset), each a magnitude ``|x| <= limit``
         (scalar or one per joint) or ``(n_joints, 2)`` lower/upper pairs; NaN means none.
@@ -436,18 +269,20 @@ def plot_trajectory(t, q, qd, qdd, joints, path, *, limits=None, times=None, tit
         Sample instants [s] used for identification, marked on every curve.
     title : str, optional
         Figure title; default names the duration and the rows.
+    fig : Figure or SubFigure, optional
+        Draw into it (three rows of panels) instead of a new figure.
 
     Returns
     -------
-    Path
+    Figure
     """
-    return _save(_draw_trajectory(t, q, qd, qdd, joints, limits, times, title), path)
+    return finish_figure(_draw_trajectory(t, q, qd, qdd, joints, limits, times, title, fig), path)
 
 
 # --- Monte Carlo --------------------------------------------------------------------------------
 
 # one colour per estimator in the Monte Carlo figures (the ML estimate takes the model's colour)
-_ESTIMATOR_COLOURS = {"ml": _MODEL, "wls": "tab:blue", "iv": "tab:purple", "tls": "tab:brown", "ols": "0.45"}
+_ESTIMATOR_COLOURS = {"ml": COLOR_MODEL, "wls": "tab:blue", "iv": "tab:purple", "tls": "tab:brown", "ols": "0.45"}
 
 
 def _number(v: float) -> str:
@@ -483,21 +318,21 @@ def _rmse_crb_bars(ax, result, colours, crb_label) -> None:
     xs, ratios, errors = (np.concatenate(a) for a in (xs, ratios, errors))
     ax.errorbar(xs, ratios, yerr=errors, fmt="none", ecolor="black", elinewidth=0.9, capsize=2,
                 label=r"$\pm 2$ s.e. of a Monte Carlo RMSE, $\approx 2/\sqrt{2R}$ relative")  # fmt: skip
-    ax.axhline(1.0, color=_MEASURED, linewidth=0.9, label=f"RMSE = {crb_label} (efficient)")
+    ax.axhline(1.0, color=COLOR_MEASURED, linewidth=0.9, label=f"RMSE = {crb_label} (efficient)")
     top = np.nanmax(np.append(ratios + errors, 1.0))
     if top > 10:
         ax.set_yscale("log")  # a badly biased estimator would flatten the others
     else:
         ax.set_ylim(0, 1.08 * top)
-    ax.set_xticks(x, [_tex_name(n) for n in result.names])
+    ax.set_xticks(x, [tex_name(n) for n in result.names])
     ax.set_xlabel("minimal parameter")
     ax.set_ylabel(f"RMSE / {crb_label} [-]")
     ax.set_title(f"Efficiency: RMSE over the runs / {crb_label} std of each parameter", loc="left")
 
 
-@_styled
-def _draw_montecarlo(result, max_panels: int = 12) -> Figure:
-    """The figure of :func:`plot_montecarlo`."""
+@styled
+def _draw_montecarlo(result, max_panels: int = 12, fig=None) -> Figure:
+    """The figure of :func:`plot_montecarlo`, into ``fig`` when given."""
     names, true, ests = result.names, np.asarray(result.true, float), result.estimators
     k = len(names)
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -511,27 +346,28 @@ def _draw_montecarlo(result, max_panels: int = 12) -> Figure:
     nrows = -(-len(shown) // ncols)
     mosaic = [[f"p{r * ncols + c}" if r * ncols + c < len(shown) else "." for c in range(ncols)] for r in range(nrows)]
     mosaic.append(["bars"] * ncols)
-    colours = [_ESTIMATOR_COLOURS.get(e, _MEASURED) for e in ests]
+    colours = [_ESTIMATOR_COLOURS.get(e, COLOR_MEASURED) for e in ests]
     crb_label = "white-noise-equivalent CRB" if result.settings.get("angles_only") else "CRB"
-    fig = _new_figure((max(7.0, 2.1 * ncols + 0.6, 0.5 * k + 2.5), 1.9 * nrows + 3.9))  # 7 in: the title
+    fig = canvas(fig, (max(7.0, 2.1 * ncols + 0.6, 0.5 * k + 2.5), 1.9 * nrows + 3.9))  # 7 in: the title
     axes = fig.subplot_mosaic(mosaic, height_ratios=[1] * nrows + [1.35])
     for p, i in enumerate(shown):
         ax = axes[f"p{p}"]
         data = [(result.estimates[e][:, i] - true[i]) / scale[i] for e in ests]
         data = [d[np.isfinite(d)] for d in data]
         if np.isfinite(band[i]):
-            ax.axhspan(-band[i], band[i], color=_TRUE, alpha=0.15, linewidth=0, label=rf"{crb_label} $\pm 2\sigma$")
-        ax.axhline(0, color=_REF, linewidth=0.8)
+            ax.axhspan(-band[i], band[i], color=COLOR_TRUE, alpha=0.15, linewidth=0,
+                       label=rf"{crb_label} $\pm 2\sigma$")
+        ax.axhline(0, color=COLOR_REFERENCE, linewidth=0.8)
         boxes = ax.boxplot(data, widths=0.6, patch_artist=True, flierprops={"markersize": 2, "alpha": 0.5},
                            medianprops={"color": "black", "linewidth": 1.0})  # fmt: skip
         for patch, colour in zip(boxes["boxes"], colours):
             patch.set(facecolor=colour, alpha=0.45, edgecolor=colour)
         ax.set_xticks(np.arange(1, len(ests) + 1), [e.upper() for e in ests])
-        ax.set_title(_tex_name(names[i]), loc="left")
+        ax.set_title(tex_name(names[i]), loc="left")
         if p % ncols == 0:
             ax.set_ylabel("signed rel. error [%]")
     _rmse_crb_bars(axes["bars"], result, colours, crb_label)
-    _figure_legend(fig, [axes["p0"], axes["bars"]])
+    figure_legend(fig, [axes["p0"], axes["bars"]])
     s = result.settings
     fig.suptitle(f"Monte Carlo study: {s['runs']} runs, N = {s['n_samples']} samples, seed {s['seed']}\n"
                  f"{_noise_text(s)}\nboxes: errors in % of |true| (quartiles, whiskers 1.5 IQR)"
@@ -539,7 +375,7 @@ def _draw_montecarlo(result, max_panels: int = 12) -> Figure:
     return fig
 
 
-def plot_montecarlo(result, path, *, max_panels: int = 12) -> Path:
+def plot_montecarlo(result, path=None, *, max_panels: int = 12, fig=None) -> Figure:
     """Monte Carlo errors: per parameter the relative errors of each estimator (box plots) in
     the Cramer-Rao band, and RMSE / CRB of every parameter and estimator (bars, with their Monte
     Carlo uncertainty, about ``1 / sqrt(2 R)`` relative over R successful runs); the noise
@@ -548,25 +384,28 @@ def plot_montecarlo(result, path, *, max_panels: int = 12) -> Path:
     Parameters
     ----------
     result : spaceid.studies.MonteCarloResult
-    path : path-like
-        Output PNG.
+    path : path-like, optional
+        Output PNG; none: nothing is written.
     max_panels : int
         Parameters with a box-plot panel at most; beyond, those with the largest relative RMSE
         of the first estimator (the bars show all).
+    fig : Figure or SubFigure, optional
+        Draw into it instead of a new figure.
 
     Returns
     -------
-    Path
+    Figure
+        The figure drawn. ``result.plot()`` draws the same.
     """
-    return _save(_draw_montecarlo(result, max_panels), path)
+    return finish_figure(_draw_montecarlo(result, max_panels, fig), path)
 
 
 # --- tracking: the excitation as designed and as executed ---------------------------------------
 
 
-@_styled
-def _draw_tracking(t, designed, executed, joints, samples=None, title=None) -> Figure:
-    """The figure of :func:`plot_tracking`."""
+@styled
+def _draw_tracking(t, designed, executed, joints, samples=None, title=None, fig=None) -> Figure:
+    """The figure of :func:`plot_tracking`, into ``fig`` when given."""
     t = np.asarray(t, float)
     nj = len(joints)
     designed, executed = (np.asarray(y, float).reshape(t.size, -1) for y in (designed, executed))
@@ -574,30 +413,30 @@ def _draw_tracking(t, designed, executed, joints, samples=None, title=None) -> F
         raise SpaceidError(f"plot_tracking: designed and executed need one column per joint "
                            f"({nj}: {', '.join(joints)})")
     error = 1e3 * (executed - designed)  # [mrad]
-    fig = _new_figure((3.4 * nj + 0.6, 4.9))
+    fig = canvas(fig, (3.4 * nj + 0.6, 4.9))
     axes = fig.subplots(2, nj, sharex=True, squeeze=False, height_ratios=[1.6, 1])
     for j, name in enumerate(joints):
         top, bottom = axes[0, j], axes[1, j]
-        top.plot(t, designed[:, j], color=_REF, linewidth=2.2, label="designed (commanded)")
-        top.plot(t, executed[:, j], color=_MEASURED, linestyle="--", label="executed (encoders)")
-        bottom.axhline(0, color=_REF, linewidth=0.8)
-        bottom.plot(t, error[:, j], color=_MODEL, label="executed - designed")
+        top.plot(t, designed[:, j], color=COLOR_REFERENCE, linewidth=2.2, label="designed (commanded)")
+        top.plot(t, executed[:, j], color=COLOR_MEASURED, linestyle="--", label="executed (encoders)")
+        bottom.axhline(0, color=COLOR_REFERENCE, linewidth=0.8)
+        bottom.plot(t, error[:, j], color=COLOR_MODEL, label="executed - designed")
         if samples is not None:
             ts = np.asarray(samples, float)
-            top.plot(ts, np.interp(ts, t, executed[:, j]), "o", color=_MODEL, markersize=3,
+            top.plot(ts, np.interp(ts, t, executed[:, j]), "o", color=COLOR_MODEL, markersize=3,
                      label=f"identification samples (N = {ts.size})")  # fmt: skip
         top.set_title(name, loc="left")
-        bottom.set_title(f"RMS {_rms(error[:, j]):.3g} mrad", loc="right", fontsize=8, color="0.35")
+        bottom.set_title(f"RMS {rms(error[:, j]):.3g} mrad", loc="right", fontsize=8, color="0.35")
         top.set_ylabel(f"$q_{{{j + 1}}}$ [rad]")
         bottom.set_ylabel(rf"$\Delta q_{{{j + 1}}}$ [mrad]")
         bottom.set_xlabel("time since the start of the excitation $t$ [s]")
-    _figure_legend(fig, axes.flat)
+    figure_legend(fig, axes.flat)
     fig.suptitle(title or "Tracking: the arm's designed (commanded) and executed motion")
     return fig
 
 
 @deprecated_alias(old="samples", new="times")
-def plot_tracking(t, designed, executed, joints, path, *, times=None, title=None) -> Path:
+def plot_tracking(t, designed, executed, joints, path=None, *, times=None, title=None, fig=None) -> Figure:
     """The exciting trajectory as designed against the motion executed, joint by joint.
 
     Top row: the designed angle of each joint and the executed one; bottom row: their
@@ -612,39 +451,43 @@ def plot_tracking(t, designed, executed, joints, path, *, times=None, title=None
         Designed (commanded) and executed (e.g. encoder) joint angles [rad] at ``t``.
     joints : sequence of str
         Joint names (columns).
-    path : path-like
-        Output PNG.
+    path : path-like, optional
+        Output PNG; none: nothing is written.
     times : array_like of shape (N,), optional
         Sample instants identification uses [s], marked on the executed motion.
     title : str, optional
         Figure title; default names what is compared.
+    fig : Figure or SubFigure, optional
+        Draw into it (two rows of panels) instead of a new figure.
 
     Returns
     -------
-    Path
+    Figure
     """
-    return _save(_draw_tracking(t, designed, executed, joints, times, title), path)
+    return finish_figure(_draw_tracking(t, designed, executed, joints, times, title, fig), path)
 
 
 # --- capture: change detection and the payload ---------------------------------------------------
 
 
-@_styled
-def _draw_capture_monitor(log: Log, scores: dict, joints) -> Figure:
-    """The figure of :func:`plot_capture_monitor`."""
-    t = log.t - scores["grasp time [s]"]
+@styled
+def _draw_capture_monitor(log: Log, scores, joints, fig=None) -> Figure:
+    """The figure of :func:`plot_capture_monitor`, into ``fig`` when given."""
+    grasp = scores.grasp_time
+    t = log.t - grasp
     arm = list(joints)
-    fig = _new_figure((7.2, 5.2))
+    fig = canvas(fig, (7.2, 5.2))
     top, bottom = fig.subplots(2, 1, sharex=True)
     for j, name in enumerate(arm):
-        top.plot(t, log.q[:, log.joints.index(name)], color=(_MEASURED, _ANCHOR)[j % 2], label=f"{name} (encoders)")
-    bottom.plot(t, log.base_w[:, -1], color=_MEASURED, label="base yaw rate (motion capture)")
-    detected = scores["detected change time [s]"]
+        top.plot(t, log.q[:, log.joints.index(name)], color=(COLOR_MEASURED, COLOR_ANCHOR)[j % 2],
+                 label=f"{name} (encoders)")
+    bottom.plot(t, log.base_w[:, -1], color=COLOR_MEASURED, label="base yaw rate (motion capture)")
+    detected = scores.detected_change_time
     for ax in (top, bottom):
-        ax.axvline(0.0, color=_TRUE, linewidth=2.0, label="grasp (twin's truth)")
+        ax.axvline(0.0, color=COLOR_TRUE, linewidth=2.0, label="grasp (twin's truth)")
         if detected is not None:
-            ax.axvline(detected - scores["grasp time [s]"], color=_MODEL, linestyle="--", label="detected change")
-            ax.axvline(scores["detected at [s]"] - scores["grasp time [s]"], color=_LIMIT, linestyle=":",
+            ax.axvline(detected - grasp, color=COLOR_MODEL, linestyle="--", label="detected change")
+            ax.axvline(scores.detected_at - grasp, color=COLOR_LIMIT, linestyle=":",
                        label="alarm (threshold crossed)")  # fmt: skip
     top.set_ylabel("joint angle $q$ [rad]")
     bottom.set_ylabel(r"base yaw rate $\omega_z$ [rad/s]")
@@ -654,70 +497,58 @@ def _draw_capture_monitor(log: Log, scores: dict, joints) -> Figure:
         entries.update(zip(*reversed(ax.get_legend_handles_labels())))
     fig.legend(entries.values(), entries.keys(), loc="outside lower center", ncols=3)
     found = "no change detected" if detected is None else (
-        f"change at {scores['change time error [s]']:+.3g} s from the grasp "
-        f"({scores['change time error [samples]']:+g} samples), alarm at "
-        f"{scores['detected at [s]'] - scores['grasp time [s]']:+.3g} s")
+        f"change at {scores.change_time_error:+.3g} s from the grasp "
+        f"({scores.change_time_error_samples:+g} samples), alarm at "
+        f"{scores.detected_at - grasp:+.3g} s")
     fig.suptitle(f"Change detection over the servicing recording (held-out motion, grasp, post-capture "
                  f"excitation)\n{found}")
     return fig
 
 
-def plot_capture_monitor(log: Log, scores: dict, path, *, joints) -> Path:
+def plot_capture_monitor(log: Log, scores, path=None, *, joints, fig=None) -> Figure:
     """The servicing recording with the grasp, the detected change and the alarm marked.
 
     Parameters
     ----------
     log : Log
         The recording (held-out motion, grasp, post-capture excitation).
-    scores : dict
-        The keys ``grasp time [s]``, ``detected change time [s]``, ``detected at [s]``,
-        ``change time error [s]`` and ``change time error [samples]`` (None: no change found),
-        times on ``log``'s clock.
-    path : path-like
-        Output PNG.
+    scores : ServicingScores
+        Its ``grasp_time``, ``detected_change_time``, ``detected_at``, ``change_time_error`` and
+        ``change_time_error_samples`` (None: no change found), times on ``log``'s clock.
+    path : path-like, optional
+        Output PNG; none: nothing is written.
     joints : sequence of str
         The joints whose angles are drawn (the arm's).
+    fig : Figure or SubFigure, optional
+        Draw into it (two panels) instead of a new figure.
 
     Returns
     -------
-    Path
+    Figure
     """
-    return _save(_draw_capture_monitor(log, scores, joints), path)
+    return finish_figure(_draw_capture_monitor(log, scores, joints, fig), path)
 
 
-@_styled
-def _draw_payload(rows, link: str) -> Figure:
-    """The figure of :func:`plot_payload`."""
-    units = {"m": "kg", "cx": "m", "cy": "m", "cz": "m"}
-    fig = _new_figure((2.0 * len(rows) + 0.6, 3.0))
-    axes = fig.subplots(1, len(rows), squeeze=False)[0]
-    for ax, row in zip(axes, rows):
-        ax.errorbar([0], [row["estimate"]], yerr=[row["std"]], fmt="o", color=_MODEL, label="estimate, 1 std")
-        ax.axhline(row["true"], color=_TRUE, label="truth (twin)")
-        ax.set_xticks([])
-        ax.set_xlim(-1, 1)
-        ax.set_title(f"{_tex_name(row['name'])} [{_tex_unit(units.get(row['name'], 'kg m^2'))}]", loc="left")
-        if row["z"] is not None:
-            ax.set_title(f"z = {row['z']:+.2f}", loc="right", fontsize=8, color="0.35")
-    _figure_legend(fig, axes)
-    fig.suptitle(f"The payload held by {link}: estimate against truth (CoM and inertia in {link}'s frame)")
-    return fig
-
-
-def plot_payload(rows, path, *, link: str) -> Path:
+def plot_payload(rows, path=None, *, link: str, fig=None, truth_label: str = "truth") -> Figure:
     """The payload's parameters, estimate with one standard error against the truth, a panel each.
 
     Parameters
     ----------
     rows : list of dict
-        Per parameter ``name``, ``true``, ``estimate``, ``std`` [kg, m, kg m^2] and ``z`` (or None).
-    path : path-like
-        Output PNG.
+        Per parameter ``name``, ``estimate``, ``std`` [kg, m, kg m^2], ``true`` and ``z`` (None: no
+        truth).
+    path : path-like, optional
+        Output PNG; none: nothing is written.
     link : str
         The link that holds the payload (the frame of the CoM and inertia).
+    fig : Figure or SubFigure, optional
+        Draw into it instead of a new figure.
+    truth_label : str
+        The true values' name in the legend.
 
     Returns
     -------
-    Path
+    Figure
+        The figure drawn. :meth:`spaceid.identified.PayloadEstimate.plot` draws the same.
     """
-    return _save(_draw_payload(rows, link), path)
+    return finish_figure(draw_payload(rows, link, fig, truth_label), path)

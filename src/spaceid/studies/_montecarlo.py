@@ -128,6 +128,21 @@ class MonteCarloResult:
         return {"relative_rmse": worst(s["relative_rmse"]), "rmse_crb": worst(s["rmse_crb"]),
                 "abs_bias_std": worst(np.abs(s["bias_std"])), "runs_ok": ok}  # fmt: skip
 
+    def plot(self, fig=None, *, max_panels: int = 12):
+        """Draw the errors of every estimator per parameter in the Cramer-Rao band and RMSE / CRB
+        (:func:`spaceid.studies.plot_montecarlo`), and return the :class:`matplotlib.figure.Figure`.
+
+        Parameters
+        ----------
+        fig : matplotlib.figure.Figure or SubFigure, optional
+            Draw into it; default: a new figure.
+        max_panels : int
+            Parameters with a box-plot panel at most (those with the largest relative RMSE).
+        """
+        from ._figures import _draw_montecarlo
+
+        return _draw_montecarlo(self, max_panels, fig)
+
     def to_dict(self) -> dict:
         """JSON-ready: settings, parameters with their CRB, per estimator the statistics and
         worst cases, failures, warnings, and the estimates and predicted standard errors of

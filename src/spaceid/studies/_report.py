@@ -13,10 +13,10 @@ from .._errors import SpaceidError
 from ..estimation import Identification
 
 
-from ._tables import _columns, _per_param, drift_rows
+from ._tables import _columns, per_parameter, drift_rows
 from ._torque_validation import TORQUE_METRIC_LABELS
 
-__all__ = ["write_markdown_report", "metric_label"]
+__all__ = ["write_markdown_report", "metric_label", "servicing_label"]
 
 
 def _md(text) -> str:
@@ -50,6 +50,38 @@ _METRIC_LABELS = {
     "base_attitude_rms": "base attitude, RMS error angle [rad]",
     "base_attitude_max": "base attitude, largest error angle [rad]",
 }
+
+
+SERVICING_LABELS = {
+    "grasp_time": ("grasp time", "s"),
+    "detected_change_time": ("detected change time", "s"),
+    "detected_at": ("detected at", "s"),
+    "change_time_error": ("change time error", "s"),
+    "change_time_error_samples": ("change time error", "samples"),
+    "change_time_lead": ("change time lead", "s"),
+    "alarm_time_from_grasp": ("alarm time from the grasp", "s"),
+    "false_alarms": ("events before the grasp (false alarms)", None),
+    "events": ("events", None),
+    "monitor_drift_terms": ("monitor drift terms", None),
+    "sample_period": ("sample period", "s"),
+    "payload_window": ("payload window", "s"),
+    "payload_window_start_after_grasp": ("payload window start after the grasp", "s"),
+    "payload_motion": ("payload velocity, rate at the grasp", "m/s, rad/s"),
+    "momentum_before_grasp": ("momentum before the grasp", "N m s"),
+    "momentum_before_grasp_std": ("momentum before the grasp std", "N m s"),
+    "momentum_from": ("momentum from", "s"),
+    "phase_seed": ("phase seed", None),
+    "not_identifiable": ("not identifiable", None),
+}
+"""Readable name and unit (None: none) of each :class:`spaceid.studies.ServicingScores` key, as the report and
+the command line show them."""
+
+
+def servicing_label(key: str) -> str:
+    """Readable name, with its unit, of a :class:`spaceid.studies.ServicingScores` key (``grasp_time`` ->
+    ``grasp time [s]``; other keys are returned as given)."""
+    label, unit = SERVICING_LABELS.get(key, (key, None))
+    return label if unit is None else f"{label} [{unit}]"
 
 
 def metric_label(key: str) -> str:
@@ -101,9 +133,9 @@ def write_markdown_report(
         The written ``report.md``.
     """
     folder = Path(out)
-    true = _per_param(true, result, "`true`")
-    reference = _per_param(reference, result, "`reference`")
-    reference_true = _per_param(reference_true, result, "`reference_true`")
+    true = per_parameter(true, result, "`true`")
+    reference = per_parameter(reference, result, "`reference`")
+    reference_true = per_parameter(reference_true, result, "`reference_true`")
     links = []
     for caption, fig_path in figures.items():
         full = folder / fig_path  # an absolute fig_path stays as it is
@@ -133,6 +165,11 @@ def write_markdown_report(
         f"- Condition number of the stacked regressor: {result.condition_number:.4g}",
         f"- Residual RMS: {result.residual_rms:.3g} N m s",
     ]
+    d = result.diagnostics  # how well the data agreed with the model (empty for a bare record)
+    if d.chi2_dof is not None:
+        lines.append(f"- chi2/dof: {d.chi2_dof:.3g}")
+    if d.covariance:
+        lines.append(f"- Covariance: {_md(d.covariance)}")
     if metrics:
         lines += ["", "## Validation", ""]
         lines += _md_table(["metric", "value"], [(_md(metric_label(k)), _md_value(v)) for k, v in metrics.items()])

@@ -32,7 +32,7 @@ held-out motion run on the servicer alone.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -44,11 +44,13 @@ from .._yaml import parse_yaml
 from ..data import Log, write_bag, write_json, write_log
 from ..dynamics import minimal_parameters
 from ..estimation import Identification, Monitor, Noise
-from ..identified import mean_momentum, parameterization_of, payload_after_grasp, payload_units
+from ..identified import PayloadEstimate, mean_momentum, parameterization_of, payload_after_grasp, payload_units
+from ..models import Model
 from ..motion import FourierTrajectory
-from ..twin import Capture, drained_model, join_runs, place_payload, run_twin
+from ..twin import Capture, TwinRun, drained_model, join_runs, place_payload, run_twin
 
-__all__ = ["CaptureProtocol", "ServicingResult", "capture_protocol", "run_servicing", "write_servicing"]
+__all__ = ["CaptureProtocol", "PayloadScore", "ServicingResult", "ServicingScores", "capture_protocol",
+           "run_servicing", "write_servicing"]
 
 CAPTURE_OFFSET = (0.04, 0.0)
 """Default payload frame origin in the grasping link's frame at the grasp [m]: at the gripper."""
@@ -105,6 +107,108 @@ def capture_protocol(path=None, *, mass: float | None = None) -> CaptureProtocol
 
 
 @dataclass(frozen=True)
+class PayloadScore:
+    """One of the payload's parameters, estimated against the twin's truth.
+
+    Attributes
+    ----------
+    name : str
+        ``m``, ``cx``, ``cy``, ``cz``, ``Ixx`` ... ``Izz`` (:data:`spaceid.identified.SPATIAL_NAMES`).
+    true, estimate, std : float
+        [kg, m or kg m^2].
+    z : float or None
+        ``(estimate - true) / std``; None when the standard error is zero.
+    """
+
+    name: str
+    true: float
+    estimate: float
+    std: float
+    z: float | None
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the attributes by name."""
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class ServicingScores:
+    """How the servicing went, against the twin's truth (:attr:`ServicingResult.scores`); times [s] on the
+    servicing recording's clock. The report and the command line label them
+    (``spaceid.studies._report.SERVICING_LABELS``).
+
+    Attributes
+    ----------
+    payload : tuple of PayloadScore
+        The payload's parameters against the truth.
+    not_identifiable : tuple of str
+        The payload's parameters the motion cannot see (planar: ``cz`` and the inertia but ``Izz``).
+    grasp_time : float
+        The twin's grasp instant.
+    detected_change_time, detected_at : float or None
+        The change time the monitor estimated for the first event that can be the grasp's, and when it
+        raised the alarm; None when no event can be.
+    change_time_error : float or None
+        ``detected_change_time - grasp_time``.
+    change_time_error_samples : float or None
+        The same in samples of the recording.
+    change_time_lead : float or None
+        How early the differentiated rates can show the grasp (the event's ``lead``).
+    alarm_time_from_grasp : float or None
+        ``detected_at - grasp_time``.
+    false_alarms : int
+        Events raised before the grasp could show.
+    events : int
+        All of the monitor's events.
+    monitor_drift_terms : str
+        The drift terms the monitor estimated in each segment (``none``).
+    sample_period : float
+        The recording's median sample step.
+    payload_window : tuple of 2 floats
+        The first and last samples the payload was identified from.
+    payload_window_start_after_grasp : float
+    payload_motion : tuple of 2 lists or None
+        A payload that moved at the grasp: its velocity [m/s] and rate [rad/s], inertial axes.
+    momentum_before_grasp, momentum_before_grasp_std : list of 3 floats or None
+        The servicer's momentum over the hold before the grasp and its standard errors [N m s] (with drift
+        terms; None otherwise).
+    momentum_from : float or None
+        Where the drift is integrated from (None without drift terms).
+    phase_seed : int or None
+        The seed of the post-capture phase.
+    """
+
+    payload: tuple = ()
+    not_identifiable: tuple = ()
+    grasp_time: float | None = None
+    detected_change_time: float | None = None
+    detected_at: float | None = None
+    change_time_error: float | None = None
+    change_time_error_samples: float | None = None
+    change_time_lead: float | None = None
+    alarm_time_from_grasp: float | None = None
+    false_alarms: int = 0
+    events: int = 0
+    monitor_drift_terms: str = "none"
+    sample_period: float | None = None
+    payload_window: tuple | None = None
+    payload_window_start_after_grasp: float | None = None
+    payload_motion: tuple | None = None
+    momentum_before_grasp: list | None = None
+    momentum_before_grasp_std: list | None = None
+    momentum_from: float | None = None
+    phase_seed: int | None = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the attributes by name, in order (``payload`` a list of :meth:`PayloadScore.to_dict`)."""
+        out = {name: getattr(self, name) for name in self.__dataclass_fields__}
+        out["payload"] = [p.to_dict() for p in self.payload]
+        for name in ("not_identifiable", "payload_window", "payload_motion"):
+            out[name] = None if out[name] is None else [list(v) if isinstance(v, tuple) else v for v in out[name]]
+        return out
+
+
+@dataclass(frozen=True)
 class ServicingResult:
     """Outcome of :func:`run_servicing`.
 
@@ -122,7 +226,7 @@ class ServicingResult:
         The post-capture excitation of ``log``, which the payload is identified from.
     trajectory : FourierTrajectory
         The post-capture excitation.
-    scores : dict
+    scores : ServicingScores
         Payload estimate against truth (z-scores) and the detected change time against the grasp.
     run : TwinRun
         The post-capture phase on the twin (its ``truth`` is written beside the report).
@@ -130,15 +234,24 @@ class ServicingResult:
         The known servicer the payload was identified with (the twin's model, the tank as at the grasp).
     """
 
-    payload: object
+    payload: PayloadEstimate
     truth: dict
     events: dict
     log: Log
     window: Log
     trajectory: FourierTrajectory
-    scores: dict
-    run: object
-    servicer: object
+    scores: ServicingScores
+    run: TwinRun
+    servicer: Model
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the ``scores``, the ``payload`` (its PAYLOAD.json object), the twin's grasp record
+        ``truth``, the monitor's record ``events`` (EVENTS.json), the post-capture ``trajectory``, the
+        ``servicer`` model's source and the ``window`` [s] of the recording the payload was identified from."""
+        return {"scores": self.scores.to_dict(), "payload": self.payload.to_dict(), "truth": self.truth,
+                "events": self.events, "trajectory": self.trajectory.to_dict(),
+                "servicer": self.servicer.source or self.servicer.name,
+                "window": [float(self.window.t[0]), float(self.window.t[-1])]}
 
 
 def run_servicing(held_out_run, protocol: CaptureProtocol, trajectory: FourierTrajectory, *, settings, model,
@@ -184,9 +297,8 @@ def run_servicing(held_out_run, protocol: CaptureProtocol, trajectory: FourierTr
     servicer = drained_model(model, settings.tank, truth["co2_mass"]) if settings.tank.enabled else model
     estimate, window, record = _payload(servicer, log, truth["link"], grasp, trajectory.duration, drift,
                                         _payload_motion(protocol.payload), seed, f"{bag} (post-capture excitation)")
-    scores = _scores(estimate, truth, events, log, grasp) | record
-    return ServicingResult(estimate, truth, events, log, window, trajectory, scores | {"phase seed": seed}, run,
-                           servicer)  # fmt: skip
+    scores = ServicingScores(**_scores(estimate, truth, events, log, grasp), **record, phase_seed=seed)
+    return ServicingResult(estimate, truth, events, log, window, trajectory, scores, run, servicer)
 
 
 def _payload(servicer, log: Log, link: str, grasp: float, duration: float, drift, motion, seed: int,
@@ -203,18 +315,18 @@ def _payload(servicer, log: Log, link: str, grasp: float, duration: float, drift
     with drift). A payload that moves at the grasp (``motion``: the velocity of its CoM and its
     rate, inertial axes; None at rest) adds its own momentum, a function of its parameters.
 
-    Returns the estimate, its window of ``log`` and the record for the scores.
+    Returns the estimate, its window of ``log`` and the record for the scores (:class:`ServicingScores`' keys).
     """
     momentum = "hold" if drift else np.zeros(3)
-    estimate, window = payload_after_grasp(servicer, log, link, grasp, momentum, payload_motion=motion,
-                                           end=grasp + duration, drift=drift, seed=seed, where=where)  # fmt: skip
-    g = estimate.settings["grasp"]
-    record = {"payload window [s]": g["window"],
-              "payload window start after the grasp [s]": g["window_start_after_grasp"],
-              "payload velocity, rate at the grasp": None if motion is None else [v.tolist() for v in motion],
-              "momentum before the grasp [N m s]": None if g["hold"] is None else g["hold"]["momentum"],
-              "momentum before the grasp std [N m s]": None if g["hold"] is None else g["hold"]["momentum_std"],
-              "momentum from [s]": None if g["hold"] is None else g["hold"]["drift_from"]}  # fmt: skip
+    cut = payload_after_grasp(servicer, log, link, grasp, momentum, payload_motion=motion, end=grasp + duration,
+                              drift=drift, seed=seed, where=where)  # fmt: skip
+    estimate, window, g = cut.estimate, cut.window, cut.grasp
+    record = {"payload_window": tuple(g["window"]),
+              "payload_window_start_after_grasp": g["window_start_after_grasp"],
+              "payload_motion": None if motion is None else tuple(v.tolist() for v in motion),
+              "momentum_before_grasp": None if g["hold"] is None else g["hold"]["momentum"],
+              "momentum_before_grasp_std": None if g["hold"] is None else g["hold"]["momentum_std"],
+              "momentum_from": None if g["hold"] is None else g["hold"]["drift_from"]}  # fmt: skip
     return estimate, window, record
 
 
@@ -243,7 +355,7 @@ def _monitor(model, log: Log, before: Identification, drift, seed: int) -> dict:
     coefficients estimated with its parameters (without them the friction raised 16 alarms before
     the grasp in 24 runs)."""
     levels = before.settings["noise"]
-    scale = np.sqrt(before.settings.get("chi2_dof") or 1.0)
+    scale = np.sqrt(before.diagnostics.chi2_dof or 1.0)
     noise = Noise(**{k: levels[k] * scale for k in ("angle", "rate", "base_rate", "attitude")},
                   source=f"{levels['source']}, scaled by sqrt(chi2/dof) = {scale:.3g} of the identification before")
     momentum = initial_momentum(before, log) if drift else np.zeros(3)
@@ -262,7 +374,8 @@ def initial_momentum(ident: Identification, log: Log, samples: int = 10) -> np.n
 
 def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict:
     """The payload against its truth (z-scores), and the first event that can be the grasp's
-    (:func:`_split_at_grasp`) against the grasp, in seconds and in samples of ``log``."""
+    (:func:`_split_at_grasp`) against the grasp, in seconds and in samples of ``log``: a dict of
+    :class:`ServicingScores`' keys."""
     payload = truth["payload"]
     true = {"m": payload["mass"], "cx": payload["com"][0], "cy": payload["com"][1], "cz": payload["com"][2]}
     inertia = np.asarray(payload["inertia"])
@@ -272,21 +385,20 @@ def _scores(estimate, truth: dict, events: dict, log: Log, grasp: float) -> dict
     early, found = _split_at_grasp(events["events"], grasp, dt)
     first = found[0] if found else None
     return {
-        "payload": [{"name": n, "true": float(t), "estimate": float(v), "std": float(e),
-                     "z": float((v - t) / e) if e > 0 else None}
-                    for n, t, v, e in zip(estimate.names, true, estimate.values, estimate.std)],
-        "not identifiable": list(estimate.not_identifiable),
-        "grasp time [s]": grasp,
-        "detected change time [s]": None if first is None else first["time"],
-        "detected at [s]": None if first is None else first["detected_at"],
-        "change time error [s]": None if first is None else first["time"] - grasp,
-        "change time error [samples]": None if first is None else round((first["time"] - grasp) / dt, 1),
-        "change time lead [s]": None if first is None else first["lead"],
-        "alarm time from the grasp [s]": None if first is None else first["detected_at"] - grasp,
-        "events before the grasp (false alarms)": len(early),
+        "payload": tuple(PayloadScore(n, float(t), float(v), float(e), float((v - t) / e) if e > 0 else None)
+                         for n, t, v, e in zip(estimate.names, true, estimate.values, estimate.std)),
+        "not_identifiable": tuple(estimate.not_identifiable),
+        "grasp_time": grasp,
+        "detected_change_time": None if first is None else first["time"],
+        "detected_at": None if first is None else first["detected_at"],
+        "change_time_error": None if first is None else first["time"] - grasp,
+        "change_time_error_samples": None if first is None else round((first["time"] - grasp) / dt, 1),
+        "change_time_lead": None if first is None else first["lead"],
+        "alarm_time_from_grasp": None if first is None else first["detected_at"] - grasp,
+        "false_alarms": len(early),
         "events": len(events["events"]),
-        "monitor drift terms": ", ".join(events["settings"]["drift"]) or "none",
-        "sample period [s]": dt,
+        "monitor_drift_terms": ", ".join(events["settings"]["drift"]) or "none",
+        "sample_period": dt,
     }
 
 
@@ -314,7 +426,7 @@ def write_servicing(out: Path, result: ServicingResult) -> tuple:
         Its figures, caption -> file name.
     """
     from ._figures import plot_capture_monitor, plot_payload
-    from ._report import _md_table
+    from ._report import _md_table, servicing_label
 
     folder = Path(out)
     write_json(folder / "payload.json", result.payload.to_dict())
@@ -324,17 +436,18 @@ def write_servicing(out: Path, result: ServicingResult) -> tuple:
     result.trajectory.save(folder / "capture_trajectory.json")
     s = result.scores
     plot_capture_monitor(result.log, s, folder / "capture.png", joints=result.trajectory.joints)
-    plot_payload(s["payload"], folder / "payload.png", link=result.truth["link"])
-    units = payload_units([p["name"] for p in s["payload"]])
-    rows = [(p["name"], unit, f"{p['true']:.6g}", f"{p['estimate']:.6g}", f"{p['std']:.2g}",
-             "" if p["z"] is None else f"{p['z']:+.2f}") for p, unit in zip(s["payload"], units)]  # fmt: skip
+    plot_payload([p.to_dict() for p in s.payload], folder / "payload.png", link=result.truth["link"],
+                 truth_label="truth (twin)")
+    units = payload_units([p.name for p in s.payload])
+    rows = [(p.name, unit, f"{p.true:.6g}", f"{p.estimate:.6g}", f"{p.std:.2g}",
+             "" if p.z is None else f"{p.z:+.2f}") for p, unit in zip(s.payload, units)]  # fmt: skip
     lines = [f"The payload grasped by `{result.truth['link']}` (mass, CoM and inertia about the CoM in its frame), "
              "identified from the post-capture excitation with the twin's servicer model, against the twin's truth:",
              "", *_md_table(["parameter", "unit", "true", "estimate", "std", "z"], rows), ""]  # fmt: skip
-    if s["not identifiable"]:
-        lines += [f"Not identifiable from planar motion: {', '.join(s['not identifiable'])}.", ""]
-    timing = [(k, "none" if v is None else f"{v:.4g}" if isinstance(v, float) else str(v)) for k, v in s.items()
-              if k not in ("payload", "not identifiable")]  # fmt: skip
+    if s.not_identifiable:
+        lines += [f"Not identifiable from planar motion: {', '.join(s.not_identifiable)}.", ""]
+    timing = [(servicing_label(k), "none" if v is None else f"{v:.4g}" if isinstance(v, float) else str(v))
+              for k, v in s.to_dict().items() if k not in ("payload", "not_identifiable")]  # fmt: skip
     lines += ["Change detection over the servicing recording (held-out motion, grasp, post-capture excitation):", "",
               *_md_table(["", "value"], timing)]  # fmt: skip
     figures = {"Change detection: the servicing recording, the grasp and the detected change": "capture.png",

@@ -189,11 +189,11 @@ def _draw_sweep(result: SweepResult):
     duration, one line per (harmonics, samples)."""
     from matplotlib.ticker import FuncFormatter
 
-    from ._figures import _new_figure, _styled
+    from .._figure_style import new_figure, styled
 
-    @_styled
+    @styled
     def draw():
-        fig = _new_figure((8.0, 3.4))
+        fig = new_figure((8.0, 3.4))
         axes = fig.subplots(1, 2)
         for (nf, n), rows in itertools.groupby(sorted(result.rows, key=lambda r: (r["harmonics"], r["samples"])),
                                                key=lambda r: (r["harmonics"], r["samples"])):  # fmt: skip
@@ -235,7 +235,7 @@ def write_sweep(result: SweepResult, out) -> dict:
     from rich.console import Console
 
     from ..data import write_json
-    from ._figures import _save
+    from .._figure_style import save_figure
 
     folder = Path(out)
     try:
@@ -254,5 +254,5 @@ def write_sweep(result: SweepResult, out) -> dict:
     buffer = io.StringIO()
     Console(file=buffer, width=80, color_system=None, force_terminal=False).print(sweep_table(result))
     write_text_atomic(paths["table"], buffer.getvalue())
-    _save(_draw_sweep(result), paths["figure"])
+    save_figure(_draw_sweep(result), paths["figure"])
     return paths

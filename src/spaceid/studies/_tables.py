@@ -9,31 +9,11 @@ from rich.table import Table
 from rich.text import Text
 
 from .._deprecation import deprecated_alias
-from .._errors import SpaceidError
 from ..estimation import Identification
+from ..estimation.internal import per_parameter, relative_errors
 
 
 __all__ = ["parameter_table", "montecarlo_table", "drift_lines"]
-
-
-def _per_param(values, ident: Identification, name: str):
-    """``values`` as a float array of shape ``(k,)``, or None; a clear error on a wrong length."""
-    if values is None:
-        return None
-    arr = np.asarray(values, float).reshape(-1)
-    if arr.shape != (len(ident.names),):
-        raise SpaceidError(
-            f"{name}: expected one value per parameter ({len(ident.names)}: {', '.join(ident.names)}), "
-            f"got {arr.size}: pass them in the order of the identification's names"
-        )
-    return arr
-
-
-def _relative_errors(ident: Identification, true):
-    """``|estimate - true| / |true|`` and ``std / |true|`` as fractions; NaN where ``true`` is 0."""
-    with np.errstate(divide="ignore", invalid="ignore"):
-        scale = np.where(true != 0, np.abs(true), np.nan)
-        return np.abs(ident.values - true) / scale, ident.std / scale
 
 
 # --- figures ----------------------------------------------------------------------------------
@@ -57,7 +37,7 @@ def _columns(ident: Identification, true, reference, reference_label, reference_
     header += ["estimate", "std"]
     cols += [[f"{v:.6g}" for v in ident.values], [f"{s:.3g}" for s in ident.std]]
     if true is not None:
-        rel, _ = _relative_errors(ident, true)
+        rel, _ = relative_errors(ident, true)
         header.append("rel. error [%]")
         cols.append([f"{100 * e:.3g}" if np.isfinite(e) else "-" for e in rel])
     if reference is not None:
@@ -103,9 +83,9 @@ def parameter_table(result: Identification, *, true=None, reference=None, refere
     reference_label : str
         Name of the reference in its column headers.
     """
-    true = _per_param(true, result, "`true`")
-    reference = _per_param(reference, result, "`reference`")
-    reference_true = _per_param(reference_true, result, "`reference_true`")
+    true = per_parameter(true, result, "`true`")
+    reference = per_parameter(reference, result, "`reference`")
+    reference_true = per_parameter(reference_true, result, "`reference_true`")
     header, rows = _columns(result, true, reference, reference_label, reference_true)
     # one unit for all (every planar-basis pi is in kg m^2) goes in the caption, and the paper's
     # seven columns still fit 80

@@ -7,6 +7,7 @@ and momentum; the base angular velocity and attitude it predicts are compared wi
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from ..identified import parameterization_of
 from ..motion import hermite_motion, simulate
 from ..data import Log, check_time_units, log_fingerprint
 
-__all__ = ["attitude_error_angle", "predict", "validate", "validation_metrics"]
+__all__ = ["Validation", "attitude_error_angle", "predict", "validate", "validation_metrics"]
 
 
 @deprecated_alias(old="ident", new="result")
@@ -99,8 +100,51 @@ def _warn_if_fitting_log(ident: Identification, log: Log, where: str) -> None:
         )
 
 
+@dataclass(frozen=True)
+class Validation:
+    """An identified model's prediction against a measured log (:func:`validate`).
+
+    Attributes
+    ----------
+    measured : Log
+        The log validated on.
+    predicted : Log
+        The identified model's base motion for its joint motion, at its time stamps.
+    metrics : dict of str to float
+        :func:`validation_metrics` of the two: ``base_w_rms``, ``base_w_nrms``, ``base_w_max``
+        and the yaw's (planar) or attitude's (spatial) errors.
+    """
+
+    measured: Log
+    predicted: Log
+    metrics: dict
+
+    def plot(self, fig=None, *, title: str | None = None):
+        """Draw the measured base motion against the predicted one, with the residuals (the paper's
+        Fig. 6, :func:`spaceid.studies.plot_validation`), and return the :class:`matplotlib.figure.Figure`.
+
+        Parameters
+        ----------
+        fig : matplotlib.figure.Figure or SubFigure, optional
+            Draw into it (two rows of panels); default: a new figure.
+        title : str, optional
+            Figure title; default names what is compared.
+        """
+        from ._figures import _draw_validation  # the figures read this module
+
+        return _draw_validation(self.measured, self.predicted, title, fig)
+
+    def to_dict(self) -> dict:
+        """JSON-ready: the ``metrics``, and the log's ``source``, ``n_samples``, ``start`` and ``end`` [s],
+        ``joints`` and ``planar`` flag (the logs themselves are written as log CSV files)."""
+        return {"metrics": dict(self.metrics), "source": self.measured.meta.get("source"),
+                "n_samples": int(self.measured.n_samples), "start": float(self.measured.t[0]),
+                "end": float(self.measured.t[-1]), "joints": list(self.measured.joints),
+                "planar": bool(self.measured.planar)}
+
+
 @deprecated_alias(old="ident", new="result")
-def validate(result: Identification, log: Log, *, momentum=None, where: str = "result", drift=None):
+def validate(result: Identification, log: Log, *, momentum=None, where: str = "result", drift=None) -> Validation:
     """Re-simulate ``result`` with the log's joint motion and initial attitude (and its drift
     terms, or ``drift``: see :func:`predict`); compare.
 
@@ -111,9 +155,8 @@ def validate(result: Identification, log: Log, *, momentum=None, where: str = "r
 
     Returns
     -------
-    predicted : Log
-    metrics : dict
-        See :func:`validation_metrics`.
+    Validation
+        ``measured`` (the log), ``predicted`` and ``metrics`` (see :func:`validation_metrics`).
     """
     _warn_if_fitting_log(result, log, where)
     check_time_units(log, log.meta.get("source", "log"))  # re-simulated in time: stamps in ms would mislead
@@ -126,4 +169,4 @@ def validate(result: Identification, log: Log, *, momentum=None, where: str = "r
             f"(RMS, above {100 * POOR_VALIDATION:.0f} %): the model does not predict this log: a result of another "
             "robot or payload, a wrong `momentum`, or a unit error in the log or the model (parameters 1000 times "
             "off give ~100 %)", UserWarning, stacklevel=2)
-    return predicted, metrics
+    return Validation(log, predicted, metrics)

@@ -1,0 +1,94 @@
+"""The pipeline on robots nobody on the project designed (``random_robots``): design with a short
+budget, simulate (momentum conserved by the rigid-body definitions, independently of the
+parameters), identify noise-free (recovery to round-off times the conditioning) and noisy
+(errors against the standard errors), predict, and a random payload on a random link."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from conftest import random_inertia
+from random_robots import random_robot
+
+from spaceid.dynamics import minimal_parameters
+from spaceid.estimation import Noise, identify
+from spaceid.identified import identify_payload
+from spaceid.models import inertial_vector
+from spaceid.motion import add_noise, design_excitation, sample_times, simulate
+from spaceid.studies import predict
+
+SEEDS = st.integers(0, 2**31 - 1)
+NOISE = 1e-4  # [rad, rad/s] on every signal of the noisy logs
+FAST = settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+                                                                      HealthCheck.function_scoped_fixture])
+SLOW = settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+                                                                       HealthCheck.function_scoped_fixture])
+
+
+def _flown(seed, planar, tmp_path):
+    """A random robot, a motion designed for it in a short budget, and its noise-free log."""
+    model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(tmp_path)
+    param = minimal_parameters(model)
+    h = np.array([0.0, 0.0, 0.3]) if planar else np.array([0.3, -0.2, 0.1])
+    samples = max(60, 3 * param.n_params // param.rows)
+    design = design_excitation(param, duration=10.0, harmonics=3, samples=samples, momentum=h, seed=seed % 2**32,
+                               n_starts=1, time_budget=2.0, q_max=1.0, qd_max=1.0, qdd_max=1.0)
+    log = simulate(param, param.true_values, design.trajectory, sample_times(10.0, 4 * samples), h, model=model)
+    assert log.meta["momentum_rel_error"] < 1e-9  # the simulation conserves the rigid-body momentum
+    return model, param, h, design.trajectory, log
+
+
+def _check_pipeline(seed, planar, tmp_path):
+    model, param, h, traj, log = _flown(seed, planar, tmp_path)
+    true = param.true_values
+    exact = identify(param, log, h, estimator="ols")
+    assert np.abs(exact.values - true).max() <= 1e-10 * exact.condition_number * np.abs(true).max()
+
+    noise = Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE)
+    noisy = identify(param, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), h, noise=noise)
+    free = noisy.std > 0
+    z = (noisy.values - true)[free] / noisy.std[free]
+    assert np.abs(z).max() < 5, f"max |z| {np.abs(z).max():.3g} over {free.sum()} parameters"
+
+    held_out = sample_times(traj.duration, 200)
+    q, qd, _ = traj.evaluate(held_out)
+    again = simulate(param, true, traj, held_out, h)
+    predicted = predict(exact, held_out, q, qd, momentum=h)
+    assert np.abs(predicted.base_w - again.base_w).max() <= 1e-6 * np.abs(again.base_w).max()
+
+
+def _check_payload(seed, planar, tmp_path):
+    """A payload of 2 to 20 % of the robot's mass, 5 to 30 cm across, on a random link, identified
+    from the noise-free log after the capture (the servicer known) to round-off, and from a noisy
+    one within 5 sigma."""
+    model, param, h, traj, _ = _flown(seed, planar, tmp_path)
+    rng = np.random.default_rng(seed)
+    link = model.bodies[rng.integers(1, len(model.bodies))].name
+    mass = model.mass * rng.uniform(0.02, 0.2)
+    com = rng.uniform(-0.2, 0.2, 3) * (np.r_[1.0, 1.0, 0.0] if planar else 1.0)
+    payload = inertial_vector(mass, com, mass * rng.uniform(0.05, 0.3) ** 2 * random_inertia(rng))
+    held = dataclasses.replace(model, bodies=tuple(dataclasses.replace(b, inertial=b.inertial + payload)
+                                                   if b.name == link else b for b in model.bodies))
+    captured = minimal_parameters(held)
+    log = simulate(captured, captured.true_values, traj, sample_times(traj.duration, 400), h, model=held)
+    exact = identify_payload(model, log, link, h, noise=Noise())
+    assert abs(exact.values[0] - mass) <= 1e-6 * mass
+    noisy = identify_payload(model, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), link, h,
+                             noise=Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE))
+    assert abs(noisy.values[0] - mass) < 5 * noisy.std[0]
+
+
+@FAST
+@given(seed=SEEDS, planar=st.booleans())
+def test_pipeline_on_random_robots(seed, planar, tmp_path):
+    _check_pipeline(seed, planar, tmp_path)
+
+
+@pytest.mark.slow
+@SLOW
+@given(seed=SEEDS, planar=st.booleans())
+def test_pipeline_and_payload_on_more_random_robots(seed, planar, tmp_path):
+    _check_pipeline(seed, planar, tmp_path)
+    _check_payload(seed, planar, tmp_path)
