@@ -334,8 +334,8 @@ class Monitor:
         segment.sigma = accumulator.sigma * math.sqrt(level)
         segment.score = level * accumulator.score / segment.scale
         inflation = determinacy.inflation.copy()
-        if not self.segments:  # the first warm-up: tested in the samples it was lengthened by, once determined
-            inflation[: max(self.warmup, determinacy.determined_from)] = np.nan
+        if not self.segments:  # the first warm-up: tested in the samples it was lengthened by
+            inflation[: self.warmup] = np.nan
         carried = self._carried[0] if self.drift and self.segments else None
         with one_blas_thread():  # sample by sample: threads only wait on busy cores
             segment.R = _accumulate_factor(None, np.asfortranarray(block / np.r_[segment.scale, 1.0]))
@@ -344,8 +344,7 @@ class Monitor:
             if self.segments:
                 last = self.segments[-1].prewhitening
             else:  # under the whitening of its samples before the first tested
-                first = max(self.warmup, determinacy.determined_from)
-                last = self._first_whitening(block, kalman, determinacy.noise, first) if len(rows) > first else None
+                last = self._first_whitening(block, kalman, determinacy.noise) if len(rows) > self.warmup else None
             nu = warm_up_innovations(last, block, None if kalman is None else kalman[0], self.param.rows,
                                      segment.scale, len(self._eq.free), carried, inflation)
         tested = [r.t for r, k in zip(rows, nu) if r.t > self._tested_until and not np.isnan(k).any()] \
@@ -414,22 +413,23 @@ class Monitor:
         segment.whitening = prewhitening(res, len(segment.theta_ref), self._intake.window or 0, kalman, noise)
         return kalman
 
-    def _first_whitening(self, block, kalman, noise: float, determined_from: int) -> dict:
-        """The prewhitening record that the first warm-up's samples from ``max(warmup, determined_from)``
-        on are tested under: that of the samples before, fitted to them alone (the whole warm-up's
-        would take in a change after them, and hide it; fewer would not determine the parameters,
-        and the regressor's noise, which is the equations' noise, would take in part of the
-        residuals: on a 25-parameter robot a 4 s prefix left them at 0.3 of the noise's variance and
-        autocorrelated, and the AR filter fitted to them doubled the innovations), from its whitened
-        equations ``block (m, p + 1)``, the differentiator's innovations over it ``kalman``
-        (:func:`~spaceid.estimation._monitor_whitening.differentiator_innovations`, None without) and
-        the sum of its error variances under the noise model ``noise``."""
-        segment, rows, n = self._segment, self.param.rows, max(self.warmup, determined_from)
-        first = block[: n * rows] / np.r_[segment.scale, 1.0]
-        theta = np.linalg.lstsq(first[:, :-1], first[:, -1], rcond=None)[0]
-        res = (first[:, -1] - first[:, :-1] @ theta).reshape(n, rows)
-        check = None if kalman is None else kalman_check(kalman[0][:n], len(theta)) + (0,)
-        return prewhitening(res, len(theta), self._intake.window or 0, check, noise * n * rows / len(block)).record
+    def _first_whitening(self, block, kalman, noise: float) -> dict:
+        """The prewhitening record that the first warm-up's samples after its nominal length
+        (``warmup``) are tested under: that of the samples before, fitted to their residuals at the
+        whole warm-up's estimate, which its samples determine (the whole warm-up's residuals would
+        take in a change after them, and hide it; the prefix's own estimate, when its samples do
+        not determine the parameters, takes in part of their noise, the regressor's noise being the
+        equations' own: on a 25-parameter robot a 4 s prefix left its residuals at 0.3 of the
+        noise's variance and autocorrelated, and the AR filter fitted to them doubled the
+        innovations), from the warm-up's whitened equations ``block (m, p + 1)``, the
+        differentiator's innovations over it ``kalman``
+        (:func:`~spaceid.estimation._monitor_whitening.differentiator_innovations`, None without)
+        and the sum of its error variances under the noise model ``noise``."""
+        segment, rows, n = self._segment, self.param.rows, self.warmup
+        res = (block[: n * rows, -1] - block[: n * rows, :-1] @ segment.theta_ref).reshape(n, rows)
+        p = len(segment.theta_ref) * n * rows // len(block)  # their share of the unknowns fitted
+        check = None if kalman is None else kalman_check(kalman[0][:n], p) + (0,)
+        return prewhitening(res, p, self._intake.window or 0, check, noise * n * rows / len(block)).record
 
     def _start_whitener(self):
         """Start the differentiator's whitening for the segment, from its weighted least-squares factor."""
