@@ -152,6 +152,8 @@ def false_alarms(param, runs, logs, noise, label, alpha=1e-3, drift=(), warmup=N
 def random_robots(runs):
     from test_monitor_random_robots import WITHIN, changeless_alarms, grasp_run
 
+    from spaceid.estimation._monitor_cusum import FALSE_ALARM_RATE
+
     print(f"(g) random robots, {runs} seeds per case: a grasp's detection delay, false alarms")
     folder = Path(tempfile.mkdtemp())
     for planar in (True, False):
@@ -162,7 +164,7 @@ def random_robots(runs):
                     run = grasp_run(seed, planar, noisy, differentiated, False, (seed * 0.37) % 1, folder, 20.0,
                                     max_arms=2, max_joints=3)  # fmt: skip
                     false += len(run.quiet.events)
-                    expected += run.quiet.false_alarm_rate * run.quiet.n_tested
+                    expected += FALSE_ALARM_RATE * run.quiet.n_tested
                     if run.grasp is None:
                         left_out += 1
                         continue

@@ -43,8 +43,8 @@ A warm-up lasts until its samples determine the parameters: the signal noise is 
 regressor too, and along a direction the motion has barely moved it makes the estimate the noise
 regressed on itself, biased by many of its standard errors
 (:mod:`~spaceid.estimation._monitor_determinacy`); the bias that remains enters the innovations'
-covariance. The first warm-up is tested in the samples it was lengthened by, from where the
-samples before determine the parameters.
+covariance. The first warm-up is tested in the samples it was lengthened by, from its nominal
+length on, each sample predicted from those before it.
 
 The parts: the CUSUM (:mod:`~spaceid.estimation._monitor_cusum`), the whitening and prewhitening
 (:mod:`~spaceid.estimation._monitor_whitening`, :mod:`~spaceid.estimation._monitor_filter`), the

@@ -33,7 +33,7 @@ The levels ``sigma_x`` are the model's, those of differentiated signals their sm
 the level the warm-up's residuals show against them when below 1 (:meth:`DeterminacyAccumulator.level`).
 
 Both are evaluated for every prefix of the warm-up at ``CHECKPOINTS`` evenly spaced ends: where
-the prefixes determine the estimate from (the first warm-up's own test starts there), and for
+the prefixes determine the estimate from (recorded), and for
 each sample the bias of the prefix before it, which the warm-up's own innovations are deflated by.
 """
 
