@@ -154,21 +154,26 @@ class GraspRun:
         return self.found[0].detected_at - self.grasp if self.found else None
 
 
-def grasp_run(seed, planar, noisy, differentiated, estimated, fraction, folder, duration, **size) -> GraspRun:
+def grasp_run(seed, planar, noisy, differentiated, estimated, fraction, folder, duration, after="end",
+              **size) -> GraspRun:  # fmt: skip
     """A random robot's changeless log first: its false alarms, and where the test begins. Then the
-    same log with a grasp at a random time (``fraction`` of the time left) after the first warm-up."""
+    same log with a grasp at a random time (``fraction`` of the time left) after the first warm-up
+    (``after``: ``"end"``, its end; ``"tested"``, its first tested sample: a grasp in the samples it
+    was lengthened by, before they determine the parameters, is found, but not always within
+    ``WITHIN``)."""
     return robot_grasp_run(_robot(seed, planar, folder, **size), seed, noisy, differentiated, estimated, fraction,
-                           duration)  # fmt: skip
+                           duration, after)  # fmt: skip
 
 
-def robot_grasp_run(robot: Robot, seed, noisy, differentiated, estimated, fraction, duration) -> GraspRun:
+def robot_grasp_run(robot: Robot, seed, noisy, differentiated, estimated, fraction, duration,
+                    after="end") -> GraspRun:  # fmt: skip
     """:func:`grasp_run` for ``robot`` in its motion, over ``duration`` [s], the noise drawn from ``seed``."""
     t = np.arange(int(duration * RATE)) / RATE
     noise = _noise(noisy, differentiated, estimated)
     steady = _measured(_simulate(robot, t), noisy, differentiated, seed)
     quiet = _monitored(robot, steady, noise)
     warm_up = quiet.segments[0].warm_up  # None: the motion never determined the parameters
-    start = None if warm_up is None else warm_up["tested_from"]  # None: the warm-up was never tested
+    start = None if warm_up is None else warm_up["tested_from" if after == "tested" else "end"]
     if start is not None and noise is None:  # levels estimated from the first samples: a grasp among them enters them
         start = max(start, NOISE_SAMPLES / RATE)
     if start is None or start + 0.5 >= duration - 2.0:  # no time for a grasp after it
