@@ -534,6 +534,10 @@ def test_a_bag_is_read_in_parts_of_bounded_size(capture_bag, monkeypatch):
 
 
 def test_monitor_on_a_bag_reads_it_in_parts(capture_bag, tmp_path, capsys):
+    """Read in parts, the bag's grasp is found where the whole log read at once finds it. The 4 s of
+    motion before the grasp do not determine the parameters with the automatic windows (0.7 to
+    0.9 s; the regressor noise's share of the information 0.07 in a direction): the grasp falls
+    within the first warm-up's extension, which is tested."""
     from spaceid.data import read_bag_log
 
     bag, grasp = capture_bag
@@ -545,11 +549,14 @@ def test_monitor_on_a_bag_reads_it_in_parts(capture_bag, tmp_path, capsys):
     (event,) = json.loads(out.read_text())["events"]
     whole = read_bag_log(bag, **_bag_options())
     grasp -= whole.meta["time_origin_ns"] / 1e9
-    # found where the whole log read at once finds it: within half the differentiator's window before the grasp
+    # found where the whole log read at once finds it: from half the differentiator's window before the grasp
+    # to 0.04 s after it (the levels given are 20 times the twin's residuals before the grasp, which are
+    # negligible against them: the first warm-up's test runs at the levels, and finds the grasp 2 samples
+    # after it; with an AR filter fitted to those residuals, 0.08 s before it, in the differentiator's lead)
     param = minimal_parameters(load_model("cepheus-rw"))
     (expected,) = monitor(param, whole, np.zeros(3), known={"Iczz_wheel": _rotor()}, warmup=100,
                           noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2)).events  # fmt: skip
-    assert abs(event["time"] - expected.time) <= 0.04 and -0.5 < event["time"] - grasp <= 0.02, (event, grasp)
+    assert abs(event["time"] - expected.time) <= 0.04 and -0.5 < event["time"] - grasp <= 0.04 + 1e-9, (event, grasp)
     assert main(args + ["--follow"]) == 2
     assert "a bag cannot be read while it is recorded" in capsys.readouterr().err
 
@@ -565,8 +572,9 @@ def _rotor():
 def test_monitor_takes_the_differentiator_window_of_a_bag(capture_bag, tmp_path, capsys):
     """``--window`` sets every differentiated series' window: the events' lead is half the widest one (41
     encoder samples at 50 Hz); an even window, or one for a CSV log read with its rate columns (nothing
-    to differentiate), is a one-line error. The grasp is the last event, found in the warm-up after
-    an alarm 1.6 s before it (before the warm-ups after an AR-whitened segment were tested, that
+    to differentiate), is a one-line error. The grasp is the last event (before the warm-ups were
+    lengthened until their samples determine the parameters, it was found in the warm-up after a
+    false alarm 1.6 s before it; before the warm-ups after an AR-whitened segment were tested, that
     alarm was the only event)."""
     from spaceid.data import read_bag_log
 

@@ -1489,6 +1489,9 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
                    "1: each segment's estimate is its batch weighted least squares.")
 @click.option("--warmup", type=SAMPLES, help="Samples of each segment identified in batch before its test starts "
               f"[default: max({WARMUP}, 4 (p + 1) / rows)].")
+@click.option("--max-segment", type=SAMPLES, default=4000, show_default=True,
+              help="Samples of a segment kept for its batch identification (evenly thinned), and the longest a "
+                   "warm-up waits for samples that determine the parameters.")
 @click.option("--estimator", type=click.Choice([e for e in ESTIMATORS if e != "angles"]), default="ml",
               show_default=True,
               help="Estimator of the batch identifications of the segments (see 'spaceid identify').")
@@ -1500,7 +1503,7 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
 @log_options
 @output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
 def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_alarm_rate, change_ratio, forgetting,
-            warmup, estimator, follow, follow_timeout, output, reading):
+            warmup, max_segment, estimator, follow, follow_timeout, output, reading):
     """Follow a log sample by sample (LOG.csv; a ROS bag, read part by part as its messages come;
     or with --follow a CSV being written): a recursive estimate of the parameters on the
     momentum equations and a CUSUM test on its normalised residual; each detected change is
@@ -1532,8 +1535,8 @@ def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_al
         chunks = log_chunks(_measured_log(m, log_path, reading))
     kinds = _drift(drift, m.planar, values=False)
     mon = Monitor(param, h, known=parse_known(known), noise=noise, drift=kinds, false_alarm_rate=false_alarm_rate,
-                  change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, estimator=estimator,
-                  where=str(log_path))
+                  change_ratio=change_ratio, forgetting=forgetting, warmup=warmup, max_segment=max_segment,
+                  estimator=estimator, where=str(log_path))
     err.print(f"CUSUM threshold {mon.threshold:.4g} for {false_alarm_rate:g} false alarms per sample; expected "
               f"delay {mon.expected_delay:.3g} samples for a change of ratio {change_ratio:g}", highlight=False)
     with _warnings_to_stderr():

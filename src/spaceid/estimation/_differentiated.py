@@ -110,6 +110,36 @@ def _skew(v):
     return out - np.swapaxes(out, -1, -2)
 
 
+def whitened_series(log: Log) -> list | None:
+    """The raw series behind the log's differentiated signals as the monitor's whitening takes them
+    (:class:`~spaceid.estimation._monitor_filter.DifferentiatedWhitener`): those of
+    :func:`differentiated_series`, each with whether it is the base attitude, and for a spatial base
+    differentiated as a quaternion by Savitzky-Golay, three: the small rotations about the base
+    axes, each a raw series behind its column of the attitude and of the base rate. The quaternion's
+    components are filtered alike, so to first order (the base turning little within a window)
+    the smoothed attitude's error is the smoothing weights times the raw rotations, the rate's the
+    derivative weights times them. The raw level is twice the components' (a small rotation moves
+    each by half of it). None when there are none, or they cannot be propagated."""
+    info = log.meta.get("differentiation")
+    if not info:
+        return None
+    base = info.get("base")
+    if log.planar or not base or base.get("planar", log.planar):
+        series = differentiated_series(log)
+        return None if series is None else [(r, value, rate, value is None) for r, value, rate in series]
+    records = _channels(base)
+    joints = {k: v for k, v in info.items() if k != "base"}
+    series = differentiated_series(Log(log.t, log.joints, log.q, log.qd, log.base_quat, log.base_w,
+                                       planar=log.planar, meta={"differentiation": joints}))
+    if records is None or len(records) != 4 or (series is None and joints.get("joints")):
+        return None
+    series = series or []
+    nj = len(log.joints)
+    record = dict(records[1], noise=2 * max(r["noise"] for r in records[1:]))
+    return [(r, value, rate, False) for r, value, rate in series] + [
+        (record, 2 * nj + 3 + k, 2 * nj + k, True) for k in range(3)]
+
+
 def _grid(record: dict, t: np.ndarray, pad: int | None = None) -> tuple:
     """Where the Savitzky-Golay filter of one series reads the raw samples for the log's stamps
     ``t (n,)``, on a uniform grid at the series' step (see the module's description): the first

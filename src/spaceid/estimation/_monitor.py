@@ -39,6 +39,13 @@ momentum). The momentum itself is not estimated: with a wheel spinning at consta
 rotor inertia the only anchor) a short warm-up does not fix the scale, and on the twin its
 estimate collapsed to the parameters near zero.
 
+A warm-up lasts until its samples determine the parameters: the signal noise is in the
+regressor too, and along a direction the motion has barely moved it makes the estimate the noise
+regressed on itself, biased by many of its standard errors
+(:mod:`~spaceid.estimation._monitor_determinacy`); the bias that remains enters the innovations'
+covariance. The first warm-up is tested in the samples it was lengthened by, from its nominal
+length on, each sample predicted from those before it.
+
 The parts: the CUSUM (:mod:`~spaceid.estimation._monitor_cusum`), the whitening and prewhitening
 (:mod:`~spaceid.estimation._monitor_whitening`, :mod:`~spaceid.estimation._monitor_filter`), the
 samples and their intake (:mod:`~spaceid.estimation._monitor_samples`), the running segment's
@@ -54,25 +61,27 @@ import math
 import warnings
 
 import numpy as np
-from scipy.linalg import solve_triangular
+from scipy.linalg import lapack, solve_triangular
 
 from .._constants import WARMUP
 from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
+from .._threads import one_blas_thread
 from ..data import Log
 from ..dynamics import Parameterization
-from ._differentiated import differentiated_series
+from ._differentiated import whitened_series
 from ._drift import check_drift_kinds
 from ._equations import _equations
 from ._linalg import _accumulate_factor, _column_scale
 from ._identify import identify
 from ._monitor_cusum import CHANGE_RATIO, FALSE_ALARM_RATE, Cusum, cusum_run_length, cusum_threshold
+from ._monitor_determinacy import DeterminacyAccumulator
 from ._monitor_filter import DifferentiatedWhitener
 from ._monitor_records import Z_CHANGED, Alarm, MonitorEvent, MonitorRecord, SegmentRecord
 from ._monitor_samples import Intake, Sample, Thinned, log_of
 from ._monitor_state import Phase, Segment
-from ._monitor_whitening import (_prediction, differentiator_innovations, prewhitening, warm_up_innovations,
-                                 whitened_equations, whitener_prior)
+from ._monitor_whitening import (_prediction, differentiator_innovations, kalman_check, prewhitening,
+                                 warm_up_innovations, whitened_equations, whitener_prior)
 from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
 
@@ -81,6 +90,9 @@ __all__ = ["Monitor", "MonitorEvent", "MonitorRecord", "SegmentRecord", "monitor
 
 CHUNK = 256
 """Samples of a whole :class:`~spaceid.data.Log` fed to the monitor at a time (the regressor is vectorised)."""
+CHECKED = 50
+"""Fewest of a warm-up's last innovations under the differentiator's whitening that its check takes
+(it takes those from where the warm-up's samples determine the estimate)."""
 NOISE_SAMPLES = 500
 """Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
 
@@ -240,7 +252,7 @@ class Monitor:
     def _new_whitener(self, samples: Log):
         """The differentiator's whitening of ``samples``' record (None without one): a segment whose
         test it whitened starts afresh with the new one, or goes on without (no AR filter either)."""
-        series = differentiated_series(samples)
+        series = whitened_series(samples)
         self._whitener = DifferentiatedWhitener(series, self._intake.t0, self._eq.p, self._raw_levels) \
             if series else None
         whitening = self._segment.whitening
@@ -283,17 +295,22 @@ class Monitor:
         """Test the samples from ``rows[i]`` on, a block at a time, until an alarm; returns the next index."""
         end = min(len(rows), i + self._block)
         white, L, _, D = self._whitened(samples.select(slice(i, end)), rows[i:end], derivatives=True)
-        for k in range(len(white)):
-            if self._step(rows[i + k], white[k], L[k], D[k]):
-                self._alarm(rows[i + k])
-                return i + k + 1
-        return end
+        with one_blas_thread():  # a sample's p x p updates: threads only wait (on busy cores, up to 100 times longer)
+            for k in range(len(white)):
+                if self._step(rows[i + k], white[k], L[k], D[k]):
+                    break
+            else:
+                return end
+        self._alarm(rows[i + k])
+        return i + k + 1
 
     # --- the warm-up --------------------------------------------------------------------------
 
     def _begin_testing(self) -> list:
         """Identify the warm-up, set the linearisation point, start the recursion on the warm-up
-        samples (:meth:`_take_warm_up`); returns the waiting event, now with its comparison."""
+        samples (:meth:`_take_warm_up`); returns the waiting event, now with its comparison. A
+        warm-up that does not excite every parameter, or whose samples do not determine the
+        estimate (:mod:`~spaceid.estimation._monitor_determinacy`), waits for more samples."""
         segment, rows = self._segment, self._segment.warm
         self._estimate_noise(rows)
         try:
@@ -305,18 +322,68 @@ class Monitor:
             return []
         segment.theta_ref = np.r_[segment.ident.values[self._eq.free], [d["value"] for d in segment.ident.drift]]
         self._sigma = signal_sigma(self.param, self.noise)
-        segment.trail = []
-        white, L, J, _ = self._whitened(log_of(rows, self.param.model, self.where), rows)
+        white, L, J, accumulator = self._warm_up_equations(rows)
         block = white.reshape(-1, white.shape[-1])
         segment.scale = _column_scale(block[:, :-1])
-        segment.R = _accumulate_factor(None, np.asfortranarray(block / np.r_[segment.scale, 1.0]))
-        last = self.segments[-1].prewhitening if self.segments else None
-        carried = self._carried[0] if self.drift and last is not None else None
-        nu = warm_up_innovations(last, block, self._set_prewhitening(block, rows, L, J), self.param.rows,
-                                 segment.scale, len(self._eq.free), carried)
+        res = (block[:, -1] - block[:, :-1] @ segment.theta_ref).reshape(len(rows), self.param.rows)
+        level = accumulator.level(res, len(segment.theta_ref))
+        determinacy = accumulator.result(white, segment.scale, level)
+        if not determinacy.determined:
+            return self._extend_warm_up(determinacy)
+        segment.trail = []
+        segment.sigma = accumulator.sigma * math.sqrt(level)
+        segment.score = level * accumulator.score / segment.scale
+        inflation = determinacy.inflation.copy()
+        if not self.segments:  # the first warm-up: tested in the samples it was lengthened by
+            inflation[: self.warmup] = np.nan
+        carried = self._carried[0] if self.drift and self.segments else None
+        with one_blas_thread():  # sample by sample: threads only wait on busy cores
+            segment.R = _accumulate_factor(None, np.asfortranarray(block / np.r_[segment.scale, 1.0]))
+            kalman = self._set_prewhitening(block, rows, L, J, determinacy.noise,
+                                            min(determinacy.determined_from, len(rows) - CHECKED))
+            if self.segments:
+                last = self.segments[-1].prewhitening
+            else:  # under the whitening of its samples before the first tested
+                last = self._first_whitening(block, kalman, determinacy.noise) if len(rows) > self.warmup else None
+            nu = warm_up_innovations(last, block, None if kalman is None else kalman[0], self.param.rows,
+                                     segment.scale, len(self._eq.free), carried, inflation)
+        tested = [r.t for r, k in zip(rows, nu) if r.t > self._tested_until and not np.isnan(k).any()] \
+            if nu is not None else []
+        segment.warm_up = determinacy.record(len(rows)) | {
+            "end": float(rows[-1].t), "determined_from": float(rows[min(determinacy.determined_from, len(rows) - 1)].t),
+            "tested_from": float(tested[0]) if tested else None}
         segment.warm, events = [], self._complete_waiting()
         self._take_warm_up(rows, nu)
         return events
+
+    def _warm_up_equations(self, rows: list) -> tuple:
+        """The warm-up's equations whitened at the linearisation point, ``white``, ``L`` and ``J``
+        (:meth:`_whitened`), and the :class:`~spaceid.estimation._monitor_determinacy.DeterminacyAccumulator`
+        of their derivatives, a block of samples at a time."""
+        log = log_of(rows, self.param.model, self.where)
+        sigma = self._whitener.smoothed(self._sigma) if self._whitener else self._sigma  # each sample's noise
+        accumulator, parts = DeterminacyAccumulator(len(rows), self._segment.theta_ref, sigma), []
+        for i in range(0, len(rows), self._block):
+            white, L, J, D = self._whitened(log.select(slice(i, i + self._block)), rows[i : i + self._block], True)
+            accumulator.add(L, D)
+            parts.append((white, L, J))
+        white, L, J = (np.concatenate(x) for x in zip(*parts))
+        return white, L, J, accumulator
+
+    def _extend_warm_up(self, determinacy) -> list:
+        """Wait for a quarter of a warm-up more: the samples so far do not determine the estimate
+        (``determinacy``); an error once the warm-up would outgrow ``max_segment``."""
+        segment, step = self._segment, max(1, self.warmup // 4)
+        if segment.target + step > self.max_segment:
+            share = "no information" if not np.isfinite(determinacy.noise_share) else \
+                f"{determinacy.noise_share:.2g} of the information"
+            raise SpaceidError(
+                f"{self.where}: segment {len(self.segments)} from {segment.start:g} s: {len(segment.warm)} samples do "
+                f"not determine the parameters (the signal noise gives {share} along a direction the motion barely "
+                f"moves; its predicted bias {determinacy.bias:.2g} of the residuals' variance): excite the motion "
+                "('spaceid design') or give a larger `max_segment`")
+        segment.target += step
+        return []
 
     def _estimate_noise(self, rows: list):
         """The noise levels from the first warm-up's samples ``rows``, when not given."""
@@ -328,11 +395,13 @@ class Monitor:
             raise SpaceidError(f"{self.where}: the first {len(rows)} samples show no noise: give the noise levels "
                                "(`noise`)")
 
-    def _set_prewhitening(self, block, rows, L, J):
+    def _set_prewhitening(self, block, rows, L, J, noise: float, start: int):
         """The segment's prewhitening (:func:`~spaceid.estimation._monitor_whitening.prewhitening`)
         from the warm-up's whitened equations ``block (m, p + 1)`` at its batch estimate, their
-        whiteners ``L`` and Jacobians ``J`` there; returns the warm-up's innovations under the
-        differentiator's whitening ``(n, rows)`` (None without one)."""
+        whiteners ``L`` and Jacobians ``J`` there and the sum of their error variances under the
+        noise model ``noise``, the differentiator's innovations checked from sample ``start`` on;
+        returns the warm-up under the differentiator's whitening (the tuple of
+        :func:`~spaceid.estimation._monitor_whitening.differentiator_innovations`; None without one)."""
         segment = self._segment
         res = (block[:, -1] - block[:, :-1] @ segment.theta_ref).reshape(len(rows), self.param.rows)
         kalman = None
@@ -340,9 +409,27 @@ class Monitor:
             self._start_whitener()
             a = block[:, :-1].reshape(len(rows), self.param.rows, len(segment.scale)) / segment.scale
             kalman = differentiator_innovations(self._whitener, [r.t for r in rows], a, res, L, J, self._sigma,
-                                                len(segment.theta_ref))
-        segment.whitening = prewhitening(res, len(segment.theta_ref), self._intake.window or 0, kalman)
-        return None if kalman is None else kalman[0]
+                                                len(segment.theta_ref), start)
+        segment.whitening = prewhitening(res, len(segment.theta_ref), self._intake.window or 0, kalman, noise)
+        return kalman
+
+    def _first_whitening(self, block, kalman, noise: float) -> dict:
+        """The prewhitening record that the first warm-up's samples after its nominal length
+        (``warmup``) are tested under: that of the samples before, fitted to their residuals at the
+        whole warm-up's estimate, which its samples determine (the whole warm-up's residuals would
+        take in a change after them, and hide it; the prefix's own estimate, when its samples do
+        not determine the parameters, takes in part of their noise, the regressor's noise being the
+        equations' own: on a 25-parameter robot a 4 s prefix left its residuals at 0.3 of the
+        noise's variance and autocorrelated, and the AR filter fitted to them doubled the
+        innovations), from the warm-up's whitened equations ``block (m, p + 1)``, the
+        differentiator's innovations over it ``kalman``
+        (:func:`~spaceid.estimation._monitor_whitening.differentiator_innovations`, None without)
+        and the sum of its error variances under the noise model ``noise``."""
+        segment, rows, n = self._segment, self.param.rows, self.warmup
+        res = (block[: n * rows, -1] - block[: n * rows, :-1] @ segment.theta_ref).reshape(n, rows)
+        p = len(segment.theta_ref) * n * rows // len(block)  # their share of the unknowns fitted
+        check = None if kalman is None else kalman_check(kalman[0][:n], p) + (0,)
+        return prewhitening(res, p, self._intake.window or 0, check, noise * n * rows / len(block)).record
 
     def _start_whitener(self):
         """Start the differentiator's whitening for the segment, from its weighted least-squares factor."""
@@ -377,30 +464,41 @@ class Monitor:
         """Test one sample, then add it; True on an alarm. ``white``, ``L``, ``D``: the sample's
         whitened equations, their whitener and derivatives (:meth:`_whitened`)."""
         a, b = white[:, :-1] / self._segment.scale, white[:, -1]
-        if self._cusum.add(row.t, self._innovation(row.t, a, b, L, D)):
+        if self._segment.warm_up["tested_from"] is None:
+            self._segment.warm_up["tested_from"] = float(row.t)
+        nu, score = self._innovation(row.t, a, b, L, D)
+        if self._cusum.add(row.t, nu):
             return True
-        self._segment.add(row, a, b, self.forgetting)
+        self._segment.add(row, a, b, self.forgetting, score)
         self._recent.append(row)
         return False
 
-    def _innovation(self, t: float, a, b, L, D) -> np.ndarray:
-        """The normalised innovation ``(rows,)`` of the sample at ``t`` [s]: its scaled regressors
-        ``a (rows, p)`` and data ``b (rows,)``, whitener ``L`` and derivatives ``D``."""
+    def _innovation(self, t: float, a, b, L, D) -> tuple:
+        """The normalised innovation ``(rows,)`` of the sample at ``t`` [s], from its scaled
+        regressors ``a (rows, p)`` and data ``b (rows,)``, whitener ``L`` and derivatives ``D``,
+        and the sample's errors-in-variables score ``(p,)``: the estimate's first-order bias from
+        the regressor's noise, ``-(R^T R)^-1 score`` (:mod:`~spaceid.estimation._monitor_determinacy`),
+        moves the prediction by ``a`` times it, which the innovation's covariance takes in."""
         segment, whitener = self._segment, self._whitener
         theta, u = _prediction(segment.R, a)
         # the equation error's covariance at the estimate so far (the weights stay at the linearisation point)
         J = np.einsum("rcx,c->rx", D, np.append(theta / segment.scale, 1.0))
         Li = np.linalg.inv(L)
+        E = np.einsum("rs,scx->rcx", Li, D) * segment.sigma  # the noise's whitened directions
+        score = np.einsum("rcx,rx->c", E[:, :-1] / segment.scale[:, None], np.einsum(
+            "rcx,c->rx", E, np.append(segment.theta_ref, 1.0)))  # fmt: skip
+        r = segment.R[:-1, :-1]
+        shift = a @ lapack.dtrtrs(r, lapack.dtrtrs(r, segment.score, trans=1)[0])[0]  # -(the bias), predicted
         if segment.whitening.kalman:  # what the samples before do not predict of the residual at theta_ref
-            C = Li @ equation_covariance(J[None], whitener.uncovered(self._sigma))[0] @ Li.T
+            C = Li @ equation_covariance(J[None], whitener.uncovered(self._sigma))[0] @ Li.T + np.outer(shift, shift)
             e_ref = b - a @ (segment.theta_ref * segment.scale)
             nu = whitener.innovation(e_ref, whitener.design(t, a, Li @ J), C) / segment.whitening.kalman_scale
             if self.forgetting < 1:
                 whitener.forget(self.forgetting)
         else:
-            C = Li @ equation_covariance(J[None], self._sigma)[0] @ Li.T + u.T @ u
+            C = Li @ equation_covariance(J[None], self._sigma)[0] @ Li.T + u.T @ u + np.outer(shift, shift)
             nu = solve_triangular(np.linalg.cholesky(C), b - a @ theta, lower=True)
-        return segment.whitening.filtered(nu)  # what the AR filter of the past innovations does not predict
+        return segment.whitening.filtered(nu), score  # what the AR filter of the past innovations does not predict
 
     def _whitened(self, log: Log, rows: list, derivatives: bool = False) -> tuple:
         """``log``'s equations (its samples ``rows``) whitened at the segment's linearisation point
@@ -481,6 +579,7 @@ class Monitor:
             index=len(self.segments), start=segment.start, end=end, n_samples=segment.count, n_identified=len(rows),
             identification=self._identify_segment(rows), recursive=self.estimate(),
             prewhitening=None if segment.whitening is None else segment.whitening.record,
+            warm_up=segment.warm_up,
             momentum=segment.momentum.copy(),
             momentum_from=None if segment.origin is None else float(segment.origin.t)))
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..data import savgol_weights
-from ._differentiated import differentiated_series
+from ._differentiated import whitened_series
 
 
 class DifferentiatedWhitener:
@@ -33,24 +33,24 @@ class DifferentiatedWhitener:
     Parameters
     ----------
     series : list
-        The log's raw angle series, :func:`~spaceid.estimation._differentiated.differentiated_series`.
+        The log's raw angle series, :func:`~spaceid.estimation._differentiated.whitened_series`.
     t0 : float
         Origin of the raw grids [s] (the first sample's stamp).
     p : int
         Unknowns of the equations.
     levels : tuple of 2 floats
-        The raw noise levels given for the joint angles and the base yaw [rad] (:class:`Noise`'s
+        The raw noise levels given for the joint angles and the base attitude [rad] (:class:`Noise`'s
         ``angle`` and ``attitude``); 0: those the differentiator estimated from the whole record.
     """
 
     def __init__(self, series: list, t0: float, p: int, levels=(0.0, 0.0)):
         self.t0, self.blocks, self.levels, start = t0, [], levels, p
-        for record, value, rate in series:
+        for record, value, rate, attitude in series:
             window, step = record["window"], record["step"]
             _, smooth, slope = savgol_weights(step * np.arange(window), [window // 2], window, record["order"])
             self.blocks.append({"value": value, "rate": rate, "window": window, "step": step, "order": record["order"],
-                                "noise": self._level(record, value), "smooth": smooth[0], "slope": slope[0],
-                                "start": start, "centre": None})  # fmt: skip
+                                "noise": self._level(record, attitude), "smooth": smooth[0], "slope": slope[0],
+                                "attitude": attitude, "start": start, "centre": None})  # fmt: skip
             start += window
         self.p, self.x, self.P = p, np.zeros(start), np.eye(start)
         self.covered = [c for b in self.blocks for c in (b["value"], b["rate"]) if c is not None]
@@ -58,20 +58,20 @@ class DifferentiatedWhitener:
     def follows(self, log) -> bool:
         """Take the noise levels of ``log``'s differentiation record (a new part of a bag); False
         when its filters differ from these (another window, order or step): a new whitener is needed."""
-        series = differentiated_series(log)
+        series = whitened_series(log)
         if series is None or len(series) != len(self.blocks):
             return False
-        for (record, value, rate), b in zip(series, self.blocks):
+        for (record, value, rate, attitude), b in zip(series, self.blocks):
             if (record["window"], record["order"], value, rate) != (b["window"], b["order"], b["value"], b["rate"]) \
                     or not np.isclose(record["step"], b["step"], rtol=1e-6):
                 return False
-            b["noise"] = self._level(record, value)
+            b["noise"] = self._level(record, attitude)
         return True
 
-    def _level(self, record: dict, value) -> float:
-        """The raw noise level of a series: the one given (a joint's angle, or the base yaw: ``value``
-        None), else the differentiator's estimate."""
-        return self.levels[value is None] or record["noise"]
+    def _level(self, record: dict, attitude: bool) -> float:
+        """The raw noise level of a series: the one given (a joint's angle, or the base attitude's),
+        else the differentiator's estimate."""
+        return self.levels[attitude] or record["noise"]
 
     def start(self, cov: np.ndarray):
         """Start a segment: the estimate's error with covariance ``cov (p, p)``, the raw noise unknown."""
@@ -90,6 +90,17 @@ class DifferentiatedWhitener:
         from sample to sample); those of the differentiated ones are the raw series'."""
         sigma = sigma.copy()
         sigma[self.covered] = 0.0
+        return sigma
+
+    def smoothed(self, sigma: np.ndarray) -> np.ndarray:
+        """The noise levels ``sigma (n_x,)`` with those of the differentiated signals replaced by the
+        std of each sample's smoothed angle and rate (the raw level times the norm of the
+        differentiator's weights): each sample's own noise, without its correlation."""
+        sigma = sigma.copy()
+        for b in self.blocks:
+            if b["value"] is not None:
+                sigma[b["value"]] = b["noise"] * np.linalg.norm(b["smooth"])
+            sigma[b["rate"]] = b["noise"] * np.linalg.norm(b["slope"])
         return sigma
 
     def _forget(self, places):

@@ -102,6 +102,9 @@ class SegmentRecord:
     prewhitening : dict or None
         How its innovations were whitened (docs/formats/events-json.md); None when it never
         finished its warm-up.
+    warm_up : dict or None
+        Its warm-up: its samples, how well they determined the estimate and the first of them
+        tested (docs/formats/events-json.md); None when it never finished it.
     momentum : numpy.ndarray of shape (3,)
         The momentum at its origin [N m s].
     momentum_from : float or None
@@ -118,11 +121,12 @@ class SegmentRecord:
     prewhitening: dict | None
     momentum: np.ndarray
     momentum_from: float | None
+    warm_up: dict | None = None
 
     def to_dict(self, names) -> dict:
         """The JSON-ready form (an entry of EVENTS.json's ``segments``), ``names`` the parameters'."""
         ident, rec = self.identification, self.recursive
-        keys = ("index", "start", "end", "n_samples", "n_identified", "prewhitening")
+        keys = ("index", "start", "end", "n_samples", "n_identified", "warm_up", "prewhitening")
         return {k: getattr(self, k) for k in keys} | {
             "momentum": self.momentum.tolist(), "momentum_from": self.momentum_from,
             "parameters": None if ident is None else [

@@ -67,6 +67,15 @@ class Segment:
         Square-root information factor of the recursive estimate (scaled unknowns, data column last).
     whitening : Prewhitening or None
         Its prewhitening, chosen on the warm-up.
+    warm_up : dict or None
+        The record of its warm-up once identified (``warm_up`` of a segment, docs/formats/events-json.md).
+    score : numpy.ndarray of shape (p,) or None
+        The errors-in-variables bias's score of the samples in ``R`` (scaled unknowns,
+        :mod:`~spaceid.estimation._monitor_determinacy`): the recursive estimate's bias is
+        ``-(R^T R)^-1 score``.
+    sigma : numpy.ndarray of shape (n_x,) or None
+        The signals' noise levels the score is taken at (the model's, or a differentiator's
+        smoothed ones, times the root of the level the warm-up's residuals showed when below 1).
     """
 
     start: float | None
@@ -85,6 +94,9 @@ class Segment:
     scale: np.ndarray | None = None
     R: np.ndarray | None = None
     whitening: Prewhitening | None = None
+    warm_up: dict | None = None
+    score: np.ndarray | None = None
+    sigma: np.ndarray | None = None
 
     def take(self, samples: list):
         """Add ``samples`` to the warm-up."""
@@ -108,12 +120,15 @@ class Segment:
         self.count = len(self.warm)
         self.dropped(0)
 
-    def add(self, sample: Sample, a: np.ndarray, b: np.ndarray, forgetting: float):
+    def add(self, sample: Sample, a: np.ndarray, b: np.ndarray, forgetting: float, score: np.ndarray):
         """Add a tested sample: its whitened equations ``a (rows, p)`` (scaled unknowns) and ``b
-        (rows,)`` to the recursive estimate, forgetting the ones before by ``forgetting``."""
+        (rows,)`` and its bias's ``score (p,)`` to the recursive estimate, forgetting the ones
+        before by ``forgetting``."""
         if forgetting < 1:
             self.R *= math.sqrt(forgetting)
+            self.score *= forgetting
         self.R = _accumulate_factor(self.R, np.asfortranarray(np.column_stack([a, b])))
+        self.score += score
         self.thinned.add(sample)
         self.count += 1
 

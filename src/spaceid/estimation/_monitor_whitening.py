@@ -24,6 +24,9 @@ from ._uncertainty import SIGNIFICANCE, _residual_checks
 
 AR_ORDER = 3
 """Order of the autoregressive filter that prewhitens correlated innovations (rates differentiated otherwise)."""
+NEGLIGIBLE = 0.01
+"""Residuals' chi2/dof below which they are negligible against the noise model (an error below a tenth
+of its std): no prewhitening is fitted to them."""
 PRIOR = 1e4
 """The differentiator's whitening starts each segment with the estimate's error this many times
 the warm-up's weighted least-squares covariance: diffuse against the warm-up itself, which it then
@@ -140,13 +143,15 @@ def _ar_filtered(nu: np.ndarray, coef, scale: float) -> np.ndarray:
 def whitener_prior(R: np.ndarray, p: int) -> np.ndarray:
     """The covariance ``(p, p)`` the differentiator's whitening starts a segment with: the
     estimate's error ``PRIOR`` times as uncertain as the weighted least-squares factor ``R`` (scaled
-    unknowns first) says, no direction's variance above ``PRIOR_CEILING``."""
+    unknowns first) says, no direction's variance above ``PRIOR_CEILING`` or below zero."""
     r_inv = solve_triangular(R[:p, :p], np.eye(p))
     variances, axes = np.linalg.eigh(PRIOR * r_inv @ r_inv.T)
-    return (axes * np.minimum(variances, PRIOR_CEILING)) @ axes.T
+    # negative variances are rounding: a factor of scaled condition 1e8 gave -4e3 beside 1e10, and the
+    # filter's covariance, started indefinite, turned the innovations' variances negative
+    return (axes * np.clip(variances, 0.0, PRIOR_CEILING)) @ axes.T
 
 
-def differentiator_innovations(whitener, t, a, res, L, J, sigma, p: int) -> tuple:
+def differentiator_innovations(whitener, t, a, res, L, J, sigma, p: int, start: int = 0) -> tuple:
     """Run the differentiator's whitening (started) over a warm-up's residuals; its state then
     predicts the first tested sample.
 
@@ -166,6 +171,11 @@ def differentiator_innovations(whitener, t, a, res, L, J, sigma, p: int) -> tupl
         Signal noise levels.
     p : int
         Unknowns fitted to the warm-up.
+    start : int
+        The first sample whose innovation the check takes (:func:`kalman_check`; before, the samples
+        before each did not determine the estimate, and the regressor's noise biased its
+        predictions: on a 33-parameter robot the innovations of a 16 s warm-up failed the Ljung-Box
+        test by their first 4 s). All are returned.
 
     Returns
     -------
@@ -178,15 +188,26 @@ def differentiator_innovations(whitener, t, a, res, L, J, sigma, p: int) -> tupl
         noise model predicts (its upper tail below ``SIGNIFICANCE``: effects it does not have).
     small : bool
         Whether they are smaller than it predicts (the lower tail).
+    start : int
+        The first of them that the check took.
     """
     Li = np.linalg.inv(L)
     R = Li @ equation_covariance(J, whitener.uncovered(sigma)) @ np.swapaxes(Li, -1, -2)
     nu = [whitener.innovation(r, whitener.design(tk, ak, li @ j), c)
           for tk, r, ak, li, j, c in zip(t, res, a, Li, J, R)]  # fmt: skip
-    dof = max(res.size - p, 1)
+    nu = np.array(nu)
+    _, chi2_dof, scale, small = kalman_check(nu[start:], p if start == 0 else 0)
+    return nu, chi2_dof, scale, small, start
+
+
+def kalman_check(nu: np.ndarray, p: int) -> tuple:
+    """The differentiator's innovations ``nu (n, rows)`` over a warm-up with ``p`` unknowns fitted
+    (0 for a part of it after the estimate is determined), their chi2/dof, the scale the test
+    divides them by and whether they are smaller than predicted (:func:`differentiator_innovations`)."""
+    dof = max(nu.size - p, 1)
     chi2_dof = float(np.sum(np.square(nu)) / dof)
     scale = math.sqrt(chi2_dof) if chi2.sf(chi2_dof * dof, dof) < SIGNIFICANCE else 1.0
-    return np.array(nu), chi2_dof, scale, bool(chi2.cdf(chi2_dof * dof, dof) < SIGNIFICANCE)
+    return nu, chi2_dof, scale, bool(chi2.cdf(chi2_dof * dof, dof) < SIGNIFICANCE)
 
 
 @dataclass
@@ -227,7 +248,8 @@ class Prewhitening:
         return _ar_filtered(recent, self.coefficients, self.scale)[-1]
 
 
-def prewhitening(res: np.ndarray, p: int, window: int, kalman: tuple | None) -> Prewhitening:
+def prewhitening(res: np.ndarray, p: int, window: int, kalman: tuple | None,
+                 noise: float | None = None) -> Prewhitening:
     """The segment's prewhitening from the warm-up's whitened residuals at its batch estimate.
 
     The differentiator's Kalman whitening when the log records Savitzky-Golay rates and the
@@ -235,7 +257,12 @@ def prewhitening(res: np.ndarray, p: int, window: int, kalman: tuple | None) -> 
     predicted (the lower tail of chi2/dof), both at ``SIGNIFICANCE``. Otherwise an
     AR(``AR_ORDER``) filter and the std it leaves, fitted to the residuals, when the rates were
     differentiated or the residuals are autocorrelated (Ljung-Box, as the identification's
-    covariance choice); else none (the innovations are independent).
+    covariance choice); else none (the innovations are independent). None either when the
+    residuals are negligible against the noise model (chi2/dof below ``NEGLIGIBLE``: a noise-free
+    log, whose residuals are rounding, integration or differentiator errors, smooth): the model's
+    levels bound the errors, and the test runs at them; a filter fitted to such residuals would
+    normalise the innovations by them, which the estimate's own error (it absorbs part of a smooth
+    error, and extrapolates it) exceeds, and raise alarms on it.
 
     Parameters
     ----------
@@ -248,37 +275,46 @@ def prewhitening(res: np.ndarray, p: int, window: int, kalman: tuple | None) -> 
     kalman : tuple or None
         The warm-up under the differentiator's whitening (:func:`differentiator_innovations`);
         None without a differentiation record.
+    noise : float, optional
+        The sum of the residuals' error variances under the noise model (with differentiated
+        rates, their smoothed noise's); the number of residuals when omitted.
     """
     checks = _residual_checks(res, res.size, None)
+    expected = (res.size if noise is None else noise) * max(res.size - p, 1) / res.size  # p unknowns fitted
+    residual_chi2_dof = float(np.sum(res**2) / expected) if expected > 0 else math.inf
+    negligible = residual_chi2_dof < NEGLIGIBLE
     use, chi2_dof, kalman_scale, kalman_p = False, None, 1.0, None
     if kalman is not None:
-        nu, chi2_dof, kalman_scale, small = kalman
-        kalman_p = _residual_checks(nu, nu.size, None)["ljung_box_p"]
-        use = kalman_p >= SIGNIFICANCE and not small
+        nu, chi2_dof, kalman_scale, small, start = kalman
+        kalman_p = _residual_checks(nu[start:], nu[start:].size, None)["ljung_box_p"]
+        use = kalman_p >= SIGNIFICANCE and not small and not negligible
     correlated = window or checks["ljung_box_p"] < SIGNIFICANCE
-    order = AR_ORDER if not use and correlated and len(res) > 4 * AR_ORDER else 0
+    order = AR_ORDER if not use and not negligible and correlated and len(res) > 4 * AR_ORDER else 0
     coef, scale = _ar_fit(res, order, p) if order else (np.zeros(0), 1.0)
     record = {"filter": "differentiator" if use else "autoregressive" if order else None,
               "order": order, "coefficients": coef.tolist(), "scale": scale, "chi2_dof": chi2_dof,
               "differentiator_scale": None if kalman is None else kalman_scale,
               "innovations_ljung_box_p": kalman_p,
               "lag1_autocorrelation": checks["lag1_autocorrelation"],
-              "ljung_box_p": checks["ljung_box_p"], "differentiator_window": window}  # fmt: skip
+              "ljung_box_p": checks["ljung_box_p"], "residual_chi2_dof": residual_chi2_dof,
+              "differentiator_window": window}  # fmt: skip
     lags = collections.deque(list(res[len(res) - order :]), maxlen=order)  # the lags of the first test
     return Prewhitening(use, kalman_scale, coef, scale, lags, record)
 
 
 def warm_up_innovations(last: dict | None, block: np.ndarray, kalman, rows: int, scale: np.ndarray, nf: int,
-                        carried: np.ndarray | None):
+                        carried: np.ndarray | None, inflation=None):
     """The innovations ``(n, rows)`` of a warm-up after an alarm, each predicted from the warm-up's
-    samples before it, under the whitening of the segment before (its recording's noise).
+    samples before it, under the whitening of the segment before (its recording's noise), divided
+    by the square root of ``inflation (n,)``: how much the regressor noise makes the prediction's
+    variance larger than the recursion says (:mod:`~spaceid.estimation._monitor_determinacy`;
+    NaN: untested). The first warm-up is tested under its own whitening (``last`` its record).
 
     The differentiator's (``kalman``, :func:`differentiator_innovations`), divided by the square
     root of that segment's chi2/dof when above 1 (this warm-up's own would grow with a change
     within it); else those of recursive least squares from the warm-up's start (its whitened
     equations ``block (n rows, p + 1)``, unknowns divided by ``scale (p,)``, the ``nf`` free
-    parameters first), through that segment's AR filter if it had one. None for the first
-    warm-up (``last``, the prewhitening record of the segment before, None).
+    parameters first), through that segment's AR filter if it had one. None when ``last`` is None.
 
     With drift terms, recursive least squares takes the drift coefficients ``carried (n_d,)`` the
     change's momentum was carried with as known: estimated from the warm-up's first samples,
@@ -289,8 +325,13 @@ def warm_up_innovations(last: dict | None, block: np.ndarray, kalman, rows: int,
     if last is None:
         return None
     if last["filter"] == "differentiator":
-        return kalman / math.sqrt(max(last["chi2_dof"], 1.0))  # its excess as measured, significant or not
-    if carried is not None:  # [A_free | b - A_drift d]
-        block = np.column_stack([block[:, :nf], block[:, -1] - block[:, nf:-1] @ carried])
-    nu = _recursive_innovations(block, rows, scale[:nf])
-    return _ar_filtered(nu, last["coefficients"], last["scale"]) if last["order"] else nu
+        nu = kalman / math.sqrt(max(last["chi2_dof"], 1.0))  # its excess as measured, significant or not
+    else:
+        if carried is not None:  # [A_free | b - A_drift d]
+            block = np.column_stack([block[:, :nf], block[:, -1] - block[:, nf:-1] @ carried])
+        else:
+            nf = len(scale)
+        nu = _recursive_innovations(block, rows, scale[:nf])
+        nu = _ar_filtered(nu, last["coefficients"], last["scale"]) if last["order"] else nu
+    return nu if inflation is None else nu / np.sqrt(inflation)[:, None]
+

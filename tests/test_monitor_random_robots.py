@@ -1,0 +1,320 @@
+"""The monitor on robots nobody on the project designed (issue 26): random planar and spatial URDF
+trees (``random_robots``) in a smooth three-harmonic motion grasp a 0.9 kg point payload on a
+random link at a random time, noise-free or with 1e-4 rad and rad/s of noise, the rates measured
+or differentiated: the grasp is reported within 0.25 s of it, and logs without a change raise no
+more false alarms than the stated rate predicts. The seeds of failures found this way are kept
+as ``@example`` regression cases.
+
+A grasp is required to be found after the first warm-up (on the changeless log: the monitor
+lengthens it until its samples determine the parameters; before, a change is taken in by the
+estimate's undetermined directions, or made up by them, and a change within it makes its
+estimate, and the determinacy judged at it, a blend of the two systems; the grasp of the issue,
+within the first warm-up of estimated noise levels, is ``test_the_grasp_of_issue_26``) and when
+it is observable within 0.25 s: the momentum error it makes in the model before
+it, summed in squares over those samples in units of the noise's, at least ``OBSERVABLE`` (the
+CUSUM needs about a third of that to cross its threshold in 13 samples; a payload near a joint
+axis of a link that barely moves may make less)."""
+
+import dataclasses
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, Phase, assume, example, given, settings
+from hypothesis import strategies as st
+from random_robots import random_robot
+from scipy.stats import binom
+
+from spaceid.data import Log, differentiate_log
+from spaceid.dynamics import angular_momentum, minimal_parameters
+from spaceid.estimation import Noise, monitor
+from spaceid.estimation._monitor import NOISE_SAMPLES
+from spaceid.models._model import inertial_vector
+from spaceid.motion import add_noise, simulate
+
+RATE = 50.0  # [Hz]
+MASS = 0.9  # [kg], the payload
+WITHIN = 0.25  # [s]: the grasp is reported within this of it
+WINDOW = 11  # differentiator window [samples] (0.2 s): short against the motion, as for monitoring
+LEVEL = 1e-4  # noise [rad, rad/s]
+OBSERVABLE = 200.0
+P_FALSE = 1e-3  # the binomial tail that the false alarms may reach
+SEEDS = st.integers(0, 2**31 - 1)
+# no shrinking: an example takes seconds, and the seed of a failure is what is kept
+PHASES = [Phase.explicit, Phase.reuse, Phase.generate]
+FAST = settings(max_examples=1, deadline=None, phases=PHASES, suppress_health_check=list(HealthCheck))
+SLOW = settings(max_examples=30, deadline=None, phases=PHASES, suppress_health_check=list(HealthCheck))
+
+
+@dataclasses.dataclass(frozen=True)
+class Robot:
+    model: object
+    param: object
+    momentum: np.ndarray
+    motion: object
+    rng: np.random.Generator
+
+
+def _robot(seed: int, planar: bool, folder, **size) -> Robot:
+    """A random robot and a smooth motion of each joint: three harmonics of 0.2 to 0.6 Hz, 0.1 to
+    0.4 rad each (prismatic joints 0.3 m per rad)."""
+    model = random_robot(seed, planar=planar, **size).load(folder)
+    rng = np.random.default_rng(seed)
+    nj = model.n_joints
+    freq, phase = rng.uniform(0.2, 0.6, (3, nj)), rng.uniform(0, 2 * np.pi, (3, nj))
+    amp = rng.uniform(0.1, 0.4, (3, nj))
+    amp = amp * np.array([0.3 if b.joint_type == "prismatic" else 1.0 for b in model.bodies[1:]])
+
+    def motion(t):
+        arg = 2 * np.pi * freq[None] * np.asarray(t)[:, None, None] + phase[None]
+        return (amp * np.sin(arg)).sum(1), (amp * 2 * np.pi * freq * np.cos(arg)).sum(1)
+
+    h = np.array([0.0, 0.0, 0.3]) if planar else np.array([0.3, -0.2, 0.1])
+    return Robot(model, minimal_parameters(model), h, motion, rng)
+
+
+def _with_payload(model, rng):
+    """``model`` with ``MASS`` at a random point within 0.1 m of a random link's origin."""
+    body = model.bodies[rng.integers(1, len(model.bodies))].name
+    point = rng.uniform(-0.1, 0.1, 3) * (np.r_[1.0, 1.0, 0.0] if model.planar else 1.0)
+    return dataclasses.replace(model, bodies=tuple(
+        dataclasses.replace(b, inertial=b.inertial + inertial_vector(MASS, point, np.zeros((3, 3))))
+        if b.name == body else b for b in model.bodies))  # fmt: skip
+
+
+def _simulate(robot: Robot, t, grasp=None, captured=None):
+    """The noise-free log over ``t``; with a ``grasp`` time, the ``captured`` model from it on
+    (the momentum carried over, the attitude continued)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # the 3D momentum of a planar robot with tilted inertia axes
+        if grasp is None:
+            return simulate(robot.param, robot.param.true_values, robot.motion, t, robot.momentum, model=robot.model)
+        before = simulate(robot.param, robot.param.true_values, robot.motion, t[t <= grasp], robot.momentum,
+                          model=robot.model)  # fmt: skip
+        after = simulate(robot.param, minimal_parameters(captured).true_values, robot.motion, t[t >= grasp],
+                         robot.momentum, initial_quat=before.base_quat[-1])  # fmt: skip
+    a = before.select(slice(0, -1))
+    return Log(np.r_[a.t, after.t], a.joints, np.r_[a.q, after.q], np.r_[a.qd, after.qd],
+               np.r_[a.base_quat, after.base_quat], np.r_[a.base_w, after.base_w], planar=a.planar)  # fmt: skip
+
+
+def _measured(log, noisy: bool, differentiated: bool, seed: int):
+    """The log as monitored: noise on the angles and rates, the rates differentiated from the angles."""
+    if noisy:
+        log = add_noise(log, angle=LEVEL, rate=LEVEL, seed=seed)
+    return differentiate_log(log, window=WINDOW) if differentiated else log
+
+
+def _noise(noisy: bool, differentiated: bool, estimated: bool):
+    """The levels given to the monitor: None (estimated from the log), or the added ones; for a
+    noise-free log 1e-9, and 1e-7 when its rates were differentiated: its errors are then the
+    differentiator's truncation errors, smooth, up to 6e-9 rad/s here, which the levels must bound
+    well (the log's own estimate finds less; with 21-sample windows they reached 2e-6 rad/s)."""
+    if estimated and not (differentiated and not noisy):
+        return None
+    level = LEVEL if noisy else 1e-7 if differentiated else 1e-9
+    return Noise(angle=level, rate=level, base_rate=level, attitude=level)
+
+
+def _momentum_error(model, log, h):
+    """The momentum ``model`` gives ``log`` less the true one ``h`` [N m s] (the z row of a planar robot)."""
+    e = angular_momentum(model, log.q, log.qd, log.base_w, log.base_quat) - h
+    return e[:, 2:] if model.planar else e
+
+
+def _monitored(robot: Robot, log, noise, **options):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return monitor(robot.param, log, robot.momentum, noise=noise, **options)
+
+
+@dataclasses.dataclass(frozen=True)
+class GraspRun:
+    """A changeless log's monitoring (``quiet``) and the same log's with a grasp at ``grasp`` [s]
+    (``record``); ``grasp`` and ``record`` None when the first warm-up left no time for a grasp, or
+    the grasp is not observable within ``WITHIN`` (module docstring)."""
+
+    quiet: object
+    grasp: float | None = None
+    record: object = None
+
+    @property
+    def found(self) -> list:
+        """The events whose change time is within ``WITHIN`` of the grasp (up to the event's lead after it)."""
+        return [e for e in self.record.events if e.time - WITHIN <= self.grasp <= e.time + e.lead + WITHIN]
+
+    @property
+    def early(self) -> list:
+        """The events before the grasp could show: false alarms."""
+        return [e for e in self.record.events if e.time + e.lead + WITHIN < self.grasp]
+
+    @property
+    def delay(self) -> float | None:
+        """From the grasp to the first event that found it [s]; None: missed."""
+        return self.found[0].detected_at - self.grasp if self.found else None
+
+
+def grasp_run(seed, planar, noisy, differentiated, estimated, fraction, folder, duration, after="end",
+              **size) -> GraspRun:  # fmt: skip
+    """A random robot's changeless log first: its false alarms, and where the test begins. Then the
+    same log with a grasp at a random time (``fraction`` of the time left) after the first warm-up
+    (``after``: ``"end"``, its end; ``"tested"``, its first tested sample: a grasp in the samples it
+    was lengthened by, before they determine the parameters, is found, but not always within
+    ``WITHIN``)."""
+    return robot_grasp_run(_robot(seed, planar, folder, **size), seed, noisy, differentiated, estimated, fraction,
+                           duration, after)  # fmt: skip
+
+
+def robot_grasp_run(robot: Robot, seed, noisy, differentiated, estimated, fraction, duration,
+                    after="end") -> GraspRun:  # fmt: skip
+    """:func:`grasp_run` for ``robot`` in its motion, over ``duration`` [s], the noise drawn from ``seed``."""
+    t = np.arange(int(duration * RATE)) / RATE
+    noise = _noise(noisy, differentiated, estimated)
+    steady = _measured(_simulate(robot, t), noisy, differentiated, seed)
+    quiet = _monitored(robot, steady, noise)
+    warm_up = quiet.segments[0].warm_up  # None: the motion never determined the parameters
+    start = None if warm_up is None else warm_up["tested_from" if after == "tested" else "end"]
+    if start is not None and noise is None:  # levels estimated from the first samples: a grasp among them enters them
+        start = max(start, NOISE_SAMPLES / RATE)
+    if start is None or start + 0.5 >= duration - 2.0:  # no time for a grasp after it
+        return GraspRun(quiet)
+    grasp = float(np.round((start + 0.5 + fraction * (duration - 2.5 - start)) * RATE) / RATE)
+    captured = _with_payload(robot.model, robot.rng)
+    log = _measured(_simulate(robot, t, grasp, captured), noisy, differentiated, seed)
+    if noisy:  # the grasp's momentum error in the model before it, against the noise's in the changeless log
+        clean = _simulate(robot, t, grasp, captured)
+        moved = _momentum_error(robot.model, clean.select((clean.t >= grasp) & (clean.t < grasp + WITHIN)),
+                                robot.momentum)  # fmt: skip
+        spread = np.mean(_momentum_error(robot.model, steady, robot.momentum) ** 2, axis=0)
+        if np.sum(moved**2 / spread) < OBSERVABLE:
+            return GraspRun(quiet)
+    return GraspRun(quiet, grasp, _monitored(robot, log, noise))
+
+
+def check_grasp(run: GraspRun):
+    """The grasp of ``run`` reported within ``WITHIN``; the changeless log and the time before the
+    grasp raise at most one false alarm (at 1e-5 per sample, a few hundred tested samples make 2 a
+    1e-5 event)."""
+    assert len(run.quiet.events) + len(run.early) <= 1, (run.quiet.events, run.early, run.grasp)
+    assert run.delay is not None and run.delay <= WITHIN, (
+        [(e.time, e.detected_at) for e in run.record.events], run.grasp)
+
+
+def _grasp_found(*args, **kwargs):
+    run = grasp_run(*args, **kwargs)
+    assume(run.grasp is not None)
+    check_grasp(run)
+
+
+CASES = {"seed": SEEDS, "planar": st.booleans(), "noisy": st.booleans(), "differentiated": st.booleans(),
+         "estimated": st.booleans(), "fraction": st.floats(0, 1)}
+
+
+@FAST
+@given(**CASES)
+def test_a_grasp_is_found_on_a_random_robot(seed, planar, noisy, differentiated, estimated, fraction, tmp_path):
+    _grasp_found(seed, planar, noisy, differentiated, estimated, fraction, tmp_path, 12.0, max_arms=2, max_joints=2)
+
+
+@pytest.mark.slow
+@SLOW
+@given(**CASES)
+# issue 26: a 4-joint planar tree, 25 parameters, false alarms from a 4 s warm-up its motion leaves
+# undetermined (the regressor noise's errors in variables), noise-free and with 1e-4 noise
+@example(seed=0, planar=True, noisy=True, differentiated=False, estimated=False, fraction=0.3)
+@example(seed=0, planar=True, noisy=False, differentiated=False, estimated=True, fraction=0.3)
+@example(seed=5, planar=True, noisy=True, differentiated=False, estimated=True, fraction=0.6)
+@example(seed=4, planar=False, noisy=True, differentiated=False, estimated=False, fraction=0.5)  # 105 parameters
+# noise-free with rates differentiated: the filter fitted to residuals far below the noise model
+@example(seed=9, planar=True, noisy=False, differentiated=True, estimated=False, fraction=0.5)
+@example(seed=0, planar=False, noisy=False, differentiated=True, estimated=False, fraction=0.0)
+# the differentiator's noise in the regressor: its smoothed levels, not the given rate level
+@example(seed=9, planar=True, noisy=True, differentiated=True, estimated=False, fraction=0.5)
+# a grasp among the samples the levels are estimated from (no longer drawn): missed
+@example(seed=13859, planar=False, noisy=True, differentiated=False, estimated=True, fraction=0.16)
+def test_a_grasp_is_found_on_larger_random_robots(seed, planar, noisy, differentiated, estimated, fraction, tmp_path):
+    _grasp_found(seed, planar, noisy, differentiated, estimated, fraction, tmp_path, 20.0, max_arms=2, max_joints=3)
+
+
+def changeless_alarms(seed, logs, folder, duration, rate=1e-3, **size) -> tuple:
+    """The alarms and tested samples of ``logs`` changeless logs of random robots (planar and
+    spatial in turn, noisy, the rates measured or differentiated, the levels given or estimated)
+    at ``rate`` false alarms per sample."""
+    rng = np.random.default_rng(seed)
+    alarms = tested = 0
+    t = np.arange(int(duration * RATE)) / RATE
+    for k in range(logs):
+        robot = _robot(int(rng.integers(2**31)), k % 2 == 0, folder, **size)
+        differentiated, estimated = bool(rng.integers(2)), bool(rng.integers(2))
+        log = _measured(_simulate(robot, t), True, differentiated, int(rng.integers(2**31)))
+        record = _monitored(robot, log, _noise(True, differentiated, estimated), false_alarm_rate=rate)
+        alarms, tested = alarms + len(record.events), tested + record.n_tested
+    return alarms, tested
+
+
+def _as_stated(alarms: int, tested: int, rate: float = 1e-3):
+    """``alarms`` in ``tested`` samples no more than a ``P_FALSE`` event at ``rate`` per sample (binomial)."""
+    assert binom.sf(alarms - 1, tested, rate) >= P_FALSE, (alarms, rate * tested)
+
+
+@FAST
+@given(seed=SEEDS)
+def test_false_alarms_on_random_robots_as_stated(seed, tmp_path):
+    _as_stated(*changeless_alarms(seed, 1, tmp_path, 12.0, max_arms=2, max_joints=2))
+
+
+@pytest.mark.slow
+def test_false_alarms_on_larger_random_robots_as_stated(tmp_path):
+    """24 changeless 20 s logs of random trees of up to 2 arms of 3 joints at 1e-3 false alarms per
+    sample (binomial); and seed 13, two planar trees that raised false alarms when 4 s warm-ups left
+    their parameters undetermined."""
+    _as_stated(*changeless_alarms(2026, 24, tmp_path, 20.0, max_arms=2, max_joints=3))
+    _as_stated(*changeless_alarms(13, 2, tmp_path, 12.0, max_arms=2, max_joints=3))
+
+
+@pytest.mark.slow
+@pytest.mark.xfail(reason="not explained yet: noise-free, rates differentiated, levels 1e-7; false alarms from 5.2 s in "
+                   "the log with the grasp (at 13.92 s) that the changeless log, the same before the grasp, does not raise")
+def test_an_unexplained_failure_on_a_spatial_tree(tmp_path):
+    _grasp_found(18800167, False, False, True, True, 0.6948161718260787, tmp_path, 20.0, after="tested", max_arms=2,
+                 max_joints=3)
+
+
+@pytest.mark.parametrize("noisy", [False, True])
+def test_the_grasp_of_issue_26(noisy, tmp_path):
+    """Issue 26: a 4-joint planar tree in a slow motion (three harmonics of 0.1 to 0.5 Hz) grasps
+    0.9 kg at 9.3 s of a 20 s log at 50 Hz, the rates measured, monitored as ``spaceid monitor
+    ROBOT LOG --planar --momentum 0.3`` does (the noise levels estimated from the first 500
+    samples: its first warm-up, which holds the grasp). Before, it was reported at 10.38 s
+    (detected at 10.50 s) with a change that did not happen at 14.38 s, noise-free, and at 10.40,
+    14.40 and 18.42 s with 1e-4 noise: the first warm-up was not tested, and the 4 s warm-ups
+    after it left the 25 parameters undetermined. Now exactly once, at the grasp."""
+    model = random_robot(0, planar=True, max_arms=2, max_joints=3).load(tmp_path)
+    assert model.n_joints == 4
+    rng = np.random.default_rng(0)
+    freq, phase = rng.uniform(0.1, 0.5, (3, 4)), rng.uniform(0, 2 * np.pi, (3, 4))
+    amp = rng.uniform(0.1, 0.4, (3, 4))
+
+    def motion(t):
+        arg = 2 * np.pi * freq[None] * np.asarray(t)[:, None, None] + phase[None]
+        return (amp * np.sin(arg)).sum(1), (amp * 2 * np.pi * freq * np.cos(arg)).sum(1)
+
+    robot = Robot(model, minimal_parameters(model), np.array([0.0, 0.0, 0.3]), motion, rng)
+    t = np.arange(1000) / RATE
+    log = _measured(_simulate(robot, t, 9.3, _with_payload(model, rng)), noisy, False, 0)
+    (event,) = _monitored(robot, log, None).events
+    assert abs(event.time - 9.3) <= WITHIN and event.detected_at - 9.3 <= WITHIN, event
+
+
+@pytest.mark.slow
+def test_a_noise_free_log_with_differentiated_rates_keeps_the_filter_definite(tmp_path):
+    """A noise-free planar tree of 33 parameters (three prismatic joints), its rates differentiated
+    over 11 samples, grasping at 12.5 s: the warm-up after the alarm has a factor of scaled
+    condition about 1e8, whose prior for the differentiator's whitening came out indefinite by
+    rounding (-4e3 beside 1e10); the filter's innovation variances then turned negative and the
+    monitor stopped with a linear-algebra error. Its negative directions are zero now."""
+    robot = _robot(7, True, tmp_path, max_arms=2, max_joints=3)
+    t = np.arange(1000) / RATE
+    log = _measured(_simulate(robot, t, 12.5, _with_payload(robot.model, robot.rng)), False, True, 7)
+    (event,) = _monitored(robot, log, _noise(False, True, False)).events
+    assert event.time <= 12.5 <= event.time + event.lead + 2 / RATE and event.detected_at - 12.5 <= WITHIN
