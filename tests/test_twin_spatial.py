@@ -220,3 +220,19 @@ def test_cli_refuses_a_bad_budget(tmp_path, capsys):
     assert main(["experiment", "servicer-dual", "--time-budget", "-1", "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--time-budget" in err
+
+
+def test_a_model_no_rigid_body_has_is_not_predicted(tmp_path):
+    """The held-out prediction refuses a model whose locked inertia is not positive definite (its
+    simulation would blow up or crawl) and names why; the true model passes."""
+    from spaceid.studies._spatial_experiment import _predictions
+
+    model, _ = _robot(tmp_path)
+    settings = ServicerSettings(model=model).without_noise()
+    run = run_servicer(_reference(model.joints, 2.0, 8), duration=2.0, settings=settings,
+                       state=ServicerState(momentum=(0.01, 0.0, 0.0)))  # fmt: skip
+    param = spaceid.minimal_parameters(model)
+    predicted, refused = _predictions(param, {"true": param.true_values, "negated": -param.true_values},
+                                      run.truth, np.array([0.01, 0.0, 0.0]))  # fmt: skip
+    assert set(predicted) == {"true"} and "not positive definite" in refused["negated"]
+    assert attitude_error_angle(predicted["true"].base_quat, run.truth.base_quat).max() < 1e-6

@@ -1131,9 +1131,11 @@ def _spatial_experiment(model, ctx, *, samples, estimator, ideal, trajectory, du
     out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g}; {c['n_large']} large "
               f"parameters: {100 * c['within_2_sigma']:.1f} % within 2 sigma, max |z| {c['max_abs_z']:.3g}, RMS z "
               f"{c['rms_z']:.3g}", highlight=False)  # fmt: skip
-    out.print(f"held-out motion ({res.settings['held-out duration [s]']:g} s): largest attitude error {ident['max']:.3g} "
-              f"rad identified, {prior['max']:.3g} rad CAD prior (x {m['CAD prior / identified, largest attitude error']:.3g})",
-              highlight=False)  # fmt: skip
+    shown = [f"{e['max']:.3g} rad" if e else f"none ({m['not predicted'][k]})" for e, k in
+             ((ident, "identified"), (prior, "CAD prior"))]  # fmt: skip
+    ratio = m["CAD prior / identified, largest attitude error"]
+    out.print(f"held-out motion ({res.settings['held-out duration [s]']:g} s): largest attitude error {shown[0]} "
+              f"identified, {shown[1]} CAD prior" + (f" (x {ratio:.3g})" if ratio else ""), highlight=False)
     drift = max(m["momentum drift relative to the joints' momentum"])
     out.print(f"momentum of the true states: largest change {drift:.2g} of the joints' momentum", highlight=False)
     out.print(f"report written to {shown_name(folder)}/report.md")

@@ -58,8 +58,10 @@ class SpatialExperimentResult:
         The twin's minimal parameters and the CAD model's.
     log, validation_log : Log
         The excitation and the held-out motion as read from the sensors (all samples).
-    predicted, prior_predicted : Log
-        The held-out motion's base as the identified model and the CAD prior predict it.
+    predicted, prior_predicted : Log or None
+        The held-out motion's base as the identified model and the CAD prior predict it; None
+        for a model whose locked inertia is not positive definite along the motion (no rigid
+        body has it: ``metrics["not predicted"]`` says why).
     trajectory, validation_trajectory : FourierTrajectory
     metrics : dict
         ``coverage`` (:func:`coverage` over the large parameters), the held-out attitude
@@ -133,12 +135,33 @@ def _designed(spec, prior_param, *, duration, harmonics, samples, seed, time_bud
                              **(limits or {})).trajectory  # fmt: skip
 
 
-def _predictions(param, values: dict, held: Log, momentum) -> dict:
+def _locked_inertia_check(param, pi, log: Log) -> str:
+    """Empty when the system's locked inertia (3, 3) of the parameters ``pi``, the momentum of
+    the base turning at a unit rate with the joints at rest, ``Y(q, 0, e_i) pi``, is positive
+    definite at every 10th sample of ``log``; otherwise why not (a model no rigid body has, whose
+    simulation would blow up or crawl)."""
+    q = log.q[::10]
+    zero = np.zeros_like(q)
+    inertia = np.stack([param.regressor(q, zero, np.broadcast_to(e, (len(q), 3))) @ pi for e in np.eye(3)], -1)
+    smallest = np.linalg.eigvalsh((inertia + np.swapaxes(inertia, -1, -2)) / 2)[:, 0]
+    worst = int(np.argmin(smallest))
+    if smallest[worst] > 0:
+        return ""
+    return (f"its locked inertia is not positive definite along the held-out motion (smallest eigenvalue "
+            f"{smallest[worst]:.3g} kg m^2 at t = {log.t[::10][worst]:.4g} s): no rigid body has it, no prediction")
+
+
+def _predictions(param, values: dict, held: Log, momentum) -> tuple:
     """Each model's (``values``: label -> minimal parameters) base motion over the held-out
-    joint motion, from the measured start attitude, with the known ``momentum`` (3,) [N m s]."""
+    joint motion, from the measured start attitude, with the known ``momentum`` (3,) [N m s]:
+    ``(predicted, refused)``, ``refused`` the models not simulated and why."""
     motion = hermite_motion(held.t, held.q, held.qd)
-    return {label: simulate(param, pi, motion, held.t, momentum, initial_quat=held.base_quat[0])
-            for label, pi in values.items()}  # fmt: skip
+    predicted, refused = {}, {}
+    for label, pi in values.items():
+        refused[label] = _locked_inertia_check(param, pi, held)
+        if not refused[label]:
+            predicted[label] = simulate(param, pi, motion, held.t, momentum, initial_quat=held.base_quat[0])
+    return predicted, {k: v for k, v in refused.items() if v}
 
 
 def _check_identify_options(options) -> dict:
@@ -253,14 +276,17 @@ def run_spatial_experiment(
     chosen = _nearest(log.t, log.t[0] + sample_times(traj.duration, int(samples)))
     ident = identify(param, log.select(chosen), h, estimator=estimator, where=where, **options)
     true, prior = param.true_values, prior_param.true_values
-    predicted = _predictions(param, {"identified": ident.values, "CAD prior": prior}, held, h)
+    predicted, refused = _predictions(param, {"identified": ident.values, "CAD prior": prior}, held, h)
     large = large_parameters(param, log, true)
-    errors = {label: _attitude_errors(held, p) for label, p in predicted.items()}
+    errors = {label: _attitude_errors(held, predicted[label]) if label in predicted else None
+              for label in ("identified", "CAD prior")}  # fmt: skip
     metrics = {
         "coverage": coverage(ident, true, large),
         "held-out attitude error, identified [rad]": errors["identified"],
         "held-out attitude error, CAD prior [rad]": errors["CAD prior"],
-        "CAD prior / identified, largest attitude error": errors["CAD prior"]["max"] / errors["identified"]["max"],
+        "CAD prior / identified, largest attitude error": errors["CAD prior"]["max"] / errors["identified"]["max"]
+        if None not in errors.values() else None,
+        "not predicted": refused,
         "momentum drift, excitation and held-out flights [N m s]": [flight.meta["momentum_drift"],
                                                                      held_run.meta["momentum_drift"]],
         "momentum drift relative to the joints' momentum": [flight.meta["momentum_drift_relative"],
@@ -280,7 +306,8 @@ def run_spatial_experiment(
         "tracking RMS, truth vs reference [rad]": flight.meta["tracking_rms"],
         "cond(Y)": ident.condition_number,
     }  # fmt: skip
-    result = SpatialExperimentResult(ident, true, prior, log, held, predicted["identified"], predicted["CAD prior"],
+    result = SpatialExperimentResult(ident, true, prior, log, held, predicted.get("identified"),
+                                     predicted.get("CAD prior"),
                                      traj, vtraj, metrics, dict(protocol, twin=settings.to_dict()),
                                      Path(out) if out is not None else None)  # fmt: skip
     if out is not None:
@@ -309,13 +336,18 @@ def _write_report(result: SpatialExperimentResult, flight, held_run, chosen) -> 
     write_json(folder / "experiment.json", result.to_dict())
     held = result.validation_log
     t = held.t - held.t[0]
-    plot_attitude_errors(t, {label: attitude_error_angle(p.base_quat, held.base_quat)
-                             for label, p in (("identified model", result.predicted),
-                                              ("CAD prior", result.prior_predicted))},
-                         folder / "attitude.png", title="Held-out motion: predicted base attitude against the "
-                         "measured one (star tracker)")  # fmt: skip
-    plot_validation(held, result.predicted, folder / "validation.png",
-                    title="Held-out motion: measured base motion vs the identified model")
+    predicted = {label: p for label, p in (("identified model", result.predicted), ("CAD prior",
+                 result.prior_predicted)) if p is not None}  # fmt: skip
+    figures = {}
+    if predicted:
+        plot_attitude_errors(t, {label: attitude_error_angle(p.base_quat, held.base_quat) for label, p in
+                                 predicted.items()}, folder / "attitude.png", title="Held-out motion: predicted base "
+                             "attitude against the measured one (star tracker)")  # fmt: skip
+        figures["Held-out motion: attitude error of the identified model and of the CAD prior"] = "attitude.png"
+    if result.predicted is not None:
+        plot_validation(held, result.predicted, folder / "validation.png",
+                        title="Held-out motion: measured base motion vs the identified model")
+        figures["Held-out motion: measured base motion vs the identified model"] = "validation.png"
     plot_parameters(result.ident, folder / "parameters.png", true=result.true)
     plot_singular_values(result.ident, folder / "singular_values.png")
     worst = np.argsort(-np.array(list(flight.meta["tracking_rms"].values())))[:4]  # the loosest joints
@@ -326,9 +358,7 @@ def _write_report(result: SpatialExperimentResult, flight, held_run, chosen) -> 
                   result.log.q[:, [result.log.joints.index(j) for j in joints]], joints, folder / "tracking.png",
                   times=tlog[chosen], title="Tracking of the excitation (the four loosest joints): computed torque "
                   "through the CAD model")  # fmt: skip
-    figures = {
-        "Held-out motion: attitude error of the identified model and of the CAD prior": "attitude.png",
-        "Held-out motion: measured base motion vs the identified model": "validation.png",
+    figures |= {
         "Parameter estimates (N samples)": "parameters.png",
         "Singular values of the regressor (N samples)": "singular_values.png",
         "Tracking: designed (commanded) and executed (encoders)": "tracking.png",
@@ -351,11 +381,12 @@ def _score_lines(metrics: dict) -> list:
         "",
         "| held-out attitude error [rad] | at the end | largest | RMS |",
         "|---|---|---|---|",
-        f"| identified model | {ident['end']:.3g} | {ident['max']:.3g} | {ident['rms']:.3g} |",
-        f"| CAD prior | {prior['end']:.3g} | {prior['max']:.3g} | {prior['rms']:.3g} |",
+        *(f"| {label} | {e['end']:.3g} | {e['max']:.3g} | {e['rms']:.3g} |" if e is not None else
+          f"| {label} | {metrics['not predicted'][key]} | | |"
+          for label, key, e in (("identified model", "identified", ident), ("CAD prior", "CAD prior", prior))),
         "",
         (f"The CAD prior's largest attitude error is {metrics['CAD prior / identified, largest attitude error']:.3g} "
-         "times the identified model's."),
+         "times the identified model's." if metrics["CAD prior / identified, largest attitude error"] else ""),
         (f"Momentum of the true states (spaceid.dynamics.angular_momentum): largest change {drift[0]:.2g} (excitation) "
          f"and {drift[1]:.2g} (held-out) of the joints' momentum."),
     ]

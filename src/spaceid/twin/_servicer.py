@@ -61,7 +61,7 @@ class ServicerState:
     gyro_walk : array_like of shape (3,)
         The gyro bias's random walk so far [rad/s]. Default zero.
     encoder_prev : ndarray of shape (n_joints,) or None
-        The controllers' encoder reading one period before ``t``; None: the current one.
+        The controllers' count one period before ``t`` [rad]; None: the current one.
     """
 
     t: float = 0.0
@@ -201,7 +201,10 @@ def _control_law(cad_pmodel, control, limit):
 
 def _fly(pmodel, law, q_pin, v_pin, prev, command, rate, accel, enc_noise, resolution, dt, substeps):
     """The control loop over ``len(command) - 1`` periods: returns ``Q (n_t, nq)``, ``V (n_t, nv)``
-    (the true state at the ticks), ``QM (n_t, n)`` (the encoder readings) and ``EFF (n_t, n)``."""
+    (the true state at the ticks), ``QM (n_t, n)`` (the logged encoder readings: noise, then
+    quantised) and ``EFF (n_t, n)``. The controllers read the servo's own count (quantised, without
+    the logged readings' white noise) and its difference over the period (``prev``: the count
+    one period before the start, None: the first one)."""
     step = _rk4_stepper(pmodel, dt / substeps, free_flyer_rate)
     W = _rk4_rows(q_pin, v_pin)
     tau = np.zeros(pmodel.nv)
@@ -209,17 +212,17 @@ def _fly(pmodel, law, q_pin, v_pin, prev, command, rate, accel, enc_noise, resol
     for k in range(len(command)):
         Q.append(W[0].copy())
         V.append(W[1].copy())
-        qm = _quantise(W[0][7:] + enc_noise[k], resolution)
-        QM.append(qm)
+        QM.append(_quantise(W[0][7:] + enc_noise[k], resolution))  # the logged joint encoders
         if k == len(command) - 1:
-            EFF.append(EFF[-1] if k else np.zeros(len(qm)))
+            EFF.append(EFF[-1] if k else np.zeros(len(QM[-1])))
             break
-        prev = qm if prev is None else prev
-        tau[6:] = law(W[0], W[1], qm, (qm - prev) / dt, command[k], rate[k], accel[k])
+        qc = _quantise(W[0][7:], resolution)  # the servo's own (motor-side) reading: counts, no white noise
+        prev = qc if prev is None else prev
+        tau[6:] = law(W[0], W[1], qc, (qc - prev) / dt, command[k], rate[k], accel[k])
         EFF.append(tau[6:].copy())
         for _ in range(substeps):
             step(W, tau)
-        prev = qm
+        prev = qc
     return np.array(Q), np.array(V), np.array(QM), np.array(EFF)
 
 
@@ -319,7 +322,8 @@ def run_servicer(reference, *, duration: float, settings: ServicerSettings | Non
                                effort=EFF[ticks])  # fmt: skip
     final = ServicerState(t=float(times[-1]), base_quat=truth.base_quat[-1], q=Q[-1, 7:], qd=V[-1, 6:],
                           momentum=momentum[-1], base_w=truth.base_w[-1], base_v=V[-1, :3], base_position=Q[-1, :3],
-                          gyro_walk=meta["gyro_walk_end"], encoder_prev=QM[-2])  # fmt: skip
+                          gyro_walk=meta["gyro_walk_end"],
+                          encoder_prev=_quantise(Q[-2, 7:], resolution))  # fmt: skip
     return ServicerRun(Recording(joint_states, frames, meta), gyro, truth, V[:, :3], momentum, EFF, final, meta)
 
 

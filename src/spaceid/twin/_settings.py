@@ -694,9 +694,10 @@ class JointControl:
 
     At every control tick ``tau = H*_cad (qdd_r + kd (qd_r - qd_m) + kp (q_r - q_m)) + b_cad``:
     ``H*_cad`` and ``b_cad`` the free-floating joint-space inertia and bias torque of the lab's
-    model (Pinocchio's ``crba`` and ``rnea`` with the base unactuated), ``q_m`` the encoder
-    readings and ``qd_m`` their difference over the last control period (noise and quantisation
-    included), the base attitude and rate the true ones (an attitude estimator's). The efforts
+    model (Pinocchio's ``crba`` and ``rnea`` with the base unactuated), ``q_m`` the servo's
+    reading (the encoder count, without the logged readings' white noise: a motor-side encoder
+    seen through the gear) and ``qd_m`` its difference over the last control period, the base
+    attitude and rate the true ones (an attitude estimator's). The efforts
     are saturated and held over the period. With the model off by ``e`` the joints follow the
     reference with errors of about ``e |qdd_r| / kp``: the executed motion is not the designed one.
 
@@ -748,10 +749,10 @@ class JointControl:
 class JointEncoders:
     """Absolute joint encoders: white noise, then quantised.
 
-    The reading at every control tick is ``round((q + n) / r) r`` with ``n ~ N(0, noise^2)``
-    independent per tick and joint and ``r = 2 pi / counts_per_rev`` (the controllers use every
-    tick's reading); the log keeps the readings at ``rate``, stamped at the tick. No joint-rate
-    sensor: the log has no joint rates.
+    The logged reading is ``round((q + n) / r) r`` with ``n ~ N(0, noise^2)`` independent per
+    tick and joint and ``r = 2 pi / counts_per_rev``, at ``rate``, stamped at the tick (the
+    controllers read the count ``round(q / r) r`` at every tick). No joint-rate sensor: the log
+    has no joint rates.
 
     Attributes
     ----------
