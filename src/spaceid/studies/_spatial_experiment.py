@@ -102,14 +102,14 @@ def large_parameters(param, log: Log, values, threshold: float = LARGE) -> np.nd
     return np.flatnonzero(contribution >= threshold * contribution.max())
 
 
-def coverage(ident: Identification, true, large) -> dict:
+def coverage(result: Identification, true, large) -> dict:
     """The z-scores ``(estimate - true) / std`` of the parameters ``large``: the fraction within
     2, the largest |z| and its parameter, the root mean square of z (1 for honest standard
     errors)."""
-    z = (ident.values[large] - true[large]) / ident.std[large]
+    z = (result.values[large] - true[large]) / result.std[large]
     worst = int(np.argmax(np.abs(z)))
     return {"n_large": len(large), "within_2_sigma": float(np.mean(np.abs(z) <= 2)),
-            "max_abs_z": float(np.abs(z[worst])), "worst": ident.names[large[worst]],
+            "max_abs_z": float(np.abs(z[worst])), "worst": result.names[large[worst]],
             "rms_z": float(np.sqrt(np.mean(z**2)))}  # fmt: skip
 
 
