@@ -100,7 +100,7 @@ def test_sensors_have_the_statistics_of_their_settings(tmp_path):
     bias = (1e-3, -2e-3, 5e-4)
     settings = ServicerSettings(
         model=model, encoders=JointEncoders(noise=1e-3, counts_per_rev=None, rate=50.0),
-        star_tracker=StarTracker(rate=20.0, noise=1e-3, latency=0.05, drop_probability=0.2),
+        star_tracker=StarTracker(rate=20.0, noise=1e-3, latency=0.013, drop_probability=0.2),
         gyro=Gyro(noise=1e-4, bias=bias, walk=0.0),
     )  # fmt: skip
     run = run_servicer(_reference(model.joints, 40.0, 5, amplitude=0.05), duration=40.0, settings=settings,
@@ -111,7 +111,7 @@ def test_sensors_have_the_statistics_of_their_settings(tmp_path):
     err = js.position - truth.q[at]
     assert abs(err.std() / 1e-3 - 1) < 0.05 and abs(err.mean()) < 4e-3 / np.sqrt(err.size)
     # the star tracker: stamps = capture + latency on the 20 Hz grid; lost frames; noise per axis
-    capture = frames.t - 0.05
+    capture = frames.t - 0.013
     assert np.allclose(capture * 20, np.rint(capture * 20), atol=1e-6)
     n = run.meta["star_tracker_frames"]
     assert n == 800 and len(frames.t) == n - run.meta["star_tracker_dropped"]
