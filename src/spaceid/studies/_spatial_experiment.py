@@ -104,7 +104,7 @@ def large_parameters(param, log: Log, values, threshold: float = LARGE) -> np.nd
 
 def coverage(result: Identification, true, large) -> dict:
     """The z-scores ``(estimate - true) / std`` of the parameters ``large``: the fraction within
-    2, the largest |z| and its parameter, the root mean square of z (1 for honest standard
+    2, the largest ``|z|`` and its parameter, the root mean square of z (1 for honest standard
     errors)."""
     z = (result.values[large] - true[large]) / result.std[large]
     worst = int(np.argmax(np.abs(z)))
