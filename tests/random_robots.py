@@ -103,20 +103,6 @@ def perturbed_prior(model, seed: int, *, mass=0.2, moments=0.2, com=0.01):
     """A CAD-like prior of ``model``: every mass and principal moment about the CoM within
     ``+-mass``/``+-moments`` (relative), every CoM within ``+-com`` [m] per axis, each body still
     physically consistent with a triangle-inequality slack over 1 % (as a CAD model is)."""
-    from spaceid.identified import pseudo_inertia
-    from spaceid.models import inertial_vector
+    from spaceid.models import perturbed_model
 
-    rng = np.random.default_rng(seed)
-    rows = []
-    for b in model.bodies:
-        i_c = pseudo_inertia(b.inertial)[:3, :3] - b.mass * np.outer(b.com, b.com)
-        w, v = np.linalg.eigh(np.trace(i_c) * np.eye(3) - i_c)  # principal moments about the CoM
-        for _ in range(1000):
-            new = np.sort(w * rng.uniform(1 - moments, 1 + moments, 3))
-            if new[0] + new[1] > 1.01 * new[2]:
-                break
-        else:
-            new = np.sort(w)
-        shift = rng.uniform(-com, com, 3)
-        rows.append(inertial_vector(b.mass * rng.uniform(1 - mass, 1 + mass), b.com + shift, v @ np.diag(new) @ v.T))
-    return model.with_inertials(rows)
+    return perturbed_model(model, seed, mass=mass, moments=moments, com=com)

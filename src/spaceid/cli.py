@@ -1125,24 +1125,40 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--capture-mass", cls=_Deprecated, type=float, instead="--capture-settings FILE holding 'mass: {value}'")
 @click.option("--capture-trajectory", default="same", show_default=True, help="With --capture: the post-capture "
               "excitation: same (the identification excitation), designed (for the payload) or a file from 'design'.")
+@click.option("--duration", type=SECONDS, help="Spatial MODEL: the designed excitation's length [s] [default: 120].")
+@click.option("--time-budget", type=SECONDS, help="Spatial MODEL: wall time of the design's search [s] [default: 30; "
+              "the held-out motion's design a third of it].")
 @SEED
 @out_folder("Report folder (bag, logs, results, figures, report.md).", default="spaceid-experiment",
             show_default=True)
 @OVERWRITE
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift,
-               feedforward, rehearsals, capture, capture_mass, capture_settings, capture_trajectory, seed, folder,
-               overwrite):
+               feedforward, rehearsals, capture, capture_mass, capture_settings, capture_trajectory, duration,
+               time_budget, seed, folder, overwrite):
     """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
     identify from the recorded bag (N samples and all of the excitation), validate the identified
     model on the held-out motion (Fig. 6).
 
-    MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default.
+    MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default. A spatial
+    MODEL (e.g. servicer-dual, or a URDF) runs the spatial protocol on the servicer twin instead:
+    design with a CAD model 15 % off, fly under computed torque, identify from the encoders, star
+    tracker and gyros (--samples default 600), predict a held-out motion against the CAD prior
+    (--ideal: exact sensors; docs: theory/twin-spatial).
     """
+    from .models import load_model
     from .studies import capture_protocol, run_experiment
     from .studies import parameter_table
     from .twin import TwinSettings
 
     model = {"cepheus": "cepheus-rw"}.get(model_src, model_src)
+    loaded = load_model(model)
+    if not loaded.planar:
+        return _spatial_experiment(loaded, click.get_current_context(), samples=samples, estimator=estimator,
+                                   ideal=ideal, trajectory=trajectory, duration=duration, time_budget=time_budget,
+                                   seed=seed, folder=folder, overwrite=overwrite)  # fmt: skip
+    if duration is not None or time_budget is not None:
+        raise SpaceidError("--duration and --time-budget are options of the spatial protocol: give a spatial MODEL "
+                           "(e.g. servicer-dual), or drop them")  # fmt: skip
     settings = TwinSettings(model=model)
     settings = settings.without_effects() if ideal else settings
     if not capture and (capture_mass is not None or capture_settings is not None or capture_trajectory != "same"):
@@ -1169,6 +1185,47 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
               f"log, which checks only the fit: {100 * res.fit_metrics['base_w_nrms']:.3g} %", highlight=False)
     if res.servicing is not None:
         _print_servicing(res.servicing.scores)
+    out.print(f"report written to {shown_name(folder)}/report.md")
+
+
+_PLANAR_ONLY = ("wheel_speed", "bag_format", "old_bag_format", "validation", "drift", "feedforward", "rehearsals",
+                "capture", "capture_mass", "capture_settings", "capture_trajectory")
+
+
+def _spatial_experiment(model, ctx, *, samples, estimator, ideal, trajectory, duration, time_budget, seed, folder,
+                        overwrite) -> None:
+    """``spaceid experiment`` with a spatial model: the protocol on the servicer twin
+    (:func:`spaceid.studies.run_spatial_experiment`), its scores printed."""
+    from click.core import ParameterSource
+
+    from .studies import run_spatial_experiment
+    from .twin import ServicerSettings
+
+    given = [p.opts[0] for p in ctx.command.params if p.name in _PLANAR_ONLY
+             and ctx.get_parameter_source(p.name) not in (ParameterSource.DEFAULT, None)]  # fmt: skip
+    if given:
+        raise SpaceidError(f"{', '.join(given)}: options of the Cepheus experiment; {model.name} is spatial (the "
+                           "servicer twin): drop them")  # fmt: skip
+    settings = ServicerSettings(model=model)
+    settings = settings.without_noise() if ideal else settings
+    default_samples = ctx.get_parameter_source("samples") == ParameterSource.DEFAULT
+    options = dict(samples=600 if default_samples else samples, estimator=estimator, trajectory=trajectory, seed=seed)
+    options |= {k: v for k, v in (("duration", duration), ("time_budget", time_budget)) if v is not None}
+    with (_progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress,
+          _report_folder(folder, overwrite) as tmp):
+        res = run_spatial_experiment(settings=settings, out=tmp, out_name=folder, progress=progress, **options)
+    c, m = res.metrics["coverage"], res.metrics
+    ident, prior = m["held-out attitude error, identified [rad]"], m["held-out attitude error, CAD prior [rad]"]
+    out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g}; {c['n_large']} large "
+              f"parameters: {100 * c['within_2_sigma']:.1f} % within 2 sigma, max |z| {c['max_abs_z']:.3g}, RMS z "
+              f"{c['rms_z']:.3g}", highlight=False)  # fmt: skip
+    shown = [f"{e['max']:.3g} rad" if e else f"none ({m['not predicted'][k]})" for e, k in
+             ((ident, "identified"), (prior, "CAD prior"))]  # fmt: skip
+    ratio = m["CAD prior / identified, largest attitude error"]
+    out.print(f"held-out motion ({res.settings['held-out duration [s]']:g} s): largest attitude error {shown[0]} "
+              f"identified, {shown[1]} CAD prior" + (f" (x {ratio:.3g})" if ratio else ""), highlight=False)
+    drift = max(m["momentum drift relative to the joints' momentum"])
+    out.print(f"momentum of the true states: largest change {drift:.2g} of the joints' momentum", highlight=False)
     out.print(f"report written to {shown_name(folder)}/report.md")
 
 

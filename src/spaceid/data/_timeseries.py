@@ -12,7 +12,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-__all__ = ["Log", "yaw_to_quat", "quat_to_yaw", "quat_to_matrix", "first_unordered", "log_fingerprint"]
+__all__ = ["Log", "yaw_to_quat", "quat_to_yaw", "quat_to_matrix", "quat_multiply", "first_unordered", "log_fingerprint"]
 
 
 def first_unordered(t):
@@ -53,6 +53,13 @@ def quat_to_matrix(quat):
         ],
         -2,
     )
+
+
+def quat_multiply(a, b):
+    """Hamilton products ``a (x) b`` of quaternions ``(..., 4)`` ``[w, x, y, z]`` (broadcast)."""
+    a, b = np.asarray(a, dtype=float), np.asarray(b, dtype=float)
+    s, v, t, u = a[..., :1], a[..., 1:], b[..., :1], b[..., 1:]
+    return np.concatenate([s * t - np.sum(v * u, -1, keepdims=True), s * u + t * v + np.cross(v, u)], -1)
 
 
 @dataclass(frozen=True)

@@ -39,6 +39,7 @@ __all__ = [
     "body_index",
     "link_frame",
     "check_rigid_inertia",
+    "perturbed_model",
 ]
 
 INERTIAL_NAMES = ("m", "mcx", "mcy", "mcz", "Ixx", "Ixy", "Iyy", "Ixz", "Iyz", "Izz")
@@ -262,6 +263,57 @@ def check_rigid_inertia(what: str, inertia_com):
             f"{what} violates the triangle inequality of principal inertias "
             f"({np.round(e, 9).tolist()}): no rigid body has this inertia; check the values"
         )
+
+
+def perturbed_model(model: Model, seed: int, *, mass: float = 0.15, moments: float = 0.15, com: float = 0.0,
+                    exact: bool = False) -> Model:
+    """A CAD-like model of ``model``: every body's mass and principal moments about its CoM off
+    by up to ``mass``/``moments`` (relative), its CoM moved by up to ``com`` [m] per axis, each
+    body still physically consistent (principal moments with a triangle-inequality slack over
+    1 %, as a CAD model's are; the geometry unchanged).
+
+    Parameters
+    ----------
+    model : Model
+    seed : int
+        Seed of every draw (``numpy.random.default_rng``).
+    mass, moments : float
+        Largest relative error of each mass and of each principal moment, in [0, 1).
+    com : float
+        Largest CoM shift per axis [m].
+    exact : bool
+        False: each factor uniform in ``[1 - e, 1 + e]``; True: exactly ``1 - e`` or ``1 + e``, the
+        sign drawn (a model that is off by ``e`` everywhere).
+
+    Returns
+    -------
+    Model
+        A copy with the perturbed inertial parameters.
+    """
+    for name, value in (("mass", mass), ("moments", moments)):
+        if not 0.0 <= float(value) < 1.0:
+            raise SpaceidError(f"`{name}`: a relative error must be in [0, 1), got {value!r}")
+    if not float(com) >= 0.0:
+        raise SpaceidError(f"`com`: a CoM shift must be a length >= 0 [m], got {com!r}")
+    rng = np.random.default_rng(seed)
+
+    def factors(e, n):
+        return 1.0 + e * (rng.choice([-1.0, 1.0], n) if exact else rng.uniform(-1.0, 1.0, n))
+
+    rows = []
+    for b in model.bodies:
+        c = np.asarray(b.com, float)
+        i_c = inertia_matrix(b.inertial) - b.mass * (c @ c * np.eye(3) - np.outer(c, c))
+        w, v = np.linalg.eigh(i_c)  # principal moments about the CoM
+        for _ in range(1000):
+            new = np.sort(w * factors(moments, 3))
+            if new[0] + new[1] > 1.01 * new[2]:
+                break
+        else:
+            new = np.sort(w)
+        shift = rng.uniform(-com, com, 3)
+        rows.append(inertial_vector(b.mass * factors(mass, 1)[0], c + shift, v @ np.diag(new) @ v.T))
+    return model.with_inertials(rows)
 
 
 def body_index(model: Model, name: str, where: str = "link") -> int:

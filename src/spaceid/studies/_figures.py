@@ -32,7 +32,7 @@ if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
 __all__ = ["plot_montecarlo", "plot_parameters", "plot_singular_values", "plot_tracking", "plot_trajectory",
-           "plot_validation", "plot_capture_monitor", "plot_payload"]
+           "plot_validation", "plot_capture_monitor", "plot_payload", "plot_attitude_errors"]
 
 
 # --- validation (the paper's Fig. 6) -----------------------------------------------------------
@@ -464,6 +464,45 @@ def plot_tracking(t, designed, executed, joints, path=None, *, times=None, title
     Figure
     """
     return finish_figure(_draw_tracking(t, designed, executed, joints, times, title, fig), path)
+
+
+@styled
+def _draw_attitude_errors(t, errors: dict, title=None, fig=None) -> Figure:
+    """The figure of :func:`plot_attitude_errors`, into ``fig`` when given."""
+    fig = canvas(fig, (7.5, 3.6))
+    ax = fig.subplots()
+    colours = [COLOR_MODEL, COLOR_REFERENCE, COLOR_MEASURED, COLOR_TRUE]
+    for (label, error), colour in zip(errors.items(), colours):
+        error = np.asarray(error, float)
+        ax.semilogy(t, np.maximum(error, 1e-12), color=colour, label=f"{label} (at the end {error[-1]:.3g} rad)")
+    ax.set_xlabel("time since the start of the held-out motion $t$ [s]")
+    ax.set_ylabel("attitude error angle [rad]")
+    ax.grid(True, which="both", alpha=0.3)
+    figure_legend(fig, [ax])
+    fig.suptitle(title or "Predicted base attitude against the measured one")
+    return fig
+
+
+def plot_attitude_errors(t, errors: dict, path=None, *, title=None, fig=None) -> Figure:
+    """Attitude error angles of predictions over a motion, one curve per model, log scale.
+
+    Parameters
+    ----------
+    t : array_like of shape (n,)
+        Time [s].
+    errors : dict of str to array_like of shape (n,)
+        Label (e.g. "identified", "CAD prior") to the error angle [rad]
+        (:func:`spaceid.studies.attitude_error_angle`) at ``t``.
+    path : path-like, optional
+        Output PNG; none: nothing is written.
+    title : str, optional
+    fig : Figure or SubFigure, optional
+
+    Returns
+    -------
+    Figure
+    """
+    return finish_figure(_draw_attitude_errors(np.asarray(t, float), errors, title, fig), path)
 
 
 # --- capture: change detection and the payload ---------------------------------------------------

@@ -69,6 +69,31 @@ the settings parametrise them all.
   controllers, saturation, friction and thrust, RK4 step, tank), :func:`run_twin`,
   :func:`spin_up`, :func:`join_runs`; phases.
 
+The servicer twin
+-----------------
+
+The spatial counterpart (docs/theory/twin-spatial.md): a free-floating robot (default the
+``servicer-dual`` preset) under computed torque through a CAD model 15 % off, with encoders,
+a star tracker and gyros::
+
+    settings = ServicerSettings()                          # every value overridable
+    run = run_servicer(trajectory, duration=120.0, settings=settings,
+                       state=ServicerState(momentum=(1.0, -2.0, 1.5)), seed=1)
+    run.recording      # joint states (no velocities) and star-tracker frames
+    run.gyro           # gyro samples at the joint-state stamps
+    run.truth          # spaceid.data.Log at the control rate (spatial), run.momentum its momentum
+    log = servicer_log(run, settings)                      # read as a lab reads it
+
+* :func:`run_servicer` flies one phase; :class:`ServicerState` starts it (a run's ``state``
+  continues it); :class:`ServicerRun` holds the streams, the truth and ``meta`` (seeds, momentum
+  drift, tracking error, frames lost).
+* :func:`servicer_log` reads the streams (:func:`spaceid.data.to_log`, the base rate from the
+  gyros or the attitude); :func:`cad_model` is the lab's model the controllers use.
+* :class:`ServicerSettings` gathers :class:`JointControl`, :class:`JointEncoders`,
+  :class:`StarTracker`, :class:`Gyro` and :class:`TorqueLimits`; ``_servicer`` holds the run,
+  ``_sensors`` the star tracker and gyros, ``_plant`` the free-flyer kinematics
+  (:func:`free_flyer_rate`) for the same RK4 stepper.
+
 References
 ----------
 The Cepheus paper (NTUA Control Systems Lab; see docs/citing.md):
@@ -79,13 +104,14 @@ arm joints under ros_control ``effort_controllers/JointPositionController`` (PD)
 under ``effort_controllers/JointVelocityController`` (PI); tf = 5 s. docs/theory/scale.md (reaction wheel momentum).
 """
 
-from . import _settings, _plant, _controllers, _effects, _capture, _run
+from . import _settings, _plant, _controllers, _effects, _capture, _run, _servicer
 from ._settings import *  # noqa: F403
 from ._plant import *  # noqa: F403
 from ._controllers import *  # noqa: F403
 from ._effects import *  # noqa: F403
 from ._capture import *  # noqa: F403
 from ._run import *  # noqa: F403
+from ._servicer import *  # noqa: F403
 
 __all__ = (_settings.__all__ + _plant.__all__ + _controllers.__all__ + _effects.__all__ + _capture.__all__
-           + _run.__all__)
+           + _run.__all__ + _servicer.__all__)

@@ -224,15 +224,17 @@ def _pid_law(gains: _Gains, dt):
 
 def _free_floating_efforts(pmodel, data, q, v, a_joints, M) -> np.ndarray:
     """Joint efforts (n,) [N m] that give the joints the accelerations ``a_joints`` (n,) at the
-    state ``q``, ``v`` (nq,) with the base unactuated: ``pin.rnea`` with the base accelerations
-    solved so that the base receives no force; ``M`` (nv, nv) the joint-space inertia at ``q``."""
+    state ``q`` (nq,), ``v`` (nv,) with the base unactuated: ``pin.rnea`` with the base
+    accelerations solved so that the base receives no force; ``M`` (nv, nv) the joint-space
+    inertia at ``q``. The base has ``nv - n`` coordinates (3 on the table, 6 for a free flyer)."""
     import pinocchio as pin
 
+    nb = pmodel.nv - len(a_joints)
     af = np.zeros(pmodel.nv)
-    af[3:] = a_joints
+    af[nb:] = a_joints
     t_ff = pin.rnea(pmodel, data, q, v, af)
-    a_base = -np.linalg.solve(M[:3, :3], t_ff[:3])
-    return t_ff[3:] + M[3:, :3] @ a_base
+    a_base = -np.linalg.solve(M[:nb, :nb], t_ff[:nb])
+    return t_ff[nb:] + M[nb:, :nb] @ a_base
 
 
 def _feedforward_law(pmodel, pos_mask):

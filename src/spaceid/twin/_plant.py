@@ -30,7 +30,7 @@ from .._errors import SpaceidError
 from ..models import Model, load_model, to_pinocchio
 from ._settings import Tank
 
-__all__ = ["planar_pinocchio", "drained_model"]
+__all__ = ["planar_pinocchio", "drained_model", "free_flyer_rate"]
 
 _BASE_JOINTS = ("base_x", "base_y", "base_yaw")
 
@@ -161,24 +161,56 @@ def _base_force(pmodel, base_id):
 
 def _rk4_rows(q_pin, v_pin) -> np.ndarray:
     """The integrator's working rows ``W = [q, v, a1, a2, a3, a4]``, shape (6, nq): rows 0 and 1
-    hold the state (``q_pin``, ``v_pin``), the others the stage accelerations."""
+    hold the state (``q_pin``, ``v_pin``), the others the stage accelerations. With a free-flyer
+    root (``nq = nv + 1``) only ``[q, v]``, a list of the two arrays, for :func:`_rk4_stepper`'s
+    general form."""
+    if len(q_pin) != len(v_pin):
+        return [np.array(q_pin, float), np.array(v_pin, float)]
     W = np.zeros((6, len(q_pin)))
     W[0], W[1] = q_pin, v_pin
     return W
 
 
-def _rk4_stepper(pmodel, dt):
-    """One classical RK4 step of ``d q_pin / dt = v_pin``, ``d v_pin / dt = aba(q, v, tau[, fext])``.
+def free_flyer_rate(q_pin, v_pin) -> np.ndarray:
+    """``d q_pin / dt`` (nq,) of a Pinocchio model with a free-flyer root.
+
+    ``q_pin = [p, quat, joints]`` (the base origin in the world [m], the base attitude as
+    Pinocchio's unit quaternion ``[x, y, z, w]``, then the joints), ``v_pin = [v, w, qd]`` (the
+    base origin velocity and angular velocity in base axes, then the joint rates):
+    ``dp/dt = R v``, ``d quat/dt = quat (x) [w, 0] / 2``, ``d joints/dt = qd`` (revolute and
+    prismatic joints).
+    """
+    # scalar arithmetic: called four times per RK4 step, where numpy's batched quaternion helpers
+    # (spaceid.data.quat_to_matrix, quat_multiply) cost ten times the step's four pin.aba
+    x, y, z, s = q_pin[3:7].tolist()
+    wx, wy, wz = v_pin[3:6].tolist()
+    vx, vy, vz = v_pin[0:3].tolist()
+    out = np.empty(len(q_pin))
+    out[0] = (1 - 2 * (y * y + z * z)) * vx + 2 * (x * y - z * s) * vy + 2 * (x * z + y * s) * vz
+    out[1] = 2 * (x * y + z * s) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z - x * s) * vz
+    out[2] = 2 * (x * z - y * s) * vx + 2 * (y * z + x * s) * vy + (1 - 2 * (x * x + y * y)) * vz
+    out[3:7] = (0.5 * (s * wx + y * wz - z * wy), 0.5 * (s * wy + z * wx - x * wz), 0.5 * (s * wz + x * wy - y * wx),
+                -0.5 * (x * wx + y * wy + z * wz))  # fmt: skip
+    out[7:] = v_pin[6:]
+    return out
+
+
+def _rk4_stepper(pmodel, dt, rate=None):
+    """One classical RK4 step of ``d q_pin / dt = rate(q, v)``, ``d v_pin / dt = aba(q, v, tau[, fext])``.
 
     Returns a function ``step(W, tau[, fext])`` that advances rows 0 and 1 of ``W``
-    (:func:`_rk4_rows`) by ``dt`` [s] in place, with ``tau`` (nq,) and ``fext`` held over the step.
-    Every stage input and the update are fixed linear combinations of the rows of ``W``, one
-    small matrix product each (the Butcher tableau of the classical RK4 in Runge-Kutta-Nystrom
-    form).
+    (:func:`_rk4_rows`) by ``dt`` [s] in place, with ``tau`` (nv,) and ``fext`` held over the step.
+    Without ``rate`` (``d q_pin / dt = v_pin``: the planar twin) every stage input and the update
+    are fixed linear combinations of the rows of ``W``, one small matrix product each (the
+    Butcher tableau of the classical RK4 in Runge-Kutta-Nystrom form). With ``rate`` (a
+    free-flyer root, :func:`free_flyer_rate`) the same tableau on the embedded coordinates, the
+    quaternion renormalised at every stage and after the step (the projection keeps the order).
     """
     import pinocchio as pin
 
     aba, data = pin.aba, pmodel.createData()
+    if rate is not None:
+        return _rk4_general(pmodel, data, rate, dt)
     h2, h6, hh2, hh4, hh6 = dt / 2, dt / 6, dt * dt / 2, dt * dt / 4, dt * dt / 6
     stage2 = np.array([[1, h2, 0, 0, 0, 0], [0, 1, h2, 0, 0, 0]])  # q + dt/2 v, v + dt/2 a1
     stage3 = np.array([[1, h2, hh4, 0, 0, 0], [0, 1, 0, h2, 0, 0]])  # q + dt/2 v2, v + dt/2 a2
@@ -194,5 +226,30 @@ def _rk4_stepper(pmodel, dt):
         s = stage4 @ W
         W[5] = aba(pmodel, data, s[0], s[1], *forces)
         W[:2] = update @ W
+
+    return step
+
+
+def _rk4_general(pmodel, data, rate, dt):
+    """:func:`_rk4_stepper` with ``d q_pin / dt = rate(q, v)``, on ``W = [q, v]`` (a list)."""
+    import pinocchio as pin
+
+    aba = pin.aba
+
+    def unit(q):  # the base quaternion renormalised
+        q[3:7] /= np.sqrt(q[3:7] @ q[3:7])
+        return q
+
+    def step(W, *forces):
+        q, v = W
+        k1q, k1v = rate(q, v), aba(pmodel, data, q, v, *forces).copy()
+        q2, v2 = unit(q + dt / 2 * k1q), v + dt / 2 * k1v
+        k2q, k2v = rate(q2, v2), aba(pmodel, data, q2, v2, *forces).copy()
+        q3, v3 = unit(q + dt / 2 * k2q), v + dt / 2 * k2v
+        k3q, k3v = rate(q3, v3), aba(pmodel, data, q3, v3, *forces).copy()
+        q4, v4 = unit(q + dt * k3q), v + dt * k3v
+        k4q, k4v = rate(q4, v4), aba(pmodel, data, q4, v4, *forces).copy()
+        q[:] = unit(q + dt / 6 * (k1q + 2 * k2q + 2 * k3q + k4q))
+        v[:] = v + dt / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
 
     return step

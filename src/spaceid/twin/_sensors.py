@@ -23,7 +23,7 @@ import math
 import numpy as np
 
 from .._errors import SpaceidError
-from ..data import JointStates, Poses, yaw_to_quat
+from ..data import JointStates, Poses, quat_multiply, yaw_to_quat
 from ..motion import hermite_motion
 from ._settings import Encoders, MotionCapture
 
@@ -161,3 +161,53 @@ def _capture_poses(mocap: MotionCapture, times, Q, V, seed, jump=None):
         frame=mocap.frame,
     )
     return poses, len(capture), int((~keep).sum())
+
+
+# ------------------------------------------------------------------ the servicer's sensors ----
+
+
+def _rotation_quats(v) -> np.ndarray:
+    """Quaternions ``[w, x, y, z]`` (n, 4) of the rotations ``exp([v]x)``, ``v`` (n, 3) [rad]."""
+    angle = np.linalg.norm(v, axis=1, keepdims=True)
+    return np.hstack([np.cos(angle / 2), np.sinc(angle / (2 * np.pi)) * v / 2])
+
+
+def _every(times, rate, where) -> np.ndarray:
+    """Indices of the ticks ``times`` (a uniform grid) that fall on multiples of ``1 / rate``;
+    the tick period must divide the sensor's, or a SpaceidError naming ``where``."""
+    dt = times[1] - times[0]
+    ratio = 1.0 / (rate * dt)
+    if abs(ratio - round(ratio)) > 1e-9 * ratio or round(ratio) < 1:
+        raise SpaceidError(f"{where} = {rate:g} Hz must divide the control rate ({1 / dt:g} Hz): choose a rate "
+                           "that does")  # fmt: skip
+    stride = int(round(ratio))
+    first = int(np.argmax(np.abs(np.round(times / (stride * dt)) * stride * dt - times) < 1e-6 * dt))
+    return np.arange(first, len(times), stride)
+
+
+def _star_tracker_frames(tracker, times, quat, seed) -> tuple:
+    """Star-tracker frames of a phase: ``(poses, n_frames, n_dropped)``.
+
+    ``times`` (n_t,) are the control ticks [s], ``quat`` (n_t, 4) the true base attitude there
+    (``[w, x, y, z]``); frames are captured on the ticks at multiples of ``1 / tracker.rate`` in
+    ``[t0, t_end)``, turned by the noise rotation, thinned by the drops and stamped on arrival.
+    The base position is not measured: the poses carry zeros. ``seed`` seeds the noise and the
+    drops (independent child streams)."""
+    ticks = _every(times, tracker.rate, "star_tracker.rate")
+    ticks = ticks[times[ticks] < times[-1] - 1e-9 * (times[1] - times[0])]
+    noise_rng, drop_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    turned = quat_multiply(quat[ticks], _rotation_quats(tracker.noise * noise_rng.standard_normal((len(ticks), 3))))
+    keep = drop_rng.random(len(ticks)) >= tracker.drop_probability
+    poses = Poses(t=times[ticks][keep] + tracker.latency, position=np.zeros((int(keep.sum()), 3)),
+                  quat=turned[keep], frame="inertial")  # fmt: skip
+    return poses, len(ticks), int((~keep).sum())
+
+
+def _gyro_samples(gyro, times, w, seed, walk0=None) -> tuple:
+    """Gyro samples ``(w_measured (n, 3), walk (n, 3))`` [rad/s] at the ticks ``times`` (n,) [s]
+    from the true rates ``w`` (n, 3) (base axes): bias, random walk started at ``walk0`` (3,)
+    (default zero), white noise; ``seed`` seeds the walk and the noise."""
+    walk_rng, noise_rng = (np.random.default_rng(s) for s in np.random.SeedSequence(seed).spawn(2))
+    steps = np.sqrt(np.diff(times, prepend=times[0]))[:, None] * walk_rng.standard_normal((len(times), 3))
+    walk = (np.zeros(3) if walk0 is None else np.asarray(walk0, float)) + gyro.walk * np.cumsum(steps, axis=0)
+    return w + np.asarray(gyro.bias) + walk + gyro.noise * noise_rng.standard_normal((len(times), 3)), walk

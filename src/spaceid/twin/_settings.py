@@ -32,6 +32,11 @@ __all__ = [
     "Tank",
     "Capture",
     "TwinSettings",
+    "JointControl",
+    "JointEncoders",
+    "StarTracker",
+    "Gyro",
+    "ServicerSettings",
 ]
 
 G0 = 9.80665
@@ -630,7 +635,7 @@ class TwinSettings:
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name == "model":
-                out["model"] = value.source or value.name if isinstance(value, Model) else str(value)
+                out["model"] = _model_name(value)
             else:
                 out[f.name] = _plain(value)
         return out
@@ -670,3 +675,225 @@ def _check_joint_names(settings: TwinSettings, model: Model):
                 f"{where} names joint '{unknown[0]}', which is not in model {model.name} "
                 f"(joints: {', '.join(model.joints)}): use one of these names"
             )
+
+
+# ------------------------------------------------------------------ the servicer twin ---------
+
+
+def _vector3(where, value) -> tuple:
+    """``value`` as 3 finite floats, or a SpaceidError naming ``where``."""
+    out = _finite_tuple(value, 3)
+    if out is None:
+        raise SpaceidError(f"{where} must be 3 finite numbers (x, y, z), got {value!r}")
+    return out
+
+
+@dataclass(frozen=True)
+class JointControl:
+    """The servicer's joint controllers: computed torque through the lab's (CAD) model.
+
+    At every control tick ``tau = H*_cad (qdd_r + kd (qd_r - qd_m) + kp (q_r - q_m)) + b_cad``:
+    ``H*_cad`` and ``b_cad`` the free-floating joint-space inertia and bias torque of the lab's
+    model (Pinocchio's ``crba`` and ``rnea`` with the base unactuated), ``q_m`` the servo's
+    reading (the encoder count, without the logged readings' white noise: a motor-side encoder
+    seen through the gear) and ``qd_m`` its difference over the last control period, the base
+    attitude and rate the true ones (an attitude estimator's). The efforts
+    are saturated and held over the period. With the model off by ``e`` the joints follow the
+    reference with errors of about ``e |qdd_r| / kp``: the executed motion is not the designed one.
+
+    Attributes
+    ----------
+    rate : float
+        Control rate [Hz]. Default 100 (a flight computer's joint loop).
+    kp : float
+        Position gain [1/s^2] (an acceleration per unit error). Default 25 (5 rad/s).
+    kd : float
+        Rate gain [1/s]. Default 10 (critical damping with ``kp``).
+    model : Model or str or None
+        The lab's model the law uses; None (default): the twin's model with every mass and
+        principal moment ``model_error`` off (:func:`spaceid.models.perturbed_model`, ``exact``,
+        seeded ``model_seed``): a CAD model.
+    model_error : float
+        Relative error of that CAD model's masses and moments, in [0, 1). Default 0.15.
+    model_seed : int
+        Seed of the CAD model's errors. Default 0.
+    substeps : int
+        RK4 steps of the plant per control period. Default 5 (2 ms at 100 Hz).
+    """
+
+    rate: float = 100.0
+    kp: float = 25.0
+    kd: float = 10.0
+    model: object = None
+    model_error: float = 0.15
+    model_seed: int = 0
+    substeps: int = 5
+
+    def __post_init__(self):
+        _set(self, "rate", _number("control.rate [Hz]", self.rate, low=0.0, strict=True))
+        _set(self, "kp", _number("control.kp [1/s^2]", self.kp, low=0.0))
+        _set(self, "kd", _number("control.kd [1/s]", self.kd, low=0.0))
+        error = _number("control.model_error", self.model_error, low=0.0)
+        if error >= 1:
+            raise SpaceidError(f"control.model_error must be in [0, 1), got {error:g}")
+        _set(self, "model_error", error)
+        for name in ("model_seed", "substeps"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < (name == "substeps"):
+                raise SpaceidError(f"control.{name} must be an integer{' >= 1' if name == 'substeps' else ''}, "
+                                   f"got {value!r}")  # fmt: skip
+            _set(self, name, int(value))
+
+
+@dataclass(frozen=True)
+class JointEncoders:
+    """Absolute joint encoders: white noise, then quantised.
+
+    The logged reading is ``round((q + n) / r) r`` with ``n ~ N(0, noise^2)`` independent per
+    tick and joint and ``r = 2 pi / counts_per_rev``, at ``rate``, stamped at the tick (the
+    controllers read the count ``round(q / r) r`` at every tick). No joint-rate sensor: the log
+    has no joint rates.
+
+    Attributes
+    ----------
+    noise : float
+        Standard deviation of the white noise [rad]. Default 1e-4.
+    counts_per_rev : int or None
+        Counts per revolution (None: no quantisation). Default 2**18 (r = 2.4e-5 rad).
+    rate : float
+        Log rate [Hz]; divides the control rate. Default 50.
+    """
+
+    noise: float = 1e-4
+    counts_per_rev: int | None = 2**18
+    rate: float = 50.0
+
+    def __post_init__(self):
+        _set(self, "noise", _number("encoders.noise [rad]", self.noise, low=0.0))
+        if self.counts_per_rev is not None:
+            _set(self, "counts_per_rev", int(_number("encoders.counts_per_rev", self.counts_per_rev, low=1.0)))
+        _set(self, "rate", _number("encoders.rate [Hz]", self.rate, low=0.0, strict=True))
+
+    @property
+    def resolution(self) -> float:
+        """The count [rad]; 0 without quantisation."""
+        return 0.0 if self.counts_per_rev is None else 2 * math.pi / self.counts_per_rev
+
+
+@dataclass(frozen=True)
+class StarTracker:
+    """A star tracker: the base attitude with noise, latency and lost frames.
+
+    A frame captured at ``t`` (a multiple of ``1 / rate``) holds the true attitude at ``t`` turned
+    by a small rotation ``exp([n]x)``, ``n ~ N(0, noise^2)`` per base axis, and is stamped
+    ``t + latency`` (on arrival); each frame is lost with probability ``drop_probability``.
+
+    Attributes
+    ----------
+    rate : float
+        Frame rate [Hz]; divides the control rate. Default 10.
+    noise : float
+        Standard deviation of the rotation per base axis [rad]. Default 5e-5 (10 arcsec).
+    latency : float
+        Stamp minus capture time [s]; the lab knows it (the log is read with it). Default 0.02.
+    drop_probability : float
+        Probability that a frame is lost, in [0, 1). Default 0.02.
+    """
+
+    rate: float = 10.0
+    noise: float = 5e-5
+    latency: float = 0.02
+    drop_probability: float = 0.02
+
+    def __post_init__(self):
+        _set(self, "rate", _number("star_tracker.rate [Hz]", self.rate, low=0.0, strict=True))
+        for name in ("noise", "latency"):
+            _set(self, name, _number(f"star_tracker.{name}", getattr(self, name), low=0.0))
+        p = _number("star_tracker.drop_probability", self.drop_probability, low=0.0)
+        if p >= 1:
+            raise SpaceidError(f"star_tracker.drop_probability must be in [0, 1), got {p:g}")
+        _set(self, "drop_probability", p)
+
+
+@dataclass(frozen=True)
+class Gyro:
+    """Rate gyros on the base: the true rate (base axes) plus a constant bias, a random walk of
+    the bias and white noise, sampled with the encoders (at :attr:`JointEncoders.rate`).
+
+    ``w_m(t_k) = w(t_k) + bias + b_k + n_k``, ``b_0 = 0``, ``b_k = b_{k-1} + walk sqrt(dt) N(0, 1)``,
+    ``n_k ~ N(0, noise^2)``, per axis.
+
+    Attributes
+    ----------
+    noise : float
+        Standard deviation of the white noise [rad/s]. Default 1e-5.
+    bias : tuple of 3 floats
+        Constant bias, base axes [rad/s]. Default (2e-6, -1e-6, 1.5e-6) (about 0.5 deg/h, a
+        navigation-grade gyro after calibration; a MEMS gyro's is ~3e-4).
+    walk : float
+        Rate random walk of the bias [rad/s/sqrt(s)]. Default 1e-8.
+    """
+
+    noise: float = 1e-5
+    bias: tuple = (2e-6, -1e-6, 1.5e-6)
+    walk: float = 1e-8
+
+    def __post_init__(self):
+        _set(self, "noise", _number("gyro.noise [rad/s]", self.noise, low=0.0))
+        _set(self, "bias", _vector3("gyro.bias [rad/s]", self.bias))
+        _set(self, "walk", _number("gyro.walk [rad/s/sqrt(s)]", self.walk, low=0.0))
+
+
+@dataclass(frozen=True)
+class ServicerSettings:
+    """Everything the servicer twin needs, with units; ``to_dict()`` for provenance.
+
+    Attributes
+    ----------
+    model : str or Model
+        A spatial model (preset name, URDF or YAML path, or a Model). Default ``"servicer-dual"``.
+    control : JointControl
+    encoders : JointEncoders
+    star_tracker : StarTracker
+    gyro : Gyro
+    torque_limits : TorqueLimits
+        Default: the model's joint effort limits (servicer-dual: 250 and 150 N m).
+    """
+
+    model: str | Model = "servicer-dual"
+    control: JointControl = field(default_factory=JointControl)
+    encoders: JointEncoders = field(default_factory=JointEncoders)
+    star_tracker: StarTracker = field(default_factory=StarTracker)
+    gyro: Gyro = field(default_factory=Gyro)
+    torque_limits: TorqueLimits = field(default_factory=TorqueLimits)
+
+    def __post_init__(self):
+        for name, kind in (("control", JointControl), ("encoders", JointEncoders), ("star_tracker", StarTracker),
+                           ("gyro", Gyro), ("torque_limits", TorqueLimits)):  # fmt: skip
+            if not isinstance(getattr(self, name), kind):
+                raise SpaceidError(f"settings.{name} must be a {kind.__name__}(...), got {getattr(self, name)!r}")
+
+    def without_noise(self) -> "ServicerSettings":
+        """The same settings with exact sensors (no noise, quantisation, bias, latency or lost
+        frames); the controllers and their model unchanged."""
+        return replace(
+            self,
+            encoders=replace(self.encoders, noise=0.0, counts_per_rev=None),
+            star_tracker=replace(self.star_tracker, noise=0.0, latency=0.0, drop_probability=0.0),
+            gyro=Gyro(noise=0.0, bias=(0.0, 0.0, 0.0), walk=0.0),
+        )
+
+    def to_dict(self) -> dict:
+        """JSON-ready dictionary of every value (models by name or source)."""
+        out = {}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            out[f.name] = _model_name(value) if f.name == "model" else _plain(value)
+        if self.control.model is not None:
+            out["control"]["model"] = _model_name(self.control.model)
+        return out
+
+
+def _model_name(value) -> str:
+    """A model as provenance records it: its source or name (a Model), else the string given."""
+    return value.source or value.name if isinstance(value, Model) else str(value)
