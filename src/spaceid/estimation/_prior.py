@@ -26,7 +26,7 @@ from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
 from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian
 from ..models import Model, load_model
-from ..models.internal import (CLARABEL_TOLERANCES, MARGIN, pseudo_inertia, pseudo_whitening, theta_slots,
+from ..models.internal import (MARGIN, pseudo_inertia, pseudo_whitening, solved_tightly, theta_slots,
                                with_theta)  # fmt: skip
 
 __all__ = ["PRIOR_STD", "PriorRecord", "prior_deviations"]
@@ -322,18 +322,11 @@ class _MapProgram:
         self.problem = cp.Problem(cp.Minimize(objective), cons)
 
     def solve(self, ld, rd, c, cv):
-        import cvxpy as cp
 
         for p, value in ((self.ld, ld), (self.rd, rd), (self.c, c), (self.cv, cv)):
             if p.size:
                 p.value = value
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)
-                self.problem.solve(solver=cp.CLARABEL, **CLARABEL_TOLERANCES)
-        except cp.SolverError:
-            return None
-        if self.problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        if not solved_tightly(self.problem):
             return None
         return np.asarray(self.theta.value, float), [np.asarray(x.value) for x in self.x]
 

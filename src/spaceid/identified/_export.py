@@ -24,7 +24,7 @@ from ..dynamics import Parameterization, full_parameter_names, full_values, full
 from ..dynamics import minimal_parameters
 from ..estimation import Identification
 from ..models import INERTIAL_NAMES, Model, load_model
-from ..models.internal import (CLARABEL_TOLERANCES, MARGIN, inertial_from_pseudo, pseudo_inertia,
+from ..models.internal import (MARGIN, inertial_from_pseudo, pseudo_inertia, solved_tightly,
                                pseudo_whitening, reference_pseudo, theta_slots, whitened_physical, with_theta)
 
 __all__ = ["Export", "export_model", "inertial_from_pseudo", "pseudo_divergence", "pseudo_inertia", "unphysical_bodies"]
@@ -168,17 +168,10 @@ class _Program:
 
     def solve(self, a_eq, b_eq, a_w, b_w):
         """The solution ``vec X`` (16 nb,), or None when the program is infeasible."""
-        import cvxpy as cp
 
         for p, value in ((self.a_eq, a_eq), (self.b_eq, b_eq), (self.a_w, a_w), (self.b_w, b_w)):
             p.value = value
-        try:
-            with warnings.catch_warnings():  # "may be inaccurate": the steps repeat and the polish follows
-                warnings.simplefilter("ignore", UserWarning)
-                self.problem.solve(solver=cp.CLARABEL, **CLARABEL_TOLERANCES)
-        except cp.SolverError:
-            return None
-        if self.problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        if not solved_tightly(self.problem):
             return None
         return np.concatenate([x.value.ravel(order="F") for x in self.x])
 

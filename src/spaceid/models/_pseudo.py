@@ -23,6 +23,23 @@ CLARABEL_TOLERANCES = {"tol_gap_abs": 1e-13, "tol_gap_rel": 1e-13, "tol_feas": 1
 whitened solution (a log-det objective is flat to second order), enough to keep the steps from settling."""
 
 
+def solved_tightly(problem) -> bool:
+    """Solve the cvxpy ``problem`` with Clarabel at :data:`CLARABEL_TOLERANCES`; whether it reached an
+    optimum (a solver failure is False). Its "may be inaccurate" warnings are silenced: the callers'
+    steps repeat and their polish follows."""
+    import warnings
+
+    import cvxpy as cp
+
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", UserWarning)
+            problem.solve(solver=cp.CLARABEL, **CLARABEL_TOLERANCES)
+    except cp.SolverError:
+        return False
+    return problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
+
+
 def pseudo_inertia(inertial) -> np.ndarray:
     """Pseudo-inertia (second moments of mass) of a body, shape (4, 4).
 

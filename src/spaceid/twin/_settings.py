@@ -46,6 +46,14 @@ G0 = 9.80665
 # ------------------------------------------------------------------ validation helpers -------
 
 
+def _probability(where, value) -> float:
+    """``value`` as a probability in [0, 1), or a SpaceidError naming ``where``."""
+    p = _number(where, value, low=0.0)
+    if p >= 1:
+        raise SpaceidError(f"{where} must be in [0, 1), got {p:g}")
+    return p
+
+
 def _number(where, value, *, low=None, strict=False, allow_inf=False):
     """``value`` as a float (at least, or with ``strict`` above, ``low``), or a SpaceidError naming ``where``."""
     try:
@@ -253,10 +261,7 @@ class MotionCapture:
         _set(self, "rate", _number("mocap.rate [Hz]", self.rate, low=0.0, strict=True))
         for name in ("position_noise", "attitude_noise", "latency"):
             _set(self, name, _number(f"mocap.{name}", getattr(self, name), low=0.0))
-        p = _number("mocap.drop_probability", self.drop_probability, low=0.0)
-        if p >= 1:
-            raise SpaceidError(f"mocap.drop_probability must be in [0, 1), got {p:g}")
-        _set(self, "drop_probability", p)
+        _set(self, "drop_probability", _probability("mocap.drop_probability", self.drop_probability))
 
 
 @dataclass(frozen=True)
@@ -809,10 +814,7 @@ class StarTracker:
         _set(self, "rate", _number("star_tracker.rate [Hz]", self.rate, low=0.0, strict=True))
         for name in ("noise", "latency"):
             _set(self, name, _number(f"star_tracker.{name}", getattr(self, name), low=0.0))
-        p = _number("star_tracker.drop_probability", self.drop_probability, low=0.0)
-        if p >= 1:
-            raise SpaceidError(f"star_tracker.drop_probability must be in [0, 1), got {p:g}")
-        _set(self, "drop_probability", p)
+        _set(self, "drop_probability", _probability("star_tracker.drop_probability", self.drop_probability))
 
 
 @dataclass(frozen=True)
