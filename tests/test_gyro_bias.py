@@ -137,6 +137,7 @@ def test_noise_free_recovery_planar(cepheus, estimator):
     assert res.settings["gyro_bias"]["passes"] <= 5
 
 
+@pytest.mark.slow
 def test_noise_free_recovery_spatial_preset():
     param, h, clean = _flown(spaceid.load_model("satellite-7dof"), 0)
     with warnings.catch_warnings():

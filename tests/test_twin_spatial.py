@@ -187,6 +187,7 @@ def _checked_experiment(res, model):
         assert (res.folder / name).is_file()
 
 
+@pytest.mark.slow
 def test_experiment_on_a_random_robot(tmp_path):
     """The spatial protocol end to end on a small random robot with a very short design budget."""
     model, _ = _robot(tmp_path)
@@ -226,6 +227,7 @@ def test_cli_refuses_a_bad_budget(tmp_path, capsys):
     assert "\n" not in err and "--time-budget" in err
 
 
+@pytest.mark.slow
 def test_a_model_no_rigid_body_has_is_not_predicted(tmp_path):
     """The held-out prediction refuses a model whose locked inertia is not positive definite (its
     simulation would blow up or crawl) and names why; the true model passes."""
