@@ -278,7 +278,8 @@ def test_angles_only_log_is_differentiated(tmp_path):
     cols = ["t", "base_yaw", "q_left_shoulder", "q_left_elbow"]
     np.savetxt(tmp_path / "angles.csv", np.column_stack([data[c] for c in cols]), delimiter=",",
                header=",".join(cols), comments="")
-    assert run("identify", "cepheus", tmp_path / "angles.csv", "--momentum", 0.4934, "-o", tmp_path / "r.json") == 0
+    assert run("identify", "cepheus", tmp_path / "angles.csv", "--momentum", 0.4934, "--joint-rates", "differentiate",
+               "-o", tmp_path / "r.json") == 0
     result = json.loads((tmp_path / "r.json").read_text())
     assert result["settings"]["log"]["differentiation"]["joints"]["method"]
     import spaceid

@@ -163,6 +163,7 @@ def _alarms(cases, noise):
     return alarms, p_values
 
 
+@pytest.mark.soak
 @pytest.mark.slow
 def test_drift_test_level_on_50_conserved_spatial_logs(tmp_path):
     """50 conserved logs of random spatial robots on undesigned motions, rates measured, levels given:
@@ -174,6 +175,7 @@ def test_drift_test_level_on_50_conserved_spatial_logs(tmp_path):
     assert alarms <= 1, (alarms, sorted(p_values)[:5])
 
 
+@pytest.mark.soak
 @pytest.mark.slow
 def test_drift_test_level_on_conserved_spatial_logs_with_differentiated_rates(tmp_path):
     """The same robots with every rate differentiated from the angles and attitude, levels estimated

@@ -216,6 +216,7 @@ def test_a_grasp_is_found_on_a_random_robot(seed, planar, noisy, differentiated,
     _grasp_found(seed, planar, noisy, differentiated, estimated, fraction, tmp_path, 12.0, max_arms=2, max_joints=2)
 
 
+@pytest.mark.soak
 @pytest.mark.slow
 @SLOW
 @given(**CASES)
@@ -263,6 +264,7 @@ def test_false_alarms_on_random_robots_as_stated(seed, tmp_path):
     _as_stated(*changeless_alarms(seed, 1, tmp_path, 12.0, max_arms=2, max_joints=2))
 
 
+@pytest.mark.soak
 @pytest.mark.slow
 def test_false_alarms_on_larger_random_robots_as_stated(tmp_path):
     """24 changeless 20 s logs of random trees of up to 2 arms of 3 joints at 1e-3 false alarms per

@@ -27,7 +27,7 @@ RATE = 50.0
 
 
 ONE = settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-SOME = settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+SOME = settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 
 
 def _excitation(joints, duration, seed, amplitude=0.1, harmonics=3) -> FourierTrajectory:
@@ -90,7 +90,7 @@ def test_flight_is_not_the_reference():
 
 
 @pytest.mark.slow
-@settings(max_examples=3, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(seed=st.integers(0, 10**6))
 def test_identify_a_random_robot_flown_in_mujoco(tmp_path, seed):
     """Noise-free, rates measured: least squares recovers the true minimal parameters from

@@ -197,6 +197,7 @@ def test_experiment_on_a_random_robot(tmp_path):
     _checked_experiment(res, model)
 
 
+@pytest.mark.soak
 @pytest.mark.slow
 def test_experiment_on_the_dual_arm_servicer(tmp_path):
     """The spatial protocol on servicer-dual with its defaults (least squares, for time): end to
