@@ -8,7 +8,7 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from conftest import random_inertia
 from random_robots import random_robot
@@ -109,6 +109,7 @@ def test_pipeline_on_random_robots(seed, planar, tmp_path):
 @pytest.mark.slow
 @SLOW
 @given(seed=SEEDS, planar=st.booleans())
+@example(seed=430, planar=False)  # the payload's consistency projection: Clarabel failed at both tolerances
 def test_pipeline_and_payload_on_more_random_robots(seed, planar, tmp_path):
     _check_pipeline(seed, planar, tmp_path)
     _check_payload(seed, planar, tmp_path)

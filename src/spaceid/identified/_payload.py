@@ -265,18 +265,20 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     with one_blas_thread():
         w, v = np.linalg.eigh(np.asarray(cov, float))
     top = max(w.max(), np.finfo(float).tiny)
-    root = v * np.sqrt(np.maximum(w, 1e-12 * top) / top)  # cov / top = root root^T: a scale leaves the nearest
-    z = cp.Variable(len(theta))  # whitened step: t = theta + root z, so the objective is |z|^2 (times top)
-    matrix = lmi + sum((root @ z)[i] * basis[i] for i in range(len(theta)))
-    problem = cp.Problem(cp.Minimize(cp.sum_squares(z)), [0.5 * (matrix + matrix.T) >> margin * np.eye(len(lmi))])
-    try:
-        problem.solve(solver=cp.CLARABEL, **CLARABEL_TOLERANCES)
-    except cp.SolverError:  # the tight tolerances fail on a covariance spanning many decades: the defaults
+    # a covariance spanning many decades can defeat the solver: its smallest directions floored higher,
+    # then Clarabel's default tolerances (the tight ones first)
+    for floor, options in ((1e-12, CLARABEL_TOLERANCES), (1e-12, {}), (1e-8, CLARABEL_TOLERANCES), (1e-8, {})):
+        root = v * np.sqrt(np.maximum(w, floor * top) / top)  # cov / top = root root^T: a scale leaves the nearest
+        z = cp.Variable(len(theta))  # whitened step: t = theta + root z, so the objective is |z|^2 (times top)
+        matrix = lmi + sum((root @ z)[i] * basis[i] for i in range(len(theta)))
+        problem = cp.Problem(cp.Minimize(cp.sum_squares(z)), [0.5 * (matrix + matrix.T) >> margin * np.eye(len(lmi))])
         try:
-            problem.solve(solver=cp.CLARABEL)
+            problem.solve(solver=cp.CLARABEL, **options)
         except cp.SolverError:
-            pass  # the status below says it failed
-    if problem.status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            continue
+        if problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+            break
+    else:
         raise SpaceidError(f"payload: the consistency projection failed ({problem.status}): check the log and `link`")
     return theta + root @ z.value, float(np.linalg.norm(z.value) / np.sqrt(top))
 
