@@ -25,7 +25,7 @@ SEEDS = st.integers(0, 2**31 - 1)
 NOISE = 1e-4  # [rad, rad/s] on every signal of the noisy logs
 FAST = settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                       HealthCheck.function_scoped_fixture])
-SLOW = settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+SLOW = settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                        HealthCheck.function_scoped_fixture])
 
 
