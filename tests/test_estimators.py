@@ -213,14 +213,13 @@ def test_ml_builds_the_regressor_once(cepheus, monkeypatch):
     """In memory the columns are built once, at the measured signals: no linearised equations,
     the corrected signals entering through the residuals and the weights (signal Jacobian). (The
     diagnostics' noise Gram matrix builds its own at perturbed signals: not counted.)"""
-    from spaceid.estimation import _determined, _residuals
+    from spaceid.estimation import _determined
     from spaceid.estimation._equations import Equations
 
     param, make = cepheus
     built = []
-    for module in (_determined, _residuals):
-        monkeypatch.setattr(module, "noise_gram", lambda *a, _f=_determined.noise_gram, **k:
-                            (built.append("noise"), _f(*a, **k), built.remove("noise"))[1])  # fmt: skip
+    monkeypatch.setattr(_determined, "noise_gram", lambda *a, _f=_determined.noise_gram, **k:
+                        (built.append("noise"), _f(*a, **k), built.remove("noise"))[1])  # fmt: skip
 
     def counted(name, build):
         def call(self, *a, **k):
@@ -450,3 +449,21 @@ def test_correct_identification_gives_no_plausibility_warning(cepheus, estimator
         warnings.simplefilter("error")
         ident = identify(param, add_noise(make(101), angle=1e-3, rate=1e-3, seed=1), H, estimator=estimator)
     assert ident.diagnostics.plausibility == "no inertia-like parameter negative"
+
+
+@pytest.mark.parametrize("bandwidth", [0, 1, 5, 12])
+def test_newey_west_from_window_sums_equals_the_lagged_products(bandwidth):
+    """The Bartlett-weighted covariance as one Gram matrix of window sums equals the sum of the lagged
+    products it replaces, in one chunk or streamed in chunks shorter than the bandwidth."""
+    from spaceid.estimation._uncertainty import _hac
+
+    rng = np.random.default_rng(bandwidth)
+    x = np.cumsum(rng.standard_normal((300, 4)), 0) * 0.1 + rng.standard_normal((300, 4))  # correlated scores
+    lagged = x.T @ x
+    for lag in range(1, bandwidth + 1):
+        c = x[lag:].T @ x[:-lag]
+        lagged += (1 - lag / (bandwidth + 1)) * (c + c.T)
+    b = bandwidth / len(x)
+    expected = lagged * len(x) / (len(x) - 4) / (1 - b + b * b / 3)
+    for parts in ([x], [x[:7], x[7:8], x[8:150], x[150:]]):
+        assert np.abs(_hac(iter(parts), bandwidth, 4) - expected).max() <= 1e-13 * np.abs(expected).max()

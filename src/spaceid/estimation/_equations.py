@@ -141,6 +141,12 @@ class Equations:
         b = [f"gyro_bias_{'xyz'[a]}" for a in self.axes] if self.n_b else []
         return [self.param.names[i] for i in self.free] + h + b + list(self.drift)
 
+    @property
+    def rate_channels(self) -> slice:
+        """The rates' columns of the signals ``x``: joint rates, then the base rate's (the equations are linear in them)."""
+        nj = len(self.param.model.joints)
+        return slice(nj, 2 * nj + len(self.axes))
+
     def bias_values(self, theta):
         """The gyro-bias correction ``db (n_b,)`` of ``theta`` [rad/s] (empty without ``bias``)."""
         start = len(self.free) + self.n_h
@@ -264,8 +270,7 @@ class Equations:
         """``Phi(x) [theta; 1]``, the equation error of every sample ``(n, rows)`` [N m s], from the
         signal Jacobian ``jac = self.jacobian(x, theta)`` and without the regressor: the momentum is
         linear in the rates, so the rate columns of ``jac`` times the rates are the momentum."""
-        nj = len(self.param.model.joints)
-        rates = slice(nj, 2 * nj + len(self.axes))
+        rates = self.rate_channels
         h = self.base_momentum(theta, self.unpack(x)[3])
         error = np.einsum("nrx,nx->nr", jac[..., rates], x[:, rates]) - (h[:, 2:3] if self.planar else h)
         return error + self.bias @ self.bias_values(theta) if self.n_b else error

@@ -25,7 +25,7 @@ from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
-from ._determined import undetermined_directions, undetermined_warning
+from ._determined import equation_noise, undetermined_directions, undetermined_warning
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
@@ -34,7 +34,7 @@ from ._gyro_bias import bias_test, identify_gyro_bias
 from ._linalg import _column_scale, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log, signal_sigma
 from ._prior import PRIOR_STD, identify_with_prior, split_known, standard_anchor_error
-from ._residuals import drift_test
+from ._residuals import drift_columns, drift_test
 from ._result import Identification
 from ._scales import log_momentum_scale
 from ._stream import check_chunk, streamed_covariance, streamed_estimate, streamed_ols_factor
@@ -195,15 +195,17 @@ def _drift_collinear(eq, cov_t, where) -> tuple:
                    "errors and the parameters'; keep one of them (`drift`) unless the motion can tell them apart")
 
 
-def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None, chunk=None) -> tuple:
+def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None, chunk=None,
+                 noise=None) -> tuple:
     """The :class:`~spaceid.estimation.DriftTest` of the residuals for an unmodelled drift
     (:func:`spaceid.estimation._residuals.drift_test`, ``whitener`` the estimator's own, if any; streamed in chunks
-    of ``chunk`` samples when given) and its warning (``""`` when silent); not run when drift terms are modelled."""
+    of ``chunk`` samples when given; ``noise`` the noise Gram matrix of the equations with the drift columns, if
+    formed) and its warning (``""`` when silent); not run when drift terms are modelled."""
     if drift:
         return DriftTest.skipped(f"drift terms modelled: {', '.join(drift)}"), ""
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
         return DriftTest.skipped("not defined for the angles estimator"), ""
-    test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk)
+    test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk, noise=noise)
     record = DriftTest.from_dict(test)
     if not test["drift"]:
         return record, ""
@@ -463,10 +465,14 @@ def identify(
         theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
         s = _singular_values(factor)
         whitener = info.pop("whitener", None)
-        weak = [] if chunk or estimator == "angles" else undetermined_directions(
-            eq, x, phi, sigma, theta, estimator, log, whitener)
+        gram = None  # the noise Gram matrix of the columns and the drift test's candidates: once for both checks
+        if not chunk and estimator != "angles":
+            gram = equation_noise(eq, x, sigma, theta, estimator, log, whitener,
+                                  None if drift else drift_columns(eq, log))
+        weak = [] if gram is None else undetermined_directions(
+            eq, x, phi, sigma, theta, estimator, log, whitener, gram[: eq.p, : eq.p], (*factor, cond_scaled))
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
-                                                   whitener, chunk)
+                                                   whitener, chunk, gram)
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
             bias, warning = bias_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
                                       drift_record.to_dict(), where)

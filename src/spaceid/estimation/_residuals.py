@@ -21,14 +21,16 @@ attitude change (base friction), and they are correlated from sample to sample. 
 from __future__ import annotations
 
 import numpy as np
+from scipy.linalg import solve_triangular
 from scipy.stats import f as f_dist
 from scipy.stats import norm
 
 from ._differentiated import differentiated_series, propagated_covariance
-from ._determined import UNDETERMINED, noise_gram, noise_rows, noise_to_signal, signal_levels
+from ._determined import UNDETERMINED, equation_noise, noise_to_signal
 from ._drift import drift_basis, drift_names
 from ._linalg import _equation_whitener, _solve_factor, _whitened
 from ._stream import _chunks, _streamed_factor
+from .._threads import one_blas_thread
 from ._uncertainty import _hac, _larger_of, _mapped_scores, correlation_length
 
 DRIFT_ALPHA = 1e-3
@@ -55,14 +57,49 @@ def _serial_sums(white, before) -> np.ndarray:
     return np.array([np.sum(white**2), np.sum(w[1:] * w[:-1]), np.sum(np.diff(w, axis=0) ** 2)])
 
 
-def _leverage_adjusted(M, ginv, r):
-    """Residuals ``r (n, rows)`` of the least-squares fit of ``M (n, rows, p)`` (``ginv`` its inverse
-    Gram matrix) divided by one minus their leverage, ``(I - M_n ginv M_n^T)^-1 r_n``: the scores of
-    these make White's covariance the jackknife's (HC3), whose tests keep their level on short logs,
-    where each sample's own fit shrinks its residual (35 samples for 10 unknowns: 6 of 400 clean logs
-    fired at 1e-3 with the plain residuals, 1 with these)."""
-    K = (M.reshape(-1, M.shape[-1]) @ ginv).reshape(M.shape)  # one GEMM (batched 3-row products: 4x slower)
-    H = np.einsum("nrp,nsp->nrs", K, M)
+LEVERAGE_SKETCH = 64
+"""Columns of the Gaussian sketch by which the leverages of a fit of more than four times as many unknowns
+are estimated (a Johnson-Lindenstrauss estimate, relative error about ``sqrt(2 / 64)`` = 18 % of each
+leverage, the HC3 factor's ``h / (1 - h)`` of it: 0.3 % on a 10,000-sample servicer log, whose leverages
+are about 0.02); the samples estimated above :data:`LEVERAGE_EXACT` are recomputed exactly. Exact ones
+cost as much as the fit's factorisation again (``n rows p^2``), the sketch ``n rows p 64``."""
+
+LEVERAGE_EXACT = 0.1
+"""Largest estimated leverage (trace of a sample's block) that is kept from the sketch."""
+
+LEVERAGE_SEED = 0
+"""Seed of the sketch: the test is a deterministic function of the log."""
+
+
+def _leverage_root(factor) -> tuple:
+    """``(B (c, k), exact)``: ``B B^T`` the inverse Gram matrix of the fit whose column-scaled factor is
+    ``factor = (scale (c,), R (c + 1, c + 1))`` (``B = diag(1 / scale) R^-1``, ``k = c``), or its sketch
+    (``B Omega / sqrt(k)``, ``Omega (c, k)`` Gaussian, ``k`` = :data:`LEVERAGE_SKETCH`) when ``c`` exceeds
+    four times that; ``exact`` whether it is the root itself."""
+    scale, R = factor
+    c = len(scale)
+    exact = c <= 4 * LEVERAGE_SKETCH
+    omega = np.eye(c) if exact else np.random.default_rng(LEVERAGE_SEED).standard_normal((c, LEVERAGE_SKETCH))
+    with one_blas_thread():
+        root = solve_triangular(R[:c, :c], omega) / scale[:, None]
+    return (root, True) if exact else (root / np.sqrt(LEVERAGE_SKETCH), False)
+
+
+def _leverage_adjusted(M, root, ginv, r):
+    """Residuals ``r (n, rows)`` of the least-squares fit of ``M (n, rows, c)`` divided by one minus their
+    leverage, ``(I - H_n)^-1 r_n`` with ``H_n = M_n ginv M_n^T`` (``ginv`` the fit's inverse Gram matrix):
+    the scores of these make White's covariance the jackknife's (HC3), whose tests keep their level on
+    short logs, where each sample's own fit shrinks its residual (35 samples for 10 unknowns: 6 of 400
+    clean logs fired at 1e-3 with the plain residuals, 1 with these). ``H_n = W_n W_n^T`` with
+    ``W = M B``, ``root = (B, exact)`` of :func:`_leverage_root`; from a sketch, the samples whose
+    leverage comes out above :data:`LEVERAGE_EXACT` recomputed with ``ginv``."""
+    B, exact = root
+    with one_blas_thread():
+        W = (M.reshape(-1, M.shape[-1]) @ B).reshape(*M.shape[:2], -1)  # one GEMM (batched: 4x slower)
+        H = np.einsum("nrk,nsk->nrs", W, W)
+        if not exact:
+            high = np.flatnonzero(np.trace(H, axis1=1, axis2=2) > LEVERAGE_EXACT)
+            H[high] = np.einsum("nrp,pq,nsq->nrs", M[high], ginv, M[high], optimize=True)
     return np.einsum("nrs,ns->nr", np.linalg.pinv(np.eye(M.shape[1]) - H), r)  # pinv: a sample fitted exactly
 
 
@@ -75,34 +112,37 @@ def _drift_equations(phi, cols, L) -> tuple:
     return M, rhs, cols, float(np.sum(phi[..., -1] ** 2))
 
 
-def _confounded(eq, x, sigma, theta, estimator, log, basis, whitener, R, chunk=None) -> float:
+def drift_columns(eq, log):
+    """The drift test's candidate columns as :func:`~spaceid.estimation._determined.equation_noise` takes
+    them, ``columns(part, signals, rows)`` ``(m, rows, q)``: the momentum change per unit ``torque`` and
+    ``viscous`` coefficient, in base axes at the signals' attitude."""
+    basis = drift_basis(log, _CANDIDATES)
+
+    def columns(part, signals, rows):
+        rot_t = np.swapaxes(part.unpack(signals)[3], -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
+        return -np.einsum("nri,nki->nrk", rot_t, basis[rows])
+
+    return columns
+
+
+def _confounded(noise, R, p) -> float:
     """The largest share of a drift coefficient's first-order variance that comes from directions of
     ``[A | C]`` the data do not determine (:mod:`spaceid.estimation._determined`: the regressor's noise
-    as large as its signal, at :func:`~spaceid.estimation._determined.signal_levels`), ``R (p + q, p + q)``
-    the triangular factor of the whitened ``[A | C]``; ``chunk``: built at most that many samples at a time.
+    as large as its signal), ``R (p + q, p + q)`` the triangular factor of the whitened ``[A | C]``,
+    ``noise`` its noise Gram matrix (:func:`~spaceid.estimation._determined.equation_noise`), ``p`` the
+    columns of ``A``.
 
     Along such directions the estimate is pulled towards zero, and the drift columns, which carry no
     noise of their own beyond the attitude's, take up the momentum they leave: the test would read a
     parameter the log does not determine as a drift (on the 7-DOF satellite's undesigned conserved
     log 57 of 153 directions were noise, and 92-97 % of each drift coefficient's variance theirs)."""
-    every, scale = noise_rows(len(x))
-    levels, noise = signal_levels(eq.param, log, sigma), 0.0
-    for rows in np.array_split(every, -(-len(every) // (chunk or len(every)))):  # streamed: a chunk at a time
-        part = eq.select(rows)
-        L = None if estimator == "ols" else whitener[rows] if whitener is not None else _equation_whitener(
-            part, x[rows], theta, sigma)  # the estimator's whitening, at its levels
-
-        def build(signals, part=part, rows=rows, L=L):  # the whitened [A | C] of the rows (attitude included)
-            rot_t = np.swapaxes(part.unpack(signals)[3], -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
-            return _drift_equations(part.phi(signals), -np.einsum("nri,nki->nrk", rot_t, basis[rows]), L)[0]
-
-        noise = noise + noise_gram(build, x[rows], levels, scale)
     mu, directions = noise_to_signal(R, noise)
-    d = directions[eq.p :]
+    d = directions[p:]
     return float(np.max(np.sum(d[:, mu >= UNDETERMINED] ** 2, 1) / np.maximum(np.sum(d**2, 1), 1e-300)))
 
 
-def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None, candidates=None) -> dict:
+def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None, candidates=None,
+               noise=None) -> dict:
     """Whether the residuals of a drift-free identification show an unmodelled drift.
 
     Parameters
@@ -131,6 +171,9 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         Other columns to test instead of the drift's: ``(names, columns)``, ``columns(rows)`` those of
         the samples ``rows`` (a slice), ``(k, rows, q)`` (the gyro bias's:
         :func:`spaceid.estimation._gyro_bias.bias_test`).
+    noise : ndarray of shape (p + q, p + q), optional
+        The noise Gram matrix of the equations with the drift columns (:func:`drift_columns`,
+        :func:`~spaceid.estimation._determined.equation_noise`), if already formed.
 
     Returns
     -------
@@ -142,8 +185,8 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         smallest part of a candidate column outside the span of the equations' (relative to its norm;
         not recorded).
     """
-    drift_columns = candidates is None
-    if drift_columns:
+    testing_drift = candidates is None
+    if testing_drift:
         rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
         basis = drift_basis(log, _CANDIDATES)
         candidates = (drift_names(_CANDIDATES, eq.planar)[0],
@@ -176,6 +219,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
     factor = _streamed_factor(corrections, p + q, refined=False)
     step, ginv = _solve_factor(*factor[::-1])
+    root = _leverage_root(factor)
     # each candidate column's part outside the equations' span, relative to its norm (the factor is column-scaled)
     beyond = np.linalg.norm(factor[1][p : p + q, p : p + q], axis=0)
     est, d = np.append(theta, np.zeros(q)) + step, step[p:]
@@ -184,7 +228,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     def scores():  # the leverage-adjusted scores of the fit with the drift columns, mapped by ginv's drift rows
         for _, M, rhs, cols, _ in chunks():
             change.append(float(np.abs(cols @ d).max()))
-            yield _mapped_scores(ginv[p:], M, _leverage_adjusted(M, ginv, M @ est + rhs))
+            yield _mapped_scores(ginv[p:], M, _leverage_adjusted(M, root, ginv, M @ est + rhs))
 
     bandwidth = correlation_length(log)
     # only the drift block of the sandwich is tested: its q rows of ginv, not all p + q (q^2, not (p + q)^2, a lag)
@@ -196,9 +240,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         cdd = _larger_of(propagated_covariance(series, log.t, scored, ginv[p:], sigma), cdd)[0]
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     size = n * eq.param.rows
-    confounded = None if not drift_columns else _confounded(
-        eq, x, sigma, theta, estimator, log, basis, whitener, factor[1][:-1, :-1] * factor[0],
-        None if phi is not None else chunk)  # (another candidate's columns: the drift test decided before)
+    if testing_drift and noise is None:  # (another candidate's columns: the drift test decided before)
+        noise = equation_noise(eq, x, sigma, theta, estimator, log, whitener, drift_columns(eq, log),
+                               None if phi is not None else chunk)
+    confounded = _confounded(noise, factor[1][:-1, :-1] * factor[0], p) if testing_drift else None
     p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))
     change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
     square, lagged, differences = sums["serial"]
