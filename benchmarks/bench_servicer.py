@@ -12,8 +12,10 @@ Cases (``--cases``):
 * ``designed``: ``design`` (120 s, 8 harmonics, 600 samples, |qdd| <= 0.3, the noise levels,
   ``--budget`` s), flown, identified;
 * ``designed-bias``: the same flight with the gyro bias;
-* ``undesigned``: 120 s of a random excitation (no design), identified; with ``--prior`` also
-  with the CAD prior.
+* ``undesigned``: 120 s of a random excitation (no design), identified without and with the CAD
+  prior (``prior_std`` 0.15).
+
+``designed-bias`` is identified without and with the bias estimated (``gyro_bias``).
 
 Each identification is judged by the coverage of the large parameters (those whose contribution
 to the momentum over the log is at least 1 % of the momentum's: the fraction within 2 standard
@@ -133,7 +135,8 @@ def main():
     model = spaceid.load_model("servicer-dual")
     param = minimal_parameters(model)
     truth = param.true_values
-    prior = minimal_parameters(perturbed_prior(model, args.seed + 7, mass=0.15, moments=0.15, com=0.0)).true_values
+    prior_model = perturbed_prior(model, args.seed + 7, mass=0.15, moments=0.15, com=0.0)
+    prior = minimal_parameters(prior_model).true_values
     held, h_held = _flight(f"held-{args.seed}", _random_motion(model.joints, 60.0, 1000 + args.seed), 60.0,
                            args.work, model)
     prior_error = _held_out_error(param, prior, held, h_held)
@@ -154,20 +157,27 @@ def main():
         sensed = sense(true, Sensors(encoder=1e-4, star_tracker=5e-5, gyro=1e-5, gyro_bias=bias), seed=args.seed)
         log = differentiate_log(sensed)
         large = _large(param, true, truth)
+        variants = {"": {}}
+        if case.endswith("bias"):
+            variants["+bias"] = {"gyro_bias": True}
+        if case == "undesigned":
+            variants["+prior"] = {"prior": prior_model, "prior_std": 0.15}
         for estimator in args.estimators:
-            start = time.perf_counter()
-            with warnings.catch_warnings(record=True) as seen:
-                warnings.simplefilter("always")
-                try:
-                    result = spaceid.identify(param, log, h, estimator=estimator, cond_limit=1e14)
-                except spaceid.SpaceidError as err:
-                    print(f"{case + ' / ' + estimator:<34} error: {err}")
-                    continue
-            print(_row(f"{case} / {estimator}", result, param, truth, large, held, h_held, prior_error)
-                  + f"  ({large.sum()} large, {time.perf_counter() - start:.0f} s, {len(seen)} warnings)",
-                  flush=True)
-            for w in seen:
-                print(f"    warning: {str(w.message)[:160]}")
+            for name, options in variants.items():
+                label = f"{case}{name} / {estimator}"
+                start = time.perf_counter()
+                with warnings.catch_warnings(record=True) as seen:
+                    warnings.simplefilter("always")
+                    try:
+                        result = spaceid.identify(param, log, h, estimator=estimator, cond_limit=1e14, **options)
+                    except spaceid.SpaceidError as err:
+                        print(f"{label:<34} error: {err}")
+                        continue
+                print(_row(label, result, param, truth, large, held, h_held, prior_error)
+                      + f"  ({large.sum()} large, {time.perf_counter() - start:.0f} s, {len(seen)} warnings)",
+                      flush=True)
+                for w in seen:
+                    print(f"    warning: {str(w.message)[:200]}")
 
 
 if __name__ == "__main__":

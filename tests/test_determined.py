@@ -185,13 +185,12 @@ def test_drift_test_level_on_conserved_spatial_logs_with_differentiated_rates(tm
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(strict=True, reason="open (issue 27 item 5): on a designed motion with rates differentiated from "
-                   "the angles the drift coefficients spread about three times their reported standard errors, the "
-                   "differentiators' propagated covariance included; cause not found")
 def test_drift_test_level_on_a_designed_motion_with_differentiated_rates(tmp_path):
     """Random robot 3 (28 parameters) on a designed motion (20 s, scaled condition number 92), rates
-    differentiated, levels estimated: no alarm expected on three conserved logs (each 1e-3); it fires on
-    every one (``benchmarks/bench_coverage.py``: 5 of 5 for ``ols`` and ``ml``)."""
+    differentiated, levels estimated: no alarm on three conserved logs (each 1e-3). The drift coefficients
+    sat about three standard errors from zero, seed after seed, in the direction of the regressor noise's
+    errors-in-variables bias (the differentiated rates' noise, far above the sensors'): the test allows for
+    that bias, which it records, and it is the size of the fitted trend."""
     model = random_robot(3, planar=False, max_arms=2, max_joints=4).load(tmp_path)
     param = minimal_parameters(model)
     lower, upper = model.joint_limits("lower"), model.joint_limits("upper")
@@ -199,5 +198,11 @@ def test_drift_test_level_on_a_designed_motion_with_differentiated_rates(tmp_pat
                                time_budget=20.0, q_max=np.nan_to_num(np.fmin(np.abs(lower), np.abs(upper)), nan=1.0),
                                qd_max=np.nan_to_num(model.joint_limits("velocity"), nan=1.0), qdd_max=0.5)  # fmt: skip
     log = simulate(param, param.true_values, design.trajectory, np.arange(0.0, 20.005, 0.01), H_SPATIAL, model=model)
-    alarms, _ = _alarms(((param, differentiate_log(with_sensors(log, seed))) for seed in range(3)), None)
+    logs = [differentiate_log(with_sensors(log, seed)) for seed in range(3)]
+    alarms, _ = _alarms(((param, lg) for lg in logs), None)
     assert alarms == 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        test = identify(param, logs[0], H_SPATIAL, estimator="ols").diagnostics.drift_test
+    trend, bias = np.array(list(test.trend.values())), np.array(test.errors_in_variables)
+    assert trend @ bias > 0 and 1 / 3 < np.linalg.norm(trend) / np.linalg.norm(bias) < 3

@@ -106,6 +106,10 @@ class DriftTest:
         Largest share of a drift coefficient's variance from directions the data do not determine
         (the regressor's noise as large as its signal); above ``CONFOUNDED`` (0.01) the test does not
         decide: a drift cannot be told from those parameters (None: not recorded).
+    errors_in_variables : tuple of float
+        The drift coefficients predicted from the regressor's own noise (its first-order
+        errors-in-variables bias, one per term): allowed for in the Wald test's covariance, so that a
+        trend of that size is no drift (empty: not recorded).
     """
 
     run: bool
@@ -124,6 +128,7 @@ class DriftTest:
     gyro_bias: tuple = ()
     bandwidth: int | None = None
     confounded: float | None = None
+    errors_in_variables: tuple = ()
 
     @classmethod
     def skipped(cls, reason: str) -> DriftTest:
@@ -139,6 +144,7 @@ class DriftTest:
                 "lag1_autocorrelation": self.lag1_autocorrelation, "durbin_watson": self.durbin_watson,
                 "whiteness_p_value": self.whiteness_p_value, "drift": self.drift, "bandwidth": self.bandwidth,
                 "confounded": self.confounded, "run": True,
+                **({"errors_in_variables": list(self.errors_in_variables)} if self.errors_in_variables else {}),
                 **({"gyro_bias": list(self.gyro_bias)} if self.gyro_bias else {})}
 
     @classmethod
@@ -155,7 +161,8 @@ class DriftTest:
                    float(data["whiteness_p_value"]), bool(data["drift"]),
                    tuple(float(v) for v in data.get("gyro_bias", ())),
                    None if data.get("bandwidth") is None else int(data["bandwidth"]),
-                   None if data.get("confounded") is None else float(data["confounded"]))
+                   None if data.get("confounded") is None else float(data["confounded"]),
+                   tuple(float(v) for v in data.get("errors_in_variables") or ()))
 
 
 @dataclass(frozen=True)
