@@ -346,6 +346,21 @@ def test_cli_sensors_and_gyro_bias(tmp_path):
     assert abs(saved["gyro_bias"][0]["value"] - 3e-4) < 5 * saved["gyro_bias"][0]["std"]
 
 
+def test_cli_keeps_a_gyros_rate_when_the_joint_rates_are_differentiated(tmp_path):
+    """Encoders without joint-rate sensors beside a gyro: the joint rates come from the encoders, the
+    base rate stays the gyro's (its attitude differentiated instead was a hundred times noisier)."""
+    log = tmp_path / "log.csv"
+    assert _cli("simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", 0.4934, "--rate", 50,
+                "--noise-angle", 1e-4, "--noise-base-rate", 1e-5, "--noise-attitude", 5e-5, "--no-joint-rate-sensors",
+                "--seed", 3, "-o", log)[0] == 0  # fmt: skip
+    for extra in ([], ["--joint-rates", "differentiate"]):
+        code, output = _cli("identify", "cepheus", log, "--momentum", 0.4934, "--estimator", "wls", *extra,
+                            "-o", tmp_path / "r.json")
+        assert code == 0, output
+        differentiation = json.loads((tmp_path / "r.json").read_text())["settings"]["log"]["differentiation"]
+        assert "joints" in differentiation and "base" not in differentiation
+
+
 @pytest.mark.parametrize("args, message", [
     (["--gyro-bias", "1,2"], "--gyro-bias: [1.0, 2.0] is not a gyro bias"),
     (["--gyro-bias", "x"], "--gyro-bias: 'x' is not a number"),

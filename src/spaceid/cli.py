@@ -405,8 +405,8 @@ def log_options(f):
                      "pose_topic, joints {bag name: model name}, rate, pose_latency, max_gap, max_tilt."),
         click.option("--joint-rates", type=click.Choice(RATE_SOURCES), help="Where the rates come from, CSV and bag "
                      "logs alike: measured (a CSV's rate columns, base_w* included; a bag's published joint "
-                     "velocities; 'velocity' is the same), differentiate (the angles and the base attitude, "
-                     "Savitzky-Golay), auto (measured where the log has them: a CSV with every rate column, a bag's "
+                     "velocities; 'velocity' is the same), differentiate (the angles, and the base attitude where a "
+                     "CSV has no base-rate column: a gyro's rate is kept; Savitzky-Golay), auto (measured where the log has them: a CSV with every rate column, a bag's "
                      "joints whose every message has one; else differentiated). [default: a CSV's rate columns, "
                      "differentiated when it has none; a bag's angles differentiated (as 'spaceid experiment' reads "
                      "its bag: one-tick encoder velocities gave 6-17 times larger errors there); a bag's base rate "
@@ -770,7 +770,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     kinds = _drift(drift, param.model.planar, values=False)
-    log = _measured_log(param.model, log_path, reading, angles_only=estimator in ("angles", None), gyro=gyro_bias)
+    log = _measured_log(param.model, log_path, reading, angles_only=estimator in ("angles", None))
     if estimator is None:  # the angles alone where no joint rate was measured: nothing to differentiate
         # (planar: spatial angles-only fits do not yet converge from their start on every servicer motion)
         from .estimation.internal import enough_samples_for_knots
@@ -779,7 +779,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
                          and enough_samples_for_knots(log.t, knot_spacing))  # else: the rates differentiated
         estimator = "angles" if planar_angles else "ml"
         if estimator == "ml" and "joint_rates" not in log.meta:  # a CSV (a bag's rates are set when read)
-            log = _csv_rates(log, log_path, reading, gyro=gyro_bias)
+            log = _csv_rates(log, log_path, reading)
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
     reference = None
     if instruments is not None:
@@ -822,14 +822,13 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
               f"result written to {shown_name(output)}")
 
 
-def _measured_log(model, log_path, reading, *, angles_only=False, gyro=False):
+def _measured_log(model, log_path, reading, *, angles_only=False):
     """The log at ``log_path`` for ``model``, read as ``reading`` (:func:`log_options`) says. A bag:
     as its reader aligns and differentiates it (``measured``: the published joint velocities); the
     joint rates' sources are printed. A CSV: its rate columns (``measured``, the default), or its
     angles and attitude differentiated (``differentiate``; by default when it has no rate column;
     ``auto`` when some are missing), with ``--window`` and ``--quantum``; ``angles_only``: left as
-    read (the angles estimator uses no rates); ``gyro``: the base rate is kept as measured (its bias is
-    estimated), only the joint angles are differentiated."""
+    read (the angles estimator uses no rates)."""
     from .data import is_bag, read_log
 
     if is_bag(log_path):
@@ -839,18 +838,19 @@ def _measured_log(model, log_path, reading, *, angles_only=False, gyro=False):
         return log
     log = read_log(log_path, joints=model.joints, planar=model.planar, wheels=model.wheels, require_rates=False,
                    bag_options={k: reading[k] for k in BAG_ONLY})  # topics or a mapping: refused for a CSV
-    return log if angles_only else _csv_rates(log, log_path, reading, gyro=gyro)
+    return log if angles_only else _csv_rates(log, log_path, reading)
 
 
-def _csv_rates(log, log_path, reading, *, gyro=False):
+def _csv_rates(log, log_path, reading):
     """A CSV ``log`` with its rates as ``reading`` says (:func:`_measured_log`): its rate columns, or
-    its angles and attitude differentiated."""
+    its angles differentiated, and its attitude where it has no base-rate columns: a measured base
+    rate (a gyro's) is kept, far better than the star tracker's attitude differentiated (1e-5 rad/s
+    against about 1e-3 on a servicer's log)."""
     from .data import differentiate_log
 
     rates = reading["joint_rates"]
     missing = log.meta.get("missing_rates", [])
-    no_rates = len(missing) == log.q.shape[1] + (1 if log.planar else 3) or gyro and all(
-        f"qd_{j}" in missing for j in log.joints)  # a gyro without joint-rate sensors
+    no_rates = all(f"qd_{j}" in missing for j in log.joints)  # joint encoders without joint-rate sensors
     if not (rates == "differentiate" or rates == "auto" and missing or rates is None and no_rates):
         if missing:
             raise SpaceidError(f"{log_path}: rate column(s) {', '.join(missing)} missing: add them, or pass "
@@ -861,9 +861,8 @@ def _csv_rates(log, log_path, reading, *, gyro=False):
                                f"{rates or 'measured'}), none is differentiated: add --joint-rates differentiate, or "
                                f"drop {given}")
         return log
-    if gyro and not np.isnan(log.base_w[:, [2] if log.planar else [0, 1, 2]]).any():
-        return differentiate_log(log, window=reading["window"], quantum=reading["quantum"], base=False)
-    return differentiate_log(log, window=reading["window"], quantum=reading["quantum"])
+    gyro = not np.isnan(log.base_w[:, [2] if log.planar else [0, 1, 2]]).any()
+    return differentiate_log(log, window=reading["window"], quantum=reading["quantum"], base=not gyro)
 
 
 def _without_joint_rates(model, log, reading) -> bool:
