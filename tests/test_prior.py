@@ -248,3 +248,25 @@ def test_the_attribution_ratios_are_the_generalised_eigenvalues(seed, n):
     expected = np.sort(np.linalg.eigvals(np.linalg.solve(prior, data)).real)[::-1]
     np.testing.assert_allclose([d["ratio"] for d in out], np.clip(expected, 0, None), atol=1e-8 * expected.max())
     assert all((d["set_by"] == "data") == (d["ratio"] > 1) for d in out)
+
+
+def test_data_say_nothing_along_the_directions_they_do_not_determine():
+    """The data term without a set of directions ``V``: no information along them (``I' V = 0``), and a
+    gradient ``w`` that does not move them (``V^T w = 0``) met by the same step as before, less the
+    directions' part (``I' u = w`` for ``u = I^-1 w - V (V^T I V)^-1 V^T w``)."""
+    from spaceid.estimation._prior import _without_directions, data_from_estimate
+
+    rng = np.random.default_rng(0)
+    a = rng.standard_normal((8, 8))
+    cov = a @ a.T + 0.1 * np.eye(8)
+    data = data_from_estimate(rng.standard_normal(8), cov, np.arange(8), {})
+    directions = rng.standard_normal((8, 2))
+    reduced = _without_directions(data, directions)
+    info, kept = data.L.T @ data.L, reduced.L.T @ reduced.L
+    assert np.abs(kept @ directions).max() < 1e-9 * np.abs(info).max()
+    coords = np.linalg.solve(np.c_[directions, np.linalg.svd(directions.T)[2][2:].T], np.eye(8))  # v-coordinates
+    w = coords[2]  # the first coordinate outside span(V) in the basis [V | complement]
+    u = np.linalg.solve(info, w) - directions @ np.linalg.solve(directions.T @ info @ directions,
+                                                                 directions.T @ w)  # fmt: skip
+    assert np.allclose(kept @ u, w, atol=1e-9 * np.abs(w).max())
+    assert np.allclose(reduced.r, reduced.L @ data.values, rtol=1e-12)

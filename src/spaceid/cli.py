@@ -412,7 +412,7 @@ def log_options(f):
                      "its bag: one-tick encoder velocities gave 6-17 times larger errors there); a bag's base rate "
                      "always comes from its poses]"),
         click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Savitzky-Golay window of every "
-                     "differentiated series [samples, odd; default: chosen per series for the rates' least error]. A "
+                     "differentiated series [samples, odd; default: chosen per series for the least error it leaves in the estimate]. A "
                      "shorter one than the default lowers the smoothing bias that raises change alarms during fast "
                      "motion ('spaceid monitor'), at more noise."),
         click.option("--quantum", type=POSITIVE, metavar="RAD", help="Encoder resolution of the differentiated joint "

@@ -3,7 +3,8 @@
 Each sample's value and derivative come from a least-squares polynomial of degree ``order``
 fitted to the ``window`` samples around it, on their actual times (the window is shifted
 inwards at the ends of the record) [1]. The automatic (window, order) minimises a plug-in
-estimate of the derivative's mean squared error [2] (the rule is in the Notes of
+estimate of the error the derivatives leave in an estimate fitted over the record (their bias
+squared plus their variance over the record's independent windows) [2] (the rule is in the Notes of
 :func:`spaceid.data.differentiate`), among windows whose bias the data do not show.
 
 The plug-in's bias comes from a polynomial pilot over twice the window, which sees only what
@@ -93,7 +94,8 @@ def _savgol_gains(t, window, order):
 
 
 def _select_savgol(t, y, sigma, window, order):
-    """(window, order) minimising the plug-in derivative MSE of :func:`differentiate`'s Notes, among
+    """(window, order) minimising the plug-in criterion of :func:`differentiate`'s Notes (bias^2 +
+    (w / n) variance: the error the derivatives leave in an estimate fitted over the record), among
     the windows shorter than the first whose bias the data show (:func:`_bias_shown`)."""
     n = t.size
     orders = [p for p in (_AUTO_ORDERS if order is None else (order,)) if window is None or p < window]
@@ -105,7 +107,7 @@ def _select_savgol(t, y, sigma, window, order):
                 continue
             if window is None and _bias_shown(t, y, sigma, _criterion_rows(n, w), int(w), p):
                 break
-            mse = _plugin_mse(t, y, sigma, _criterion_rows(n, pilot), int(w), p, pilot)
+            mse = _plugin_mse(t, y, sigma, _criterion_rows(n, pilot), int(w), p, pilot, w / n)
             if mse < best[0]:
                 best = (mse, int(w), p)
     return best[1], best[2]
@@ -199,8 +201,9 @@ def _inverse_gram_columns(sums, size, columns):
     return d[:, :, None] * np.linalg.solve(d[:, :, None] * gram * d[:, None, :], np.swapaxes(units, 1, 2))
 
 
-def _plugin_mse(t, y, sigma, rows, window, order, pilot):
-    """Estimated mean squared derivative error of a (window, order) fit, averaged over ``rows``.
+def _plugin_mse(t, y, sigma, rows, window, order, pilot, share=1.0):
+    """Estimated squared derivative bias of a (window, order) fit plus ``share`` times its variance,
+    averaged over ``rows`` (``share`` 1: the mean squared error).
 
     The fit's derivative weights are ``d_i = V_i c_i / scale_i`` with ``c_i = G_i^-1 e_1``, so
     ``|d_i|^2 = c_i1 / scale_i^2`` and the moments ``M_ik = scale_i^(k-1) sum_a c_ia S_i(a+k)``
@@ -221,4 +224,4 @@ def _plugin_mse(t, y, sigma, rows, window, order, pilot):
     scaled = moments / scale[:, None] ** powers
     bias = np.einsum("rk,rk->r", moments, taylor)
     pilot_noise = sigma**2 * np.einsum("rk,rkl,rl->r", scaled, inverse[:, :, powers], scaled)
-    return max(np.mean(bias**2 - pilot_noise), 0.0) + variance
+    return max(np.mean(bias**2 - pilot_noise), 0.0) + share * variance

@@ -131,8 +131,13 @@ def differentiate(
     Noise: ``sigma`` per channel from :func:`estimate_noise` (with the ``quantum`` floor).
 
     Savitzky-Golay bandwidth. Sample i's derivative is ``sum_j d_ij x_j`` over its window. For
-    each candidate (order p, window w), the mean over the record of the squared derivative
-    error is estimated as bias^2 + variance:
+    each candidate (order p, window w), the error that the derivatives leave in an estimate fitted
+    over the whole record is estimated as bias^2 + (w / n) variance, n the record's samples: the
+    noise of the derivatives averages over the record's n / w independent windows, their bias,
+    coherent with the motion, does not. (The derivatives' own mean squared error, bias^2 +
+    variance, chose windows whose bias was as large as their noise: on a designed servicer flight
+    the parameters' errors were then 1.3 to 1.4 times their standard errors, root-mean-square,
+    against 1.1 with this rule, the rates' own error 2.5 times larger.) The terms:
 
     - variance ``sigma^2 * mean_i sum_j d_ij^2`` (exact for white noise);
     - bias: the weights reproduce polynomials of degree p, so sample i's bias is
@@ -232,7 +237,8 @@ def _selection(method, window, order, smoothing):
     if method == "savgol":
         selection = {"window": _how(window), "order": _how(order)}
         rule = (
-            "plug-in derivative MSE (moments on the stamps, degree p+3 pilot, noise subtracted), "
+            "plug-in bias^2 + (w / n) variance of the derivative (moments on the stamps, degree p+3 pilot, noise "
+            "subtracted), "
             "windows up to the first with bias shown on an eighth of the record"
         )
     else:

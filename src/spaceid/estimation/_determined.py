@@ -182,6 +182,19 @@ def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, white
     return undetermined(*noise_to_signal(R, noise), eq.names())
 
 
+def undetermined_basis(eq, log, theta, sigma) -> np.ndarray:
+    """The directions ``(p, k)`` of parameter space (the unknowns of ``eq``) that ``log`` does not
+    determine, :func:`noise_to_signal`'s columns at or above :data:`UNDETERMINED`, the equations
+    whitened by the noise model at ``theta`` for the signal levels ``sigma (n_x,)``."""
+    from ._linalg import _equation_whitener, _whitened
+
+    x = eq.signals(log)
+    L = _equation_whitener(eq, x, theta, sigma)
+    noise = equation_noise(eq, x, sigma, theta, "wls", log, L)
+    mu, directions = noise_to_signal(regressor_factor(_whitened(L, eq.phi(x))[..., :-1].reshape(-1, eq.p)), noise)
+    return directions[:, mu >= UNDETERMINED]
+
+
 def undetermined_warning(directions: list, p: int, where: str) -> str:
     """The warning for the :func:`undetermined` ``directions`` of ``p`` unknowns (``""`` when none)."""
     if not directions:

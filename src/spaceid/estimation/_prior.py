@@ -212,6 +212,36 @@ def data_from_estimate(values, cov, free, anchors) -> DataTerm:
                     std=np.sqrt(np.clip(np.diag(cov), 0, None)), anchors=dict(anchors))
 
 
+def _undetermined_directions(param, log, momentum, minimal, where, drift, history, noise, fit) -> np.ndarray:
+    """The directions ``(n_free, k)`` of the free minimal parameters that ``log`` does not determine
+    (:func:`~spaceid.estimation._determined.undetermined_basis`) at the estimate ``fit``."""
+    from ._determined import undetermined_basis
+    from ._equations import _equations
+    from ._noise import noise_from_log, signal_sigma
+
+    eq, _ = _equations(param, log, momentum, minimal, where, drift, history)
+    theta = np.concatenate([fit.values[eq.free], fit.momentum[eq.axes][: eq.n_h], [t["value"] for t in fit.drift]])
+    basis = undetermined_basis(eq, log, theta, signal_sigma(param, noise or noise_from_log(log)))
+    return basis[: len(eq.free)]
+
+
+def _without_directions(data: DataTerm, directions: np.ndarray) -> DataTerm:
+    """``data`` with no information along ``directions (n_free, k)``: its information ``I = L^T L``
+    less what it holds about the components along them, ``I - I V (V^T I V)^-1 V^T I`` (those
+    components profiled out), so that the prior alone sets them. Along a direction the data do not
+    determine the estimate is pulled towards zero by the regressor's noise while its covariance
+    still claims it (on an undesigned servicer flight the posterior's errors were then 2.5 times its
+    standard errors, root-mean-square)."""
+    info = data.L.T @ data.L
+    iv = info @ directions
+    info = info - iv @ np.linalg.solve(directions.T @ iv, iv.T)
+    s, v = np.linalg.eigh(0.5 * (info + info.T))
+    keep = s > 1e-12 * max(s.max(initial=0.0), np.finfo(float).tiny)
+    L = (v[:, keep] * np.sqrt(s[keep])).T
+    return DataTerm(L, L @ data.values[data.free], data.free, data.kind, data.reason, data.values, data.std,
+                    data.anchors)
+
+
 def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, free) -> DataTerm:
     """The :class:`DataTerm` of whitened momentum equations ``white = [A_f | A_n | -b]`` (any leading
     shape, last axis ``p + 1``; ``A_f`` the ``n_free`` free parameters' columns, ``A_n`` the nuisance:
@@ -531,6 +561,9 @@ def identify_with_prior(identify, param: Parameterization, log, momentum, *, pri
     if data_fit is not None:
         data = data_from_estimate(data_fit.values, data_fit.cov, eq.free, dict(zip(eq.known, eq.known_values)))
         if len(data.L) == len(eq.free):
+            if data_fit.diagnostics.undetermined:  # the prior alone sets what the data do not determine
+                data = _without_directions(data, _undetermined_directions(param, log, momentum, minimal, where,
+                                                                          drift, history, noise, data_fit))
             pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard,
                                            where=where)
             d = data_fit.diagnostics
