@@ -8,6 +8,7 @@ benchmarks/bench_design_spatial.py and benchmarks/bench_design_noise.py."""
 import json
 import re
 import time
+import types
 
 import numpy as np
 import pytest
@@ -544,6 +545,29 @@ def test_cli_design_prints_progress_lines_when_not_on_a_terminal(tmp_path, capsy
     assert err.startswith("design: start 1/3, best cond ")  # the first at once, then one every 5 s
     assert "3 starts, stopped: starts" in " ".join(err.split())  # rich wraps long lines
     assert load_trajectory(tmp_path / "traj.json").meta["stop"] == "starts"
+
+
+def test_last_status_line_reports_the_result_value():
+    """The polish after the SLSQP searches changes the best: a status line says so, and the last
+    line reports the value the result reports (issue 29: "best cond 279.1", then "cond = 222.577")."""
+    lines = []
+    result = design(seed=0, n_starts=3, status=lines.append)
+    assert lines[-1].startswith("polished the best ")
+    assert float(re.search(r"best cond (\S+),", lines[-1]).group(1)) == float(f"{result.value:.6g}")
+
+
+def test_cli_design_last_progress_line_agrees_with_the_result(tmp_path, capsys, monkeypatch):
+    """The progress lines are held back to one every 5 s, but the last one is printed before the
+    result line, and both give the same value (a clock that stands still holds every line after
+    the first)."""
+    monkeypatch.setattr(spaceid.cli, "time", types.SimpleNamespace(monotonic=lambda: 0.0))
+    args = ["design", "cepheus", "--duration", "5", "--harmonics", "3", "--samples", "35",
+            "--momentum", "0.4934", "--starts", "3", "-o", str(tmp_path / "traj.json")]  # fmt: skip
+    assert main(args) == 0
+    err = " ".join(capsys.readouterr().err.split())  # rich wraps long lines
+    progress = re.findall(r"design: (.*?), best cond (\S+), \d+ s", err)
+    assert len(progress) == 2 and progress[0][0] == "start 1/3" and progress[1][0].startswith("polished")
+    assert float(progress[-1][1]) == float(re.search(r"cond = (\S+) \(seed", err).group(1))
 
 
 def test_results_done_after_the_budget_ran_out_are_taken():

@@ -475,17 +475,23 @@ def _progress(label: str, enabled: bool = True):
         yield lambda done, total: bar.update(task, completed=done, total=total)
 
 
+@contextlib.contextmanager
 def _every(seconds, call):
-    """``call`` that lets through its first call and then at most one every ``seconds`` [s]."""
-    last = [-float("inf")]
+    """``call`` that lets through its first call and then at most one every ``seconds`` [s]; on
+    leaving the context, the last call held back, so that the last line shown is the last made
+    (a progress line that agrees with the result printed after it)."""
+    last, held = [-float("inf")], [None]
 
     def throttled(*args):
         now = time.monotonic()
+        held[0] = args
         if now - last[0] >= seconds:
-            last[0] = now
+            last[0], held[0] = now, None
             call(*args)
 
-    return throttled
+    yield throttled
+    if held[0] is not None:
+        call(*held[0])
 
 
 def _param(model_src, planar):
@@ -648,13 +654,13 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
 
         nominal = nominal_payload(payload_nominal, planar=param.model.planar)
     _require_sample_memory(f"--samples {samples}", samples, param.model)
-    with _progress("designing", enabled=err.is_terminal) as progress:
+    line = lambda text: err.print(f"design: {text}", highlight=False)  # noqa: E731
+    with (_progress("designing", enabled=err.is_terminal) as progress,
+          _every(5.0, line) if not err.is_terminal else contextlib.nullcontext() as status):
         res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
                          noise=noise, n_starts=starts, time_budget=time_budget, payload_link=payload_link,
-                         payload=nominal, jobs=jobs, scheduler=scheduler,
-                         status=None if err.is_terminal else _every(5.0, lambda line: err.print(f"design: {line}",
-                                                                                                highlight=False)))
+                         payload=nominal, jobs=jobs, scheduler=scheduler, status=status)
     res.trajectory.save(output)
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}, {res.n_starts} starts, stopped: "
               f"{res.trajectory.meta['stop']}); trajectory written to {shown_name(output)}")

@@ -227,7 +227,9 @@ def optimize_excitation(
         every start. Trust region: this applies to the first round.
     status : callable, optional
         ``status(line)``, called with a one-line summary as local searches complete, such as
-        ``"start 12/64, best cond 41.2, 18 s"``.
+        ``"start 12/64, best cond 41.2, 18 s"`` (``"continued 1/2 of the best"`` for the trust
+        region's second round, ``"polished the best 2"`` after SLSQP's polish): the last line's
+        value is the result's ``value``.
 
     Returns
     -------

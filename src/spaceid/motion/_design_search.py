@@ -448,9 +448,10 @@ class _Tally:
         before = min(c[0] for c in self.found[:-k])
         return bool(np.isfinite(before) and before - self.best[0] < self.tol)
 
-    def add(self, results, total):
+    def add(self, results, total, starts=None):
         """Record the searches ``results``, pairs ``(i, (z, f))`` with i from 0 up, of ``total``
-        planned, until the search converges (later ones are left out)."""
+        planned (``starts`` of them from new starts, default all), until the search converges
+        (later ones are left out)."""
         for i, (z, f) in results:
             self.waiting[i] = (z, f)
             while self.stop != "converged" and len(self.found) in self.waiting:  # the budget takes all done
@@ -460,17 +461,21 @@ class _Tally:
                 self.consider(f_j, j, z_j)
                 if self.converged():
                     self.stop = "converged"
-            self.tick(total)
+            self.tick(total, f"start {self.done + 1}/{starts or total}")
 
-    def tick(self, total):
-        """One more search completed of ``total``: progress and status."""
+    def tick(self, total, what):
+        """One more search completed of ``total``: progress, and a status line saying ``what``."""
         self.done += 1
         if self.progress is not None:
             self.progress(self.done, total)
+        self.announce(what)
+
+    def announce(self, what):
+        """A status line: ``what``, then the best value so far, the one the result reports (to
+        its 6 digits), and the wall time."""
         if self.status is not None:
             wall = time.perf_counter() - self.t_start
-            best = self.report(self.best[0])
-            self.status(f"start {self.done}/{total}, best {self.name} {best:.4g}, {wall:.0f} s")
+            self.status(f"{what}, best {self.name} {self.report(self.best[0]):.6g}, {wall:.0f} s")
 
 
 def _multistart_search(problem, method, *, seed, n_starts, n_jobs, progress, time_budget, z_initial,
@@ -537,9 +542,11 @@ def _slsqp_multistart(problem, tally, run, workers, *, seed, n_starts, z_initial
     found = sorted(tally.found, key=lambda c: c[:2])  # by value, then start index: independent of timing
     if t_end is not None and time.time() > t_end:  # no time left to polish
         return
-    polish = ((i, _slsqp_polish, (z, t_end)) for _, i, z in _distinct_best(found, _N_POLISH))
+    chosen = _distinct_best(found, _N_POLISH)
+    polish = ((i, _slsqp_polish, (z, t_end)) for _, i, z in chosen)
     for i, (z, f) in sorted(run(polish, stop=lambda: False), key=lambda r: r[0]):
         tally.consider(f, i, z)
+    tally.announce(f"polished the best {len(chosen)}")  # the polish changes the best the result reports
 
 
 def _successive_halving(n_starts, max_steps):
@@ -599,11 +606,11 @@ def _trust_region_multistart(tally, run, workers, starts, *, max_steps, t_end):
 
     tally.starts.update(enumerate(starts))
     round_one = searches(list(enumerate(starts)), first, keep * (max_steps - first))
-    tally.add(kept(run(round_one, stop=stop)), total)
+    tally.add(kept(run(round_one, stop=stop)), total, len(starts))
     converged, tally.stop = tally.stop, None if tally.stop == "converged" else tally.stop
     found = sorted(tally.found, key=lambda c: c[:2])
     chosen = [(i, z) for _, i, z in _distinct_best(found, keep)] if keep else []
-    for i, (z, f, _) in run(searches(chosen, max_steps - first, 0), stop=stop):
+    for n, (i, (z, f, _)) in enumerate(run(searches(chosen, max_steps - first, 0), stop=stop), 1):
         tally.consider(f, i, z)
-        tally.tick(total)
+        tally.tick(total, f"continued {n}/{len(chosen)} of the best")
     tally.stop = tally.stop or converged

@@ -23,6 +23,7 @@ from ..dynamics import base_rate, rate_pieces
 from ..dynamics import Parameterization
 from ..data import Log, quat_to_matrix, yaw_to_quat
 from ..estimation import Noise, drift_basis, drift_terms, drift_vector
+from ._attitude import collocation_steps, gauss_tableau
 
 __all__ = ["simulate", "hermite_motion", "add_noise"]
 
@@ -127,8 +128,10 @@ def simulate(
         from rigid-body definitions and its largest relative error stored in
         ``meta["momentum_rel_error"]`` (a conservation check independent of ``pi``).
     rtol : float
-        Relative tolerance of the attitude integration (Gauss-Legendre quadrature of the yaw
-        rate for planar systems, DOP853 on the quaternion for spatial ones).
+        Relative tolerance of the attitude integration: for planar systems a Gauss-Legendre
+        quadrature of the yaw rate, for spatial ones Gauss-Legendre collocation on the quaternion
+        (order 8), both with their steps halved until two successive results agree to ``rtol``
+        at every sample; with ``drift``, DOP853 on the attitude and the momentum.
     drift : dict, optional
         External torques on the base, ``{"torque": tau, "viscous": c, "coulomb": mu}`` (any
         subset; ``tau`` [N m] 3 inertial components or, planar, a number about z; ``c`` [N m
@@ -157,8 +160,8 @@ def simulate(
     SpaceidError
         ``pi`` gives a locked inertia (the base rate to angular momentum map at fixed joints) that
         is not positive definite somewhere along the motion: checked, vectorised, at the output
-        times before anything is integrated and on a grid 8 times denser before each block of
-        the attitude integration; the message names
+        times before anything is integrated and at every stage time of the attitude integration
+        (with ``drift``: on a grid 8 times denser before each block); the message names
         the time, the eigenvalue's direction in base axes and the parameters that make it
         negative. Or the attitude integration fails or exceeds :data:`MAX_EVALUATIONS`.
     """
@@ -180,19 +183,10 @@ def simulate(
         rate = lambda t: base_rate(param, pi, *motion(t), momentum)[:, 2]  # noqa: E731
         quat = yaw_to_quat(2 * np.arctan2(quat0[3], quat0[0]) + _cumulative_integral(rate, times, rtol))
     else:
-        # w0 = A(t)^-1 (R0^T h - b(t)): the locked inertia A and free momentum b depend on the
-        # joint motion only, so they are evaluated on a dense grid (batched) and splined, a block
-        # of the log at a time; the output rates are then solved exactly at the samples, so
-        # momentum holds there.
-        def advance(locked, offset, quat, block):
-            def rhs(t, quat):
-                h_base = quat_to_matrix(quat / np.linalg.norm(quat)).T @ momentum
-                return _quat_rate(quat, np.linalg.solve(locked(t), h_base - offset(t)))
-
-            return _solve(rhs, (block[0], block[-1]), quat, block, rtol).y.T
-
-        quat = _in_spline_blocks(param, pi, motion, times, quat0, advance, where)
-        quat /= np.linalg.norm(quat, axis=1, keepdims=True)
+        # w0 = A(t)^-1 (R0^T h - b(t)): A and b depend on the joint motion only, evaluated vectorised at
+        # every stage time; the attitude is then integrated step by step (:mod:`._attitude`); the output
+        # rates are solved exactly at the samples, so momentum holds there
+        quat = _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where)
     q, qd = _in_blocks(motion, times)
     h_base = np.einsum("nji,j->ni", quat_to_matrix(quat), momentum)
     w0 = _in_blocks(lambda k: base_rate(param, pi, q[k.astype(int)], qd[k.astype(int)], h_base[k.astype(int)]),
@@ -214,13 +208,96 @@ def simulate(
     return Log(times, names, q, qd, quat, w0, param.model.planar, meta, position)
 
 
+def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where) -> np.ndarray:
+    """Base attitudes ``(n, 4)`` at ``times`` for constant inertial ``momentum`` (spatial systems).
+
+    A block of :data:`SPLINE_SAMPLES` samples at a time, from the attitude the block before
+    ended with: Gauss-Legendre collocation (:func:`._attitude.collocation_steps`) with ``m`` steps
+    between samples, ``m`` doubling from 1 until two successive solutions differ by at most
+    ``rtol`` at every sample of the block (the error of the finer, of order 8, is then about
+    ``rtol / 256``), or by no more than round-off explains. The locked inertia is refused
+    where it is not positive definite at a stage time (:func:`_refuse_indefinite`); the stage
+    times evaluated count against :data:`MAX_EVALUATIONS`."""
+    c, b, a = gauss_tableau()
+    budget = [MAX_EVALUATIONS[0] + MAX_EVALUATIONS[1] * len(times)]
+    parts, quat = [], np.asarray(quat0, float) / np.linalg.norm(quat0)
+    for start in range(0, max(len(times) - 1, 1), SPLINE_SAMPLES):
+        block = times[start : start + SPLINE_SAMPLES + 1]
+        part = _attitude_block(param, pi, motion, block, quat, momentum, rtol, where, (c, b, a), budget)
+        parts.append(part if start == 0 else part[1:])
+        quat = part[-1]
+    quat = np.concatenate(parts)
+    return quat / np.linalg.norm(quat, axis=1, keepdims=True)
+
+
+def _attitude_block(param, pi, motion, block, quat, momentum, rtol, where, tableau, budget) -> np.ndarray:
+    """:func:`_integrated_attitude` over the samples ``block (n,)`` from ``quat`` at ``block[0]``;
+    ``budget`` (one number in a list) is what is left of the evaluations and is spent here."""
+    c, b, a = tableau
+    if len(block) < 2:
+        return quat[None]
+    previous, gap, where_worst, m = None, np.inf, block[0], 1
+    while True:
+        widths = np.repeat(np.diff(block) / m, m)
+        starts = np.repeat(block[:-1], m) + widths * np.tile(np.arange(m), len(block) - 1)
+        nodes = starts[:, None] + widths[:, None] * c  # (steps, stages)
+        budget[0] -= nodes.size
+        if budget[0] < 0:
+            total = MAX_EVALUATIONS[0] + MAX_EVALUATIONS[1] * len(block)
+            raise SpaceidError(f"simulation failed: the base rate is too steep to integrate near t = {where_worst:.6g} "
+                               f"s ({total} evaluations): {_softest(param, pi, motion, where_worst)}; check the "
+                               "parameters against a physical model, or sample the motion more finely")
+        inverse, offset = _in_blocks(lambda t: _inverse_pieces(param, pi, motion, t, where), nodes.ravel())
+        shape = nodes.shape
+        out = np.empty((len(widths) + 1, 4))
+        failed = collocation_steps(quat, inverse.reshape(shape + (3, 3)), offset.reshape(shape + (3,)),
+                                   np.asarray(momentum, float), widths, a, b, out)
+        if failed >= 0:  # the stage equations diverge on steps this long: halve them
+            previous, where_worst = None, starts[failed]
+        else:
+            current = out[::m]
+            if previous is not None:
+                diff = np.abs(current - previous).max(axis=1)
+                # within the tolerance, or refinement no longer changes it beyond round-off
+                floor = 64 * np.finfo(float).eps * np.sqrt(len(widths))
+                if diff.max() <= max(rtol, floor) or (diff.max() >= gap / 4 and diff.max() <= 1e3 * floor):
+                    return current
+                gap, where_worst = diff.max(), block[int(np.argmax(diff))]
+            previous = current
+        m *= 2
+
+
+def _softest(param, pi, motion, t) -> str:
+    """The locked inertia's smallest eigenvalue at time ``t`` [s] and its direction in base axes,
+    as words (where a base rate grows fastest for a given momentum)."""
+    q, qd = motion(np.array([float(t)]))
+    unit = rate_pieces(param, q, np.zeros_like(qd), functools.partial(param.momentum, pi=pi))[1]
+    locked = np.stack(unit, -1)[0]
+    eig, vec = np.linalg.eigh(0.5 * (locked + locked.T))
+    axis = ", ".join(f"{x:.3g}" for x in vec[:, 0])
+    return (f"the locked inertia there has its smallest eigenvalue {eig[0]:.3g} kg m^2 (largest {eig[-1]:.3g}) "
+            f"along base axes ({axis})")
+
+
+def _inverse_pieces(param, pi, motion, t, where):
+    """The inverse locked inertia ``(n, 3, 3)`` and the base rate the joints' own momentum
+    cancels ``(n, 3)`` (``A^-1 b``) at the times ``t (n,)``; the locked inertia refused where it
+    is not positive definite (:func:`_refuse_indefinite`)."""
+    free, unit, _ = rate_pieces(param, *motion(t), functools.partial(param.momentum, pi=pi))
+    locked = np.stack(unit, -1)
+    _refuse_indefinite(param, pi, motion, t, locked, where)
+    inverse = np.linalg.inv(locked)
+    return inverse, np.einsum("nij,nj->ni", inverse, free)
+
+
 BALANCE_TOLERANCE = 1e-6
 """Largest relative momentum-balance error of a drifting simulation without a warning."""
 
 
 SPLINE_SAMPLES = 4096
-"""Output samples per block of the spatial attitude integration: the rate splines of a block span
-about 8 times as many grid points, so memory is bounded by the block whatever the log's length."""
+"""Output samples per block of the spatial attitude integration: the stage values of a block
+(:func:`_integrated_attitude`), or with drift its rate splines, about 8 times as many points, so
+memory is bounded by the block whatever the log's length."""
 
 
 def _in_spline_blocks(param, pi, motion, times, y0, advance, where) -> np.ndarray:
@@ -261,11 +338,12 @@ def _rate_splines(param, pi, motion, times, where):
 
 
 MAX_EVALUATIONS = (100_000, 200)
-"""An attitude integration stops with an error after ``a + b n`` right-hand-side evaluations for
-``n`` output times. A smooth base rate needs ~10 a sample even at ``rtol`` 1e-12 (a random 20 s
-motion of servicer-dual or satellite-7dof at 401 samples: 3,800); a base rate that grows without
-bound (a locked inertia singular between the checked times) would otherwise step ever smaller
-for hours."""
+"""An attitude integration stops with an error after ``a + b n`` evaluations of the base rate
+for ``n`` output times: stage times of the collocation (constant momentum: 12 a sample when the
+first halving agrees, as on 900 samples of a 30 s satellite-7dof motion), right-hand sides of
+DOP853 (with drift: ~10 a sample even at ``rtol`` 1e-12 on a random 20 s motion of servicer-dual
+or satellite-7dof at 401 samples). A base rate that grows without bound (a locked inertia
+singular between the checked times) would otherwise make the steps ever smaller for hours."""
 
 
 def _solve(rhs, span, y0, t_eval, rtol, **kwargs):
