@@ -146,7 +146,9 @@ def pages(identification, capture, cepheus, tmp_path_factory):
     written["validation"] = write_validation_html(folder / "validation.html", log, [(check.predicted, None)],
                                                   check.metrics, title="validation", source="test")
     record = monitor(param, capture, H, noise=NOISE)
-    assert len(record.events) >= 1
+    t, g = record.statistic
+    assert len(record.events) >= 1 and all(e.statistic in g for e in record.events)  # the alarms' peaks kept
+    assert np.all(np.diff(t) >= 0) and t.size <= 4000
     written["monitor"] = write_monitor_html(record, folder / "monitor.html", source="capture")
     mc = run_montecarlo(param, "paper-table2", momentum=H, noise=DEFAULT_NOISE, samples=35, runs=8, seed=2, jobs=1,
                         estimators=("ml", "ols"))

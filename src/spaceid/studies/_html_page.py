@@ -47,8 +47,8 @@ img.static{max-width:100%}
 code{font-size:.92em}
 """
 
-# Sort a table.sortable by the clicked column: by the cells' data-v numbers where every filled cell
-# has one, else by their text; a second click reverses. Cells without a value go last.
+# Sort a table.sortable by the clicked column: a cell with data-v by that number, else by its text
+# (pi2 before pi10); a second click reverses. Cells without a value go last.
 _SORT_SCRIPT = """
 document.querySelectorAll("table.sortable").forEach(function(table){
   var heads = table.tHead.rows[0].cells;
@@ -65,7 +65,8 @@ document.querySelectorAll("table.sortable").forEach(function(table){
       rows.sort(function(a, b){
         var x = key(a), y = key(b);
         if (x === null || y === null) return (x === null) - (y === null);
-        var c = typeof x === "number" && typeof y === "number" ? x - y : String(x).localeCompare(String(y));
+        var c = typeof x === "number" && typeof y === "number" ? x - y
+                : String(x).localeCompare(String(y), undefined, {numeric: true});
         return up ? c : -c;
       });
       rows.forEach(function(r){ body.appendChild(r); });
@@ -128,7 +129,7 @@ def number(x, digits: int = 6) -> str:
     return str(x)
 
 
-def _cell(value, text_column: bool) -> str:
+def _cell(value) -> str:
     """A table cell: numbers carry their value (``data-v``) for sorting and are right-aligned."""
     if isinstance(value, tuple):  # (shown text, sort value)
         shown, v = value
@@ -138,6 +139,18 @@ def _cell(value, text_column: bool) -> str:
         v = repr(float(value)) if np.isfinite(value) else ""
         return f'<td data-v="{v}">{escape(number(value))}</td>'
     return f'<td class="t">{escape(number(value))}</td>'
+
+
+SHORT = 90
+"""Characters of a long text cell (a definition) shown before it is folded."""
+
+
+def _long_cell(text: str) -> str:
+    """A cell of long text: folded after :data:`SHORT` characters, unfolded by a click."""
+    if len(text) <= SHORT:
+        return f'<td class="t def">{escape(text)}</td>'
+    return (f'<td class="t def"><details><summary>{escape(text[:SHORT])}...</summary>{escape(text)}</details>'
+            "</td>")
 
 
 class Page:
@@ -160,14 +173,14 @@ class Page:
 
     def table(self, header, rows, *, sortable: bool = True, text_columns: int = 1, wide_columns=()) -> None:
         """A table; ``rows`` of values (numbers are right-aligned and sort by value; a pair
-        ``(text, value)`` shows the text and sorts by the value); the first ``text_columns`` are
-        left-aligned text; ``wide_columns``: indices of long text (definitions) set in a narrow
-        wrapping column."""
+        ``(text, value)`` shows the text and sorts by the value; text is left-aligned); the first
+        ``text_columns`` headers are left-aligned; ``wide_columns``: indices of long text
+        (definitions), folded after :data:`SHORT` characters."""
         head = "".join(f'<th{" class=t" if i < text_columns else ""} scope="col">{escape(h)}</th>'
                        for i, h in enumerate(header))
         body = []
         for row in rows:
-            cells = [_cell(v, i < text_columns) if i not in wide_columns else f'<td class="t def">{escape(str(v))}</td>'
+            cells = [_cell(v) if i not in wide_columns else _long_cell(str(v))
                      for i, v in enumerate(row)]  # fmt: skip
             body.append("<tr>" + "".join(cells) + "</tr>")
         cls = ' class="sortable"' if sortable else ""
@@ -191,7 +204,7 @@ class Page:
 
     def html(self) -> str:
         """The whole page: one plotly.js bundle in the head when the page has a figure."""
-        from .. import __version__
+        from importlib.metadata import version
 
         bundle = ""
         if self._figures:
@@ -201,7 +214,7 @@ class Page:
         sub = f'<p class="meta">{escape(self.subtitle)}</p>' if self.subtitle else ""
         return (f'<!DOCTYPE html>\n<html lang="en"><head><meta charset="utf-8"><meta name="viewport" '
                 f'content="width=device-width,initial-scale=1"><meta name="generator" content="spaceid '
-                f'{escape(__version__)}"><title>{escape(self.title)}</title><style>{_STYLE}</style>{bundle}</head>'
+                f'{escape(version("spaceid"))}"><title>{escape(self.title)}</title><style>{_STYLE}</style>{bundle}</head>'
                 f"<body><main><h1>{escape(self.title)}</h1>{sub}{''.join(self._blocks)}</main>"
                 f"<script>{_SORT_SCRIPT}</script></body></html>\n")
 

@@ -75,11 +75,14 @@ def _diagnostics(page: Page, result: Identification) -> None:
     for label, text, warn in diagnostic_rows(result):
         if warn:
             page.text(f"{label}: {text}", warning=True)
-    for u in d.undetermined:
-        lead = ", ".join(str(p) if isinstance(p, str) else str(p.get("name", p)) for p in u.get("parameters", []))
-        page.text(f"A direction the data do not determine (noise/signal {u.get('noise_to_signal', float('nan')):.3g}),"
-                  f" led by {lead}: its estimates are pulled towards zero and their standard errors do not hold.",
-                  warning=True)  # fmt: skip
+    if d.undetermined:
+        page.text(f"{len(d.undetermined)} of {len(result.names)} directions of parameter space are not determined by "
+                  "the data (the regressor's noise at least as large as its signal): the estimates along them are "
+                  "pulled towards zero and their standard errors do not hold. Excite them with a designed motion, or "
+                  "give a prior.", warning=True)  # fmt: skip
+        page.table(["direction", "noise / signal", "leading parameters"],
+                   [(str(i + 1), u["noise_to_signal"], ", ".join(u["parameters"]))
+                    for i, u in enumerate(d.undetermined)], text_columns=1)  # fmt: skip
 
 
 def _parameter_rows(result: Identification, true, reference, reference_label, reference_true) -> tuple:
@@ -121,6 +124,8 @@ def identification_section(page: Page, result: Identification, *, true=None, ref
 
 
 def _settings(page: Page, settings: dict) -> None:
+    if not settings:
+        return
     page.heading("Settings")
     page.table(["setting", "value"], [(str(k), number(v)) for k, v in settings.items()], sortable=False,
                text_columns=2)
