@@ -151,21 +151,23 @@ def validation_figure(measured: Log, predicted: Log, title: str):
                 + [f"residual, RMS {np.sqrt(np.mean(s[5] ** 2)):.2g} {s[2]}" for s in signals])  # fmt: skip
     shown = measured.n_samples
     for c, (_, _, unit, y_meas, y_pred, residual, residual_label) in enumerate(signals, start=1):
-        t, y_meas, y_pred, residual, _ = downsample(measured.t, y_meas, y_pred, residual)
+        t_r, residual, _ = downsample(measured.t, residual)  # each thinned keeping its own extremes
+        t, y_meas, y_pred, _ = downsample(measured.t, y_meas, y_pred)
         shown = t.size
         first = c == 1
         fig.add_trace(go.Scatter(x=t, y=y_meas, name="measured", legendgroup="m", showlegend=first,
                                  line={"color": MEASURED, "width": 1.5}), 1, c)
         fig.add_trace(go.Scatter(x=t, y=y_pred, name=predicted_label(predicted), legendgroup="p", showlegend=first,
                                  line={"color": MODEL, "width": 1.5, "dash": "dash"}), 1, c)
-        fig.add_trace(go.Scatter(x=t, y=residual, name="residual", legendgroup="r", showlegend=first,
+        fig.add_trace(go.Scatter(x=t_r, y=residual, name="residual", legendgroup="r", showlegend=first,
                                  line={"color": MODEL, "width": 1}), 2, c)
         fig.add_hline(y=0, line_color=REFERENCE, line_width=0.8, row=2, col=c)
         fig.update_yaxes(title_text=f"[{unit}]" if c > 1 else f"measured, predicted [{unit}]", row=1, col=c)
-        words = "error angle" if "angle" in residual_label else "pred. - meas."
-        fig.update_yaxes(title_text=f"{words} [{unit}]", row=2, col=c)
+        words = "error angle " if "angle" in residual_label else "pred. - meas. " if c == 1 else ""
+        fig.update_yaxes(title_text=f"{words}[{unit}]", row=2, col=c)
         fig.update_xaxes(title_text="time t [s]", row=2, col=c)
     _layout(fig, title, 580)
+    fig.update_annotations(font_size=13)  # the panels' titles
     fig.update_layout(hovermode="x unified", legend={"x": 0, "xanchor": "left", "y": -0.13, "yanchor": "top"},
                       margin={"b": 90})
     caption = ("Validation: the base motion measured against the motion predicted from the joint motion, with the "
