@@ -51,9 +51,9 @@ def capture(cepheus):
 def identification(cepheus):
     """A noisy log of the steady motion, its identification and its validation."""
     model, param = cepheus
-    log = simulate(param, param.true_values, _motion, np.arange(600) / RATE, H, model=model)
+    log = simulate(param, param.true_values, _motion, np.arange(400) / RATE, H, model=model)
     log = add_noise(log, noise=NOISE, seed=5)
-    ident = identify(param, log, H, noise=NOISE)
+    ident = identify(param, log, H, noise=NOISE, estimator="wls")
     with pytest.warns(UserWarning, match="fitting log"):
         check = validate(ident, log)
     return log, ident, check
@@ -117,6 +117,7 @@ def test_the_statistic_trace_is_bounded_and_keeps_the_peaks():
     assert all(kept[j] == g[j * stride:(j + 1) * stride].max() for j in range(t.size))
 
 
+@pytest.mark.slow
 def test_the_commands_write_their_reports_by_default(identification, tmp_path, capsys):
     log, _, _ = identification
     write_log(tmp_path / "log.csv", log)
