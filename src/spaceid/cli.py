@@ -180,6 +180,25 @@ def out_folder(help_text, **kwargs):
     return click.option("--out", "folder", type=_OutputPath(folder=True), metavar="DIR", help=help_text, **kwargs)
 
 
+def report_option(what):
+    """The ``--report PATH`` option: the interactive HTML report written beside the command's
+    ``-o`` file (docs/formats/report-html.md)."""
+    return click.option("--report", type=_OutputPath(), metavar="PATH", help=f"Interactive HTML report of {what} "
+                        "(self-contained: opens offline) [default: -o's name with .html].")
+
+
+def _report_path(report, output):
+    """``--report``, or ``output`` with the suffix .html: checked like an output (never -o itself)."""
+    from ._atomic import check_output_file
+
+    path = Path(report) if report is not None else Path(output).with_suffix(".html")
+    if os.path.abspath(path) == os.path.abspath(output):
+        raise SpaceidError(f"--report {shown_name(path)} is the -o file: give another name")
+    if report is None:
+        check_output_file(path, "--report", click.get_current_context().meta.get("spaceid.inputs", ()))
+    return path
+
+
 OVERWRITE = click.option("--overwrite", is_flag=True, help="Write into an output folder that holds files spaceid did "
                          "not write (beside them; same names replaced); without it such a folder is refused.")
 REMOVED_IN = "the next release"  # when the deprecated spellings (_Deprecated) go
@@ -760,8 +779,9 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
               "differentiated).")
 @log_options
 @output("RESULT.json to write.")
+@report_option("the identification: diagnostics, sortable parameter table, figures")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, knot_spacing, drift,
-             with_com, chunk, prior_src, prior_std, gyro_bias, output, reading):
+             with_com, chunk, prior_src, prior_std, gyro_bias, output, report, reading):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -773,6 +793,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     from .studies import drift_lines, parameter_table
 
     known = parse_known(known)  # option values first: before the model and the log are read
+    report = _report_path(report, output)
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     kinds = _drift(drift, param.model.planar, values=False)
@@ -805,6 +826,7 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     if with_com:
         ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())
+    _identification_html(ident, report, f"spaceid identify: {shown_name(log_path)}")
     out.print(parameter_table(ident))
     s = ident.settings
     units = dict(zip(ident.names, ident.units))
@@ -825,7 +847,15 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     chi2 = "" if chi2_dof is None else f"chi2/dof = {chi2_dof:.3g} "
     out.print(f"estimator {estimator}; cond(Y) = {ident.condition_number:.4g}; residual RMS = {ident.residual_rms:.3g} "
               f"{'rad' if angles_only else 'N m s'}; {chi2}(noise {s['noise']['source']}); {ident.n_samples} samples; "
-              f"result written to {shown_name(output)}")
+              f"result written to {shown_name(output)}, report to {shown_name(report)}")
+
+
+def _identification_html(ident, path, title):
+    """``identify``'s HTML report at ``path``: the identification's diagnostics, parameters and figures."""
+    from .studies import write_html_report
+
+    settings = {"model": ident.model, "estimator": ident.estimator, "samples": ident.n_samples}
+    write_html_report(path.parent, title=title, result=ident, settings=settings, figures={}, name=path.name)
 
 
 def _measured_log(model, log_path, reading, *, angles_only=False):
@@ -1009,7 +1039,8 @@ def _require_sample_memory(what, n, model):
 @click.option("--horizon", type=SECONDS, metavar="SECONDS", help="With --torques: restart from the measured state "
               "every SECONDS [s] (default: one run over the whole log).")
 @log_options
-@out_folder("Report folder to write predicted.csv, metrics.json and validation.png into.", required=True)
+@out_folder("Report folder to write predicted.csv, metrics.json, validation.png and report.html (interactive) into.",
+            required=True)
 @click.option("-o", "--output", cls=_Deprecated, instead="--out DIR (-o/--output names a file, --out a folder)",
               into="folder")
 @OVERWRITE
@@ -1018,7 +1049,7 @@ def validate(result, log_path, planar, momentum, drift, torques, horizon, folder
     YAML file, with its standard parameters) against a measured log: metrics and Fig. 6 plots."""
     if horizon is not None and not torques:
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
-    from .studies import plot_validation
+    from .studies import plot_validation, write_validation_html
     from .data import write_json, write_log
     from .studies import metric_label
     from .studies import validate as run
@@ -1037,8 +1068,13 @@ def validate(result, log_path, planar, momentum, drift, torques, horizon, folder
         write_log(tmp / "predicted.csv", predicted)
         write_json(tmp / "metrics.json", {**metrics, "predicted_by": check.predicted_by})
         plot_validation(log, predicted, tmp / "validation.png")
+        predictions, torque_metrics = [(predicted, None)], None
         if torques:
-            torque_metrics = _validate_torques(ident, log, h, horizon, tmp, str(result))
+            torque_metrics, torque_predicted, torque_title = _validate_torques(ident, log, h, horizon, tmp, str(result))
+            predictions.append((torque_predicted, torque_title.replace("\n", " ")))
+        write_validation_html(tmp / "report.html", log, predictions, metrics, torque_metrics=torque_metrics,
+                              title=f"spaceid validate: {shown_name(result)} on {shown_name(log_path)}",
+                              source=f"the {check.predicted_by}")
     out.print(f"predicted by the {check.predicted_by}", highlight=False)
     for key, value in metrics.items():
         out.print(f"{metric_label(key)} = {value:.4g}", highlight=False)
@@ -1047,12 +1083,12 @@ def validate(result, log_path, planar, momentum, drift, torques, horizon, folder
 
         for key, value in torque_metrics.items():
             out.print(f"{TORQUE_METRIC_LABELS[key]} = {value:.4g}", highlight=False)
-    err.print(f"plots and metrics written to {shown_name(folder)}/")
+    err.print(f"plots, metrics and report.html written to {shown_name(folder)}/")
 
 
 def _validate_torques(ident, log, h, horizon, output, where):
     """``validate --torques``: the torque-driven prediction, its metrics and figure in ``output``;
-    returns the metrics."""
+    returns the metrics, the predicted log and the figure's title."""
     from .data import write_json, write_log
     from .studies import TORQUE_VALIDATION_TITLE, plot_validation, validate_torques
 
@@ -1060,8 +1096,9 @@ def _validate_torques(ident, log, h, horizon, output, where):
     write_log(output / "torque_predicted.csv", predicted)
     write_json(output / "torque_metrics.json", metrics)
     restarts = f"(restarted from the measured state every {metrics['horizon']:.3g} s)"
-    plot_validation(log, predicted, output / "torque_validation.png", title=f"{TORQUE_VALIDATION_TITLE}\n{restarts}")
-    return metrics
+    title = f"{TORQUE_VALIDATION_TITLE}\n{restarts}"
+    plot_validation(log, predicted, output / "torque_validation.png", title=title)
+    return metrics, predicted, title
 
 
 @app.command(short_help="The paper's simulation study on the built-in Cepheus model.")
@@ -1309,8 +1346,8 @@ def compare(before, after, as_json, show_all):
 @SEED
 @click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
 @SCHEDULER
-@out_folder("Folder for table.txt, montecarlo.json and montecarlo.png (each chunk of runs kept beside it in "
-            ".FOLDER.tasks/ as it completes, for --resume, until they are written).")
+@out_folder("Folder for table.txt, montecarlo.json, montecarlo.png and report.html (each chunk of runs kept beside "
+            "it in .FOLDER.tasks/ as it completes, for --resume, until they are written).")
 @RESUME
 @OVERWRITE
 def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
@@ -1343,7 +1380,8 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
         with _report_folder(folder, overwrite) as tmp:
             write_montecarlo(res, tmp)
         discard_tasks(folder)
-        err.print(f"table, JSON and figure written to {shown_name(folder)}/ ({res.settings['wall_time_s']:.1f} s)")
+        err.print(f"table, JSON, figure and report.html written to {shown_name(folder)}/ "
+                  f"({res.settings['wall_time_s']:.1f} s)")
 
 
 @app.command(short_help="A physically consistent URDF of an identified model, closest to a prior.")
@@ -1564,8 +1602,9 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
               help="With --follow: the log counts as finished after this many seconds without a new row.")
 @log_options
 @output("EVENTS.json to write (rewritten after each event, so that it can be read while the monitor runs).")
+@report_option("the run, written at its end: events, segments, the statistic and the parameters' changes")
 def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_alarm_rate, change_ratio, forgetting,
-            warmup, max_segment, estimator, follow, follow_timeout, output, reading):
+            warmup, max_segment, estimator, follow, follow_timeout, output, report, reading):
     """Follow a log sample by sample (LOG.csv; a ROS bag, read part by part as its messages come;
     or with --follow a CSV being written): a recursive estimate of the parameters on the
     momentum equations and a CUSUM test on its normalised residual; each detected change is
@@ -1574,7 +1613,9 @@ def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_al
     estimated from the first samples."""
     from .data import bag_chunks, follow_log, is_bag, write_json
     from .estimation import Monitor, log_chunks, parse_known
+    from .studies import write_monitor_html
 
+    report = _report_path(report, output)
     param = _param(model_src, planar)
     h = _momentum(momentum, param.model.planar)
     m = param.model
@@ -1618,8 +1659,9 @@ def monitor(model_src, log_path, planar, momentum, known, noise, drift, false_al
             out.print(f"change {event.index}, whole segments compared: changed "
                       f"{', '.join(change['changed']) or 'none'}", highlight=False)
     write_json(output, record.to_dict())
+    write_monitor_html(record, report, source=shown_name(log_path))
     out.print(f"{len(record.events)} change(s) in {record.n_samples} samples; {len(record.segments)} "
-              f"segment(s) identified; written to {output}", highlight=False)
+              f"segment(s) identified; written to {output}, report to {shown_name(report)}", highlight=False)
 
 
 def _print_event(event):

@@ -19,7 +19,7 @@ def _number(x) -> str:
     return "–" if x is None or (isinstance(x, float) and not np.isfinite(x)) else f"{x:.4g}"
 
 
-def _diagnostic_rows(result) -> list:
+def diagnostic_rows(result) -> list:
     """(label, text, warning?) of the diagnostics worth a line."""
     d = result.diagnostics
     rows = [("scaled condition number", _number(d.condition_number_scaled), False),
@@ -42,7 +42,7 @@ def identification_html(result) -> str:
     head = (f"<b>{escape(result.model)}</b>: {len(result.values)} minimal parameters from {result.n_samples} "
             f"samples, estimator <code>{escape(result.estimator)}</code>")
     diag = "".join(f'<tr><td>{escape(k)}</td><td{" class=warn" if w else ""} style="text-align:left">'
-                   f"{escape(str(v))}</td></tr>" for k, v, w in _diagnostic_rows(result))
+                   f"{escape(str(v))}</td></tr>" for k, v, w in diagnostic_rows(result))
     # std as the momentum it causes (near-zero parameters do not dominate; docs/theory/momentum-scale.md),
     # relative to the value for results written before the scale
     scaled = result.scale is not None

@@ -623,7 +623,8 @@ class Monitor:
             model=self.param.model.source or self.param.model.name, planar=self.param.model.planar,
             momentum=self.momentum.copy(), n_samples=self.n_samples, n_tested=self.n_tested, settings=self._settings(),
             events=tuple(self.events), segments=tuple(self.segments),
-            whole_segment_changes=tuple(self._segment_change(e.index) for e in self.events), last_time=self._last_time)
+            whole_segment_changes=tuple(self._segment_change(e.index) for e in self.events), last_time=self._last_time,
+            statistic=self._cusum.trace.arrays())
 
     def _settings(self) -> dict:
         """How the test runs: the ``settings`` of EVENTS.json."""

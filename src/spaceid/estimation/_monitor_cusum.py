@@ -99,6 +99,41 @@ def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RA
     return float(brentq(gap, 1e-6, target + 1.0, xtol=1e-6))
 
 
+class StatisticTrace:
+    """The CUSUM statistic over a run in bounded memory: at most ``capacity`` points, each the
+    largest statistic of ``stride`` consecutive tested samples (with its time); when full, pairs
+    merge and ``stride`` doubles, so that a run of any length keeps its alarms' peaks.
+
+    Parameters
+    ----------
+    capacity : int
+        Points kept at most (even).
+    """
+
+    def __init__(self, capacity: int = 4000):
+        self.capacity, self.stride, self._n = capacity + capacity % 2, 1, 0
+        self.t: list = []
+        self.g: list = []
+
+    def add(self, t: float, g: float) -> None:
+        """The statistic ``g`` at the tested sample at ``t`` [s]."""
+        if self._n % self.stride == 0:
+            self.t.append(t)
+            self.g.append(g)
+        elif g >= self.g[-1]:
+            self.t[-1], self.g[-1] = t, g
+        self._n += 1
+        if len(self.g) > self.capacity:
+            pairs = [max((self.g[i], self.t[i]), (self.g[i + 1], self.t[i + 1])) for i in range(0, self.capacity, 2)]
+            self.g = [p[0] for p in pairs] + self.g[self.capacity:]
+            self.t = [p[1] for p in pairs] + self.t[self.capacity:]
+            self.stride *= 2
+
+    def arrays(self) -> tuple:
+        """``(t, g)``, arrays of shape (m,): the times [s] and statistics kept."""
+        return np.array(self.t, float), np.array(self.g, float)
+
+
 class Cusum:
     """The running CUSUM of a monitor, restarted at zero for each segment's test.
 
@@ -122,15 +157,20 @@ class Cusum:
         ``(t [s], nu^T nu)`` of the samples since the statistic last left zero.
     n_tested : int
         Samples tested over the whole run.
+    trace : StatisticTrace
+        The statistic over the whole run, bounded (for the report's figure).
     """
 
     def __init__(self, threshold: float, rows: int, ratio: float, memory: int):
         self.threshold, self.rows, self._increment = threshold, rows, _increment(rows, ratio)
         self.statistic, self.n_tested = 0.0, 0
         self.excursion = collections.deque(maxlen=memory)
+        self.trace = StatisticTrace()
 
     def restart(self):
         """Start afresh at zero (a new segment, or the samples after a tested warm-up)."""
+        if self.statistic and self.excursion:
+            self.trace.add(self.excursion[-1][0], 0.0)  # the drop to zero, at the last sample tested
         self.statistic = 0.0
         self.excursion.clear()
 
@@ -141,6 +181,7 @@ class Cusum:
         stat = float(nu @ nu)
         self.statistic = max(0.0, self.statistic + c * stat - d)
         self.excursion.append((t, stat))
+        self.trace.add(t, self.statistic)
         self.n_tested += 1
         if self.statistic > self.threshold:
             return True

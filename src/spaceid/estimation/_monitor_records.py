@@ -164,6 +164,10 @@ class MonitorRecord:
     last_time : float or None
         The last sample taken [s] (None before the first): where the last segment ends. Not in
         EVENTS.json.
+    statistic : tuple of two numpy.ndarray or None
+        ``(t, g)``, shape (m,) each: the CUSUM statistic over the run, at most 4000 points (each the
+        largest of its run of samples; :class:`~spaceid.estimation._monitor_cusum.StatisticTrace`),
+        for the report's figure. Not in EVENTS.json.
     """
 
     model: str
@@ -176,6 +180,7 @@ class MonitorRecord:
     segments: tuple
     whole_segment_changes: tuple
     last_time: float | None = None
+    statistic: tuple | None = None
 
     def to_dict(self) -> dict:
         """The JSON-ready record, EVENTS.json (docs/formats/events-json.md)."""
@@ -205,7 +210,7 @@ class MonitorRecord:
 
             ax = Figure(figsize=(7.2, 4.2), layout="constrained").add_subplot()
         ax.axhspan(-Z_CHANGED, Z_CHANGED, color="0.92", label=f"|z| < {Z_CHANGED:g}")
-        t, z = self._z_over_time()
+        t, z = self.z_over_time()
         for name, zk in zip(self.settings["parameter_names"], z.T):
             changed = np.max(np.abs(np.nan_to_num(zk))) > Z_CHANGED
             ax.plot(t, zk, linewidth=2 if changed else 1, color=None if changed else "0.6",
@@ -220,7 +225,7 @@ class MonitorRecord:
         ax.legend(fontsize="small", loc="best")
         return ax.figure
 
-    def _z_over_time(self) -> tuple:
+    def z_over_time(self) -> tuple:
         """The times ``(3 m,)`` [s] and z-scores ``(3 m, k)`` of the ``m`` identified segments' ``k``
         parameters against the first's: each held from its start to its end, then NaN (the lines
         break between segments; a known parameter's 0 / 0 too)."""

@@ -30,6 +30,9 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
 ``draw_parameters``, ``draw_singular_values``
     The figures of an identification (``Identification.plot``), which :mod:`spaceid.studies`
     saves (``plot_parameters``, ``plot_singular_values``).
+``diagnostic_rows``
+    The diagnostics of an identification worth a line, each flagged when it is a warning: shared by
+    its notebook view and the HTML report.
 ``per_parameter``, ``relative_errors``
     Values given per parameter checked against an identification, and its relative errors and
     their standard deviations against a truth: shared by its figure and the report's tables.
@@ -39,6 +42,7 @@ from ._angle_path import enough_samples_for_knots
 from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import check_drift_kinds
 from ._equations import Equations, drift_basis_at
+from ._html import diagnostic_rows
 from ._identify import check_excitation
 from ._plots import draw_parameters, draw_singular_values, per_parameter, relative_errors
 from ._uncertainty import correlation_length, newey_west_covariance, window_spans
@@ -56,6 +60,7 @@ __all__ = [
     "enough_samples_for_knots",
     "draw_parameters",
     "draw_singular_values",
+    "diagnostic_rows",
     "per_parameter",
     "relative_errors",
 ]

@@ -125,6 +125,7 @@ def run_demo(
 
 def _write_report(result: DemoResult, log, fine, predicted) -> None:
     from ._figures import plot_parameters, plot_singular_values, plot_trajectory, plot_validation
+    from ._html_report import write_html_report
     from ._report import write_markdown_report
 
     folder = result.folder
@@ -165,8 +166,9 @@ def _write_report(result: DemoResult, log, fine, predicted) -> None:
         "estimator": result.ident.estimator,
         "rank tolerance": result.ident.settings["parameterization"]["rank_tol"],
     }
-    write_markdown_report(
-        folder, title="spaceid: identification of Cepheus (paper simulation study)", result=result.ident,
-        settings=settings, figures=figures, true=result.true, reference=PAPER_TABLE3["relative_error_percent"],
-        reference_true=PAPER_TABLE3["true"], metrics=result.metrics,
-    )
+    report = dict(title="spaceid: identification of Cepheus (paper simulation study)", result=result.ident,
+                  settings=settings, true=result.true, reference=PAPER_TABLE3["relative_error_percent"],
+                  reference_true=PAPER_TABLE3["true"], metrics=result.metrics)
+    write_markdown_report(folder, figures=figures, **report)
+    write_html_report(folder, figures={"Exciting trajectory": "trajectory.png"},
+                      validations=[(fine, predicted, "Validation: measured vs identified model")], **report)

@@ -487,6 +487,7 @@ def _plot_tracking(result: ExperimentResult, path) -> None:
 
 def _write_report(result: ExperimentResult, run, held_out_run) -> None:
     from ._figures import plot_parameters, plot_singular_values, plot_validation
+    from ._html_report import write_html_report
     from ._report import write_markdown_report
 
     folder = result.folder
@@ -524,10 +525,14 @@ def _write_report(result: ExperimentResult, run, held_out_run) -> None:
         lines, capture_figures = write_servicing(folder, result.servicing)
         sections["Capture: change detection and the payload"] = lines
         figures |= capture_figures
-    write_markdown_report(
-        folder, title="spaceid: the Cepheus experiment on the digital twin", result=result.ident, settings=settings,
-        figures=figures, true=result.true, metrics=_labelled_metrics(result), sections=sections,
-    )
+    report = dict(title="spaceid: the Cepheus experiment on the digital twin", result=result.ident, settings=settings,
+                  true=result.true, metrics=_labelled_metrics(result), sections=sections)
+    write_markdown_report(folder, figures=figures, **report)
+    interactive = ("validation.png", "parameters.png", "singular_values.png")  # drawn by the page itself
+    write_html_report(folder, figures={c: f for c, f in figures.items() if f not in interactive},
+                      validations=[(result.validation_log, result.predicted, "Validation on the held-out motion "
+                                    f"({result.settings['validation trajectory']}): measured vs the identified model")],
+                      **report)  # fmt: skip
 
 
 def _write_mapping(path: Path, latency: float) -> None:

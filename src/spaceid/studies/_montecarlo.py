@@ -476,17 +476,19 @@ def run_montecarlo(
 
 @deprecated_alias(old="folder", new="out")
 def write_montecarlo(result: MonteCarloResult, out) -> dict:
-    """Write ``montecarlo.json``, ``table.txt`` (the terminal table) and ``montecarlo.png`` into
-    ``folder`` (created if needed), each atomically.
+    """Write ``montecarlo.json``, ``table.txt`` (the terminal table), ``montecarlo.png`` and
+    ``report.html`` (interactive, docs/formats/report-html.md) into ``folder`` (created if needed),
+    each atomically.
 
     Returns
     -------
     dict of str to Path
-        ``{"json", "table", "figure"}``.
+        ``{"json", "table", "figure", "html"}``.
     """
     from rich.console import Console
 
     from ._figures import plot_montecarlo
+    from ._html_report import write_montecarlo_html
 
     from ._tables import montecarlo_table
     from .._atomic import write_text_atomic
@@ -504,4 +506,5 @@ def write_montecarlo(result: MonteCarloResult, out) -> dict:
         montecarlo_table(result))
     write_text_atomic(paths["table"], buffer.getvalue())
     plot_montecarlo(result, paths["figure"])
+    paths["html"] = write_montecarlo_html(result, folder / "report.html")
     return paths

@@ -322,6 +322,7 @@ def _write_report(result: SpatialExperimentResult, flight, held_run, chosen) -> 
     """The report folder: trajectories, logs, truths, results, figures and ``report.md``."""
     from ._figures import plot_attitude_errors, plot_parameters, plot_singular_values, plot_tracking, \
         plot_validation  # fmt: skip
+    from ._html_report import write_html_report
     from ._report import write_markdown_report
     from ._tracking import readable_settings
 
@@ -363,10 +364,15 @@ def _write_report(result: SpatialExperimentResult, flight, held_run, chosen) -> 
         "Singular values of the regressor (N samples)": "singular_values.png",
         "Tracking: designed (commanded) and executed (encoders)": "tracking.png",
     }
-    write_markdown_report(folder, title="spaceid: the spatial protocol on the servicer twin", result=result.ident,
-                          settings=readable_settings({k: v for k, v in result.settings.items() if k != "twin"}),
-                          figures=figures, true=result.true, sections={"Scores against the twin's truth":
-                                                                       _score_lines(result.metrics)})  # fmt: skip
+    report = dict(title="spaceid: the spatial protocol on the servicer twin", result=result.ident,
+                  settings=readable_settings({k: v for k, v in result.settings.items() if k != "twin"}),
+                  true=result.true, sections={"Scores against the twin's truth": _score_lines(result.metrics)})
+    write_markdown_report(folder, figures=figures, **report)
+    interactive = ("validation.png", "parameters.png", "singular_values.png")  # drawn by the page itself
+    validations = [] if result.predicted is None else [
+        (held, result.predicted, "Held-out motion: measured base motion vs the identified model")]
+    write_html_report(folder, figures={c: f for c, f in figures.items() if f not in interactive},
+                      validations=validations, **report)
 
 
 def _score_lines(metrics: dict) -> list:

@@ -1,0 +1,333 @@
+"""The interactive (plotly) figures of the HTML reports: an identification's parameters and singular
+values, a validation's measured and predicted base motion with its residuals, a Monte Carlo
+study's errors and efficiency, and a monitor's statistic, events and parameter changes. The static
+figures (:mod:`spaceid.studies._figures`) show the same for print; these zoom and hover, and read
+at hundreds of parameters (hover names each point; zoom spreads the ticks).
+
+Plotly is imported when a figure is drawn.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..data import Log
+from ..estimation import Identification
+from ._figures import _base_signals, _check_same_motion
+from ._validate import predicted_label
+from ._html_page import ANCHOR, LIMIT, MEASURED, MODEL, REFERENCE, TRUE, downsample, thinning_note
+
+__all__ = ["parameter_figure", "singular_value_figure", "validation_figure", "montecarlo_figures", "monitor_figures"]
+
+_FONT = {"family": "system-ui, Helvetica, Arial, sans-serif", "size": 12}
+_HOVER_DEFINITION = 140  # characters of a parameter's definition shown on hover
+
+
+def _layout(fig, title: str, height: int) -> None:
+    """The house layout: white, light grid, legend above the plot, the title on the left."""
+    fig.update_layout(template="plotly_white", font=_FONT, height=height, hovermode="closest",
+                      title={"text": title, "x": 0.01, "xanchor": "left", "font": {"size": 14, "color": "#222"}},
+                      legend={"orientation": "h", "yanchor": "bottom", "y": 1.02, "x": 0, "xanchor": "left"},
+                      margin={"l": 70, "r": 20, "t": 95, "b": 60})  # fmt: skip
+    fig.update_xaxes(showline=True, linecolor="#999", mirror=False, zeroline=False)
+    fig.update_yaxes(showline=True, linecolor="#999", zeroline=False, exponentformat="e")
+
+
+def _make(rows: int = 1, cols: int = 1, **kwargs):
+    from plotly.subplots import make_subplots
+
+    return make_subplots(rows=rows, cols=cols, **kwargs)
+
+
+def _hover_texts(result: Identification, true) -> list:
+    """Per parameter: its name, unit, estimate, std, truth and (shortened) definition, for hovering."""
+    units = list(result.units or [""] * len(result.names))
+    texts = []
+    for i, (name, d) in enumerate(zip(result.names, result.definitions)):
+        d = d if len(d) <= _HOVER_DEFINITION else d[:_HOVER_DEFINITION] + "..."
+        truth = "" if true is None else f"<br>true {true[i]:.6g}"
+        texts.append(f"<b>{name}</b> [{units[i]}]<br>estimate {result.values[i]:.6g} +/- {result.std[i]:.3g}"
+                     f"{truth}<br>= {d}")
+    return texts
+
+
+def _anchored(result: Identification) -> np.ndarray:
+    names = {a["name"] for a in result.settings.get("anchors", ())}
+    return np.array([n in names for n in result.names], bool)
+
+
+def _sizes(result: Identification, x) -> tuple:
+    """``x`` (errors or stds of the parameters) as the momentum they cause [% H], or relative to the
+    values [%] for a result without a momentum scale; and the axis label's unit."""
+    if result.scale is not None:
+        return 100 * result.scale.scaled(x), f"% of H = {result.scale.momentum:.3g} N m s"
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return 100 * np.asarray(x, float) / np.abs(result.values), "% of |estimate|"
+
+
+def parameter_figure(result: Identification, true=None):
+    """Every parameter's estimate with its 2-sigma bar: with the truth, the z-score ``(estimate - true)
+    / std`` (the 2-sigma band shaded) over the error as the momentum it causes, with bars; without,
+    the 2-sigma interval as the momentum it causes. Anchored (known) parameters are marked apart.
+
+    Returns
+    -------
+    (plotly.graph_objects.Figure, str)
+        The figure and its caption.
+    """
+    import plotly.graph_objects as go
+
+    k = len(result.names)
+    names, hover = list(result.names), _hover_texts(result, true)
+    anchored = _anchored(result)
+    free = ~anchored & (result.std > 0)
+    panels = 2 if true is not None else 1
+    size = 6 if k <= 60 else 4
+    fig = _make(panels, 1, shared_xaxes=True, vertical_spacing=0.06)
+    if true is not None:
+        z = np.where(free, (result.values - true) / np.where(free, result.std, 1), np.nan)
+        fig.add_hrect(y0=-2, y1=2, fillcolor=TRUE, opacity=0.12, line_width=0, row=1, col=1)
+        fig.add_trace(go.Scatter(x=names, y=z, mode="markers", marker={"color": MEASURED, "size": size},
+                                 name="z = (estimate - true) / std  (shaded: |z| <= 2)", text=hover,
+                                 hovertemplate="%{text}<br>z = %{y:.3g}<extra></extra>"), 1, 1)  # fmt: skip
+        fig.update_yaxes(title_text="z-score [-]", row=1, col=1)
+        error, unit = _sizes(result, result.values - true)
+    else:
+        error, unit = np.zeros(k), None
+    bar, unit = _sizes(result, 2 * result.std)
+    row = panels
+    fig.add_hline(y=0, line_color=TRUE if true is not None else REFERENCE, line_width=1, row=row, col=1)
+    fig.add_trace(go.Scatter(x=[n for n, f in zip(names, free) if f], y=error[free], mode="markers",
+                             error_y={"type": "data", "array": np.abs(bar[free]), "color": MEASURED, "thickness": 1},
+                             marker={"color": MEASURED, "size": size}, text=[h for h, f in zip(hover, free) if f],
+                             name="error +/- 2 std" if true is not None else "+/- 2 std about the estimate (truth "
+                             "unknown)", hovertemplate="%{text}<br>%{y:.3g} +/- %{error_y.array:.3g}<extra></extra>"),
+                  row, 1)  # fmt: skip
+    if anchored.any():
+        fig.add_trace(go.Scatter(x=[n for n, a in zip(names, anchored) if a], y=np.zeros(int(anchored.sum())),
+                                 mode="markers", marker={"symbol": "square-open", "size": 10, "color": ANCHOR},
+                                 name="anchored: known, not estimated", text=[h for h, a in zip(hover, anchored) if a],
+                                 hovertemplate="%{text}<extra>anchored</extra>"), row, 1)  # fmt: skip
+    fig.update_yaxes(title_text=("error" if true is not None else "2 std") + f" [{unit}]", row=row, col=1)
+    fig.update_xaxes(title_text=f"minimal parameter ({k}; hover for its definition, drag to zoom)", row=row, col=1,
+                     tickangle=-90 if k > 12 else 0, automargin=True)
+    title = (f"{result.estimator.upper()} estimates of the {k} minimal parameters, N = {result.n_samples} samples, "
+             f"cond = {result.condition_number:.4g}")
+    _layout(fig, title, 330 + 230 * panels)
+    caption = ("Parameter estimates. " + ("Top: each estimate's error in its standard errors (z); bottom: the error "
+               "with its 2-sigma bar" if true is not None else "The 2-sigma interval of each estimate")
+               + (", as the momentum it causes over the log (a fraction of the momentum scale H, so that near-zero "
+                  "parameters do not dominate)." if result.scale is not None else ", relative to the estimate."))
+    return fig, caption
+
+
+def singular_value_figure(result: Identification):
+    """The singular values of the stacked regressor relative to the largest (log scale); with its caption."""
+    import plotly.graph_objects as go
+
+    s = np.asarray(result.singular_values, float)
+    fig = _make()
+    fig.add_trace(go.Scatter(x=np.arange(1, s.size + 1), y=s / s[0], mode="lines+markers", name="sigma_i / sigma_1",
+                             line={"color": MEASURED}, marker={"size": 5},
+                             hovertemplate="i = %{x}<br>sigma_i / sigma_1 = %{y:.3g}<extra></extra>"))  # fmt: skip
+    fig.update_xaxes(title_text="index i (decreasing order)")
+    _layout(fig, f"Singular values of the stacked regressor (N = {result.n_samples}): cond = "
+                 f"{result.condition_number:.4g}", 400)
+    fig.update_yaxes(type="log", title_text="sigma_i / sigma_1 [-]", exponentformat="power")
+    return fig, "Singular values of the regressor, relative to the largest; the smallest is 1 / cond."
+
+
+def validation_figure(measured: Log, predicted: Log, title: str):
+    """Measured against predicted base motion, a column per signal (base angular velocity per axis,
+    attitude), the residual below each with its RMS; long logs thinned (:func:`downsample`). With its
+    caption."""
+    import plotly.graph_objects as go
+
+    _check_same_motion(measured, predicted)
+    signals = _base_signals(measured, predicted)
+    n = len(signals)
+    fig = _make(2, n, shared_xaxes=True, row_heights=[0.64, 0.36], vertical_spacing=0.08, horizontal_spacing=0.08,
+                subplot_titles=[s[0] for s in signals]
+                + [f"residual, RMS {np.sqrt(np.mean(s[5] ** 2)):.2g} {s[2]}" for s in signals])  # fmt: skip
+    shown = measured.n_samples
+    for c, (_, _, unit, y_meas, y_pred, residual, residual_label) in enumerate(signals, start=1):
+        t_r, residual, _ = downsample(measured.t, residual)  # each thinned keeping its own extremes
+        t, y_meas, y_pred, _ = downsample(measured.t, y_meas, y_pred)
+        shown = t.size
+        first = c == 1
+        fig.add_trace(go.Scatter(x=t, y=y_meas, name="measured", legendgroup="m", showlegend=first,
+                                 line={"color": MEASURED, "width": 1.5}), 1, c)
+        fig.add_trace(go.Scatter(x=t, y=y_pred, name=predicted_label(predicted), legendgroup="p", showlegend=first,
+                                 line={"color": MODEL, "width": 1.5, "dash": "dash"}), 1, c)
+        fig.add_trace(go.Scatter(x=t_r, y=residual, name="residual", legendgroup="r", showlegend=first,
+                                 line={"color": MODEL, "width": 1}), 2, c)
+        fig.add_hline(y=0, line_color=REFERENCE, line_width=0.8, row=2, col=c)
+        fig.update_yaxes(title_text=f"[{unit}]" if c > 1 else f"measured, predicted [{unit}]", row=1, col=c)
+        words = "error angle " if "angle" in residual_label else "pred. - meas. " if c == 1 else ""
+        fig.update_yaxes(title_text=f"{words}[{unit}]", row=2, col=c)
+        fig.update_xaxes(title_text="time t [s]", row=2, col=c)
+    _layout(fig, title, 580)
+    fig.update_annotations(font_size=13)  # the panels' titles
+    fig.update_layout(hovermode="x unified", legend={"x": 0, "xanchor": "left", "y": -0.13, "yanchor": "top"},
+                      margin={"b": 90})
+    caption = ("Validation: the base motion measured against the motion predicted from the joint motion, with the "
+               "residual below." + thinning_note(measured.n_samples, shown))
+    return fig, caption
+
+
+def _estimator_colour(e: str) -> str:
+    return {"ml": MODEL, "wls": ANCHOR, "iv": "#9467bd", "tls": "#8c564b", "ols": "#737373"}.get(e, MEASURED)
+
+
+def montecarlo_figures(result) -> list:
+    """A Monte Carlo study's figures: per parameter and estimator the signed errors over the runs
+    (box plots, in % of |true|, with the Cramer-Rao 2-sigma marked), and RMSE / CRB with the Monte
+    Carlo uncertainty of each ratio (about ``1 / sqrt(2 R)`` relative). Pairs ``(figure, caption)``."""
+    import plotly.graph_objects as go
+
+    names, true = list(result.names), np.asarray(result.true, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        scale = np.where(true != 0, np.abs(true), np.nan) / 100
+    boxes = _make()
+    band = 2 * result.crb_std / scale
+    boxes.add_trace(go.Scatter(x=names + names, y=np.concatenate([band, -band]), mode="markers", name="CRB +/- 2 sigma",
+                               marker={"symbol": "line-ew-open", "size": 14, "color": TRUE, "line": {"width": 2}},
+                               hovertemplate="%{x}: CRB 2 sigma %{y:.3g} %<extra></extra>"))  # fmt: skip
+    for e in result.estimators:
+        err = (result.estimates[e] - true) / scale  # (runs, k)
+        x = np.repeat(np.array(names, dtype=object)[None, :], err.shape[0], axis=0)
+        ok = np.isfinite(err)
+        boxes.add_trace(go.Box(x=x[ok], y=err[ok], name=e.upper(), marker={"color": _estimator_colour(e), "size": 3},
+                               boxpoints="outliers", line={"width": 1}))  # fmt: skip
+    boxes.update_layout(boxmode="group")
+    boxes.update_yaxes(title_text="signed error (estimate - true) / |true| [%]")
+    boxes.update_xaxes(title_text="minimal parameter", tickangle=-90 if len(names) > 12 else 0)
+    s = result.settings
+    _layout(boxes, f"Monte Carlo errors: {s['runs']} runs, N = {s['n_samples']} samples, seed {s['seed']}", 520)
+    bars = _make()
+    for e in result.estimators:
+        ratio = np.asarray(result.stats[e]["rmse_crb"], float)
+        runs_ok = result.summary(e)["runs_ok"]
+        bars.add_trace(go.Bar(x=names, y=ratio, name=f"{e.upper()} (R = {runs_ok} runs)",
+                              marker={"color": _estimator_colour(e), "opacity": 0.85},
+                              error_y={"type": "data", "array": 2 * ratio / np.sqrt(2 * max(runs_ok, 1)),
+                                       "color": "black", "thickness": 1}))  # fmt: skip
+    bars.add_hline(y=1, line_color=MEASURED, line_width=1, annotation_text="RMSE = CRB (efficient)",
+                   annotation_position="top left")
+    bars.update_layout(barmode="group")
+    top = max(np.nanmax(np.asarray(result.stats[e]["rmse_crb"], float)) for e in result.estimators)
+    bars.update_yaxes(title_text="RMSE / CRB [-]", type="log" if top > 10 else "linear")
+    bars.update_xaxes(title_text="minimal parameter", tickangle=-90 if len(names) > 12 else 0)
+    _layout(bars, "Efficiency: RMSE over the runs / Cramer-Rao std of each parameter", 460)
+    return [(boxes, "Errors of each estimator over the runs, in percent of |true| (boxes: quartiles, whiskers 1.5 "
+                    "IQR, outliers as points); the green marks are the Cramer-Rao bound's +/- 2 sigma."),
+            (bars, "RMSE / CRB per parameter and estimator (1: efficient); the bars are +/- 2 standard errors of a "
+                   "Monte Carlo RMSE, about 2 / sqrt(2 R) relative over R runs.")]
+
+
+def _mark_events(fig, events, rows) -> None:
+    """Each event's estimated change (dashed; its lead shaded) and its detection (dotted), on ``rows``."""
+    for e in events:
+        for r in rows:
+            fig.add_vline(x=e.time, line_color=MEASURED, line_dash="dash", line_width=1, row=r, col=1)
+            if e.lead:
+                fig.add_vrect(x0=e.time, x1=e.time + e.lead, fillcolor=MEASURED, opacity=0.12, line_width=0, row=r,
+                              col=1)
+            fig.add_vline(x=e.detected_at, line_color=LIMIT, line_dash="dot", line_width=1.5, row=r, col=1)
+
+
+def _statistic_figure(record):
+    """The CUSUM statistic over the run against its threshold, the events marked."""
+    import plotly.graph_objects as go
+
+    t, g = record.statistic
+    fig = _make()
+    fig.add_trace(go.Scatter(x=t, y=g, mode="lines", name="CUSUM statistic g", line={"color": MEASURED, "width": 1},
+                             hovertemplate="t = %{x:.4g} s<br>g = %{y:.4g}<extra></extra>"))  # fmt: skip
+    fig.add_hline(y=record.settings["threshold"], line_color=MODEL, line_dash="dash", line_width=1.5,
+                  annotation_text=f"threshold {record.settings['threshold']:.4g}", annotation_position="top left")
+    threshold = record.settings["threshold"]
+    for e in record.events:  # legend entries for the event lines
+        fig.add_trace(go.Scatter(x=[e.time, e.detected_at], y=[0, threshold], mode="markers",
+                                 marker={"color": [MEASURED, LIMIT], "size": 9, "symbol": ["triangle-up", "x"]},
+                                 name=f"change {e.index}: at {e.time:.4g} s, alarm {e.detected_at:.4g} s",
+                                 hovertemplate="%{x:.4g} s<extra></extra>"))  # fmt: skip
+    _mark_events(fig, record.events, [1])
+    fig.update_xaxes(title_text="time t [s]")
+    fig.update_yaxes(title_text="log-likelihood ratio g [-]")
+    if g.size and g.max() > 4 * threshold:  # a large change would flatten the rest: its peak named instead
+        fig.update_yaxes(range=[0, 3 * threshold])
+        for e in record.events:
+            fig.add_annotation(x=e.detected_at, y=3 * threshold, text=f"peak {e.statistic:.3g}", showarrow=True,
+                               arrowhead=2, ax=30, ay=-18, font={"size": 11})
+    _layout(fig, f"Change detection: {len(record.events)} change(s) in {record.n_samples} samples "
+                 f"({record.n_tested} tested)", 440)
+    return fig, ("The CUSUM statistic of the normalised innovations (the axis ends at 3 thresholds when a peak is far "
+                 "larger: double-click to see all; each point the largest over its run of samples "
+                 "when the run is long; no test during each segment's warm-up); dashed: each estimated change time "
+                 "(shaded: how much later it can be, differentiated rates), dotted orange: the alarm.")
+
+
+def _segments_figure(record):
+    """Each identified segment's parameters against the first's in combined standard errors."""
+    import plotly.graph_objects as go
+
+    t, z = record.z_over_time()
+    names = record.settings["parameter_names"]
+    z_changed = record.settings.get("z_changed", 3.0)
+    fig = _make()
+    fig.add_hrect(y0=-z_changed, y1=z_changed, fillcolor=REFERENCE, opacity=0.15, line_width=0)
+    for name, zk in zip(names, z.T):
+        changed = np.nanmax(np.abs(np.nan_to_num(zk)), initial=0.0) > z_changed
+        fig.add_trace(go.Scatter(x=t, y=zk, mode="lines", name=name, showlegend=bool(changed), connectgaps=False,
+                                 line={"width": 2.2 if changed else 0.8, "color": None if changed else "#b0b0b0"},
+                                 hovertemplate=f"{name}<br>z = %{{y:.3g}}<extra></extra>"))  # fmt: skip
+    _mark_events(fig, record.events, [1])
+    fig.update_yaxes(title_text="change from the first segment [std. errors]", type="linear")
+    fig.update_xaxes(title_text="time t [s]")
+    _layout(fig, f"Segments' parameters against the first segment's ({len(record.segments)} segment(s))", 460)
+    return fig, (f"Each segment's batch estimate against the first segment's, in combined standard errors, over its "
+                 f"time span (grey band: |z| < {z_changed:g}; parameters beyond it named in colour, hover for the "
+                 "others).")
+
+
+_EVENT_COLOURS = (MODEL, ANCHOR, LIMIT, "#9467bd")
+
+
+def _event_figure(record):
+    """Per event, each parameter's change (new segment's warm-up against the segment before) in
+    combined standard errors."""
+    import plotly.graph_objects as go
+
+    z_changed = record.settings.get("z_changed", 3.0)
+    fig = _make()
+    fig.add_hrect(y0=-z_changed, y1=z_changed, fillcolor=REFERENCE, opacity=0.15, line_width=0)
+    for e in record.events:
+        if not e.parameters:
+            continue
+        fig.add_trace(go.Bar(x=[p["name"] for p in e.parameters], y=[p["z"] for p in e.parameters],
+                             name=f"change {e.index} at {e.time:.4g} s", marker={"color": _EVENT_COLOURS[e.index % 4]},
+                             customdata=[[p["before"], p["after"], 100 * p["relative_change"]] for p in e.parameters],
+                             hovertemplate="%{x}: z = %{y:.3g}<br>before %{customdata[0]:.5g}, after "
+                             "%{customdata[1]:.5g} (%{customdata[2]:+.3g} %)<extra></extra>"))  # fmt: skip
+    fig.update_layout(barmode="group")
+    fig.update_yaxes(title_text="change / combined std [-]")
+    fig.update_xaxes(title_text="minimal parameter", tickangle=-90 if len(record.settings["parameter_names"]) > 12
+                     else 0)  # fmt: skip
+    _layout(fig, "The parameters' change at each detected change", 440)
+    return fig, (f"At each change: every parameter's change from the segment before to the new segment's warm-up, "
+                 f"in combined standard errors (grey band: |z| < {z_changed:g}, not counted as changed).")
+
+
+def monitor_figures(record) -> list:
+    """A monitor run's figures: the statistic with its threshold and the events, the segments'
+    parameters against the first's, and each event's parameter changes; pairs ``(figure, caption)``
+    (those with nothing to show left out)."""
+    figures = []
+    if record.statistic is not None and record.statistic[0].size:
+        figures.append(_statistic_figure(record))
+    if len([s for s in record.segments if s.identification is not None]) > 0:
+        figures.append(_segments_figure(record))
+    if any(e.parameters for e in record.events):
+        figures.append(_event_figure(record))
+    return figures
