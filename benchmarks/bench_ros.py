@@ -44,7 +44,7 @@ import numpy as np
 
 from spaceid import load_model, minimal_parameters
 from spaceid.estimation import Noise
-from spaceid.ros import LiveMonitor, twin_recording
+from spaceid.ros import LIVE_BLOCK, LiveMonitor, twin_recording
 from spaceid.studies import capture_protocol
 
 ROTOR = 0.00197372
@@ -57,12 +57,13 @@ def _run(duration, capture=True):
 
 
 ESTIMATOR = "ml"
+BLOCK = LIVE_BLOCK
 
 
 def _live():
     param = minimal_parameters(load_model("cepheus-rw"))
     return LiveMonitor(param, np.zeros(3), link="link2", reading={"window": 25}, known={"Iczz_wheel": ROTOR},
-                       warmup=100, noise=NOISE, estimator=ESTIMATOR)
+                       warmup=100, noise=NOISE, estimator=ESTIMATOR, block=BLOCK)
 
 
 def capacity(run, grasp, repeats, label):
@@ -119,7 +120,7 @@ def steady(n, repeats):
     for _ in range(repeats + 1):
         live = LiveMonitor(param, h, reading={"window": 31}, noise=Noise(angle=1e-4, rate=1e-3, attitude=1e-4,
                                                                           base_rate=1e-3),
-                           false_alarm_rate=1e-9, estimator=ESTIMATOR)
+                           false_alarm_rate=1e-9, estimator=ESTIMATOR, block=BLOCK)
         topics = (live.aligner.joint_topic, live.aligner.pose_topic)
         start = time.perf_counter()
         for _, is_joint, msg in messages:
@@ -202,13 +203,13 @@ def main():
     ap.add_argument("--duration", type=float, default=12.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--rate-factor", type=float, default=1.0)
-    ap.add_argument("--block", type=float, default=2.0)
+    ap.add_argument("--block", type=float, default=LIVE_BLOCK, help="seconds of joint states aligned at a time")
     ap.add_argument("--parts", nargs="+", default=["a", "b"])
     ap.add_argument("--steady-samples", type=int, default=6000)
     ap.add_argument("--estimator", default="ml", help="of the monitor's batch identifications")
     args = ap.parse_args()
-    global ESTIMATOR
-    ESTIMATOR = args.estimator
+    global ESTIMATOR, BLOCK
+    ESTIMATOR, BLOCK = args.estimator, args.block
     run, grasp = _run(args.duration)
     if "a" in args.parts:
         quiet, _ = _run(args.duration, capture=False)

@@ -165,12 +165,13 @@ def _bag_messages(bag):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="since the monitor's determinacy rule merged (issue 26), the live engine's events match "
-                   "the monitor's but no payload is published for the grasp's event: open (issue 28)", strict=False)
 def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag):
     """Messages fed one by one to LiveMonitor give the events of the bag read in parts of the same
-    block and fed to the monitor; the grasp's event within 0.5 s of it, the payload after it
-    within 2 sigma of 0.5 kg; each estimate has one standard error per parameter."""
+    block and fed to the monitor; each change is announced (stage "detected") at the part whose
+    samples raise the alarm, before its event (stage "compared"); the grasp's change within 0.5 s
+    of it, the payload after it within 2 sigma of 0.5 kg (due from the alarm: the segment after
+    the grasp may never determine its warm-up, and its event then completes at the end only);
+    an estimate is published when the monitor has one, with one standard error per parameter."""
     import numpy as np
 
     from spaceid import load_model, minimal_parameters
@@ -179,28 +180,38 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag):
 
     bag, grasp = twin_bag
     live = _live(link="link2")
-    outputs = []
+    outputs, parts = [], 0  # (the parts taken before, output)
     for topic, msg in _bag_messages(bag):
-        outputs += live.add(topic, msg)
+        out = live.add(topic, msg)
+        outputs += [(parts, o) for o in out]
+        parts += bool(out)
         payload = live.payload()
-        outputs += [payload] if payload is not None else []
+        outputs += [(parts, payload)] if payload is not None else []
     rest, record = live.finish()
-    outputs += rest
+    outputs += [(parts, o) for o in rest]
     m = load_model("cepheus-rw")
     expected = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels, block=2.0,
                                                          window=25),
                        np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
                        noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
     assert [e.time for e in record.events] == [e.time for e in expected.events] and record.events
-    events = [o.data for o in outputs if o.kind == "event"]
-    assert [e["time"] for e in events] == [e.time for e in record.events]
-    origin = events[0]["time_origin_ns"] / 1e9
-    near = [e for e in events if abs(e["time"] + origin - grasp) <= 0.5]
-    assert near, ([e["time"] + origin for e in events], grasp)
-    payloads = [o.data for o in outputs if o.kind == "payload" and o.data["event"] == near[0]["index"]]
+    detected = [(k, o.data) for k, o in outputs if o.kind == "event" and o.data["stage"] == "detected"]
+    compared = [(k, o.data) for k, o in outputs if o.kind == "event" and o.data["stage"] == "compared"]
+    assert [e["time"] for _, e in compared] == [e["time"] for _, e in detected] == [e.time for e in record.events]
+    assert [e["changed"] for _, e in compared] == [list(e.changed) for e in record.events]
+    origin = detected[0][1]["time_origin_ns"] / 1e9
+    for (k, alarm), (j, event) in zip(detected, compared):
+        assert k <= j and "changed" not in alarm and alarm["latency_s"] >= 0
+    assert detected[0][0] < compared[0][0]  # here the event completes at the end only: the alarm came parts before
+    near = [e for _, e in detected if abs(e["time"] + origin - grasp) <= 0.5]
+    assert near, ([e["time"] + origin for _, e in detected], grasp)
+    payloads = [o.data for _, o in outputs if o.kind == "payload" and o.data["event"] == near[0]["index"]]
     assert payloads and all(abs(p["mass"] - 0.5) <= 2 * p["std"]["mass"] for p in payloads), payloads
-    estimates = [o.data for o in outputs if o.kind == "estimate"]
-    assert estimates and all(len(e["std"]) == len(e["values"]) == len(e["names"]) for e in estimates)
+    # the first warm-up is determined only after 4 s of motion, in whose own test the change is found, and
+    # the segment after it never is: no running estimate on this run (the monitor's record says the same)
+    estimates = [o.data for _, o in outputs if o.kind == "estimate"]
+    assert bool(estimates) == any(s.recursive is not None for s in record.segments)
+    assert all(len(e["std"]) == len(e["values"]) == len(e["names"]) for e in estimates)
 
 
 def test_a_silent_pose_topic_is_named(monkeypatch, twin_bag):

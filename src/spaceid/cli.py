@@ -1669,7 +1669,8 @@ SUBSCRIBERS = click.option("--subscribers", type=click.IntRange(min=0), default=
               show_default=True, help="Estimator of the segments' batch identifications, as for 'spaceid monitor' "
               "(wls takes about half ml's time: benchmarks/bench_ros.py).")
 @click.option("--block", type=SECONDS, default=2.0, show_default=True, metavar="SECONDS",
-              help="Seconds of joint states aligned at a time (the messages held are bounded by it).")
+              help="Seconds of joint states aligned at a time (the messages held are bounded by it; a change waits "
+                   "up to this long in data time for its block).")
 @click.option("--joint-rates", type=click.Choice(["differentiate", "auto", "velocity"]), default="differentiate",
               show_default=True, help="Joint rates differentiated from the angles, or the published velocities.")
 @click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Savitzky-Golay window of every "
@@ -1701,10 +1702,13 @@ def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, p
     err.print(f"listening on {live.aligner.joint_topic} and {live.aligner.pose_topic}; Ctrl-C ends", highlight=False)
 
     def shown(item):
-        if item.kind == "event":
-            d = item.data
-            out.print(f"change {d['index']} at t = {d['time']:.6g} s (detected at {d['detected_at']:.6g} s); changed: "
-                      f"{', '.join(d['changed']) or 'none'}", highlight=False)
+        d = item.data
+        if item.kind == "event" and d["stage"] == "detected":
+            out.print(f"change {d['index']} at t = {d['time']:.6g} s (detected at {d['detected_at']:.6g} s)",
+                      highlight=False)
+        elif item.kind == "event":
+            out.print(f"change {d['index']} at t = {d['time']:.6g} s: changed {', '.join(d['changed']) or 'none'}",
+                      highlight=False)
             write_json(output, live.monitor.record().to_dict())
         elif item.kind == "payload" and "mass" in item.data:
             out.print(f"payload after change {item.data['event']}: mass {item.data['mass']:.4g} +/- "

@@ -22,6 +22,9 @@ __all__ = ["is_bag", "read_bag_log", "bag_chunks", "MessageAligner"]
 
 BLOCK = 10.0
 """Seconds of joint states that :func:`bag_chunks` aligns at a time."""
+FIRST_BLOCK = 1.0
+"""Fewest seconds of joint states in the first part: its differentiators' windows must fit in it
+(a live monitor aligns blocks of a tenth of a second)."""
 
 
 def is_bag(path) -> bool:
@@ -178,7 +181,7 @@ class MessageAligner:
         self._held[topic].append(msg)
         joint_msgs, pose_msgs = self._held.values()
         if self._due is None and topic == self.joint_topic:
-            self._due = _stamp(msg) + int(self.block * 1e9)
+            self._due = _stamp(msg) + int(max(self.block, FIRST_BLOCK) * 1e9)
         if not (pose_msgs and len(joint_msgs) > 1 and _stamp(joint_msgs[-1]) > self._due):
             return None
         self._due = _stamp(joint_msgs[-1]) + int(self.block * 1e9)  # the next part: ``block`` more seconds

@@ -103,7 +103,7 @@ class LiveMonitor:
 
         m = param.model
         self.param, self.link, self.where = param, link, where
-        self.monitor = Monitor(param, momentum, where=where, **options)
+        self.monitor = Monitor(param, momentum, where=where, on_alarm=self._alarmed, **options)
         self.aligner = MessageAligner(where, joints=m.joints, planar=m.planar, wheels=m.wheels, mapping=mapping,
                                       joint_topic=joint_topic, pose_topic=pose_topic, block=block, kind="ros2-live",
                                       **(reading or {}))  # fmt: skip
@@ -115,47 +115,76 @@ class LiveMonitor:
         self._recent = collections.deque()  # the latest parts, at most HISTORY samples
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
         self.n_messages, self.busy = 0, 0.0
+        self._emit, self._received = None, None  # where the outputs go; the arrival of the part's last message
         self._origin = None  # the published times are seconds after this ROS time [ns]
 
     def add(self, topic: str, msg, received: float | None = None) -> list:
         """Take one message of ``topic``; the :class:`LiveOutput` it completes (the estimate after
-        each aligned part, the events), in order. ``received``: its arrival [s, ``time.monotonic``],
-        from which each event's ``latency_s`` is counted (default now)."""
-        received = time.monotonic() if received is None else received
-        start = time.perf_counter()
+        each aligned part, the alarms and events), in order. ``received``: its arrival [s,
+        ``time.monotonic``], from which each event's ``latency_s`` is counted (default now)."""
+        return self.add_batch([(topic, msg, time.monotonic() if received is None else received)])
+
+    def add_batch(self, messages, publish=None) -> list:
+        """Take the messages ``(topic, msg, received)`` that arrived since the last call, in order;
+        the :class:`LiveOutput` they complete: the alarms and events of each aligned part as it is
+        taken, then one estimate (the latest, when a part was taken). ``publish``: called with
+        each output the moment it is made instead (an alarm as the test raises it, before the
+        monitor identifies the segment it closes); then the list is empty."""
+        start, taken = time.perf_counter(), False
+        outputs = []
+        self._emit = publish or outputs.append
+        try:
+            for topic, msg, received in messages:
+                part = self._align(topic, msg)
+                if part is not None:
+                    self._take(part, received)
+                    taken = True
+            estimate = self.estimate() if taken else None
+            if estimate is not None:
+                self._emit(LiveOutput("estimate", estimate))
+        finally:
+            self._emit = None
+        self.busy += time.perf_counter() - start
+        return outputs
+
+    def _align(self, topic: str, msg) -> Log | None:
+        """The aligned part that the message completes, or None."""
         self.n_messages += 1
         try:
             part = self.aligner.add(topic, msg)
         except SpaceidError as err:  # a block the differentiator refuses: retried with the next block's messages
-            warnings.warn(f"{err}: the samples wait for the next block", stacklevel=2)
+            warnings.warn(f"{err}: the samples wait for the next block", stacklevel=3)
             part = None
         if part is None and self.aligner.held > MAX_HELD:
             raise SpaceidError(f"`pose_topic`: {self.aligner.held} messages wait for a base pose on "
                                f"'{self.aligner.pose_topic}': publish the base attitude there, or map its topic")
-        outputs = [] if part is None else self._take(part, received)
-        self.busy += time.perf_counter() - start
-        return outputs
+        return part
 
-    def _take(self, part: Log, received: float) -> list:
-        """The outputs of one aligned part."""
+    def _take(self, part: Log, received: float):
+        """Emit the alarms and events of one aligned part: each alarm as soon as the test raises it
+        (``stage`` "detected"), each event once the segment after it has its warm-up identified
+        (``stage`` "compared", with the changed parameters)."""
         self._origin = part.meta.get("time_origin_ns", self._origin)
         self._remember(part)
-        events = self.monitor.update(part)
-        outputs = [self._event(e, received) for e in events]
-        estimate = self.estimate()
-        if estimate is not None:
-            outputs.insert(0, LiveOutput("estimate", estimate))
-        return outputs
+        self._received = received
+        for event in self.monitor.update(part):
+            self._emit(self._stage(event, "compared", received))
 
     def _remember(self, part: Log):
         self._recent.append(part)
         while sum(p.n_samples for p in self._recent) - self._recent[0].n_samples >= HISTORY:
             self._recent.popleft()
 
-    def _event(self, event, received) -> LiveOutput:
+    def _alarmed(self, alarm):
+        """The monitor's alarm: its message at once; the payload after it is due from now on."""
         if self._pmap is not None:
-            self._payload_event, self._payload_due = event, 0
-        data = event.to_dict() | {"time_origin_ns": self._origin, "latency_s": time.monotonic() - received}
+            self._payload_event, self._payload_due = alarm, 0
+        self._emit(self._stage(alarm, "detected", self._received))
+
+    def _stage(self, event, stage: str, received: float) -> LiveOutput:
+        """An alarm's or an event's message on ``/spaceid/events``."""
+        data = {"stage": stage} | event.to_dict() | {"time_origin_ns": self._origin,
+                                                     "latency_s": time.monotonic() - received}
         return LiveOutput("event", _plain(data))
 
     def estimate(self) -> dict | None:
@@ -171,8 +200,9 @@ class LiveMonitor:
                        "names": list(self.param.names), "values": est["values"], "std": est["std"]} | extra)  # fmt: skip
 
     def payload(self) -> LiveOutput | None:
-        """The payload after the last change, when due: once the samples after it allow, then
-        each time they double (while the history holds them); None otherwise or without ``link``."""
+        """The payload after the last alarm, when due: once the samples after it allow (a warm-up
+        of them), then each time they double (while the history holds them); None otherwise or
+        without ``link``."""
         event = self._payload_event
         if event is None:
             return None
@@ -197,19 +227,33 @@ class LiveMonitor:
                 "names": list(res.names), "values": res.values, "std": res.std} | res.to_dict()
         return LiveOutput("payload", _plain(data))
 
-    def finish(self):
+    def finish(self, publish=None):
         """The rest of the messages held, then the run's record: ``(outputs, record)``, the record a
-        :class:`~spaceid.estimation.MonitorRecord` (EVENTS.json). A tail too short to align is left out."""
+        :class:`~spaceid.estimation.MonitorRecord` (EVENTS.json). The outputs (``publish`` as in
+        :meth:`add_batch`): those of the rest, the events the end completes and the payload due.
+        A tail too short to align is left out."""
         outputs = []
+        self._emit = publish or outputs.append
         try:
-            part = self.aligner.flush()
-        except SpaceidError:  # fewer messages than the differentiator needs: nothing to add
-            part = None
-        if part is not None:
-            outputs = self._take(part, time.monotonic())
-        seen = len(self.monitor.events)
-        record = self.monitor.finish()
-        outputs += [self._event(e, time.monotonic()) for e in record.events[seen:]]
+            try:
+                part = self.aligner.flush()
+            except SpaceidError:  # fewer messages than the differentiator needs: nothing to add
+                part = None
+            if part is not None:
+                self._take(part, time.monotonic())
+                estimate = self.estimate()
+                if estimate is not None:
+                    self._emit(LiveOutput("estimate", estimate))
+            seen = len(self.monitor.events)
+            self._received = time.monotonic()
+            record = self.monitor.finish()
+            for event in record.events[seen:]:
+                self._emit(self._stage(event, "compared", self._received))
+            payload = self.payload()
+            if payload is not None:
+                self._emit(payload)
+        finally:
+            self._emit = None
         return outputs, record
 
     def result(self, record):

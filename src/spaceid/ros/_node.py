@@ -65,25 +65,26 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
 
-        def publish(outputs):
-            for out in outputs:
-                pubs[out.kind].publish(string_message(json.dumps(out.data, allow_nan=False, default=_null)))
-                show(out)
+        def publish(out):
+            pubs[out.kind].publish(string_message(json.dumps(out.data, allow_nan=False, default=_null)))
+            show(out)
 
         try:
             while until is None or not until():
                 executor.spin_once(timeout_sec=SPIN)
-                while inbox:
-                    batch, inbox[:] = inbox[:], []
-                    for topic, msg, received in sorted(batch, key=lambda x: _order(x[1])):
-                        publish(live.add(topic, msg, received))
+                while inbox:  # everything queued in one batch: one estimate, one payload check
+                    held = -1
+                    while len(inbox) != held:  # take in what else has arrived
+                        held = len(inbox)
+                        executor.spin_once(timeout_sec=0)
+                    batch, inbox[:] = sorted(inbox, key=lambda x: _order(x[1])), []
+                    live.add_batch(batch, publish)
                     payload = live.payload()
-                    publish([payload] if payload is not None else [])
-                    executor.spin_once(timeout_sec=0)
+                    if payload is not None:
+                        publish(payload)
         except KeyboardInterrupt:
             pass
-        outputs, record = live.finish()
-        publish(outputs)
+        outputs, record = live.finish(publish)
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
     return outputs, record
