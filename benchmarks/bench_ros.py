@@ -74,22 +74,24 @@ def capacity(run, grasp, repeats, label):
     from spaceid.ros._node import _messages
 
     messages = list(_messages(run.recording, 0, JointState, PoseStamped))
-    rates, payloads = [], 0
+    rates, cpus, payloads = [], [], 0
     for _ in range(repeats + 1):  # the first warms the compiled kernels up: not counted
         live = _live()
         topics = (live.aligner.joint_topic, live.aligner.pose_topic)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         for _, is_joint, msg in messages:
             live.add(topics[0] if is_joint else topics[1], msg)
             payloads += live.payload() is not None
         _, record = live.finish()
         rates.append(record.n_samples / (time.perf_counter() - start))
-    rates = rates[1:]
+        cpus.append(record.n_samples / (time.process_time() - cpu))
+    rates, cpus = rates[1:], cpus[1:]
     origin = live._origin / 1e9
     events = ", ".join(f"{e.time + origin - grasp:+.2f}" for e in record.events) if grasp is not None else \
         str(len(record.events))
     print(f"(a) {label}: {record.n_samples} joint samples, {len(messages)} messages: {statistics.median(rates):.0f} "
-          f"samples/s (range {min(rates):.0f}..{max(rates):.0f}, {repeats} runs); events "
+          f"samples/s (range {min(rates):.0f}..{max(rates):.0f}, {repeats} runs; of CPU time "
+          f"{statistics.median(cpus):.0f}); events "
           f"{events}{' s from the grasp' if grasp is not None else ''}; {len(record.segments)} segments identified")
 
 
@@ -116,21 +118,22 @@ def steady(n, repeats):
     log = add_noise(simulate(param, param.true_values, motion, np.arange(n) / 100.0, h, model=model), angle=1e-4,
                     rate=1e-3, seed=0)
     messages = list(_messages(recording_of_log(log), 0, JointState, PoseStamped))
-    rates = []
+    rates, cpus = [], []
     for _ in range(repeats + 1):
         live = LiveMonitor(param, h, reading={"window": 31}, noise=Noise(angle=1e-4, rate=1e-3, attitude=1e-4,
                                                                           base_rate=1e-3),
                            false_alarm_rate=1e-9, estimator=ESTIMATOR, block=BLOCK)
         topics = (live.aligner.joint_topic, live.aligner.pose_topic)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         for _, is_joint, msg in messages:
             live.add(topics[0] if is_joint else topics[1], msg)
         _, record = live.finish()
         rates.append(record.n_samples / (time.perf_counter() - start))
-    rates = rates[1:]
+        cpus.append(record.n_samples / (time.process_time() - cpu))
+    rates, cpus = rates[1:], cpus[1:]
     print(f"(a) steady, Cepheus at 100 Hz without a change: {record.n_samples} joint samples, {len(record.events)} "
           f"events: {statistics.median(rates):.0f} samples/s (range {min(rates):.0f}..{max(rates):.0f}, "
-          f"{repeats} runs)")
+          f"{repeats} runs; of CPU time {statistics.median(cpus):.0f})")
 
 
 def over_dds(run, grasp, rate_factor, block):
@@ -138,6 +141,7 @@ def over_dds(run, grasp, rate_factor, block):
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
     from std_msgs.msg import String
 
     from spaceid.data import write_bag
@@ -154,48 +158,70 @@ def over_dds(run, grasp, rate_factor, block):
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if name == "events" else DurabilityPolicy.VOLATILE)
         node.create_subscription(String, f"/spaceid/{name}",
                                  lambda m, name=name: got[name].append((time.monotonic(), json.loads(m.data))), qos)
+    joints = []  # (stamp [ns], arrival here): when each joint state reached this process
+    node.create_subscription(JointState, "/joint_states", lambda m: joints.append(
+        (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, time.monotonic())),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))  # fmt: skip
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     cli = [sys.executable, "-m", "spaceid.cli", "ros"]
+    logs = [open(folder / f"{name}.log", "w") for name in ("monitor", "play")]  # noqa: SIM115  (pipes could fill)
     monitor = subprocess.Popen(cli + ["monitor", "cepheus-rw", "--momentum", "0", "--known", f"Iczz_wheel={ROTOR}",
                                       "--warmup", "100", "--noise-angle", "1e-3", "--noise-rate", "1e-2",
                                       "--noise-base-rate", "1e-2", "--window", "25", "--link", "link2",
                                       "--block", str(block), "--estimator", ESTIMATOR,
                                       "-o", str(folder / "events.json")],
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               env=env, stdout=logs[0], stderr=subprocess.STDOUT, text=True)
     play = subprocess.Popen(cli + ["play", str(folder / "run.mcap"), "--rate-factor", str(rate_factor)], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    while play.poll() is None:
-        executor.spin_once(timeout_sec=0.05)
-    ended = time.monotonic()
-    settle = ended + max(5.0, 2 * block / rate_factor + 2.0)
-    while time.monotonic() < settle:
-        executor.spin_once(timeout_sec=0.05)
-    monitor.send_signal(signal.SIGINT)
-    while monitor.poll() is None:  # the rest is published at the interrupt: keep listening
-        executor.spin_once(timeout_sec=0.05)
-    _, err = monitor.communicate()
+                            stdout=logs[1], stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 600
+    try:
+        while play.poll() is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        ended = time.monotonic()
+        settle = ended + max(5.0, 2 * block / rate_factor + 2.0)
+        while time.monotonic() < settle:
+            executor.spin_once(timeout_sec=0.05)
+        monitor.send_signal(signal.SIGINT)
+        while monitor.poll() is None and time.monotonic() < deadline:  # the rest is published at the interrupt
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        for p in (monitor, play):
+            if p.poll() is None:
+                print(f"killed {p.args[4]} at the deadline")
+                p.kill()
+            p.wait()
+        for f in logs:
+            f.close()
     if monitor.returncode != 0:
-        print(f"monitor exit code {monitor.returncode}: {err.strip().splitlines()[-1:]}")
+        print(f"monitor exit code {monitor.returncode}: {(folder / 'monitor.log').read_text().strip().splitlines()[-1:]}")
     executor.shutdown()
     node.destroy_node()
     context.try_shutdown()
     n = run.recording.joints.t.size
-    by_end = [d["n_samples"] for t, d in got["estimate"] if t <= ended + 0.01]
-    last = max((d["n_samples"] for _, d in got["estimate"]), default=0)
-    print(f"(b) {rate_factor:g}x real time: {50 * rate_factor:.0f} joint samples/s in ({n} in {play.returncode=}); "
-          f"estimates published {len(got['estimate'])}; samples in the last estimate before the player ended "
-          f"{max(by_end, default=0)}, after it {last} (the last {block:g} s block waits for the next messages "
-          f"or Ctrl-C)")
-    for _, e in got["events"]:
-        t = e["time"] + e["time_origin_ns"] / 1e9
-        print(f"    event {e['index']} at {t - grasp:+.3f} s from the grasp (data clock; detected at "
-              f"{e['detected_at'] + e['time_origin_ns'] / 1e9 - grasp:+.3f} s): latency {1000 * e['latency_s']:.1f} ms "
-              f"from the completing message to the publication")
-    lat = [e["latency_s"] for _, e in got["events"]]
+    arrival = dict(joints)
+    stamps = np.array(sorted(arrival))
+    lags = []  # each estimate's publication after the arrival here of its last sample's joint state
+    for t, d in got["estimate"]:
+        k = np.searchsorted(stamps, d["time_origin_ns"] + round(d["time"] * 1e9))
+        if k < stamps.size:
+            lags.append(t - arrival[stamps[k]])
+    print(f"(b) {rate_factor:g}x real time: {50 * rate_factor:.0f} joint samples/s in ({n} in {play.returncode=}), "
+          f"block {block:g} s; {len(got['estimate'])} estimates published, each after the arrival of its last "
+          f"sample's joint state (which waits half a differentiator window, 0.25 s of data, for its rate): "
+          + (f"median {statistics.median(lags):.3f} s, max {max(lags):.3f} s" if lags else "none"))
+    for t, e in got["events"]:
+        origin = e["time_origin_ns"] / 1e9
+        k = np.searchsorted(stamps, e["time_origin_ns"] + round(e["detected_at"] * 1e9))
+        seen = f"{t - arrival[stamps[k]]:.3f} s" if k < stamps.size else "?"
+        print(f"    event {e['index']} {e['stage']}: at {e['time'] + origin - grasp:+.3f} s from the grasp (data "
+              f"clock; detected at {e['detected_at'] + origin - grasp:+.3f} s); published {1000 * e['latency_s']:.1f} ms "
+              f"after the arrival of the message that completed the revealing sample (the monitor's latency_s); "
+              f"received here {seen} after the revealing sample's own joint state")
+    lat = [e["latency_s"] for _, e in got["events"] if e["stage"] == "detected"]
     if lat:
-        print(f"    latency median {1000 * statistics.median(lat):.1f} ms, max {1000 * max(lat):.1f} ms "
-              f"({len(lat)} events)")
+        print(f"    alarm latency median {1000 * statistics.median(lat):.1f} ms, max {1000 * max(lat):.1f} ms "
+              f"({len(lat)} alarms)")
 
 
 def main():

@@ -154,6 +154,9 @@ class MessageAligner:
         Publishers of the joint topic (recorded in the parts' ``meta``).
     held : int
         Messages held now.
+    settled : float
+        How long [s] before the last joint stamp the last part ended: a sample is returned once a
+        joint state this much later is held (half the widest differentiator window plus a step).
 
     The messages are ``sensor_msgs/JointState`` and ``geometry_msgs/PoseStamped`` as rosbags
     deserialises them or rclpy receives them (any object with their fields).
@@ -171,6 +174,8 @@ class MessageAligner:
         self.publishers = 1
         self._held = {self.joint_topic: [], self.pose_topic: []}
         self._done, self._origin, self._due = -np.inf, None, None
+        self._last_quat = None  # the last sample's attitude returned
+        self.settled = 0.0
 
     @property
     def held(self) -> int:
@@ -178,18 +183,29 @@ class MessageAligner:
 
     def add(self, topic: str, msg) -> Log | None:
         """Hold one message of ``topic``; the log of the samples it completes, or None."""
+        self.hold(topic, msg)
+        return self.align()
+
+    def hold(self, topic: str, msg):
+        """Hold one message of ``topic`` without aligning (:meth:`align` aligns what is held)."""
         self._held[topic].append(msg)
-        joint_msgs, pose_msgs = self._held.values()
         if self._due is None and topic == self.joint_topic:
             self._due = _stamp(msg) + int(max(self.block, FIRST_BLOCK) * 1e9)
-        if not (pose_msgs and len(joint_msgs) > 1 and _stamp(joint_msgs[-1]) > self._due):
+
+    def align(self) -> Log | None:
+        """The log of the samples that the messages held complete, once ``block`` seconds of joint
+        states have come since the last part (else None): a live node holds what arrived at once
+        and aligns it in one part."""
+        joint_msgs, pose_msgs = self._held.values()
+        if not (pose_msgs and len(joint_msgs) > 1 and self._due is not None and _stamp(joint_msgs[-1]) > self._due):
             return None
         self._due = _stamp(joint_msgs[-1]) + int(self.block * 1e9)  # the next part: ``block`` more seconds
         if self._origin is None:
             self._origin = min(_stamp(joint_msgs[0]), _stamp(pose_msgs[0])) // _NS * _NS
         log = self._log(joint_msgs, pose_msgs)
         half = _settled(log)
-        part = log.select((log.t > self._done) & (log.t <= log.t[-1] - half))
+        part = self._continued(log.select((log.t > self._done) & (log.t <= log.t[-1] - half)))
+        self.settled = half
         if part.n_samples:
             self._done = float(part.t[-1])
         keep = self._origin + int((self._done - half) * 1e9)  # the left half window of the next part's first sample
@@ -199,8 +215,18 @@ class MessageAligner:
     def flush(self) -> Log | None:
         """The samples not yet returned, from the messages held (origin None: fewer than one block)."""
         log = self._log(*self._held.values())
-        part = log.select(log.t > self._done)
+        part = self._continued(log.select(log.t > self._done))
         return part if part.n_samples else None
+
+    def _continued(self, part: Log) -> Log:
+        """``part`` with its attitude quaternions' sign continued from the last part's (each part's
+        conversion starts its sign-continuous quaternion afresh: ``q`` and ``-q`` are one attitude),
+        so that the parts of any block are those of the whole."""
+        if part.n_samples:
+            if self._last_quat is not None and part.base_quat[0] @ self._last_quat < 0:
+                part.base_quat[...] *= -1.0  # the part's own copy
+            self._last_quat = part.base_quat[-1].copy()
+        return part
 
     def _log(self, joint_msgs, pose_msgs) -> Log:
         recording = _recording(self.source, joint_msgs, pose_msgs, self.publishers, **self._topics,

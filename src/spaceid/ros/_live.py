@@ -11,7 +11,9 @@ they double.
 
 from __future__ import annotations
 
+import bisect
 import collections
+import math
 import time
 import warnings
 from dataclasses import dataclass
@@ -21,11 +23,17 @@ import numpy as np
 from .._errors import SpaceidError
 from ..data import Log, MessageAligner
 
-__all__ = ["LIVE_BLOCK", "LiveMonitor", "LiveOutput"]
+__all__ = ["LIVE_BLOCK", "LIVE_ORDER", "LiveMonitor", "LiveOutput"]
 
-LIVE_BLOCK = 2.0
-"""Seconds of joint states the live monitor aligns at a time (:class:`~spaceid.data.MessageAligner`):
-a part reaches the monitor this long after its first message, plus half a differentiator window."""
+LIVE_BLOCK = 0.1
+"""Fewest seconds of joint states the live monitor aligns at a time (:class:`~spaceid.data.MessageAligner`;
+the messages that arrived together are aligned at once, however many): a sample reaches the monitor
+at most this long after the message that completes it (half a differentiator window after it)."""
+LIVE_ORDER = 3
+"""Savitzky-Golay degree of the live monitor's differentiators when the window is given and the
+degree is not: a degree chosen part by part would change the rates' filter from part to part."""
+ARRIVALS = 20_000
+"""Most recent messages whose arrival is remembered, to time the alarms from."""
 MAX_HELD = 50_000
 """Most messages held unaligned: more means the pose topic is silent (the joint states wait for it)."""
 HISTORY = 6000
@@ -61,6 +69,11 @@ def _plain(value):
     if isinstance(value, float) and not np.isfinite(value):
         return None
     return value
+
+
+def _stamp(msg) -> int:
+    """A message's header stamp [ns]."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 def _concatenate(parts) -> Log:
@@ -104,9 +117,12 @@ class LiveMonitor:
         m = param.model
         self.param, self.link, self.where = param, link, where
         self.monitor = Monitor(param, momentum, where=where, on_alarm=self._alarmed, **options)
+        reading = dict(reading or {})
+        if reading.get("window") is not None and reading.get("order") is None:
+            reading["order"] = LIVE_ORDER
         self.aligner = MessageAligner(where, joints=m.joints, planar=m.planar, wheels=m.wheels, mapping=mapping,
                                       joint_topic=joint_topic, pose_topic=pose_topic, block=block, kind="ros2-live",
-                                      **(reading or {}))  # fmt: skip
+                                      **reading)  # fmt: skip
         self._pmap = None
         if link is not None:
             from ..identified import payload_map
@@ -115,7 +131,8 @@ class LiveMonitor:
         self._recent = collections.deque()  # the latest parts, at most HISTORY samples
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
         self.n_messages, self.busy = 0, 0.0
-        self._emit, self._received = None, None  # where the outputs go; the arrival of the part's last message
+        self._emit = None  # where the outputs go
+        self._arrivals = {t: collections.deque(maxlen=ARRIVALS) for t in (self.aligner.joint_topic, self.aligner.pose_topic)}
         self._origin = None  # the published times are seconds after this ROS time [ns]
 
     def add(self, topic: str, msg, received: float | None = None) -> list:
@@ -125,33 +142,34 @@ class LiveMonitor:
         return self.add_batch([(topic, msg, time.monotonic() if received is None else received)])
 
     def add_batch(self, messages, publish=None) -> list:
-        """Take the messages ``(topic, msg, received)`` that arrived since the last call, in order;
-        the :class:`LiveOutput` they complete: the alarms and events of each aligned part as it is
-        taken, then one estimate (the latest, when a part was taken). ``publish``: called with
-        each output the moment it is made instead (an alarm as the test raises it, before the
-        monitor identifies the segment it closes); then the list is empty."""
-        start, taken = time.perf_counter(), False
-        outputs = []
+        """Take the messages ``(topic, msg, received)`` that arrived since the last call, in stamp
+        order, and align them at once (one part, when ``block`` seconds of joint states have come
+        since the last); the :class:`LiveOutput` they complete: the part's alarms and events, then
+        the estimate. ``publish``: called with each output the moment it is made instead (an
+        alarm as the test raises it, before the monitor identifies the segment it closes); then
+        the list returned is empty."""
+        start, outputs = time.perf_counter(), []
         self._emit = publish or outputs.append
         try:
             for topic, msg, received in messages:
-                part = self._align(topic, msg)
-                if part is not None:
-                    self._take(part, received)
-                    taken = True
-            estimate = self.estimate() if taken else None
-            if estimate is not None:
-                self._emit(LiveOutput("estimate", estimate))
+                self.aligner.hold(topic, msg)
+                self._arrivals[topic].append((_stamp(msg), received))
+            self.n_messages += len(messages)
+            part = self._align()
+            if part is not None:
+                self._take(part)
+                estimate = self.estimate()
+                if estimate is not None:
+                    self._emit(LiveOutput("estimate", estimate))
         finally:
             self._emit = None
         self.busy += time.perf_counter() - start
         return outputs
 
-    def _align(self, topic: str, msg) -> Log | None:
-        """The aligned part that the message completes, or None."""
-        self.n_messages += 1
+    def _align(self) -> Log | None:
+        """The aligned part that the messages held complete, or None."""
         try:
-            part = self.aligner.add(topic, msg)
+            part = self.aligner.align()
         except SpaceidError as err:  # a block the differentiator refuses: retried with the next block's messages
             warnings.warn(f"{err}: the samples wait for the next block", stacklevel=3)
             part = None
@@ -160,15 +178,28 @@ class LiveMonitor:
                                f"'{self.aligner.pose_topic}': publish the base attitude there, or map its topic")
         return part
 
-    def _take(self, part: Log, received: float):
+    def _take(self, part: Log):
         """Emit the alarms and events of one aligned part: each alarm as soon as the test raises it
         (``stage`` "detected"), each event once the segment after it has its warm-up identified
         (``stage`` "compared", with the changed parameters)."""
         self._origin = part.meta.get("time_origin_ns", self._origin)
         self._remember(part)
-        self._received = received
         for event in self.monitor.update(part):
-            self._emit(self._stage(event, "compared", received))
+            self._emit(self._stage(event, "compared", self._completed(event.detected_at)))
+
+    def _completed(self, t: float) -> float:
+        """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``time.monotonic``]
+        of the first joint state that settles it (``settled`` later) or, if later, of the first
+        pose at or after it; now when none came yet (the end of the run), NaN when forgotten."""
+        due = {self.aligner.joint_topic: t + self.aligner.settled, self.aligner.pose_topic: t}
+        found = []
+        for topic, arrivals in self._arrivals.items():
+            ns = self._origin + round(due[topic] * 1e9)
+            if arrivals and arrivals[0][0] > ns:  # forgotten
+                return math.nan
+            k = bisect.bisect_left(arrivals, (ns, -math.inf))
+            found.append(arrivals[k][1] if k < len(arrivals) else time.monotonic())
+        return max(found)
 
     def _remember(self, part: Log):
         self._recent.append(part)
@@ -179,7 +210,7 @@ class LiveMonitor:
         """The monitor's alarm: its message at once; the payload after it is due from now on."""
         if self._pmap is not None:
             self._payload_event, self._payload_due = alarm, 0
-        self._emit(self._stage(alarm, "detected", self._received))
+        self._emit(self._stage(alarm, "detected", self._completed(alarm.detected_at)))
 
     def _stage(self, event, stage: str, received: float) -> LiveOutput:
         """An alarm's or an event's message on ``/spaceid/events``."""
@@ -240,15 +271,14 @@ class LiveMonitor:
             except SpaceidError:  # fewer messages than the differentiator needs: nothing to add
                 part = None
             if part is not None:
-                self._take(part, time.monotonic())
+                self._take(part)
                 estimate = self.estimate()
                 if estimate is not None:
                     self._emit(LiveOutput("estimate", estimate))
             seen = len(self.monitor.events)
-            self._received = time.monotonic()
             record = self.monitor.finish()
             for event in record.events[seen:]:
-                self._emit(self._stage(event, "compared", self._received))
+                self._emit(self._stage(event, "compared", self._completed(event.detected_at)))
             payload = self.payload()
             if payload is not None:
                 self._emit(payload)

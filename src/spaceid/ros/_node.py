@@ -10,7 +10,7 @@ import time
 import numpy as np
 
 from .._errors import SpaceidError
-from ._live import LiveMonitor
+from ._live import LiveMonitor, _stamp as _stamp_ns
 from ._rclpy import as_pose, pose_class, qos, ros_context, string_message
 
 __all__ = ["EVENTS_TOPIC", "ESTIMATE_TOPIC", "PAYLOAD_TOPIC", "run_monitor", "play_recording"]
@@ -77,7 +77,7 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
                     while len(inbox) != held:  # take in what else has arrived
                         held = len(inbox)
                         executor.spin_once(timeout_sec=0)
-                    batch, inbox[:] = sorted(inbox, key=lambda x: _order(x[1])), []
+                    batch, inbox[:] = sorted(inbox, key=lambda x: _stamp_ns(x[1])), []
                     live.add_batch(batch, publish)
                     payload = live.payload()
                     if payload is not None:
@@ -88,11 +88,6 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
     return outputs, record
-
-
-def _order(msg) -> int:
-    """A message's header stamp [ns]: the order the aligner takes the messages of a batch in."""
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
 def _null(value):
