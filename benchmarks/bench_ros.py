@@ -95,6 +95,54 @@ def capacity(run, grasp, repeats, label):
           f"{events}{' s from the grasp' if grasp is not None else ''}; {len(record.segments)} segments identified")
 
 
+def queue(run, grasp, factor, repeats):
+    """LiveMonitor fed as the node feeds it, without the middleware: the run's messages arrive at
+    ``factor`` times real time (each at its stamp's offset over ``factor`` after the start) and each
+    call takes all that have arrived (:meth:`~spaceid.ros.LiveMonitor.add_batch`, then the payload
+    check). Kept up when the last message is processed shortly after it arrives; the alarm's
+    latency from the arrival of the message that completed its revealing sample."""
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import JointState
+
+    from spaceid.ros._node import _messages
+
+    messages = list(_messages(run.recording, 0, JointState, PoseStamped))
+    t0 = messages[0][0]
+    lags, latencies, behind = [], [], []
+    for _ in range(repeats + 1):  # the first warms the compiled kernels up: not counted
+        live = _live()
+        topics = (live.aligner.joint_topic, live.aligner.pose_topic)
+        alarms, most = [], 0.0
+        start, k = time.monotonic(), 0
+        while k < len(messages):
+            now = time.monotonic()
+            due = start + (messages[k][0] - t0) / factor
+            if due > now:
+                time.sleep(due - now)
+                continue
+            j = k
+            while j < len(messages) and start + (messages[j][0] - t0) / factor <= now:
+                j += 1
+            batch = [(topics[0] if m[1] else topics[1], m[2], start + (m[0] - t0) / factor) for m in messages[k:j]]
+            most = max(most, now - batch[0][2])  # the oldest message's wait in the queue
+            k = j
+            out = live.add_batch(batch)
+            alarms += [o.data for o in out if o.kind == "event" and o.data["stage"] == "detected"]
+            live.payload()
+        lags.append(time.monotonic() - (start + (messages[-1][0] - t0) / factor))
+        behind.append(most)
+        latencies += [a["latency_s"] for a in alarms]
+        live.finish()
+    lags, behind = lags[1:], behind[1:]
+    n = run.recording.joints.t.size
+    rate = n / (run.recording.joints.t[-1] - run.recording.joints.t[0]) * factor
+    lat = (f"alarm latency median {1000 * statistics.median(latencies):.0f} ms (range {1000 * min(latencies):.0f}.."
+           f"{1000 * max(latencies):.0f}, {len(latencies)} alarms)") if latencies else "no alarm"
+    print(f"(a) queue at {factor:g}x real time, {rate:.0f} joint samples/s in: the last message processed "
+          f"{statistics.median(lags):.2f} s after its arrival (range {min(lags):.2f}..{max(lags):.2f}, {repeats} runs); "
+          f"longest wait in the queue {max(behind):.2f} s; {lat}")
+
+
 def steady(n, repeats):
     """Joint samples per second that LiveMonitor takes a long run without a change at: Cepheus at
     100 Hz, the two-joint sine motion of bench_monitor.py (h = 0.5 N m s, 1e-4 rad on the angles
@@ -232,6 +280,8 @@ def main():
     ap.add_argument("--block", type=float, default=LIVE_BLOCK, help="seconds of joint states aligned at a time")
     ap.add_argument("--parts", nargs="+", default=["a", "b"])
     ap.add_argument("--steady-samples", type=int, default=6000)
+    ap.add_argument("--queue", type=float, nargs="*", default=[1.0, 10.0],
+                    help="speed-ups over real time of the queue runs (10: 500 joint samples/s)")
     ap.add_argument("--estimator", default="ml", help="of the monitor's batch identifications")
     args = ap.parse_args()
     global ESTIMATOR, BLOCK
@@ -242,6 +292,8 @@ def main():
         capacity(quiet, None, args.repeats, "no change")
         capacity(run, grasp, args.repeats, "grasp 4 s in")
         steady(args.steady_samples, args.repeats)
+        for factor in args.queue:
+            queue(run, grasp, factor, args.repeats)
     if "b" in args.parts:
         over_dds(run, grasp, args.rate_factor, args.block)
 

@@ -83,8 +83,16 @@ class _Listener:
 
 
 def _start(args, env, cwd):
-    return subprocess.Popen([sys.executable, "-m", "spaceid.cli", *args], env=env, cwd=cwd, text=True,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)  # fmt: skip
+    """The CLI in a process of its own, its output to a file (a pipe read only at the end could fill and block it)."""
+    with open(cwd / f"{args[1]}.out", "w") as out:
+        return subprocess.Popen([sys.executable, "-m", "spaceid.cli", *args], env=env, cwd=cwd, text=True, stdout=out,
+                                stderr=subprocess.STDOUT)  # fmt: skip
+
+
+def _output(process, cwd, name) -> str:
+    """What ``process`` printed, once it has ended (at most a minute)."""
+    process.wait(timeout=60)
+    return (cwd / f"{name}.out").read_text()
 
 
 RATE_FACTOR = "0.5"
@@ -107,8 +115,8 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
         twin = _start(["ros", "twin", "--capture", "--ideal", "--seed", "1", "--duration", "12", "--rate-factor",
                        RATE_FACTOR], env, tmp_path)  # fmt: skip
         assert listener.wait(lambda: twin.poll() is not None, TIMEOUT, [monitor]), "the twin did not finish"
-        out, err_text = twin.communicate(timeout=60)
-        assert twin.returncode == 0, err_text
+        out = _output(twin, tmp_path, "twin")
+        assert twin.returncode == 0, out
         grasp = float(re.search(r"grasp at (\S+) s", out)[1])
 
         def near():
@@ -123,14 +131,14 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
         assert abs(payload["mass"] - 0.5) <= 2 * payload["std"]["mass"], payload
         monitor.send_signal(signal.SIGINT)
         assert listener.wait(lambda: monitor.poll() is not None, TIMEOUT), "the monitor did not stop on SIGINT"
-        out, err_text = monitor.communicate(timeout=60)
-        assert monitor.returncode == 0, err_text
+        out = _output(monitor, tmp_path, "monitor")
+        assert monitor.returncode == 0, out
         listener.wait(lambda: False, 1.0)  # what the interrupt completed
     finally:
         for p in (monitor, twin):
             if p is not None and p.poll() is None:
                 p.kill()
-                p.communicate(timeout=60)
+                p.wait(timeout=60)
         listener.close()
     written = json.loads((tmp_path / "events.json").read_text())
     compared = [e["index"] for e in listener.got["events"] if e["stage"] == "compared"]

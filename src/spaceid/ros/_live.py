@@ -1,12 +1,13 @@
 """The live monitor's engine, without ROS: messages in (as a subscription receives them), the
 messages to publish out. :func:`spaceid.ros.run_monitor` feeds it from rclpy subscriptions.
 
-Each message goes to a :class:`~spaceid.data.MessageAligner` (the bag reader's, with the same
-mapping: topics, joint names, latency, rate); each aligned part to a
-:class:`~spaceid.estimation.Monitor`. After each part the running estimate is published; each
-event as the monitor completes it; with a ``link``, the payload after each change, identified
-from the samples after it (:func:`~spaceid.identified.payload_after_grasp`) and refined each time
-they double.
+The messages that arrived together go to a :class:`~spaceid.data.MessageAligner` (the bag
+reader's, with the same mapping: topics, joint names, latency, rate), aligned in one part once
+``block`` seconds of joint states have come; each part to a :class:`~spaceid.estimation.Monitor`.
+Each alarm is published the moment the test raises it, its event (the parameters that changed)
+once the monitor completes it a warm-up later; after each part the running estimate; with a
+``link``, the payload after each alarm, identified from the samples after it
+(:func:`~spaceid.identified.payload_after_grasp`) and refined each time they double.
 """
 
 from __future__ import annotations

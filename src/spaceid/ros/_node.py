@@ -3,8 +3,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import signal
+import threading
 import time
 
 import numpy as np
@@ -69,10 +72,10 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
             pubs[out.kind].publish(string_message(json.dumps(out.data, allow_nan=False, default=_null)))
             show(out)
 
-        try:
-            while until is None or not until():
+        with _interrupt_flag() as interrupted:
+            while not interrupted() and (until is None or not until()):
                 executor.spin_once(timeout_sec=SPIN)
-                while inbox:  # everything queued in one batch: one estimate, one payload check
+                while inbox and not interrupted():  # everything queued in one batch: one estimate, one payload check
                     held = -1
                     while len(inbox) != held:  # take in what else has arrived
                         held = len(inbox)
@@ -82,12 +85,26 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
                     payload = live.payload()
                     if payload is not None:
                         publish(payload)
-        except KeyboardInterrupt:
-            pass
         outputs, record = live.finish(publish)
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
     return outputs, record
+
+
+@contextlib.contextmanager
+def _interrupt_flag():
+    """Within it, Ctrl-C (SIGINT) sets a flag (the callable yielded says whether it came) instead of
+    raising KeyboardInterrupt: raised inside rclpy's executor, the exception could leave a handle
+    held, and destroying the node then waited for it forever. Outside the main thread: no handler."""
+    came = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield came.is_set
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: came.set())
+    try:
+        yield came.is_set
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _null(value):
