@@ -70,11 +70,11 @@ seen, started, ended = [], time.monotonic(), None
 
 
 def done():
-    """The player ended 2 s ago, or 120 s have passed."""
+    """The player ended 5 s ago (its last messages are in), or 120 s have passed."""
     global ended
     if ended is None and player.poll() is not None:
         ended = time.monotonic()
-    return (ended is not None and time.monotonic() > ended + 2.0) or time.monotonic() > started + 120.0
+    return (ended is not None and time.monotonic() > ended + 5.0) or time.monotonic() > started + 120.0
 
 
 try:
@@ -90,7 +90,8 @@ print(f"{record.n_samples} samples monitored in {time.monotonic() - started:.1f}
 # What was published
 # ------------------
 # On ``/spaceid/events`` each change comes twice: the alarm the moment the test raises it
-# (``stage`` "detected": the estimated change time, the sample that crossed the threshold), and
+# (``stage`` "detected": the estimated change time, the sample that crossed the threshold, with
+# ``latency_s`` from the arrival of the message that completed that sample), and
 # its comparison once the segment after it has a warm-up identified (``stage`` "compared":
 # which parameters changed, with their z-scores). On ``/spaceid/payload``, the payload that
 # ``link2`` holds, identified from the samples after the alarm, first after a warm-up of them
@@ -105,7 +106,7 @@ for wall, out in seen:
         origin = d["time_origin_ns"] / 1e9
         print(f"[{wall:5.1f} s] change {d['index']} {d['stage']}: at {d['time'] + origin:.2f} s "
               f"(grasp {grasp:.2f} s; detected at {d['detected_at'] + origin:.2f} s), published "
-              f"{1000 * d['latency_s']:.0f} ms after its part's last message")
+              f"{1000 * d['latency_s']:.0f} ms after the message that completed the revealing sample")
     elif out.kind == "payload" and "mass" in d:
         print(f"[{wall:5.1f} s] payload after change {d['event']}: {d['mass']:.3f} +/- {d['std']['mass']:.3f} kg "
               f"from {d['n_samples']} samples")
