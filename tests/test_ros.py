@@ -195,7 +195,7 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag):
     from spaceid import load_model, minimal_parameters
     from spaceid.data import bag_chunks
     from spaceid.estimation import Noise, monitor
-    from spaceid.ros import LIVE_BLOCK, LIVE_ORDER
+    from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
 
     bag, grasp = twin_bag
     live = _live(link="link2")
@@ -210,7 +210,8 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag):
     outputs += [(parts, o) for o in rest]
     m = load_model("cepheus-rw")
     expected = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels,
-                                                         block=LIVE_BLOCK, window=25, order=LIVE_ORDER),
+                                                         block=LIVE_BLOCK, context=LIVE_CONTEXT, window=25,
+                                                         order=LIVE_ORDER),
                        np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
                        noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
     assert [e.time for e in record.events] == [e.time for e in expected.events] and record.events

@@ -145,6 +145,11 @@ class MessageAligner:
         Seconds of joint states [s] aligned at a time.
     kind : str, optional
         The ``format`` recorded in each part's ``meta`` (default: the bag's, from ``source``).
+    context : float
+        Seconds of messages before each part's first sample aligned with it (at least the left
+        half differentiator window): parts of a tenth of a second are too short for the
+        differentiator's checks of the sampling (a joint that barely moves in them reads as
+        quantised); with a fixed window and degree the samples are the same.
 
     Attributes
     ----------
@@ -163,11 +168,11 @@ class MessageAligner:
     """
 
     def __init__(self, source, *, joints, planar, wheels=(), mapping=None, joint_topic=None, pose_topic=None,
-                 block=BLOCK, kind=None, **options):
+                 block=BLOCK, kind=None, context=0.0, **options):
         if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
             raise SpaceidError(f"`block`: {block!r} is not a positive number: give the seconds of messages aligned "
                                "at a time")
-        self.source, self.block, self.kind = Path(source), float(block), kind
+        self.source, self.block, self.kind, self.context = Path(source), float(block), kind, float(context)
         self._topics, self._keywords = _bag_settings(mapping, joint_topic, pose_topic, options)
         self.joint_topic, self.pose_topic = self._topics["joint_topic"], self._topics["pose_topic"]
         self._model = {"joints": joints, "planar": planar, "wheels": wheels}
@@ -208,7 +213,8 @@ class MessageAligner:
         self.settled = half
         if part.n_samples:
             self._done = float(part.t[-1])
-        keep = self._origin + int((self._done - half) * 1e9)  # the left half window of the next part's first sample
+        # the left half window of the next part's first sample, and ``context`` seconds for the checks of short parts
+        keep = self._origin + int((self._done - max(half, self.context)) * 1e9)
         self._held = {t: [m for m in msgs if _stamp(m) >= keep] for t, msgs in self._held.items()}
         return part if part.n_samples else None
 

@@ -24,12 +24,15 @@ import numpy as np
 from .._errors import SpaceidError
 from ..data import Log, MessageAligner
 
-__all__ = ["LIVE_BLOCK", "LIVE_ORDER", "LiveMonitor", "LiveOutput"]
+__all__ = ["LIVE_BLOCK", "LIVE_CONTEXT", "LIVE_ORDER", "LiveMonitor", "LiveOutput"]
 
 LIVE_BLOCK = 0.1
 """Fewest seconds of joint states the live monitor aligns at a time (:class:`~spaceid.data.MessageAligner`;
 the messages that arrived together are aligned at once, however many): a sample reaches the monitor
 at most this long after the message that completes it (half a differentiator window after it)."""
+LIVE_CONTEXT = 2.0
+"""Seconds of messages before each part aligned with it (:class:`~spaceid.data.MessageAligner`'s
+``context``): the differentiator's checks of the sampling see a record this long."""
 LIVE_ORDER = 3
 """Savitzky-Golay degree of the live monitor's differentiators when the window is given and the
 degree is not: a degree chosen part by part would change the rates' filter from part to part."""
@@ -123,7 +126,7 @@ class LiveMonitor:
             reading["order"] = LIVE_ORDER
         self.aligner = MessageAligner(where, joints=m.joints, planar=m.planar, wheels=m.wheels, mapping=mapping,
                                       joint_topic=joint_topic, pose_topic=pose_topic, block=block, kind="ros2-live",
-                                      **reading)  # fmt: skip
+                                      context=LIVE_CONTEXT, **reading)  # fmt: skip
         self._pmap = None
         if link is not None:
             from ..identified import payload_map
