@@ -1,5 +1,5 @@
 """The live monitor on ROS 2 (``spaceid ros monitor``): the input rate it keeps up with, and the
-time from the message that reveals a change to the published event.
+time from the message that reveals a change to the published alarm.
 
 The ideal Cepheus twin (cepheus-rw, wheel at 170 rad/s) grasps 0.5 kg 4 s into a ``--duration``
 s run of paper-table2: encoders at 50 Hz, motion capture at 100 Hz. The monitor's settings are
@@ -7,26 +7,32 @@ those of tests/test_ros.py (rates differentiated over 25 samples, 100-sample war
 levels given).
 
 (a) capacity, no middleware: the run's messages (rclpy message objects, built beforehand) fed
-    to :class:`spaceid.ros.LiveMonitor` as fast as it takes them, ``--repeats`` times: joint-state
-    samples per second of wall time (alignment, differentiation, the monitor, the estimate after
-    each part and the payload after each event included), median and range;
-    Then a steady run without a change (``--steady-samples`` at 100 Hz on Cepheus, the sine motion
+    to :class:`spaceid.ros.LiveMonitor` one by one, as fast as it takes them (parts of
+    ``--block`` s), ``--repeats`` times: joint-state samples per second of wall time and of this
+    process's processor time (alignment, differentiation, the monitor, the alarms, the events,
+    the estimate after each part and the payload after each alarm included), median and range;
+    then a steady run without a change (``--steady-samples`` at 100 Hz on Cepheus, the sine motion
     of bench_monitor.py; one warm-up, then only the test): where the per-sample costs dominate;
+    then queue runs: the messages arriving at each ``--queue`` factor times real time (10: 500
+    joint samples/s) and taken in batches of all that have arrived, as the node takes them
+    (:meth:`~spaceid.ros.LiveMonitor.add_batch`): how long after its arrival the last message
+    was processed (kept up: about one part's processing), the longest wait in the queue, and the
+    alarms' ``latency_s``;
 (b) over DDS on the loopback (localhost discovery, a domain of its own): ``spaceid ros play`` of
     the run's bag at ``--rate-factor`` times real time (50 x F joint samples/s in, plus 100 x F
-    poses/s), the monitor in its own process, this process subscribed to its topics: whether it
-    kept up (the samples of the last estimate published before the player ended, against those
-    aligned by then) and, per event, ``latency_s``: from the arrival of the message that completed
-    the aligned part holding the revealing samples to the event's publication; with the event's
-    time on the data clock after the grasp. The parts are aligned every ``--block`` s of data: the
-    revealing sample waits up to that (over F in wall time) plus half a differentiator window
-    for its part, and an event is complete a warm-up (100 samples) after the alarm; those waits
-    are the data's, printed apart.
+    poses/s), the monitor in its own process, this process subscribed to its topics and to the
+    joint states: each estimate's publication after the arrival here of its last sample's joint
+    state and, per alarm and event, ``latency_s`` (from the arrival of the message that completed
+    the revealing sample, half a differentiator window after it, to the publication) and the
+    time from the revealing sample's own joint state to the message's arrival here, with the
+    event's time on the data clock after the grasp. The data's own waits: the revealing sample's
+    rate needs half a differentiator window (0.25 s of data), its part up to ``--block`` s more;
+    the event's comparison needs the warm-up after the alarm.
 
 Prints only; never fails on the figures.
 
     python benchmarks/bench_ros.py [--duration 12] [--repeats 3] [--rate-factor 1] [--steady-samples 6000]
-        [--estimator ml] [--parts a b]
+        [--queue 1 10] [--block 0.1] [--estimator ml] [--parts a b]
 """
 
 import argparse
@@ -139,7 +145,8 @@ def queue(run, grasp, factor, repeats):
     lat = (f"alarm latency median {1000 * statistics.median(latencies):.0f} ms (range {1000 * min(latencies):.0f}.."
            f"{1000 * max(latencies):.0f}, {len(latencies)} alarms)") if latencies else "no alarm"
     print(f"(a) queue at {factor:g}x real time, {rate:.0f} joint samples/s in: the last message processed "
-          f"{statistics.median(lags):.2f} s after its arrival (range {min(lags):.2f}..{max(lags):.2f}, {repeats} runs); "
+          f"{statistics.median(lags):.2f} s after its arrival (range {min(lags):.2f}..{max(lags):.2f}, "
+          f"{repeats} runs); "
           f"longest wait in the queue {max(behind):.2f} s; {lat}")
 
 
@@ -242,7 +249,8 @@ def over_dds(run, grasp, rate_factor, block):
         for f in logs:
             f.close()
     if monitor.returncode != 0:
-        print(f"monitor exit code {monitor.returncode}: {(folder / 'monitor.log').read_text().strip().splitlines()[-1:]}")
+        last = (folder / "monitor.log").read_text().strip().splitlines()[-1:]
+        print(f"monitor exit code {monitor.returncode}: {last}")
     executor.shutdown()
     node.destroy_node()
     context.try_shutdown()
@@ -263,7 +271,8 @@ def over_dds(run, grasp, rate_factor, block):
         k = np.searchsorted(stamps, e["time_origin_ns"] + round(e["detected_at"] * 1e9))
         seen = f"{t - arrival[stamps[k]]:.3f} s" if k < stamps.size else "?"
         print(f"    event {e['index']} {e['stage']}: at {e['time'] + origin - grasp:+.3f} s from the grasp (data "
-              f"clock; detected at {e['detected_at'] + origin - grasp:+.3f} s); published {1000 * e['latency_s']:.1f} ms "
+              f"clock; detected at {e['detected_at'] + origin - grasp:+.3f} s); published "
+              f"{1000 * e['latency_s']:.1f} ms "
               f"after the arrival of the message that completed the revealing sample (the monitor's latency_s); "
               f"received here {seen} after the revealing sample's own joint state")
     lat = [e["latency_s"] for _, e in got["events"] if e["stage"] == "detected"]

@@ -105,7 +105,8 @@ class LiveMonitor:
     link : str, optional
         The link that grasps: the payload is identified after each change.
     block : float
-        Seconds of joint states aligned at a time (``LIVE_BLOCK``).
+        Fewest seconds of joint states aligned at a time (``LIVE_BLOCK``): what arrived together is
+        aligned in one part.
     reading : dict, optional
         Further :func:`~spaceid.data.to_log` keywords (``joint_rates``, ``window``, ``quantum``).
     where : str
@@ -136,7 +137,8 @@ class LiveMonitor:
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
         self.n_messages, self.busy = 0, 0.0
         self._emit = None  # where the outputs go
-        self._arrivals = {t: collections.deque(maxlen=ARRIVALS) for t in (self.aligner.joint_topic, self.aligner.pose_topic)}
+        topics = (self.aligner.joint_topic, self.aligner.pose_topic)
+        self._arrivals = {t: collections.deque(maxlen=ARRIVALS) for t in topics}  # (stamp [ns], arrival [s])
         self._origin = None  # the published times are seconds after this ROS time [ns]
 
     def add(self, topic: str, msg, received: float | None = None) -> list:
@@ -162,9 +164,6 @@ class LiveMonitor:
             part = self._align()
             if part is not None:
                 self._take(part)
-                estimate = self.estimate()
-                if estimate is not None:
-                    self._emit(LiveOutput("estimate", estimate))
         finally:
             self._emit = None
         self.busy += time.perf_counter() - start
@@ -185,11 +184,14 @@ class LiveMonitor:
     def _take(self, part: Log):
         """Emit the alarms and events of one aligned part: each alarm as soon as the test raises it
         (``stage`` "detected"), each event once the segment after it has its warm-up identified
-        (``stage`` "compared", with the changed parameters)."""
+        (``stage`` "compared", with the changed parameters); then the running estimate."""
         self._origin = part.meta.get("time_origin_ns", self._origin)
         self._remember(part)
         for event in self.monitor.update(part):
             self._emit(self._stage(event, "compared", self._completed(event.detected_at)))
+        estimate = self.estimate()
+        if estimate is not None:
+            self._emit(LiveOutput("estimate", estimate))
 
     def _completed(self, t: float) -> float:
         """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``time.monotonic``]
@@ -276,9 +278,6 @@ class LiveMonitor:
                 part = None
             if part is not None:
                 self._take(part)
-                estimate = self.estimate()
-                if estimate is not None:
-                    self._emit(LiveOutput("estimate", estimate))
             seen = len(self.monitor.events)
             record = self.monitor.finish()
             for event in record.events[seen:]:
