@@ -146,8 +146,8 @@ class MessageAligner:
     kind : str, optional
         The ``format`` recorded in each part's ``meta`` (default: the bag's, from ``source``).
     context : float
-        Seconds of messages before each part's first sample aligned with it (at least the left
-        half differentiator window): parts of a tenth of a second are too short for the
+        Fewest seconds of messages aligned at a time: each part with those before it (at least the
+        left half differentiator window): parts of a tenth of a second are too short for the
         differentiator's checks of the sampling (a joint that barely moves in them reads as
         quantised); with a fixed window and degree the samples are the same.
 
@@ -213,8 +213,8 @@ class MessageAligner:
         self.settled = half
         if part.n_samples:
             self._done = float(part.t[-1])
-        # the left half window of the next part's first sample, and ``context`` seconds for the checks of short parts
-        keep = self._origin + int((self._done - max(half, self.context)) * 1e9)
+        # the left half window of the next part's first sample; records of ``context`` seconds for the checks
+        keep = self._origin + int((self._done - max(half, self.context - self.block)) * 1e9)
         self._held = {t: [m for m in msgs if _stamp(m) >= keep] for t, msgs in self._held.items()}
         return part if part.n_samples else None
 

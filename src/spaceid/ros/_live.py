@@ -31,8 +31,10 @@ LIVE_BLOCK = 0.1
 the messages that arrived together are aligned at once, however many): a sample reaches the monitor
 at most this long after the message that completes it (half a differentiator window after it)."""
 LIVE_CONTEXT = 2.0
-"""Seconds of messages before each part aligned with it (:class:`~spaceid.data.MessageAligner`'s
-``context``): the differentiator's checks of the sampling see a record this long."""
+"""Fewest seconds of messages aligned at a time, each part with those before it
+(:class:`~spaceid.data.MessageAligner`'s ``context``): the differentiator's checks of the sampling
+see a record this long (with ``LIVE_BLOCK``, each second of data is aligned about 20 times: the
+price of the short wait; a larger ``block`` costs less)."""
 LIVE_ORDER = 3
 """Savitzky-Golay degree of the live monitor's differentiators when the window is given and the
 degree is not: a degree chosen part by part would change the rates' filter from part to part."""
