@@ -1,5 +1,5 @@
 """The live monitor on ROS 2 (``spaceid ros monitor``): the input rate it keeps up with, and the
-time from the message that reveals a change to the published event.
+time from the message that reveals a change to the published alarm.
 
 The ideal Cepheus twin (cepheus-rw, wheel at 170 rad/s) grasps 0.5 kg 4 s into a ``--duration``
 s run of paper-table2: encoders at 50 Hz, motion capture at 100 Hz. The monitor's settings are
@@ -7,26 +7,32 @@ those of tests/test_ros.py (rates differentiated over 25 samples, 100-sample war
 levels given).
 
 (a) capacity, no middleware: the run's messages (rclpy message objects, built beforehand) fed
-    to :class:`spaceid.ros.LiveMonitor` as fast as it takes them, ``--repeats`` times: joint-state
-    samples per second of wall time (alignment, differentiation, the monitor, the estimate after
-    each part and the payload after each event included), median and range;
-    Then a steady run without a change (``--steady-samples`` at 100 Hz on Cepheus, the sine motion
+    to :class:`spaceid.ros.LiveMonitor` one by one, as fast as it takes them (parts of
+    ``--block`` s), ``--repeats`` times: joint-state samples per second of wall time and of this
+    process's processor time (alignment, differentiation, the monitor, the alarms, the events,
+    the estimate after each part and the payload after each alarm included), median and range;
+    then a steady run without a change (``--steady-samples`` at 100 Hz on Cepheus, the sine motion
     of bench_monitor.py; one warm-up, then only the test): where the per-sample costs dominate;
+    then queue runs: the messages arriving at each ``--queue`` factor times real time (10: 500
+    joint samples/s) and taken in batches of all that have arrived, as the node takes them
+    (:meth:`~spaceid.ros.LiveMonitor.add_batch`): how long after its arrival the last message
+    was processed (kept up: about one part's processing), the longest wait in the queue, and the
+    alarms' ``latency_s``;
 (b) over DDS on the loopback (localhost discovery, a domain of its own): ``spaceid ros play`` of
     the run's bag at ``--rate-factor`` times real time (50 x F joint samples/s in, plus 100 x F
-    poses/s), the monitor in its own process, this process subscribed to its topics: whether it
-    kept up (the samples of the last estimate published before the player ended, against those
-    aligned by then) and, per event, ``latency_s``: from the arrival of the message that completed
-    the aligned part holding the revealing samples to the event's publication; with the event's
-    time on the data clock after the grasp. The parts are aligned every ``--block`` s of data: the
-    revealing sample waits up to that (over F in wall time) plus half a differentiator window
-    for its part, and an event is complete a warm-up (100 samples) after the alarm; those waits
-    are the data's, printed apart.
+    poses/s), the monitor in its own process, this process subscribed to its topics and to the
+    joint states: each estimate's publication after the arrival here of its last sample's joint
+    state and, per alarm and event, ``latency_s`` (from the arrival of the message that completed
+    the revealing sample, half a differentiator window after it, to the publication) and the
+    time from the revealing sample's own joint state to the message's arrival here, with the
+    event's time on the data clock after the grasp. The data's own waits: the revealing sample's
+    rate needs half a differentiator window (0.25 s of data), its part up to ``--block`` s more;
+    the event's comparison needs the warm-up after the alarm.
 
 Prints only; never fails on the figures.
 
     python benchmarks/bench_ros.py [--duration 12] [--repeats 3] [--rate-factor 1] [--steady-samples 6000]
-        [--estimator ml] [--parts a b]
+        [--queue 1 10] [--block 0.1] [--estimator ml] [--parts a b]
 """
 
 import argparse
@@ -44,7 +50,7 @@ import numpy as np
 
 from spaceid import load_model, minimal_parameters
 from spaceid.estimation import Noise
-from spaceid.ros import LiveMonitor, twin_recording
+from spaceid.ros import LIVE_BLOCK, LiveMonitor, twin_recording
 from spaceid.studies import capture_protocol
 
 ROTOR = 0.00197372
@@ -57,12 +63,13 @@ def _run(duration, capture=True):
 
 
 ESTIMATOR = "ml"
+BLOCK = LIVE_BLOCK
 
 
 def _live():
     param = minimal_parameters(load_model("cepheus-rw"))
     return LiveMonitor(param, np.zeros(3), link="link2", reading={"window": 25}, known={"Iczz_wheel": ROTOR},
-                       warmup=100, noise=NOISE, estimator=ESTIMATOR)
+                       warmup=100, noise=NOISE, estimator=ESTIMATOR, block=BLOCK)
 
 
 def capacity(run, grasp, repeats, label):
@@ -73,23 +80,74 @@ def capacity(run, grasp, repeats, label):
     from spaceid.ros._node import _messages
 
     messages = list(_messages(run.recording, 0, JointState, PoseStamped))
-    rates, payloads = [], 0
+    rates, cpus, payloads = [], [], 0
     for _ in range(repeats + 1):  # the first warms the compiled kernels up: not counted
         live = _live()
         topics = (live.aligner.joint_topic, live.aligner.pose_topic)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         for _, is_joint, msg in messages:
             live.add(topics[0] if is_joint else topics[1], msg)
             payloads += live.payload() is not None
         _, record = live.finish()
         rates.append(record.n_samples / (time.perf_counter() - start))
-    rates = rates[1:]
+        cpus.append(record.n_samples / (time.process_time() - cpu))
+    rates, cpus = rates[1:], cpus[1:]
     origin = live._origin / 1e9
     events = ", ".join(f"{e.time + origin - grasp:+.2f}" for e in record.events) if grasp is not None else \
         str(len(record.events))
     print(f"(a) {label}: {record.n_samples} joint samples, {len(messages)} messages: {statistics.median(rates):.0f} "
-          f"samples/s (range {min(rates):.0f}..{max(rates):.0f}, {repeats} runs); events "
+          f"samples/s (range {min(rates):.0f}..{max(rates):.0f}, {repeats} runs; of CPU time "
+          f"{statistics.median(cpus):.0f}); events "
           f"{events}{' s from the grasp' if grasp is not None else ''}; {len(record.segments)} segments identified")
+
+
+def queue(run, grasp, factor, repeats):
+    """LiveMonitor fed as the node feeds it, without the middleware: the run's messages arrive at
+    ``factor`` times real time (each at its stamp's offset over ``factor`` after the start) and each
+    call takes all that have arrived (:meth:`~spaceid.ros.LiveMonitor.add_batch`, then the payload
+    check). Kept up when the last message is processed shortly after it arrives; the alarm's
+    latency from the arrival of the message that completed its revealing sample."""
+    from geometry_msgs.msg import PoseStamped
+    from sensor_msgs.msg import JointState
+
+    from spaceid.ros._node import _messages
+
+    messages = list(_messages(run.recording, 0, JointState, PoseStamped))
+    t0 = messages[0][0]
+    lags, latencies, behind = [], [], []
+    for _ in range(repeats + 1):  # the first warms the compiled kernels up: not counted
+        live = _live()
+        topics = (live.aligner.joint_topic, live.aligner.pose_topic)
+        alarms, most = [], 0.0
+        start, k = time.monotonic(), 0
+        while k < len(messages):
+            now = time.monotonic()
+            due = start + (messages[k][0] - t0) / factor
+            if due > now:
+                time.sleep(due - now)
+                continue
+            j = k
+            while j < len(messages) and start + (messages[j][0] - t0) / factor <= now:
+                j += 1
+            batch = [(topics[0] if m[1] else topics[1], m[2], start + (m[0] - t0) / factor) for m in messages[k:j]]
+            most = max(most, now - batch[0][2])  # the oldest message's wait in the queue
+            k = j
+            out = live.add_batch(batch)
+            alarms += [o.data for o in out if o.kind == "event" and o.data["stage"] == "detected"]
+            live.payload()
+        lags.append(time.monotonic() - (start + (messages[-1][0] - t0) / factor))
+        behind.append(most)
+        latencies += [a["latency_s"] for a in alarms]
+        live.finish()
+    lags, behind = lags[1:], behind[1:]
+    n = run.recording.joints.t.size
+    rate = n / (run.recording.joints.t[-1] - run.recording.joints.t[0]) * factor
+    lat = (f"alarm latency median {1000 * statistics.median(latencies):.0f} ms (range {1000 * min(latencies):.0f}.."
+           f"{1000 * max(latencies):.0f}, {len(latencies)} alarms)") if latencies else "no alarm"
+    print(f"(a) queue at {factor:g}x real time, {rate:.0f} joint samples/s in: the last message processed "
+          f"{statistics.median(lags):.2f} s after its arrival (range {min(lags):.2f}..{max(lags):.2f}, "
+          f"{repeats} runs); "
+          f"longest wait in the queue {max(behind):.2f} s; {lat}")
 
 
 def steady(n, repeats):
@@ -115,21 +173,22 @@ def steady(n, repeats):
     log = add_noise(simulate(param, param.true_values, motion, np.arange(n) / 100.0, h, model=model), angle=1e-4,
                     rate=1e-3, seed=0)
     messages = list(_messages(recording_of_log(log), 0, JointState, PoseStamped))
-    rates = []
+    rates, cpus = [], []
     for _ in range(repeats + 1):
         live = LiveMonitor(param, h, reading={"window": 31}, noise=Noise(angle=1e-4, rate=1e-3, attitude=1e-4,
                                                                           base_rate=1e-3),
-                           false_alarm_rate=1e-9, estimator=ESTIMATOR)
+                           false_alarm_rate=1e-9, estimator=ESTIMATOR, block=BLOCK)
         topics = (live.aligner.joint_topic, live.aligner.pose_topic)
-        start = time.perf_counter()
+        start, cpu = time.perf_counter(), time.process_time()
         for _, is_joint, msg in messages:
             live.add(topics[0] if is_joint else topics[1], msg)
         _, record = live.finish()
         rates.append(record.n_samples / (time.perf_counter() - start))
-    rates = rates[1:]
+        cpus.append(record.n_samples / (time.process_time() - cpu))
+    rates, cpus = rates[1:], cpus[1:]
     print(f"(a) steady, Cepheus at 100 Hz without a change: {record.n_samples} joint samples, {len(record.events)} "
           f"events: {statistics.median(rates):.0f} samples/s (range {min(rates):.0f}..{max(rates):.0f}, "
-          f"{repeats} runs)")
+          f"{repeats} runs; of CPU time {statistics.median(cpus):.0f})")
 
 
 def over_dds(run, grasp, rate_factor, block):
@@ -137,6 +196,7 @@ def over_dds(run, grasp, rate_factor, block):
     from rclpy.context import Context
     from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    from sensor_msgs.msg import JointState
     from std_msgs.msg import String
 
     from spaceid.data import write_bag
@@ -153,48 +213,72 @@ def over_dds(run, grasp, rate_factor, block):
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if name == "events" else DurabilityPolicy.VOLATILE)
         node.create_subscription(String, f"/spaceid/{name}",
                                  lambda m, name=name: got[name].append((time.monotonic(), json.loads(m.data))), qos)
+    joints = []  # (stamp [ns], arrival here): when each joint state reached this process
+    node.create_subscription(JointState, "/joint_states", lambda m: joints.append(
+        (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, time.monotonic())),
+        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))  # fmt: skip
     executor = SingleThreadedExecutor(context=context)
     executor.add_node(node)
     cli = [sys.executable, "-m", "spaceid.cli", "ros"]
+    logs = [open(folder / f"{name}.log", "w") for name in ("monitor", "play")]  # noqa: SIM115  (pipes could fill)
     monitor = subprocess.Popen(cli + ["monitor", "cepheus-rw", "--momentum", "0", "--known", f"Iczz_wheel={ROTOR}",
                                       "--warmup", "100", "--noise-angle", "1e-3", "--noise-rate", "1e-2",
                                       "--noise-base-rate", "1e-2", "--window", "25", "--link", "link2",
                                       "--block", str(block), "--estimator", ESTIMATOR,
                                       "-o", str(folder / "events.json")],
-                               env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                               env=env, stdout=logs[0], stderr=subprocess.STDOUT, text=True)
     play = subprocess.Popen(cli + ["play", str(folder / "run.mcap"), "--rate-factor", str(rate_factor)], env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    while play.poll() is None:
-        executor.spin_once(timeout_sec=0.05)
-    ended = time.monotonic()
-    settle = ended + max(5.0, 2 * block / rate_factor + 2.0)
-    while time.monotonic() < settle:
-        executor.spin_once(timeout_sec=0.05)
-    monitor.send_signal(signal.SIGINT)
-    while monitor.poll() is None:  # the rest is published at the interrupt: keep listening
-        executor.spin_once(timeout_sec=0.05)
-    _, err = monitor.communicate()
+                            stdout=logs[1], stderr=subprocess.STDOUT, text=True)
+    deadline = time.monotonic() + 600
+    try:
+        while play.poll() is None and time.monotonic() < deadline:
+            executor.spin_once(timeout_sec=0.05)
+        ended = time.monotonic()
+        settle = ended + max(5.0, 2 * block / rate_factor + 2.0)
+        while time.monotonic() < settle:
+            executor.spin_once(timeout_sec=0.05)
+        monitor.send_signal(signal.SIGINT)
+        while monitor.poll() is None and time.monotonic() < deadline:  # the rest is published at the interrupt
+            executor.spin_once(timeout_sec=0.05)
+    finally:
+        for p in (monitor, play):
+            if p.poll() is None:
+                print(f"killed {p.args[4]} at the deadline")
+                p.kill()
+            p.wait()
+        for f in logs:
+            f.close()
     if monitor.returncode != 0:
-        print(f"monitor exit code {monitor.returncode}: {err.strip().splitlines()[-1:]}")
+        last = (folder / "monitor.log").read_text().strip().splitlines()[-1:]
+        print(f"monitor exit code {monitor.returncode}: {last}")
     executor.shutdown()
     node.destroy_node()
     context.try_shutdown()
     n = run.recording.joints.t.size
-    by_end = [d["n_samples"] for t, d in got["estimate"] if t <= ended + 0.01]
-    last = max((d["n_samples"] for _, d in got["estimate"]), default=0)
-    print(f"(b) {rate_factor:g}x real time: {50 * rate_factor:.0f} joint samples/s in ({n} in {play.returncode=}); "
-          f"estimates published {len(got['estimate'])}; samples in the last estimate before the player ended "
-          f"{max(by_end, default=0)}, after it {last} (the last {block:g} s block waits for the next messages "
-          f"or Ctrl-C)")
-    for _, e in got["events"]:
-        t = e["time"] + e["time_origin_ns"] / 1e9
-        print(f"    event {e['index']} at {t - grasp:+.3f} s from the grasp (data clock; detected at "
-              f"{e['detected_at'] + e['time_origin_ns'] / 1e9 - grasp:+.3f} s): latency {1000 * e['latency_s']:.1f} ms "
-              f"from the completing message to the publication")
-    lat = [e["latency_s"] for _, e in got["events"]]
+    arrival = dict(joints)
+    stamps = np.array(sorted(arrival))
+    lags = []  # each estimate's publication after the arrival here of its last sample's joint state
+    for t, d in got["estimate"]:
+        k = np.searchsorted(stamps, d["time_origin_ns"] + round(d["time"] * 1e9))
+        if k < stamps.size:
+            lags.append(t - arrival[stamps[k]])
+    print(f"(b) {rate_factor:g}x real time: {50 * rate_factor:.0f} joint samples/s in ({n} in {play.returncode=}), "
+          f"block {block:g} s; {len(got['estimate'])} estimates published, each after the arrival of its last "
+          f"sample's joint state (which waits half a differentiator window, 0.25 s of data, for its rate): "
+          + (f"median {statistics.median(lags):.3f} s, max {max(lags):.3f} s" if lags else "none"))
+    for t, e in got["events"]:
+        origin = e["time_origin_ns"] / 1e9
+        k = np.searchsorted(stamps, e["time_origin_ns"] + round(e["detected_at"] * 1e9))
+        seen = f"{t - arrival[stamps[k]]:.3f} s" if k < stamps.size else "?"
+        print(f"    event {e['index']} {e['stage']}: at {e['time'] + origin - grasp:+.3f} s from the grasp (data "
+              f"clock; detected at {e['detected_at'] + origin - grasp:+.3f} s); published "
+              f"{1000 * e['latency_s']:.1f} ms "
+              f"after the arrival of the message that completed the revealing sample (the monitor's latency_s); "
+              f"received here {seen} after the revealing sample's own joint state")
+    lat = [e["latency_s"] for _, e in got["events"] if e["stage"] == "detected"]
     if lat:
-        print(f"    latency median {1000 * statistics.median(lat):.1f} ms, max {1000 * max(lat):.1f} ms "
-              f"({len(lat)} events)")
+        print(f"    alarm latency median {1000 * statistics.median(lat):.1f} ms, max {1000 * max(lat):.1f} ms "
+              f"({len(lat)} alarms)")
 
 
 def main():
@@ -202,19 +286,23 @@ def main():
     ap.add_argument("--duration", type=float, default=12.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--rate-factor", type=float, default=1.0)
-    ap.add_argument("--block", type=float, default=2.0)
+    ap.add_argument("--block", type=float, default=LIVE_BLOCK, help="seconds of joint states aligned at a time")
     ap.add_argument("--parts", nargs="+", default=["a", "b"])
     ap.add_argument("--steady-samples", type=int, default=6000)
+    ap.add_argument("--queue", type=float, nargs="*", default=[1.0, 10.0],
+                    help="speed-ups over real time of the queue runs (10: 500 joint samples/s)")
     ap.add_argument("--estimator", default="ml", help="of the monitor's batch identifications")
     args = ap.parse_args()
-    global ESTIMATOR
-    ESTIMATOR = args.estimator
+    global ESTIMATOR, BLOCK
+    ESTIMATOR, BLOCK = args.estimator, args.block
     run, grasp = _run(args.duration)
     if "a" in args.parts:
         quiet, _ = _run(args.duration, capture=False)
         capacity(quiet, None, args.repeats, "no change")
         capacity(run, grasp, args.repeats, "grasp 4 s in")
         steady(args.steady_samples, args.repeats)
+        for factor in args.queue:
+            queue(run, grasp, factor, args.repeats)
     if "b" in args.parts:
         over_dds(run, grasp, args.rate_factor, args.block)
 

@@ -182,7 +182,6 @@ NO_OPTION = {
     "boundary": "optimize_excitation's boundary values: the design command keeps the default",
     "initial": "optimize_excitation's warm start: the design command gives none",
     "method": "optimize_excitation's search method, differentiate's differentiator: the commands keep 'auto'",
-    "order": "differentiate's Savitzky-Golay order: the commands choose it (a bag's --window sets the window)",
     "smoothing": "differentiate's spline smoothing: the commands use Savitzky-Golay filters",
     "regressor": "optimize_excitation's regressor callable: design_excitation builds it",
     "n_grid": "optimize_excitation's limit-check grid: the design command keeps the default",

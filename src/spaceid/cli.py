@@ -1715,18 +1715,21 @@ SUBSCRIBERS = click.option("--subscribers", type=click.IntRange(min=0), default=
 @click.option("--estimator", type=click.Choice([e for e in ESTIMATORS if e != "angles"]), default="ml",
               show_default=True, help="Estimator of the segments' batch identifications, as for 'spaceid monitor' "
               "(wls takes about half ml's time: benchmarks/bench_ros.py).")
-@click.option("--block", type=SECONDS, default=2.0, show_default=True, metavar="SECONDS",
-              help="Seconds of joint states aligned at a time (the messages held are bounded by it).")
+@click.option("--block", type=SECONDS, default=0.1, show_default=True, metavar="SECONDS",
+              help="Fewest seconds of joint states aligned at a time (the messages that arrived together are aligned "
+                   "at once): a sample waits up to this long after the message that completes it.")
 @click.option("--joint-rates", type=click.Choice(["differentiate", "auto", "velocity"]), default="differentiate",
               show_default=True, help="Joint rates differentiated from the angles, or the published velocities.")
 @click.option("--window", type=click.IntRange(min=3), metavar="SAMPLES", help="Savitzky-Golay window of every "
               "differentiated series [samples, odd; default: chosen per aligned block, which varies from block to "
               "block: give one for a steady test].")
+@click.option("--order", type=click.IntRange(min=1), help="Savitzky-Golay degree of the differentiators [default: "
+              "3 with --window, else chosen per aligned block].")
 @output("EVENTS.json to write: after each event and at Ctrl-C.")
 @click.option("--result", type=_OutputPath(), metavar="PATH", help="RESULT.json written at Ctrl-C: the last "
               "segment's identification [default: result.json beside -o].")
 def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, pose_type, link, known, noise, drift,
-                false_alarm_rate, warmup, estimator, block, joint_rates, window, output, result):
+                false_alarm_rate, warmup, estimator, block, joint_rates, window, order, output, result):
     """Subscribe to the robot's joint states and base attitude, align them by their header stamps
     (as a bag is read, with its mapping file), identify recursively and detect changes as the
     messages arrive: publish the estimate with its standard errors on /spaceid/estimate, one
@@ -1740,7 +1743,7 @@ def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, p
     param = _param(model_src, planar)
     live = LiveMonitor(param, _momentum(momentum, param.model.planar), mapping=mapping, joint_topic=joint_topic,
                        pose_topic=pose_topic, link=link, block=block,
-                       reading={"joint_rates": joint_rates, "window": window},
+                       reading={"joint_rates": joint_rates, "window": window, "order": order},
                        where="ros2", known=parse_known(known), noise=noise,
                        drift=_drift(drift, param.model.planar, values=False), false_alarm_rate=false_alarm_rate,
                        warmup=warmup, estimator=estimator)  # fmt: skip
@@ -1748,10 +1751,13 @@ def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, p
     err.print(f"listening on {live.aligner.joint_topic} and {live.aligner.pose_topic}; Ctrl-C ends", highlight=False)
 
     def shown(item):
-        if item.kind == "event":
-            d = item.data
-            out.print(f"change {d['index']} at t = {d['time']:.6g} s (detected at {d['detected_at']:.6g} s); changed: "
-                      f"{', '.join(d['changed']) or 'none'}", highlight=False)
+        d = item.data
+        if item.kind == "event" and d["stage"] == "detected":
+            out.print(f"change {d['index']} at t = {d['time']:.6g} s (detected at {d['detected_at']:.6g} s)",
+                      highlight=False)
+        elif item.kind == "event":
+            out.print(f"change {d['index']} at t = {d['time']:.6g} s: changed {', '.join(d['changed']) or 'none'}",
+                      highlight=False)
             write_json(output, live.monitor.record().to_dict())
         elif item.kind == "payload" and "mass" in item.data:
             out.print(f"payload after change {item.data['event']}: mass {item.data['mass']:.4g} +/- "

@@ -22,6 +22,9 @@ __all__ = ["is_bag", "read_bag_log", "bag_chunks", "MessageAligner"]
 
 BLOCK = 10.0
 """Seconds of joint states that :func:`bag_chunks` aligns at a time."""
+FIRST_BLOCK = 1.0
+"""Fewest seconds of joint states in the first part: its differentiators' windows must fit in it
+(a live monitor aligns blocks of a tenth of a second)."""
 
 
 def is_bag(path) -> bool:
@@ -142,6 +145,11 @@ class MessageAligner:
         Seconds of joint states [s] aligned at a time.
     kind : str, optional
         The ``format`` recorded in each part's ``meta`` (default: the bag's, from ``source``).
+    context : float
+        Fewest seconds of messages aligned at a time: each part with those before it (at least the
+        left half differentiator window): parts of a tenth of a second are too short for the
+        differentiator's checks of the sampling (a joint that barely moves in them reads as
+        quantised); with a fixed window and degree the samples are the same.
 
     Attributes
     ----------
@@ -151,23 +159,28 @@ class MessageAligner:
         Publishers of the joint topic (recorded in the parts' ``meta``).
     held : int
         Messages held now.
+    settled : float
+        How long [s] before the last joint stamp the last part ended: a sample is returned once a
+        joint state this much later is held (half the widest differentiator window plus a step).
 
     The messages are ``sensor_msgs/JointState`` and ``geometry_msgs/PoseStamped`` as rosbags
     deserialises them or rclpy receives them (any object with their fields).
     """
 
     def __init__(self, source, *, joints, planar, wheels=(), mapping=None, joint_topic=None, pose_topic=None,
-                 block=BLOCK, kind=None, **options):
+                 block=BLOCK, kind=None, context=0.0, **options):
         if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
             raise SpaceidError(f"`block`: {block!r} is not a positive number: give the seconds of messages aligned "
                                "at a time")
-        self.source, self.block, self.kind = Path(source), float(block), kind
+        self.source, self.block, self.kind, self.context = Path(source), float(block), kind, float(context)
         self._topics, self._keywords = _bag_settings(mapping, joint_topic, pose_topic, options)
         self.joint_topic, self.pose_topic = self._topics["joint_topic"], self._topics["pose_topic"]
         self._model = {"joints": joints, "planar": planar, "wheels": wheels}
         self.publishers = 1
         self._held = {self.joint_topic: [], self.pose_topic: []}
         self._done, self._origin, self._due = -np.inf, None, None
+        self._last_quat = None  # the last sample's attitude returned
+        self.settled = 0.0
 
     @property
     def held(self) -> int:
@@ -175,29 +188,51 @@ class MessageAligner:
 
     def add(self, topic: str, msg) -> Log | None:
         """Hold one message of ``topic``; the log of the samples it completes, or None."""
+        self.hold(topic, msg)
+        return self.align()
+
+    def hold(self, topic: str, msg):
+        """Hold one message of ``topic`` without aligning (:meth:`align` aligns what is held)."""
         self._held[topic].append(msg)
-        joint_msgs, pose_msgs = self._held.values()
         if self._due is None and topic == self.joint_topic:
-            self._due = _stamp(msg) + int(self.block * 1e9)
-        if not (pose_msgs and len(joint_msgs) > 1 and _stamp(joint_msgs[-1]) > self._due):
+            self._due = _stamp(msg) + int(max(self.block, FIRST_BLOCK) * 1e9)
+
+    def align(self) -> Log | None:
+        """The log of the samples that the messages held complete, once ``block`` seconds of joint
+        states have come since the last part (else None): a live node holds what arrived at once
+        and aligns it in one part."""
+        joint_msgs, pose_msgs = self._held.values()
+        if not (pose_msgs and len(joint_msgs) > 1 and self._due is not None and _stamp(joint_msgs[-1]) > self._due):
             return None
         self._due = _stamp(joint_msgs[-1]) + int(self.block * 1e9)  # the next part: ``block`` more seconds
         if self._origin is None:
             self._origin = min(_stamp(joint_msgs[0]), _stamp(pose_msgs[0])) // _NS * _NS
         log = self._log(joint_msgs, pose_msgs)
         half = _settled(log)
-        part = log.select((log.t > self._done) & (log.t <= log.t[-1] - half))
+        part = self._continued(log.select((log.t > self._done) & (log.t <= log.t[-1] - half)))
+        self.settled = half
         if part.n_samples:
             self._done = float(part.t[-1])
-        keep = self._origin + int((self._done - half) * 1e9)  # the left half window of the next part's first sample
+        # the left half window of the next part's first sample; records of ``context`` seconds for the checks
+        keep = self._origin + int((self._done - max(half, self.context - self.block)) * 1e9)
         self._held = {t: [m for m in msgs if _stamp(m) >= keep] for t, msgs in self._held.items()}
         return part if part.n_samples else None
 
     def flush(self) -> Log | None:
         """The samples not yet returned, from the messages held (origin None: fewer than one block)."""
         log = self._log(*self._held.values())
-        part = log.select(log.t > self._done)
+        part = self._continued(log.select(log.t > self._done))
         return part if part.n_samples else None
+
+    def _continued(self, part: Log) -> Log:
+        """``part`` with its attitude quaternions' sign continued from the last part's (each part's
+        conversion starts its sign-continuous quaternion afresh: ``q`` and ``-q`` are one attitude),
+        so that the parts of any block are those of the whole."""
+        if part.n_samples:
+            if self._last_quat is not None and part.base_quat[0] @ self._last_quat < 0:
+                part.base_quat[...] *= -1.0  # the part's own copy
+            self._last_quat = part.base_quat[-1].copy()
+        return part
 
     def _log(self, joint_msgs, pose_msgs) -> Log:
         recording = _recording(self.source, joint_msgs, pose_msgs, self.publishers, **self._topics,

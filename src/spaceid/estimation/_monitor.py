@@ -179,12 +179,16 @@ class Monitor:
         Most samples of a segment kept for its batch identification (evenly thinned beyond it).
     where : str
         Name of the data source, for error messages.
+    on_alarm : callable, optional
+        Called with each alarm (:class:`~spaceid.estimation._monitor_records.Alarm`: the event's
+        time, detection, delay, statistic, threshold and lead, without the comparison) the moment
+        the test raises it, a warm-up before its event: a live node announces the change at once.
     """
 
     def __init__(self, param: Parameterization, momentum, *, known=None, noise: Noise | None = None, drift=(),
                  false_alarm_rate: float = FALSE_ALARM_RATE, change_ratio: float = CHANGE_RATIO,
                  forgetting: float = 1.0, warmup: int | None = None, estimator: str = "ml",
-                 max_segment: int = 4000, where: str = "log"):
+                 max_segment: int = 4000, where: str = "log", on_alarm=None):
         _check_options(forgetting, estimator, noise)
         self.param, self.where, self.drift = param, where, check_drift_kinds(drift)
         self.momentum = np.asarray(momentum, float)
@@ -202,6 +206,7 @@ class Monitor:
         self._intake = Intake(param.model, where, self.drift)
         self._recent = collections.deque(maxlen=self.warmup)  # samples an alarm may hand to the next segment
         self._waiting = None  # the Alarm whose comparison waits for the next warm-up
+        self._on_alarm = on_alarm or (lambda alarm: None)
         self._tested_until = -math.inf  # the last alarm's time [s]: the samples up to it were tested
         self._whitener = None  # the Kalman whitening of differentiated rates' errors (DifferentiatedWhitener)
         self._sigma = None  # the signal noise levels (n_x,), once the noise is known
@@ -516,6 +521,7 @@ class Monitor:
         self._waiting = Alarm(index=len(self.events), time=onset, detected_at=float(row.t), delay=delay,
                               statistic=float(self._cusum.statistic), threshold=self.threshold,
                               lead=(self._intake.window or 0) / 2 * self._intake.step)  # fmt: skip
+        self._on_alarm(self._waiting)
         handed = [r for r in self._recent if r.t >= onset] + [row]
         h = self._momentum_at(handed[0])
         self._close(onset)

@@ -70,6 +70,9 @@ class Alarm:
     threshold: float
     lead: float
 
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
     def event(self, before: Identification | None, after: Identification | None, where: str) -> MonitorEvent:
         """The event, with the change from ``before`` to ``after`` (none when either is missing:
         a segment too short to identify)."""

@@ -1,17 +1,20 @@
 """The live monitor's engine, without ROS: messages in (as a subscription receives them), the
 messages to publish out. :func:`spaceid.ros.run_monitor` feeds it from rclpy subscriptions.
 
-Each message goes to a :class:`~spaceid.data.MessageAligner` (the bag reader's, with the same
-mapping: topics, joint names, latency, rate); each aligned part to a
-:class:`~spaceid.estimation.Monitor`. After each part the running estimate is published; each
-event as the monitor completes it; with a ``link``, the payload after each change, identified
-from the samples after it (:func:`~spaceid.identified.payload_after_grasp`) and refined each time
-they double.
+The messages that arrived together go to a :class:`~spaceid.data.MessageAligner` (the bag
+reader's, with the same mapping: topics, joint names, latency, rate), aligned in one part once
+``block`` seconds of joint states have come; each part to a :class:`~spaceid.estimation.Monitor`.
+Each alarm is published the moment the test raises it, its event (the parameters that changed)
+once the monitor completes it a warm-up later; after each part the running estimate; with a
+``link``, the payload after each alarm, identified from the samples after it
+(:func:`~spaceid.identified.payload_after_grasp`) and refined each time they double.
 """
 
 from __future__ import annotations
 
+import bisect
 import collections
+import math
 import time
 import warnings
 from dataclasses import dataclass
@@ -21,11 +24,22 @@ import numpy as np
 from .._errors import SpaceidError
 from ..data import Log, MessageAligner
 
-__all__ = ["LIVE_BLOCK", "LiveMonitor", "LiveOutput"]
+__all__ = ["LIVE_BLOCK", "LIVE_CONTEXT", "LIVE_ORDER", "LiveMonitor", "LiveOutput"]
 
-LIVE_BLOCK = 2.0
-"""Seconds of joint states the live monitor aligns at a time (:class:`~spaceid.data.MessageAligner`):
-a part reaches the monitor this long after its first message, plus half a differentiator window."""
+LIVE_BLOCK = 0.1
+"""Fewest seconds of joint states the live monitor aligns at a time (:class:`~spaceid.data.MessageAligner`;
+the messages that arrived together are aligned at once, however many): a sample reaches the monitor
+at most this long after the message that completes it (half a differentiator window after it)."""
+LIVE_CONTEXT = 2.0
+"""Fewest seconds of messages aligned at a time, each part with those before it
+(:class:`~spaceid.data.MessageAligner`'s ``context``): the differentiator's checks of the sampling
+see a record this long (with ``LIVE_BLOCK``, each second of data is aligned about 20 times: the
+price of the short wait; a larger ``block`` costs less)."""
+LIVE_ORDER = 3
+"""Savitzky-Golay degree of the live monitor's differentiators when the window is given and the
+degree is not: a degree chosen part by part would change the rates' filter from part to part."""
+ARRIVALS = 20_000
+"""Most recent messages whose arrival is remembered, to time the alarms from."""
 MAX_HELD = 50_000
 """Most messages held unaligned: more means the pose topic is silent (the joint states wait for it)."""
 HISTORY = 6000
@@ -63,6 +77,11 @@ def _plain(value):
     return value
 
 
+def _stamp(msg) -> int:
+    """A message's header stamp [ns]."""
+    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+
+
 def _concatenate(parts) -> Log:
     """One log of consecutive parts (the first part's ``meta``)."""
     first = parts[0]
@@ -88,7 +107,8 @@ class LiveMonitor:
     link : str, optional
         The link that grasps: the payload is identified after each change.
     block : float
-        Seconds of joint states aligned at a time (``LIVE_BLOCK``).
+        Fewest seconds of joint states aligned at a time (``LIVE_BLOCK``): what arrived together is
+        aligned in one part.
     reading : dict, optional
         Further :func:`~spaceid.data.to_log` keywords (``joint_rates``, ``window``, ``quantum``).
     where : str
@@ -103,10 +123,13 @@ class LiveMonitor:
 
         m = param.model
         self.param, self.link, self.where = param, link, where
-        self.monitor = Monitor(param, momentum, where=where, **options)
+        self.monitor = Monitor(param, momentum, where=where, on_alarm=self._alarmed, **options)
+        reading = dict(reading or {})
+        if reading.get("window") is not None and reading.get("order") is None:
+            reading["order"] = LIVE_ORDER
         self.aligner = MessageAligner(where, joints=m.joints, planar=m.planar, wheels=m.wheels, mapping=mapping,
                                       joint_topic=joint_topic, pose_topic=pose_topic, block=block, kind="ros2-live",
-                                      **(reading or {}))  # fmt: skip
+                                      context=LIVE_CONTEXT, **reading)  # fmt: skip
         self._pmap = None
         if link is not None:
             from ..identified import payload_map
@@ -115,47 +138,92 @@ class LiveMonitor:
         self._recent = collections.deque()  # the latest parts, at most HISTORY samples
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
         self.n_messages, self.busy = 0, 0.0
+        self._emit = None  # where the outputs go
+        topics = (self.aligner.joint_topic, self.aligner.pose_topic)
+        self._arrivals = {t: collections.deque(maxlen=ARRIVALS) for t in topics}  # (stamp [ns], arrival [s])
         self._origin = None  # the published times are seconds after this ROS time [ns]
 
     def add(self, topic: str, msg, received: float | None = None) -> list:
         """Take one message of ``topic``; the :class:`LiveOutput` it completes (the estimate after
-        each aligned part, the events), in order. ``received``: its arrival [s, ``time.monotonic``],
-        from which each event's ``latency_s`` is counted (default now)."""
-        received = time.monotonic() if received is None else received
-        start = time.perf_counter()
-        self.n_messages += 1
+        each aligned part, the alarms and events), in order. ``received``: its arrival [s,
+        ``time.monotonic``], from which each event's ``latency_s`` is counted (default now)."""
+        return self.add_batch([(topic, msg, time.monotonic() if received is None else received)])
+
+    def add_batch(self, messages, publish=None) -> list:
+        """Take the messages ``(topic, msg, received)`` that arrived since the last call, in stamp
+        order, and align them at once (one part, when ``block`` seconds of joint states have come
+        since the last); the :class:`LiveOutput` they complete: the part's alarms and events, then
+        the estimate. ``publish``: called with each output the moment it is made instead (an
+        alarm as the test raises it, before the monitor identifies the segment it closes); then
+        the list returned is empty."""
+        start, outputs = time.perf_counter(), []
+        self._emit = publish or outputs.append
         try:
-            part = self.aligner.add(topic, msg)
+            for topic, msg, received in messages:
+                self.aligner.hold(topic, msg)
+                self._arrivals[topic].append((_stamp(msg), received))
+            self.n_messages += len(messages)
+            part = self._align()
+            if part is not None:
+                self._take(part)
+        finally:
+            self._emit = None
+        self.busy += time.perf_counter() - start
+        return outputs
+
+    def _align(self) -> Log | None:
+        """The aligned part that the messages held complete, or None."""
+        try:
+            part = self.aligner.align()
         except SpaceidError as err:  # a block the differentiator refuses: retried with the next block's messages
-            warnings.warn(f"{err}: the samples wait for the next block", stacklevel=2)
+            warnings.warn(f"{err}: the samples wait for the next block", stacklevel=3)
             part = None
         if part is None and self.aligner.held > MAX_HELD:
             raise SpaceidError(f"`pose_topic`: {self.aligner.held} messages wait for a base pose on "
                                f"'{self.aligner.pose_topic}': publish the base attitude there, or map its topic")
-        outputs = [] if part is None else self._take(part, received)
-        self.busy += time.perf_counter() - start
-        return outputs
+        return part
 
-    def _take(self, part: Log, received: float) -> list:
-        """The outputs of one aligned part."""
+    def _take(self, part: Log):
+        """Emit the alarms and events of one aligned part: each alarm as soon as the test raises it
+        (``stage`` "detected"), each event once the segment after it has its warm-up identified
+        (``stage`` "compared", with the changed parameters); then the running estimate."""
         self._origin = part.meta.get("time_origin_ns", self._origin)
         self._remember(part)
-        events = self.monitor.update(part)
-        outputs = [self._event(e, received) for e in events]
+        for event in self.monitor.update(part):
+            self._emit(self._stage(event, "compared", self._completed(event.detected_at)))
         estimate = self.estimate()
         if estimate is not None:
-            outputs.insert(0, LiveOutput("estimate", estimate))
-        return outputs
+            self._emit(LiveOutput("estimate", estimate))
+
+    def _completed(self, t: float) -> float:
+        """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``time.monotonic``]
+        of the first joint state that settles it (``settled`` later) or, if later, of the first
+        pose at or after it; now when none came yet (the end of the run), NaN when forgotten."""
+        due = {self.aligner.joint_topic: t + self.aligner.settled, self.aligner.pose_topic: t}
+        found = []
+        for topic, arrivals in self._arrivals.items():
+            ns = self._origin + round(due[topic] * 1e9)
+            if arrivals and arrivals[0][0] > ns:  # forgotten
+                return math.nan
+            k = bisect.bisect_left(arrivals, (ns, -math.inf))
+            found.append(arrivals[k][1] if k < len(arrivals) else time.monotonic())
+        return max(found)
 
     def _remember(self, part: Log):
         self._recent.append(part)
         while sum(p.n_samples for p in self._recent) - self._recent[0].n_samples >= HISTORY:
             self._recent.popleft()
 
-    def _event(self, event, received) -> LiveOutput:
+    def _alarmed(self, alarm):
+        """The monitor's alarm: its message at once; the payload after it is due from now on."""
         if self._pmap is not None:
-            self._payload_event, self._payload_due = event, 0
-        data = event.to_dict() | {"time_origin_ns": self._origin, "latency_s": time.monotonic() - received}
+            self._payload_event, self._payload_due = alarm, 0
+        self._emit(self._stage(alarm, "detected", self._completed(alarm.detected_at)))
+
+    def _stage(self, event, stage: str, received: float) -> LiveOutput:
+        """An alarm's or an event's message on ``/spaceid/events``."""
+        data = {"stage": stage} | event.to_dict() | {"time_origin_ns": self._origin,
+                                                     "latency_s": time.monotonic() - received}
         return LiveOutput("event", _plain(data))
 
     def estimate(self) -> dict | None:
@@ -171,8 +239,9 @@ class LiveMonitor:
                        "names": list(self.param.names), "values": est["values"], "std": est["std"]} | extra)  # fmt: skip
 
     def payload(self) -> LiveOutput | None:
-        """The payload after the last change, when due: once the samples after it allow, then
-        each time they double (while the history holds them); None otherwise or without ``link``."""
+        """The payload after the last alarm, when due: once the samples after it allow (a warm-up
+        of them), then each time they double (while the history holds them); None otherwise or
+        without ``link``."""
         event = self._payload_event
         if event is None:
             return None
@@ -197,19 +266,29 @@ class LiveMonitor:
                 "names": list(res.names), "values": res.values, "std": res.std} | res.to_dict()
         return LiveOutput("payload", _plain(data))
 
-    def finish(self):
+    def finish(self, publish=None):
         """The rest of the messages held, then the run's record: ``(outputs, record)``, the record a
-        :class:`~spaceid.estimation.MonitorRecord` (EVENTS.json). A tail too short to align is left out."""
+        :class:`~spaceid.estimation.MonitorRecord` (EVENTS.json). The outputs (``publish`` as in
+        :meth:`add_batch`): those of the rest, the events the end completes and the payload due.
+        A tail too short to align is left out."""
         outputs = []
+        self._emit = publish or outputs.append
         try:
-            part = self.aligner.flush()
-        except SpaceidError:  # fewer messages than the differentiator needs: nothing to add
-            part = None
-        if part is not None:
-            outputs = self._take(part, time.monotonic())
-        seen = len(self.monitor.events)
-        record = self.monitor.finish()
-        outputs += [self._event(e, time.monotonic()) for e in record.events[seen:]]
+            try:
+                part = self.aligner.flush()
+            except SpaceidError:  # fewer messages than the differentiator needs: nothing to add
+                part = None
+            if part is not None:
+                self._take(part)
+            seen = len(self.monitor.events)
+            record = self.monitor.finish()
+            for event in record.events[seen:]:
+                self._emit(self._stage(event, "compared", self._completed(event.detected_at)))
+            payload = self.payload()
+            if payload is not None:
+                self._emit(payload)
+        finally:
+            self._emit = None
         return outputs, record
 
     def result(self, record):

@@ -3,14 +3,17 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import signal
+import threading
 import time
 
 import numpy as np
 
 from .._errors import SpaceidError
-from ._live import LiveMonitor
+from ._live import LiveMonitor, _stamp as _stamp_ns
 from ._rclpy import as_pose, pose_class, qos, ros_context, string_message
 
 __all__ = ["EVENTS_TOPIC", "ESTIMATE_TOPIC", "PAYLOAD_TOPIC", "run_monitor", "play_recording"]
@@ -65,33 +68,43 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
 
-        def publish(outputs):
-            for out in outputs:
-                pubs[out.kind].publish(string_message(json.dumps(out.data, allow_nan=False, default=_null)))
-                show(out)
+        def publish(out):
+            pubs[out.kind].publish(string_message(json.dumps(out.data, allow_nan=False, default=_null)))
+            show(out)
 
-        try:
-            while until is None or not until():
+        with _interrupt_flag() as interrupted:
+            while not interrupted() and (until is None or not until()):
                 executor.spin_once(timeout_sec=SPIN)
-                while inbox:
-                    batch, inbox[:] = inbox[:], []
-                    for topic, msg, received in sorted(batch, key=lambda x: _order(x[1])):
-                        publish(live.add(topic, msg, received))
+                while inbox and not interrupted():  # everything queued in one batch: one estimate, one payload check
+                    held = -1
+                    while len(inbox) != held:  # take in what else has arrived
+                        held = len(inbox)
+                        executor.spin_once(timeout_sec=0)
+                    batch, inbox[:] = sorted(inbox, key=lambda x: _stamp_ns(x[1])), []
+                    live.add_batch(batch, publish)
                     payload = live.payload()
-                    publish([payload] if payload is not None else [])
-                    executor.spin_once(timeout_sec=0)
-        except KeyboardInterrupt:
-            pass
-        outputs, record = live.finish()
-        publish(outputs)
+                    if payload is not None:
+                        publish(payload)
+        outputs, record = live.finish(publish)
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
     return outputs, record
 
 
-def _order(msg) -> int:
-    """A message's header stamp [ns]: the order the aligner takes the messages of a batch in."""
-    return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
+@contextlib.contextmanager
+def _interrupt_flag():
+    """Within it, Ctrl-C (SIGINT) sets a flag (the callable yielded says whether it came) instead of
+    raising KeyboardInterrupt: raised inside rclpy's executor, the exception could leave a handle
+    held, and destroying the node then waited for it forever. Outside the main thread: no handler."""
+    came = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield came.is_set
+        return
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: came.set())
+    try:
+        yield came.is_set
+    finally:
+        signal.signal(signal.SIGINT, previous)
 
 
 def _null(value):
