@@ -118,8 +118,8 @@ def _same_drift_test(streamed, memory):
             assert np.log(got[key]) == pytest.approx(np.log(value), rel=1e-6, abs=1e-6)
         elif key == "confounded":  # a share from the eigenvectors of Gram matrices summed in another order
             assert got[key] == pytest.approx(value, rel=1e-6, abs=1e-9)
-        elif key in ("trend", "gyro_bias"):  # of the largest entry, as the covariance: a small entry carries the
-            trend = np.array(list(value.values()) if key == "trend" else value)  # others' rounding
+        elif key in ("trend", "gyro_bias", "errors_in_variables"):  # of the largest entry, as the covariance: a
+            trend = np.array(list(value.values()) if key == "trend" else value)  # small entry carries the others' rounding
             other = np.array(list(got[key].values()) if key == "trend" else got[key])
             assert np.abs(other - trend).max() <= 1e-7 * np.abs(trend).max()
         elif isinstance(value, float):
