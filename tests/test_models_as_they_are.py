@@ -7,6 +7,7 @@ import re
 
 import numpy as np
 import pytest
+import scipy.integrate
 
 import spaceid
 from spaceid.dynamics import minimal_parameters
@@ -49,13 +50,11 @@ def test_indefinite_locked_inertia_refused_naming_time_direction_and_parameters(
     pi[0] *= -1.0
     traj = _motion(model)
     calls = []
-    original = _simulate.solve_ivp
-    _simulate.solve_ivp = lambda *a, **k: calls.append(1) or original(*a, **k)
-    try:
+    original = scipy.integrate.solve_ivp  # imported by the simulation when it integrates
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(scipy.integrate, "solve_ivp", lambda *a, **k: calls.append(1) or original(*a, **k))
         with pytest.raises(spaceid.SpaceidError, match=r"not positive definite") as info:
             simulate(param, pi, traj, np.linspace(0, 10, 101), [0.1, 0.0, 0.0])
-    finally:
-        _simulate.solve_ivp = original
     assert not calls  # refused before the integrator ran
     text = str(info.value)
     assert "\n" not in text and text.startswith("`pi`:")

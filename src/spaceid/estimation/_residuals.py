@@ -21,8 +21,7 @@ attitude change (base friction), and they are correlated from sample to sample. 
 from __future__ import annotations
 
 import numpy as np
-from scipy.stats import f as f_dist
-from scipy.stats import norm
+from .._distributions import f_sf, norm_sf
 
 from ._differentiated import differentiated_series, propagated_covariance
 from ._determined import UNDETERMINED, noise_gram, noise_rows, noise_to_signal, signal_levels
@@ -199,7 +198,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     confounded = None if not drift_columns else _confounded(
         eq, x, sigma, theta, estimator, log, basis, whitener, factor[1][:-1, :-1] * factor[0],
         None if phi is not None else chunk)  # (another candidate's columns: the drift test decided before)
-    p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))
+    p_value = float(f_sf(wald / q, q, max(size - p - q, 1)))
     change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
     square, lagged, differences = sums["serial"]
     rho = float(lagged / square) if square > 0 else 0.0
@@ -213,7 +212,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         "relative_drift": float(change),
         "lag1_autocorrelation": rho,
         "durbin_watson": float(differences / max(square, 1e-300)),
-        "whiteness_p_value": float(norm.sf(rho * np.sqrt(n))),
+        "whiteness_p_value": float(norm_sf(rho * np.sqrt(n))),
         "bandwidth": bandwidth,
         "confounded": confounded,
         "drift": bool(p_value < DRIFT_ALPHA and change > DRIFT_FLOOR and (confounded or 0.0) < CONFOUNDED),

@@ -24,7 +24,6 @@ import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
@@ -446,6 +445,7 @@ def _attitude_axes(planar: bool) -> list:
 def _configuration_sensitivity(pmap: PayloadMap, motion: GraspMotion, theta) -> np.ndarray:
     """``d(brought momentum)/dc`` ``(3, n_c)`` [N m s per rad or m] of the payload ``theta`` in the
     configuration ``c = [q, phi]`` of ``motion`` (see :class:`GraspMotion`), by central differences."""
+    from scipy.spatial.transform import Rotation
     nj, axes = len(motion.q), _attitude_axes(pmap.planar)
 
     def brought(c):
