@@ -20,10 +20,10 @@ presets (Cepheus's commands use the paper's ``paper-table2``), ``simulate`` the 
 ``identify`` (``ols`` and ``ml``) the results; then ``validate`` and ``predict`` (of the ``ols``
 result for Cepheus, of the preset model as it is for the spatial robots, whose estimates from these
 short logs are not physical: their base rate would diverge), ``compare``, ``export``, ``payload``,
-``monitor``, a small ``montecarlo``, ``sweep``, ``experiment`` (Cepheus only unless ``--spatial-
-experiment``: the twin of a spatial robot takes minutes) and ``demo`` (Cepheus only: it takes no
-model). The ``ros`` commands are left out. Prints one Markdown table (command x preset), and writes
-it to ``--markdown FILE`` when given. Prints only: it never fails on timings.
+``monitor``, a small ``montecarlo``, ``sweep``, ``experiment`` (Cepheus only unless
+``--spatial-experiment``: the twin of a spatial robot takes minutes) and ``demo`` (Cepheus only: it
+takes no model). The ``ros`` commands are left out. Prints one Markdown table (command x preset),
+and writes it to ``--markdown FILE`` when given. Prints only: it never fails on timings.
 
     python benchmarks/bench_cli.py [--presets cepheus satellite-7dof servicer-dual]
         [--commands model identify-ols ...] [--states cold warm] [--samples 500]

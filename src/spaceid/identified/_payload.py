@@ -252,8 +252,6 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
         The consistent parameters (``theta`` itself when already consistent) and the Mahalanobis
         distance moved.
     """
-    import cvxpy as cp
-
     theta = np.asarray(theta, float)
     basis = _lmi_basis(planar, len(theta))
     lmi = np.einsum("i,ijk->jk", theta, basis)
@@ -261,6 +259,8 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     margin = MARGIN * max(abs(eig).max(), np.finfo(float).tiny)
     if eig[0] >= margin:
         return theta, 0.0
+    import cvxpy as cp  # here: importing it takes a second, and a consistent estimate needs no projection
+
     with one_blas_thread():
         w, v = np.linalg.eigh(np.asarray(cov, float))
     top = max(w.max(), np.finfo(float).tiny)
