@@ -135,8 +135,10 @@ def checkout(ref: str, folder: Path) -> Path:
     return folder / "src"
 
 
-def measure(presets, commands, states, samples, trees: dict, work: Path, spatial_experiment=False) -> dict:
-    """``{(preset, label): {(tree, state): Run}}``, the trees' runs alternated."""
+def measure(presets, commands, states, samples, trees: dict, work: Path, spatial_experiment=False,
+            progress=None) -> dict:
+    """``{(preset, label): {(tree, state): Run}}``, the trees' runs alternated; ``progress(results)``
+    is called after each command (the table so far)."""
     results = {}
     for preset in presets:
         folder = work / preset
@@ -160,6 +162,8 @@ def measure(presets, commands, states, samples, trees: dict, work: Path, spatial
                     cells[tree, state] = run = run_child(argv, src, cwd, caches)
                     print(f"{preset:15s} {label:13s} {tree:8s} {state}: {run.wall:6.2f} s wall, {run.cpu:6.2f} s CPU,"
                           f" {run.rss_mb:5.0f} MB{'' if run.code == 0 else f' (exit {run.code})'}", flush=True)
+            if progress:
+                progress(results)
     return results
 
 
@@ -217,7 +221,13 @@ def main():
         for src in trees.values():
             subprocess.run([sys.executable, "-m", "compileall", "-q", str(src)], check=True)
         load = os.getloadavg()[0]
-        results = measure(args.presets, args.commands, args.states, args.samples, trees, work, args.spatial_experiment)
+
+        def progress(results):  # the table so far, for a run cut short
+            if args.markdown:
+                args.markdown.write_text(table(results, args.states, baseline) + "\n(unfinished run)\n")
+
+        results = measure(args.presets, args.commands, args.states, args.samples, trees, work, args.spatial_experiment,
+                          progress)
         text = table(results, args.states, baseline)
         note = (f"\nnow: {_short('HEAD')} and its uncommitted changes"
                 + (f", baseline: {_short(baseline)}" if baseline else "")
