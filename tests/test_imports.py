@@ -1,16 +1,28 @@
-"""Heavy imports only where they are used: matplotlib is imported by the commands that draw."""
+"""Heavy imports only where they are used: matplotlib is imported by the commands that draw, SciPy's
+slow subpackages (stats, optimize, integrate, interpolate, spatial), SymPy, Pinocchio and the
+optional dependencies by the functions that need them, not by a command's import path: the start
+of every command pays for what it imports (scipy.stats alone took 0.6 to 0.8 s)."""
 
 import subprocess
 import sys
 
 import pytest
 
+HEAVY = ("matplotlib", "scipy.stats", "scipy.optimize", "scipy.integrate", "scipy.interpolate", "scipy.spatial",
+         "sympy", "pinocchio", "cvxpy", "dask", "distributed", "rosbags", "mujoco", "rclpy")
+
+
+def _heavy_imports(code):
+    """The modules of ``HEAVY`` that running ``code`` in a fresh interpreter imports (its ``code``
+    asserts its own work)."""
+    probe = code + f"\nimport sys\nprint('loaded:', *(m for m in {HEAVY!r} if m in sys.modules))"
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    return set(out.stdout.strip().splitlines()[-1].split()[1:])
+
 
 def _imports_matplotlib(code):
-    """Whether running ``code`` in a fresh interpreter imports matplotlib (its ``code`` asserts its own work)."""
-    probe = code + "\nimport sys\nprint('matplotlib' in sys.modules)"
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
-    return out.stdout.strip().splitlines()[-1] == "True"
+    """Whether running ``code`` in a fresh interpreter imports matplotlib."""
+    return "matplotlib" in _heavy_imports(code)
 
 
 @pytest.mark.slow  # a fresh interpreter simulating and identifying: seconds
@@ -36,3 +48,38 @@ def test_figures_still_import_it(tmp_path):
             f"t = np.linspace(0, 1, 5); q = np.zeros((5, 1))\n"
             f"plot_trajectory(t, q, q, q, ['j'], {str(tmp_path / 'f.png')!r})")
     assert _imports_matplotlib(code)
+
+
+def test_the_cli_and_the_pipeline_packages_import_none_of_the_heavy_modules():
+    """``spaceid --help`` and the import of every stage up to the studies load none of them (nor
+    Numba for the help)."""
+    assert _heavy_imports("from spaceid.cli import main\nassert main(['--help']) == 0") == set()
+    assert _heavy_imports("import sys, spaceid.cli\nassert 'numba' not in sys.modules") == set()
+    assert _heavy_imports("import spaceid.models, spaceid.data, spaceid.dynamics, spaceid.estimation, "
+                          "spaceid.identified, spaceid.motion, spaceid.twin, spaceid.studies") == set()
+
+
+@pytest.mark.slow  # fresh interpreters identifying: seconds
+def test_model_and_identify_load_only_what_they_use(tmp_path):
+    """With the minimal set cached (the tests' cache is shared with the child), ``spaceid model``
+    needs no SymPy; least squares and maximum likelihood on a noisy Cepheus log check their
+    residuals without scipy.stats and integrate nothing."""
+    from spaceid.cli import main
+
+    log = tmp_path / "log.csv"
+    assert main(["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.4934", "--samples", "80",
+                 "--noise-angle", "1e-4", "--noise-rate", "1e-4", "-o", str(log)]) == 0  # also caches the set
+    assert _heavy_imports("from spaceid.cli import main\nassert main(['model', 'cepheus']) == 0") == set()
+    for estimator in ("ols", "ml"):
+        result = tmp_path / f"{estimator}.json"
+        code = (f"from spaceid.cli import main\nassert main(['identify', 'cepheus', {str(log)!r}, '--momentum', "
+                f"'0.4934', '--noise-angle', '1e-4', '--noise-rate', '1e-4', '--estimator', {estimator!r}, "
+                f"'-o', {str(result)!r}]) == 0")
+        assert _heavy_imports(code) == set()
+        assert result.exists()
+
+
+@pytest.mark.slow
+def test_a_spatial_model_from_urdf_still_imports_pinocchio():
+    """The probe can fail: a URDF is parsed by Pinocchio."""
+    assert _heavy_imports("import spaceid\nspaceid.load_model('satellite-7dof')") == {"pinocchio"}

@@ -50,12 +50,10 @@ def test_indefinite_locked_inertia_refused_naming_time_direction_and_parameters(
     traj = _motion(model)
     calls = []
     original = _simulate.collocation_steps
-    _simulate.collocation_steps = lambda *a: calls.append(1) or original(*a)
-    try:
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(_simulate, "collocation_steps", lambda *a: calls.append(1) or original(*a))
         with pytest.raises(spaceid.SpaceidError, match=r"not positive definite") as info:
             simulate(param, pi, traj, np.linspace(0, 10, 101), [0.1, 0.0, 0.0])
-    finally:
-        _simulate.collocation_steps = original
     assert not calls  # refused before the integrator ran
     text = str(info.value)
     assert "\n" not in text and text.startswith("`pi`:")

@@ -12,7 +12,6 @@ import contextlib
 import math
 
 import numpy as np
-from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from .._constants import JOINT_RATE_POLICY, JOINT_RATES
 from .._errors import SpaceidError
@@ -177,6 +176,7 @@ def _position_and_efforts(js, columns, valid, t_pose, position, t, planar) -> di
     """``base_position`` (n, 3) [m] at ``t``, a cubic spline through the poses (capture frame; planar:
     z zero), and ``tau`` (n, n_joints), the messages' efforts linearly interpolated on each joint's
     stamps (exact on them), or None when some message of a selected joint lacks one."""
+    from scipy.interpolate import CubicSpline
     base_position = CubicSpline(t_pose, np.asarray(position, float), axis=0)(t)
     if planar:
         base_position[:, 2] = 0.0
@@ -250,6 +250,7 @@ def _base(t_pose, quat, t, planar, max_tilt, label, options):
     The attitude is differentiated on the pose stamps, then interpolated by cubic Hermite with the
     rate as slope (planar: the unwrapped yaw), the rate by a cubic spline.
     """
+    from scipy.interpolate import CubicHermiteSpline, CubicSpline
     quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
     tilt = None
     if planar:
@@ -283,6 +284,7 @@ def _pure_yaw(t_pose, quat, max_tilt, label):
 def _hermite_attitude(t_pose, quat, w_body, t):
     """Unit quaternions (n, 4) at ``t``: the cubic Hermite interpolant of sign-continuous ``quat``
     (m, 4) whose slopes are the kinematics ``qdot = q (x) [0, w] / 2`` of the body rates (m, 3)."""
+    from scipy.interpolate import CubicHermiteSpline
     s, v = quat[:, :1], quat[:, 1:]
     slope = 0.5 * np.column_stack([-np.einsum("ij,ij->i", v, w_body), s * w_body + np.cross(v, w_body)])
     out = CubicHermiteSpline(t_pose, quat, slope, axis=0)(t)
@@ -339,6 +341,7 @@ def _joint_rate(t, angle, rate, joint, wheel, joint_rates, options, label):
 def _on_time_base(t_samples, angle, rate, t):
     """Angles and rates (m,) at their stamps ``t_samples`` taken at ``t`` (n,): picked when every
     stamp of ``t`` is a sample's, else cubic Hermite (rates as slopes) and a cubic spline."""
+    from scipy.interpolate import CubicHermiteSpline, CubicSpline
     at = np.searchsorted(t_samples, t).clip(max=t_samples.size - 1)
     if (t_samples[at] == t).all():
         return angle[at], rate[at]

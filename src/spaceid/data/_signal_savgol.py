@@ -27,7 +27,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-from scipy.stats import chi2
+from .._distributions import chi2_isf
 
 _AUTO_ORDERS = (3, 5, 7)  # polynomial degrees the automatic Savitzky-Golay choice compares
 _PILOT_EXTRA = 3  # the bias pilot fits degree order + 3 ...
@@ -146,7 +146,7 @@ def _bias_shown(t, y, sigma, rows, window, order):
 def _bias_threshold(dof):
     """The mean of ``dof`` unit chi-square terms exceeded with probability :data:`_BIAS_LEVEL`. Cached: the
     quantile took a fifth of the window choice (scipy's ``isf`` costs ~0.3 ms a call; the same few ``dof`` recur)."""
-    return float(chi2.isf(_BIAS_LEVEL, dof) / dof)
+    return float(chi2_isf(_BIAS_LEVEL, dof) / dof)
 
 
 def _shortest_window(order):

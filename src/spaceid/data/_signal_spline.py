@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import cho_solve_banded, cholesky_banded
-from scipy.optimize import minimize_scalar
 
 from .._errors import SpaceidError
 
@@ -82,6 +81,7 @@ def _gcv_penalty(t, y, q_t, q, solve):
     reproducible) [6]_. ``lam`` is searched on a grid of quarter decades between equivalent
     bandwidths ``(lam h)^(1/4)`` of a quarter step and a quarter of the record, then refined.
     """
+    from scipy.optimize import minimize_scalar
     n, step, span = t.size, np.median(np.diff(t)), t[-1] - t[0]
     probes = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, _PROBES))
     rhs = q_t(np.column_stack([y, probes]))

@@ -268,12 +268,18 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
         if energy:
             columns = _energy_columns(frame_table(model, *states, len(states[0])), plan)
             part[...] = (columns if weights is None else weights @ columns).T
-        elif direction is not None:
-            _tangent_columns(*joints, *states, _steps(states[3:], step), primal, plan.rows, part)
+            return
+        # a strided view of ``out`` is written through a contiguous block: an output of another
+        # layout would compile the kernel a second time (1 to 2 s in a command's first run)
+        block = part if part.flags.c_contiguous else np.empty(part.shape)
+        if direction is not None:
+            _tangent_columns(*joints, *states, _steps(states[3:], step), primal, plan.rows, block)
         elif weights is None:
-            _columns_of_states(*joints, *states, plan.rows, part)
+            _columns_of_states(*joints, *states, plan.rows, block)
         else:
-            _momentum_of_states(*joints, *states, plan.rows, weights, part)
+            _momentum_of_states(*joints, *states, plan.rows, weights, block)
+        if block is not part:
+            part[...] = block
 
     starts = range(0, n, _GROUP)
     threads = min(len(starts), work_threads())

@@ -5,7 +5,6 @@ are smooth (docs/theory/angles.md)."""
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import BSpline
 
 from .._errors import SpaceidError
 
@@ -46,6 +45,7 @@ def _knot_vector(t, spacing: float, where: str) -> np.ndarray:
 
 def _basis(knots, s, deriv=0) -> np.ndarray:
     """Cubic B-spline basis (or its derivative) at times ``s (m,)``: ``(m, n_coef)``."""
+    from scipy.interpolate import BSpline
     n_coef = len(knots) - 4
     spline = BSpline(knots, np.eye(n_coef), 3)
     return (spline.derivative(deriv) if deriv else spline)(s)

@@ -25,7 +25,6 @@ from dataclasses import replace
 
 import numpy as np
 from scipy.linalg import cho_factor, cho_solve
-from scipy.spatial.transform import Rotation
 
 from ..dynamics import momentum_jacobian, skew
 from ._angle_path import _basis
@@ -60,6 +59,7 @@ def _dexpinv(s, v):
 
 def rotation_log(rot):
     """Rotation vectors ``(n, 3)`` of rotation matrices ``(n, 3, 3)``."""
+    from scipy.spatial.transform import Rotation
     return Rotation.from_matrix(rot).as_rotvec()
 
 

@@ -26,7 +26,6 @@ attitude, base rate) and treated as exogenous (noise-free) by every estimator.
 from __future__ import annotations
 
 import numpy as np
-from scipy.interpolate import make_interp_spline
 
 from .._constants import DRIFT_KINDS
 from .._errors import SpaceidError
@@ -68,6 +67,7 @@ def _spline_integral(t, f):
     """``int_{t0}^{t_n} f dt`` of samples ``f (n, 3)``: the antiderivative of the interpolating
     quintic spline (sixth order; the trapezoid rule's second order left 1e-4 relative errors in
     the coefficients at 100 Hz on smooth motions, a cubic spline's fourth order 3e-6)."""
+    from scipy.interpolate import make_interp_spline
     if len(t) < 6:
         return np.concatenate([np.zeros((1, 3)), np.cumsum((f[1:] + f[:-1]) / 2 * np.diff(t)[:, None], 0)])
     return make_interp_spline(t, f, k=5, axis=0).antiderivative()(t)

@@ -61,7 +61,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from scipy.optimize import brentq
 
 from .._constants import ESTIMATORS
 from .._threads import one_blas_thread
@@ -134,6 +133,7 @@ def _column_noise(eq, x, sigma):
 
 
 def _tls(eq, x, sigma, theta, ctx):
+    from scipy.optimize import brentq
     A, b = _split(ctx.phi)
     noise = _column_noise(eq, x, sigma)
     d_a = np.where(noise[:-1] > 0, noise[:-1], np.linalg.norm(A, axis=0) * 1e-12 + 1e-300)

@@ -27,7 +27,6 @@ import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .._errors import SpaceidError
 from ..data import Log, log_fingerprint, quat_to_yaw
@@ -79,6 +78,7 @@ def bias_columns(param, pi, log: Log) -> np.ndarray:
 def _rotation_increments(log: Log) -> np.ndarray:
     """The attitude increments between successive samples, as rotation vectors in the base axes of
     the earlier sample, ``(n - 1, n_b)`` [rad] (the yaw increments for planar logs)."""
+    from scipy.spatial.transform import Rotation
     if log.planar:
         return np.diff(np.unwrap(quat_to_yaw(log.base_quat)))[:, None]
     r = Rotation.from_quat(log.base_quat[:, [1, 2, 3, 0]])  # SciPy's quaternions are scalar-last
@@ -103,6 +103,7 @@ def _body_estimate(log: Log, inc) -> np.ndarray:
 def _nominal_attitude(log: Log, steps) -> np.ndarray:
     """The attitude integrated from the first measured one by the increments ``steps (n - 1, n_b)``:
     yaws ``(n, 1)`` (planar) or rotation matrices ``(n, 3, 3)``."""
+    from scipy.spatial.transform import Rotation
     if log.planar:
         return np.unwrap(quat_to_yaw(log.base_quat))[0] + np.concatenate([[0.0], np.cumsum(steps[:, 0])])[:, None]
     out = np.empty((len(steps) + 1, 3, 3))
@@ -134,6 +135,7 @@ def attitude_information(log: Log, noise: Noise) -> dict:
         ``value (n_b,)`` [rad/s], ``cov (n_b, n_b)`` and, for the record, ``std`` (the largest
         over the axes), ``quadrature`` (its systematic part) and ``noise`` (the levels used).
     """
+    from scipy.spatial.transform import Rotation
     m, t, dt = len(_axes(log.planar)), log.t, np.diff(log.t)
     inc = _increments(log)
     start = _body_estimate(log, inc)

@@ -12,8 +12,7 @@ import collections
 import math
 
 import numpy as np
-from scipy.optimize import brentq
-from scipy.stats import chi2
+from .._distributions import chi2_cdf
 
 from .._constants import CHANGE_RATIO, FALSE_ALARM_RATE
 from .._errors import SpaceidError
@@ -57,7 +56,7 @@ def cusum_run_length(threshold: float, rows: int, ratio: float = CHANGE_RATIO, *
     width = threshold / cells
     start = np.r_[0.0, (np.arange(1, cells + 1) - 0.5) * width]  # the atom at zero, then the cell midpoints
     edges = np.arange(cells + 1) * width  # upper edges of the cells below them
-    cdf = lambda x: chi2.cdf(np.maximum((x + d) / (c * actual), 0), rows)  # noqa: E731  P(increment <= x)
+    cdf = lambda x: chi2_cdf(np.maximum((x + d) / (c * actual), 0), rows)  # noqa: E731  P(increment <= x)
     to = cdf(edges[None, :] - start[:, None])  # (cells + 1 states, cells + 1 edges)
     Q = np.empty((cells + 1, cells + 1))
     Q[:, 0] = to[:, 0]  # back to zero
@@ -88,6 +87,7 @@ def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RA
     SpaceidError
         ``false_alarm_rate`` outside (0, 0.5) or ``ratio`` not above 1.
     """
+    from scipy.optimize import brentq
     if not 0 < false_alarm_rate < 0.5:
         raise SpaceidError(f"`false_alarm_rate`: {false_alarm_rate!r}: give false alarms per sample in (0, 0.5), "
                            f"e.g. {FALSE_ALARM_RATE:g}")

@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import LinAlgError, solve_triangular
-from scipy.stats import chi2
+from .._distributions import chi2_ppf
 
 from .._threads import one_blas_thread
 from ._linalg import _accumulate_factor
@@ -159,7 +159,7 @@ class DeterminacyAccumulator:
         noise = np.concatenate(self.noise)
         rows = res.shape[1]
         ratio = np.sum(res**2, axis=1) / np.maximum(noise, np.finfo(float).tiny) * res.size / max(res.size - p, 1)
-        return float(min(1.0, np.median(ratio) / (chi2.median(rows) / rows)))
+        return float(min(1.0, np.median(ratio) / (chi2_ppf(0.5, rows) / rows)))
 
     @property
     def total(self) -> float:

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg import lapack, solve_triangular
-from scipy.stats import chi2
+from .._distributions import chi2_cdf, chi2_sf
 
 from ..data import quat_to_matrix
 from ._linalg import _accumulate_factor, _whiten
@@ -206,8 +206,8 @@ def kalman_check(nu: np.ndarray, p: int) -> tuple:
     divides them by and whether they are smaller than predicted (:func:`differentiator_innovations`)."""
     dof = max(nu.size - p, 1)
     chi2_dof = float(np.sum(np.square(nu)) / dof)
-    scale = math.sqrt(chi2_dof) if chi2.sf(chi2_dof * dof, dof) < SIGNIFICANCE else 1.0
-    return nu, chi2_dof, scale, bool(chi2.cdf(chi2_dof * dof, dof) < SIGNIFICANCE)
+    scale = math.sqrt(chi2_dof) if chi2_sf(chi2_dof * dof, dof) < SIGNIFICANCE else 1.0
+    return nu, chi2_dof, scale, bool(chi2_cdf(chi2_dof * dof, dof) < SIGNIFICANCE)
 
 
 @dataclass

@@ -22,8 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.linalg import solve_triangular
-from scipy.stats import f as f_dist
-from scipy.stats import norm
+
+from .._distributions import f_sf, norm_sf
 
 from ._differentiated import differentiated_series, propagated_covariance
 from ._determined import UNDETERMINED, equation_noise, noise_to_signal
@@ -257,7 +257,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     size = n * eq.param.rows
     confounded = _confounded(noise, factor[1][:-1, :-1] * factor[0], p) if testing_drift else None
-    p_value = float(f_dist.sf(wald / q, q, max(size - p - q, 1)))
+    p_value = float(f_sf(wald / q, q, max(size - p - q, 1)))
     change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
     square, lagged, differences = sums["serial"]
     rho = float(lagged / square) if square > 0 else 0.0
@@ -271,7 +271,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         "relative_drift": float(change),
         "lag1_autocorrelation": rho,
         "durbin_watson": float(differences / max(square, 1e-300)),
-        "whiteness_p_value": float(norm.sf(rho * np.sqrt(n))),
+        "whiteness_p_value": float(norm_sf(rho * np.sqrt(n))),
         "bandwidth": bandwidth,
         "confounded": confounded,
         "errors_in_variables": eiv.tolist() if testing_drift else None,

@@ -27,7 +27,7 @@ References
 from __future__ import annotations
 
 import numpy as np
-from scipy import stats
+from .._distributions import chi2_cdf, chi2_ppf, chi2_sf
 
 from .._threads import one_blas_thread
 from ..data import Log
@@ -186,7 +186,7 @@ def _ljung_box_p(rho, m: int) -> float:
     """Ljung-Box p-value of the autocorrelations ``rho (lags,)`` at lags 1, 2, ... of ``m`` samples."""
     lags = len(rho)
     q = m * (m + 2) * np.sum(rho**2 / (m - np.arange(1, lags + 1)))
-    return float(stats.chi2.sf(q, lags))
+    return float(chi2_sf(q, lags))
 
 
 def _residual_checks(res, dof, chi2):
@@ -204,9 +204,9 @@ def _residual_checks(res, dof, chi2):
     record = {"significance": SIGNIFICANCE, "ljung_box_p": _ljung_box_p(rho, m), "ljung_box_lags": lags,
               "lag1_autocorrelation": float(rho[0]), "chi2_p": None, "chi2_band": None}  # fmt: skip
     if chi2 is not None:
-        cdf = stats.chi2.cdf(chi2 * dof, dof)
+        cdf = chi2_cdf(chi2 * dof, dof)
         record["chi2_p"] = float(2 * min(cdf, 1 - cdf))
-        record["chi2_band"] = [float(stats.chi2.ppf(q, dof) / dof) for q in (SIGNIFICANCE / 2, 1 - SIGNIFICANCE / 2)]
+        record["chi2_band"] = [float(chi2_ppf(q, dof) / dof) for q in (SIGNIFICANCE / 2, 1 - SIGNIFICANCE / 2)]
     return record
 
 

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._distributions import chi2_ppf
 from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
 from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian, identifiability
@@ -121,7 +122,6 @@ def _constraint_rows(result: Identification, region):
     k = len(result.values)
     if region is None:
         return np.eye(k), list(result.names), np.zeros((0, k)), 0.0
-    from scipy.stats import chi2
 
     std = np.sqrt(np.clip(np.diag(result.cov), 0, None))
     var = np.flatnonzero(std > 0)
@@ -135,7 +135,7 @@ def _constraint_rows(result: Identification, region):
     w = np.zeros(((~null).sum(), k))
     w[:, var] = (v[:, ~null] / np.sqrt(s[~null]) / std[var, None]).T
     dof = int((~null).sum())
-    return e, labels, w, float(np.sqrt(chi2.ppf(region, dof))) if dof else 0.0
+    return e, labels, w, float(np.sqrt(chi2_ppf(region, dof))) if dof else 0.0
 
 
 class _Program:

@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .._errors import SpaceidError
 from ..data import Log, quat_to_matrix
@@ -250,6 +249,7 @@ def _configuration_at(log: Log, t: float, planar: bool) -> tuple:
         as a map of the signal errors (:func:`_signal_covariance`) at its samples: a joint's
         ``dq_j + dqd_j dt_j``, the attitude's ``phi`` that of its small rotation and base rate.
     """
+    from scipy.spatial.transform import Rotation
     info = log.meta.get("differentiation") or {}
     joints = info.get("joints") or {}
     if joints.get("window_s") is not None:  # one record, a window per joint (differentiate_log)

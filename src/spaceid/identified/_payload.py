@@ -24,7 +24,6 @@ import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
@@ -253,8 +252,6 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
         The consistent parameters (``theta`` itself when already consistent) and the Mahalanobis
         distance moved.
     """
-    import cvxpy as cp
-
     theta = np.asarray(theta, float)
     basis = _lmi_basis(planar, len(theta))
     lmi = np.einsum("i,ijk->jk", theta, basis)
@@ -262,6 +259,8 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     margin = MARGIN * max(abs(eig).max(), np.finfo(float).tiny)
     if eig[0] >= margin:
         return theta, 0.0
+    import cvxpy as cp  # here: importing it takes a second, and a consistent estimate needs no projection
+
     with one_blas_thread():
         w, v = np.linalg.eigh(np.asarray(cov, float))
     top = max(w.max(), np.finfo(float).tiny)
@@ -446,6 +445,7 @@ def _attitude_axes(planar: bool) -> list:
 def _configuration_sensitivity(pmap: PayloadMap, motion: GraspMotion, theta) -> np.ndarray:
     """``d(brought momentum)/dc`` ``(3, n_c)`` [N m s per rad or m] of the payload ``theta`` in the
     configuration ``c = [q, phi]`` of ``motion`` (see :class:`GraspMotion`), by central differences."""
+    from scipy.spatial.transform import Rotation
     nj, axes = len(motion.q), _attitude_axes(pmap.planar)
 
     def brought(c):

@@ -32,7 +32,6 @@ from dataclasses import dataclass, field
 from functools import partial
 
 import numpy as np
-from scipy.optimize import Bounds, minimize
 from threadpoolctl import threadpool_limits
 
 from .._campaign import open_workers, resolve_scheduler
@@ -122,6 +121,7 @@ def _slsqp_epigraph(problem, z0, mask, *, ftol, near=False, maxiter=200, central
     (only those on the side of the signal at ``z0`` where it is large, if ``near``), gradients
     by central differences of the signals or, unless ``central``, forward ones. Past
     ``deadline`` (time.time()) it stops with its last iterate."""
+    from scipy.optimize import minimize
     A, b = _limit_inequalities(problem, mask, z0 if near else None)
     A = np.hstack([A, np.zeros((len(A), 1))])  # variables w = (z, tau)
     n, cache = problem.n, {}
@@ -249,6 +249,7 @@ def _trust_region_step(problem, z, Y0, dY, f0, p, delta, deadline=None):
     has nothing to offer or the box is tiny. Past ``deadline`` (time.time()) L-BFGS-B stops
     at its current iterate, which is then tried.
     """
+    from scipy.optimize import Bounds, minimize
 
     def halt(_):
         if deadline is not None and time.time() > deadline:

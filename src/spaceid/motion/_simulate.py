@@ -14,8 +14,6 @@ import warnings
 from dataclasses import replace
 
 import numpy as np
-from scipy.integrate import solve_ivp
-from scipy.interpolate import CubicHermiteSpline, CubicSpline
 
 from .._errors import SpaceidError
 from ..dynamics import angular_momentum, system_com
@@ -30,6 +28,7 @@ __all__ = ["simulate", "hermite_motion", "add_noise"]
 
 def hermite_motion(t, q, qd):
     """Joint motion through sampled angles and rates (cubic Hermite), as ``f(t) -> (q, qd)``."""
+    from scipy.interpolate import CubicHermiteSpline
     spline = CubicHermiteSpline(np.asarray(t, float), np.asarray(q, float), np.asarray(qd, float), axis=0)
     deriv = spline.derivative()
     return lambda tt: (spline(tt), deriv(tt))
@@ -326,6 +325,7 @@ def _rate_splines(param, pi, motion, times, where):
     motion on :func:`_grid` (the output times among its nodes), the inertia refused where it is not
     positive definite (:func:`_refuse_indefinite`): the base rate for a momentum ``h_base`` in base
     axes is ``locked^-1 (h_base[rows] - offset)``."""
+    from scipy.interpolate import CubicSpline
     grid = _grid(times)
 
     def pieces(t):  # (n, rows, 1 + axes): the free momentum, then the locked inertia's columns
@@ -349,6 +349,7 @@ singular between the checked times) would otherwise make the steps ever smaller 
 def _solve(rhs, span, y0, t_eval, rtol, **kwargs):
     """``solve_ivp`` (DOP853) of ``rhs`` over ``span`` at the times ``t_eval``, stopped with a
     :class:`SpaceidError` after :data:`MAX_EVALUATIONS` or on the integrator's failure."""
+    from scipy.integrate import solve_ivp
     calls, budget = [0], MAX_EVALUATIONS[0] + MAX_EVALUATIONS[1] * len(t_eval)
 
     def counted(t, y, *args):

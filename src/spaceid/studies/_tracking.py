@@ -27,7 +27,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-from scipy.interpolate import CubicSpline
 
 from .._errors import SpaceidError
 from ..estimation import identify
@@ -61,6 +60,7 @@ def _designed_reference(traj, joints, correction=None):
     """``traj`` as a callable reference ``tau -> (q, qd, qdd)`` (n_t, len(joints)), held at its
     end value after its duration, plus ``correction = (t (m,), delta (m, len(joints)))`` [s, rad]
     as a cubic spline (held at its ends)."""
+    from scipy.interpolate import CubicSpline
     order = [traj.joints.index(j) for j in joints]
     spline = None if correction is None else CubicSpline(*correction, axis=0)
 
