@@ -51,6 +51,7 @@ def test_spatial_simulation_keeps_unit_quaternion_and_momentum(rng):
     assert np.abs(direct - h).max() < 1e-9 * np.linalg.norm(h)
 
 
+@pytest.mark.slow
 def test_spatial_attitude_does_not_depend_on_the_span(rng):
     """The attitude at a sample is the same whatever the log's end: 50 Hz samples up to 13.92 s,
     whose times fell a rounding error (1e-15 s) from nodes of the dense spline grid at 5.22, 8.7
