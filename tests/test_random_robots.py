@@ -7,7 +7,7 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 from random_robots import perturbed_prior, random_robot
 from robot_tally import robots, stage
@@ -87,5 +87,8 @@ def test_export_regressions(seed, planar, noisy, tmp_path):
 @pytest.mark.slow
 @SLOW
 @given(seed=SEEDS, planar=st.booleans(), noisy=st.booleans())
+# a 1-joint spatial robot: the restoring step towards the 0.95 ellipsoid raised the violation, and
+# the export gave up on every automatic region although the true robot was inside the 0.95 one
+@example(seed=1527, planar=False, noisy=True)
 def test_export_without_options_on_larger_robots(seed, planar, noisy, tmp_path):
     _export(seed, planar, noisy, tmp_path, larger=True)
