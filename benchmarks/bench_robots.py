@@ -61,7 +61,11 @@ def run(tests, scale, chunks, seed, tally: Path):
                             if re.search(r"\d+ (passed|failed|error|xfailed|skipped)", line)), "no summary")
             print(f"seed {seed + chunk} {test.split('::')[1]}: {summary} ({time.time() - start:.0f} s, "
                   f"{cpu_s:.0f} s CPU)", flush=True)  # fmt: skip
-            if out.returncode != 0:
+            if out.returncode < 0:  # stopped by a signal: no verdict
+                with open(tally, "a") as f:
+                    f.write(json.dumps({"test": test, "stage": "(interrupted)", "case": {"hypothesis_seed": seed + chunk},
+                                        "failure": f"signal {-out.returncode}"}) + "\n")
+            elif out.returncode != 0:
                 failed = [line for line in out.stdout.splitlines() if line.startswith(("FAILED", "ERROR"))]
                 falsifying = [line for line in out.stdout.splitlines() if "Falsifying" in line or "seed=" in line]
                 with open(tally, "a") as f:
@@ -75,6 +79,8 @@ def report(tally: Path):
     rows = collections.defaultdict(lambda: {"run": set(), "failed": {}, "planar": set()})
     for line in tally.read_text().splitlines():
         r = json.loads(line)
+        if r["stage"] == "(test)" and r["failure"] == "no summary":  # a run stopped by a signal (older tallies)
+            r["stage"] = "(interrupted)"
         key = (r["test"].split("::")[-1], r["stage"])
         case = json.dumps(r["case"], sort_keys=True)
         row = rows[key]
@@ -89,7 +95,7 @@ def report(tally: Path):
     for (test, name), row in sorted(rows.items()):
         failed = set(row["failed"]) - row["run"]
         run = row["run"] | failed
-        robots[test] |= run if name != "(test)" else set()
+        robots[test] |= run if not name.startswith("(") else set()  # "(test)", "(interrupted)": pytest runs, not robots
         seeds = sorted({str(json.loads(c).get("seed", json.loads(c).get("hypothesis_seed"))) for c in failed})
         print(f"{test:<58} {name:<30} {len(run):>6} {len(row['planar'] & run):>6} {len(failed):>6}  "
               f"{', '.join(seeds)}")  # fmt: skip
