@@ -9,9 +9,10 @@ import warnings
 import numpy as np
 import pytest
 from click.testing import CliRunner
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 from random_robots import random_robot
+from robot_tally import robots, stage
 from test_simulate_estimate import motion
 
 import spaceid
@@ -162,18 +163,19 @@ def test_noise_free_recovery_random_robots(planar, tmp_path):
         assert np.abs(values - np.atleast_1d(bias)).max() <= 1e-14 * res.condition_number
 
 
-@settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                 HealthCheck.function_scoped_fixture])
+@robots(1)
 @given(seed=st.integers(0, 2**31 - 1), planar=st.booleans())
 def test_noise_free_recovery_any_random_robot(seed, planar, tmp_path):
-    param, h, clean = _random(seed, planar, tmp_path)
-    bias = BIAS if planar else SPATIAL_BIAS
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        res = identify(param, add_noise(clean, gyro_bias=bias), h, estimator="ols", gyro_bias=True, cond_limit=1e12)
-    true = param.true_values
-    assert np.abs(res.values - true).max() <= 1e-10 * res.condition_number * np.abs(true).max()
-    assert np.abs([d["value"] for d in res.gyro_bias] - np.atleast_1d(bias)).max() <= 1e-13 * res.condition_number
+    with stage("identify gyro bias noise-free", seed=seed, planar=planar, motion="harmonic"):
+        param, h, clean = _random(seed, planar, tmp_path)
+        bias = BIAS if planar else SPATIAL_BIAS
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = identify(param, add_noise(clean, gyro_bias=bias), h, estimator="ols", gyro_bias=True,
+                           cond_limit=1e12)  # fmt: skip
+        true = param.true_values
+        assert np.abs(res.values - true).max() <= 1e-10 * res.condition_number * np.abs(true).max()
+        assert np.abs([d["value"] for d in res.gyro_bias] - np.atleast_1d(bias)).max() <= 1e-13 * res.condition_number
 
 
 def test_the_attitude_alone_gives_the_bias(tmp_path):

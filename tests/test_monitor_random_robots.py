@@ -20,9 +20,10 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, Phase, assume, example, given, settings
+from hypothesis import Phase, assume, example, given
 from hypothesis import strategies as st
 from random_robots import random_robot
+from robot_tally import robots, stage
 from scipy.stats import binom
 
 from spaceid.data import Log, differentiate_log
@@ -42,8 +43,8 @@ P_FALSE = 1e-3  # the binomial tail that the false alarms may reach
 SEEDS = st.integers(0, 2**31 - 1)
 # no shrinking: an example takes seconds, and the seed of a failure is what is kept
 PHASES = [Phase.explicit, Phase.reuse, Phase.generate]
-FAST = settings(max_examples=1, deadline=None, phases=PHASES, suppress_health_check=list(HealthCheck))
-SLOW = settings(max_examples=30, deadline=None, phases=PHASES, suppress_health_check=list(HealthCheck))
+FAST = robots(1, phases=PHASES)
+SLOW = robots(30, phases=PHASES)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -200,10 +201,15 @@ def check_grasp(run: GraspRun):
         [(e.time, e.detected_at) for e in run.record.events], run.grasp)
 
 
-def _grasp_found(*args, **kwargs):
-    run = grasp_run(*args, **kwargs)
+def _grasp_found(seed, planar, noisy, differentiated, estimated, fraction, *args, **kwargs):
+    case = {"seed": seed, "planar": planar, "motion": "harmonic", "noisy": noisy, "differentiated": differentiated,
+            "estimated": estimated, "fraction": fraction}
+    with stage("monitor changeless", **case):
+        run = grasp_run(seed, planar, noisy, differentiated, estimated, fraction, *args, **kwargs)
+        assert len(run.quiet.events) <= 1, run.quiet.events
     assume(run.grasp is not None)
-    check_grasp(run)
+    with stage("monitor", **case):
+        check_grasp(run)
 
 
 CASES = {"seed": SEEDS, "planar": st.booleans(), "noisy": st.booleans(), "differentiated": st.booleans(),
@@ -245,10 +251,13 @@ def changeless_alarms(seed, logs, folder, duration, rate=1e-3, **size) -> tuple:
     alarms = tested = 0
     t = np.arange(int(duration * RATE)) / RATE
     for k in range(logs):
-        robot = _robot(int(rng.integers(2**31)), k % 2 == 0, folder, **size)
+        robot_seed = int(rng.integers(2**31))
+        robot = _robot(robot_seed, k % 2 == 0, folder, **size)
         differentiated, estimated = bool(rng.integers(2)), bool(rng.integers(2))
-        log = _measured(_simulate(robot, t), True, differentiated, int(rng.integers(2**31)))
-        record = _monitored(robot, log, _noise(True, differentiated, estimated), false_alarm_rate=rate)
+        with stage("monitor false-alarm rate", seed=robot_seed, planar=k % 2 == 0, motion="harmonic", noisy=True,
+                   differentiated=differentiated, estimated=estimated):  # fmt: skip
+            log = _measured(_simulate(robot, t), True, differentiated, int(rng.integers(2**31)))
+            record = _monitored(robot, log, _noise(True, differentiated, estimated), false_alarm_rate=rate)
         alarms, tested = alarms + len(record.events), tested + record.n_tested
     return alarms, tested
 
@@ -275,9 +284,12 @@ def test_false_alarms_on_larger_random_robots_as_stated(tmp_path):
 
 
 @pytest.mark.slow
-@pytest.mark.xfail(reason="not explained yet: noise-free, rates differentiated, levels 1e-7; false alarms from 5.2 s in "
-                   "the log with the grasp (at 13.92 s) that the changeless log, the same before the grasp, does not raise")
-def test_an_unexplained_failure_on_a_spatial_tree(tmp_path):
+def test_a_noise_free_spatial_log_up_to_a_grasp_is_smooth(tmp_path):
+    """Noise-free, rates differentiated, levels 1e-7: false alarms at 5.16, 8.64 and 10.38 s in the
+    log with the grasp (at 13.92 s) that the changeless log, the same before the grasp, did not
+    raise. The log before the grasp, simulated up to 13.92 s, had single-sample attitude jumps of
+    up to 4e-8 rad at 5.22, 8.7 and 10.44 s (spline nodes a rounding error apart), 1e-6 rad/s in
+    the rates differentiated from it: changes of the data the monitor was right to report."""
     _grasp_found(18800167, False, False, True, True, 0.6948161718260787, tmp_path, 20.0, after="tested", max_arms=2,
                  max_joints=3)
 

@@ -10,10 +10,11 @@ from importlib import resources
 import mujoco
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 from mujoco_flight import Sensors, fly, sense
 from random_robots import perturbed_prior, random_robot
+from robot_tally import robots, stage
 from test_random_robots import noise_free_identification
 
 import spaceid
@@ -26,8 +27,8 @@ SERVICER = resources.files("spaceid.models.presets").joinpath("servicer-dual.urd
 RATE = 50.0
 
 
-ONE = settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
-SOME = settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+ONE = robots(1)
+SOME = robots(4)
 
 
 def _excitation(joints, duration, seed, amplitude=0.1, harmonics=3) -> FourierTrajectory:
@@ -53,6 +54,11 @@ def _relative(a, b) -> float:
 
 
 def _momentum_agrees(tmp_path, seed, **size):
+    with stage("MuJoCo momentum", seed=seed, planar=False, motion="random Fourier", **size):
+        _check_momentum(tmp_path, seed, **size)
+
+
+def _check_momentum(tmp_path, seed, **size):
     model, flight = _flown(tmp_path, seed, duration=1.0, **size)
     log = flight.log
     assert flight.drift < 1e-7  # the engine conserved it (RK4 at 1 ms)
@@ -90,11 +96,16 @@ def test_flight_is_not_the_reference():
 
 
 @pytest.mark.slow
-@settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@robots(2)
 @given(seed=st.integers(0, 10**6))
 def test_identify_a_random_robot_flown_in_mujoco(tmp_path, seed):
     """Noise-free, rates measured: least squares recovers the true minimal parameters from
     MuJoCo's log to the integrator's error times the conditioning."""
+    with stage("MuJoCo identify noise-free", seed=seed, planar=False, motion="random Fourier"):
+        _identify_mujoco_flight(tmp_path, seed)
+
+
+def _identify_mujoco_flight(tmp_path, seed):
     model, flight = _flown(tmp_path, seed, duration=20.0, amplitude=0.4, harmonics=6, max_arms=2, max_joints=4)
     param = minimal_parameters(model)
     result = spaceid.identify(param, flight.log, flight.momentum[0], estimator="ols", cond_limit=1e12)
@@ -121,6 +132,11 @@ def test_mjcf_export_flies_in_mujoco_with_the_identified_momentum(tmp_path, seed
     """``export --format mjcf`` of an identification of a random robot: MuJoCo loads it as a free
     floater and, flying a joint motion with its own integrator, has the angular momentum that the
     identified parameters give on the same states."""
+    with stage("MJCF export in MuJoCo", seed=seed, planar=False, motion="random Fourier"):
+        _mjcf_flies(tmp_path, seed)
+
+
+def _mjcf_flies(tmp_path, seed):
     true = random_robot(seed, planar=False, max_arms=2, max_joints=3).load(tmp_path)
     result = noise_free_identification(true, seed)
     write_export(export_model(result, perturbed_prior(true, seed + 1)), tmp_path / "robot.xml", fmt="mjcf")

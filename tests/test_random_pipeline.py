@@ -8,10 +8,11 @@ import dataclasses
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, example, given, settings
+from hypothesis import example, given
 from hypothesis import strategies as st
 from conftest import random_inertia
 from random_robots import random_robot
+from robot_tally import robots, stage
 from test_monitor_random_robots import Robot, check_grasp, robot_grasp_run
 
 from spaceid.dynamics import minimal_parameters
@@ -23,49 +24,64 @@ from spaceid.studies import predict
 
 SEEDS = st.integers(0, 2**31 - 1)
 NOISE = 1e-4  # [rad, rad/s] on every signal of the noisy logs
-FAST = settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                      HealthCheck.function_scoped_fixture])
-SLOW = settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                       HealthCheck.function_scoped_fixture])
+FAST = robots(1)
+SLOW = robots(8)
 
 
-def _flown(seed, planar, tmp_path):
+@dataclasses.dataclass(frozen=True)
+class Flown:
+    """A random robot (``case``: how it was drawn), a motion designed for it, its noise-free log."""
+
+    case: dict
+    model: object
+    param: object
+    momentum: np.ndarray
+    trajectory: object
+    log: object
+
+
+def _flown(seed, planar, tmp_path) -> Flown:
     """A random robot, a motion designed for it in a short budget, and its noise-free log."""
-    model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(tmp_path)
-    param = minimal_parameters(model)
-    h = np.array([0.0, 0.0, 0.3]) if planar else np.array([0.3, -0.2, 0.1])
-    samples = max(60, 3 * param.n_params // param.rows)
-    design = design_excitation(param, duration=10.0, harmonics=3, samples=samples, momentum=h, seed=seed % 2**32,
-                               n_starts=1, time_budget=2.0, q_max=1.0, qd_max=1.0, qdd_max=1.0)
-    log = simulate(param, param.true_values, design.trajectory, sample_times(10.0, 4 * samples), h, model=model)
-    assert log.meta["momentum_rel_error"] < 1e-9  # the simulation conserves the rigid-body momentum
-    return model, param, h, design.trajectory, log
+    case = {"seed": seed, "planar": planar, "motion": "designed"}
+    with stage("design+simulate", **case):
+        model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(tmp_path)
+        param = minimal_parameters(model)
+        h = np.array([0.0, 0.0, 0.3]) if planar else np.array([0.3, -0.2, 0.1])
+        samples = max(60, 3 * param.n_params // param.rows)
+        design = design_excitation(param, duration=10.0, harmonics=3, samples=samples, momentum=h, seed=seed % 2**32,
+                                   n_starts=1, time_budget=2.0, q_max=1.0, qd_max=1.0, qdd_max=1.0)
+        log = simulate(param, param.true_values, design.trajectory, sample_times(10.0, 4 * samples), h, model=model)
+        assert log.meta["momentum_rel_error"] < 1e-9  # the simulation conserves the rigid-body momentum
+    return Flown(case, model, param, h, design.trajectory, log)
 
 
-def _check_pipeline(seed, planar, tmp_path):
-    model, param, h, traj, log = _flown(seed, planar, tmp_path)
+def _check_pipeline(flown: Flown):
+    param, h, traj, log, seed = flown.param, flown.momentum, flown.trajectory, flown.log, flown.case["seed"]
     true = param.true_values
-    exact = identify(param, log, h, estimator="ols")
-    assert np.abs(exact.values - true).max() <= 1e-10 * exact.condition_number * np.abs(true).max()
+    with stage("identify noise-free", **flown.case):
+        exact = identify(param, log, h, estimator="ols")
+        assert np.abs(exact.values - true).max() <= 1e-10 * exact.condition_number * np.abs(true).max()
 
-    noise = Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE)
-    noisy = identify(param, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), h, noise=noise)
-    free = noisy.std > 0
-    z = (noisy.values - true)[free] / noisy.std[free]
-    assert np.abs(z).max() < 5, f"max |z| {np.abs(z).max():.3g} over {free.sum()} parameters"
+    with stage("identify noisy", **flown.case):
+        noise = Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE)
+        noisy = identify(param, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), h, noise=noise)
+        free = noisy.std > 0
+        z = (noisy.values - true)[free] / noisy.std[free]
+        assert np.abs(z).max() < 5, f"max |z| {np.abs(z).max():.3g} over {free.sum()} parameters"
 
-    held_out = sample_times(traj.duration, 200)
-    q, qd, _ = traj.evaluate(held_out)
-    again = simulate(param, true, traj, held_out, h)
-    predicted = predict(exact, held_out, q, qd, momentum=h)
-    assert np.abs(predicted.base_w - again.base_w).max() <= 1e-6 * np.abs(again.base_w).max()
+    with stage("predict", **flown.case):
+        held_out = sample_times(traj.duration, 200)
+        q, qd, _ = traj.evaluate(held_out)
+        again = simulate(param, true, traj, held_out, h)
+        predicted = predict(exact, held_out, q, qd, momentum=h)
+        assert np.abs(predicted.base_w - again.base_w).max() <= 1e-6 * np.abs(again.base_w).max()
 
 
-def _check_payload(seed, planar, tmp_path):
+def _check_payload(flown: Flown):
     """A payload of 2 to 20 % of the robot's mass, 5 to 30 cm across, on a random link, identified
     from the noise-free log after the capture (the servicer known) to round-off, and from a noisy
     one within 5 sigma."""
-    model, param, h, traj, _ = _flown(seed, planar, tmp_path)
+    model, h, traj, seed, planar = flown.model, flown.momentum, flown.trajectory, flown.case["seed"], flown.model.planar
     rng = np.random.default_rng(seed)
     link = model.bodies[rng.integers(1, len(model.bodies))].name
     mass = model.mass * rng.uniform(0.02, 0.2)
@@ -75,35 +91,39 @@ def _check_payload(seed, planar, tmp_path):
                                                    if b.name == link else b for b in model.bodies))
     captured = minimal_parameters(held)
     log = simulate(captured, captured.true_values, traj, sample_times(traj.duration, 400), h, model=held)
-    exact = identify_payload(model, log, link, h, noise=Noise())
-    assert abs(exact.values[0] - mass) <= 1e-6 * mass
-    noisy = identify_payload(model, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), link, h,
-                             noise=Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE))
-    assert abs(noisy.values[0] - mass) < 5 * noisy.std[0]
+    with stage("payload noise-free", **flown.case):
+        exact = identify_payload(model, log, link, h, noise=Noise())
+        assert abs(exact.values[0] - mass) <= 1e-6 * mass
+    with stage("payload noisy", **flown.case):
+        noisy = identify_payload(model, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), link, h,
+                                 noise=Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE))
+        assert abs(noisy.values[0] - mass) < 5 * noisy.std[0]
 
 
-def _check_monitor(seed, planar, tmp_path):
+def _check_monitor(flown: Flown):
     """The monitor on the designed motion played twice (rest to rest: smooth), 20 s: a 0.9 kg
     payload grasped on a random link at a random time after the first tested sample, 1e-4 rad and
     rad/s of noise, the rates measured or differentiated (``test_monitor_random_robots``): reported
     within 0.25 s, no more than one false alarm on the changeless log and before the grasp."""
-    model, param, h, traj, _ = _flown(seed, planar, tmp_path)
+    model, param, h, traj, seed = flown.model, flown.param, flown.momentum, flown.trajectory, flown.case["seed"]
     rng = np.random.default_rng(seed)
 
     def twice(t):
         q, qd, _ = traj.evaluate(np.mod(t, traj.duration))
         return q, qd
 
-    run = robot_grasp_run(Robot(model, param, h, twice, rng), seed, True, bool(rng.integers(2)), False,
+    differentiated = bool(rng.integers(2))
+    run = robot_grasp_run(Robot(model, param, h, twice, rng), seed, True, differentiated, False,
                           rng.uniform(), 2 * traj.duration)  # fmt: skip
     if run.grasp is not None:  # None: too weak a grasp to show within 0.25 s, or the first warm-up left no time
-        check_grasp(run)  # (a 66-parameter spatial tree, rates differentiated, was not determined in 20 s)
+        with stage("monitor", **flown.case, noisy=True, differentiated=differentiated):
+            check_grasp(run)  # (a 66-parameter spatial tree, rates differentiated, was not determined in 20 s)
 
 
 @FAST
 @given(seed=SEEDS, planar=st.booleans())
 def test_pipeline_on_random_robots(seed, planar, tmp_path):
-    _check_pipeline(seed, planar, tmp_path)
+    _check_pipeline(_flown(seed, planar, tmp_path))
 
 
 @pytest.mark.slow
@@ -111,6 +131,7 @@ def test_pipeline_on_random_robots(seed, planar, tmp_path):
 @given(seed=SEEDS, planar=st.booleans())
 @example(seed=430, planar=False)  # the payload's consistency projection: Clarabel failed at both tolerances
 def test_pipeline_and_payload_on_more_random_robots(seed, planar, tmp_path):
-    _check_pipeline(seed, planar, tmp_path)
-    _check_payload(seed, planar, tmp_path)
-    _check_monitor(seed, planar, tmp_path)
+    flown = _flown(seed, planar, tmp_path)
+    _check_pipeline(flown)
+    _check_payload(flown)
+    _check_monitor(flown)

@@ -7,9 +7,10 @@ import warnings
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import example, given
 from hypothesis import strategies as st
 from random_robots import perturbed_prior, random_robot
+from robot_tally import robots, stage
 from random_states import random_log
 from test_export import check_export
 
@@ -19,10 +20,8 @@ from spaceid.estimation import identify
 from spaceid.identified import export_model, pseudo_inertia, write_export
 
 SEEDS = st.integers(0, 2**31 - 1)
-FAST = settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                      HealthCheck.function_scoped_fixture])
-SLOW = settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow,
-                                                                       HealthCheck.function_scoped_fixture])
+FAST = robots(1)
+SLOW = robots(40)
 
 
 def noise_free_identification(model, seed):
@@ -64,7 +63,8 @@ def _noisy_export(seed, planar, tmp_path, **size):
 
 def _export(seed, planar, noisy, tmp_path, *, larger=False):
     size = {"max_arms": 3, "max_joints": 4} if larger else {"max_arms": 2, "max_joints": 3 if planar else 2}
-    (_noisy_export if noisy else _exact_export)(seed, planar, tmp_path, **size)
+    with stage("export noisy" if noisy else "export noise-free", seed=seed, planar=planar, motion="random states"):
+        (_noisy_export if noisy else _exact_export)(seed, planar, tmp_path, **size)
 
 
 @FAST
@@ -87,5 +87,8 @@ def test_export_regressions(seed, planar, noisy, tmp_path):
 @pytest.mark.slow
 @SLOW
 @given(seed=SEEDS, planar=st.booleans(), noisy=st.booleans())
+# a 1-joint spatial robot: the restoring step towards the 0.95 ellipsoid raised the violation, and
+# the export gave up on every automatic region although the true robot was inside the 0.95 one
+@example(seed=1527, planar=False, noisy=True)
 def test_export_without_options_on_larger_robots(seed, planar, noisy, tmp_path):
     _export(seed, planar, noisy, tmp_path, larger=True)

@@ -6,7 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import pinocchio_momentum, random_states, random_tree
-from hypothesis import HealthCheck, example, given, settings
+from robot_tally import robots, stage
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 import spaceid
@@ -44,20 +45,27 @@ def minimal_momentum_error(tree, *, planar):
     return np.abs(param.regressor(q, qd, w0) @ param.true_values - ref).max() / np.abs(ref).max()
 
 
+def _regressor_matches(tree, planar):
+    parents, prismatic, seed = tree
+    with stage("minimal regressor", seed=seed, planar=planar, parents=str(parents), prismatic=str(prismatic),
+               motion="random states"):  # fmt: skip
+        assert minimal_momentum_error(tree, planar=planar) < 1e-10
+
+
 @pytest.mark.slow
-@settings(max_examples=100, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@robots(100)
 @given(trees())
 @example(([0, 0], (), 14151224))  # a joint axis 2.5e-4 off an x-y plane: dependency coefficients of 4e4
 @example(([0, 1, 2, 3], (1,), 212293424))  # columns only weakly independent (parts of 8e-7): 57 kept for 55
 def test_spatial_regressor_equals_pinocchio_on_random_trees(tree):
-    assert minimal_momentum_error(tree, planar=False) < 1e-10
+    _regressor_matches(tree, False)
 
 
 @pytest.mark.slow
-@settings(max_examples=5, deadline=None, suppress_health_check=[HealthCheck.too_slow])  # planar definitions: ~1 s
+@robots(5)  # planar definitions: ~1 s
 @given(trees())
 def test_planar_regressor_equals_pinocchio_on_random_trees(tree):
-    assert minimal_momentum_error(tree, planar=True) < 1e-10
+    _regressor_matches(tree, True)
 
 
 @pytest.mark.slow
