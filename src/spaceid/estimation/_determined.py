@@ -34,10 +34,11 @@ the regressor's noise along it is at least as large as its signal (``mu / (1 - m
 noise share ``mu``; a direction determined to first order has ``mu`` near 0)."""
 
 
-NOISE_SAMPLES = 1000
+NOISE_SAMPLES = 400
 """Samples over which :func:`noise_gram` sums (evenly spread, the sum scaled to the log's): the ratios
-decide only whether a direction is noise (at 0.5), which a tenth of accuracy settles, and the
-derivatives cost two equation builds per signal channel."""
+decide only whether a direction is noise (at 0.5), which a tenth of accuracy settles (400 samples of
+a smooth motion give it), and the derivatives cost an equation build per signal channel and a
+product per build (1,000 samples: half of a 10,000-sample servicer identification's time)."""
 
 
 def noise_rows(n: int) -> tuple:

@@ -91,14 +91,18 @@ def newey_west_covariance(bread, M, r, bandwidth, p, dof_scale=True):
     small against the log (Kiefer and Vogelsang's fixed-b result; on Cepheus at 501 samples and a
     50-sample bandwidth it moved 2-sigma coverage from 0.94 to 0.95). ``dof_scale`` False: without
     the ``n / (n - p)`` (residuals already scaled by their leverage). See :func:`_hac`."""
-    return _hac([_mapped_scores(bread, M, r)], bandwidth, p, dof_scale)
+    omega = _hac([_mapped_scores(None, M, r)], bandwidth, p, dof_scale)  # a Gram matrix: mapped after, p^3 not n p^2
+    with one_blas_thread():
+        return bread @ omega @ bread.T
 
 
 def _mapped_scores(bread, M, r):
-    """The scores ``g_n = M_n^T r_n`` mapped by ``bread``: ``(n, p)`` rows ``bread g_n``."""
+    """The scores ``g_n = M_n^T r_n`` mapped by ``bread`` (None: as they are): ``(n, p)`` rows ``bread g_n``."""
     scores = M[:, 0] * r[:, :1]
     for row in range(1, M.shape[1]):  # a product per equation row: einsum took several times longer
         scores += M[:, row] * r[:, row : row + 1]
+    if bread is None:
+        return scores
     with one_blas_thread():
         return scores @ bread.T
 
