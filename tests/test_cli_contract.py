@@ -428,7 +428,7 @@ def test_concurrent_runs_into_one_folder_never_corrupt_it(files, tmp_path):
     assert sorted(_snapshot(tmp_path / "report")) == sorted(manifest["files"] + [MANIFEST])
     assert json.loads((tmp_path / "report" / "metrics.json").read_text())
     assert json.loads((tmp_path / "result.json").read_text())["parameters"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "result.json"]  # no temporaries
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["report", "result.html", "result.json"]  # no temporaries
     assert _snapshot(files) == inputs
 
 

@@ -146,15 +146,16 @@ def test_ml_that_does_not_converge_falls_back(cepheus, monkeypatch):
 @pytest.mark.slow
 def test_ml_never_reports_physically_impossible_parameters_when_wls_has_none(cepheus):
     """Rates differentiated from angles with 3e-2 rad noise, levels estimated (far too small for
-    the rates: chi2_dof ~7e3). The accelerated iteration converges here to a local minimum of the
+    the rates: chi2_dof ~3e2). The accelerated iteration converges here to a local minimum of the
     objective whose parameters are up to 9 times their size, an inertia-like one negative beyond
     2 sigma (the unaccelerated one ran off to 100 times). That is not reported: WLS's estimate,
-    physically possible, is, and the result says why."""
+    physically possible, is, and the result says why. (Noise seed 2: with the differentiator's window
+    chosen for the estimate, seed 0's converges to a physical one; seeds 2, 3 and 5 of 0 to 7 do not.)"""
     from spaceid.data import differentiate_log
 
     param, _ = cepheus
     log = differentiate_log(add_noise(simulate(param, param.true_values, paper_motion, np.arange(0, 5.0001, 0.01), H),
-                                      angle=3e-2, seed=0))  # fmt: skip
+                                      angle=3e-2, seed=2))  # fmt: skip
     wls = identify(param, log, H, estimator="wls")
     with pytest.warns(UserWarning) as record:
         ml = identify(param, log, H, estimator="ml")
@@ -164,7 +165,7 @@ def test_ml_never_reports_physically_impossible_parameters_when_wls_has_none(cep
     assert any("the estimate reported is wls" in m for m in messages)
     assert not any("physically impossible parameters, negative" in m for m in messages)  # no longer reported
     assert ml.values == pytest.approx(wls.values, rel=1e-12) and ml.std == pytest.approx(wls.std, rel=1e-9)
-    assert ml.diagnostics.chi2_dof > 1e3 and any("contradict the noise model" in m for m in messages)
+    assert ml.diagnostics.chi2_dof > 1e2 and any("contradict the noise model" in m for m in messages)
 
 
 def _reference_ml(eq, x, sigma, theta, iterations=40):

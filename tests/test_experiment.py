@@ -36,8 +36,9 @@ def test_identification_from_the_twin_bag_is_within_its_uncertainty(ideal):
     assert res.settings["momentum of the rest, I_rw w_rw [N m s]"] == pytest.approx(0.3355, abs=1e-4)
     # N = 29 samples of the 5 s excitation, and all samples of it from the 50 Hz joint states
     assert res.ident.n_samples == 29 and res.ident_all.n_samples == 251
-    # the identified model re-simulates the measured base rate to a fraction of a percent
-    assert res.metrics["base_w_nrms"] < 0.01
+    # the identified model re-simulates the measured base rate to a few percent of its RMS: the measured rate is
+    # differentiated from the attitude with the window chosen for the estimate (less bias, more noise: 1.6 %)
+    assert res.metrics["base_w_nrms"] < 0.03
 
 
 def test_report_folder(ideal):
