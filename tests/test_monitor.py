@@ -178,9 +178,9 @@ def _assert_false_alarm_rate(param, logs, noise, rate=1e-3, **options) -> list:
 
 
 def _differentiated(log, seed):
-    """``log`` with noisy angles whose rates are differentiated over 31 samples, as the bag readers
-    do: equation errors with a lag-1 autocorrelation ~0.85."""
-    return differentiate_log(_noisy(log, seed), window=31)
+    """``log`` with noisy angles whose rates are differentiated over 31 samples by cubics, as the bag
+    readers do: equation errors with a lag-1 autocorrelation ~0.85."""
+    return differentiate_log(_noisy(log, seed), window=31, order=3)
 
 
 @pytest.mark.slow
