@@ -163,13 +163,12 @@ def regressor_factor(A: np.ndarray) -> np.ndarray:
     return _blockwise(A, zero, scale, _accumulate_factor, _accumulate_factor)[:-1, :-1] * scale
 
 
-def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, whitener=None, noise=None,
-                            factor=None) -> list:
-    """:func:`undetermined` of the equations ``eq`` at the signals ``x (n, n_x)`` (built: ``phi (n, rows,
-    p + 1)``) and estimate ``theta``, whitened as the estimator's (:func:`equation_noise`); ``noise`` their
-    noise Gram matrix ``(p, p)`` if already formed; ``factor``: ``ols``'s ``(scale, R, cond)``, the
-    column-scaled factor of ``[A | b]`` and its scaled condition number, reused below
-    :data:`DIRECTIONS_COND`."""
+def noise_ratios(eq, x, phi, sigma, theta, estimator: str, log, whitener=None, noise=None, factor=None) -> tuple:
+    """:func:`noise_to_signal` ``(mu, directions)`` of the equations ``eq`` at the signals ``x (n, n_x)``
+    (built: ``phi (n, rows, p + 1)``) and estimate ``theta``, whitened as the estimator's
+    (:func:`equation_noise`); ``noise`` their noise Gram matrix ``(p, p)`` if already formed; ``factor``:
+    ``ols``'s ``(scale, R, cond)``, the column-scaled factor of ``[A | b]`` and its scaled condition
+    number, reused below :data:`DIRECTIONS_COND`."""
     from ._linalg import _equation_whitener, _whitened
 
     if noise is None:
@@ -180,19 +179,21 @@ def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, white
         L = None if estimator == "ols" else whitener if whitener is not None else _equation_whitener(eq, x, theta,
                                                                                                      sigma)
         R = regressor_factor((phi if L is None else _whitened(L, phi))[..., :-1].reshape(-1, eq.p))
-    return undetermined(*noise_to_signal(R, noise), eq.names())
+    return noise_to_signal(R, noise)
+
+
+def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, whitener=None, noise=None,
+                            factor=None) -> list:
+    """:func:`undetermined` of :func:`noise_ratios` (the same arguments)."""
+    return undetermined(*noise_ratios(eq, x, phi, sigma, theta, estimator, log, whitener, noise, factor), eq.names())
 
 
 def undetermined_basis(eq, log, theta, sigma) -> np.ndarray:
     """The directions ``(p, k)`` of parameter space (the unknowns of ``eq``) that ``log`` does not
-    determine, :func:`noise_to_signal`'s columns at or above :data:`UNDETERMINED`, the equations
-    whitened by the noise model at ``theta`` for the signal levels ``sigma (n_x,)``."""
-    from ._linalg import _equation_whitener, _whitened
-
+    determine, :func:`noise_ratios`' columns at or above :data:`UNDETERMINED`, the equations whitened
+    by the noise model at ``theta`` for the signal levels ``sigma (n_x,)``."""
     x = eq.signals(log)
-    L = _equation_whitener(eq, x, theta, sigma)
-    noise = equation_noise(eq, x, sigma, theta, "wls", log, L)
-    mu, directions = noise_to_signal(regressor_factor(_whitened(L, eq.phi(x))[..., :-1].reshape(-1, eq.p)), noise)
+    mu, directions = noise_ratios(eq, x, eq.phi(x), sigma, theta, "wls", log)
     return directions[:, mu >= UNDETERMINED]
 
 
