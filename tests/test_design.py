@@ -190,6 +190,49 @@ def test_budget_stops_a_search_inside_its_iterations(monkeypatch):
     assert result.value == pytest.approx(cond(result.trajectory), rel=1e-9)
 
 
+def test_step_budget_gives_the_same_design_on_any_machine(monkeypatch):
+    """``max_steps``: each SLSQP search and polish stops after that many linearisations, whatever the
+    machine's speed (a clock that jumps a second at every look changes nothing), in one process or
+    two, bit for bit; it binds (fewer steps, another trajectory) and is recorded."""
+    import spaceid.motion._design_problem as problem_module
+    import spaceid.motion._design_search as search_module
+
+    first = design(seed=0, n_starts=3, max_steps=6)
+    assert first.trajectory.meta["max_steps"] == 6 and first.trajectory.meta["time_budget"] is None
+    assert design(seed=0, n_starts=3, max_steps=6, jobs=2).trajectory == first.trajectory
+
+    class Clock:  # a loaded machine: every look at the clock a second later
+        now = 0.0
+        perf_counter = staticmethod(time.perf_counter)
+
+        @classmethod
+        def time(cls):
+            cls.now += 1.0
+            return cls.now
+
+    for module in (problem_module, search_module):
+        monkeypatch.setattr(module, "time", Clock)
+    again = design(seed=0, n_starts=3, max_steps=6)
+    assert np.array_equal(again.trajectory.a, first.trajectory.a) and np.array_equal(again.trajectory.b,
+                                                                                      first.trajectory.b)
+    assert again.value == first.value
+    monkeypatch.undo()
+    assert design(seed=0, n_starts=3, max_steps=3).value != first.value  # the budget binds
+    assert design(seed=0, n_starts=3).value < first.value  # unbounded: SLSQP to its tolerance
+
+
+def test_step_budget_counts_linearisations(monkeypatch):
+    """An SLSQP search spends at most ``max_steps`` linearisations, a polish as many again."""
+    import spaceid.motion._design_problem as problem_module
+
+    calls = []
+    original = problem_module._ExcitationProblem.linearize_criterion
+    monkeypatch.setattr(problem_module._ExcitationProblem, "linearize_criterion",
+                        lambda self, *a, **k: calls.append(1) or original(self, *a, **k))
+    design(seed=0, n_starts=2, max_steps=5)
+    assert 0 < len(calls) <= 5 * (2 + 2)  # two searches, two polishes
+
+
 def test_convergence_stops_the_search():
     """patience=2: the search stops at the first start after which two starts in a row gained
     less than 1e-3 in log cond, and records why; with fewer starts than the patience every
@@ -535,6 +578,16 @@ def test_cli_design_with_noise(tmp_path, capsys):
                      r"the 8 large parameters \S+ % \(pi\d\)", line), line
     meta = load_trajectory(tmp_path / "traj.json").meta
     assert meta["criterion"] == "crb" and meta["noise"] == NOISE.to_dict()
+
+
+def test_cli_design_step_budget(tmp_path, capsys):
+    args = ["design", "cepheus", "--duration", "5", "--harmonics", "3", "--samples", "35", "--momentum", "0.4934",
+            "--starts", "2", "--max-steps", "4"]  # fmt: skip
+    assert main([*args, "-o", str(tmp_path / "a.json")]) == 0 and main([*args, "-o", str(tmp_path / "b.json")]) == 0
+    first, again = load_trajectory(tmp_path / "a.json"), load_trajectory(tmp_path / "b.json")
+    assert first.meta["max_steps"] == 4 and np.array_equal(first.a, again.a) and np.array_equal(first.b, again.b)
+    assert main([*args[:-1], "0", "-o", str(tmp_path / "c.json")]) == 2
+    assert "--max-steps" in capsys.readouterr().err
 
 
 def test_cli_design_prints_progress_lines_when_not_on_a_terminal(tmp_path, capsys):

@@ -185,7 +185,6 @@ NO_OPTION = {
     "smoothing": "differentiate's spline smoothing: the commands use Savitzky-Golay filters",
     "regressor": "optimize_excitation's regressor callable: design_excitation builds it",
     "n_grid": "optimize_excitation's limit-check grid: the design command keeps the default",
-    "max_steps": "optimize_excitation's step limit: the design command keeps the default",
     "n_screen": "optimize_excitation's screened starts: the design command keeps the default",
     "patience": "optimize_excitation's patience: the design command keeps the default",
     "frame": "IdentifiedModel.frame_velocity's frame: no command computes frame velocities",

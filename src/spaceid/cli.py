@@ -647,6 +647,9 @@ def _write_definitions(path, info, model_src):
               "0.1 %.")
 @click.option("--time-budget", type=SECONDS, help="Hard limit on the search's wall time [s]: the best trajectory "
               "so far is returned (then the result also depends on the machine's speed).")
+@click.option("--max-steps", type=click.IntRange(min=1), metavar="N", help="Most linearisations of the regressor a "
+              "local search makes (and each polish, for small regressors): a budget that gives the same trajectory "
+              "on any machine [default: to convergence for small regressors, 40 for large ones].")
 @click.option("--payload-link", metavar="LINK", help="Design for the parameters of a payload held by LINK (see "
               "'spaceid payload') instead of the minimal parameters (--momentum 0 allowed: the known servicer "
               "fixes the scale); with the --noise-* options the trajectory records the payload's predicted "
@@ -657,7 +660,7 @@ def _write_definitions(path, info, model_src):
 @SCHEDULER
 @output("Trajectory JSON to write (for simulate, predict, identify --instruments).")
 def design(model_src, planar, duration, harmonics, samples, momentum, seed, criterion, noise, q_max, qd_max, qdd_max,
-           starts, time_budget, payload_link, payload_nominal, jobs, scheduler, output):
+           starts, time_budget, max_steps, payload_link, payload_nominal, jobs, scheduler, output):
     """Optimal exciting trajectory (Eq. 12): minimal condition number of the regressor, or, given
     the noise, minimal predicted estimation error; the noise and the predicted Cramer-Rao
     standard deviations are recorded in the trajectory."""
@@ -678,7 +681,8 @@ def design(model_src, planar, duration, harmonics, samples, momentum, seed, crit
           _every(5.0, line) if not err.is_terminal else contextlib.nullcontext() as status):
         res = design_excitation(param, duration=duration, harmonics=harmonics, samples=samples, momentum=h, seed=seed,
                          progress=progress, q_max=q_max, qd_max=qd_max, qdd_max=qdd_max, criterion=criterion,
-                         noise=noise, n_starts=starts, time_budget=time_budget, payload_link=payload_link,
+                         noise=noise, n_starts=starts, time_budget=time_budget, max_steps=max_steps,
+                         payload_link=payload_link,
                          payload=nominal, jobs=jobs, scheduler=scheduler, status=status)
     res.trajectory.save(output)
     err.print(f"{criterion} = {res.value:.6g} (seed {seed}, {res.n_starts} starts, stopped: "

@@ -129,7 +129,7 @@ def optimize_excitation(
     initial=None,
     n_grid=1001,
     method="auto",
-    max_steps=40,
+    max_steps=None,
     n_screen=64,
     scheduler=None,
     patience=None,
@@ -201,8 +201,12 @@ def optimize_excitation(
         limits, minimised on a model that linearises the regressor in the joint signals; for
         spatial systems (tens to hundreds of columns, a spectrum decaying over decades).
         ``auto``: ``slsqp`` up to 64 regressor columns, else ``trust-region``.
-    max_steps : int
-        Trust region: most steps of a search, each one linearisation (a regressor evaluation
+    max_steps : int, optional
+        Most steps of a local search, each one linearisation of the regressor: the budget that
+        ends the search at the same point on any machine (``time_budget`` is the machine's).
+        SLSQP: each iteration's, in all over a search's passes, and as many again for each
+        polish of the best; default none (every pass runs to its tolerance, at most 200
+        iterations). Trust region (default 40): each step a linearisation (a regressor evaluation
         of 1 + 2 n_joints trajectories) and an L-BFGS-B solve of its model. Every start gets
         a fifth of them, the best quarter of the starts (at least two) the rest, so a design
         makes about ``(n_starts + 4 max(2, n_starts / 4)) max_steps / 5`` steps, shared by the
@@ -235,7 +239,8 @@ def optimize_excitation(
     -------
     DesignResult
         The trajectory's ``meta`` also records ``method``, ``start_value`` (the criterion at
-        the start of the search that found it) and ``stop``, what ended the search:
+        the start of the search that found it), the budgets ``max_steps`` and ``time_budget``
+        as given (None: not given), and ``stop``, what ended the search:
         ``"converged"`` (``patience``), ``"budget"`` (``time_budget``) or ``"starts"`` (all
         ``n_starts`` searched).
 
@@ -253,8 +258,9 @@ def optimize_excitation(
     t_start = time.perf_counter()
     joints = tuple(joints)
     _check_options(criterion, duration, time_budget, harmonics=harmonics, samples=samples,
-                   n_grid=n_grid, seed=seed, max_steps=max_steps, n_screen=n_screen,
+                   n_grid=n_grid, seed=seed, n_screen=n_screen,
                    **({} if n_starts is None else {"n_starts": n_starts}),
+                   **({} if max_steps is None else {"max_steps": max_steps}),
                    **({} if patience is None else {"patience": patience}))  # fmt: skip
     if method not in _METHODS:
         raise SpaceidError(f"`method` must be one of {', '.join(_METHODS)}, got {method!r}")
@@ -304,6 +310,8 @@ def optimize_excitation(
         "method": method,
         "start_value": float(report(problem.objective(tally.starts[i_best][None])[0])),
         "stop": tally.stop,
+        "max_steps": max_steps,
+        "time_budget": time_budget,
     }
     trajectory = FourierTrajectory(
         joints, duration, X[:, :harmonics], X[:, harmonics:], **dict(zip(BOUNDARY_FIELDS, bc)),

@@ -40,6 +40,7 @@ from ._criteria import CRITERIA
 from ._design_problem import _check_clock, _ExcitationProblem, _OutOfTime
 
 _METHODS = ("auto", "slsqp", "trust-region")
+TRUST_REGION_STEPS = 40  # the trust region's default ``max_steps``
 _SLSQP_MAX_COLUMNS = 64  # "auto": SLSQP up to this many regressor columns, trust region above
 _N_POLISH = 2  # SLSQP: distinct best results refined on the fine grid
 # SLSQP polish of a subsampled problem: iterations a round on the subsample, then on all samples
@@ -116,11 +117,34 @@ def _near_peaks(problem, z, *, threshold, width=3):
     return mask
 
 
-def _slsqp_epigraph(problem, z0, mask, *, ftol, near=False, maxiter=200, central=True, deadline=None):
+@dataclass
+class _Budget:
+    """What a local search may spend: the wall clock up to ``deadline`` (time.time(), None: no
+    limit) and ``steps`` linearisations of the criterion (None: no limit), ``used`` so far. The
+    steps end a search at the same iterate on any machine; the deadline, wherever it falls."""
+
+    deadline: float | None = None
+    steps: int | None = None
+    used: int = 0
+
+    def check(self):
+        """Raise :class:`_OutOfTime` once the deadline has passed or the steps are spent."""
+        _check_clock(self.deadline)
+        if self.steps is not None and self.used >= self.steps:
+            raise _OutOfTime
+
+    def spend(self):
+        """Count one linearisation (after :meth:`check`)."""
+        self.check()
+        self.used += 1
+
+
+def _slsqp_epigraph(problem, z0, mask, *, ftol, budget, near=False, maxiter=200, central=True):
     """SLSQP in epigraph form from ``z0`` under the limits at the fine-grid points ``mask``
     (only those on the side of the signal at ``z0`` where it is large, if ``near``), gradients
-    by central differences of the signals or, unless ``central``, forward ones. Past
-    ``deadline`` (time.time()) it stops with its last iterate."""
+    by central differences of the signals or, unless ``central``, forward ones. Each new iterate's
+    linearisation is spent from ``budget`` (:class:`_Budget`); once it is spent, or past its
+    deadline, it stops with its last iterate."""
     from scipy.optimize import minimize
     A, b = _limit_inequalities(problem, mask, z0 if near else None)
     A = np.hstack([A, np.zeros((len(A), 1))])  # variables w = (z, tau)
@@ -130,7 +154,8 @@ def _slsqp_epigraph(problem, z0, mask, *, ftol, near=False, maxiter=200, central
         key = w[:n].tobytes()
         if key not in cache:
             cache.clear()
-            cache[key] = problem.linearize_criterion(w[:n], central=central, deadline=deadline)
+            budget.spend()
+            cache[key] = problem.linearize_criterion(w[:n], central=central, deadline=budget.deadline)
         return cache[key]
 
     def epigraph_jac(w):  # of tau - piece(z) >= 0
@@ -142,7 +167,7 @@ def _slsqp_epigraph(problem, z0, mask, *, ftol, near=False, maxiter=200, central
         {"type": "ineq", "fun": lambda w: b - A @ w, "jac": lambda w: -A},
     ]
     e_tau = np.eye(n + 1)[n]
-    last = [z0]  # the last iterate, returned if the deadline interrupts an evaluation
+    last = [z0]  # the last iterate, returned if the budget interrupts an evaluation
     with np.errstate(divide="ignore", invalid="ignore"):
         try:
             x = minimize(
@@ -159,52 +184,53 @@ def _slsqp_epigraph(problem, z0, mask, *, ftol, near=False, maxiter=200, central
     return x if np.all(np.isfinite(x)) else z0
 
 
-def _slsqp_search(problem, z0, deadline=None, *, ftol=1e-3):
+def _slsqp_search(problem, z0, deadline=None, steps=None, *, ftol=1e-3):
     """One SLSQP search from ``z0`` (n,): coarse grid, then the fine-grid peaks too, then
     scaled into the limits; on the subsampled problem if it has one, with forward differences
     (the polish refines the best). Returns ``(z, objective)`` with the objective on all
-    samples; past ``deadline`` (time.time()) it stops with its last iterate (or the
-    start, if better)."""
-    search = problem.subsampled or problem
-    z = _slsqp_epigraph(search, z0, _coarse_grid_mask(search), ftol=ftol, central=False,
-                        deadline=deadline)  # fmt: skip
+    samples; past ``deadline`` (time.time()) or after ``steps`` linearisations in all it stops
+    with its last iterate (or the start, if better)."""
+    search, budget = problem.subsampled or problem, _Budget(deadline, steps)
+    z = _slsqp_epigraph(search, z0, _coarse_grid_mask(search), ftol=ftol, central=False, budget=budget)
     with contextlib.suppress(_OutOfTime):
-        _check_clock(deadline)
+        budget.check()
         mask = _coarse_grid_mask(search) | _near_peaks(search, z, threshold=0.8)
-        z = _slsqp_epigraph(search, z, mask, ftol=ftol, near=True, central=False, deadline=deadline)
-    # the start itself where the search, cut short by the deadline, left a worse point
+        z = _slsqp_epigraph(search, z, mask, ftol=ftol, near=True, central=False, budget=budget)
+    # the start itself where the search, cut short by its budget, left a worse point
     Z = problem.shrink_into_limits(np.stack([z, z0]))
     f = problem.objective(Z)
     return Z[np.argmin(f)], float(f.min())
 
 
-def _slsqp_polish(problem, z, deadline=None, *, rounds=4):
+def _slsqp_polish(problem, z, deadline=None, steps=None, *, rounds=4):
     """Refine ``z`` (n,) under every fine-grid limit that can become active near it; returns
-    ``(z, objective)``; past ``deadline`` (time.time()) it stops with its last iterate.
+    ``(z, objective)``; past ``deadline`` (time.time()) or after ``steps`` linearisations in all
+    it stops with its last iterate.
 
     With a subsampled problem, the rounds run on it (at most ``_POLISH_SUB_ITERATIONS`` each),
     then one round of at most ``_POLISH_FULL_ITERATIONS`` on all the samples, whose optimum
     lies close by: on a 4-joint tree at 200 samples (60 in the subsample), four full rounds
     took 6 minutes (loaded machine) and reached a cond within a few % of these."""
+    budget = _Budget(deadline, steps)
     with contextlib.suppress(_OutOfTime):
         if problem.subsampled is None:
-            z = _polish_rounds(problem, z, deadline, rounds)
+            z = _polish_rounds(problem, z, budget, rounds)
         else:
-            z = _polish_rounds(problem.subsampled, z, deadline, rounds, maxiter=_POLISH_SUB_ITERATIONS)
-            z = _polish_rounds(problem, z, deadline, 1, maxiter=_POLISH_FULL_ITERATIONS)
+            z = _polish_rounds(problem.subsampled, z, budget, rounds, maxiter=_POLISH_SUB_ITERATIONS)
+            z = _polish_rounds(problem, z, budget, 1, maxiter=_POLISH_FULL_ITERATIONS)
     z = problem.shrink_into_limits(z)
     return z, float(problem.objective(z[None])[0])
 
 
-def _polish_rounds(problem, z, deadline, rounds, maxiter=200):
+def _polish_rounds(problem, z, budget, rounds, maxiter=200):
     """The rounds of :func:`_slsqp_polish` on ``problem``; the last ``z``. Each adds the
     fine-grid points near the peaks at ``z`` to the limits imposed (the coarse grid keeps the
     refinement from running off to new peaks) until the limits hold."""
     mask = _coarse_grid_mask(problem)
     for _ in range(rounds):
-        _check_clock(deadline)
+        budget.check()
         mask |= _near_peaks(problem, z, threshold=0.8)
-        z = _slsqp_epigraph(problem, z, mask, ftol=1e-8, near=True, maxiter=maxiter, deadline=deadline)
+        z = _slsqp_epigraph(problem, z, mask, ftol=1e-8, near=True, maxiter=maxiter, budget=budget)
         if np.abs(problem.signals_over_limits(z)).max() <= 1 + 1e-9:
             break
     return z
@@ -502,8 +528,9 @@ def _multistart_search(problem, method, *, seed, n_starts, n_jobs, progress, tim
         run, workers = partial(_run_calls, problem, pool), (pool.n if pool else 1)
         if method == "slsqp":
             _slsqp_multistart(problem, tally, run, workers, seed=seed, n_starts=n_starts,
-                              z_initial=z_initial, t_end=t_end)  # fmt: skip
+                              z_initial=z_initial, t_end=t_end, steps=max_steps)  # fmt: skip
         else:
+            max_steps = TRUST_REGION_STEPS if max_steps is None else max_steps
             starts, t_eval = _screened_starts(problem, run, workers, seed, n_starts, n_screen, z_initial, t_end)
             if t_end is not None:
                 t_end -= _FINISH_EVALUATIONS * t_eval  # the searches end early enough to finish
@@ -514,10 +541,11 @@ def _multistart_search(problem, method, *, seed, n_starts, n_jobs, progress, tim
     return tally
 
 
-def _slsqp_multistart(problem, tally, run, workers, *, seed, n_starts, z_initial, t_end):
+def _slsqp_multistart(problem, tally, run, workers, *, seed, n_starts, z_initial, t_end, steps=None):
     """SLSQP searches from ``n_starts`` random feasible starts (the first ``z_initial`` if
-    given), then the best ``_N_POLISH`` distinct results polished; none starts after
-    ``t_end`` (time.time()), and those running stop there."""
+    given), then the best ``_N_POLISH`` distinct results polished, each search and each polish
+    at most ``steps`` linearisations (None: to their tolerance); none starts after ``t_end``
+    (time.time()), and those running stop there."""
     t_search = time.time()
 
     def searches():
@@ -526,7 +554,7 @@ def _slsqp_multistart(problem, tally, run, workers, *, seed, n_starts, z_initial
         for i in range(n_starts):
             z0 = problem.random_inside_limits(np.random.default_rng([seed, i]), 1)[0]
             tally.starts[i] = z_initial if i == 0 and z_initial is not None else z0
-            yield i, _slsqp_search, (tally.starts[i], t_end)
+            yield i, _slsqp_search, (tally.starts[i], t_end, steps)
 
     def stop():
         # Keep time to finish the running searches and to polish (a polish costs about
@@ -544,7 +572,7 @@ def _slsqp_multistart(problem, tally, run, workers, *, seed, n_starts, z_initial
     if t_end is not None and time.time() > t_end:  # no time left to polish
         return
     chosen = _distinct_best(found, _N_POLISH)
-    polish = ((i, _slsqp_polish, (z, t_end)) for _, i, z in chosen)
+    polish = ((i, _slsqp_polish, (z, t_end, steps)) for _, i, z in chosen)
     for i, (z, f) in sorted(run(polish, stop=lambda: False), key=lambda r: r[0]):
         tally.consider(f, i, z)
     tally.announce(f"polished the best {len(chosen)}")  # the polish changes the best the result reports
