@@ -69,11 +69,13 @@ def _axis(rng, planar, prismatic):
     return a / np.linalg.norm(a)
 
 
-def random_robot(seed: int, *, planar: bool, max_arms: int = 4, max_joints: int = 7) -> RandomRobot:
-    """A random robot drawn from ``seed`` (see the module docstring)."""
+def random_robot(seed: int, *, planar: bool, max_arms: int = 4, max_joints: int = 7,
+                 base_scale: float = 1.0) -> RandomRobot:
+    """A random robot drawn from ``seed`` (see the module docstring); ``base_scale`` multiplies the
+    base's mass and moments (a heavy base: a servicer's), the draws otherwise the same."""
     rng = np.random.default_rng(seed)
     arms = tuple(int(rng.integers(1, max_joints + 1)) for _ in range(rng.integers(1, max_arms + 1)))
-    links = [f'<link name="base">{_inertial(rng, 10 ** rng.uniform(1.0, 2.5), planar)}</link>']
+    links = [f'<link name="base">{_inertial(rng, base_scale * 10 ** rng.uniform(1.0, 2.5), planar)}</link>']
     joints = []
     for a, n in enumerate(arms):
         parent = "base"
