@@ -66,15 +66,17 @@ def main():
     options = {"duration": args.duration, "validation_duration": args.held_out, "time_budget": args.budget,
                "samples": args.samples, "estimator": args.estimator, "base_rate": args.base_rate}  # fmt: skip
     print(f"servicer-dual, {args.seeds} seeds: {options}")
-    with ProcessPoolExecutor(args.jobs) as pool:
-        runs = list(pool.map(one_run, range(args.seeds), [options] * args.seeds))
     print(f"{'seed':>4} {'n_large':>7} {'in 2 sigma':>10} {'max |z|':>8} {'RMS z':>7} {'cond(Y)':>9} "
-          f"{'att. err. id [rad]':>18} {'CAD prior [rad]':>15} {'prior/id':>8} {'momentum drift':>14} {'s':>5}")
-    for r in runs:
-        c = r["coverage"]
-        print(f"{r['seed']:>4} {c['n_large']:>7} {100 * c['within_2_sigma']:>9.1f}% {c['max_abs_z']:>8.3g} "
-              f"{c['rms_z']:>7.3g} {r['cond']:>9.3g} {r['identified']:>18.3g} {r['prior']:>15.3g} "
-              f"{r['prior'] / r['identified']:>8.3g} {r['drift']:>14.2g} {r['seconds']:>5.0f}")
+          f"{'att. err. id [rad]':>18} {'CAD prior [rad]':>15} {'prior/id':>8} {'momentum drift':>14} {'s':>5}",
+          flush=True)
+    runs = []
+    with ProcessPoolExecutor(args.jobs) as pool:
+        for r in pool.map(one_run, range(args.seeds), [options] * args.seeds):  # each seed's row as it is done
+            runs.append(r)
+            c = r["coverage"]
+            print(f"{r['seed']:>4} {c['n_large']:>7} {100 * c['within_2_sigma']:>9.1f}% {c['max_abs_z']:>8.3g} "
+                  f"{c['rms_z']:>7.3g} {r['cond']:>9.3g} {r['identified']:>18.3g} {r['prior']:>15.3g} "
+                  f"{r['prior'] / r['identified']:>8.3g} {r['drift']:>14.2g} {r['seconds']:>5.0f}", flush=True)
     # over the seeds: the parameters large in every run, RMSE against the median reported std
     large = sorted(set.intersection(*(set(r["large"].tolist()) for r in runs)))
     err = np.array([r["values"][large] - r["true"][large] for r in runs])
