@@ -24,7 +24,7 @@ rate. A log whose motion does not excite every parameter is refused by ``identif
 replaced by the next. Prints only.
 
     python benchmarks/bench_false_alarms.py [--logs 50] [--seed 0] [--duration 30] [--base-scale 10]
-                                            [--servicer-every 10] [--designed-every 5] [--record FILE]
+                                            [--servicer-every 10] [--designed-every 5] [--first 0] [--record FILE]
 """
 
 from __future__ import annotations
@@ -120,7 +120,8 @@ def one_log(i, args) -> dict:
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--logs", type=int, default=50)
-    parser.add_argument("--seed", type=int, default=0, help="first log's seed")
+    parser.add_argument("--seed", type=int, default=0, help="log i's seed: this plus i")
+    parser.add_argument("--first", type=int, default=0, help="the first log's index i (a share of a longer run)")
     parser.add_argument("--duration", type=float, default=30.0, help="flight duration [s]")
     parser.add_argument("--arms", type=int, default=2, help="random robots: most arms")
     parser.add_argument("--joints", type=int, default=4, help="random robots: most joints an arm")
@@ -136,7 +137,7 @@ def main():
           f"{'drift p':>9} {'confounded':>10} {'warned':>6} {'s':>5}", flush=True)
     done = [json.loads(line) for line in args.record.read_text().splitlines()] if args.record and \
         args.record.exists() else []  # fmt: skip
-    rows, i = [], 0
+    rows, i = [], args.first
     while len(rows) < args.logs:  # logs refused (a motion that does not excite every parameter) replaced
         r = next((d for d in done if d["seed"] == args.seed + i), None) or one_log(i, args)
         if args.record and r not in done:
@@ -149,16 +150,18 @@ def main():
             rows.append(r)
             print(f"{i:>4} {r['robot']:<22} {'designed' if r['designed'] else 'random':<10} {r['k']:>4} "
                   f"{r['cond']:>8.2g} {r['estimator']:>4} {r['engine_drift']:>12.1e} {r['p']:>9.3g} "
-                  f"{r['confounded']:>10.2g} {'yes' if r['warned'] else 'no':>6} {r['seconds']:>5.0f}", flush=True)
+                  f"{'-' if r['confounded'] is None else format(r['confounded'], '.2g'):>10} {'yes' if r['warned'] else 'no':>6} {r['seconds']:>5.0f}", flush=True)
         i += 1
     alpha, n = rows[0]["alpha"], len(rows)
     warned = sum(r["warned"] for r in rows)
     print(f"warnings: {warned} of {n} at the stated level {alpha:g} (rate {warned / n:.3g}, twice the level "
           f"{2 * alpha:g}; P(>= {warned} | level) = {stats.binom.sf(warned - 1, n, alpha):.3g}); "
           f"the warning text seen {sum(r['drift_warning'] for r in rows)} times")
-    silent = [r for r in rows if r["confounded"] >= CONFOUNDED]
+    silent = [r for r in rows if (r["confounded"] or 0.0) >= CONFOUNDED]
+    unknown = sum(r["confounded"] is None for r in rows)  # a record without it (counted as deciding)
     print(f"the test silent on {len(silent)} of {n} logs (a drift confounded with directions the data do not "
-          f"determine: share >= {CONFOUNDED:g}; {sum(r['servicer'] for r in silent)} of them the servicer's)")
+          f"determine: share >= {CONFOUNDED:g}; {sum(r['servicer'] for r in silent)} of them the servicer's)"
+          + (f"; the share not recorded for {unknown}" if unknown else ""))
     for label, group in (("all logs", rows), ("logs it decides on", [r for r in rows if r not in silent])):
         p = np.array([r["p"] for r in group])
         calibration = ", ".join(f"{int(np.sum(p < level))} below {level:g} (P(>=) {stats.binom.sf(np.sum(p < level) - 1, len(p), level):.2g})"
