@@ -67,11 +67,9 @@ def _check_pipeline(flown: Flown):
         noisy = identify(param, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), h, noise=noise)
         free = noisy.std > 0
         z = np.abs(noisy.values - true)[free] / noisy.std[free]
-        # beyond 5 sigma only when the result warns that directions are not determined and their standard errors
-        # do not hold: a design cut short by its wall-clock budget on a loaded machine (seed 110, 66 parameters:
-        # max |z| 2.1 with its 2 s, 22 with 0.2 s and 6 directions reported). Open (issue 27 item 4): the
-        # standard errors along those directions do not yet say so themselves (39 parameters beyond 5 there).
-        assert z.max() < 5 or noisy.diagnostics.undetermined, f"max |z| {z.max():.3g} over {free.sum()} parameters"
+        # on any motion, also a design cut short (seed 110 with 0.2 s: 6 directions undetermined, 39 of 66
+        # parameters beyond 5 first-order standard errors, max 22; widened along those directions, max 1.5)
+        assert z.max() < 5, f"max |z| {z.max():.3g} over {free.sum()} parameters"
 
     with stage("predict", **flown.case):
         held_out = sample_times(traj.duration, 200)

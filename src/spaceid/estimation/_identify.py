@@ -25,7 +25,7 @@ from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
-from ._determined import equation_noise, undetermined_directions, undetermined_warning
+from ._determined import WIDENED, equation_noise, undetermined_directions, undetermined_warning, widened
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
@@ -469,8 +469,12 @@ def identify(
         if not chunk and estimator != "angles":
             gram = equation_noise(eq, x, sigma, theta, estimator, log, whitener,
                                   None if drift else drift_columns(eq, log))
-        weak = [] if gram is None else undetermined_directions(
+        weak, ratios = ([], None) if gram is None else undetermined_directions(
             eq, x, phi, sigma, theta, estimator, log, whitener, gram[: eq.p, : eq.p], (*factor, cond_scaled))
+        if weak:  # the standard errors say what the data do not determine
+            nominal = np.concatenate([param.true_values[eq.free], theta[len(eq.free):]])
+            fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
+            uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
                                                    whitener, chunk, gram)
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
