@@ -214,15 +214,6 @@ def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, white
     return undetermined(mu, T, eq.names()), (mu, T)
 
 
-def undetermined_basis(eq, log, theta, sigma) -> np.ndarray:
-    """The directions ``(p, k)`` of parameter space (the unknowns of ``eq``) that ``log`` does not
-    determine, :func:`noise_ratios`' columns at or above :data:`UNDETERMINED`, the equations whitened
-    by the noise model at ``theta`` for the signal levels ``sigma (n_x,)``."""
-    x = eq.signals(log)
-    mu, directions = noise_ratios(eq, x, eq.phi(x), sigma, theta, "wls", log)
-    return directions[:, mu >= UNDETERMINED]
-
-
 def undetermined_warning(directions: list, p: int, where: str) -> str:
     """The warning for the :func:`undetermined` ``directions`` of ``p`` unknowns (``""`` when none)."""
     if not directions:
