@@ -19,7 +19,7 @@ from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Noise, identify
 from spaceid.identified import identify_payload
 from spaceid.models import inertial_vector
-from spaceid.motion import add_noise, design_excitation, sample_times, simulate
+from spaceid.motion import FourierTrajectory, add_noise, design_excitation, sample_times, simulate
 from spaceid.studies import predict
 
 SEEDS = st.integers(0, 2**31 - 1)
@@ -53,6 +53,23 @@ def _flown(seed, planar, tmp_path) -> Flown:
         log = simulate(param, param.true_values, design.trajectory, sample_times(10.0, 4 * samples), h, model=model)
         assert log.meta["momentum_rel_error"] < 1e-9  # the simulation conserves the rigid-body momentum
     return Flown(case, model, param, h, design.trajectory, log)
+
+
+def _undesigned(seed, planar, tmp_path) -> Flown:
+    """A random robot on a random motion nobody designed (Fourier, rest to rest, 0.05 to 0.5 rad/s per
+    harmonic): directions may go undetermined, and the standard errors must say so."""
+    case = {"seed": seed, "planar": planar, "motion": "undesigned"}
+    with stage("simulate", **case):
+        model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(tmp_path)
+        param = minimal_parameters(model)
+        h = np.array([0.0, 0.0, 0.3]) if planar else np.array([0.3, -0.2, 0.1])
+        rng = np.random.default_rng(seed)
+        a, b = 10 ** rng.uniform(-1.3, -0.3) * rng.standard_normal((2, model.n_joints, 3))
+        trajectory = FourierTrajectory(model.joints, 10.0, a, b, meta={"source": f"random:{seed}"})
+        samples = max(60, 3 * param.n_params // param.rows)
+        log = simulate(param, param.true_values, trajectory, sample_times(10.0, 4 * samples), h, model=model)
+        assert log.meta["momentum_rel_error"] < 1e-9
+    return Flown(case, model, param, h, trajectory, log)
 
 
 def _check_pipeline(flown: Flown):
@@ -126,6 +143,22 @@ def _check_monitor(flown: Flown):
 @given(seed=SEEDS, planar=st.booleans())
 def test_pipeline_on_random_robots(seed, planar, tmp_path):
     _check_pipeline(_flown(seed, planar, tmp_path))
+
+
+@FAST
+@given(seed=SEEDS, planar=st.booleans())
+def test_pipeline_on_random_robots_and_undesigned_motions(seed, planar, tmp_path):
+    _check_pipeline(_undesigned(seed, planar, tmp_path))
+
+
+@pytest.mark.slow
+@SLOW
+@given(seed=SEEDS, planar=st.booleans())
+def test_pipeline_and_payload_on_more_random_robots_and_undesigned_motions(seed, planar, tmp_path):
+    flown = _undesigned(seed, planar, tmp_path)
+    _check_pipeline(flown)
+    _check_payload(flown)
+    _check_monitor(flown)
 
 
 @pytest.mark.slow
