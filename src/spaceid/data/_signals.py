@@ -137,7 +137,9 @@ def differentiate(
     coherent with the motion, does not. (The derivatives' own mean squared error, bias^2 +
     variance, chose windows whose bias was as large as their noise: on a designed servicer flight
     the parameters' errors were then 1.3 to 1.4 times their standard errors, root-mean-square,
-    against 1.1 with this rule, the rates' own error 2.5 times larger.) The terms:
+    against 1.1 with this rule, the rates' own error 2.5 times larger.) A given ``window`` fixes the
+    time resolution wanted of the rates themselves (a monitor's: a change shows within the window),
+    and the order is then chosen for their own error, bias^2 + variance. The terms:
 
     - variance ``sigma^2 * mean_i sum_j d_ij^2`` (exact for white noise);
     - bias: the weights reproduce polynomials of degree p, so sample i's bias is
