@@ -239,9 +239,10 @@ def _selection(method, window, order, smoothing):
     if method == "savgol":
         selection = {"window": _how(window), "order": _how(order)}
         rule = (
+            "plug-in bias^2 + variance of the derivative (the window given: the rates' own error; moments on the "
+            "stamps, degree p+3 pilot, noise subtracted)" if window is not None else
             "plug-in bias^2 + (w / n) variance of the derivative (moments on the stamps, degree p+3 pilot, noise "
-            "subtracted), "
-            "windows up to the first with bias shown on an eighth of the record"
+            "subtracted), windows up to the first with bias shown on an eighth of the record"
         )
     else:
         selection = {"smoothing": _how(smoothing)}
