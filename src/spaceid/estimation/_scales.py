@@ -86,8 +86,17 @@ def momentum_scale(param, q, qd, w0, pi=None) -> MomentumScale:
     MomentumScale
     """
     q, qd, w0 = (np.asarray(a, float) for a in (q, qd, w0))
-    rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), SCALE_SAMPLES)).astype(int))
-    y = param.regressor(q[rows], qd[rows], w0[rows])  # (n, rows, k)
+    rows = _scale_rows(len(q))
+    return _regressor_scale(param, param.regressor(q[rows], qd[rows], w0[rows]), pi)
+
+
+def _scale_rows(n: int) -> np.ndarray:
+    """The samples ``(m,)`` of ``n`` that :func:`momentum_scale` takes."""
+    return np.unique(np.linspace(0, n - 1, min(n, SCALE_SAMPLES)).astype(int))
+
+
+def _regressor_scale(param, y, pi=None) -> MomentumScale:
+    """:func:`momentum_scale` from the regressor ``y (m, rows, k)`` at its samples."""
     r = np.sqrt(np.mean(np.sum(y**2, axis=1), axis=0))
     pi = param.true_values if pi is None else np.asarray(pi, float)
     total = float(np.sqrt(np.sum((r * pi) ** 2)))
@@ -95,9 +104,12 @@ def momentum_scale(param, q, qd, w0, pi=None) -> MomentumScale:
     return MomentumScale(per_unit, total, per_unit * np.abs(pi))
 
 
-def log_momentum_scale(param, log: Log, pi=None) -> MomentumScale:
+def log_momentum_scale(param, log: Log, pi=None, regressor=None) -> MomentumScale:
     """:func:`momentum_scale` of a log's samples; rates it lacks (NaN: an angles-only log) from
-    :func:`spaceid.data.differentiate_log`."""
+    :func:`spaceid.data.differentiate_log`. ``regressor``: the regressor ``(n, rows, k)`` at every sample of
+    the log (e.g. a view of the identification's equations), if built."""
+    if regressor is not None:
+        return _regressor_scale(param, regressor[_scale_rows(log.n_samples)], pi)
     if not (np.isfinite(log.qd).all() and np.isfinite(log.base_w).all()):
         log = differentiate_log(log)
     return momentum_scale(param, log.q, log.qd, log.base_w, pi)
