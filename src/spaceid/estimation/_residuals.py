@@ -107,32 +107,47 @@ def _leverage_adjusted(M, root, ginv, r, W=None):
 
 
 class _Columns:
-    """The columns ``M = [A | C] (k, rows, p + q)`` of a chunk of the drift test's refit, kept as built:
-    ``E = [A | -b] (k, rows, p + 1)`` (the equations, whitened) and the candidates ``C (k, rows, q)``, so
-    that the regressor is never copied. ``M @ X`` (``X (p + q,)`` or ``(p + q, m)``) and ``M[rows]`` (an
-    array) as for the array itself."""
+    """The columns ``M = L^-1 [A | C] (k, rows, p + q)`` of a chunk of the drift test's refit, kept as built:
+    the equations ``E = [A | -b] (k, rows, p + 1)``, the candidates ``C (k, rows, q)`` and the whitener's
+    inverses ``inverse = L^-1 (k, rows, rows)`` (None: not whitened), so that the regressor is neither copied
+    nor whitened whole: ``M @ X`` (``X (p + q,)`` or ``(p + q, m)``) whitens the product, ``M[rows]`` (an
+    array) as for the array itself. (A whitened copy of 10,000 servicer samples took 0.35 s.)"""
 
-    def __init__(self, E, C):
-        self.E, self.C = E, C
+    def __init__(self, E, C, inverse=None):
+        self.E, self.C, self.inverse = E, C, inverse
         self.shape = (*E.shape[:2], E.shape[-1] - 1 + C.shape[-1])
 
-    def flat(self):
-        """``A (k rows, p)``, a view of ``E``, and ``C (k rows, q)``."""
-        return self.E.reshape(-1, self.E.shape[-1])[:, :-1], self.C.reshape(-1, self.C.shape[-1])
+    def _white(self, Y):  # L^-1 Y sample by sample, Y (k, rows, ...)
+        if self.inverse is None:
+            return Y
+        return (self.inverse @ Y) if Y.ndim == 3 else np.einsum("nrs,ns->nr", self.inverse, Y)
 
-    def __matmul__(self, X):
-        A, C = self.flat()
-        p = A.shape[1]
-        return (A @ X[:p] + C @ X[p:]).reshape(*self.shape[:2], *X.shape[1:])
-
-    def residual(self, v):
-        """``M v - b`` ``(k, rows)`` (the equations' rows are ``[A | -b]``)."""
+    def _product(self, X, rhs):  # [A | C] X, plus -b when rhs, unwhitened: one GEMM on the regressor
         p = self.E.shape[-1] - 1
         E, C = self.E.reshape(-1, p + 1), self.C.reshape(-1, self.C.shape[-1])
-        return (E @ np.append(v[:p], 1.0) + C @ v[p:]).reshape(self.shape[:2])
+        top = np.concatenate([X[:p], np.ones((1, *X.shape[1:])) if rhs else np.zeros((1, *X.shape[1:]))])
+        return (E @ top + C @ X[p:]).reshape(*self.shape[:2], *X.shape[1:])
+
+    def __matmul__(self, X):
+        return self._white(self._product(X, False))
+
+    def residual(self, v):
+        """``M v - L^-1 b`` ``(k, rows)`` (the equations' rows are ``[A | -b]``)."""
+        return self._white(self._product(v, True))
+
+    def candidates(self):
+        """``L^-1 C`` ``(k rows, q)``."""
+        return self._white(self.C).reshape(-1, self.C.shape[-1])
+
+    def cross(self, Y):
+        """``(L^-1 A)^T Y`` ``(p, m)`` for ``Y (k, rows, m)``: ``A^T (L^-T Y)``, the regressor as built."""
+        back = Y if self.inverse is None else np.swapaxes(self.inverse, -1, -2) @ Y
+        p = self.E.shape[-1] - 1
+        return self.E.reshape(-1, p + 1)[:, :-1].T @ back.reshape(-1, Y.shape[-1])
 
     def __getitem__(self, rows):
-        return np.concatenate([self.E[rows, :, :-1], self.C[rows]], -1)
+        joined = np.concatenate([self.E[rows, :, :-1], self.C[rows]], -1)
+        return joined if self.inverse is None else self.inverse[rows] @ joined
 
     def whole(self):
         """``M`` as one array (a copy)."""
@@ -142,11 +157,7 @@ class _Columns:
 def _drift_equations(phi, cols, L) -> tuple:
     """The equations of ``phi = [A | -b] (k, rows, p + 1)`` with the candidate columns ``C (k, rows, q)``:
     ``[A | C]`` as :class:`_Columns`, whitened by ``L (k, rows, rows)`` (None: as they are), ``C`` and ``|b|^2``."""
-    if L is None:
-        return _Columns(phi, cols), cols, float(np.sum(phi[..., -1] ** 2))
-    inverse = np.linalg.inv(L)  # as _whitened, the inverses once for both
-    M = _Columns(inverse @ phi, inverse @ cols)
-    return M, cols, float(np.sum(phi[..., -1] ** 2))
+    return _Columns(phi, cols, None if L is None else np.linalg.inv(L)), cols, float(np.sum(phi[..., -1] ** 2))
 
 
 def _completed_gram(gram, residuals) -> np.ndarray:
@@ -158,9 +169,8 @@ def _completed_gram(gram, residuals) -> np.ndarray:
     cross, inner = 0.0, 0.0
     with one_blas_thread():
         for M, white in residuals:
-            A, C = M.flat()
-            Y = np.hstack([C, -white.reshape(-1, 1)])
-            cross, inner = cross + A.T @ Y, inner + Y.T @ Y
+            Y = np.hstack([M.candidates(), -white.reshape(-1, 1)])
+            cross, inner = cross + M.cross(Y.reshape(*white.shape, -1)), inner + Y.T @ Y
     return np.block([[gram, cross], [cross.T, inner]])
 
 
