@@ -171,13 +171,13 @@ def noise_ratios(eq, x, phi, sigma, theta, estimator: str, log, whitener=None, n
     """:func:`noise_to_signal` ``(mu, directions)`` of the equations ``eq`` at the signals ``x (n, n_x)``
     (built: ``phi (n, rows, p + 1)``) and estimate ``theta``, whitened as the estimator's
     (:func:`equation_noise`); ``noise`` their noise Gram matrix ``(p, p)`` if already formed; ``factor``:
-    ``ols``'s ``(scale, R, cond)``, the column-scaled factor of ``[A | b]`` and its scaled condition
-    number, reused below :data:`DIRECTIONS_COND`."""
+    ``(scale, R, cond)``, the column-scaled factor of ``[A | b]`` whitened as here (``ols``: as they are;
+    ``ml``: by ``whitener``) and its scaled condition number, reused below :data:`DIRECTIONS_COND`."""
     from ._linalg import _equation_whitener, _whitened
 
     if noise is None:
         noise = equation_noise(eq, x, sigma, theta, estimator, log, whitener)
-    if estimator == "ols" and factor is not None and factor[2] < DIRECTIONS_COND:
+    if factor is not None and factor[2] < DIRECTIONS_COND:
         R = factor[1][:-1, :-1] * factor[0]
     else:
         L = None if estimator == "ols" else whitener if whitener is not None else _equation_whitener(eq, x, theta,
