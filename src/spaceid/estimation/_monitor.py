@@ -318,23 +318,22 @@ class Monitor:
         estimate (:mod:`~spaceid.estimation._monitor_determinacy`), waits for more samples."""
         segment, rows = self._segment, self._segment.warm
         self._estimate_noise(rows)
+        label = f"segment {len(self.segments)} warm-up"
         try:
-            segment.ident = self._identify(rows, f"segment {len(self.segments)} warm-up", segment.trail)
+            screen = self._screen(rows, label)
+            segment.ident = None if screen is not None and screen.far_from_determined else \
+                self._identify(rows, label, segment.trail)
         except SpaceidError:
             if segment.target + self.warmup > self.max_segment:
                 raise
             segment.target += self.warmup  # not excited yet (e.g. the arm at rest): wait for more samples
             return []
-        segment.theta_ref = np.r_[segment.ident.values[self._eq.free], [d["value"] for d in segment.ident.drift]]
-        self._sigma = signal_sigma(self.param, self.noise)
-        white, L, J, accumulator = self._warm_up_equations(rows)
-        block = white.reshape(-1, white.shape[-1])
-        segment.scale = _column_scale(block[:, :-1])
-        res = (block[:, -1] - block[:, :-1] @ segment.theta_ref).reshape(len(rows), self.param.rows)
-        level = accumulator.level(res, len(segment.theta_ref))
-        determinacy = accumulator.result(white, segment.scale, level)
+        if segment.ident is None:
+            return self._extend_warm_up(screen)
+        white, L, J, accumulator, level, determinacy = self._determinacy(rows, segment.ident)
         if not determinacy.determined:
             return self._extend_warm_up(determinacy)
+        block = white.reshape(-1, white.shape[-1])
         segment.trail = []
         segment.sigma = accumulator.sigma * math.sqrt(level)
         segment.score = level * accumulator.score / segment.scale
@@ -360,6 +359,34 @@ class Monitor:
         segment.warm, events = [], self._complete_waiting()
         self._take_warm_up(rows, nu)
         return events
+
+    def _screen(self, rows: list, label: str):
+        """The whole warm-up's :class:`~spaceid.estimation._monitor_determinacy.Determinacy` of
+        the samples ``rows`` at their weighted least-squares estimate, when the batch estimator is
+        maximum likelihood (else None): a warm-up far from determined there
+        (:data:`~spaceid.estimation._monitor_determinacy.SCREEN_MARGIN`) waits for more samples
+        without the costlier fit (on the twin after a grasp, eleven fits of 0.1 to 0.2 s each of
+        warm-ups that were never determined)."""
+        if self.estimator != "ml":
+            return None
+        return self._determinacy(rows, self._identify(rows, label, self._segment.trail, estimator="wls"), True)[-1]
+
+    def _determinacy(self, rows: list, ident: Identification, overall: bool = False) -> tuple:
+        """The warm-up ``rows`` linearised at the estimate ``ident`` (the segment's ``theta_ref``
+        and ``scale`` set): its whitened equations, whiteners and Jacobians (:meth:`_warm_up_equations`),
+        the :class:`~spaceid.estimation._monitor_determinacy.DeterminacyAccumulator`, the noise
+        level its residuals show and its :class:`~spaceid.estimation._monitor_determinacy.Determinacy`
+        (with ``overall``, the whole warm-up's alone)."""
+        segment = self._segment
+        segment.theta_ref = np.r_[ident.values[self._eq.free], [d["value"] for d in ident.drift]]
+        self._sigma = signal_sigma(self.param, self.noise)
+        white, L, J, accumulator = self._warm_up_equations(rows)
+        block = white.reshape(-1, white.shape[-1])
+        segment.scale = _column_scale(block[:, :-1])
+        res = (block[:, -1] - block[:, :-1] @ segment.theta_ref).reshape(len(rows), self.param.rows)
+        level = accumulator.level(res, len(segment.theta_ref))
+        determinacy = (accumulator.overall if overall else accumulator.result)(white, segment.scale, level)
+        return white, L, J, accumulator, level, determinacy
 
     def _warm_up_equations(self, rows: list) -> tuple:
         """The warm-up's equations whitened at the linearisation point, ``white``, ``L`` and ``J``
@@ -556,15 +583,17 @@ class Monitor:
 
     # --- segments -----------------------------------------------------------------------------
 
-    def _identify(self, rows: list, label: str, history: list | None) -> Identification:
+    def _identify(self, rows: list, label: str, history: list | None, estimator: str | None = None) -> Identification:
         """The batch identification of the segment's samples ``rows``, the drift integrated over the
-        samples ``history`` from its origin (where the momentum is the segment's)."""
+        samples ``history`` from its origin (where the momentum is the segment's), by ``estimator``
+        (default the monitor's)."""
         log = log_of(rows, self.param.model, f"{self.where} {label}")
         history = log_of(history, self.param.model, self.where) if self.drift else None
         with warnings.catch_warnings():  # short windows trip the residual checks; the events say what matters
             warnings.simplefilter("ignore")
-            return identify(self.param, log, self._segment.momentum, estimator=self.estimator, known=self.known,
-                            noise=self.noise, drift=self.drift, history=history, where=f"{self.where} ({label})")
+            return identify(self.param, log, self._segment.momentum, estimator=estimator or self.estimator,
+                            known=self.known, noise=self.noise, drift=self.drift, history=history,
+                            where=f"{self.where} ({label})")
 
     def _complete_waiting(self) -> list:
         """The waiting alarm's event, the segment before against this one's warm-up (none waiting: [])."""
