@@ -216,6 +216,7 @@ class MessageAligner:
             self._origin = min(_stamp(joint_msgs[0]), _stamp(pose_msgs[0])) // _NS * _NS
         log = self._log(joint_msgs, pose_msgs)
         half = _settled(log)
+        log.meta["final_rates"] = True  # no later message changes these samples: a monitor need not hold them back
         part = self._continued(log.select((log.t > self._done) & (log.t <= log.t[-1] - half)))
         self.settled = half
         if part.n_samples:

@@ -114,16 +114,19 @@ class LiveMonitor:
         Further :func:`~spaceid.data.to_log` keywords (``joint_rates``, ``window``, ``quantum``).
     where : str
         Name of the source, for messages.
+    clock : callable
+        The clock [s] that the arrivals are given in and the publications timed by (``latency_s``):
+        ``time.monotonic``; a benchmark may give a processor-time clock.
     **options
         Keywords of :class:`~spaceid.estimation.Monitor` (``known``, ``noise``, ``drift``, ...).
     """
 
     def __init__(self, param, momentum, *, mapping=None, joint_topic=None, pose_topic=None, link=None,
-                 block=LIVE_BLOCK, reading=None, where="ros2", **options):
+                 block=LIVE_BLOCK, reading=None, where="ros2", clock=time.monotonic, **options):
         from ..estimation import Monitor
 
         m = param.model
-        self.param, self.link, self.where = param, link, where
+        self.param, self.link, self.where, self.clock = param, link, where, clock
         self.monitor = Monitor(param, momentum, where=where, on_alarm=self._alarmed, **options)
         reading = dict(reading or {})
         if reading.get("window") is not None and reading.get("order") is None:
@@ -148,8 +151,8 @@ class LiveMonitor:
     def add(self, topic: str, msg, received: float | None = None) -> list:
         """Take one message of ``topic``; the :class:`LiveOutput` it completes (the estimate after
         each aligned part, the alarms and events), in order. ``received``: its arrival [s,
-        ``time.monotonic``], from which each event's ``latency_s`` is counted (default now)."""
-        return self.add_batch([(topic, msg, time.monotonic() if received is None else received)])
+        ``clock``], from which each event's ``latency_s`` is counted (default now)."""
+        return self.add_batch([(topic, msg, self.clock() if received is None else received)])
 
     def add_batch(self, messages, publish=None) -> list:
         """Take the messages ``(topic, msg, received)`` that arrived since the last call, in stamp
@@ -200,7 +203,7 @@ class LiveMonitor:
             self._emit(LiveOutput("estimate", estimate))
 
     def _completed(self, t: float) -> float:
-        """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``time.monotonic``]
+        """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``clock``]
         of the first joint state that settles it (``settled`` later) or, if later, of the first
         pose at or after it; now when none came yet (the end of the run), NaN when forgotten."""
         due = {self.aligner.joint_topic: t + self.aligner.settled, self.aligner.pose_topic: t}
@@ -210,7 +213,7 @@ class LiveMonitor:
             if arrivals and arrivals[0][0] > ns:  # forgotten
                 return math.nan
             k = bisect.bisect_left(arrivals, (ns, -math.inf))
-            found.append(arrivals[k][1] if k < len(arrivals) else time.monotonic())
+            found.append(arrivals[k][1] if k < len(arrivals) else self.clock())
         return max(found)
 
     def _remember(self, part: Log):
@@ -230,7 +233,7 @@ class LiveMonitor:
     def _stage(self, event, stage: str, received: float) -> LiveOutput:
         """An alarm's or an event's message on ``/spaceid/events``."""
         data = {"stage": stage} | event.to_dict() | {"time_origin_ns": self._origin,
-                                                     "latency_s": time.monotonic() - received}
+                                                     "latency_s": self.clock() - received}
         return LiveOutput("event", _plain(data))
 
     def estimate(self) -> dict | None:
