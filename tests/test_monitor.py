@@ -7,6 +7,7 @@ import dataclasses
 import json
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -345,6 +346,23 @@ def test_the_whole_warm_ups_determinacy_alone_is_that_of_its_prefixes(cepheus, s
         assert alone.noise_share == pytest.approx(full.noise_share, rel=1e-8)
         assert alone.bias == pytest.approx(full.bias, rel=1e-8) and alone.noise == pytest.approx(full.noise, rel=1e-12)
         assert alone.determined == full.determined
+
+
+@pytest.mark.parametrize("estimator", ["ols", "wls"])
+def test_the_screens_estimate_is_identifys(cepheus, steady, estimator):
+    """The screen's estimate (:func:`~spaceid.estimation._identify.estimate_only`: no covariance,
+    no checks) is :func:`~spaceid.estimation.identify`'s, with drift coefficients too."""
+    from spaceid.estimation import identify
+    from spaceid.estimation._identify import estimate_only
+
+    _, param = cepheus
+    log = _differentiated(steady, 5).select(slice(20, 320))
+    for drift in ((), ("viscous",)):
+        theta = estimate_only(param, log, H, estimator=estimator, known=None, noise=NOISE, drift=drift)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = identify(param, log, H, estimator=estimator, noise=NOISE, drift=drift)
+        assert np.array_equal(theta, np.r_[res.values, [d["value"] for d in res.drift]])
 
 
 def test_the_first_half_window_of_differentiated_rates_is_not_taken(cepheus, steady):

@@ -133,7 +133,9 @@ class MessageAligner:
     pose), the messages held are aligned and differentiated (:func:`to_log`) and the samples that
     no later message can change are returned; the messages the next part's differentiator still
     needs are kept, the rest dropped (:func:`bag_chunks` describes the parts). :meth:`flush`
-    returns the rest.
+    returns the rest. The parts of :meth:`align` say so in their ``meta`` (``"final_rates":
+    True``: a monitor takes their samples at once); each message is converted once, however many
+    parts' context it is aligned in.
 
     Parameters
     ----------

@@ -73,7 +73,7 @@ from ._differentiated import whitened_series
 from ._drift import check_drift_kinds
 from ._equations import _equations
 from ._linalg import _accumulate_factor, _column_scale
-from ._identify import identify
+from ._identify import estimate_only, identify
 from ._monitor_cusum import CHANGE_RATIO, FALSE_ALARM_RATE, Cusum, cusum_run_length, cusum_threshold
 from ._monitor_determinacy import DeterminacyAccumulator
 from ._monitor_filter import DifferentiatedWhitener
@@ -330,7 +330,8 @@ class Monitor:
             return []
         if segment.ident is None:
             return self._extend_warm_up(screen)
-        white, L, J, accumulator, level, determinacy = self._determinacy(rows, segment.ident)
+        white, L, J, accumulator, level, determinacy = self._determinacy(
+            rows, np.r_[segment.ident.values[self._eq.free], [d["value"] for d in segment.ident.drift]])
         if not determinacy.determined:
             return self._extend_warm_up(determinacy)
         block = white.reshape(-1, white.shape[-1])
@@ -369,16 +370,21 @@ class Monitor:
         warm-ups that were never determined)."""
         if self.estimator != "ml":
             return None
-        return self._determinacy(rows, self._identify(rows, label, self._segment.trail, estimator="wls"), True)[-1]
+        log = log_of(rows, self.param.model, f"{self.where} {label}")
+        history = log_of(self._segment.trail, self.param.model, self.where) if self.drift else None
+        theta = estimate_only(self.param, log, self._segment.momentum, estimator="wls", known=self.known,
+                              noise=self.noise, drift=self.drift, history=history, where=f"{self.where} ({label})")
+        return self._determinacy(rows, theta, True)[-1]
 
-    def _determinacy(self, rows: list, ident: Identification, overall: bool = False) -> tuple:
-        """The warm-up ``rows`` linearised at the estimate ``ident`` (the segment's ``theta_ref``
-        and ``scale`` set): its whitened equations, whiteners and Jacobians (:meth:`_warm_up_equations`),
-        the :class:`~spaceid.estimation._monitor_determinacy.DeterminacyAccumulator`, the noise
-        level its residuals show and its :class:`~spaceid.estimation._monitor_determinacy.Determinacy`
+    def _determinacy(self, rows: list, theta: np.ndarray, overall: bool = False) -> tuple:
+        """The warm-up ``rows`` linearised at the estimate ``theta`` (free parameters, then drift
+        coefficients: the segment's ``theta_ref``; its ``scale`` set too): its whitened equations,
+        whiteners and Jacobians (:meth:`_warm_up_equations`), the
+        :class:`~spaceid.estimation._monitor_determinacy.DeterminacyAccumulator`, the noise level
+        its residuals show and its :class:`~spaceid.estimation._monitor_determinacy.Determinacy`
         (with ``overall``, the whole warm-up's alone)."""
         segment = self._segment
-        segment.theta_ref = np.r_[ident.values[self._eq.free], [d["value"] for d in ident.drift]]
+        segment.theta_ref = theta
         self._sigma = signal_sigma(self.param, self.noise)
         white, L, J, accumulator = self._warm_up_equations(rows)
         block = white.reshape(-1, white.shape[-1])
