@@ -17,7 +17,9 @@ levels given).
     joint samples/s) and taken in batches of all that have arrived, as the node takes them
     (:meth:`~spaceid.ros.LiveMonitor.add_batch`): how long after its arrival the last message
     was processed (kept up: about one part's processing), the longest wait in the queue, and the
-    alarms' ``latency_s``;
+    alarms' ``latency_s``; then the queue runs again on a clock of this process's processor time
+    (the waits for the next message added to it): the figures on a core of its own, whatever
+    the machine's load;
 (b) over DDS on the loopback (localhost discovery, a domain of its own): ``spaceid ros play`` of
     the run's bag at ``--rate-factor`` times real time (50 x F joint samples/s in, plus 100 x F
     poses/s), the monitor in its own process, this process subscribed to its topics and to the
