@@ -349,9 +349,9 @@ def test_the_warm_up_screen_decides_as_the_monitors_estimate(tmp_path, monkeypat
     log = _measured(_simulate(robot, np.arange(int(20.0 * RATE)) / RATE), True, True, 4)
     fits, identify = [], _monitor.Monitor._identify
 
-    def counted(self, rows, label, history, estimator=None):
-        fits.append(estimator or self.estimator)
-        return identify(self, rows, label, history, estimator)
+    def counted(self, rows, label, history):
+        fits.append(self.estimator)
+        return identify(self, rows, label, history)
 
     monkeypatch.setattr(_monitor.Monitor, "_identify", counted)
     screened = _monitored(robot, log, _noise(True, True, False))

@@ -589,17 +589,15 @@ class Monitor:
 
     # --- segments -----------------------------------------------------------------------------
 
-    def _identify(self, rows: list, label: str, history: list | None, estimator: str | None = None) -> Identification:
+    def _identify(self, rows: list, label: str, history: list | None) -> Identification:
         """The batch identification of the segment's samples ``rows``, the drift integrated over the
-        samples ``history`` from its origin (where the momentum is the segment's), by ``estimator``
-        (default the monitor's)."""
+        samples ``history`` from its origin (where the momentum is the segment's)."""
         log = log_of(rows, self.param.model, f"{self.where} {label}")
         history = log_of(history, self.param.model, self.where) if self.drift else None
         with warnings.catch_warnings():  # short windows trip the residual checks; the events say what matters
             warnings.simplefilter("ignore")
-            return identify(self.param, log, self._segment.momentum, estimator=estimator or self.estimator,
-                            known=self.known, noise=self.noise, drift=self.drift, history=history,
-                            where=f"{self.where} ({label})")
+            return identify(self.param, log, self._segment.momentum, estimator=self.estimator, known=self.known,
+                            noise=self.noise, drift=self.drift, history=history, where=f"{self.where} ({label})")
 
     def _complete_waiting(self) -> list:
         """The waiting alarm's event, the segment before against this one's warm-up (none waiting: [])."""
