@@ -146,6 +146,24 @@ def test_uniform_grid_matches_scipy_savgol_filter():
     np.testing.assert_allclose(rate, reference, atol=1e-9)
 
 
+def test_remembered_local_fits_are_the_computed_ones():
+    """The Savitzky-Golay fits remembered for channels that share their stamps are those computed
+    afresh, read only, and never those of other stamps (one stamp moved by 0.1 ms)."""
+    from spaceid.data._signal_savgol import _local_fits, _new_fits, _remembered_fits
+
+    t = np.cumsum(np.random.default_rng(3).uniform(0.009, 0.011, 200))
+    rows = np.arange(10, 150)
+    _remembered_fits.cache_clear()
+    first, again = _local_fits(t, rows, 25, 3), _local_fits(t.copy(), rows, 25, 3)
+    assert _remembered_fits.cache_info().hits == 1
+    for a, b, fresh in zip(first, again, _new_fits(t, rows, 25, 3), strict=True):
+        assert a is b and np.array_equal(a, fresh) and not a.flags.writeable
+    moved = t.copy()
+    moved[50] += 1e-4
+    assert not np.array_equal(_local_fits(moved, rows, 25, 3)[2], first[2])
+    assert np.array_equal(_local_fits(moved, rows, 25, 3)[2], _new_fits(moved, rows, 25, 3)[2])
+
+
 def test_spline_penalty_matches_scipy_and_is_recorded():
     t, y, _ = noisy(seed=4)
     smooth, rate, info = differentiate(t, y[:, 0], method="spline", smoothing=2e-5)

@@ -51,7 +51,7 @@ import numpy as np
 from .._errors import SpaceidError
 from ._signal_checks import _check_gaps, _check_int, _check_quantum, _check_series, _finite_number, _require_samples
 from ._signal_noise import _NOISE_DIFFERENCE, _check_resolution, _noise
-from ._signal_savgol import _AUTO_ORDERS, _PILOT_EXTRA, _local_fits, _savgol, _savgol_gains, _select_savgol
+from ._signal_savgol import _AUTO_ORDERS, _PILOT_EXTRA, _new_fits, _savgol, _savgol_gains, _select_savgol
 from ._signal_spline import _PROBES, _spline
 from ._timeseries import quat_to_yaw, yaw_to_quat
 
@@ -458,7 +458,7 @@ def savgol_weights(t, rows, window: int, order: int):
         derivative ``rate[i] @ x[idx[i]]``; with white noise of std ``sigma`` on ``x``, the errors of
         two rows' derivatives have covariance ``sigma^2`` times the overlap of their weights.
     """
-    idx, _, pinv, scale = _local_fits(np.asarray(t, float), np.asarray(rows), int(window), int(order))
+    idx, _, pinv, scale = _new_fits(np.asarray(t, float), np.asarray(rows), int(window), int(order))
     return idx, pinv[:, 0], pinv[:, 1] / scale[:, None]
 
 

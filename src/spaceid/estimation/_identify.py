@@ -336,6 +336,25 @@ def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, wher
     return replace(wls, info=info)
 
 
+def estimate_only(param: Parameterization, log: Log, momentum, *, estimator: str, known: dict | None, noise: Noise,
+                  drift=(), history: Log | None = None, where: str = "log", cond_limit: float = 1e10) -> np.ndarray:
+    """:func:`identify`'s estimate alone, from the same arguments (an inertial ``momentum`` and
+    the ``noise`` levels given; ``ols``, ``wls``, ``tls`` or ``iv`` with the measured signals as
+    instruments): the free parameters, then the drift coefficients ``(p,)``, without the
+    covariance nor the checks of the residuals, at a fraction of the cost (a screen: the monitor's
+    of a lengthened warm-up). Raises as :func:`identify` on too few samples or a motion that does
+    not excite every parameter."""
+    eq, _ = _equations(param, log, np.asarray(momentum, float), known, where, check_drift_kinds(drift), history)
+    _check_sample_count(eq, log, where)
+    x = eq.signals(log)
+    phi = eq.phi(x)
+    ctx = _FitContext(phi, check_excitation(phi, eq.names(), cond_limit, where)[0],
+                      **(_instrument_context(log, None, where) if estimator == "iv" else {}))
+    sigma = signal_sigma(param, noise)
+    theta = _ols(eq, x, sigma, None, ctx)[0]
+    return theta if estimator == "ols" else _KERNELS[estimator](eq, x, sigma, theta, ctx)[0]
+
+
 def identify(
     param: Parameterization,
     log: Log,
