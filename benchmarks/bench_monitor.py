@@ -172,6 +172,11 @@ def random_robots(runs):
                     early += len(run.early)
                     if run.delay is None or run.delay > WITHIN:
                         missed += 1
+                        first = run.record.segments[0].warm_up or {}
+                        events = ", ".join(f"{e.time:.2f} s" for e in run.record.events) or "none"
+                        print(f"    missed: seed {seed}, grasp at {run.grasp:.2f} s, event(s) at {events}; the first "
+                              f"warm-up ended at {first.get('end', float('nan')):.2f} s (tested from "
+                              f"{first.get('tested_from', float('nan')):.2f} s)")
                     if run.delay is not None:
                         delays.append(run.delay)
                 d = np.array(delays)

@@ -17,7 +17,9 @@ levels given).
     joint samples/s) and taken in batches of all that have arrived, as the node takes them
     (:meth:`~spaceid.ros.LiveMonitor.add_batch`): how long after its arrival the last message
     was processed (kept up: about one part's processing), the longest wait in the queue, and the
-    alarms' ``latency_s``;
+    alarms' ``latency_s``; then the queue runs again on a clock of this process's processor time
+    (the waits for the next message added to it): the figures on a core of its own, whatever
+    the machine's load;
 (b) over DDS on the loopback (localhost discovery, a domain of its own): ``spaceid ros play`` of
     the run's bag at ``--rate-factor`` times real time (50 x F joint samples/s in, plus 100 x F
     poses/s), the monitor in its own process, this process subscribed to its topics and to the
@@ -66,10 +68,10 @@ ESTIMATOR = "ml"
 BLOCK = LIVE_BLOCK
 
 
-def _live():
+def _live(**options):
     param = minimal_parameters(load_model("cepheus-rw"))
     return LiveMonitor(param, np.zeros(3), link="link2", reading={"window": 25}, known={"Iczz_wheel": ROTOR},
-                       warmup=100, noise=NOISE, estimator=ESTIMATOR, block=BLOCK)
+                       warmup=100, noise=NOISE, estimator=ESTIMATOR, block=BLOCK, **options)
 
 
 def capacity(run, grasp, repeats, label):
@@ -101,12 +103,14 @@ def capacity(run, grasp, repeats, label):
           f"{events}{' s from the grasp' if grasp is not None else ''}; {len(record.segments)} segments identified")
 
 
-def queue(run, grasp, factor, repeats):
+def queue(run, grasp, factor, repeats, cpu=False):
     """LiveMonitor fed as the node feeds it, without the middleware: the run's messages arrive at
     ``factor`` times real time (each at its stamp's offset over ``factor`` after the start) and each
     call takes all that have arrived (:meth:`~spaceid.ros.LiveMonitor.add_batch`, then the payload
     check). Kept up when the last message is processed shortly after it arrives; the alarm's
-    latency from the arrival of the message that completed its revealing sample."""
+    latency from the arrival of the message that completed its revealing sample. With ``cpu``, on
+    a clock of this process's processor time (the waits for the next message added to it): the
+    figures on a core of its own, whatever the machine's load."""
     from geometry_msgs.msg import PoseStamped
     from sensor_msgs.msg import JointState
 
@@ -115,16 +119,21 @@ def queue(run, grasp, factor, repeats):
     messages = list(_messages(run.recording, 0, JointState, PoseStamped))
     t0 = messages[0][0]
     lags, latencies, behind = [], [], []
+    idle = [0.0]  # the processor-time clock's waits
+    clock = (lambda: time.process_time() + idle[0]) if cpu else time.monotonic
     for _ in range(repeats + 1):  # the first warms the compiled kernels up: not counted
-        live = _live()
+        live = _live(clock=clock)
         topics = (live.aligner.joint_topic, live.aligner.pose_topic)
         alarms, most = [], 0.0
-        start, k = time.monotonic(), 0
+        start, k = clock(), 0
         while k < len(messages):
-            now = time.monotonic()
+            now = clock()
             due = start + (messages[k][0] - t0) / factor
             if due > now:
-                time.sleep(due - now)
+                if cpu:
+                    idle[0] += due - now
+                else:
+                    time.sleep(due - now)
                 continue
             j = k
             while j < len(messages) and start + (messages[j][0] - t0) / factor <= now:
@@ -135,19 +144,18 @@ def queue(run, grasp, factor, repeats):
             out = live.add_batch(batch)
             alarms += [o.data for o in out if o.kind == "event" and o.data["stage"] == "detected"]
             live.payload()
-        lags.append(time.monotonic() - (start + (messages[-1][0] - t0) / factor))
+        lags.append(clock() - (start + (messages[-1][0] - t0) / factor))
         behind.append(most)
-        latencies += [a["latency_s"] for a in alarms]
+        latencies.append([a["latency_s"] for a in alarms])
         live.finish()
-    lags, behind = lags[1:], behind[1:]
+    lags, behind, latencies = lags[1:], behind[1:], [x for one in latencies[1:] for x in one]
     n = run.recording.joints.t.size
     rate = n / (run.recording.joints.t[-1] - run.recording.joints.t[0]) * factor
     lat = (f"alarm latency median {1000 * statistics.median(latencies):.0f} ms (range {1000 * min(latencies):.0f}.."
            f"{1000 * max(latencies):.0f}, {len(latencies)} alarms)") if latencies else "no alarm"
-    print(f"(a) queue at {factor:g}x real time, {rate:.0f} joint samples/s in: the last message processed "
-          f"{statistics.median(lags):.2f} s after its arrival (range {min(lags):.2f}..{max(lags):.2f}, "
-          f"{repeats} runs); "
-          f"longest wait in the queue {max(behind):.2f} s; {lat}")
+    print(f"(a) queue at {factor:g}x real time{', processor-time clock' if cpu else ''}, {rate:.0f} joint samples/s "
+          f"in: the last message processed {statistics.median(lags):.2f} s after its arrival (range "
+          f"{min(lags):.2f}..{max(lags):.2f}, {repeats} runs); longest wait in the queue {max(behind):.2f} s; {lat}")
 
 
 def steady(n, repeats):
@@ -303,6 +311,8 @@ def main():
         steady(args.steady_samples, args.repeats)
         for factor in args.queue:
             queue(run, grasp, factor, args.repeats)
+        for factor in args.queue:
+            queue(run, grasp, factor, args.repeats, cpu=True)
     if "b" in args.parts:
         over_dds(run, grasp, args.rate_factor, args.block)
 

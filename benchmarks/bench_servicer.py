@@ -112,9 +112,27 @@ def _held_out_error(param, values, held, h) -> float:
     return float(attitude_error_angle(pred.base_quat, held.base_quat).max())
 
 
+def _z(result, truth) -> np.ndarray:
+    return (result.values - truth) / np.where(result.std > 0, result.std, np.inf)
+
+
+def _whitened_rms(result, truth) -> float:
+    """Root-mean-square error in the eigenbasis of the covariance (on its support): 1 when the
+    covariance holds, whatever the correlations that make the marginal z's of one run move together."""
+    w, v = np.linalg.eigh(result.cov)
+    keep = w > 1e-12 * w.max()
+    return float(np.sqrt(np.mean(((v[:, keep].T @ (result.values - truth)) / np.sqrt(w[keep])) ** 2)))
+
+
+def _pooled(label, runs) -> str:
+    """One row over the noise seeds: the large parameters' z of every run pooled."""
+    z = np.abs(np.concatenate([r[0] for r in runs]))
+    return (f"{label + ' (pooled)':<34} {np.mean(z <= 2):>6.3f} {z.max():>7.2f} {np.sqrt(np.mean(z**2)):>6.2f}  "
+            f"whitened rms {np.median([r[1] for r in runs]):.2f} (median over {len(runs)} noise seeds)")
+
+
 def _row(label, result, param, truth, large, held, h_held, prior_error) -> str:
-    z = (result.values - truth) / np.where(result.std > 0, result.std, np.inf)
-    zl = np.abs(z[large])
+    zl = np.abs(_z(result, truth)[large])
     rel = np.abs(result.values - truth)[large] / np.abs(truth[large])
     error = _held_out_error(param, result.values, held, h_held)
     d = result.diagnostics
@@ -130,6 +148,8 @@ def main():
     parser.add_argument("--estimators", nargs="+", default=["wls"])
     parser.add_argument("--budget", type=float, default=90.0, help="design budget [s]")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--noise-seeds", type=int, default=1,
+                        help="sensor-noise draws per flight (seeds --seed, --seed + 1, ...): a pooled row each")
     parser.add_argument("--work", type=Path, default=Path("/tmp/spaceid-bench-servicer-7dof"))
     args = parser.parse_args()
     args.work.mkdir(parents=True, exist_ok=True)
@@ -155,30 +175,43 @@ def main():
             true, h = _flight(f"undesigned-{args.seed}", _random_motion(model.joints, 120.0, args.seed), 120.0,
                               args.work, model)
         bias = BIAS if case.endswith("bias") else (0.0, 0.0, 0.0)
-        sensed = sense(true, Sensors(encoder=1e-4, star_tracker=5e-5, gyro=1e-5, gyro_bias=bias), seed=args.seed)
-        log = differentiate_log(sensed, base=False)  # the joint rates from the encoders; the gyro's kept
         large = _large(param, true, truth)
-        variants = {"": {}}
-        if case.endswith("bias"):
-            variants["+bias"] = {"gyro_bias": True}
-        if case == "undesigned":
-            variants["+prior"] = {"prior": prior_model, "prior_std": 0.15}
-        for estimator in args.estimators:
-            for name, options in variants.items():
-                label = f"{case}{name} / {estimator}"
-                start = time.perf_counter()
-                with warnings.catch_warnings(record=True) as seen:
-                    warnings.simplefilter("always")
-                    try:
-                        result = spaceid.identify(param, log, h, estimator=estimator, cond_limit=1e14, **options)
-                    except spaceid.SpaceidError as err:
-                        print(f"{label:<34} error: {err}")
-                        continue
-                print(_row(label, result, param, truth, large, held, h_held, prior_error)
-                      + f"  ({large.sum()} large, {time.perf_counter() - start:.0f} s, {len(seen)} warnings)",
-                      flush=True)
-                for w in seen:
-                    print(f"    warning: {str(w.message)[:200]}")
+        pooled = {}
+        for noise_seed in range(args.seed, args.seed + args.noise_seeds):
+            sensed = sense(true, Sensors(encoder=1e-4, star_tracker=5e-5, gyro=1e-5, gyro_bias=bias), seed=noise_seed)
+            log = differentiate_log(sensed, base=False)  # the joint rates from the encoders; the gyro's kept
+            if args.noise_seeds > 1:
+                print(f"  noise seed {noise_seed}")
+            _identified(args, case, param, log, h, truth, large, held, h_held, prior_error, prior_model, pooled)
+        if args.noise_seeds > 1:
+            for label, runs in pooled.items():
+                print(_pooled(label, runs))
+
+
+def _identified(args, case, param, log, h, truth, large, held, h_held, prior_error, prior_model, pooled):
+    """Each estimator and variant of ``case`` on ``log``: a row each, its z's kept in ``pooled``."""
+    variants = {"": {}}
+    if case.endswith("bias"):
+        variants["+bias"] = {"gyro_bias": True}
+    if case == "undesigned":
+        variants["+prior"] = {"prior": prior_model, "prior_std": 0.15}
+    for estimator in args.estimators:
+        for name, options in variants.items():
+            label = f"{case}{name} / {estimator}"
+            start = time.perf_counter()
+            with warnings.catch_warnings(record=True) as seen:
+                warnings.simplefilter("always")
+                try:
+                    result = spaceid.identify(param, log, h, estimator=estimator, cond_limit=1e14, **options)
+                except spaceid.SpaceidError as err:
+                    print(f"{label:<34} error: {err}")
+                    continue
+            print(_row(label, result, param, truth, large, held, h_held, prior_error)
+                  + f"  ({large.sum()} large, {time.perf_counter() - start:.0f} s, {len(seen)} warnings)",
+                  flush=True)
+            pooled.setdefault(label, []).append((_z(result, truth)[large], _whitened_rms(result, truth)))
+            for w in seen:
+                print(f"    warning: {str(w.message)[:200]}")
 
 
 if __name__ == "__main__":

@@ -1,5 +1,6 @@
 """Shared fixtures: random trees with known truth, and Pinocchio as the independent reference."""
 
+import os
 import sys
 from pathlib import Path
 
@@ -14,6 +15,25 @@ sys.path.insert(0, str(Path(__file__).parent))  # test helper modules
 # Module fixtures that take seconds to build (a design, a twin run, a simulated campaign): a test
 # that needs one is slow, so the fast subset (-m "not slow") never builds them.
 SLOW_FIXTURES = {"workdir", "noisy_designs", "short_run", "ideal", "examples", "spatial_run", "chain"}
+
+
+FAST_SUBSET = "SPACEID_FAST_SUBSET"
+"""Set (to 1) while the run leaves the slow tests out (``-m "not slow"``): property tests then draw
+:func:`examples`' fast count, the full run (CI) their full count."""
+
+
+def pytest_configure(config):
+    markexpr = config.getoption("markexpr", "") or ""
+    if "not slow" in markexpr.replace("(", " ").replace(")", " "):
+        os.environ[FAST_SUBSET] = "1"
+    else:
+        os.environ.pop(FAST_SUBSET, None)
+
+
+def examples(full: int, fast: int) -> int:
+    """Hypothesis examples of a property test: ``fast`` in the fast subset, ``full`` otherwise (the same
+    property over more cases: the full run is where a rare case is found)."""
+    return fast if os.environ.get(FAST_SUBSET) else full
 
 
 def pytest_collection_modifyitems(items):

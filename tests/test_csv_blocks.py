@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from spaceid import SpaceidError
 from spaceid import _inputs, _memory
 from spaceid.data import _tables, follow_log, read_log, read_joint_trajectory
+from conftest import examples
 
 JOINTS = ("left_shoulder", "left_elbow")
 HEADER = "t,base_yaw,base_wz,q_left_shoulder,q_left_elbow,qd_left_shoulder,qd_left_elbow"
@@ -73,7 +74,8 @@ def csv_texts(draw):
     return draw(st.sampled_from(["\n", "\r\n", "\r"])).join(lines) + draw(st.sampled_from(["\n", ""]))
 
 
-@settings(max_examples=300, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=examples(300, 40), deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(text=csv_texts())
 def test_any_block_size_reads_what_the_whole_text_gives(tmp_path, text):
     path = tmp_path / "fuzz.csv"

@@ -9,14 +9,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from random_robots import random_robot
+from random_robots import perturbed_prior, random_robot
 
 import spaceid
 from spaceid.data import differentiate_log
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Diagnostics, Noise, identify
-from spaceid.estimation._determined import UNDETERMINED, noise_to_signal
-from spaceid.motion import FourierTrajectory, add_noise, design_excitation, load_trajectory, simulate
+from spaceid.estimation._determined import UNDETERMINED, noise_to_signal, widened
+from spaceid.motion import FourierTrajectory, add_noise, design_excitation, load_trajectory, sample_times, simulate
 
 H = np.array([0.0, 0.0, 0.4934])
 H_SPATIAL = np.array([1.0, -2.0, 3.0])
@@ -46,6 +46,48 @@ def test_noise_to_signal_of_constructed_directions():
     noisy = np.pad(noisy, (0, 1))
     noisy[k, k] = 1e-6
     assert noise_to_signal(held, noisy)[0][-1] >= UNDETERMINED
+
+
+def test_widened_only_along_the_undetermined_coordinates():
+    """In the coordinates ``c = T^-1 theta`` the covariance gains ``c(theta)^2 + c(nominal)^2`` on the
+    undetermined ones and nothing elsewhere."""
+    rng = np.random.default_rng(1)
+    k = 5
+    T = rng.standard_normal((k, k))
+    mu = np.array([0.01, 0.1, 0.49, 0.5, 0.9])
+    theta, nominal = rng.standard_normal(k), rng.standard_normal(k)
+    cov = np.diag(rng.uniform(0.5, 2.0, k))
+    Ti = np.linalg.inv(T)
+    added = Ti @ (widened(cov, mu, T, theta, nominal) - cov) @ Ti.T
+    want = np.diag(np.where(mu >= UNDETERMINED, (Ti @ theta) ** 2 + (Ti @ nominal) ** 2, 0.0))
+    np.testing.assert_allclose(added, want, atol=1e-10)
+    assert widened(cov, 0.5 * mu, T, theta, nominal) is cov
+
+
+@pytest.mark.parametrize("nominal", ["true", "cad"])
+def test_standard_errors_cover_an_undesigned_motion(nominal, tmp_path, monkeypatch):
+    """A random 66-parameter robot on a random motion that leaves 5 directions undetermined: the
+    first-order standard errors put errors 14 of them off (27 parameters beyond 4); widened along
+    those directions they cover every error, with the model's own inertias the truth or a CAD model
+    30 % off."""
+    model = random_robot(110, planar=False, max_arms=2, max_joints=2).load(tmp_path)
+    truth = minimal_parameters(model)
+    param = truth if nominal == "true" else minimal_parameters(perturbed_prior(model, 3, mass=0.3, moments=0.3,
+                                                                                com=0.02))
+    h = np.array([0.3, -0.2, 0.1])
+    a, b = 0.2 * np.random.default_rng(5).standard_normal((2, model.n_joints, 3))
+    log = simulate(truth, truth.true_values, FourierTrajectory(model.joints, 10.0, a, b), sample_times(10.0, 264), h,
+                   model=model)
+    noisy, noise = add_noise(log, angle=1e-4, rate=1e-4, seed=0), Noise(1e-4, 1e-4, 1e-4, 1e-4)
+    with pytest.warns(UserWarning, match="widened to the scale of their values"):
+        result = identify(param, noisy, h, noise=noise)
+    assert result.diagnostics.undetermined and "widened along" in result.diagnostics.covariance
+    assert (np.abs(result.values - truth.true_values) / result.std).max() < 4
+    monkeypatch.setattr("spaceid.estimation._identify.widened", lambda cov, *args: cov)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        first_order = identify(param, noisy, h, noise=noise)
+    assert (np.abs(first_order.values - truth.true_values) / first_order.std).max() > 8
 
 
 def _cepheus(scale):

@@ -6,6 +6,7 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from spaceid._distributions import chi2_cdf, chi2_isf, chi2_ppf, chi2_sf, f_sf, norm_sf
+from conftest import examples
 
 EDGES = [0.0, -0.0, -1.0, np.inf, -np.inf, np.nan, 1e-300, 1e300]
 points = st.one_of(st.sampled_from(EDGES), st.floats(-10, 1e4, allow_nan=False))
@@ -20,27 +21,27 @@ def _same(a, b):
     assert np.array_equal(np.signbit(a), np.signbit(b)) or np.all(np.isnan(a))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300, 40), deadline=None)
 @given(x=points, df=dofs)
 def test_chi_square_cdf_and_sf(x, df):
     _same(chi2_cdf(x, df), stats.chi2.cdf(x, df))
     _same(chi2_sf(x, df), stats.chi2.sf(x, df))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300, 40), deadline=None)
 @given(p=probabilities, df=dofs)
 def test_chi_square_quantiles(p, df):
     _same(chi2_ppf(p, df), stats.chi2.ppf(p, df))
     _same(chi2_isf(p, df), stats.chi2.isf(p, df))
 
 
-@settings(max_examples=300, deadline=None)
+@settings(max_examples=examples(300, 40), deadline=None)
 @given(x=points, dfn=dofs, dfd=dofs)
 def test_f_sf(x, dfn, dfd):
     _same(f_sf(x, dfn, dfd), stats.f.sf(x, dfn, dfd))
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(200, 40), deadline=None)
 @given(x=points)
 def test_normal_sf(x):
     _same(norm_sf(x), stats.norm.sf(x))

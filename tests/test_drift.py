@@ -313,3 +313,38 @@ def test_sketched_leverages_agree_with_the_exact_ones():
     # the sketch's error a part of the adjustment itself (measured 0.25; an 8-column sketch: 0.72)
     assert np.linalg.norm(sketched[5:] - exact[5:]) <= 0.35 * np.linalg.norm(exact[5:] - r[5:])
     assert np.allclose(sketched[:5], exact[:5], rtol=1e-8)
+
+
+@pytest.mark.parametrize("estimator", ["ols", "ml"])
+def test_drift_test_from_the_estimates_gram_matrix_equals_the_whole_refit(monkeypatch, estimator):
+    """``identify`` completes the drift test's refit Gram matrix from the estimate's own factor (ols: the
+    excitation check's; ml: its bread's, at its whitener) by the candidate columns alone, and takes ML's
+    undetermined directions from that factor: the record agrees with the refit formed whole (Wald, fitted
+    drift to 1e-7, as the streamed test's) and the directions with those of the whitened regressor's own
+    factor."""
+    from conftest import random_states, random_tree
+    from spaceid.dynamics import base_rate
+    from spaceid.estimation import _identify
+    from test_stream import _same_drift_test
+
+    model = random_tree(np.random.default_rng(4), [0, 1, 1], planar=False)
+    param = minimal_parameters(model)
+    q, qd, _ = random_states(np.random.default_rng(5), model, 600)
+    q, qd = 0.05 * q, 0.05 * qd  # small motions: two directions undetermined at this noise (scaled cond 5e4)
+    h = np.array([0.3, -0.2, 0.5])
+    w = base_rate(param, param.true_values, q, qd, h)
+    log = add_noise(spaceid.data.Log(np.arange(len(q)) * 0.01, model.joints, q, qd, np.tile([1.0, 0, 0, 0], (len(q), 1)),
+                                     w, False), angle=1e-3, rate=1e-3, seed=3)  # fmt: skip
+    noise = Noise(angle=1e-3, rate=1e-3, base_rate=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        reused = identify(param, log, h, estimator=estimator, noise=noise)
+        monkeypatch.setattr(_identify, "_factor_gram", lambda factor: None)  # the refit's Gram matrix whole
+        monkeypatch.setattr(_identify, "_whitened_factor", lambda factor: None)  # the directions' own factor
+        whole = identify(param, log, h, estimator=estimator, noise=noise)
+    assert reused.diagnostics.drift_test.run and reused.diagnostics.drift_test.to_dict()["wald"] > 0
+    _same_drift_test(reused, whole)
+    assert len(reused.diagnostics.undetermined) == 2 and [d["parameters"] for d in reused.diagnostics.undetermined] == [
+        d["parameters"] for d in whole.diagnostics.undetermined]
+    np.testing.assert_allclose([d["noise_to_signal"] for d in reused.diagnostics.undetermined],
+                               [d["noise_to_signal"] for d in whole.diagnostics.undetermined], rtol=1e-6)

@@ -7,6 +7,7 @@ import dataclasses
 import json
 import threading
 import time
+import warnings
 
 import numpy as np
 import pytest
@@ -302,6 +303,66 @@ def test_the_last_half_window_of_differentiated_rates_is_not_tested(cepheus, ste
     wrong = dataclasses.replace(log, qd=log.qd + np.where(np.arange(log.n_samples) >= 1975, 0.05, 0.0)[:, None])
     (event,) = monitor(param, wrong, H, noise=NOISE).events  # the same error on samples that are tested is found
     assert abs(event.time - 19.75) <= 0.16
+
+
+def test_parts_whose_rates_are_final_are_taken_at_once(cepheus, steady):
+    """A part whose ``meta`` says that its rates are all final (``final_rates``: the bag and live
+    aligner's parts, each sample returned once the messages its windows need are in) is taken
+    whole, not held back half a window more (0.26 s of the live twin's latency): each sample is
+    tested as its part comes, and the parts' events and counts are those of one part of all."""
+    _, param = cepheus
+    log = _differentiated(steady, 7).select(slice(0, 1000))
+    wrong = dataclasses.replace(log, qd=log.qd + np.where(np.arange(log.n_samples) >= 700, 0.05, 0.0)[:, None])
+    final = lambda part: dataclasses.replace(part, meta=dict(part.meta, final_rates=True))  # noqa: E731
+    alarms = []
+    mon = Monitor(param, H, noise=NOISE, on_alarm=alarms.append)
+    mon.update(final(wrong.select(slice(0, 600))))
+    assert mon.n_tested == 600 - 15 - 200  # the first half window is still not taken
+    mon.update(final(wrong.select(slice(600, 702))))
+    assert [a.detected_at for a in alarms] == [7.0]  # raised within the part that holds the change
+    mon.update(final(wrong.select(slice(702, None))))
+    parts = mon.finish()
+    whole = monitor(param, final(wrong), H, noise=NOISE)
+    assert [(e.time, e.detected_at) for e in parts.events] == [(e.time, e.detected_at) for e in whole.events]
+    assert abs(parts.events[0].time - 7.0) <= 0.16 and parts.n_tested == whole.n_tested
+
+
+def test_the_whole_warm_ups_determinacy_alone_is_that_of_its_prefixes(cepheus, steady, monkeypatch):
+    """The screen's figures of a whole warm-up (:meth:`DeterminacyAccumulator.overall`, one
+    factor) are those that :meth:`~DeterminacyAccumulator.result` reaches through its prefixes."""
+    from spaceid.estimation import _monitor_determinacy as md
+
+    _, param = cepheus
+    seen, result = [], md.DeterminacyAccumulator.result
+
+    def both(self, white, scale, level=1.0):
+        seen.append((result(self, white, scale, level), self.overall(white, scale, level)))
+        return seen[-1][0]
+
+    monkeypatch.setattr(md.DeterminacyAccumulator, "result", both)
+    monitor(param, _differentiated(steady, 3).select(slice(0, 500)), H, noise=NOISE)
+    assert seen
+    for full, alone in seen:
+        assert alone.noise_share == pytest.approx(full.noise_share, rel=1e-8)
+        assert alone.bias == pytest.approx(full.bias, rel=1e-8) and alone.noise == pytest.approx(full.noise, rel=1e-12)
+        assert alone.determined == full.determined
+
+
+@pytest.mark.parametrize("estimator", ["ols", "wls"])
+def test_the_screens_estimate_is_identifys(cepheus, steady, estimator):
+    """The screen's estimate (:func:`~spaceid.estimation._identify.estimate_only`: no covariance,
+    no checks) is :func:`~spaceid.estimation.identify`'s, with drift coefficients too."""
+    from spaceid.estimation import identify
+    from spaceid.estimation._identify import estimate_only
+
+    _, param = cepheus
+    log = _differentiated(steady, 5).select(slice(20, 320))
+    for drift in ((), ("viscous",)):
+        theta = estimate_only(param, log, H, estimator=estimator, known=None, noise=NOISE, drift=drift)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = identify(param, log, H, estimator=estimator, noise=NOISE, drift=drift)
+        assert np.array_equal(theta, np.r_[res.values, [d["value"] for d in res.drift]])
 
 
 def test_the_first_half_window_of_differentiated_rates_is_not_taken(cepheus, steady):

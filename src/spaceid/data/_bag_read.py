@@ -13,6 +13,7 @@ import difflib
 import math
 import struct
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -229,8 +230,78 @@ def _topic_connections(reader, where, topic, msgtype, option):
     return info.connections
 
 
+class _JointEntry(NamedTuple):
+    """A ``sensor_msgs/JointState`` message's fields, checked (:func:`_joint_entry`): a reader that
+    meets the same message again (the live aligner's context) does not convert it again."""
+
+    stamp: int
+    names: tuple
+    position: np.ndarray
+    velocity: np.ndarray
+    effort: np.ndarray
+
+
+class _PoseEntry(NamedTuple):
+    """A ``geometry_msgs/PoseStamped`` message's fields (:func:`_pose_entry`)."""
+
+    stamp: int
+    position: tuple
+    quat: tuple
+    frame: str
+
+
 def _stamp(msg):
+    """A message's (or a converted one's) header stamp [ns]."""
+    if isinstance(msg, (_JointEntry, _PoseEntry)):
+        return msg.stamp
     return msg.header.stamp.sec * _NS + msg.header.stamp.nanosec
+
+
+def _joint_entry(msg, label, k) -> _JointEntry:
+    """The checked fields of the JointState ``msg`` (message ``k`` of ``label``); NaN for the
+    velocities or efforts it lacks."""
+    if isinstance(msg, _JointEntry):
+        return msg
+    stamp, names = _stamp(msg), tuple(msg.name)
+    at = f"{label}: message {k} (stamp {stamp / 1e9:.9f} s)"
+    position = np.asarray(msg.position, dtype=float)
+    if len(set(names)) != len(names):
+        twice = next(n for n in names if names.count(n) > 1)
+        raise SpaceidError(f"{at} names joint '{twice}' twice: fix the publisher")
+    if position.size != len(names):
+        raise SpaceidError(
+            f"{at} has {len(names)} names but {position.size} positions: "
+            "every JointState needs one position per name"
+        )
+    bad = np.flatnonzero(~np.isfinite(position))
+    if bad.size:
+        raise SpaceidError(
+            f"{at}: position of joint '{names[bad[0]]}' is {position[bad[0]]}: "
+            "give finite positions (drop the messages of a faulty encoder)"
+        )
+    return _JointEntry(stamp, names, position, *(_optional_array(msg, field, len(names), at)
+                                                 for field in ("velocity", "effort")))  # fmt: skip
+
+
+def _pose_entry(msg) -> _PoseEntry:
+    """The fields of the PoseStamped ``msg``: stamp [ns], position, scalar-first quaternion, frame."""
+    if isinstance(msg, _PoseEntry):
+        return msg
+    p, q = msg.pose.position, msg.pose.orientation
+    return _PoseEntry(_stamp(msg), (p.x, p.y, p.z), (q.w, q.x, q.y, q.z), msg.header.frame_id)  # ROS (x, y, z, w)
+
+
+def _converted(msgs: list, joints: bool, label: str) -> list:
+    """``msgs`` with each message replaced by its converted fields (:func:`_joint_entry`,
+    :func:`_pose_entry`) in place, for a reader that holds messages across parts (and appends
+    the new ones: those after the last converted are converted)."""
+    kind = _JointEntry if joints else _PoseEntry
+    start = len(msgs)
+    while start and not isinstance(msgs[start - 1], kind):  # those held before are converted already
+        start -= 1
+    for k in range(start, len(msgs)):
+        msgs[k] = _joint_entry(msgs[k], label, k) if joints else _pose_entry(msgs[k])
+    return msgs
 
 
 def _merge_joint_states(msgs, label):
@@ -239,7 +310,10 @@ def _merge_joint_states(msgs, label):
     The rows are the distinct stamps of all messages; a joint no message carries at a stamp is
     NaN there; velocity (effort) is None when no message carries one.
     """
-    per_joint = _samples_by_joint(msgs, label)
+    entries = [_joint_entry(msg, label, k) for k, msg in enumerate(msgs)]
+    if entries and entries[0].names and all(e.names == entries[0].names for e in entries):
+        return _same_joints(entries, label)  # every message names every joint, in one order
+    per_joint = _samples_by_joint(entries)
     if not per_joint:
         raise SpaceidError(f"{label}: no message names any joint: record the joint states with their names")
     for name, samples in per_joint.items():
@@ -251,9 +325,22 @@ def _merge_joint_states(msgs, label):
     for c, samples in enumerate(per_joint.values()):
         rows = np.searchsorted(all_stamps, [s[0] for s in samples])
         arrays[:, rows, c] = np.array([s[2:] for s in samples]).T
-    position, velocity, effort = arrays
+    return _without_empty(all_stamps, names, *arrays)
+
+
+def _same_joints(entries, label):
+    """:func:`_merge_joint_states` of messages that all name the same joints in the same order:
+    their rows as they are (the stamps checked once, as those of the first joint)."""
+    stamps = np.array([e.stamp for e in entries], dtype=np.int64)
+    _check_stamps(stamps, range(len(entries)), f"{label}: joint '{entries[0].names[0]}'")
+    return _without_empty(stamps, entries[0].names, *(np.array([getattr(e, f) for e in entries])
+                                                      for f in ("position", "velocity", "effort")))  # fmt: skip
+
+
+def _without_empty(stamps, names, position, velocity, effort):
+    """The merged joint states, velocity (effort) None when no message carries one."""
     return (
-        all_stamps,
+        stamps,
         names,
         position,
         None if np.isnan(velocity).all() else velocity,
@@ -261,31 +348,13 @@ def _merge_joint_states(msgs, label):
     )
 
 
-def _samples_by_joint(msgs, label):
+def _samples_by_joint(entries):
     """Per joint name, in order of first appearance, its samples (stamp [ns], message index,
-    position, velocity, effort), NaN for a velocity or effort the message lacks."""
+    position, velocity, effort) from the messages' checked fields ``entries`` (:func:`_joint_entry`)."""
     per_joint = {}
-    for k, msg in enumerate(msgs):
-        stamp, names = _stamp(msg), list(msg.name)
-        at = f"{label}: message {k} (stamp {stamp / 1e9:.9f} s)"
-        position = np.asarray(msg.position, dtype=float)
-        if len(set(names)) != len(names):
-            twice = next(n for n in names if names.count(n) > 1)
-            raise SpaceidError(f"{at} names joint '{twice}' twice: fix the publisher")
-        if position.size != len(names):
-            raise SpaceidError(
-                f"{at} has {len(names)} names but {position.size} positions: "
-                "every JointState needs one position per name"
-            )
-        bad = np.flatnonzero(~np.isfinite(position))
-        if bad.size:
-            raise SpaceidError(
-                f"{at}: position of joint '{names[bad[0]]}' is {position[bad[0]]}: "
-                "give finite positions (drop the messages of a faulty encoder)"
-            )
-        extras = [_optional_array(msg, field, len(names), at) for field in ("velocity", "effort")]
-        for i, name in enumerate(names):
-            per_joint.setdefault(name, []).append((stamp, k, position[i], extras[0][i], extras[1][i]))
+    for k, e in enumerate(entries):
+        for i, name in enumerate(e.names):
+            per_joint.setdefault(name, []).append((e.stamp, k, e.position[i], e.velocity[i], e.effort[i]))
     return per_joint
 
 
@@ -303,11 +372,11 @@ def _optional_array(msg, field, n, at):
 
 def _poses(msgs, label):
     """Stamps (m,) [ns], positions (m, 3), scalar-first quaternions (m, 4), frame from PoseStamped."""
-    stamps = np.array([_stamp(m) for m in msgs], dtype=np.int64)
-    position = np.array([[m.pose.position.x, m.pose.position.y, m.pose.position.z] for m in msgs], dtype=float)
-    o = [m.pose.orientation for m in msgs]
-    quat = np.array([[q.w, q.x, q.y, q.z] for q in o], dtype=float)  # ROS (x, y, z, w) -> [w, x, y, z]
-    frames = [m.header.frame_id for m in msgs]
+    entries = [_pose_entry(m) for m in msgs]
+    stamps = np.array([e.stamp for e in entries], dtype=np.int64)
+    position = np.array([e.position for e in entries], dtype=float).reshape(-1, 3)
+    quat = np.array([e.quat for e in entries], dtype=float).reshape(-1, 4)
+    frames = [e.frame for e in entries]
     changed = next((k for k, f in enumerate(frames) if f != frames[0]), None)
     if changed is not None:
         raise SpaceidError(

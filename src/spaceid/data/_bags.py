@@ -14,7 +14,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ._bag_format import _BAG_SUFFIXES, _NS, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC
-from ._bag_read import _bag_messages, _recording, _stamp, read_mapping, read_recording
+from ._bag_read import _bag_messages, _recording, _stamp, _converted, read_mapping, read_recording
 from ._bag_to_log import to_log
 from ._timeseries import Log
 
@@ -133,7 +133,9 @@ class MessageAligner:
     pose), the messages held are aligned and differentiated (:func:`to_log`) and the samples that
     no later message can change are returned; the messages the next part's differentiator still
     needs are kept, the rest dropped (:func:`bag_chunks` describes the parts). :meth:`flush`
-    returns the rest.
+    returns the rest. The parts of :meth:`align` say so in their ``meta`` (``"final_rates":
+    True``: a monitor takes their samples at once); each message is converted once, however many
+    parts' context it is aligned in.
 
     Parameters
     ----------
@@ -197,18 +199,26 @@ class MessageAligner:
         if self._due is None and topic == self.joint_topic:
             self._due = _stamp(msg) + int(max(self.block, FIRST_BLOCK) * 1e9)
 
+    @property
+    def due(self) -> bool:
+        """Whether :meth:`align` would align a part now: ``block`` seconds of joint states (and a
+        pose) have come since the last."""
+        joint_msgs, pose_msgs = self._held.values()
+        return bool(pose_msgs and len(joint_msgs) > 1 and self._due is not None and _stamp(joint_msgs[-1]) > self._due)
+
     def align(self) -> Log | None:
         """The log of the samples that the messages held complete, once ``block`` seconds of joint
         states have come since the last part (else None): a live node holds what arrived at once
         and aligns it in one part."""
-        joint_msgs, pose_msgs = self._held.values()
-        if not (pose_msgs and len(joint_msgs) > 1 and self._due is not None and _stamp(joint_msgs[-1]) > self._due):
+        if not self.due:
             return None
+        joint_msgs, pose_msgs = self._held.values()
         self._due = _stamp(joint_msgs[-1]) + int(self.block * 1e9)  # the next part: ``block`` more seconds
         if self._origin is None:
             self._origin = min(_stamp(joint_msgs[0]), _stamp(pose_msgs[0])) // _NS * _NS
         log = self._log(joint_msgs, pose_msgs)
         half = _settled(log)
+        log.meta["final_rates"] = True  # no later message changes these samples: a monitor need not hold them back
         part = self._continued(log.select((log.t > self._done) & (log.t <= log.t[-1] - half)))
         self.settled = half
         if part.n_samples:
@@ -235,6 +245,9 @@ class MessageAligner:
         return part
 
     def _log(self, joint_msgs, pose_msgs) -> Log:
+        # each message converted once, though the parts' context aligns it again and again
+        _converted(joint_msgs, True, f"{self.source}: {self.joint_topic}")
+        _converted(pose_msgs, False, f"{self.source}: {self.pose_topic}")
         recording = _recording(self.source, joint_msgs, pose_msgs, self.publishers, **self._topics,
                                time_origin_ns=self._origin)
         if self.kind is not None:

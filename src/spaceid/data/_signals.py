@@ -51,7 +51,7 @@ import numpy as np
 from .._errors import SpaceidError
 from ._signal_checks import _check_gaps, _check_int, _check_quantum, _check_series, _finite_number, _require_samples
 from ._signal_noise import _NOISE_DIFFERENCE, _check_resolution, _noise
-from ._signal_savgol import _AUTO_ORDERS, _PILOT_EXTRA, _local_fits, _savgol, _savgol_gains, _select_savgol
+from ._signal_savgol import _AUTO_ORDERS, _PILOT_EXTRA, _new_fits, _savgol, _savgol_gains, _select_savgol
 from ._signal_spline import _PROBES, _spline
 from ._timeseries import quat_to_yaw, yaw_to_quat
 
@@ -137,7 +137,9 @@ def differentiate(
     coherent with the motion, does not. (The derivatives' own mean squared error, bias^2 +
     variance, chose windows whose bias was as large as their noise: on a designed servicer flight
     the parameters' errors were then 1.3 to 1.4 times their standard errors, root-mean-square,
-    against 1.1 with this rule, the rates' own error 2.5 times larger.) The terms:
+    against 1.1 with this rule, the rates' own error 2.5 times larger.) A given ``window`` fixes the
+    time resolution wanted of the rates themselves (a monitor's: a change shows within the window),
+    and the order is then chosen for their own error, bias^2 + variance. The terms:
 
     - variance ``sigma^2 * mean_i sum_j d_ij^2`` (exact for white noise);
     - bias: the weights reproduce polynomials of degree p, so sample i's bias is
@@ -237,9 +239,10 @@ def _selection(method, window, order, smoothing):
     if method == "savgol":
         selection = {"window": _how(window), "order": _how(order)}
         rule = (
+            "plug-in bias^2 + variance of the derivative (the window given: the rates' own error; moments on the "
+            "stamps, degree p+3 pilot, noise subtracted)" if window is not None else
             "plug-in bias^2 + (w / n) variance of the derivative (moments on the stamps, degree p+3 pilot, noise "
-            "subtracted), "
-            "windows up to the first with bias shown on an eighth of the record"
+            "subtracted), windows up to the first with bias shown on an eighth of the record"
         )
     else:
         selection = {"smoothing": _how(smoothing)}
@@ -455,7 +458,7 @@ def savgol_weights(t, rows, window: int, order: int):
         derivative ``rate[i] @ x[idx[i]]``; with white noise of std ``sigma`` on ``x``, the errors of
         two rows' derivatives have covariance ``sigma^2`` times the overlap of their weights.
     """
-    idx, _, pinv, scale = _local_fits(np.asarray(t, float), np.asarray(rows), int(window), int(order))
+    idx, _, pinv, scale = _new_fits(np.asarray(t, float), np.asarray(rows), int(window), int(order))
     return idx, pinv[:, 0], pinv[:, 1] / scale[:, None]
 
 

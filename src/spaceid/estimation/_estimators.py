@@ -371,6 +371,7 @@ def _ml(eq, x, sigma, theta, ctx, **options):
     if "factor" in info:
         scale, R = info.pop("factor")
         L, r = info["whitener"], info.pop("residuals")
+        info["whitened_factor"] = (scale, R)  # the checks' factor of the equations whitened by L
         info["terms"] = {"M": phi[..., :-1], "bread": _solve_factor(R, scale)[1], "L": L, "r": r,
                          "scored": _inverse_times(L, r[..., None])[..., 0], "white": _whitened(L, r[..., None])[..., 0]}
     return estimate, info

@@ -19,13 +19,14 @@ import warnings
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.linalg import lapack
 
 from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
-from ._determined import equation_noise, undetermined_directions, undetermined_warning
+from ._determined import WIDENED, equation_noise, undetermined_directions, undetermined_warning, widened
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
@@ -196,16 +197,17 @@ def _drift_collinear(eq, cov_t, where) -> tuple:
 
 
 def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None, chunk=None,
-                 noise=None) -> tuple:
+                 noise=None, gram=None) -> tuple:
     """The :class:`~spaceid.estimation.DriftTest` of the residuals for an unmodelled drift
     (:func:`spaceid.estimation._residuals.drift_test`, ``whitener`` the estimator's own, if any; streamed in chunks
     of ``chunk`` samples when given; ``noise`` the noise Gram matrix of the equations with the drift columns, if
-    formed) and its warning (``""`` when silent); not run when drift terms are modelled."""
+    formed; ``gram`` the Gram matrix of the columns whitened by ``whitener``, if formed) and its warning (``""``
+    when silent); not run when drift terms are modelled."""
     if drift:
         return DriftTest.skipped(f"drift terms modelled: {', '.join(drift)}"), ""
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
         return DriftTest.skipped("not defined for the angles estimator"), ""
-    test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk, noise=noise)
+    test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk, noise=noise, gram=gram)
     record = DriftTest.from_dict(test)
     if not test["drift"]:
         return record, ""
@@ -215,6 +217,36 @@ def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitene
                   f"< {test['alpha']:g}, momentum drift {100 * test['relative_drift']:.2g} % of its RMS{white}): an "
                   "external torque or base friction changes the momentum: model it with `drift` (one term first, "
                   "e.g. viscous: terms that move alike are confounded; see the drift theory page)")
+
+
+def _whitened_factor(factor):
+    """``(scale, R, cond)``: the column-scaled factor ``(scale, R)`` of an estimator's whitened equations
+    (:func:`~spaceid.estimation._linalg._triangular_factor`) with its scaled condition number, estimated
+    (LAPACK ``dtrcon``, as :func:`~spaceid.estimation._determined.regressor_factor` judges it); None for None."""
+    if factor is None:
+        return None
+    with one_blas_thread():
+        rcond = lapack.dtrcon(np.ascontiguousarray(factor[1][:-1, :-1]))[0]
+    return (*factor, 1 / rcond if rcond > 0 else np.inf)
+
+
+def _factor_gram(factor):
+    """The Gram matrix ``(p, p)`` of the regressor whose column-scaled factor is ``factor = (scale, R, ...)``
+    (``R^T R`` unscaled), or None for None."""
+    if factor is None:
+        return None
+    r = factor[1][:-1, :-1] * factor[0]
+    with one_blas_thread():
+        return r.T @ r
+
+
+def _log_regressor(eq, phi, estimator: str):
+    """The regressor ``(n, rows, k)`` at the log's signals as the equations ``phi`` hold it (their first ``k``
+    columns when every parameter is free; spatial systems: the planar equations take the base rate's z
+    alone), or None when they do not."""
+    if phi is None or estimator == "angles" or len(eq.known) or eq.planar:
+        return None
+    return phi[..., : eq.param.n_params]
 
 
 def _singular_values(factor) -> np.ndarray:
@@ -298,10 +330,29 @@ def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, wher
     wls = _estimate(eq, x, log, sigma, ctx, "wls", estimated, chunk)
     if _implausible_estimate(eq, wls.theta, wls.cov, where):
         return ml
-    ml_info = {k: v for k, v in ml.info.items() if k != "whitener"}  # ML's weights are not WLS's
+    ml_info = {k: v for k, v in ml.info.items() if k not in ("whitener", "whitened_factor")}  # ML's weights are not WLS's
     info = ml_info | {"fallback": (f"wls: the maximum-likelihood estimate converged to physically impossible "
                                    f"parameters (objective {ml_info['objective_end']:.4g}); WLS's are not")}
     return replace(wls, info=info)
+
+
+def estimate_only(param: Parameterization, log: Log, momentum, *, estimator: str, known: dict | None, noise: Noise,
+                  drift=(), history: Log | None = None, where: str = "log", cond_limit: float = 1e10) -> np.ndarray:
+    """:func:`identify`'s estimate alone, from the same arguments (an inertial ``momentum`` and
+    the ``noise`` levels given; ``ols``, ``wls``, ``tls`` or ``iv`` with the measured signals as
+    instruments): the free parameters, then the drift coefficients ``(p,)``, without the
+    covariance nor the checks of the residuals, at a fraction of the cost (a screen: the monitor's
+    of a lengthened warm-up). Raises as :func:`identify` on too few samples or a motion that does
+    not excite every parameter."""
+    eq, _ = _equations(param, log, np.asarray(momentum, float), known, where, check_drift_kinds(drift), history)
+    _check_sample_count(eq, log, where)
+    x = eq.signals(log)
+    phi = eq.phi(x)
+    ctx = _FitContext(phi, check_excitation(phi, eq.names(), cond_limit, where)[0],
+                      **(_instrument_context(log, None, where) if estimator == "iv" else {}))
+    sigma = signal_sigma(param, noise)
+    theta = _ols(eq, x, sigma, None, ctx)[0]
+    return theta if estimator == "ols" else _KERNELS[estimator](eq, x, sigma, theta, ctx)[0]
 
 
 def identify(
@@ -469,10 +520,17 @@ def identify(
         if not chunk and estimator != "angles":
             gram = equation_noise(eq, x, sigma, theta, estimator, log, whitener,
                                   None if drift else drift_columns(eq, log))
-        weak = [] if gram is None else undetermined_directions(
-            eq, x, phi, sigma, theta, estimator, log, whitener, gram[: eq.p, : eq.p], (*factor, cond_scaled))
+        # the factor of the columns whitened as the checks take them (ols: the excitation check's; ml: its bread's)
+        white_factor = (*factor, cond_scaled) if estimator == "ols" else _whitened_factor(info.pop("whitened_factor",
+                                                                                                   None))
+        weak, ratios = ([], None) if gram is None else undetermined_directions(
+            eq, x, phi, sigma, theta, estimator, log, whitener, gram[: eq.p, : eq.p], white_factor)
+        if weak:  # the standard errors say what the data do not determine
+            nominal = np.concatenate([param.true_values[eq.free], theta[len(eq.free):]])
+            fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
+            uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
-                                                   whitener, chunk, gram)
+                                                   whitener, chunk, gram, _factor_gram(white_factor))
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
             bias, warning = bias_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
                                       drift_record.to_dict(), where)
@@ -524,6 +582,6 @@ def identify(
         condition_number=float(s[0] / s[-1]) if s[-1] > 0 else np.inf, singular_values=s, residual_rms=fit.rms,
         n_samples=log.n_samples, estimator=estimator, momentum=h, model=param.model.source or param.model.name,
         planar=param.model.planar, settings=settings, units=param.units, drift=terms, momentum_std=h_std,
-        diagnostics=diagnostics, scale=log_momentum_scale(param, log),
+        diagnostics=diagnostics, scale=log_momentum_scale(param, log, regressor=_log_regressor(eq, phi, estimator)),
         gyro_bias=gyro_bias.terms(eq, theta, fit.cov) if gyro_bias else (),
     )

@@ -73,7 +73,7 @@ from ._differentiated import whitened_series
 from ._drift import check_drift_kinds
 from ._equations import _equations
 from ._linalg import _accumulate_factor, _column_scale
-from ._identify import identify
+from ._identify import estimate_only, identify
 from ._monitor_cusum import CHANGE_RATIO, FALSE_ALARM_RATE, Cusum, cusum_run_length, cusum_threshold
 from ._monitor_determinacy import DeterminacyAccumulator
 from ._monitor_filter import DifferentiatedWhitener
@@ -318,23 +318,23 @@ class Monitor:
         estimate (:mod:`~spaceid.estimation._monitor_determinacy`), waits for more samples."""
         segment, rows = self._segment, self._segment.warm
         self._estimate_noise(rows)
+        label = f"segment {len(self.segments)} warm-up"
         try:
-            segment.ident = self._identify(rows, f"segment {len(self.segments)} warm-up", segment.trail)
+            screen = self._screen(rows, label)
+            segment.ident = None if screen is not None and screen.far_from_determined else \
+                self._identify(rows, label, segment.trail)
         except SpaceidError:
             if segment.target + self.warmup > self.max_segment:
                 raise
             segment.target += self.warmup  # not excited yet (e.g. the arm at rest): wait for more samples
             return []
-        segment.theta_ref = np.r_[segment.ident.values[self._eq.free], [d["value"] for d in segment.ident.drift]]
-        self._sigma = signal_sigma(self.param, self.noise)
-        white, L, J, accumulator = self._warm_up_equations(rows)
-        block = white.reshape(-1, white.shape[-1])
-        segment.scale = _column_scale(block[:, :-1])
-        res = (block[:, -1] - block[:, :-1] @ segment.theta_ref).reshape(len(rows), self.param.rows)
-        level = accumulator.level(res, len(segment.theta_ref))
-        determinacy = accumulator.result(white, segment.scale, level)
+        if segment.ident is None:
+            return self._extend_warm_up(screen)
+        white, L, J, accumulator, level, determinacy = self._determinacy(
+            rows, np.r_[segment.ident.values[self._eq.free], [d["value"] for d in segment.ident.drift]])
         if not determinacy.determined:
             return self._extend_warm_up(determinacy)
+        block = white.reshape(-1, white.shape[-1])
         segment.trail = []
         segment.sigma = accumulator.sigma * math.sqrt(level)
         segment.score = level * accumulator.score / segment.scale
@@ -360,6 +360,39 @@ class Monitor:
         segment.warm, events = [], self._complete_waiting()
         self._take_warm_up(rows, nu)
         return events
+
+    def _screen(self, rows: list, label: str):
+        """The whole warm-up's :class:`~spaceid.estimation._monitor_determinacy.Determinacy` of
+        the samples ``rows`` at their weighted least-squares estimate, when the batch estimator is
+        maximum likelihood (else None): a warm-up far from determined there
+        (:data:`~spaceid.estimation._monitor_determinacy.SCREEN_MARGIN`) waits for more samples
+        without the costlier fit (on the twin after a grasp, eleven fits of 0.1 to 0.2 s each of
+        warm-ups that were never determined)."""
+        if self.estimator != "ml":
+            return None
+        log = log_of(rows, self.param.model, f"{self.where} {label}")
+        history = log_of(self._segment.trail, self.param.model, self.where) if self.drift else None
+        theta = estimate_only(self.param, log, self._segment.momentum, estimator="wls", known=self.known,
+                              noise=self.noise, drift=self.drift, history=history, where=f"{self.where} ({label})")
+        return self._determinacy(rows, theta, True)[-1]
+
+    def _determinacy(self, rows: list, theta: np.ndarray, overall: bool = False) -> tuple:
+        """The warm-up ``rows`` linearised at the estimate ``theta`` (free parameters, then drift
+        coefficients: the segment's ``theta_ref``; its ``scale`` set too): its whitened equations,
+        whiteners and Jacobians (:meth:`_warm_up_equations`), the
+        :class:`~spaceid.estimation._monitor_determinacy.DeterminacyAccumulator`, the noise level
+        its residuals show and its :class:`~spaceid.estimation._monitor_determinacy.Determinacy`
+        (with ``overall``, the whole warm-up's alone)."""
+        segment = self._segment
+        segment.theta_ref = theta
+        self._sigma = signal_sigma(self.param, self.noise)
+        white, L, J, accumulator = self._warm_up_equations(rows)
+        block = white.reshape(-1, white.shape[-1])
+        segment.scale = _column_scale(block[:, :-1])
+        res = (block[:, -1] - block[:, :-1] @ segment.theta_ref).reshape(len(rows), self.param.rows)
+        level = accumulator.level(res, len(segment.theta_ref))
+        determinacy = (accumulator.overall if overall else accumulator.result)(white, segment.scale, level)
+        return white, L, J, accumulator, level, determinacy
 
     def _warm_up_equations(self, rows: list) -> tuple:
         """The warm-up's equations whitened at the linearisation point, ``white``, ``L`` and ``J``

@@ -122,9 +122,11 @@ class Intake:
 
     def final(self, log: Log) -> list:
         """The samples whose rates are final now: those held back before, then ``log``'s, less
-        the new last half window (held back in turn)."""
+        the new last half window (held back in turn), unless its ``meta`` says that its rates are
+        all final (``final_rates``: the parts of :class:`~spaceid.data.MessageAligner`, which
+        returns a sample once the messages that complete its windows are in)."""
         samples = self.held + (self.with_basis(log) if self.drift else samples_of(log))
-        cut = max(len(samples) - self.half, 0)
+        cut = len(samples) if log.meta.get("final_rates") else max(len(samples) - self.half, 0)
         samples, self.held = samples[:cut], samples[cut:]
         return samples
 

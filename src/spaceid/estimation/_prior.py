@@ -212,36 +212,6 @@ def data_from_estimate(values, cov, free, anchors) -> DataTerm:
                     std=np.sqrt(np.clip(np.diag(cov), 0, None)), anchors=dict(anchors))
 
 
-def _undetermined_directions(param, log, momentum, minimal, where, drift, history, noise, fit) -> np.ndarray:
-    """The directions ``(n_free, k)`` of the free minimal parameters that ``log`` does not determine
-    (:func:`~spaceid.estimation._determined.undetermined_basis`) at the estimate ``fit``."""
-    from ._determined import undetermined_basis
-    from ._equations import _equations
-    from ._noise import noise_from_log, signal_sigma
-
-    eq, _ = _equations(param, log, momentum, minimal, where, drift, history)
-    theta = np.concatenate([fit.values[eq.free], fit.momentum[eq.axes][: eq.n_h], [t["value"] for t in fit.drift]])
-    basis = undetermined_basis(eq, log, theta, signal_sigma(param, noise or noise_from_log(log)))
-    return basis[: len(eq.free)]
-
-
-def _without_directions(data: DataTerm, directions: np.ndarray) -> DataTerm:
-    """``data`` with no information along ``directions (n_free, k)``: its information ``I = L^T L``
-    less what it holds about the components along them, ``I - I V (V^T I V)^-1 V^T I`` (those
-    components profiled out), so that the prior alone sets them. Along a direction the data do not
-    determine the estimate is pulled towards zero by the regressor's noise while its covariance
-    still claims it (on an undesigned servicer flight the posterior's errors were then 2.5 times its
-    standard errors, root-mean-square)."""
-    info = data.L.T @ data.L
-    iv = info @ directions
-    info = info - iv @ np.linalg.solve(directions.T @ iv, iv.T)
-    s, v = np.linalg.eigh(0.5 * (info + info.T))
-    keep = s > 1e-12 * max(s.max(initial=0.0), np.finfo(float).tiny)
-    L = (v[:, keep] * np.sqrt(s[keep])).T
-    return DataTerm(L, L @ data.values[data.free], data.free, data.kind, data.reason, data.values, data.std,
-                    data.anchors)
-
-
 def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, free) -> DataTerm:
     """The :class:`DataTerm` of whitened momentum equations ``white = [A_f | A_n | -b]`` (any leading
     shape, last axis ``p + 1``; ``A_f`` the ``n_free`` free parameters' columns, ``A_n`` the nuisance:
@@ -560,18 +530,19 @@ def identify_with_prior(identify, param: Parameterization, log, momentum, *, pri
             reason = f"the {estimator} estimate failed on a singular system"
     if data_fit is not None:
         data = data_from_estimate(data_fit.values, data_fit.cov, eq.free, dict(zip(eq.known, eq.known_values)))
-        if len(data.L) == len(eq.free):
-            if data_fit.diagnostics.undetermined:  # the prior alone sets what the data do not determine
-                data = _without_directions(data, _undetermined_directions(param, log, momentum, minimal, where,
-                                                                          drift, history, noise, data_fit))
+        weak = data_fit.diagnostics.undetermined
+        if len(data.L) == len(eq.free) and not weak:
             pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard,
                                            where=where)
             d = data_fit.diagnostics
             diagnostics = replace(d, covariance=f"posterior of the CAD prior and the data's: {d.covariance}")
             return replace(data_fit, values=pi, cov=cov, std=np.sqrt(np.clip(np.diag(cov), 0, None)), prior=record,
                            diagnostics=diagnostics)
-        # a covariance of lower rank claims exact knowledge the data cannot have (a sandwich of few samples)
-        reason = (f"the {estimator} covariance ({data_fit.diagnostics.covariance_method}) has rank {len(data.L)} "
+        # directions the data do not determine are the prior's (the equations' information there is the noise's, and
+        # the estimate's is widened out of reach); a covariance of lower rank claims exact knowledge the data
+        # cannot have (a sandwich of few samples)
+        reason = (f"the data do not determine {len(weak)} directions" if weak else
+                  f"the {estimator} covariance ({data_fit.diagnostics.covariance_method}) has rank {len(data.L)} "
                   f"for {len(eq.free)} parameters")
     return _equations_with_prior(param, log, eq, model, prior_std, standard, noise, estimator, reason, where)
 
@@ -598,7 +569,8 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     from ._diagnostics import Diagnostics
     from ._equations import _split
     from ._linalg import _equation_whitener
-    from ._noise import FD_STEP, noise_from_log, signal_sigma
+    from ._determined import noise_gram, noise_rows
+    from ._noise import noise_from_log, signal_sigma
     from ._result import Identification
 
     noise = noise or noise_from_log(log)
@@ -617,13 +589,10 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     sigma = signal_sigma(param, noise)
     whitener = np.linalg.inv(_equation_whitener(eq, x, theta0, sigma))
     white = whitener @ phi
-    noise_gram = np.zeros((phi.shape[-1], phi.shape[-1]))
-    for i in np.flatnonzero(sigma):  # the regressor's own noise, propagated from each signal's
-        e = np.zeros(x.shape[1])
-        e[i] = FD_STEP
-        d = (whitener @ (eq.phi(x + e) - eq.phi(x - e)) / (2 * FD_STEP)).reshape(-1, phi.shape[-1])
-        noise_gram += sigma[i] ** 2 * (d.T @ d)
-    data = data_from_equations(white, noise_gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free)
+    rows, scale = noise_rows(len(x))  # the regressor's own noise, propagated from each signal's
+    part, linear = eq.select(rows), np.isin(np.arange(x.shape[1]), eq.rate_channels)
+    gram = noise_gram(lambda signals: whitener[rows] @ part.phi(signals), x[rows], sigma, scale, linear)
+    data = data_from_equations(white, gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free)
     pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard, where=where)
     theta = np.concatenate([pi[eq.free], nuisance(pi[eq.free])])
     h = eq.full(theta)[1]

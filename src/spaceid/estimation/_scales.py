@@ -86,18 +86,34 @@ def momentum_scale(param, q, qd, w0, pi=None) -> MomentumScale:
     MomentumScale
     """
     q, qd, w0 = (np.asarray(a, float) for a in (q, qd, w0))
-    rows = np.unique(np.linspace(0, len(q) - 1, min(len(q), SCALE_SAMPLES)).astype(int))
-    y = param.regressor(q[rows], qd[rows], w0[rows])  # (n, rows, k)
-    r = np.sqrt(np.mean(np.sum(y**2, axis=1), axis=0))
+    rows = _scale_rows(len(q))
+    y = param.regressor(q[rows], qd[rows], w0[rows])  # (m, rows, k)
+    return _regressor_scale(param, np.einsum("nrk,nrk->k", y, y) / len(rows), pi)
+
+
+def _scale_rows(n: int) -> np.ndarray:
+    """The samples ``(m,)`` of ``n`` that :func:`momentum_scale` takes."""
+    return np.unique(np.linspace(0, n - 1, min(n, SCALE_SAMPLES)).astype(int))
+
+
+def _regressor_scale(param, square, pi=None) -> MomentumScale:
+    """:func:`momentum_scale` from the mean square ``(k,)`` over its samples of each regressor column."""
+    r = np.sqrt(square)
     pi = param.true_values if pi is None else np.asarray(pi, float)
     total = float(np.sqrt(np.sum((r * pi) ** 2)))
     per_unit = r / total if total > 0 else np.full_like(r, np.nan)
     return MomentumScale(per_unit, total, per_unit * np.abs(pi))
 
 
-def log_momentum_scale(param, log: Log, pi=None) -> MomentumScale:
+def log_momentum_scale(param, log: Log, pi=None, regressor=None) -> MomentumScale:
     """:func:`momentum_scale` of a log's samples; rates it lacks (NaN: an angles-only log) from
-    :func:`spaceid.data.differentiate_log`."""
+    :func:`spaceid.data.differentiate_log`. ``regressor``: the regressor ``(n, rows, k)`` at every sample of
+    the log (e.g. a view of the identification's equations), if built."""
+    if regressor is not None:
+        rows = _scale_rows(log.n_samples)
+        square = sum(np.einsum("nrk,nrk->k", y, y) for y in (regressor[part] for part in np.array_split(
+            rows, -(-len(rows) // 256))))  # a block at a time: no copy of the columns (a view of the equations)
+        return _regressor_scale(param, square / len(rows), pi)
     if not (np.isfinite(log.qd).all() and np.isfinite(log.base_w).all()):
         log = differentiate_log(log)
     return momentum_scale(param, log.q, log.qd, log.base_w, pi)

@@ -137,7 +137,7 @@ def _hac(chunks, bandwidth, p, dof_scale=True):
     with one_blas_thread():
         for x in (chunk[i : i + HAC_BLOCK] for chunk in chunks for i in range(0, len(chunk), HAC_BLOCK)):
             both = np.vstack([tail, x]) if bandwidth else x
-            sums = _window_sums(both, bandwidth + 1, len(x))
+            sums = _window_sums(both, bandwidth + 1, len(x)) if bandwidth else x  # White's: the scores themselves
             cov, tail, n = cov + sums.T @ sums, both[len(both) - bandwidth :], n + len(x)
         if bandwidth:  # the windows that reach past the log's end
             sums = _window_sums(np.vstack([tail, np.zeros((bandwidth, p))]), bandwidth + 1, bandwidth)

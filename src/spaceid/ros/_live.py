@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import SpaceidError
+from .._threads import one_blas_thread
 from ..data import Log, MessageAligner
 
 __all__ = ["LIVE_BLOCK", "LIVE_CONTEXT", "LIVE_ORDER", "LiveMonitor", "LiveOutput"]
@@ -113,16 +114,19 @@ class LiveMonitor:
         Further :func:`~spaceid.data.to_log` keywords (``joint_rates``, ``window``, ``quantum``).
     where : str
         Name of the source, for messages.
+    clock : callable
+        The clock [s] that the arrivals are given in and the publications timed by (``latency_s``):
+        ``time.monotonic``; a benchmark may give a processor-time clock.
     **options
         Keywords of :class:`~spaceid.estimation.Monitor` (``known``, ``noise``, ``drift``, ...).
     """
 
     def __init__(self, param, momentum, *, mapping=None, joint_topic=None, pose_topic=None, link=None,
-                 block=LIVE_BLOCK, reading=None, where="ros2", **options):
+                 block=LIVE_BLOCK, reading=None, where="ros2", clock=time.monotonic, **options):
         from ..estimation import Monitor
 
         m = param.model
-        self.param, self.link, self.where = param, link, where
+        self.param, self.link, self.where, self.clock = param, link, where, clock
         self.monitor = Monitor(param, momentum, where=where, on_alarm=self._alarmed, **options)
         reading = dict(reading or {})
         if reading.get("window") is not None and reading.get("order") is None:
@@ -136,6 +140,7 @@ class LiveMonitor:
 
             self._pmap = payload_map(m, link)
         self._recent = collections.deque()  # the latest parts, at most HISTORY samples
+        self._n_recent, self._unchecked = 0, False  # their samples; whether a part came since the payload's check
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
         self.n_messages, self.busy = 0, 0.0
         self._emit = None  # where the outputs go
@@ -146,8 +151,8 @@ class LiveMonitor:
     def add(self, topic: str, msg, received: float | None = None) -> list:
         """Take one message of ``topic``; the :class:`LiveOutput` it completes (the estimate after
         each aligned part, the alarms and events), in order. ``received``: its arrival [s,
-        ``time.monotonic``], from which each event's ``latency_s`` is counted (default now)."""
-        return self.add_batch([(topic, msg, time.monotonic() if received is None else received)])
+        ``clock``], from which each event's ``latency_s`` is counted (default now)."""
+        return self.add_batch([(topic, msg, self.clock() if received is None else received)])
 
     def add_batch(self, messages, publish=None) -> list:
         """Take the messages ``(topic, msg, received)`` that arrived since the last call, in stamp
@@ -163,9 +168,11 @@ class LiveMonitor:
                 self.aligner.hold(topic, msg)
                 self._arrivals[topic].append((_stamp(msg), received))
             self.n_messages += len(messages)
-            part = self._align()
-            if part is not None:
-                self._take(part)
+            if self.aligner.due or self.aligner.held > MAX_HELD:
+                with one_blas_thread():  # small factorisations: BLAS threads only wait (on busy cores, 100 times longer)
+                    part = self._align()
+                    if part is not None:
+                        self._take(part)
         finally:
             self._emit = None
         self.busy += time.perf_counter() - start
@@ -196,7 +203,7 @@ class LiveMonitor:
             self._emit(LiveOutput("estimate", estimate))
 
     def _completed(self, t: float) -> float:
-        """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``time.monotonic``]
+        """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``clock``]
         of the first joint state that settles it (``settled`` later) or, if later, of the first
         pose at or after it; now when none came yet (the end of the run), NaN when forgotten."""
         due = {self.aligner.joint_topic: t + self.aligner.settled, self.aligner.pose_topic: t}
@@ -206,16 +213,19 @@ class LiveMonitor:
             if arrivals and arrivals[0][0] > ns:  # forgotten
                 return math.nan
             k = bisect.bisect_left(arrivals, (ns, -math.inf))
-            found.append(arrivals[k][1] if k < len(arrivals) else time.monotonic())
+            found.append(arrivals[k][1] if k < len(arrivals) else self.clock())
         return max(found)
 
     def _remember(self, part: Log):
         self._recent.append(part)
-        while sum(p.n_samples for p in self._recent) - self._recent[0].n_samples >= HISTORY:
-            self._recent.popleft()
+        self._n_recent += part.n_samples
+        self._unchecked = True
+        while self._n_recent - self._recent[0].n_samples >= HISTORY:
+            self._n_recent -= self._recent.popleft().n_samples
 
     def _alarmed(self, alarm):
         """The monitor's alarm: its message at once; the payload after it is due from now on."""
+        self._unchecked = True
         if self._pmap is not None:
             self._payload_event, self._payload_due = alarm, 0
         self._emit(self._stage(alarm, "detected", self._completed(alarm.detected_at)))
@@ -223,7 +233,7 @@ class LiveMonitor:
     def _stage(self, event, stage: str, received: float) -> LiveOutput:
         """An alarm's or an event's message on ``/spaceid/events``."""
         data = {"stage": stage} | event.to_dict() | {"time_origin_ns": self._origin,
-                                                     "latency_s": time.monotonic() - received}
+                                                     "latency_s": self.clock() - received}
         return LiveOutput("event", _plain(data))
 
     def estimate(self) -> dict | None:
@@ -243,23 +253,25 @@ class LiveMonitor:
         of them), then each time they double (while the history holds them); None otherwise or
         without ``link``."""
         event = self._payload_event
-        if event is None:
+        if event is None or not self._unchecked:  # no new samples: nothing new is due
             return None
+        self._unchecked = False
         from ..identified import payload_after_grasp
 
         grasp = event.time + event.lead  # the change lies in [time, time + lead]
         if self._recent[0].t[0] >= grasp:  # the history no longer reaches back to the change
             self._payload_event = None
             return None
-        after = sum(int(np.sum(p.t > grasp)) for p in self._recent)
+        after = sum(p.n_samples - int(np.searchsorted(p.t, grasp, side="right")) for p in self._recent)
         if after < max(self._payload_due, self.monitor.warmup):
             return None
         log = _concatenate(list(self._recent))
         self._payload_due = 2 * after
         mon = self.monitor
         try:
-            res = payload_after_grasp(self._pmap, log, self.link, grasp, mon.momentum, noise=mon.noise,
-                                      drift=mon.drift, where=self.where).estimate
+            with one_blas_thread():
+                res = payload_after_grasp(self._pmap, log, self.link, grasp, mon.momentum, noise=mon.noise,
+                                          drift=mon.drift, where=self.where).estimate
         except SpaceidError as err:
             return LiveOutput("payload", {"event": event.index, "time": grasp, "error": str(err)})
         data = {"event": event.index, "time": grasp, "time_origin_ns": self._origin, "n_samples": after,
@@ -274,19 +286,20 @@ class LiveMonitor:
         outputs = []
         self._emit = publish or outputs.append
         try:
-            try:
-                part = self.aligner.flush()
-            except SpaceidError:  # fewer messages than the differentiator needs: nothing to add
-                part = None
-            if part is not None:
-                self._take(part)
-            seen = len(self.monitor.events)
-            record = self.monitor.finish()
-            for event in record.events[seen:]:
-                self._emit(self._stage(event, "compared", self._completed(event.detected_at)))
-            payload = self.payload()
-            if payload is not None:
-                self._emit(payload)
+            with one_blas_thread():  # small factorisations: BLAS threads only wait
+                try:
+                    part = self.aligner.flush()
+                except SpaceidError:  # fewer messages than the differentiator needs: nothing to add
+                    part = None
+                if part is not None:
+                    self._take(part)
+                seen = len(self.monitor.events)
+                record = self.monitor.finish()
+                for event in record.events[seen:]:
+                    self._emit(self._stage(event, "compared", self._completed(event.detected_at)))
+                payload = self.payload()
+                if payload is not None:
+                    self._emit(payload)
         finally:
             self._emit = None
         return outputs, record
