@@ -373,8 +373,9 @@ def identify(
     estimator : {"ml", "wls", "iv", "tls", "ols", "angles"}
         Maximum likelihood (efficient, the default), weighted, instrumental-variables, total or
         ordinary least squares; ``angles``: maximum likelihood on the joint angles and base attitude
-        alone (the log's rates unused); ``spaceid.estimation._estimators`` describes each one's
-        assumptions and cost.
+        alone (the log's rates unused; spatial: started from ``ml`` on rates differentiated from the
+        angles, which is reported, with a warning, when the likelihood does not converge);
+        ``spaceid.estimation._estimators`` describes each one's assumptions and cost.
     known : dict, optional
         Known parameter values ``{name: value}``, by minimal-parameter name or by the physical
         parameter a minimal one equals alone (e.g. ``{"Iczz_wheel": 0.00197}``): they move to
