@@ -221,8 +221,10 @@ def spatial_study(label, param, motion, t, runs, scale=1.0, knot_spacing=KNOT_SP
         std.append(ident.std)
     if fallbacks:
         print(f"  NOT CONVERGED {len(fallbacks)} of {runs}: " + "; ".join(fallbacks[:2]))
+    if failed:
+        print(f"  FAILED {len(failed)} of {runs}: " + "; ".join(failed[:3]))
     if len(est) < 2:
-        print(f"  FAILED {len(failed)} of {runs} fits: " + "; ".join(failed[:2]))
+        print(f"  {len(est)} converged fits: too few for the figures")
         return
     est, std = np.array(est), np.array(std)
     rmse = np.sqrt(np.mean((est - param.true_values) ** 2, 0)) / bound
@@ -230,8 +232,6 @@ def spatial_study(label, param, motion, t, runs, scale=1.0, knot_spacing=KNOT_SP
     z = (est - param.true_values) / std
     print(f"  {param.n_params} parameters, {len(t)} samples, {runs} noise seeds ({len(est)} converged); bound "
           f"{wall_bound:.1f} s, one fit median {statistics.median(walls):.1f} s")
-    if failed:
-        print(f"  FAILED {len(failed)} of {runs}: " + "; ".join(failed[:3]))
     print(f"  RMSE / bound: median {np.median(rmse):.3f}, range {rmse.min():.3f} .. {rmse.max():.3f}")
     print(f"  actual / predicted std: median {np.median(spread):.3f}, range {spread.min():.3f} .. {spread.max():.3f}")
     print(f"  |z| max {np.abs(z).max():.2f}, RMS z {np.sqrt(np.mean(z**2)):.3f}")
