@@ -803,7 +803,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     kinds = _drift(drift, param.model.planar, values=False)
     log = _measured_log(param.model, log_path, reading, angles_only=estimator in ("angles", None))
     if estimator is None:  # the angles alone where no joint rate was measured: nothing to differentiate
-        # (planar: spatial angles-only fits do not yet converge from their start on every servicer motion)
+        # (planar only: on a spatial servicer the angles often do not determine the parameters at real sensor levels,
+        # the likelihood does not converge and each fit costs minutes: docs/theory/angles.md, "Spatial models")
         from .estimation.internal import enough_samples_for_knots
 
         planar_angles = (param.model.planar and not gyro_bias and _without_joint_rates(param.model, log, reading)

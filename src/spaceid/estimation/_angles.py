@@ -136,10 +136,11 @@ def _gauss_newton(eq, path, q, yaw_meas, theta, sigma_q, sigma_yaw, max_iter=30,
 
 def _angles_ml(eq, x, sigma, theta, ctx):
     """Kernel of estimator ``angles`` (see :mod:`spaceid.estimation._estimators`): maximum
-    likelihood on the angle samples from the integral-form start ``theta``; the rates in ``x``
-    are not used. Its covariance (``info["covariance"]``) is the inverse Fisher block of theta."""
+    likelihood on the angle samples from the integral-form start ``theta`` (or ``ctx.angles.start``); the rates
+    in ``x`` are not used. Its covariance (``info["covariance"]``) is the inverse Fisher block of theta."""
     data = ctx.angles
     path, q = data.path, data.q
+    theta = theta if data.start is None else data.start
     sigma_q, sigma_a = _levels(data.noise, data.where)
     if eq.planar:
         theta, coef, _, cov, r, (it, converged) = _gauss_newton(eq, path, q, data.attitude, theta, sigma_q, sigma_a)
@@ -183,13 +184,15 @@ def _integral_equations(eq, path: _Path, q, attitude) -> np.ndarray:
 class _AngleData:
     """What the ``angles`` kernel fits (``_FitContext.angles``): the joint paths' splines, the measured
     joint angles ``q (n, n_joints)``, the attitude (planar: the unwrapped yaw ``(n,)`` [rad]; spatial:
-    the base-to-inertial rotations ``(n, 3, 3)``), the noise levels, and the log's name for errors."""
+    the base-to-inertial rotations ``(n, 3, 3)``), the noise levels, the log's name for errors, and the start
+    ``(p,)`` of the fit when not the integral form's (spatial: ML on differentiated rates), else None."""
 
     path: _Path
     q: np.ndarray
     attitude: np.ndarray
     noise: Noise
     where: str
+    start: np.ndarray | None = None
 
 
 def _angle_context(eq, log: Log, noise: Noise, where: str, spacing: float) -> tuple:

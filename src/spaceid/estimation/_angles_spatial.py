@@ -13,9 +13,9 @@ variational equation of a small rotation in base axes ``d`` (``R0 -> R0 exp([d]x
 
 integrated by the classical Runge-Kutta scheme on the same stages. The attitude residuals are
 ``log(R_pred^T R_meas)`` in base axes; the measured attitude carries isotropic white noise
-``noise.attitude`` per axis. Gauss-Newton on the normal equations (the Jacobian of the attitude
+``noise.attitude`` per axis. Levenberg-Marquardt on the normal equations (the Jacobian of the attitude
 is dense in the spline coefficients: a change of the joint path at one time turns the base for
-good).
+good), from ``ml`` on rates differentiated from the same angles (``_identify._rate_start``).
 """
 
 from __future__ import annotations

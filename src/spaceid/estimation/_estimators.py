@@ -42,7 +42,9 @@ solution; ``ESTIMATORS`` names them and ``_KERNELS`` dispatches on the name:
     no rates (:mod:`spaceid.estimation._angles`, spatial models :mod:`spaceid.estimation._angles_spatial`; at
     least 40 Hz). Its covariance
     is the Cramer-Rao bound for angle measurements, which it reaches where the rate-based
-    estimators on differentiated angles stay 1.3 to 2.2 times above (Cepheus, 100 Hz).
+    estimators on differentiated angles stay 1.3 to 2.2 times above (Cepheus, 100 Hz). Planar fits start
+    from the integral form's least squares, spatial ones from ``ml`` on rates differentiated from the angles,
+    which ``identify`` reports (``info["fallback"]``) when the spatial likelihood does not converge.
 
 The linear algebra the kernels share with the covariances and the streamed passes (whitening, the
 triangular factor of the column-scaled equations) is :mod:`spaceid.estimation._linalg`.

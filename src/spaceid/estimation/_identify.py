@@ -23,7 +23,7 @@ from scipy.linalg import lapack
 
 from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
-from ..data import Log, log_fingerprint
+from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import KNOT_SPACING, _angle_context
 from ._determined import WIDENED, equation_noise, undetermined_directions, undetermined_warning, widened
@@ -285,6 +285,41 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
     return _Fit(theta, info, *reported)
 
 
+def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float):
+    """The start of the spatial ``angles`` fit: the ``ml`` :class:`_Fit` on rates differentiated from the same
+    angles (:func:`~spaceid.data.differentiate_log`, their levels estimated from the differentiated log), or None
+    when the log cannot give it. The integral form's least squares is biased by the noise on the attitude
+    increments: on the satellite-7dof preset it starts tens of standard errors away, where Levenberg-Marquardt
+    stalls; this start is a few standard errors away (docs/theory/angles.md, "Spatial models")."""
+    try:
+        diff = differentiate_log(log)
+        eq, _ = _equations(param, diff, momentum, known, where)
+        x = eq.signals(diff)
+        ctx = _FitContext(eq.phi(x), check_excitation(eq.phi(x), eq.names(), cond_limit, where)[0])
+        with warnings.catch_warnings():  # the start's own warnings are not the angles fit's
+            warnings.simplefilter("ignore")
+            return _estimate(eq, x, diff, signal_sigma(param, noise_from_log(diff)), ctx, "ml", True)
+    except (SpaceidError, np.linalg.LinAlgError):
+        return None
+
+
+def _angles_estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimated: bool, start) -> _Fit:
+    """The ``angles`` :class:`_Fit`; when its maximum likelihood does not converge (or meets a singular system)
+    and the rate start ``start`` (:func:`_rate_start`) is given, that start instead, ``info["fallback"]`` saying
+    why (:func:`identify` warns)."""
+    try:
+        fit = _estimate(eq, x, log, sigma, ctx, "angles", estimated)
+        if fit.info["converged"] or start is None:
+            return fit
+        reason = f"did not converge in {fit.info['iterations']} iterations"
+    except np.linalg.LinAlgError as exc:
+        if start is None:
+            raise
+        reason = f"met a singular system ({exc})"
+    return replace(start, info={k: v for k, v in start.info.items() if k != "whitener"} | {
+        "fallback": f"ml on rates differentiated from the angles: maximum likelihood on the angles {reason}"})
+
+
 def _leading_parameters(param: Parameterization) -> list:
     """The leading full parameter of each minimal one: the first full parameter (in
     ``full_parameter_names`` order) with a coefficient above round-off in its projection row;
@@ -389,8 +424,9 @@ def identify(
     estimator : {"ml", "wls", "iv", "tls", "ols", "angles"}
         Maximum likelihood (efficient, the default), weighted, instrumental-variables, total or
         ordinary least squares; ``angles``: maximum likelihood on the joint angles and base attitude
-        alone (the log's rates unused); ``spaceid.estimation._estimators`` describes each one's
-        assumptions and cost.
+        alone (the log's rates unused; spatial: started from ``ml`` on rates differentiated from the
+        angles, which is reported, with a warning, when the likelihood does not converge);
+        ``spaceid.estimation._estimators`` describes each one's assumptions and cost.
     known : dict, optional
         Known parameter values ``{name: value}``, by minimal-parameter name or by the physical
         parameter a minimal one equals alone (e.g. ``{"Iczz_wheel": 0.00197}``): they move to
@@ -504,10 +540,15 @@ def identify(
             factor, cond_scaled = _check_factor(factor, eq.names(), cond_limit, where)
         else:
             factor, cond_scaled = check_excitation(phi, eq.names(), cond_limit, where)
+        start = None
+        if angles is not None and not eq.planar:  # the spatial fit starts from ML on differentiated rates
+            start = _rate_start(param, log, momentum, known, where, cond_limit)
+            angles = replace(angles, start=None if start is None else start.theta)
         ctx = _FitContext(phi, factor, angles=angles,
                           **(_instrument_context(log, instruments, where) if estimator == "iv" else {}))
         sigma = signal_sigma(param, noise)
-        fit = _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk)
+        fit = (_angles_estimate(eq, x, log, sigma, ctx, estimated, start) if angles is not None else
+               _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk))  # fmt: skip
         if gyro_bias:
             fit = gyro_bias.fused(eq, fit)
         fit = replace(fit, implausible=_implausible_estimate(eq, fit.theta, fit.cov, where))
@@ -548,6 +589,10 @@ def identify(
         ) from None
     if info.get("fallback"):
         warnings.warn(f"{where}: maximum likelihood failed, the estimate reported is {info['fallback']}", stacklevel=2)
+    elif estimator == "angles" and not info.get("converged", True):
+        warnings.warn(f"{where}: maximum likelihood on the angles did not converge in {info['iterations']} iterations: "
+                      "the estimate and its standard errors are the last iterate's; use a designed motion "
+                      "(spaceid design) or `estimator` ml on differentiated rates", stacklevel=2)
     if uncertainty["noise_model_warning"]:
         warnings.warn(f"{where}: {uncertainty['noise_model_warning']}", stacklevel=2)
     for warning in (fit.implausible, drift_warning, collinear, undetermined_warning(weak, eq.p, where)):
