@@ -35,7 +35,7 @@ noise share ``mu``; a direction determined to first order has ``mu`` near 0)."""
 
 
 WIDENED = ("widened along the {} directions the data do not determine to their values' scale (the estimate's and "
-           "the model's own: widened)")
+           "the model's own inertias)")
 """How the covariance's description ends when :func:`widened` widened it."""
 
 NOISE_SAMPLES = 400
@@ -52,17 +52,19 @@ def noise_rows(n: int) -> tuple:
     return rows, n / max(len(rows), 1)
 
 
-def noise_gram(build, x: np.ndarray, sigma: np.ndarray, scale: float = 1.0, linear=None) -> np.ndarray:
+def noise_gram(build, x: np.ndarray, sigma: np.ndarray, scale: float = 1.0, linear=slice(0)) -> np.ndarray:
     """``scale sum_n sum_c sigma_c^2 D_nc^T D_nc`` ``(c, c)``: the Gram matrix of the noise that the
     signals ``x (n, n_x)``, of standard deviations ``sigma (n_x,)``, put into the equations ``build(x)``
     ``(n, rows, c)`` (whitened ones), ``D_nc`` their derivatives with respect to signal ``c``.
 
-    Exact for the channels ``linear`` (a mask ``(n_x,)``: the rates, in which the equations are linear):
-    the columns at a unit rate and the other rates zero, less those at zero rates; by forward differences
+    Exact for the channels ``linear`` (an index array or slice: the rates, ``eq.rate_channels``, in which the
+    equations are linear): the columns at a unit rate and the other rates zero, less those at zero rates; by
+    forward differences
     of step ``FD_STEP`` for the others (the angles and attitude: truncation about 1e-5 relative, where the
     ratios need a tenth). Each product over the columns that the signal moves only (a joint moves the
     bodies beyond it: on the dual-arm servicer a quarter of the flops of the whole)."""
-    linear = np.zeros(x.shape[1], bool) if linear is None else np.asarray(linear, bool)
+    linear, channels = np.zeros(x.shape[1], bool), linear
+    linear[channels] = True
     with one_blas_thread():
         at = build(x)
         out = np.zeros((at.shape[-1], at.shape[-1]))
@@ -89,8 +91,6 @@ def equation_noise(eq, x, sigma, theta, estimator: str, log, whitener=None, extr
 
     every, scale = noise_rows(len(x))
     levels, out = signal_levels(eq.param, log, sigma), 0.0
-    linear = np.zeros(x.shape[1], bool)
-    linear[eq.rate_channels] = True
     for rows in np.array_split(every, -(-len(every) // (chunk or len(every)))):
         part = eq.select(rows)
         L = None if estimator == "ols" else whitener[rows] if whitener is not None else _equation_whitener(
@@ -101,7 +101,7 @@ def equation_noise(eq, x, sigma, theta, estimator: str, log, whitener=None, extr
             M = M if extra is None else np.concatenate([M, extra(part, signals, rows)], -1)
             return M if L is None else _whitened(L, M)
 
-        out = out + noise_gram(build, x[rows], levels, scale, linear)
+        out = out + noise_gram(build, x[rows], levels, scale, eq.rate_channels)
     return out
 
 

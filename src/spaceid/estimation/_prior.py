@@ -590,8 +590,8 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     whitener = np.linalg.inv(_equation_whitener(eq, x, theta0, sigma))
     white = whitener @ phi
     rows, scale = noise_rows(len(x))  # the regressor's own noise, propagated from each signal's
-    part, linear = eq.select(rows), np.isin(np.arange(x.shape[1]), eq.rate_channels)
-    gram = noise_gram(lambda signals: whitener[rows] @ part.phi(signals), x[rows], sigma, scale, linear)
+    part = eq.select(rows)
+    gram = noise_gram(lambda signals: whitener[rows] @ part.phi(signals), x[rows], sigma, scale, eq.rate_channels)
     data = data_from_equations(white, gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free)
     pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard, where=where)
     theta = np.concatenate([pi[eq.free], nuisance(pi[eq.free])])
