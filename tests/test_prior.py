@@ -262,11 +262,13 @@ def test_the_prior_sets_what_an_undesigned_motion_leaves_undetermined(tmp_path):
     a, b = 0.2 * np.random.default_rng(5).standard_normal((2, model.n_joints, 3))
     log = simulate(param, truth, FourierTrajectory(model.joints, 10.0, a, b), sample_times(10.0, 264), h, model=model)
     cad = perturbed_prior(model, 4, mass=0.2, moments=0.2, com=0.01)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
         result = identify(param, add_noise(log, angle=1e-4, rate=1e-4, seed=0), h, noise=Noise(*[1e-4] * 4),
                           prior=cad, prior_std=0.2)
     assert result.prior.data_term == "equations" and "do not determine 5 directions" in result.prior.data_reason
+    said = [str(w.message) for w in caught if "not determined by the data" in str(w.message)]
+    assert said and all(m.endswith("the prior sets them") and "give a prior" not in m for m in said)
     assert (np.abs(result.values - truth) / result.std).max() < 3
     assert np.linalg.norm(result.values - truth) < 0.7 * np.linalg.norm(minimal_parameters(cad).true_values - truth)
 

@@ -1175,22 +1175,28 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
 @click.option("--duration", type=SECONDS, help="Spatial MODEL: the designed excitation's length [s] [default: 120].")
 @click.option("--time-budget", type=SECONDS, help="Spatial MODEL: wall time of the design's search [s] [default: 30; "
               "the held-out motion's design a third of it].")
+@click.option("--max-steps", type=click.IntRange(min=1), metavar="N", help="Spatial MODEL: each design's budget in "
+              "linearisations of the regressor (a design that does not depend on the machine's speed; see 'spaceid "
+              "design --max-steps').")
+@click.option("--no-prior", is_flag=True, help="Spatial MODEL: identify from the data alone, not with the CAD model as "
+              "the prior.")
 @SEED
 @out_folder("Report folder (bag, logs, results, figures, report.md).", default="spaceid-experiment",
             show_default=True)
 @OVERWRITE
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift,
                feedforward, rehearsals, capture, capture_mass, capture_settings, capture_trajectory, duration,
-               time_budget, seed, folder, overwrite):
+               time_budget, max_steps, no_prior, seed, folder, overwrite):
     """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
     identify from the recorded bag (N samples and all of the excitation), validate the identified
     model on the held-out motion (Fig. 6).
 
     MODEL is the twin's model, cepheus (with its reaction wheel: cepheus-rw) by default. A spatial
     MODEL (e.g. servicer-dual, or a URDF) runs the spatial protocol on the servicer twin instead:
-    design with a CAD model 15 % off, fly under computed torque, identify from the encoders, star
-    tracker and gyros (--samples default 600), predict a held-out motion against the CAD prior
-    (--ideal: exact sensors; docs: theory/twin-spatial).
+    design with a CAD model 15 % off (--samples: the design's N, default 600), fly under computed
+    torque, identify from all the encoder, star tracker and gyro samples with the CAD model as the
+    prior (--no-prior: the data alone), predict a held-out motion against the CAD prior (--ideal:
+    exact sensors; docs: theory/twin-spatial).
     """
     from .models import load_model
     from .studies import capture_protocol, run_experiment
@@ -1202,10 +1208,11 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
     if not loaded.planar:
         return _spatial_experiment(loaded, click.get_current_context(), samples=samples, estimator=estimator,
                                    ideal=ideal, trajectory=trajectory, duration=duration, time_budget=time_budget,
-                                   seed=seed, folder=folder, overwrite=overwrite)  # fmt: skip
-    if duration is not None or time_budget is not None:
-        raise SpaceidError("--duration and --time-budget are options of the spatial protocol: give a spatial MODEL "
-                           "(e.g. servicer-dual), or drop them")  # fmt: skip
+                                   max_steps=max_steps, prior=not no_prior, seed=seed, folder=folder,
+                                   overwrite=overwrite)  # fmt: skip
+    if duration is not None or time_budget is not None or max_steps is not None or no_prior:
+        raise SpaceidError("--duration, --time-budget, --max-steps and --no-prior are options of the spatial protocol: "
+                           "give a spatial MODEL (e.g. servicer-dual), or drop them")  # fmt: skip
     settings = TwinSettings(model=model)
     settings = settings.without_effects() if ideal else settings
     if not capture and (capture_mass is not None or capture_settings is not None or capture_trajectory != "same"):
@@ -1239,8 +1246,8 @@ _PLANAR_ONLY = ("wheel_speed", "bag_format", "old_bag_format", "validation", "dr
                 "capture", "capture_mass", "capture_settings", "capture_trajectory")
 
 
-def _spatial_experiment(model, ctx, *, samples, estimator, ideal, trajectory, duration, time_budget, seed, folder,
-                        overwrite) -> None:
+def _spatial_experiment(model, ctx, *, samples, estimator, ideal, trajectory, duration, time_budget, max_steps, prior,
+                        seed, folder, overwrite) -> None:
     """``spaceid experiment`` with a spatial model: the protocol on the servicer twin
     (:func:`spaceid.studies.run_spatial_experiment`), its scores printed."""
     from click.core import ParameterSource
@@ -1256,14 +1263,19 @@ def _spatial_experiment(model, ctx, *, samples, estimator, ideal, trajectory, du
     settings = ServicerSettings(model=model)
     settings = settings.without_noise() if ideal else settings
     default_samples = ctx.get_parameter_source("samples") == ParameterSource.DEFAULT
-    options = dict(samples=600 if default_samples else samples, estimator=estimator, trajectory=trajectory, seed=seed)
-    options |= {k: v for k, v in (("duration", duration), ("time_budget", time_budget)) if v is not None}
+    options = dict(samples=600 if default_samples else samples, estimator=estimator, trajectory=trajectory, seed=seed,
+                   prior=prior)
+    options |= {k: v for k, v in (("duration", duration), ("time_budget", time_budget), ("max_steps", max_steps))
+                if v is not None}
     with (_progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress,
           _report_folder(folder, overwrite) as tmp):
         res = run_spatial_experiment(settings=settings, out=tmp, out_name=folder, progress=progress, **options)
     c, m = res.metrics["coverage"], res.metrics
     ident, prior = m["held-out attitude error, identified [rad]"], m["held-out attitude error, CAD prior [rad]"]
-    out.print(f"N = {res.ident.n_samples}: cond(Y) = {res.ident.condition_number:.4g}; {c['n_large']} large "
+    record = res.ident.prior
+    out.print(f"{res.ident.n_samples} samples, " + ("the data alone" if record is None else
+              f"with the CAD prior (the data set {record.n_data} of {len(record.directions)} directions)") +
+              f": cond(Y) = {res.ident.condition_number:.4g}; {c['n_large']} large "
               f"parameters: {100 * c['within_2_sigma']:.1f} % within 2 sigma, max |z| {c['max_abs_z']:.3g}, RMS z "
               f"{c['rms_z']:.3g}", highlight=False)  # fmt: skip
     shown = [f"{e['max']:.3g} rad" if e else f"none ({m['not predicted'][k]})" for e, k in

@@ -214,6 +214,10 @@ def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, white
     return undetermined(mu, T, eq.names()), (mu, T)
 
 
+UNDETERMINED_FIX = "excite them with a designed motion (spaceid design) or give a prior"
+"""The advice that ends :func:`undetermined_warning` (a fit with a prior says the prior sets them)."""
+
+
 def undetermined_warning(directions: list, p: int, where: str) -> str:
     """The warning for the :func:`undetermined` ``directions`` of ``p`` unknowns (``""`` when none)."""
     if not directions:
@@ -223,5 +227,4 @@ def undetermined_warning(directions: list, p: int, where: str) -> str:
     return (f"{where}: {len(directions)} of {p} directions of parameter space are not determined by the data (the "
             f"regressor's noise as large as its signal, worst ratio {directions[0]['noise_to_signal']:.2g}; led by "
             f"{shown}): their estimates are pulled towards zero whatever the noise level, and their standard errors "
-            "are widened to the scale of their values (the estimate's and the model's own inertias): excite them "
-            "with a designed motion (spaceid design) or give a prior")
+            f"are widened to the scale of their values (the estimate's and the model's own inertias): {UNDETERMINED_FIX}")

@@ -20,6 +20,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.linalg import lapack
+from scipy.special import ndtri
 
 from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
@@ -42,6 +43,13 @@ from ._stream import check_chunk, streamed_covariance, streamed_estimate, stream
 from ._uncertainty import _reported_covariance
 
 __all__ = ["identify"]
+
+IMPLAUSIBLE_LEVEL = 0.01
+"""Probability that :func:`_implausible` names a parameter of a right model by chance (all tested)."""
+
+FALLBACK_Z = 2.0
+"""ML falls back on WLS when an inertia-like parameter of its estimate is below ``-FALLBACK_Z``
+standard errors and none of WLS's is (:func:`_plausible_fallback`)."""
 
 _INERTIA_LIKE = {"m", "Ixx", "Iyy", "Izz"}
 """Full parameters whose minimal combinations are masses or moments of inertia (see
@@ -329,9 +337,12 @@ def _leading_parameters(param: Parameterization) -> list:
     return [full[int(np.argmax(row > 1e-9 * row.max()))] for row in rows]
 
 
-def _implausible(param: Parameterization, pi: np.ndarray, std: np.ndarray, where: str) -> str:
-    """A warning naming the inertia-like minimal parameters that came out significantly negative
-    (below -2 standard errors), or ``""``.
+def _implausible(param: Parameterization, pi: np.ndarray, std: np.ndarray, where: str, z: float | None = None) -> str:
+    """A warning naming the inertia-like minimal parameters that came out significantly negative,
+    or ``""``: below ``-z`` standard errors, ``z`` the two-sided normal quantile of
+    :data:`IMPLAUSIBLE_LEVEL` shared by the ``k`` parameters tested (Bonferroni: on a robot of
+    hundreds of parameters one beyond -2 is chance, not a sign of a wrong model), at least 2; or
+    the ``z`` given (the choice between two estimates compares each parameter on its own).
 
     A parameter is inertia-like when its leading full parameter is a mass or a diagonal moment
     of inertia (``m_*``, ``Ixx_*``, ``Iyy_*``, ``Izz_*``, not a lumped product); only those positive
@@ -340,7 +351,8 @@ def _implausible(param: Parameterization, pi: np.ndarray, std: np.ndarray, where
     lead = _leading_parameters(param)
     like = np.array([name.split("_")[0] in _INERTIA_LIKE and "*" not in name for name in lead])
     like &= param.true_values > 0
-    bad = like & (pi + 2 * std < 0)
+    z = max(2.0, -float(ndtri(IMPLAUSIBLE_LEVEL / max(1, 2 * like.sum())))) if z is None else z
+    bad = like & (pi + z * std < 0)
     if not bad.any():
         return ""
     listed = ", ".join(f"{param.names[i]} = {pi[i]:.4g} {param.units[i]} (leads with {lead[i]})"
@@ -351,10 +363,10 @@ def _implausible(param: Parameterization, pi: np.ndarray, std: np.ndarray, where
             "reaction-wheel inertia)")
 
 
-def _implausible_estimate(eq, theta, cov_t, where: str) -> str:
+def _implausible_estimate(eq, theta, cov_t, where: str, z: float | None = None) -> str:
     """:func:`_implausible` of the estimate ``theta`` of ``eq`` with its covariance ``cov_t``."""
     std = np.sqrt(np.diag(_full_covariance(eq, cov_t, eq.param.n_params)[0]))
-    return _implausible(eq.param, eq.full(theta)[0], std, where)
+    return _implausible(eq.param, eq.full(theta)[0], std, where, z)
 
 
 def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, where) -> _Fit:
@@ -363,7 +375,7 @@ def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, wher
     truth, e.g. rates differentiated from noisy angles, levels estimated), ``info["fallback"]`` saying
     so; else ML's, whose warning then stands."""
     wls = _estimate(eq, x, log, sigma, ctx, "wls", estimated, chunk)
-    if _implausible_estimate(eq, wls.theta, wls.cov, where):
+    if _implausible_estimate(eq, wls.theta, wls.cov, where, z=FALLBACK_Z):
         return ml
     ml_info = {k: v for k, v in ml.info.items() if k not in ("whitener", "whitened_factor")}  # ML's weights are not WLS's
     info = ml_info | {"fallback": (f"wls: the maximum-likelihood estimate converged to physically impossible "
@@ -552,7 +564,8 @@ def identify(
         if gyro_bias:
             fit = gyro_bias.fused(eq, fit)
         fit = replace(fit, implausible=_implausible_estimate(eq, fit.theta, fit.cov, where))
-        if fit.implausible and estimator == "ml" and not fit.info.get("fallback"):
+        if estimator == "ml" and not fit.info.get("fallback") and _implausible_estimate(eq, fit.theta, fit.cov, where,
+                                                                                       z=FALLBACK_Z):
             fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
         theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
         s = _singular_values(factor)

@@ -28,6 +28,7 @@ from ..dynamics import Parameterization, full_parameter_names, full_values, full
 from ..models import Model, load_model
 from ..models.internal import (MARGIN, pseudo_inertia, pseudo_whitening, solved_tightly, theta_slots,
                                with_theta)  # fmt: skip
+from ._determined import UNDETERMINED_FIX
 
 __all__ = ["PRIOR_STD", "PriorRecord", "prior_deviations"]
 
@@ -522,12 +523,16 @@ def identify_with_prior(identify, param: Parameterization, log, momentum, *, pri
     data_fit = None
     if not reason:
         try:
-            data_fit = identify(param, log, momentum, known=minimal, estimator=estimator, noise=noise, where=where,
-                                cond_limit=cond_limit, drift=drift, history=history, **options)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                data_fit = identify(param, log, momentum, known=minimal, estimator=estimator, noise=noise,
+                                    where=where, cond_limit=cond_limit, drift=drift, history=history, **options)
         except SpaceidError as exc:  # the estimator's system is singular though the condition number passed
             if "singular or non-finite" not in str(exc):
                 raise
             reason = f"the {estimator} estimate failed on a singular system"
+        for w in caught:  # the data fit's advice to give a prior is moot here: the prior sets those directions
+            warnings.warn(str(w.message).replace(UNDETERMINED_FIX, "the prior sets them"), w.category, stacklevel=3)
     if data_fit is not None:
         data = data_from_estimate(data_fit.values, data_fit.cov, eq.free, dict(zip(eq.known, eq.known_values)))
         weak = data_fit.diagnostics.undetermined

@@ -7,7 +7,9 @@ without momentum wheels fixes its minimal parameters only up to a common factor)
 under computed torque through that CAD model (so the executed motion is not the designed one);
 its encoders, star tracker and gyros are logged; the log is read as a recording
 (:func:`spaceid.twin.servicer_log`: joint rates differentiated from the encoders, the base rate
-from the gyros) and the minimal parameters identified from ``samples`` samples. Then the arm is
+from the gyros) and the minimal parameters identified from all its samples, with the CAD model as
+the prior (the lab's knowledge: the data set the directions they determine, the prior the
+others) or from the data alone. Then the arm is
 set at the start of a second, different motion (the held-out motion: the start of a second
 design, seed + 1;
 the repositioning is not flown: the base keeps its attitude and the momentum, the joints start
@@ -30,9 +32,8 @@ from .._errors import SpaceidError, finite_array
 from ..data import Log, write_json, write_log
 from ..dynamics import angular_momentum, minimal_parameters
 from ..estimation import ESTIMATORS, Identification, identify
-from ..motion import FourierTrajectory, design_excitation, hermite_motion, load_trajectory, sample_times, simulate
+from ..motion import FourierTrajectory, design_excitation, hermite_motion, load_trajectory, simulate
 from ..twin import ServicerSettings, ServicerState, cad_model, run_servicer, servicer_log, servicer_model
-from ._experiment import _nearest
 from ._validate import attitude_error_angle
 
 __all__ = ["SpatialExperimentResult", "run_spatial_experiment", "large_parameters", "coverage"]
@@ -53,7 +54,7 @@ class SpatialExperimentResult:
     Attributes
     ----------
     ident : Identification
-        From ``samples`` samples of the excitation.
+        From all samples of the excitation (with the CAD prior unless ``prior=False``).
     true, prior : ndarray of shape (k,)
         The twin's minimal parameters and the CAD model's.
     log, validation_log : Log
@@ -122,17 +123,18 @@ def _attitude_errors(measured: Log, predicted: Log) -> dict:
 # ------------------------------------------------------------------ the protocol --------------
 
 
-def _designed(spec, prior_param, *, duration, harmonics, samples, seed, time_budget, momentum, limits, progress):
+def _designed(spec, prior_param, *, duration, harmonics, samples, seed, time_budget, max_steps, momentum, limits,
+              progress):
     """The excitation: ``spec`` a FourierTrajectory or a file from ``design``, or ``"designed"``
     (with the lab's model ``prior_param``, the ``momentum``, the model's joint limits or ``limits``,
-    ``time_budget`` [s])."""
+    ``time_budget`` [s] of wall time or ``max_steps`` steps of the search)."""
     if isinstance(spec, FourierTrajectory):
         return spec
     if str(spec) != "designed":
         return load_trajectory(spec, joints=prior_param.model.joints)
     return design_excitation(prior_param, duration=duration, harmonics=harmonics, samples=samples,
                              momentum=momentum, seed=seed, progress=progress, time_budget=time_budget,
-                             **(limits or {})).trajectory  # fmt: skip
+                             max_steps=max_steps, **(limits or {})).trajectory  # fmt: skip
 
 
 def _locked_inertia_check(param, pi, log: Log) -> str:
@@ -166,9 +168,9 @@ def _predictions(param, values: dict, held: Log, momentum) -> tuple:
 
 def _check_identify_options(options) -> dict:
     """``identify_options`` as keywords of :func:`spaceid.estimation.identify` (the protocol
-    sets the parameters, log, momentum, estimator and source itself)."""
+    sets the parameters, log, momentum, estimator, source and prior itself)."""
     options = dict(options or {})
-    accepted = set(inspect.signature(identify).parameters) - {"param", "log", "momentum", "estimator", "where"}
+    accepted = set(inspect.signature(identify).parameters) - {"param", "log", "momentum", "estimator", "where", "prior"}
     unknown = sorted(set(options) - accepted)
     if unknown:
         raise SpaceidError(f"`identify_options`: {', '.join(unknown)} is not an option of identify (options: "
@@ -184,10 +186,12 @@ def run_spatial_experiment(
     validation_duration: float = 60.0,
     harmonics: int = 12,
     samples: int = 600,
-    time_budget: float = 30.0,
+    time_budget: float | None = 30.0,
+    max_steps: int | None = None,
     limits: dict | None = None,
     momentum=None,
     estimator: str = "ml",
+    prior: bool = True,
     base_rate: str = "gyro",
     identify_options: dict | None = None,
     seed: int = 0,
@@ -203,13 +207,20 @@ def run_spatial_experiment(
         The twin (default: the dual-arm servicer, its sensors and a 15 %-off CAD model).
     trajectory : "designed" or path or FourierTrajectory
         The excitation; ``designed`` (default): designed with the CAD model (min cond(Y),
-        ``duration``, ``harmonics``, ``samples``, seed ``seed``, at most ``time_budget``).
+        ``duration``, ``harmonics``, ``samples``, seed ``seed``, at most ``time_budget`` or
+        ``max_steps``).
     duration, validation_duration : float
         Lengths of the designed excitation and of the held-out motion [s].
     harmonics, samples : int
-        The design's harmonics and N, the samples identification uses (equally spaced).
-    time_budget : float
-        Wall time of each design's search [s] (the held-out motion's: a third of it).
+        The design's harmonics and N, the samples it optimises the regressor's condition at
+        (identification uses every sample of the log).
+    time_budget : float or None
+        Wall time of each design's search [s] (the held-out motion's: a third of it); None: no
+        wall-clock limit.
+    max_steps : int, optional
+        Each design's budget in linearisations of the regressor
+        (:func:`spaceid.motion.design_excitation`): a design that does not depend on the
+        machine's speed.
     limits : dict, optional
         ``q_max``, ``qd_max``, ``qdd_max`` for the designs where the model has none or to
         override its limits (as :func:`spaceid.motion.design_excitation` takes them).
@@ -220,6 +231,11 @@ def run_spatial_experiment(
         the twin turning at :data:`INITIAL_RATE` with the joints at rest at the excitation's start.
     estimator : str
         See :func:`spaceid.estimation.identify`.
+    prior : bool
+        Identify with the CAD model as the prior (``identify(prior=...)``, a maximum a posteriori
+        estimate over physically consistent models; ``identify_options`` may give ``prior_std``);
+        False: from the data alone, where the directions the data do not determine are reported
+        and their standard errors widened, and an estimate no rigid body has is not predicted.
     base_rate : {"gyro", "attitude"}
         The base rate identification uses: the gyros' or the star tracker's attitude
         differentiated.
@@ -251,7 +267,8 @@ def run_spatial_experiment(
     param, cad = minimal_parameters(model), cad_model(settings)
     prior_param = minimal_parameters(cad)
     h = None if momentum is None else finite_array(momentum, (3,), "`momentum` [N m s]", "experiment")
-    design = {"harmonics": int(harmonics), "samples": int(samples), "limits": limits, "progress": progress}
+    design = {"harmonics": int(harmonics), "samples": int(samples), "limits": limits, "progress": progress,
+              "max_steps": max_steps}
     zero_rate = h if h is not None else angular_momentum(cad, np.zeros(len(model.joints)), np.zeros(len(model.joints)),
                                                           np.asarray(INITIAL_RATE))  # the lab's guess, to design
     traj = _designed(trajectory, prior_param, duration=duration, seed=seed, time_budget=time_budget, momentum=zero_rate,
@@ -259,7 +276,7 @@ def run_spatial_experiment(
     # the held-out motion: the start of a second design as long as the excitation (a shorter one
     # may not move the servicer's joints enough for the design's full-rank check)
     vtraj = _designed("designed", prior_param, duration=max(traj.duration, validation_duration), seed=seed + 1,
-                      time_budget=time_budget / 3, momentum=zero_rate, **design)  # fmt: skip
+                      time_budget=None if time_budget is None else time_budget / 3, momentum=zero_rate, **design)  # fmt: skip
     if h is None:
         q0 = traj.evaluate(np.zeros(1))[0][0]
         h = angular_momentum(model, q0[[traj.joints.index(j) for j in model.joints]], np.zeros(len(q0)),
@@ -273,10 +290,9 @@ def run_spatial_experiment(
                                                 base_position=start.base_position, gyro_walk=start.gyro_walk))
     log, held = (servicer_log(r, settings, base_rate=base_rate) for r in (flight, held_run))
     where = str(Path(out_name if out_name is not None else out or ".") / "log.csv")
-    chosen = _nearest(log.t, log.t[0] + sample_times(traj.duration, int(samples)))
-    ident = identify(param, log.select(chosen), h, estimator=estimator, where=where, **options)
-    true, prior = param.true_values, prior_param.true_values
-    predicted, refused = _predictions(param, {"identified": ident.values, "CAD prior": prior}, held, h)
+    ident = identify(param, log, h, estimator=estimator, where=where, **({"prior": cad} if prior else {}), **options)
+    true, cad_values = param.true_values, prior_param.true_values
+    predicted, refused = _predictions(param, {"identified": ident.values, "CAD prior": cad_values}, held, h)
     large = large_parameters(param, log, true)
     errors = {label: _attitude_errors(held, predicted[label]) if label in predicted else None
               for label in ("identified", "CAD prior")}  # fmt: skip
@@ -299,26 +315,27 @@ def run_spatial_experiment(
         "trajectory": traj.meta.get("name", "designed" if trajectory == "designed" else str(trajectory)),
         "duration [s]": traj.duration, "held-out duration [s]": validation_duration,
         "held-out motion": f"the first {validation_duration:g} s of a design of {vtraj.duration:g} s (seed {seed + 1})", "harmonics": int(harmonics),
-        "design time budget [s]": time_budget, "samples (N)": len(chosen), "samples (all)": int(log.n_samples),
-        "momentum (known) [N m s]": h.tolist(), "estimator": estimator, "base rate": base_rate, "identify options": sorted(options),
+        "design time budget [s]": time_budget, "design steps": max_steps, "samples (N, design)": int(samples),
+        "samples (identification)": int(log.n_samples), "momentum (known) [N m s]": h.tolist(), "estimator": estimator,
+        "prior": "the CAD model" if prior else "none (the data alone)", "base rate": base_rate, "identify options": sorted(options),
         "seed": seed, "flight seeds (excitation, held-out)": [seed + 2, seed + 3],
         "star tracker frames/lost": [flight.meta["star_tracker_frames"], flight.meta["star_tracker_dropped"]],
         "tracking RMS, truth vs reference [rad]": flight.meta["tracking_rms"],
         "cond(Y)": ident.condition_number,
     }  # fmt: skip
-    result = SpatialExperimentResult(ident, true, prior, log, held, predicted.get("identified"),
+    result = SpatialExperimentResult(ident, true, cad_values, log, held, predicted.get("identified"),
                                      predicted.get("CAD prior"),
                                      traj, vtraj, metrics, dict(protocol, twin=settings.to_dict()),
                                      Path(out) if out is not None else None)  # fmt: skip
     if out is not None:
-        _write_report(result, flight, held_run, chosen)
+        _write_report(result, flight, held_run)
     return result
 
 
 # ------------------------------------------------------------------ the report ----------------
 
 
-def _write_report(result: SpatialExperimentResult, flight, held_run, chosen) -> None:
+def _write_report(result: SpatialExperimentResult, flight, held_run) -> None:
     """The report folder: trajectories, logs, truths, results, figures and ``report.md``."""
     from ._figures import plot_attitude_errors, plot_parameters, plot_singular_values, plot_tracking, \
         plot_validation  # fmt: skip
@@ -357,16 +374,16 @@ def _write_report(result: SpatialExperimentResult, flight, held_run, chosen) -> 
     traj = result.trajectory
     plot_tracking(tlog, traj.evaluate(np.clip(tlog, 0, traj.duration))[0][:, [traj.joints.index(j) for j in joints]],
                   result.log.q[:, [result.log.joints.index(j) for j in joints]], joints, folder / "tracking.png",
-                  times=tlog[chosen], title="Tracking of the excitation (the four loosest joints): computed torque "
+                  title="Tracking of the excitation (the four loosest joints): computed torque "
                   "through the CAD model")  # fmt: skip
     figures |= {
-        "Parameter estimates (N samples)": "parameters.png",
-        "Singular values of the regressor (N samples)": "singular_values.png",
+        "Parameter estimates": "parameters.png",
+        "Singular values of the regressor": "singular_values.png",
         "Tracking: designed (commanded) and executed (encoders)": "tracking.png",
     }
     report = dict(title="spaceid: the spatial protocol on the servicer twin", result=result.ident,
                   settings=readable_settings({k: v for k, v in result.settings.items() if k != "twin"}),
-                  true=result.true, sections={"Scores against the twin's truth": _score_lines(result.metrics)})
+                  true=result.true, sections={"Scores against the twin's truth": _score_lines(result)})
     write_markdown_report(folder, figures=figures, **report)
     interactive = ("validation.png", "parameters.png", "singular_values.png")  # drawn by the page itself
     validations = [] if result.predicted is None else [
@@ -375,12 +392,20 @@ def _write_report(result: SpatialExperimentResult, flight, held_run, chosen) -> 
                       validations=validations, **report)
 
 
-def _score_lines(metrics: dict) -> list:
-    """The report's scores: coverage of the large parameters, held-out attitude errors, momentum."""
+def _score_lines(result: SpatialExperimentResult) -> list:
+    """The report's scores: what set the estimate, coverage of the large parameters, held-out
+    attitude errors, momentum."""
+    metrics = result.metrics
     c = metrics["coverage"]
     ident, prior = metrics["held-out attitude error, identified [rad]"], metrics["held-out attitude error, CAD prior [rad]"]
     drift = metrics["momentum drift relative to the joints' momentum"]
+    record = result.ident.prior
+    source = ("From the data alone." if record is None else f"With the CAD model as the prior: of the "
+              f"{len(record.directions)} directions of the information, the data set {record.n_data}, the prior "
+              f"{record.n_prior}.")
     return [
+        source,
+        "",
         (f"- Large parameters (contribution to the momentum at least {LARGE:g} of the largest): {c['n_large']}; "
          f"{100 * c['within_2_sigma']:.1f} % within 2 standard errors of the truth, largest |z| {c['max_abs_z']:.3g} "
          f"(`{c['worst']}`), root-mean-square z {c['rms_z']:.3g} (honest standard errors give about 1)."),

@@ -355,7 +355,8 @@ def servicer_log(run: ServicerRun, settings: ServicerSettings | None = None, *, 
     -------
     Log
         Spatial, joint rates and (with ``attitude``) the base rate differentiated; ``meta``:
-        ``base_rate`` and the recording's provenance.
+        ``base_rate``, ``differentiation`` (the joints', and the base's with ``attitude``) and the
+        recording's provenance.
     """
     settings = ServicerSettings() if settings is None else settings
     if base_rate not in ("gyro", "attitude"):
@@ -370,4 +371,8 @@ def servicer_log(run: ServicerRun, settings: ServicerSettings | None = None, *, 
         return replace(log, meta=meta)
     t = run.recording.joints.t  # the gyro is sampled at the joint-state stamps
     gyro = np.column_stack([np.interp(log.t, t, run.gyro[:, i]) for i in range(3)])
+    # the base rate is measured now, not differentiated: only the joints' record stays, so that
+    # identification models the gyro's own noise (and may estimate its bias), not the attitude's
+    # derivative
+    meta["differentiation"] = {k: v for k, v in meta["differentiation"].items() if k != "base"}
     return replace(log, base_w=gyro, meta=meta)
