@@ -468,3 +468,26 @@ def test_newey_west_from_window_sums_equals_the_lagged_products(bandwidth):
     expected = lagged * len(x) / (len(x) - 4) / (1 - b + b * b / 3)
     for parts in ([x], [x[:7], x[7:8], x[8:150], x[150:]]):
         assert np.abs(_hac(iter(parts), bandwidth, 4) - expected).max() <= 1e-13 * np.abs(expected).max()
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_one_negative_inertia_among_hundreds_is_chance_not_a_wrong_model(seed, tmp_path):
+    """The impossible-parameter warning tests every inertia-like parameter at once (family-wise
+    1 %): on a robot of many parameters one at -2.5 standard errors is chance (a servicer's fit
+    named one at -2.3 and blamed the momentum's sign), one at -6 is not; ML's choice of WLS still
+    compares each parameter at 2 standard errors."""
+    from random_robots import random_robot
+    from spaceid.estimation._identify import FALLBACK_Z, _implausible, _leading_parameters
+
+    param = minimal_parameters(random_robot(seed, planar=False, max_arms=2, max_joints=3).load(tmp_path))
+    lead = _leading_parameters(param)
+    like = [i for i, name in enumerate(lead) if name.split("_")[0] in {"m", "Ixx", "Iyy", "Izz"} and "*" not in name
+            and param.true_values[i] > 0]  # fmt: skip
+    std = np.abs(param.true_values) + 1.0
+    k = like[len(like) // 2]
+    for z, named in ((2.5, False), (6.0, True)):
+        pi = param.true_values.copy()
+        pi[k] = -z * std[k]
+        said = _implausible(param, pi, std, "log")
+        assert bool(said) == named and (not named or param.names[k] in said), (z, said)
+        assert param.names[k] in _implausible(param, pi, std, "log", z=FALLBACK_Z)
