@@ -221,11 +221,10 @@ def test_experiment_on_the_dual_arm_servicer(tmp_path):
 @pytest.mark.parametrize("args, line", [
     (["servicer-dual", "--wheel-speed", "100"], ("error: --wheel-speed: options of the Cepheus experiment; "
                                                  "servicer-dual is spatial (the servicer twin): drop them")),
-    (["cepheus", "--time-budget", "5"], ("error: --duration, --time-budget, --max-steps and --no-prior are options "
-                                         "of the spatial protocol: give a spatial MODEL (e.g. servicer-dual), or drop "
-                                         "them")),
-    (["cepheus", "--no-prior"], ("error: --duration, --time-budget, --max-steps and --no-prior are options of the "
-                                 "spatial protocol: give a spatial MODEL (e.g. servicer-dual), or drop them")),
+    *[(["cepheus", *given], ("error: --duration, --time-budget, --max-steps, --no-prior and the limits (--q-max, "
+                             "--qd-max, --qdd-max) are options of the spatial protocol: give a spatial MODEL (e.g. "
+                             "servicer-dual), or drop them")) for given in (["--time-budget", "5"], ["--no-prior"],
+                                                                            ["--q-max", "1"])],
 ])  # fmt: skip
 def test_cli_refuses_with_one_line(tmp_path, capsys, args, line):
     assert main(["experiment", *args, "--out", str(tmp_path / "out")]) == 2
@@ -255,3 +254,20 @@ def test_a_model_no_rigid_body_has_is_not_predicted(tmp_path):
                                       run.truth, np.array([0.01, 0.0, 0.0]))  # fmt: skip
     assert set(predicted) == {"true"} and "not positive definite" in refused["negated"]
     assert attitude_error_angle(predicted["true"].base_quat, run.truth.base_quat).max() < 1e-6
+
+
+@pytest.mark.slow
+def test_cli_runs_the_spatial_protocol_on_a_urdf(tmp_path, capsys):
+    """`spaceid experiment ROBOT.urdf` with the design's limits and a step budget: identified with the
+    CAD prior from every sample, which predicts the held-out motion better than the prior alone."""
+    import json
+
+    _, urdf = _robot(tmp_path)
+    args = ["experiment", str(urdf), "--duration", "15", "--max-steps", "10", "--samples", "150", "--q-max", "1",
+            "--qd-max", "0.5", "--qdd-max", "0.5", "--out", str(tmp_path / "out")]  # fmt: skip
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "with the CAD prior (the data set" in out and "report written to" in out
+    done = json.loads((tmp_path / "out" / "experiment.json").read_text())
+    assert done["settings"]["prior"] == "the CAD model" and done["settings"]["design steps"] == 10
+    assert done["metrics"]["CAD prior / identified, largest attitude error"] > 1

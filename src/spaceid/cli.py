@@ -624,6 +624,20 @@ def _write_definitions(path, info, model_src):
     write_text_atomic(path, "\n".join(lines) + "\n")
 
 
+
+def limit_options(f):
+    """The design's joint limits: ``--q-max``, ``--qd-max``, ``--qdd-max`` (``design``, and
+    ``experiment`` with a spatial model)."""
+    for option in reversed((
+        click.option("--q-max", type=POSITIVE, help="Joint angle limit, largest abs(q) [rad] (default: model limits)."),
+        click.option("--qd-max", type=POSITIVE, help="Joint rate limit, largest abs(qd) [rad/s] (default: model "
+                     "limits)."),
+        click.option("--qdd-max", type=POSITIVE,
+                     help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits)."),
+    )):  # fmt: skip
+        f = option(f)
+    return f
+
 @app.command(short_help="Optimal exciting trajectory (min cond(Y) or predicted error) under joint limits.")
 @MODEL
 @PLANAR
@@ -638,10 +652,7 @@ def _write_definitions(path, info, model_src):
               help="cond (condition number), logdet (scaled columns), or with the --noise-* options: dopt (max "
               "log det of the Fisher information), crb (min trace of the relative Cramer-Rao bound).")
 @noise_options
-@click.option("--q-max", type=POSITIVE, help="Joint angle limit, largest abs(q) [rad] (default: model limits).")
-@click.option("--qd-max", type=POSITIVE, help="Joint rate limit, largest abs(qd) [rad/s] (default: model limits).")
-@click.option("--qdd-max", type=POSITIVE,
-              help="Joint acceleration limit, largest abs(qdd) [rad/s^2] (default: model limits).")
+@limit_options
 @click.option("--starts", type=STARTS, help="Local starts of the global search [default: by the problem's size, 64 for "
               "cepheus]; the search also stops once half of them (at least 8) in a row improve the best by under "
               "0.1 %.")
@@ -1180,13 +1191,14 @@ def demo(trajectory, noise_angle, noise_rate, seed, folder, overwrite, as_json):
               "design --max-steps').")
 @click.option("--no-prior", is_flag=True, help="Spatial MODEL: identify from the data alone, not with the CAD model as "
               "the prior.")
+@limit_options
 @SEED
 @out_folder("Report folder (bag, logs, results, figures, report.md).", default="spaceid-experiment",
             show_default=True)
 @OVERWRITE
 def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimator, ideal, validation, drift,
                feedforward, rehearsals, capture, capture_mass, capture_settings, capture_trajectory, duration,
-               time_budget, max_steps, no_prior, seed, folder, overwrite):
+               time_budget, max_steps, no_prior, q_max, qd_max, qdd_max, seed, folder, overwrite):
     """Rest, wheel spin-up, exciting trajectory and a second, held-out motion on the Cepheus twin;
     identify from the recorded bag (N samples and all of the excitation), validate the identified
     model on the held-out motion (Fig. 6).
@@ -1209,10 +1221,12 @@ def experiment(model_src, trajectory, wheel_speed, samples, bag_format, estimato
         return _spatial_experiment(loaded, click.get_current_context(), samples=samples, estimator=estimator,
                                    ideal=ideal, trajectory=trajectory, duration=duration, time_budget=time_budget,
                                    max_steps=max_steps, prior=not no_prior, seed=seed, folder=folder,
-                                   overwrite=overwrite)  # fmt: skip
-    if duration is not None or time_budget is not None or max_steps is not None or no_prior:
-        raise SpaceidError("--duration, --time-budget, --max-steps and --no-prior are options of the spatial protocol: "
-                           "give a spatial MODEL (e.g. servicer-dual), or drop them")  # fmt: skip
+                                   overwrite=overwrite, limits={"q_max": q_max, "qd_max": qd_max, "qdd_max": qdd_max})
+    if duration is not None or time_budget is not None or max_steps is not None or no_prior or (q_max, qd_max,
+                                                                                                 qdd_max) != (None,) * 3:
+        raise SpaceidError("--duration, --time-budget, --max-steps, --no-prior and the limits (--q-max, --qd-max, "
+                           "--qdd-max) are options of the spatial protocol: give a spatial MODEL (e.g. servicer-dual), "
+                           "or drop them")  # fmt: skip
     settings = TwinSettings(model=model)
     settings = settings.without_effects() if ideal else settings
     if not capture and (capture_mass is not None or capture_settings is not None or capture_trajectory != "same"):
@@ -1247,7 +1261,7 @@ _PLANAR_ONLY = ("wheel_speed", "bag_format", "old_bag_format", "validation", "dr
 
 
 def _spatial_experiment(model, ctx, *, samples, estimator, ideal, trajectory, duration, time_budget, max_steps, prior,
-                        seed, folder, overwrite) -> None:
+                        seed, folder, overwrite, limits) -> None:
     """``spaceid experiment`` with a spatial model: the protocol on the servicer twin
     (:func:`spaceid.studies.run_spatial_experiment`), its scores printed."""
     from click.core import ParameterSource
@@ -1267,6 +1281,7 @@ def _spatial_experiment(model, ctx, *, samples, estimator, ideal, trajectory, du
                    prior=prior)
     options |= {k: v for k, v in (("duration", duration), ("time_budget", time_budget), ("max_steps", max_steps))
                 if v is not None}
+    options["limits"] = {k: v for k, v in limits.items() if v is not None} or None
     with (_progress("designing the exciting trajectory", enabled=trajectory == "designed") as progress,
           _report_folder(folder, overwrite) as tmp):
         res = run_spatial_experiment(settings=settings, out=tmp, out_name=folder, progress=progress, **options)
