@@ -271,3 +271,27 @@ def test_cli_runs_the_spatial_protocol_on_a_urdf(tmp_path, capsys):
     done = json.loads((tmp_path / "out" / "experiment.json").read_text())
     assert done["settings"]["prior"] == "the CAD model" and done["settings"]["design steps"] == 10
     assert done["metrics"]["CAD prior / identified, largest attitude error"] > 1
+
+
+def test_coverage_whitens_correlated_errors():
+    """Errors drawn from a strongly correlated covariance: each run's RMS z strays far from 1 (the
+    z move together), the whitened RMS stays near it; a covariance 2 times too narrow doubles it."""
+    from types import SimpleNamespace
+
+    from spaceid.studies import coverage
+
+    rng = np.random.default_rng(3)
+    a = rng.standard_normal((30, 30)) @ np.diag(np.geomspace(1, 1e-3, 30))
+    cov = a @ a.T + 0.98 * np.outer(np.diag(a @ a.T) ** 0.5, np.diag(a @ a.T) ** 0.5)
+    L, large = np.linalg.cholesky(cov), np.arange(0, 30, 2)
+    runs = []
+    for _ in range(200):
+        values = L @ rng.standard_normal(30)
+        result = SimpleNamespace(values=values, std=np.sqrt(np.diag(cov)), cov=cov, names=[f"p{i}" for i in range(30)])
+        narrow = SimpleNamespace(**{**vars(result), "std": result.std / 2, "cov": cov / 4})
+        runs.append((coverage(result, np.zeros(30), large), coverage(narrow, np.zeros(30), large)))
+    rms = np.array([c["rms_z"] for c, _ in runs])
+    whitened = np.array([c["whitened_rms"] for c, _ in runs])
+    assert rms.min() < 0.5 and rms.max() > 1.5  # one run's marginal z says little
+    assert abs(np.sqrt(np.mean(whitened**2)) - 1) < 0.05 and abs(np.median([n["whitened_rms"] for _, n in runs]) /
+                                                                  np.median(whitened) - 2) < 1e-9
