@@ -268,6 +268,7 @@ def test_spatial_noise_free_recovery(tree3, tree3_log):
     np.testing.assert_allclose(np.sqrt(np.diag(bound)), ident.std, rtol=1e-4)
 
 
+@pytest.mark.slow  # fast representatives: test_spatial_noise_free_recovery, test_noise_free_recovery
 def test_spatial_noise_free_recovery_with_unknown_momentum(tree3, tree3_log):
     """The three momentum components estimated, the scale anchored by one known parameter."""
     ident = identify(tree3, tree3_log, None, estimator="angles", noise=NOISE3,

@@ -16,7 +16,7 @@ from spaceid.motion import FourierTrajectory, _attitude, _simulate, simulate
 from spaceid.studies import attitude_error_angle, predict
 
 SEEDS = st.integers(0, 2**31 - 1)
-FAST = settings(max_examples=2, deadline=None, suppress_health_check=[HealthCheck.too_slow,
+FAST = settings(max_examples=1, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                       HealthCheck.function_scoped_fixture])
 SLOW = settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow,
                                                                        HealthCheck.function_scoped_fixture])
@@ -71,6 +71,7 @@ def test_attitude_agrees_with_the_adaptive_solver_on_more_random_robots(seed, pl
     _agrees_with_adaptive_solver(seed, planar, tmp_path)
 
 
+@pytest.mark.slow  # fast representative: test_attitude_agrees_with_the_adaptive_solver_on_random_robots
 def test_steps_halved_until_two_solutions_agree(monkeypatch, tmp_path):
     """Samples 4 s apart: the collocation halves its steps until two solutions agree, and then
     matches the adaptive solver; each pass evaluates the stage values of twice as many steps."""
@@ -101,7 +102,7 @@ def test_unit_quaternion_kept_by_the_collocation():
     assert np.abs(np.linalg.norm(out, axis=1) - 1).max() < 1e-13
 
 
-@pytest.mark.parametrize("name", ["satellite-7dof", "cepheus"])
+@pytest.mark.parametrize("name", [pytest.param("satellite-7dof", marks=pytest.mark.slow), "cepheus"])
 def test_prediction_from_samples_follows_the_true_simulation(name):
     """``predict`` with the true parameters, from the samples of a simulated log (the joint motion
     interpolated between them), reproduces the simulated attitude; the error is the interpolation's,

@@ -109,6 +109,7 @@ def test_model_definitions_never_over_the_model(work, capsys):
 # --- report folders --------------------------------------------------------------------------------
 
 
+@pytest.mark.slow  # fast representative: test_experiment_refuses_a_folder_of_the_users_files
 def test_validate_refuses_a_folder_of_the_users_files(work, capsys):
     """validate --out DIR, DIR holding the user's log: refused, unless --overwrite (then beside them)."""
     folder = work / "mine"
@@ -139,6 +140,8 @@ def test_validate_replaces_its_own_folder_whole(work):
     assert sorted(_snapshot(folder)) == sorted(first) and not _temporaries(work)
 
 
+# fast representatives: test_identify_never_writes_over_its_log, test_validate_replaces_its_own_folder_whole
+@pytest.mark.slow
 def test_validate_refuses_to_replace_a_folder_holding_its_input(work, capsys):
     folder = work / "v"
     args = ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM, "-o", folder]
@@ -209,6 +212,9 @@ def test_a_read_only_output_folder_is_one_line(work, capsys, command):
         ro.chmod(0o755)
 
 
+# fast representatives: test_atomic_folder_interrupted_leaves_the_old_state,
+# test_identify_interrupted_writes_nothing
+@pytest.mark.slow
 @pytest.mark.parametrize("failure, code, line", [(spaceid.SpaceidError("plot failed"), 2, "error: plot failed"),
                                                  (KeyboardInterrupt(), 130, "interrupted")])
 def test_a_failed_or_interrupted_run_leaves_the_old_folder(work, capsys, monkeypatch, failure, code, line):

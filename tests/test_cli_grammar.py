@@ -105,6 +105,9 @@ def test_files_are_o_output_and_folders_out(name):
                 assert p.opts in (["-o", "--output"], ["--definitions"], ["--report"]), (name, p.opts)
 
 
+# fast representatives: test_files_are_o_output_and_folders_out,
+# test_every_old_spelling_is_a_hidden_deprecated_option
+@pytest.mark.slow
 def test_validate_writes_its_folder_with_out_and_o_is_deprecated(files, tmp_path, capsys):
     args = ["validate", str(files / "result.json"), str(files / "log.csv"), "--momentum", H]
     assert main([*args, "--out", str(tmp_path / "new")]) == 0
@@ -158,6 +161,9 @@ def test_a_command_that_estimates_the_drift_refuses_a_value(files, tmp_path, cap
     assert not (tmp_path / "out").exists()
 
 
+# fast representatives: test_a_command_that_sets_the_drift_refuses_a_bare_kind,
+# test_monitor_drift.py::test_cli_monitor_with_drift
+@pytest.mark.slow
 def test_both_forms_where_they_are_used(files, tmp_path, capsys):
     """simulate sets a viscous drift, identify estimates it back; 'none' is no drift in both."""
     log = tmp_path / "drifting.csv"
@@ -281,6 +287,9 @@ def bag(tmp_path_factory):
     return path
 
 
+# fast representatives: test_csv_rates_differentiated_with_joint_rates_and_differentiate_is_deprecated,
+# test_monitor.py::test_monitor_on_a_bag_reads_it_in_parts
+@pytest.mark.slow
 def test_bag_rates_from_the_same_options(bag, tmp_path, capsys):
     """measured is the published velocities (the bag reader's 'velocity'); differentiate with a
     window and a quantum; --differentiate the deprecated spelling of the latter."""

@@ -233,6 +233,7 @@ def test_step_budget_counts_linearisations(monkeypatch):
     assert 0 < len(calls) <= 5 * (2 + 2)  # two searches, two polishes
 
 
+@pytest.mark.slow  # fast representative: test_convergence_takes_results_in_start_order
 def test_convergence_stops_the_search():
     """patience=2: the search stops at the first start after which two starts in a row gained
     less than 1e-3 in log cond, and records why; with fewer starts than the patience every
@@ -590,6 +591,9 @@ def test_cli_design_step_budget(tmp_path, capsys):
     assert "--max-steps" in capsys.readouterr().err
 
 
+# fast representatives: test_progress_and_time_budget, test_last_status_line_reports_the_result_value,
+# test_cli_design_step_budget
+@pytest.mark.slow
 def test_cli_design_prints_progress_lines_when_not_on_a_terminal(tmp_path, capsys):
     args = ["design", "cepheus", "--duration", "5", "--harmonics", "3", "--samples", "35",
             "--momentum", "0.4934", "--starts", "3", "-o", str(tmp_path / "traj.json")]  # fmt: skip
@@ -609,6 +613,7 @@ def test_last_status_line_reports_the_result_value():
     assert float(re.search(r"best cond (\S+),", lines[-1]).group(1)) == float(f"{result.value:.6g}")
 
 
+@pytest.mark.slow  # fast representatives: test_last_status_line_reports_the_result_value, test_cli_design_step_budget
 def test_cli_design_last_progress_line_agrees_with_the_result(tmp_path, capsys, monkeypatch):
     """The progress lines are held back to one every 5 s, but the last one is printed before the
     result line, and both give the same value (a clock that stands still holds every line after

@@ -64,7 +64,7 @@ def test_widened_only_along_the_undetermined_coordinates():
     assert widened(cov, 0.5 * mu, T, theta, nominal) is cov
 
 
-@pytest.mark.parametrize("nominal", ["true", "cad"])
+@pytest.mark.parametrize("nominal", ["true", pytest.param("cad", marks=pytest.mark.slow)])
 def test_standard_errors_cover_an_undesigned_motion(nominal, tmp_path, monkeypatch):
     """A random 66-parameter robot on a random motion that leaves 5 directions undetermined: the
     first-order standard errors put errors 14 of them off (27 parameters beyond 4); widened along

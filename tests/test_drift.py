@@ -42,9 +42,11 @@ def values(ident):
 
 SUBSETS = [("torque",), ("viscous",), ("coulomb",), ("torque", "viscous"), ("viscous", "coulomb"),
            ("torque", "viscous", "coulomb")]
+# the fast subset recovers all three kinds at once; each kind alone and the pairs run in the full suite
+FAST_SUBSETS = [kinds if len(kinds) == 3 else pytest.param(kinds, marks=pytest.mark.slow) for kinds in SUBSETS]
 
 
-@pytest.mark.parametrize("kinds", SUBSETS)
+@pytest.mark.parametrize("kinds", FAST_SUBSETS)
 def test_planar_noise_free_recovers_pi_and_drift(cepheus, kinds):
     log = drifting(cepheus, kinds)
     if "coulomb" in kinds:
@@ -290,6 +292,7 @@ def test_sparse_samples_of_a_drift_warn(cepheus):
     assert log.meta["momentum_balance_error"] > 1e-6
 
 
+@pytest.mark.slow  # fast representative: test_drift_test_from_the_estimates_gram_matrix_equals_the_whole_refit
 def test_sketched_leverages_agree_with_the_exact_ones():
     """The drift test's leverages of a fit with more than 256 unknowns come from a 64-column sketch of the
     inverse Gram matrix's root: the leverage-adjusted residuals' adjustment within 35 % of the exact one

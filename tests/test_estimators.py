@@ -190,7 +190,7 @@ def _reference_ml(eq, x, sigma, theta, iterations=40):
     return theta
 
 
-@pytest.mark.parametrize("level", [1e-3, 1e-2])
+@pytest.mark.parametrize("level", [1e-3, pytest.param(1e-2, marks=pytest.mark.slow)])
 def test_ml_reaches_the_fixed_point_of_the_scheme_as_first_written(cepheus, level):
     """The iteration reuses the columns at the measured signals, one factorisation and Anderson
     acceleration; its estimate is still the fixed point of the plain scheme (:func:`_reference_ml`),

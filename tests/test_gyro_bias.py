@@ -149,6 +149,7 @@ def test_noise_free_recovery_spatial_preset():
     assert np.abs([d["value"] for d in res.gyro_bias] - SPATIAL_BIAS).max() <= 1e-14 * res.condition_number
 
 
+@pytest.mark.slow  # fast representatives: test_noise_free_recovery_any_random_robot, test_noise_free_recovery_planar
 @pytest.mark.parametrize("planar", [False, True])
 def test_noise_free_recovery_random_robots(planar, tmp_path):
     for seed in (3, 11):
@@ -348,6 +349,7 @@ def test_cli_sensors_and_gyro_bias(tmp_path):
     assert abs(saved["gyro_bias"][0]["value"] - 3e-4) < 5 * saved["gyro_bias"][0]["std"]
 
 
+@pytest.mark.slow  # fast representative: test_cli_sensors_and_gyro_bias
 def test_cli_keeps_a_gyros_rate_when_the_joint_rates_are_differentiated(tmp_path):
     """Encoders without joint-rate sensors beside a gyro: the joint rates come from the encoders, the
     base rate stays the gyro's (its attitude differentiated instead was a hundred times noisier)."""

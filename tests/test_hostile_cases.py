@@ -68,6 +68,7 @@ def test_validate_refuses_millisecond_stamps(tmp_path, capsys):
     assert not (tmp_path / "val").exists()
 
 
+@pytest.mark.slow  # fast representative: test_validate_refuses_millisecond_stamps
 def test_a_bag_mapping_rate_beyond_memory_names_the_key(tmp_path, truth, capsys):  # noqa: F811
     stamps = np.arange(0, 251) * 0.02
     rec = _recording(truth, stamps, stamps + 0.003, effort=False)

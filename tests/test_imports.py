@@ -37,6 +37,7 @@ def test_identify_does_not_import_matplotlib(tmp_path):
     assert result.exists()
 
 
+@pytest.mark.slow  # fast representative: test_the_cli_and_the_pipeline_packages_import_none_of_the_heavy_modules
 def test_help_and_the_studies_package_do_not_import_matplotlib():
     assert not _imports_matplotlib("import spaceid.studies, spaceid.cli")
 

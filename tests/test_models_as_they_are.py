@@ -115,6 +115,7 @@ def test_predict_and_validate_a_model_as_it_is(tmp_path):
         predict("cepheus", log.t, log.q, log.qd)
 
 
+@pytest.mark.slow  # fast representative: test_predict_and_validate_a_model_as_it_is
 def test_cli_predict_and_validate_take_a_model(tmp_path, satellite):
     from spaceid.cli import main
     from spaceid.data import write_log

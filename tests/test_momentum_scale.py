@@ -123,6 +123,7 @@ def test_table_shows_relative_errors_of_large_parameters_only(satellite):
     assert "err%H" in lines[2] and f"{100 * LARGE_SHARE:g} %" in " ".join(" ".join(lines).split())
 
 
+@pytest.mark.slow  # fast representative: test_report.py::test_parameter_figure_is_a_png
 def test_parameter_figure_at_150_parameters_keeps_its_size(satellite, tmp_path):
     """153 parameters: a ranked figure of RANKED_SIZE (1200 x 930 pixels), with and without the truth,
     with and without a scale (an old result); 8 parameters keep one tick each."""

@@ -11,7 +11,7 @@ import warnings
 
 import numpy as np
 import pytest
-from conftest import random_tree
+from conftest import examples, random_tree
 
 from spaceid._errors import SpaceidError
 from spaceid.cli import main
@@ -146,7 +146,7 @@ def test_segments_reidentified_on_either_side_of_the_capture(capture, cepheus):
     assert set(change["changed"]) >= {n for n, m in zip(param.names, moved) if m}
 
 
-@pytest.mark.parametrize("forgetting", [1.0, 0.99])
+@pytest.mark.parametrize("forgetting", [1.0, pytest.param(0.99, marks=pytest.mark.slow)])
 def test_no_event_without_a_change(cepheus, steady, forgetting):
     _, param = cepheus
     mon = Monitor(param, H, noise=NOISE, forgetting=forgetting)
@@ -234,10 +234,11 @@ class _Kept(collections.deque):
 @pytest.fixture(scope="module")
 def differentiated_statistics(cepheus, steady):
     """Each tested sample's ``nu^T nu`` and the run's record, on 6 logs without a change whose rates
-    were differentiated over 31 samples (seeds 216 to 221), at 1e-9 false alarms per sample."""
+    were differentiated over 31 samples (seeds 216 to 221; the fast subset the first 2), at 1e-9 false
+    alarms per sample."""
     _, param = cepheus
     runs = []
-    for seed in range(216, 222):
+    for seed in range(216, 216 + examples(6, 2)):
         mon = _Recording(param, H, noise=NOISE, false_alarm_rate=1e-9, estimator="wls")
         mon.update(_differentiated(steady, seed))
         runs.append((seed, np.array(mon.statistics), mon.finish()))
@@ -272,6 +273,7 @@ def test_differentiated_squared_innovations_are_uncorrelated_over_the_window(dif
         assert _ljung_box_p(rho, len(x)) > 1e-3, (seed, _ljung_box_p(rho, len(x)))
 
 
+@pytest.mark.slow  # fast representative: test_white_innovations_are_not_prewhitened
 def test_a_warm_up_that_contradicts_the_differentiator_falls_back_to_an_ar_filter(cepheus, steady):
     """A record whose raw noise levels are 3 times the actual ones: the warm-up's innovations are
     far smaller than the model predicts, so its correlation is not trusted and the segment
@@ -286,6 +288,7 @@ def test_a_warm_up_that_contradicts_the_differentiator_falls_back_to_an_ar_filte
     assert white["filter"] == "autoregressive" and white["order"] == 3 and white["chi2_dof"] < 0.2
 
 
+@pytest.mark.slow  # fast representative: test_the_first_half_window_of_differentiated_rates_is_not_taken
 def test_the_last_half_window_of_differentiated_rates_is_not_tested(cepheus, steady):
     """Rates from a one-sided window (the last 15 samples of a 31-sample differentiator) are
     extrapolations: held back until the samples after them come, never tested at the end of the
@@ -305,6 +308,9 @@ def test_the_last_half_window_of_differentiated_rates_is_not_tested(cepheus, ste
     assert abs(event.time - 19.75) <= 0.16
 
 
+# fast representatives: test_monitor_on_a_bag_reads_it_in_parts,
+# test_recursive_estimate_equals_batch_weighted_least_squares
+@pytest.mark.slow
 def test_parts_whose_rates_are_final_are_taken_at_once(cepheus, steady):
     """A part whose ``meta`` says that its rates are all final (``final_rates``: the bag and live
     aligner's parts, each sample returned once the messages its windows need are in) is taken
@@ -392,6 +398,7 @@ def test_white_innovations_are_not_prewhitened(cepheus, steady):
     assert white["order"] == 0 and white["scale"] == 1.0 and white["ljung_box_p"] > 1e-3
 
 
+@pytest.mark.slow  # fast representative: test_finds_the_capture_within_a_few_samples
 def test_finds_the_capture_with_differentiated_rates(capture, cepheus):
     log, _ = capture
     _, param = cepheus
@@ -406,6 +413,7 @@ def test_finds_the_capture_with_differentiated_rates(capture, cepheus):
 
 
 
+@pytest.mark.slow  # fast representative: test_finds_the_capture_within_a_few_samples
 @pytest.mark.parametrize("differentiated", [True, False])
 def test_a_change_within_a_warm_up_after_an_alarm_is_found(cepheus, differentiated):
     """After an alarm, the next warm-up's own innovations are tested (each predicted from the warm-up's
@@ -575,6 +583,7 @@ def _bag_options():
     return {"joints": m.joints, "planar": True, "wheels": m.wheels, "pose_latency": 0.005}
 
 
+@pytest.mark.slow  # fast representative: test_monitor_on_a_bag_reads_it_in_parts
 def test_a_bag_is_read_in_parts_of_bounded_size(capture_bag, monkeypatch):
     import spaceid.data._bags as bags
     from spaceid.data import bag_chunks, read_bag_log
@@ -630,6 +639,7 @@ def _rotor():
     return value
 
 
+@pytest.mark.slow  # fast representative: test_monitor_on_a_bag_reads_it_in_parts
 def test_monitor_takes_the_differentiator_window_of_a_bag(capture_bag, tmp_path, capsys):
     """``--window`` sets every differentiated series' window: the events' lead is half the widest one (41
     encoder samples at 50 Hz); an even window, or one for a CSV log read with its rate columns (nothing

@@ -53,15 +53,22 @@ def _basis(mon, chunk) -> np.ndarray:
     return np.array([sample.basis for sample in mon._intake.with_basis(chunk)])
 
 
+@pytest.fixture(scope="module")
+def turning(cepheus):
+    """A drifting log whose base turns both ways (1500 samples), shared by the chunked-basis tests."""
+    model, param = cepheus
+    return simulate(param, param.true_values, _motion, np.arange(1500) / RATE, np.array([0, 0, 0.05]), model=model,
+                    drift={"viscous": 1e-3})
+
+
 @pytest.mark.parametrize("kinds", [("torque",), ("viscous",), ("coulomb",)])
 @pytest.mark.parametrize("chunk", [1, 7])
-def test_running_basis_continues_across_chunks(cepheus, kinds, chunk):
+def test_running_basis_continues_across_chunks(cepheus, turning, kinds, chunk):
     """The drift basis accumulated chunk by chunk is the whole log's: exactly for the closed forms
     (torque, the planar viscous's unwrapped yaw); the Coulomb kind's sign changes are located
     from the samples a chunk has after them (a few microseconds apart here)."""
-    model, param = cepheus
-    log = simulate(param, param.true_values, _motion, np.arange(1500) / RATE, np.array([0, 0, 0.05]), model=model,
-                   drift={"viscous": 1e-3})
+    _, param = cepheus
+    log = turning
     assert np.sum(np.diff(np.sign(log.base_w[:, 2])) != 0) >= 2  # the base turns both ways
     mon = Monitor(param, H, drift=kinds)
     running = np.concatenate([_basis(mon, log.select(slice(i, i + chunk)))
@@ -83,6 +90,8 @@ def test_running_basis_of_a_spatial_log():
     assert np.max(np.abs(running - whole)) < 1e-9 * np.max(np.abs(whole))
 
 
+# fast representatives: test_monitor.py::test_finds_the_capture_within_a_few_samples, test_cli_monitor_with_drift
+@pytest.mark.slow
 def test_noise_free_drift_and_momentum_through_a_capture(drifting_capture, cepheus):
     """Noise-free: the capture found at its sample, each segment's drift coefficient recovered, and
     the second segment's momentum at its start carried over from the first's (weighted least
@@ -105,6 +114,7 @@ def test_noise_free_drift_and_momentum_through_a_capture(drifting_capture, cephe
     assert record.settings["drift"] == ["viscous"]
 
 
+@pytest.mark.slow  # fast representatives: test_cli_monitor_with_drift (no event, the coefficient within its errors)
 def test_a_drift_is_no_change(drifting, cepheus):
     """A noisy drifting log without a change: alarms without drift terms (the friction looks like a
     change), none with them, the drift coefficient and the parameters within their errors."""
@@ -120,6 +130,8 @@ def test_a_drift_is_no_change(drifting, cepheus):
     assert rec["momentum_from"] == drifting.t[0] and np.array_equal(rec["momentum"], H)
 
 
+# fast representatives: test_monitor.py::test_finds_the_capture_within_a_few_samples, test_cli_monitor_with_drift
+@pytest.mark.slow
 def test_finds_the_capture_on_a_drifting_log(drifting_capture, cepheus):
     log, _ = drifting_capture
     _, param = cepheus

@@ -306,6 +306,7 @@ def test_a_noise_free_spatial_log_up_to_a_grasp_is_smooth(tmp_path):
                  max_joints=3)
 
 
+@pytest.mark.slow  # fast representative: test_a_grasp_is_found_on_a_random_robot
 @pytest.mark.parametrize("noisy", [False, True])
 def test_the_grasp_of_issue_26(noisy, tmp_path):
     """Issue 26: a 4-joint planar tree in a slow motion (three harmonics of 0.1 to 0.5 Hz) grasps

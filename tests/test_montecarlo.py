@@ -40,6 +40,9 @@ def test_same_seed_same_numbers_other_seed_other_numbers(param):
     np.testing.assert_array_equal(longer.estimates["ml"][:6], a.estimates["ml"])
 
 
+# fast representatives: test_same_seed_same_numbers_other_seed_other_numbers,
+# test_estimators.py::test_ml_on_threads_equals_serial
+@pytest.mark.slow
 def test_two_workers_give_the_numbers_of_one(param):
     one = study(param, runs=8, estimators=("ml", "ols"), jobs=1)
     two = study(param, runs=8, estimators=("ml", "ols"), jobs=2)

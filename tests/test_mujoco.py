@@ -85,6 +85,9 @@ def test_momentum_and_regressor_agree_with_mujoco_on_larger_robots(tmp_path, see
     _momentum_agrees(tmp_path, seed)
 
 
+# fast representatives: test_momentum_and_regressor_agree_with_mujoco,
+# test_mjcf_export_flies_in_mujoco_with_the_identified_momentum
+@pytest.mark.slow
 def test_flight_is_not_the_reference():
     """The controller's inertia is wrong, so the executed joint motion leaves the reference (the
     identification sees the executed one), and the momentum stays conserved."""

@@ -205,6 +205,9 @@ def test_drift_is_estimated_with_the_payload(cepheus):
     assert abs(off.mass - CEPHEUS_PAYLOAD[0]) > 1e-4
 
 
+# fast representatives: test_drift.py::test_drift_integrated_over_a_history,
+# test_drift_is_estimated_with_the_payload
+@pytest.mark.slow
 def test_drift_integrated_over_a_history_from_a_known_momentum(cepheus):
     """A window cut from a longer record: the momentum is known at the record's start (before the
     window) and the drift is integrated from there, as after a grasp (docs/theory/capture.md)."""

@@ -90,6 +90,7 @@ def test_hold_momentum_covariance_against_monte_carlo(cepheus):
     assert 0.85 < np.std(spread) / np.sqrt(cov[2, 2]) < 1.15
 
 
+@pytest.mark.slow  # fast representative: test_hold_momentum_covariance_against_monte_carlo
 def test_spatial_hold_momentum_covariance_against_monte_carlo():
     """Spatial: the attitude's noise turns the momentum too (``R0 e_n`` in inertial axes)."""
     pmap = payload_map("satellite-7dof", "arm_ee")
@@ -123,7 +124,10 @@ def _configuration_spread(pmap, log, grasp, noisy, noise, seeds=150) -> tuple:
     return np.array(values), np.median(covs, axis=0)
 
 
-@pytest.mark.parametrize("differentiated", [pytest.param(True, marks=pytest.mark.slow), False])
+# fast representatives: test_hold_momentum_covariance_against_monte_carlo,
+# test_configuration_covariance_is_carried_through_the_fit
+@pytest.mark.slow
+@pytest.mark.parametrize("differentiated", [True, False])
 def test_configuration_at_the_grasp_covariance_against_monte_carlo(cepheus, differentiated):
     """The configuration that places a moving payload, each angle and the yaw from its last sample
     clear of the grasp carried by its rate there, and the hold's momentum: their covariance from
@@ -153,6 +157,9 @@ def test_configuration_at_the_grasp_covariance_against_monte_carlo(cepheus, diff
                                hold_momentum(pmap, rec.select(hold), noise)[1], rtol=1e-12, atol=1e-20)  # fmt: skip
 
 
+# fast representatives: test_hold_momentum_covariance_against_monte_carlo,
+# test_configuration_covariance_is_carried_through_the_fit
+@pytest.mark.slow
 def test_spatial_configuration_at_the_grasp_covariance_against_monte_carlo():
     """Spatial, measured rates: the attitude's error (a small rotation, base axes) from the
     attitude's and the base rate's noise carried over a step to the grasp."""

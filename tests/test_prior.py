@@ -103,7 +103,8 @@ def test_prior_only_returns_the_prior_with_its_covariance(cepheus):
     assert res.prior.n_data == 0 and res.prior.data_term == "equations" and not res.prior.active
 
 
-@pytest.mark.parametrize("name, planar", [("cepheus", True), ("satellite-7dof", False)])
+@pytest.mark.parametrize("name, planar", [("cepheus", True),
+                                         pytest.param("satellite-7dof", False, marks=pytest.mark.slow)])
 def test_rich_data_return_the_data_estimate(name, planar):
     """Informative data and a wide prior: the MAP is the data's estimate on the models that exist.
 
@@ -151,7 +152,8 @@ def _weak_case(seed, planar, tmp_path):
     return true, param, prior, res, h
 
 
-@pytest.mark.parametrize("seed, planar", [(1, True), pytest.param(10, True, marks=pytest.mark.slow), (16, True),
+@pytest.mark.parametrize("seed, planar", [(1, True),
+                                          *(pytest.param(s, True, marks=pytest.mark.slow) for s in (10, 16)),
                                           *(pytest.param(s, False, marks=pytest.mark.slow) for s in (2, 5, 13, 15))])
 def test_weak_data_predict_no_worse_than_the_prior(seed, planar, tmp_path):
     """Undesigned weak motion, a prior 15 % off: the MAP is physical, its covariance positive

@@ -51,6 +51,7 @@ def _design(param, h, samples, seed):
                              n_starts=1, max_steps=DESIGN_STEPS, jobs=1, q_max=1.0, qd_max=1.0, qdd_max=1.0)
 
 
+@pytest.mark.slow  # fast representative: test_design.py::test_step_budget_gives_the_same_design_on_any_machine
 def test_the_design_is_the_same_on_any_machine(tmp_path):
     """Seed 110 (66 parameters, the trust region) twice: the bit-identical design, its budget recorded."""
     model = random_robot(110, planar=False, max_arms=2, max_joints=2).load(tmp_path)

@@ -364,7 +364,7 @@ def test_units_are_those_of_the_leading_full_parameter(name):
     assert [d["unit"] for d in param.to_dict()["parameters"]] == list(param.units)
 
 
-@pytest.mark.parametrize("axis_z", [3e-4, 5e-5, 1e-7])
+@pytest.mark.parametrize("axis_z", [pytest.param(3e-4, marks=pytest.mark.slow), 5e-5, 1e-7])  # fast: one of each kind
 def test_minimal_set_of_a_joint_axis_nearly_in_a_frame_plane(rng, axis_z):
     """A joint axis nearly in the x-y plane of its frame: the link's mcz depends on the columns before
     it through coefficients ~1/axis_z (3e-4, 5e-5: the round-off cleanup must keep the small true

@@ -137,7 +137,7 @@ def test_validation_figure_is_a_png(tmp_path, planar):
     _assert_png(out, min_width=900)
 
 
-@pytest.mark.parametrize("planar", [True, False])
+@pytest.mark.parametrize("planar", [True, pytest.param(False, marks=pytest.mark.slow)])
 def test_validation_figure_is_titled_and_labelled(planar):
     fig = _draw_validation(_log(planar), _log(planar, bias=1e-3))
     _assert_titled_and_labelled(fig)
@@ -302,6 +302,7 @@ def test_trajectory_figure(tmp_path):
         plot_trajectory(t, q, qd, qdd, JOINTS, tmp_path / "t2.png", limits={"q": [1.0, 2.0, 3.0]})
 
 
+@pytest.mark.slow  # fast representative: test_trajectory_figure
 def test_tracking_figure(tmp_path):
     t = np.linspace(0, 5, 251)
     designed = np.stack([0.6 * np.sin(t), np.sin(2 * t)], axis=1)

@@ -93,6 +93,8 @@ def test_plant_agrees_with_mujoco(tmp_path):
     assert np.ptp(truth.q, axis=0).max() > 0.1  # a real motion
 
 
+# fast representatives: test_the_lab_reads_the_sensors, test_twin.py::test_encoders_quantise_and_publish_at_50_hz
+@pytest.mark.slow
 def test_sensors_have_the_statistics_of_their_settings(tmp_path):
     """Encoders (white noise, no quantisation), star tracker (noise per axis, latency, lost
     frames), gyro (bias, white noise) measured against the truth over a long enough phase."""
@@ -127,6 +129,8 @@ def test_sensors_have_the_statistics_of_their_settings(tmp_path):
     assert np.all(np.abs(g.std(axis=0) / 1e-4 - 1) < 0.1)
 
 
+# fast representatives: test_the_lab_reads_the_sensors, test_twin.py::test_encoders_quantise_and_publish_at_50_hz
+@pytest.mark.slow
 def test_quantisation_and_the_random_walk(tmp_path):
     """Encoder readings are whole counts within half a count of the truth; the gyro bias's random
     walk has increments of variance walk^2 dt."""
