@@ -33,7 +33,7 @@ def hermite_motion(t, q, qd):
     round-off, without importing ``scipy.interpolate``: 0.3 s of a ``validate`` command's start)."""
     t, q, qd = (np.asarray(a, float) for a in (t, q, qd))
     if len(t) < 2 or not np.all(np.diff(t) > 0):
-        raise ValueError("hermite_motion: `t` must hold at least two strictly increasing times")
+        raise ValueError("hermite_motion: the sample times must be at least two, strictly increasing")
 
     def motion(times):
         times = np.asarray(times, float)

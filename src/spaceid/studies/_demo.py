@@ -128,7 +128,8 @@ def warm_spatial_kernels() -> None:
     them from Numba's cache): the momentum of the re-simulation, the attitude's collocation steps and their
     stage rate, and the linearised regressor (``monitor``), each once on a few samples of the satellite-7dof
     preset, whose minimal set is cached on the way. ``spaceid demo`` ends with it, so that a first spatial
-    command compiles nothing (about 4 s of CPU on fresh caches; 0.2 s on warm ones)."""
+    command compiles nothing (about 3 s of CPU on fresh caches; 0.7 s on warm ones, mostly loading the
+    kernels)."""
     model = load_model("satellite-7dof")
     param = minimal_parameters(model)
     n = len(model.joints)
