@@ -4,8 +4,9 @@
 momentum, 1e-3 noise on every joint angle, joint rate and base rate. Times the whole
 ``identify(ml)`` and ``identify(ols)`` calls alternately, repeat by repeat, so that a load change
 on a shared machine hits both, and prints their medians and the median of the per-repeat ratios
-(target <= 3). Then, once each, the parts of the ML call: one evaluation of the iteration
-(:func:`~spaceid.estimation._estimators._ml_evaluate`: the signal Jacobian, the residuals, the
+(target <= 3), in wall and in processor time (every thread's). Then, once each, the parts of the ML
+call: one evaluation of the iteration (:func:`~spaceid.estimation._estimators._ml_evaluate`: the
+signal Jacobian, the residuals, the
 weights' derivative, the gradient), the signal Jacobian and the weights' derivative alone, and the
 factorisation of the whitened equations (twice per call: the preconditioner and the covariance).
 Prints only, never fails on timings.
@@ -34,9 +35,11 @@ URDF = Path(spaceid.__file__).parent / "models" / "presets" / "servicer-dual.urd
 
 
 def timed(fn):
-    start = time.perf_counter()
+    """``(wall, cpu, out)``: the wall and processor time [s] of ``fn()`` (the processor time of every thread
+    of the process: steadier than the wall time on a loaded machine) and its value."""
+    start, cpu = time.perf_counter(), time.process_time()
     out = fn()
-    return time.perf_counter() - start, out
+    return time.perf_counter() - start, time.process_time() - cpu, out
 
 
 def servicer_log(n, level):
@@ -70,7 +73,7 @@ def parts(param, log, h, noise):
         "  weights' derivative (contracted)": lambda: eq.contracted_dphi(xh, x - xh, np.ones((n, param.rows))),
         "whitened factorisation": lambda: linalg._gram_matrix_factor(linalg._whitened_gram(first["L"], phi)),
     }
-    return {key: timed(fn)[0] for key, fn in out.items()}
+    return {key: timed(fn)[:2] for key, fn in out.items()}
 
 
 def main():
@@ -83,25 +86,28 @@ def main():
     warnings.simplefilter("ignore")  # random states in time order trip the drift check; timings only
     param, log, h, noise = servicer_log(args.samples, level)
     identify(param, log, h, estimator="ols")  # warm-up: caches, imports
-    times, result = {"identify(ols)": [], "identify(ml)": []}, None
+    times, result = {"identify(ols)": [], "identify(ml)": []}, None  # (wall, cpu) per repeat
     for _ in range(args.repeats):
-        times["identify(ols)"].append(timed(lambda: identify(param, log, h, estimator="ols"))[0])
-        elapsed, result = timed(lambda: identify(param, log, h, estimator="ml", noise=noise))
+        times["identify(ols)"].append(timed(lambda: identify(param, log, h, estimator="ols"))[:2])
+        *elapsed, result = timed(lambda: identify(param, log, h, estimator="ml", noise=noise))
         times["identify(ml)"].append(elapsed)
-    ratio = float(np.median(np.array(times["identify(ml)"]) / np.array(times["identify(ols)"])))
+    ratios = np.median(np.array(times["identify(ml)"]) / np.array(times["identify(ols)"]), axis=0)
     info = result.diagnostics.estimator_info
     z = np.abs(result.values - param.true_values) / result.std
     print(f"dual-arm servicer: {param.model.n_joints} joints, {param.n_params} minimal parameters; {args.samples} "
           f"samples, noise {level:g} on q, qd, w0; medians of {args.repeats} alternating repeats; load "
           f"{os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")  # fmt: skip
+    print(f"  {'':36s} {'wall':>8s}   {'CPU':>8s}")
     for key, values in times.items():
-        print(f"  {key:36s} {np.median(values):8.3f} s")
-    print(f"  identify(ml) / identify(ols)         {ratio:8.2f}  (target <= 3; median of the per-repeat ratios)")
+        wall, cpu = np.median(values, axis=0)
+        print(f"  {key:36s} {wall:8.3f} s {cpu:8.3f} s")
+    print(f"  identify(ml) / identify(ols)         {ratios[0]:8.2f}   {ratios[1]:8.2f}    (target <= 3; median of the "
+          "per-repeat ratios)")
     print(f"  ML: {info['iterations']} iterations after the start, converged {info['converged']}, fallback "
           f"{info['fallback']}; max |error| / std {z.max():.2f}")
     if not args.no_parts:
-        for key, value in parts(param, log, h, noise).items():
-            print(f"  {key:36s} {value:8.3f} s")
+        for key, (wall, cpu) in parts(param, log, h, noise).items():
+            print(f"  {key:36s} {wall:8.3f} s {cpu:8.3f} s")
 
 
 if __name__ == "__main__":

@@ -42,3 +42,43 @@ def test_designed_demo_writes_report(tmp_path, capsys):
             "singular_values.png", "trajectory.png"} <= files
     report = (tmp_path / "rep" / "report.md").read_text()
     assert "pi8" in report and "![" in report
+
+
+WARM_CHECK = """
+import numpy as np
+import spaceid
+from spaceid.dynamics import _kernels
+from spaceid.dynamics._regressor import _random_states
+from spaceid.motion import _attitude, simulate
+from spaceid.studies import predict, warm_spatial_kernels
+
+kernels = (_kernels._momentum_of_states, _kernels._tangent_columns, _attitude.collocation_steps)  # (its stage rate inlined)
+assert not any(k.signatures for k in kernels)
+warm_spatial_kernels()
+warmed = [list(k.signatures) for k in kernels]
+# what the commands call: another spatial robot's simulation and prediction, the linearised regressor
+param = spaceid.minimal_parameters(spaceid.load_model("satellite-7dof"))
+q, qd, w0 = _random_states(param.model, 40, seed=1)
+log = simulate(param, param.true_values, lambda t: (np.sin(t)[:, None] * np.ones(7), np.cos(t)[:, None] * np.ones(7)),
+               np.linspace(0, 2, 40), np.array([0.5, 0.1, -0.2]), model=param.model)
+predict("satellite-7dof", log.t, log.q, log.qd, momentum=np.array([0.5, 0.1, -0.2]))
+param.linearized_regressor(q, qd, w0, (qd, q, w0), step=1e-6, primal=False)
+assert [list(k.signatures) for k in kernels] == warmed and all(len(s) == 1 for s in warmed), warmed
+print("ok")
+"""
+
+
+def test_demo_warms_the_spatial_kernels_with_the_signatures_the_commands_use():
+    """``warm_spatial_kernels`` (the end of ``spaceid demo``, the install step) runs the kernels only spatial
+    robots' commands call (the momentum, the attitude's collocation steps, the linearised regressor),
+    each with the one signature that a spatial simulation, prediction and linearisation then use: a fresh
+    process compiles nothing more after it (another signature would compile the kernel again, seconds)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([src, os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-c", WARM_CHECK], env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and done.stdout.strip() == "ok", done.stderr[-2000:]

@@ -318,6 +318,26 @@ def test_sketched_leverages_agree_with_the_exact_ones():
     assert np.allclose(sketched[:5], exact[:5], rtol=1e-8)
 
 
+
+def test_leverage_adjustment_is_the_pseudo_inverse_even_where_a_sample_is_fitted_exactly():
+    """``(I - H_n)^+ r_n`` for every sample: solved where ``I - H_n`` is well conditioned, by the
+    pseudo-inverse where it is (nearly) singular; a sample with a unit leverage (its own unknown) is not
+    infinite, and the others agree with the pseudo-inverse formed for all to 1e-12."""
+    from spaceid.estimation._residuals import _leverage_adjusted
+
+    rng = np.random.default_rng(1)
+    n, rows, c = 40, 3, 12
+    M = rng.standard_normal((n, rows, c))
+    M[0, :, -1], M[1:, :, -1] = [1.0, 0.0, 0.0], 0.0  # the last unknown in sample 0's first row alone
+    A = M.reshape(-1, c)
+    ginv = np.linalg.inv(A.T @ A)
+    r = rng.standard_normal((n, rows))
+    got = _leverage_adjusted(M, (np.linalg.cholesky(ginv), True), ginv, r)
+    H = np.einsum("nrp,pq,nsq->nrs", M, ginv, M)
+    assert np.linalg.det(np.eye(rows) - H[0]) < 1e-12  # sample 0 fitted exactly along its first row
+    want = np.einsum("nrs,ns->nr", np.linalg.pinv(np.eye(rows) - H), r)
+    assert np.all(np.isfinite(got)) and np.allclose(got, want, rtol=1e-12, atol=1e-12 * np.abs(want).max())
+
 @pytest.mark.parametrize("estimator", ["ols", "ml"])
 def test_drift_test_from_the_estimates_gram_matrix_equals_the_whole_refit(monkeypatch, estimator):
     """``identify`` completes the drift test's refit Gram matrix from the estimate's own factor (ols: the

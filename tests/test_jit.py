@@ -46,6 +46,10 @@ def test_a_strided_output_compiles_no_second_kernel():
     param.regressor(q, qd, w0, out=view)
     np.testing.assert_array_equal(view, param.regressor(q, qd, w0))
     assert np.isnan(wide[:, :, [0, -1]]).all()  # nothing written outside the view
+    first = np.full((300, 3, param.n_params + 2), np.nan)  # the first columns of each row (the equations' A)
+    param.regressor(q, qd, w0, out=first[:, :, : param.n_params])
+    np.testing.assert_array_equal(first[:, :, : param.n_params], view)
+    assert np.isnan(first[:, :, param.n_params :]).all()  # written through the rows, the last columns untouched
     param.linearized_regressor(q, qd, w0, direction, step=1e-6, out=view)
     np.testing.assert_array_equal(view, param.linearized_regressor(q, qd, w0, direction, step=1e-6))
     for compiled in (_kernels._columns_of_states, _kernels._tangent_columns):

@@ -113,3 +113,26 @@ def test_ill_posed_identification_is_refused(cepheus, kind, message):
         log, h = log.__class__(log.t, log.joints, q, qd, log.base_quat, log.base_w, True), H
     with pytest.raises(spaceid.SpaceidError, match=message):
         identify(param, log, h)
+
+
+def test_hermite_motion_is_the_cubic_hermite_spline():
+    """``hermite_motion`` (validate's and predict's joint motion) is SciPy's cubic Hermite spline through the
+    samples' angles and rates, to round-off: inside every interval, at the samples themselves, past both ends
+    (the end cubics), at a scalar time and for one joint; it refuses times that do not increase."""
+    from scipy.interpolate import CubicHermiteSpline
+
+    from spaceid.motion import hermite_motion
+
+    rng = np.random.default_rng(7)
+    t = np.cumsum(rng.uniform(0.005, 0.1, 40))
+    q, qd = rng.standard_normal((40, 5)), 10 * rng.standard_normal((40, 5))
+    spline = CubicHermiteSpline(t, q, qd, axis=0)
+    times = np.concatenate([np.linspace(t[0] - 0.3, t[-1] + 0.3, 997), t])
+    angles, rates = hermite_motion(t, q, qd)(times)
+    np.testing.assert_allclose(angles, spline(times), rtol=0, atol=1e-13 * np.abs(angles).max())
+    np.testing.assert_allclose(rates, spline.derivative()(times), rtol=0, atol=1e-13 * np.abs(rates).max())
+    one, rate = hermite_motion(t, q[:, 2], qd[:, 2])(t[5] + 0.004)
+    assert np.shape(one) == () and one == pytest.approx(spline(t[5] + 0.004)[2], rel=1e-13)
+    assert rate == pytest.approx(spline.derivative()(t[5] + 0.004)[2], rel=1e-12)
+    with pytest.raises(ValueError, match="strictly increasing"):
+        hermite_motion(t[::-1], q, qd)

@@ -23,7 +23,7 @@ a noise-free satellite log at scaled condition number 5e6 for unheld).
 from __future__ import annotations
 
 import numpy as np
-from scipy.linalg import lapack, solve_triangular
+from scipy.linalg import blas, lapack, solve_triangular
 
 from .._threads import one_blas_thread
 from ._noise import FD_STEP
@@ -127,9 +127,9 @@ def noise_to_signal(factor: np.ndarray, noise: np.ndarray) -> tuple:
     pivots = np.abs(np.diag(factor))
     R = factor + np.diag(np.where(pivots > 0, 0.0, np.finfo(float).eps * max(pivots.max(), 1e-300)))
     with one_blas_thread():
-        inverse = solve_triangular(R, np.eye(len(R)))
-        mu, V = np.linalg.eigh(inverse.T @ noise @ inverse)
-    return np.maximum(mu, 0.0), inverse @ V
+        inverse = solve_triangular(R, np.eye(len(R)))  # upper triangular: its products by BLAS trmm (half a GEMM's)
+        mu, V = np.linalg.eigh(blas.dtrmm(1.0, inverse, blas.dtrmm(1.0, inverse, noise, side=1), trans_a=1))
+        return np.maximum(mu, 0.0), blas.dtrmm(1.0, inverse, V)
 
 
 def undetermined(mu: np.ndarray, directions: np.ndarray, names, top: int = 3) -> list:

@@ -160,7 +160,8 @@ class Equations:
         nj = len(self.param.model.joints)
         w = np.zeros((len(x), 3))
         w[:, self.axes] = x[:, 2 * nj : 2 * nj + len(self.axes)]
-        rot = self.rot if self.planar else self.rot @ _rotvec_matrix(x[:, 2 * nj + 3 :])
+        turn = x[:, 2 * nj + 3 :]  # none when the attitude is not corrected (no attitude noise): R0 as measured
+        rot = self.rot if self.planar or not turn.any() else self.rot @ _rotvec_matrix(turn)
         return x[:, :nj], x[:, nj : 2 * nj], w, rot
 
     def full(self, theta):

@@ -98,9 +98,7 @@ def newey_west_covariance(bread, M, r, bandwidth, p, dof_scale=True):
 
 def _mapped_scores(bread, M, r):
     """The scores ``g_n = M_n^T r_n`` mapped by ``bread`` (None: as they are): ``(n, p)`` rows ``bread g_n``."""
-    scores = M[:, 0] * r[:, :1]
-    for row in range(1, M.shape[1]):  # a product per equation row: einsum took several times longer
-        scores += M[:, row] * r[:, row : row + 1]
+    scores = np.einsum("nrp,nr->np", M, r)
     if bread is None:
         return scores
     with one_blas_thread():
