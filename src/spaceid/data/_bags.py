@@ -223,9 +223,10 @@ class MessageAligner:
         self.settled = half
         if part.n_samples:
             self._done = float(part.t[-1])
-        # the left half window of the next part's first sample; records of ``context`` seconds for the checks
-        keep = self._origin + int((self._done - max(half, self.context - self.block)) * 1e9)
-        self._held = {t: [m for m in msgs if m.stamp >= keep] for t, msgs in self._held.items()}  # converted by _log
+        if self._done > -np.inf:  # else no sample yet (the poses began within half a window of the end): all kept
+            # the left half window of the next part's first sample; records of ``context`` seconds for the checks
+            keep = self._origin + int((self._done - max(half, self.context - self.block)) * 1e9)
+            self._held = {t: [m for m in msgs if m.stamp >= keep] for t, msgs in self._held.items()}  # converted by _log
         return part if part.n_samples else None
 
     def flush(self) -> Log | None:
