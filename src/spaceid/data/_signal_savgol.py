@@ -98,10 +98,11 @@ def _pinv(u, order):
 
 
 def _row_pinv(u, order):
-    """:func:`_pinv`, each row's remembered by its offsets (at most :data:`_ROW_FITS_MAX`, read
-    only): the live monitor aligns each sample in some 20 records one after another (its parts'
-    context), whose windows are those of the record before but at the record's new end. Each row's
-    is the one computed with any others (NumPy's stacked SVD and products go matrix by matrix)."""
+    """:func:`_pinv`, each row's remembered by its offsets (the last :data:`_ROW_FITS_MAX` or
+    fewer; copies in and out): the live monitor aligns each sample in some 20 records one after
+    another (its parts' context), whose windows are those of the record before but at the record's
+    new end. Each row's is the one computed with any others (NumPy's stacked SVD and products go
+    matrix by matrix)."""
     keys = [(order, row.tobytes()) for row in u]
     out = np.empty(u.shape[:1] + (order + 1, u.shape[1]))
     missing = []
