@@ -340,6 +340,28 @@ def test_poses_that_begin_late_are_waited_for(twin_bag):
     assert live.monitor.n_samples > 80 and live.aligner.held < 3 * 50 + 3 * 100  # the context kept, no more
 
 
+@pytest.mark.slow
+def test_a_stretch_of_lost_poses_is_skipped(twin_bag, one_by_one):
+    """0.3 s of poses lost 7 s into the twin's run (longer than max_gap, 0.1 s): the monitor goes on
+    after the gap, with a warning, where every later part was refused before (its record kept the
+    gap: no sample taken after it). The samples of the gap and of the differentiator's half window
+    each side are left out, the grasp before it is found as without the gap."""
+    bag, _ = twin_bag
+    live = _live(link="link2")
+    messages = list(_bag_messages(bag))
+    first = _stamp_s(messages[0][1])
+    with pytest.warns(UserWarning, match=r"/vrpn_client_node/cepheus/pose: no message for 0\.3.* s \(from .*\), "
+                                         r"longer than max_gap = 0\.1 s: the samples before it are left out"):
+        for topic, msg in messages:
+            if topic == live.aligner.pose_topic and 7.0 < _stamp_s(msg) - first < 7.29:
+                continue
+            live.add(topic, msg)
+    _, record = live.finish()
+    whole = one_by_one[1]
+    assert whole.n_samples - 0.3 * 50 - 2 * 14 <= record.n_samples < whole.n_samples - 0.3 * 50
+    assert [(e.time, e.detected_at) for e in record.events] == [(e.time, e.detected_at) for e in whole.events]
+
+
 def test_a_silent_pose_topic_is_named(monkeypatch, twin_bag):
     import spaceid.ros._live as live_module
     from spaceid import SpaceidError

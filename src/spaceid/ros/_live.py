@@ -145,7 +145,7 @@ class LiveMonitor:
             reading["order"] = LIVE_ORDER
         self.aligner = MessageAligner(where, joints=m.joints, planar=m.planar, wheels=m.wheels, mapping=mapping,
                                       joint_topic=joint_topic, pose_topic=pose_topic, block=block, kind="ros2-live",
-                                      context=LIVE_CONTEXT, **reading)  # fmt: skip
+                                      context=LIVE_CONTEXT, skip_gaps=True, **reading)  # fmt: skip
         self._pmap = None
         if link is not None:
             from ..identified import payload_map
