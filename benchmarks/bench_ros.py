@@ -19,7 +19,8 @@ levels given).
     was processed (kept up: about one part's processing), the longest wait in the queue, and the
     alarms' ``latency_s``; then the queue runs again on a clock of this process's processor time
     (the waits for the next message added to it): the figures on a core of its own, whatever
-    the machine's load;
+    the machine's load. Each run starts without the differentiator's fits that an earlier run in
+    this process remembered (a node remembers only those of its own records before);
 (b) over DDS on the loopback (localhost discovery, a domain of its own): ``spaceid ros play`` of
     the run's bag at ``--rate-factor`` times real time (50 x F joint samples/s in, plus 100 x F
     poses/s), the monitor in its own process, this process subscribed to its topics and to the
@@ -68,7 +69,18 @@ ESTIMATOR = "ml"
 BLOCK = LIVE_BLOCK
 
 
+def _forget_fits():
+    """Forget the Savitzky-Golay fits remembered in this process (each row's by its stamps): a
+    repeat of the same run would find every window's fit from the run before, where a node finds
+    only those of the records before in the same run. Each run starts as a node does."""
+    from spaceid.data import _signal_savgol
+
+    _signal_savgol._ROW_FITS.clear()
+    _signal_savgol._remembered_fits.cache_clear()
+
+
 def _live(**options):
+    _forget_fits()
     param = minimal_parameters(load_model("cepheus-rw"))
     return LiveMonitor(param, np.zeros(3), link="link2", reading={"window": 25}, known={"Iczz_wheel": ROTOR},
                        warmup=100, noise=NOISE, estimator=ESTIMATOR, block=BLOCK, **options)
@@ -183,6 +195,7 @@ def steady(n, repeats):
     messages = list(_messages(recording_of_log(log), 0, JointState, PoseStamped))
     rates, cpus = [], []
     for _ in range(repeats + 1):
+        _forget_fits()
         live = LiveMonitor(param, h, reading={"window": 31}, noise=Noise(angle=1e-4, rate=1e-3, attitude=1e-4,
                                                                           base_rate=1e-3),
                            false_alarm_rate=1e-9, estimator=ESTIMATOR, block=BLOCK)

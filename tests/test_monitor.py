@@ -333,6 +333,41 @@ def test_parts_whose_rates_are_final_are_taken_at_once(cepheus, steady):
     assert abs(parts.events[0].time - 7.0) <= 0.16 and parts.n_tested == whole.n_tested
 
 
+def _raw_noise_times(log: Log, factor: float) -> Log:
+    """``log`` with the differentiator's recorded raw noise levels ``factor`` times as large."""
+    record = {k: dict(v, noise=[factor * s for s in v["noise"]]) for k, v in log.meta["differentiation"].items()}
+    return dataclasses.replace(log, meta=dict(log.meta, differentiation=record))
+
+
+def test_estimated_raw_noise_levels_are_pooled_over_the_parts(cepheus, steady):
+    """Without given levels the whitening takes the differentiator's raw noise estimates pooled over
+    the parts, each estimate's variance weighted by its part's samples: a live part's record holds
+    2 s, whose estimate strays from part to part (18 % low near the end of the twin's run without a
+    change, which raised a false alarm: tests/test_ros.py). The same record fed in chunks keeps its
+    own level exactly; given levels are kept."""
+    from spaceid.estimation._differentiated import whitened_series
+    from spaceid.estimation._monitor_filter import DifferentiatedWhitener
+
+    _, param = cepheus
+    log = _differentiated(steady, 8).select(slice(0, 400))
+    first, second = log.select(slice(0, 100)), _raw_noise_times(log.select(slice(100, 400)), 2.0)
+    own = [record["noise"] for record, *_ in whitened_series(first)]
+    levels = lambda w: [b["noise"] for b in w.blocks]  # noqa: E731
+    whitener = DifferentiatedWhitener(whitened_series(first), first.t[0], 5, (0.0, 0.0), first.n_samples)
+    assert levels(whitener) == own and len(own) == 3  # two joints and the base yaw
+    assert whitener.follows(first.select(slice(0, 50))) and levels(whitener) == own
+    assert whitener.follows(second)  # 150 samples at the level, 300 at twice it
+    assert np.allclose(levels(whitener), np.array(own) * np.sqrt((150 + 300 * 4) / 450), rtol=1e-12, atol=0)
+    given = DifferentiatedWhitener(whitened_series(first), first.t[0], 5, (3e-4, 5e-4), first.n_samples)
+    assert given.follows(second) and levels(given) == [3e-4, 3e-4, 5e-4]
+    mon = Monitor(param, H, noise=dataclasses.replace(NOISE, source="estimated"))  # levels not given
+    parts = [_raw_noise_times(log.select(slice(k, k + 100)), 1 + k % 200 / 100) for k in range(0, 400, 100)]
+    for part in parts:  # the monitor pools over the parts it is fed (equal weights here)
+        mon.update(part)
+    pooled = np.sqrt(np.mean([[r["noise"] ** 2 for r, *_ in whitened_series(part)] for part in parts], axis=0))
+    assert np.allclose(levels(mon._whitener), pooled, rtol=1e-12, atol=0)
+
+
 def test_the_whole_warm_ups_determinacy_alone_is_that_of_its_prefixes(cepheus, steady, monkeypatch):
     """The screen's figures of a whole warm-up (:meth:`DeterminacyAccumulator.overall`, one
     factor) are those that :meth:`~DeterminacyAccumulator.result` reaches through its prefixes."""

@@ -164,6 +164,27 @@ def test_remembered_local_fits_are_the_computed_ones():
     assert np.array_equal(_local_fits(moved, rows, 25, 3)[2], _new_fits(moved, rows, 25, 3)[2])
 
 
+def test_remembered_rows_of_local_fits_are_the_computed_ones(monkeypatch):
+    """Each row's pseudo-inverse remembered by its offsets (the live monitor's records overlap: a
+    sample's window recurs in some 20 of them) is, bit for bit, the one computed with the whole
+    batch, for overlapping records, rows alone, a moved stamp and after the store is full."""
+    import spaceid.data._signal_savgol as savgol
+
+    monkeypatch.setattr(savgol, "_ROW_FITS", {})
+    monkeypatch.setattr(savgol, "_ROW_FITS_MAX", 300)
+    t = np.cumsum(np.random.default_rng(5).uniform(0.019, 0.021, 400))
+    moved = t.copy()
+    moved[120] += 1e-4
+    for start in range(0, 300, 7):  # records of 100 stamps, each 7 after the one before (as the live parts)
+        for stamps in (t, moved):
+            record, rows = stamps[start : start + 100], np.arange(100)
+            _, u, _ = savgol._windows(record, rows, 25)
+            for some in (rows, rows[::3], rows[-5:]):
+                assert np.array_equal(savgol._new_fits(record, some, 25, 3)[2], savgol._pinv(u[some], 3))
+                assert np.array_equal(savgol._new_fits(record, some, 25, 3)[2], savgol._pinv(u, 3)[some])
+    assert 0 < len(savgol._ROW_FITS) <= 300
+
+
 def test_spline_penalty_matches_scipy_and_is_recorded():
     t, y, _ = noisy(seed=4)
     smooth, rate, info = differentiate(t, y[:, 0], method="spline", smoothing=2e-5)

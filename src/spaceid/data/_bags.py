@@ -8,6 +8,7 @@ conversion (:func:`~spaceid.data.to_log`). The bag layout is described in
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +16,7 @@ import numpy as np
 from .._errors import SpaceidError
 from ._bag_format import _BAG_SUFFIXES, _NS, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC
 from ._bag_read import _bag_messages, _recording, _stamp, _converted, read_mapping, read_recording
-from ._bag_to_log import to_log
+from ._bag_to_log import MAX_GAP, to_log
 from ._timeseries import Log
 
 __all__ = ["is_bag", "read_bag_log", "bag_chunks", "MessageAligner"]
@@ -152,6 +153,11 @@ class MessageAligner:
         left half differentiator window): parts of a tenth of a second are too short for the
         differentiator's checks of the sampling (a joint that barely moves in them reads as
         quantised); with a fixed window and degree the samples are the same.
+    skip_gaps : bool
+        A live source: messages lost for longer than ``max_gap`` (a step between two held stamps of
+        either topic) are warned about and the messages before the gap dropped, so that the parts
+        after it align (the first half differentiator window after it is not returned: one-sided
+        rates, as at the start); else the gap is an error, as :func:`read_bag_log`'s.
 
     Attributes
     ----------
@@ -170,7 +176,7 @@ class MessageAligner:
     """
 
     def __init__(self, source, *, joints, planar, wheels=(), mapping=None, joint_topic=None, pose_topic=None,
-                 block=BLOCK, kind=None, context=0.0, **options):
+                 block=BLOCK, kind=None, context=0.0, skip_gaps=False, **options):
         if not (isinstance(block, (int, float)) and np.isfinite(block) and block > 0):
             raise SpaceidError(f"`block`: {block!r} is not a positive number: give the seconds of messages aligned "
                                "at a time")
@@ -183,6 +189,8 @@ class MessageAligner:
         self._done, self._origin, self._due = -np.inf, None, None
         self._last_quat = None  # the last sample's attitude returned
         self.settled = 0.0
+        self.skip_gaps, self._resumed = bool(skip_gaps), False  # a gap skipped, no sample returned after it yet
+        self._checked = {t: 0 for t in self._held}  # messages held whose steps were checked for a gap
 
     @property
     def held(self) -> int:
@@ -216,17 +224,44 @@ class MessageAligner:
         self._due = _stamp(joint_msgs[-1]) + int(self.block * 1e9)  # the next part: ``block`` more seconds
         if self._origin is None:
             self._origin = min(_stamp(joint_msgs[0]), _stamp(pose_msgs[0])) // _NS * _NS
+        if self.skip_gaps:
+            self._skip_gap()
+            joint_msgs, pose_msgs = self._held.values()
         log = self._log(joint_msgs, pose_msgs)
         half = _settled(log)
         log.meta["final_rates"] = True  # no later message changes these samples: a monitor need not hold them back
-        part = self._continued(log.select((log.t > self._done) & (log.t <= log.t[-1] - half)))
+        first = log.t[0] + half if self._resumed else -np.inf  # after a gap: its first half window left out
+        part = self._continued(log.select((log.t > self._done) & (log.t >= first) & (log.t <= log.t[-1] - half)))
+        self._resumed &= not part.n_samples
         self.settled = half
         if part.n_samples:
             self._done = float(part.t[-1])
-        # the left half window of the next part's first sample; records of ``context`` seconds for the checks
-        keep = self._origin + int((self._done - max(half, self.context - self.block)) * 1e9)
-        self._held = {t: [m for m in msgs if _stamp(m) >= keep] for t, msgs in self._held.items()}
+        if self._done > -np.inf:  # else no sample yet (the poses began within half a window of the end): all kept
+            # the left half window of the next part's first sample; records of ``context`` seconds for the checks
+            keep = self._origin + int((self._done - max(half, self.context - self.block)) * 1e9)
+            self._held = {t: [m for m in msgs if m.stamp >= keep] for t, msgs in self._held.items()}  # converted by _log
+        self._checked = {t: len(msgs) for t, msgs in self._held.items()}
         return part if part.n_samples else None
+
+    def _skip_gap(self):
+        """Drop the messages held before the last step longer than ``max_gap`` in either topic
+        (messages lost), with a warning: the samples after it align on their own."""
+        max_gap = self._keywords.get("max_gap", MAX_GAP)
+        cut, found = None, None
+        for topic, msgs in self._held.items():  # the steps to and between the messages that came since
+            stamps = np.array([_stamp(m) for m in msgs[max(self._checked[topic] - 1, 0) :]], dtype=np.int64)
+            steps = np.flatnonzero(np.diff(stamps) > max_gap * 1e9)
+            if steps.size and (cut is None or stamps[steps[-1] + 1] > cut):
+                cut, found = int(stamps[steps[-1] + 1]), (topic, stamps[steps[-1]], stamps[steps[-1] + 1])
+        if cut is None:
+            return
+        topic, before, after = found
+        warnings.warn(f"{self.source}: {topic}: no message for {(after - before) / 1e9:.3g} s (from "
+                      f"{(before - self._origin) / 1e9:.6g} s), longer than max_gap = {max_gap:g} s: the samples "
+                      f"before it are left out, the monitor goes on from {(after - self._origin) / 1e9:.6g} s",
+                      stacklevel=4)
+        self._held = {t: [m for m in msgs if _stamp(m) >= cut] for t, msgs in self._held.items()}
+        self._resumed, self._checked = True, {t: 0 for t in self._held}
 
     def flush(self) -> Log | None:
         """The samples not yet returned, from the messages held (origin None: fewer than one block)."""

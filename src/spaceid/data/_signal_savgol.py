@@ -40,6 +40,9 @@ _BLOCKS = 8  # the bias check tests this many consecutive stretches of the recor
 _BIAS_LEVEL = 1e-3  # ... each at this false-alarm probability
 _CHUNK = 1 << 21  # local-fit elements (samples x window x coefficients) processed at a time
 _REMEMBERED = 1 << 16  # local-fit elements of the largest fits remembered (eight of them: 4 MB)
+_ROW_FITS_ROWS = 1024  # fits of at most this many rows take each row's remembered pseudo-inverse ...
+_ROW_FITS_MAX = 8192  # ... of this many remembered (8 MB with 25-sample cubic windows)
+_ROW_FITS = {}  # (order, the row's offsets' bytes) -> its pseudo-inverse (order + 1, window)
 
 
 def _windows(t, rows, window):
@@ -81,11 +84,41 @@ def _remembered_fits(stamps: bytes, first: int, count: int, window: int, order: 
 
 
 def _new_fits(t, rows, window, order):
-    """:func:`_local_fits`, computed."""
+    """:func:`_local_fits`, computed (the pseudo-inverses of a few rows from :func:`_row_pinv`)."""
     idx, u, scale = _windows(t, rows, window)
+    return idx, u, (_row_pinv(u, order) if u.shape[0] <= _ROW_FITS_ROWS else _pinv(u, order)), scale
+
+
+def _pinv(u, order):
+    """Pseudo-inverses (r, order + 1, window) of the Vandermonde matrices of degree ``order`` in the
+    offsets ``u`` (r, window)."""
     vander = np.ones(u.shape + (order + 1,))
     np.cumprod(np.broadcast_to(u[..., None], u.shape + (order,)), axis=-1, out=vander[..., 1:])
-    return idx, u, np.linalg.pinv(vander), scale
+    return np.linalg.pinv(vander)
+
+
+def _row_pinv(u, order):
+    """:func:`_pinv`, each row's remembered by its offsets (the last :data:`_ROW_FITS_MAX` or
+    fewer; copies in and out): the live monitor aligns each sample in some 20 records one after
+    another (its parts' context), whose windows are those of the record before but at the record's
+    new end. Each row's is the one computed with any others (NumPy's stacked SVD and products go
+    matrix by matrix)."""
+    keys = [(order, row.tobytes()) for row in u]
+    out = np.empty(u.shape[:1] + (order + 1, u.shape[1]))
+    missing = []
+    for k, key in enumerate(keys):
+        found = _ROW_FITS.get(key)
+        if found is None:
+            missing.append(k)
+        else:
+            out[k] = found
+    if missing:
+        out[missing] = _pinv(u[missing], order)
+        if len(_ROW_FITS) + len(missing) > _ROW_FITS_MAX:
+            _ROW_FITS.clear()
+        for k in missing:
+            _ROW_FITS[keys[k]] = out[k].copy()
+    return out
 
 
 def _row_chunks(n, window, order):

@@ -26,7 +26,7 @@ import numpy as np
 
 from .._threads import one_blas_thread
 from ._kinematics import _constants, _flatten_states, _Geometry, frame_table
-from ._regressor import Parameterization, _plan
+from ._regressor import Parameterization
 
 __all__ = ["momentum_jacobian"]
 
@@ -40,7 +40,8 @@ def _weights(param: Parameterization, pi):
     kind, data, _ = param._eval
     model = param.model
     if kind == "planar":
-        plan, weights = _plan(model, None), np.linalg.pinv(param.projection) @ pi
+        plan, inverse = param._full_momentum
+        weights = inverse @ pi
     else:
         plan, weights = data, pi
     nb = len(model.bodies)

@@ -591,6 +591,13 @@ class Parameterization:
         return 1 if self.model.planar else 3
 
     @functools.cached_property
+    def _full_momentum(self) -> tuple:
+        """The plan of all full columns and ``pinv(projection)`` (planar basis): its momentum is
+        the full columns' weighted by ``pinv(projection) @ pi``
+        (:func:`~spaceid.dynamics._momentum_jacobian._weights`, once per sample block of the monitor)."""
+        return _plan(self.model, None), np.linalg.pinv(self.projection)
+
+    @functools.cached_property
     def true_values(self) -> np.ndarray:
         """``pi`` of the model's own inertial parameters, shape ``(k,)``."""
         return self.projection @ full_values(self.model)

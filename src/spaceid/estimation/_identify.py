@@ -383,6 +383,84 @@ def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, wher
     return replace(wls, info=info)
 
 
+@dataclass(frozen=True)
+class _Prepared:
+    """What :func:`identify` and :func:`estimate_only` fit from (:func:`_prepared`).
+
+    Attributes
+    ----------
+    eq : Equations
+        The stacked momentum equations (:func:`~spaceid.estimation._equations._equations`).
+    anchors : list
+        Their scale anchors, as ``settings["anchors"]`` records them.
+    x : ndarray of shape (n, n_x)
+        The log's signals.
+    phi : ndarray of shape (n, rows, p + 1) or None
+        The equations at the signals (None when streamed).
+    noise : Noise
+        The noise model: the one given, else estimated from the log (``estimated``).
+    estimated : bool
+        Whether ``noise`` was estimated.
+    factor : tuple
+        ``(scale (p,), R (p + 1, p + 1))``: the column-scaled factor of the equations (:func:`check_excitation`).
+    cond_scaled : float
+        The scaled condition number of the regressor.
+    ctx : _FitContext
+        The estimators' context (``angles``: the angle estimator's, with its start).
+    sigma : ndarray of shape (n_x,)
+        The signals' noise levels (:func:`~spaceid.estimation._noise.signal_sigma`).
+    start : _Fit or None
+        The spatial ``angles`` fit's start (:func:`_rate_start`), else None.
+    """
+
+    eq: object
+    anchors: list
+    x: np.ndarray
+    phi: np.ndarray | None
+    noise: Noise
+    estimated: bool
+    factor: tuple
+    cond_scaled: float
+    ctx: _FitContext
+    sigma: np.ndarray
+    start: _Fit | None
+
+
+def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, known, noise, where: str,
+              cond_limit: float, drift: tuple = (), history=None, instruments=None, knot_spacing=KNOT_SPACING,
+              chunk=None, gyro_bias=False) -> _Prepared:
+    """The first steps of :func:`identify` and :func:`estimate_only`: the equations, the sample
+    count, the signals, the noise model, the excitation check (over chunks of ``chunk`` samples
+    when given) and the estimators' context. Arguments as :func:`identify`'s, ``momentum`` an
+    array or None, ``drift`` checked, ``gyro_bias`` False or a pass of :func:`identify_gyro_bias`.
+    Raises as :func:`identify` on too few samples, a vanishing right-hand side or a motion that
+    does not excite every parameter."""
+    eq, anchors = _equations(param, log, momentum, known, where, drift, history)
+    if gyro_bias:
+        eq = replace(eq, bias=gyro_bias.columns)
+    _check_sample_count(eq, log, where)
+    x = eq.signals(log)
+    estimated = noise is None and estimator != "ols"  # ols needs no noise model
+    noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
+    if chunk:
+        phi, angles = None, None
+        factor, nonzero = streamed_ols_factor(eq, x, chunk)
+        _check_right_hand_side(nonzero, where)
+        factor, cond_scaled = _check_factor(factor, eq.names(), cond_limit, where)
+    else:
+        phi, angles = (_angle_context(eq, log, noise, where, knot_spacing) if estimator == "angles" else
+                       (eq.phi(x), None))  # fmt: skip
+        factor, cond_scaled = check_excitation(phi, eq.names(), cond_limit, where)
+    start = None
+    if angles is not None and not eq.planar:  # the spatial fit starts from ML on differentiated rates
+        start = _rate_start(param, log, momentum, known, where, cond_limit)
+        angles = replace(angles, start=None if start is None else start.theta)
+    ctx = _FitContext(phi, factor, angles=angles,
+                      **(_instrument_context(log, instruments, where) if estimator == "iv" else {}))
+    return _Prepared(eq, anchors, x, phi, noise, estimated, factor, cond_scaled, ctx, signal_sigma(param, noise),
+                     start)
+
+
 def estimate_only(param: Parameterization, log: Log, momentum, *, estimator: str, known: dict | None, noise: Noise,
                   drift=(), history: Log | None = None, where: str = "log", cond_limit: float = 1e10) -> np.ndarray:
     """:func:`identify`'s estimate alone, from the same arguments (an inertial ``momentum`` and
@@ -391,15 +469,10 @@ def estimate_only(param: Parameterization, log: Log, momentum, *, estimator: str
     covariance nor the checks of the residuals, at a fraction of the cost (a screen: the monitor's
     of a lengthened warm-up). Raises as :func:`identify` on too few samples or a motion that does
     not excite every parameter."""
-    eq, _ = _equations(param, log, np.asarray(momentum, float), known, where, check_drift_kinds(drift), history)
-    _check_sample_count(eq, log, where)
-    x = eq.signals(log)
-    phi = eq.phi(x)
-    ctx = _FitContext(phi, check_excitation(phi, eq.names(), cond_limit, where)[0],
-                      **(_instrument_context(log, None, where) if estimator == "iv" else {}))
-    sigma = signal_sigma(param, noise)
-    theta = _ols(eq, x, sigma, None, ctx)[0]
-    return theta if estimator == "ols" else _KERNELS[estimator](eq, x, sigma, theta, ctx)[0]
+    prep = _prepared(param, log, np.asarray(momentum, float), estimator=estimator, known=known, noise=noise,
+                     where=where, cond_limit=cond_limit, drift=check_drift_kinds(drift), history=history)
+    theta = _ols(prep.eq, prep.x, prep.sigma, None, prep.ctx)[0]
+    return theta if estimator == "ols" else _KERNELS[estimator](prep.eq, prep.x, prep.sigma, theta, prep.ctx)[0]
 
 
 def identify(
@@ -532,33 +605,15 @@ def identify(
     if drift and estimator == "angles":
         raise SpaceidError("`drift`: not available with `estimator` angles (its equations do not carry drift "
                            "columns): use another estimator, or no drift terms")
-    eq, anchors = _equations(param, log, momentum, known, where, drift, history)
-    if gyro_bias:
-        eq = replace(eq, bias=gyro_bias.columns)
-    _check_sample_count(eq, log, where)
-    x = eq.signals(log)
-    estimated = noise is None and estimator != "ols"  # ols needs no noise model
-    noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
     chunk = None if chunk is None else check_chunk(chunk, estimator)
-    if chunk:
-        phi, angles = None, None
-    else:
-        phi, angles = (_angle_context(eq, log, noise, where, knot_spacing) if estimator == "angles" else
-                       (eq.phi(x), None))  # fmt: skip
     try:
-        if chunk:
-            factor, nonzero = streamed_ols_factor(eq, x, chunk)
-            _check_right_hand_side(nonzero, where)
-            factor, cond_scaled = _check_factor(factor, eq.names(), cond_limit, where)
-        else:
-            factor, cond_scaled = check_excitation(phi, eq.names(), cond_limit, where)
-        start = None
-        if angles is not None and not eq.planar:  # the spatial fit starts from ML on differentiated rates
-            start = _rate_start(param, log, momentum, known, where, cond_limit)
-            angles = replace(angles, start=None if start is None else start.theta)
-        ctx = _FitContext(phi, factor, angles=angles,
-                          **(_instrument_context(log, instruments, where) if estimator == "iv" else {}))
-        sigma = signal_sigma(param, noise)
+        prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
+                         cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
+                         knot_spacing=knot_spacing, chunk=chunk, gyro_bias=gyro_bias)
+        eq, x, phi, noise, estimated, factor, cond_scaled, ctx, sigma, start = (
+            prep.eq, prep.x, prep.phi, prep.noise, prep.estimated, prep.factor, prep.cond_scaled, prep.ctx, prep.sigma,
+            prep.start)
+        angles = ctx.angles
         fit = (_angles_estimate(eq, x, log, sigma, ctx, estimated, start) if angles is not None else
                _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk))  # fmt: skip
         if gyro_bias:
@@ -618,7 +673,7 @@ def identify(
         "parameterization": param.to_dict(),
         "log": dict(log.meta),
         "log_fingerprint": log_fingerprint(log),  # validation warns when given this same log
-        "anchors": anchors,
+        "anchors": prep.anchors,
         "momentum_estimated": momentum is None,
         **({"history": {"source": str(history.meta.get("source", "log")), "start": float(history.t[0]),
                         "momentum": eq.full(theta)[1].tolist()}} if history is not None and drift else {}),

@@ -258,8 +258,8 @@ class Monitor:
         """The differentiator's whitening of ``samples``' record (None without one): a segment whose
         test it whitened starts afresh with the new one, or goes on without (no AR filter either)."""
         series = whitened_series(samples)
-        self._whitener = DifferentiatedWhitener(series, self._intake.t0, self._eq.p, self._raw_levels) \
-            if series else None
+        self._whitener = DifferentiatedWhitener(series, self._intake.t0, self._eq.p, self._raw_levels,
+                                                samples.n_samples) if series else None
         whitening = self._segment.whitening
         if whitening is not None and whitening.kalman:
             whitening.kalman = self._whitener is not None

@@ -83,6 +83,18 @@ def _stamp(msg) -> int:
     return msg.header.stamp.sec * 1_000_000_000 + msg.header.stamp.nanosec
 
 
+def _load_kernels(param):
+    """Evaluate the regressor and the momentum's Jacobian once, at rest: the compiled kernels are
+    loaded (0.3 s of processor time in a new process) before the data come, not while the first
+    warm-up is screened with the messages queueing (at ten times real time, over a second of poses
+    on a loaded machine: more than the subscription holds)."""
+    from ..dynamics import momentum_jacobian
+
+    rest = np.zeros((1, len(param.model.joints)))
+    param.regressor(rest, rest, np.zeros((1, 3)))
+    momentum_jacobian(param, rest, rest, np.zeros((1, 3)), param.true_values)
+
+
 def _concatenate(parts) -> Log:
     """One log of consecutive parts (the first part's ``meta``)."""
     first = parts[0]
@@ -133,7 +145,7 @@ class LiveMonitor:
             reading["order"] = LIVE_ORDER
         self.aligner = MessageAligner(where, joints=m.joints, planar=m.planar, wheels=m.wheels, mapping=mapping,
                                       joint_topic=joint_topic, pose_topic=pose_topic, block=block, kind="ros2-live",
-                                      context=LIVE_CONTEXT, **reading)  # fmt: skip
+                                      context=LIVE_CONTEXT, skip_gaps=True, **reading)  # fmt: skip
         self._pmap = None
         if link is not None:
             from ..identified import payload_map
@@ -147,6 +159,8 @@ class LiveMonitor:
         topics = (self.aligner.joint_topic, self.aligner.pose_topic)
         self._arrivals = {t: collections.deque(maxlen=ARRIVALS) for t in topics}  # (stamp [ns], arrival [s])
         self._origin = None  # the published times are seconds after this ROS time [ns]
+        _load_kernels(param)
+
 
     def add(self, topic: str, msg, received: float | None = None) -> list:
         """Take one message of ``topic``; the :class:`LiveOutput` it completes (the estimate after
