@@ -13,7 +13,7 @@ standard errors are the reference, and RMS z says whether they are honest); the 
 largest attitude error of the identified model and of the CAD prior, and their ratio; the
 momentum drift of the twin.
 
-    python benchmarks/bench_spatial.py [--seeds 20] [--jobs 1] [--duration 120] [--budget 30]
+    python benchmarks/bench_spatial.py [--seeds 20] [--first-seed 0] [--jobs 1] [--duration 120] [--budget 30]
                                        [--max-steps N] [--samples 600] [--estimator ml] [--no-prior]
                                        [--base-rate gyro]
 
@@ -57,6 +57,7 @@ def one_run(seed, options):
 def main():
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=20)
+    parser.add_argument("--first-seed", type=int, default=0)
     parser.add_argument("--jobs", type=int, default=1)
     parser.add_argument("--duration", type=float, default=120.0)
     parser.add_argument("--held-out", type=float, default=60.0)
@@ -71,14 +72,15 @@ def main():
                "time_budget": None if args.max_steps else args.budget, "max_steps": args.max_steps,
                "samples": args.samples, "estimator": args.estimator, "base_rate": args.base_rate,
                "prior": not args.no_prior}  # fmt: skip
-    print(f"servicer-dual, {args.seeds} seeds: {options}")
+    print(f"servicer-dual, {args.seeds} seeds from {args.first_seed}: {options}")
     print(f"{'seed':>4} {'n_large':>7} {'in 2 sigma':>10} {'max |z|':>8} {'RMS z':>7} {'whitened':>8} {'cond(Y)':>9} "
           f"{'att. err. id [rad]':>18} {'CAD prior [rad]':>15} {'prior/id':>8} {'momentum drift':>14} {'s':>5} "
           f"{'by data':>7}",
           flush=True)
     runs = []
     with ProcessPoolExecutor(args.jobs) as pool:
-        for r in pool.map(one_run, range(args.seeds), [options] * args.seeds):  # each seed's row as it is done
+        seeds = range(args.first_seed, args.first_seed + args.seeds)
+        for r in pool.map(one_run, seeds, [options] * args.seeds):  # each seed's row as it is done
             runs.append(r)
             c = r["coverage"]
             print(f"{r['seed']:>4} {c['n_large']:>7} {100 * c['within_2_sigma']:>9.1f}% {c['max_abs_z']:>8.3g} "
