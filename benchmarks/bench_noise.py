@@ -206,14 +206,17 @@ def _spatial_draw(param, clean, h, noise, knot_spacing, seed):
             continue
         note = ident.diagnostics.estimator_info.get("fallback")  # not the likelihood's estimate: counted apart
         out[estimator] = (ident.values, ident.std, time.process_time() - t0, note and f"seed {seed}: {note[:110]}")
+    print(f"    seed {seed}: " + ", ".join(f"{e} {o[2]:.0f} s CPU{' (' + o[3] + ')' if o[3] else ''}"
+                                        for e, o in out.items()), flush=True)
     return out
 
 
 def spatial_study(label, param, motion, t, runs, scale=1.0, knot_spacing=KNOT_SPACING, h=(0.3, -0.2, 0.5),
-                  initial_quat=(0.9, 0.1, 0.3, -0.2)):
+                  initial_quat=(0.9, 0.1, 0.3, -0.2), jobs=None):
     """Monte Carlo of the angles estimator on a spatial model: encoder and star-tracker noise (1e-4 and
     5e-5 rad, times ``scale``), momentum ``h`` [N m s]; beside it ``ml`` on rates differentiated from the same
-    angles. Figures over every parameter and over the large ones (``spaceid.studies.large_parameters``)."""
+    angles, the draws in ``jobs`` processes. Figures over every parameter and over the large ones
+    (``spaceid.studies.large_parameters``); ``knot_spacing`` None: identify's choice."""
     from spaceid.estimation import Noise
     from spaceid.studies import large_parameters
 
@@ -235,7 +238,11 @@ def spatial_study(label, param, motion, t, runs, scale=1.0, knot_spacing=KNOT_SP
     if chosen != "given":  # coarse knots lose nothing: the bound with knots twice as dense
         finer = np.sqrt(np.diag(cramer_rao_angles(param, clean, h, noise, knot_spacing=knot_spacing / 2)[1]))
         print(f"  bound with knots every {knot_spacing / 2:g} s: largest change {np.max(np.abs(finer / bound - 1)):.1e}")
-    draws = [_spatial_draw(param, clean, h, noise, given, seed) for seed in range(runs)]
+    from concurrent.futures import ProcessPoolExecutor
+    from functools import partial
+
+    with ProcessPoolExecutor(jobs) as pool:  # one noise draw per task
+        draws = list(pool.map(partial(_spatial_draw, param, clean, h, noise, given), range(runs)))
     print(f"  {param.n_params} parameters ({len(large)} large), {len(t)} samples, {runs} noise seeds; bound "
           f"{cpu_bound:.1f} s CPU")
     for estimator in ("angles", "ml"):
@@ -272,7 +279,7 @@ def _spatial_figures(estimator, fits, truth, bound, large, runs):
         verdict("actual / reported std within 20 % (large parameters)", f"{worst:.3f}", abs(worst - 1) <= 0.2 and ok)
 
 
-def spatial(runs, cases):
+def spatial(runs, cases, jobs=None):
     import sys
     from pathlib import Path
 
@@ -297,13 +304,13 @@ def spatial(runs, cases):
                 spatial_study("(s) satellite-7dof, designed, 30 s at 20 Hz", sat, motion, np.linspace(0, 30, 601), runs,
                               scale, knot_spacing=0.1)  # fmt: skip
     if "servicer-designed" in cases:
-        servicer_study(runs)
+        servicer_study(runs, jobs)
     if "satellite-random" in cases:
         spatial_study("(s) satellite-7dof, undesigned, 10 s at 50 Hz", sat, spatial_motion(7, 1, 6),
                       np.linspace(0, 10, 501), runs)  # fmt: skip
 
 
-def servicer_study(runs, budget=90.0, seed=0):
+def servicer_study(runs, jobs=None, budget=90.0, seed=0):
     """Part (s) on the issue's servicer (``benchmarks/servicer-7dof.urdf``, 153 parameters) at the real sensor
     levels, on the designed 120 s of ``bench_servicer.py`` (the same cached design: ``crb``, 8 harmonics,
     |qdd| <= 0.3, ``budget`` s) flown in spaceid's own simulation (the truth known exactly) and sampled at
@@ -324,7 +331,7 @@ def servicer_study(runs, budget=90.0, seed=0):
     traj = servicer._designed(param, h, budget, seed, work)
     motion = lambda s: traj.evaluate(s)[:2]  # noqa: E731
     spatial_study(f"(s) servicer-7dof, designed (bench_servicer.py, seed {seed}, budget {budget:g} s), 120 s at "
-                  "50 Hz", param, motion, servicer._times(120.0), runs, knot_spacing=None, h=h)
+                  "50 Hz", param, motion, servicer._times(120.0), runs, knot_spacing=None, h=h, jobs=jobs)
 
 
 def main():
@@ -391,7 +398,7 @@ def main():
         angle_bound(res, param, clean)
 
     if "s" in args.parts:
-        spatial(args.spatial_runs, args.spatial_cases)
+        spatial(args.spatial_runs, args.spatial_cases, args.jobs)
         if args.parts == ["s"]:
             return
     timings(param, design_traj or load_trajectory("paper-table2"))
