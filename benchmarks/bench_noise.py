@@ -25,16 +25,19 @@ attitude), 1e-4 rad/s on the joint rates and the base rate, 500 runs per study
     seeds against ``cramer_rao_angles``: a random spatial tree (5 s at 100 Hz), and the satellite-7dof
     preset (153 parameters) on a designed motion (``design_excitation``: 30 s, 6 harmonics, seed 0,
     4 starts of 20 steps, |qdd| <= 0.5; sampled at 20 Hz, knots every 0.1 s) at these levels and at
-    a tenth and a hundredth of them, and on an undesigned one (10 s at 50 Hz, six random harmonics per joint, seed 1):
-    the bound relative to the large parameters (median), RMSE / bound (target <= 1.5), actual /
-    predicted std (target within 20 %), the fits whose likelihood did not converge (reported: ML on
-    the differentiated rates, with a warning), and the wall time of one fit.
+    a tenth and a hundredth of them, and on an undesigned one (10 s at 50 Hz, six random harmonics per joint, seed 1);
+    the issue's servicer (``servicer-7dof.urdf``) on the designed 120 s of ``bench_servicer.py`` at 50 Hz, knots
+    chosen by ``identify``: the bound relative to the large parameters (median), RMSE / bound (target <= 1.5),
+    actual / reported std (target within 20 %), over every parameter and the large ones
+    (``spaceid.studies.large_parameters``), the fits whose likelihood did not converge (reported: ML on the
+    differentiated rates, with a warning), the CPU time of one fit; and the same figures for ``ml`` on rates
+    differentiated from the same angles. ``--jobs`` processes run the draws.
 
 Then the median wall time of one identification per estimator (N = 35 and N = 501) and of one
 differentiation at 100 Hz. Prints only; never fails on the figures.
 
     python benchmarks/bench_noise.py [--runs 500] [--jobs N] [--seed 0] [--parts a b c s] [--spatial-runs 30]
-                                     [--spatial-cases tree satellite-designed ...]
+                                     [--spatial-cases tree servicer-designed ...]
 """
 
 import argparse
