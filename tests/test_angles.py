@@ -16,6 +16,7 @@ from spaceid.cli import main
 from spaceid.data import differentiate_log, yaw_to_quat
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import KNOT_SPACING, Noise, cramer_rao_angles, identify
+from spaceid.estimation._angle_path import automatic_knot_spacing
 from spaceid.estimation._angles import _Path
 from spaceid.motion import add_noise, load_trajectory, simulate
 
@@ -261,7 +262,7 @@ def test_spatial_noise_free_recovery(tree3, tree3_log):
     of the attitude's propagation (~1e-10 rad at 100 Hz against 5e-5 rad of noise): to 1e-4 of the
     standard errors, and its bound is the reported covariance."""
     log = replace(tree3_log, qd=np.zeros_like(tree3_log.qd), base_w=np.zeros_like(tree3_log.base_w))
-    ident = identify(tree3, log, H3, estimator="angles", noise=NOISE3)
+    ident = identify(tree3, log, H3, estimator="angles", noise=NOISE3, knot_spacing=KNOT_SPACING)  # the motion's knots
     assert np.all(np.abs(ident.values - tree3.true_values) < 1e-4 * ident.std)
     assert ident.diagnostics.estimator_info["converged"]
     _, bound = cramer_rao_angles(tree3, tree3_log, H3, NOISE3)
@@ -271,7 +272,7 @@ def test_spatial_noise_free_recovery(tree3, tree3_log):
 @pytest.mark.slow  # fast representatives: test_spatial_noise_free_recovery, test_noise_free_recovery
 def test_spatial_noise_free_recovery_with_unknown_momentum(tree3, tree3_log):
     """The three momentum components estimated, the scale anchored by one known parameter."""
-    ident = identify(tree3, tree3_log, None, estimator="angles", noise=NOISE3,
+    ident = identify(tree3, tree3_log, None, estimator="angles", noise=NOISE3, knot_spacing=KNOT_SPACING,
                      known={tree3.names[0]: tree3.true_values[0]})  # fmt: skip
     assert np.all(np.abs(ident.values - tree3.true_values) < 1e-4 * np.where(ident.std > 0, ident.std, 1))
     np.testing.assert_allclose(ident.momentum, H3, atol=1e-4 * ident.momentum_std.max())
@@ -353,9 +354,8 @@ def test_spatial_bound_matches_a_brute_force_fisher_matrix(tree3):
 
 @pytest.mark.slow
 def test_cli_identifies_a_spatial_robot_from_angles_alone(tmp_path):
-    """A spatial CSV of encoders and star tracker (no rate column), ``--estimator angles`` (not the
-    default for spatial logs yet: docs/theory/angles.md): its estimate is within its standard errors
-    of the truth."""
+    """A spatial CSV of encoders and star tracker (no rate column): ``angles`` by default, its knots chosen
+    (docs/theory/angles.md, "The default"); its estimate is within its standard errors of the truth."""
     from random_robots import random_robot
 
     from spaceid.data import write_log
@@ -369,10 +369,12 @@ def test_cli_identifies_a_spatial_robot_from_angles_alone(tmp_path):
                                                                                                            np.nan)))
     out = tmp_path / "r.json"
     assert main(["identify", str(tmp_path / f"robot{3}.urdf"), str(tmp_path / "angles.csv"), "--momentum",
-                 ",".join(map(str, H3)), "--noise-angle", "1e-4", "--noise-attitude", "5e-5", "--estimator", "angles",
-                 "-o", str(out)]) == 0
+                 ",".join(map(str, H3)), "--noise-angle", "1e-4", "--noise-attitude", "5e-5", "-o", str(out)]) == 0
     result = json.loads(out.read_text())
     assert result["estimator"] == "angles"
+    info = result["diagnostics"]["estimator_info"]
+    assert info["converged"] and "fallback" not in info, info
+    assert info["knot_spacing"] == pytest.approx(automatic_knot_spacing(log.t, log.q, 1e-4), rel=0.05)
     values = np.array([p["value"] for p in result["parameters"]])
     std = np.array([p["std"] for p in result["parameters"]])
     assert np.all(np.abs(values - param.true_values) < 5 * std)
@@ -387,7 +389,8 @@ def test_spatial_spread_matches_predicted_std_and_reaches_the_bound(tree3):
     t = np.linspace(0, 5, 501)
     clean = simulate(tree3, tree3.true_values, harmonics(2, 1), t, H3, initial_quat=QUAT0)
     _, bound = cramer_rao_angles(tree3, clean, H3, NOISE3)
-    runs = [identify(tree3, star_tracker(clean, s), H3, estimator="angles", noise=NOISE3) for s in range(30)]
+    runs = [identify(tree3, star_tracker(clean, s), H3, estimator="angles", noise=NOISE3, knot_spacing=KNOT_SPACING)
+            for s in range(30)]
     est = np.array([r.values for r in runs])
     ratio = est.std(axis=0) / np.mean([r.std for r in runs], axis=0)
     assert np.all((ratio > 0.65) & (ratio < 1.4)), ratio
@@ -452,7 +455,8 @@ def test_spatial_noisy_z_scores_against_the_bound(tree3):
     clean = simulate(tree3, tree3.true_values, harmonics(2, 1), t, H3, initial_quat=QUAT0)
     bound = np.sqrt(np.diag(cramer_rao_angles(tree3, clean, H3, NOISE3)[1]))
     for seed in range(3):
-        ident = identify(tree3, star_tracker(clean, seed), H3, estimator="angles", noise=NOISE3)
+        ident = identify(tree3, star_tracker(clean, seed), H3, estimator="angles", noise=NOISE3,
+                         knot_spacing=KNOT_SPACING)  # fmt: skip
         assert ident.diagnostics.estimator_info["converged"]
         assert np.max(np.abs(ident.values - tree3.true_values) / bound) < 4.5
         np.testing.assert_allclose(ident.std, bound, rtol=0.05)
@@ -477,3 +481,101 @@ def test_spatial_fit_that_does_not_converge_reports_its_start(tree3, tree3_log, 
         start = identify(tree3, differentiate_log(log), H3, estimator="ml")
     np.testing.assert_array_equal(ident.values, start.values)
     np.testing.assert_array_equal(ident.std, start.std)
+
+
+def _spline_chi2(t, q, spacing, sigma):
+    """chi2 and degrees of freedom of least-squares cubic splines on the estimator's knots every ``spacing``."""
+    path = _Path(t, spacing, "test")
+    return float(np.sum((q - path.B @ path.fit(q)) ** 2)) / sigma**2, q.size - path.B.size // len(t) * q.shape[1]
+
+
+@pytest.mark.parametrize("pace, expected", [(0.1, 0.8), (1.0, None), (10.0, KNOT_SPACING)])
+def test_automatic_knots_are_half_the_coarsest_that_fit_the_joints_to_their_noise(pace, expected):
+    """The knots of the spatial ``angles`` fit when none are given, for joints moving at ``pace`` times up to
+    3 rad/s: slow joints get half the coarsest spacing tried (0.8 s), joints faster than the finest knots resolve
+    get the finest (0.05 s); in between the splines fit the joint samples to their noise (chi2 within three
+    standard deviations of its degrees of freedom) at twice the spacing chosen, and not at four times it."""
+    t = np.linspace(0, 8, 801)
+    q = harmonics(2, 5)(pace * t)[0] + 1e-4 * np.random.default_rng(1).standard_normal((len(t), 2))
+    chosen = automatic_knot_spacing(t, q, 1e-4)
+    if expected is not None:
+        assert chosen == pytest.approx(expected)
+        return
+    assert KNOT_SPACING < chosen < 0.8
+    chi2, dof = _spline_chi2(t, q, 2 * chosen, 1e-4)
+    assert chi2 <= dof + 3 * np.sqrt(2 * dof)
+    chi2, dof = _spline_chi2(t, q, 4 * chosen, 1e-4)
+    assert chi2 > dof + 3 * np.sqrt(2 * dof)
+
+
+def test_default_estimator_of_a_spatial_csv(tmp_path):
+    """``identify`` without ``--estimator`` on random spatial robots: ``angles`` for a CSV without any rate
+    column; ``ml`` with a gyro's base-rate columns (worth more than the attitude's samples), with
+    ``--gyro-bias``, or when the log is too sparse for the knots asked for."""
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+    from random_robots import random_robot
+
+    from spaceid.cli import _default_estimator
+    from spaceid.data import read_log, write_log
+
+    reading = {"joint_rates": None}
+
+    @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(st.integers(0, 10_000))
+    def check(seed):
+        model = random_robot(seed, planar=False, max_arms=2, max_joints=3).load(tmp_path)
+        param = minimal_parameters(model)
+        t = np.linspace(0, 2, 101)
+        log = simulate(param, param.true_values, harmonics(len(model.joints), seed), t, H3, initial_quat=QUAT0)
+        gyro = replace(log, qd=np.full_like(log.qd, np.nan))
+        for name, written in (("angles", replace(gyro, base_w=np.full_like(log.base_w, np.nan))), ("gyro", gyro)):
+            write_log(tmp_path / f"{name}.csv", written)
+        angles, gyro = (read_log(tmp_path / f"{n}.csv", joints=model.joints, planar=False, require_rates=False)
+                        for n in ("angles", "gyro"))  # fmt: skip
+        assert _default_estimator(model, angles, reading, None, False) == "angles"
+        assert _default_estimator(model, angles, reading, 0.04, False) == "angles"  # 50 Hz: 2 samples per span
+        assert _default_estimator(model, angles, reading, 0.03, False) == "ml"  # too sparse for these knots
+        assert _default_estimator(model, angles, reading, None, True) == "ml"
+        assert _default_estimator(model, gyro, reading, None, False) == "ml"
+        assert _default_estimator(model, angles, {"joint_rates": "differentiate"}, None, False) == "ml"
+
+    check()
+
+
+@pytest.mark.slow
+def test_default_spatial_fit_on_random_robots(tmp_path):
+    """The spatial ``angles`` fit with its knots chosen (none given) on random spatial robots, 5 s of encoder and
+    star-tracker samples at 100 Hz: it converges within 4.5 standard errors of the truth with the standard errors
+    of the fit at the finest knots (0.05 s) to 5 % (the coarser knots lose no information), and on the noise-free
+    log its knots move the estimate by less than 0.01 standard errors (their approximation error); or it reports
+    the differentiated ``ml`` with a warning saying why."""
+    import warnings
+
+    from hypothesis import HealthCheck, given, settings
+    from hypothesis import strategies as st
+    from random_robots import random_robot
+
+    @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+    @given(st.integers(0, 10_000))
+    def check(seed):
+        model = random_robot(seed, planar=False, max_arms=2, max_joints=2).load(tmp_path)
+        param = minimal_parameters(model)
+        t = np.linspace(0, 5, 501)
+        clean = simulate(param, param.true_values, harmonics(len(model.joints), seed), t, H3, initial_quat=QUAT0)
+        log = star_tracker(clean, seed)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            ident = identify(param, log, H3, estimator="angles", noise=NOISE3)
+            finest = identify(param, log, H3, estimator="angles", noise=NOISE3, knot_spacing=KNOT_SPACING)
+        info = ident.diagnostics.estimator_info
+        if info.get("fallback"):
+            assert any("maximum likelihood on the angles did not converge" in str(w.message) for w in caught)
+            return
+        assert np.max(np.abs(ident.values - param.true_values) / ident.std) < 4.5
+        np.testing.assert_allclose(ident.std, finest.std, rtol=0.05)
+        exact = identify(param, replace(clean, qd=0 * clean.qd, base_w=0 * clean.base_w), H3, estimator="angles",
+                         noise=NOISE3, knot_spacing=info["knot_spacing"])  # fmt: skip
+        assert np.max(np.abs(exact.values - param.true_values) / exact.std) < 0.01
+
+    check()

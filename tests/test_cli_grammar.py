@@ -4,6 +4,7 @@ bag logs, --format only where it means an output format, and the old spellings k
 with a one-line deprecation warning."""
 
 import ast
+import inspect
 import json
 from pathlib import Path
 
@@ -27,7 +28,7 @@ def test_option_choices_and_defaults_are_the_librarys():
     from spaceid.data import DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC
     from spaceid.data import FORMATS as BAG_FORMATS
     from spaceid.data._bag_to_log import JOINT_RATES
-    from spaceid.estimation import ESTIMATORS, KNOT_SPACING
+    from spaceid.estimation import ESTIMATORS, KNOT_SPACING, identify
     from spaceid.estimation._monitor import CHANGE_RATIO, FALSE_ALARM_RATE
     from spaceid.identified import FORMATS as EXPORT_FORMATS
     from spaceid.motion._criteria import CRITERIA
@@ -35,7 +36,9 @@ def test_option_choices_and_defaults_are_the_librarys():
     assert tuple(_option("identify", "estimator").type.choices) == ESTIMATORS
     assert tuple(_option("experiment", "estimator").type.choices) == ESTIMATORS
     assert tuple(_option("monitor", "estimator").type.choices) == tuple(e for e in ESTIMATORS if e != "angles")
-    assert _option("identify", "knot_spacing").default == KNOT_SPACING
+    # None: the library's choice per log (KNOT_SPACING planar, from the joint samples spatial)
+    assert _option("identify", "knot_spacing").default is inspect.signature(identify).parameters["knot_spacing"].default
+    assert f"Default: {KNOT_SPACING:g} s for a planar log" in _option("identify", "knot_spacing").help
     for command in ("design", "sweep"):
         assert tuple(_option(command, "criterion").type.choices) == tuple(CRITERIA)
     assert tuple(_option("experiment", "bag_format").type.choices) == BAG_FORMATS

@@ -759,16 +759,20 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @click.option("--momentum", required=True, metavar=MOMENTUM_METAVAR + "|unknown", help="Angular momentum of the "
               "whole system [N m s]: h (planar) or hx,hy,hz (inertial axes); 0 if it started at rest; 'unknown' to "
               "estimate it (both need an anchor, --known or a reaction wheel, or a --prior).")
-@click.option("--estimator", type=click.Choice(ESTIMATORS), help=ESTIMATOR_HELP + " [default: angles for a planar "
-              "CSV log without joint-rate columns, sampled densely enough for its knots (and no --joint-rates or "
-              "--gyro-bias), else ml]")
+@click.option("--estimator", type=click.Choice(ESTIMATORS), help=ESTIMATOR_HELP + " [default: angles for a CSV log "
+              "without joint-rate columns (spatial: nor base-rate columns), sampled densely enough for its knots (and no "
+              "--joint-rates or --gyro-bias), else ml; a spatial angles fit that does not converge reports ml on the "
+              "differentiated rates, with a warning]")
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter (minimal name, or the physical "
               "parameter one equals alone, e.g. Iczz_wheel=0.00197): anchors the scale; repeatable.")
 @click.option("--instruments", type=click.Path(path_type=Path), help="Commanded trajectory (the JSON 'spaceid "
               "design' writes) for --estimator iv; default: measured joints with the predicted base rate.")
 @noise_options
-@click.option("--knot-spacing", type=SECONDS, default=KNOT_SPACING, show_default=True,
-              help="--estimator angles: knot spacing of the joint-path splines [s]; at least two samples per span.")
+@click.option("--knot-spacing", type=SECONDS, default=None,
+              help=f"--estimator angles: knot spacing of the joint-path splines [s]; at least two samples per span. "
+              f"Default: {KNOT_SPACING:g} s for a planar log; for a spatial log the coarsest of {KNOT_SPACING:g}, "
+              f"{2 * KNOT_SPACING:g}, ... {32 * KNOT_SPACING:g} s at which the splines fit the joint samples to their "
+              "noise level.")
 @drift_option("External torques that change the momentum during the log, "
               "estimated with the parameters: torque (constant torque [N m]), viscous (base friction -c w0, c in "
               "N m s/rad), coulomb (base friction -mu w0/norm(w0), mu in N m); e.g. --drift viscous on an air-bearing "
@@ -813,14 +817,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
     h = _momentum(momentum, param.model.planar, allow_unknown=True)
     kinds = _drift(drift, param.model.planar, values=False)
     log = _measured_log(param.model, log_path, reading, angles_only=estimator in ("angles", None))
-    if estimator is None:  # the angles alone where no joint rate was measured: nothing to differentiate
-        # (planar only: on a spatial servicer the angles often do not determine the parameters at real sensor levels,
-        # the likelihood does not converge and each fit costs minutes: docs/theory/angles.md, "Spatial models")
-        from .estimation.internal import enough_samples_for_knots
-
-        planar_angles = (param.model.planar and not gyro_bias and _without_joint_rates(param.model, log, reading)
-                         and enough_samples_for_knots(log.t, knot_spacing))  # else: the rates differentiated
-        estimator = "angles" if planar_angles else "ml"
+    if estimator is None:
+        estimator = _default_estimator(param.model, log, reading, knot_spacing, gyro_bias)
         if estimator == "ml" and "joint_rates" not in log.meta:  # a CSV (a bag's rates are set when read)
             log = _csv_rates(log, log_path, reading)
     angles_only = estimator == "angles"  # uses the angles alone: rates neither needed nor differentiated
@@ -913,8 +911,25 @@ def _csv_rates(log, log_path, reading):
                                f"{rates or 'measured'}), none is differentiated: add --joint-rates differentiate, or "
                                f"drop {given}")
         return log
-    gyro = not np.isnan(log.base_w[:, [2] if log.planar else [0, 1, 2]]).any()
-    return differentiate_log(log, window=reading["window"], quantum=reading["quantum"], base=not gyro)
+    return differentiate_log(log, window=reading["window"], quantum=reading["quantum"], base=not _gyro(log))
+
+
+def _gyro(log) -> bool:
+    """Whether ``log`` has base-rate samples (a gyro's): no NaN in its base-rate columns."""
+    return not np.isnan(log.base_w[:, [2] if log.planar else [0, 1, 2]]).any()
+
+
+def _default_estimator(model, log, reading, knot_spacing, gyro_bias) -> str:
+    """``identify``'s estimator when none is given: ``angles`` where no rate was measured (nothing to
+    differentiate; planar: base-rate columns, if any, unused; spatial: no gyro either, whose rates are worth more
+    than the star tracker's angles) and the log is dense enough for the knots, else ``ml`` (the rates
+    differentiated where missing). docs/theory/angles.md, "The default"."""
+    from .estimation.internal import enough_samples_for_knots
+
+    spacing = knot_spacing or (KNOT_SPACING if model.planar else None)  # spatial None: the automatic choice's
+    angles = (not gyro_bias and _without_joint_rates(model, log, reading) and (model.planar or not _gyro(log))
+              and enough_samples_for_knots(log.t, spacing))  # fmt: skip
+    return "angles" if angles else "ml"
 
 
 def _without_joint_rates(model, log, reading) -> bool:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._constants import KNOT_SPACING
 from .._errors import SpaceidError
 
 GAUSS_NODES = 4
@@ -16,14 +17,49 @@ MIN_SAMPLES_PER_SPAN = 2
 and joint at most) barely determined by their own joint's samples."""
 
 
+LADDER_STEPS = 6
+"""The spacings :func:`automatic_knot_spacing` tries: ``KNOT_SPACING`` times 1, 2, 4, ... (0.05 to 1.6 s; it
+chooses 0.8 s at most)."""
+
+
 def _spans(t, spacing: float) -> int:
     return max(1, round(float(t[-1] - t[0]) / spacing))
 
 
-def enough_samples_for_knots(t, spacing: float) -> bool:
+def enough_samples_for_knots(t, spacing: float | None) -> bool:
     """Whether the stamps ``t`` hold at least :data:`MIN_SAMPLES_PER_SPAN` samples per knot span of
-    about ``spacing`` [s] (what the ``angles`` estimator needs)."""
+    about ``spacing`` [s] (what the ``angles`` estimator needs); None: of the coarsest spacing that
+    :func:`automatic_knot_spacing` tries."""
+    spacing = KNOT_SPACING * 2.0 ** (LADDER_STEPS - 1) if spacing is None else spacing
     return len(t) - 1 >= MIN_SAMPLES_PER_SPAN * _spans(t, spacing)
+
+
+def automatic_knot_spacing(t, q, sigma_q: float) -> float:
+    """The knot spacing [s] of the spatial ``angles`` fit when none is given: half the coarsest of
+    ``KNOT_SPACING`` times 1, 2, 4, ... (:data:`LADDER_STEPS` of them) at which least-squares cubic splines of the
+    joint samples ``q (n, n_joints)`` at stamps ``t (n,)`` leave residuals consistent with white noise of
+    ``sigma_q`` [rad] (their chi2, pooled over the joints, within three standard deviations of its degrees of
+    freedom), every finer spacing passing as well; the finest with enough samples when none passes.
+
+    The fit's nuisance (spline coefficients) and cost grow as the spacing shrinks: the attitude's derivatives are
+    dense in the coefficients (samples x 3 x joints x coefficients: 2.4 GB for the 7-joint servicer over 120 s at
+    50 Hz with knots every 0.05 s). The test sees a spline's approximation error only down to a fraction of the
+    noise, which can still move the parameters by a third of a standard error; halving the spacing divides that
+    error by 16 (docs/theory/angles.md, "Knots")."""
+    from scipy.interpolate import make_lsq_spline
+
+    admissible = [d for d in KNOT_SPACING * 2.0 ** np.arange(LADDER_STEPS) if enough_samples_for_knots(t, d)]
+    passed = []
+    for spacing in admissible:
+        knots = _knot_vector(t, spacing, "automatic_knot_spacing")
+        dof = q.size - (len(knots) - 4) * q.shape[1]
+        chi2 = float(np.sum((q - make_lsq_spline(t, q, knots, k=3)(t)) ** 2)) / sigma_q**2
+        if chi2 > dof + 3 * np.sqrt(2 * dof):
+            break
+        passed.append(float(spacing))
+    if not admissible:  # too few samples: _knot_vector says so
+        return KNOT_SPACING
+    return passed[-2] if len(passed) > 1 else admissible[0]
 
 
 def _knot_vector(t, spacing: float, where: str) -> np.ndarray:

@@ -36,7 +36,7 @@ from .._errors import SpaceidError
 from ..data import Log, quat_to_yaw
 from ..dynamics import base_rate
 from . import _angles_spatial as spatial
-from ._angle_path import _cumulative, _Path
+from ._angle_path import _cumulative, _Path, automatic_knot_spacing
 from ._equations import _equations
 from ._linalg import _inverse_gram, _solve
 from ._noise import Noise, signal_jacobian
@@ -195,9 +195,12 @@ class _AngleData:
     start: np.ndarray | None = None
 
 
-def _angle_context(eq, log: Log, noise: Noise, where: str, spacing: float) -> tuple:
+def _angle_context(eq, log: Log, noise: Noise, where: str, spacing: float | None) -> tuple:
     """The integral-form equations of ``log`` (the start and excitation check) and the
-    :class:`_AngleData` of the ``angles`` kernel: path, measured joint angles and attitude, noise levels."""
+    :class:`_AngleData` of the ``angles`` kernel: path, measured joint angles and attitude, noise levels.
+    ``spacing`` None: ``KNOT_SPACING`` (planar), :func:`automatic_knot_spacing` (spatial)."""
+    if spacing is None:  # spatial: the attitude's derivatives are dense in the spline coefficients, so as few as fit
+        spacing = KNOT_SPACING if eq.planar or not noise.angle > 0 else automatic_knot_spacing(log.t, log.q, noise.angle)
     path = _Path(log.t, spacing, where)
     attitude = np.unwrap(quat_to_yaw(log.base_quat)) if eq.planar else eq.rot
     phi = _integral_equations(eq, path, log.q, attitude)

@@ -26,7 +26,7 @@ from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
 from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
-from ._angles import KNOT_SPACING, _angle_context
+from ._angles import _angle_context
 from ._determined import WIDENED, equation_noise, undetermined_directions, undetermined_warning, widened
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
@@ -486,7 +486,7 @@ def identify(
     instruments=None,
     where: str = "log",
     cond_limit: float = 1e10,
-    knot_spacing: float = KNOT_SPACING,
+    knot_spacing: float | None = None,
     drift=(),
     history: Log | None = None,
     chunk: int | None = None,
@@ -526,9 +526,11 @@ def identify(
     cond_limit : float
         Condition numbers of the column-scaled regressor above this mean some parameters are
         not excited: an error names them.
-    knot_spacing : float
+    knot_spacing : float, optional
         ``angles`` only: knot spacing of the joint-path splines [s] (at least two samples per
-        span; see :data:`spaceid.estimation.KNOT_SPACING`).
+        span). Default: :data:`spaceid.estimation.KNOT_SPACING` for planar models; for spatial ones the
+        coarsest of 1, 2, 4, ... 32 times it at which splines fit the joint samples to ``noise.angle``
+        (docs/theory/angles.md, "Knots"), recorded in ``estimator_info["knot_spacing"]``.
     drift : iterable of {"torque", "viscous", "coulomb"}
         External torques that change the momentum, their coefficients estimated with the
         parameters (:mod:`spaceid.estimation._drift`; docs/theory/drift.md). Without them, a

@@ -25,8 +25,9 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
 ``differentiated_series``, ``propagated_covariance``
     The raw angle series behind differentiated rates, and the covariance of an estimate with
     their noise carried through the differentiating filters.
-``enough_samples_for_knots``
-    Whether a log's stamps are dense enough for the ``angles`` estimator's spline knots.
+``enough_samples_for_knots``, ``automatic_knot_spacing``
+    Whether a log's stamps are dense enough for the ``angles`` estimator's spline knots, and the knot spacing
+    of a spatial ``angles`` fit when none is given.
 ``draw_parameters``, ``draw_singular_values``
     The figures of an identification (``Identification.plot``), which :mod:`spaceid.studies`
     saves (``plot_parameters``, ``plot_singular_values``).
@@ -38,7 +39,7 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
     their standard deviations against a truth: shared by its figure and the report's tables.
 """
 
-from ._angle_path import enough_samples_for_knots
+from ._angle_path import automatic_knot_spacing, enough_samples_for_knots
 from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import check_drift_kinds
 from ._equations import Equations, drift_basis_at
@@ -58,6 +59,7 @@ __all__ = [
     "differentiated_series",
     "propagated_covariance",
     "enough_samples_for_knots",
+    "automatic_knot_spacing",
     "draw_parameters",
     "draw_singular_values",
     "diagnostic_rows",
