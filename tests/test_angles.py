@@ -508,13 +508,23 @@ def test_automatic_knots_are_half_the_coarsest_that_fit_the_joints_to_their_nois
     assert chi2 > dof + 3 * np.sqrt(2 * dof)
 
 
+def _random_spatial_flight(seed, folder, max_joints, t):
+    """A random spatial robot (two arms of at most ``max_joints``), its minimal set and its noise-free
+    flight of random harmonics at the stamps ``t`` [s]."""
+    from random_robots import random_robot
+
+    model = random_robot(seed, planar=False, max_arms=2, max_joints=max_joints).load(folder)
+    param = minimal_parameters(model)
+    return model, param, simulate(param, param.true_values, harmonics(len(model.joints), seed), t, H3,
+                                  initial_quat=QUAT0)
+
+
 def test_default_estimator_of_a_spatial_csv(tmp_path):
     """``identify`` without ``--estimator`` on random spatial robots: ``angles`` for a CSV without any rate
     column; ``ml`` with a gyro's base-rate columns (worth more than the attitude's samples), with
     ``--gyro-bias``, or when the log is too sparse for the knots asked for."""
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
-    from random_robots import random_robot
 
     from spaceid.cli import _default_estimator
     from spaceid.data import read_log, write_log
@@ -524,10 +534,7 @@ def test_default_estimator_of_a_spatial_csv(tmp_path):
     @settings(max_examples=8, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
     @given(st.integers(0, 10_000))
     def check(seed):
-        model = random_robot(seed, planar=False, max_arms=2, max_joints=3).load(tmp_path)
-        param = minimal_parameters(model)
-        t = np.linspace(0, 2, 101)
-        log = simulate(param, param.true_values, harmonics(len(model.joints), seed), t, H3, initial_quat=QUAT0)
+        model, param, log = _random_spatial_flight(seed, tmp_path, 3, np.linspace(0, 2, 101))
         gyro = replace(log, qd=np.full_like(log.qd, np.nan))
         for name, written in (("angles", replace(gyro, base_w=np.full_like(log.base_w, np.nan))), ("gyro", gyro)):
             write_log(tmp_path / f"{name}.csv", written)
@@ -554,15 +561,11 @@ def test_default_spatial_fit_on_random_robots(tmp_path):
 
     from hypothesis import HealthCheck, given, settings
     from hypothesis import strategies as st
-    from random_robots import random_robot
 
     @settings(max_examples=4, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
     @given(st.integers(0, 10_000))
     def check(seed):
-        model = random_robot(seed, planar=False, max_arms=2, max_joints=2).load(tmp_path)
-        param = minimal_parameters(model)
-        t = np.linspace(0, 5, 501)
-        clean = simulate(param, param.true_values, harmonics(len(model.joints), seed), t, H3, initial_quat=QUAT0)
+        model, param, clean = _random_spatial_flight(seed, tmp_path, 2, np.linspace(0, 5, 501))
         log = star_tracker(clean, seed)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")

@@ -427,7 +427,7 @@ class _Prepared:
 
 
 def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, known, noise, where: str,
-              cond_limit: float, drift: tuple = (), history=None, instruments=None, knot_spacing=KNOT_SPACING,
+              cond_limit: float, drift: tuple = (), history=None, instruments=None, knot_spacing=None,
               chunk=None, gyro_bias=False) -> _Prepared:
     """The first steps of :func:`identify` and :func:`estimate_only`: the equations, the sample
     count, the signals, the noise model, the excitation check (over chunks of ``chunk`` samples
