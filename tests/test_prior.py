@@ -275,3 +275,24 @@ def test_the_prior_sets_what_an_undesigned_motion_leaves_undetermined(tmp_path):
     assert np.linalg.norm(result.values - truth) < 0.7 * np.linalg.norm(minimal_parameters(cad).true_values - truth)
 
 
+
+
+@pytest.mark.parametrize("seed", [1, 2, 3])
+def test_noise_free_data_with_a_prior_give_the_truth(seed, tmp_path):
+    """Noise-free data of a random spatial robot and a CAD prior 20 % off: the MAP is the truth. The
+    data are then many orders more informative than the prior; these three robots failed with 'no
+    physically consistent model ... near the prior' before the program was scaled. (A property
+    test over random robots still finds failures, e.g. spatial seed 392 and planar seed 8352: the
+    prior's weight vanishes beside such data where they leave directions free.)"""
+    model = random_robot(seed, planar=False, max_arms=2, max_joints=2).load(tmp_path)
+    param = minimal_parameters(model)
+    h = np.array([0.3, -0.2, 0.1])
+    a, b = 0.3 * np.random.default_rng(seed).standard_normal((2, model.n_joints, 3))
+    log = simulate(param, param.true_values, FourierTrajectory(model.joints, 10.0, a, b), sample_times(10.0, 300), h,
+                   model=model)  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = identify(param, log, h, prior=perturbed_prior(model, 4, mass=0.15, moments=0.15, com=0.0),
+                          prior_std=0.2)
+    error = np.abs(result.values - param.true_values) / np.abs(param.true_values).max()
+    assert error.max() < 1e-5, error.max()

@@ -316,14 +316,18 @@ class _MapProgram:
         theta = cp.Variable(g.shape[0])
         self.ld, self.rd = cp.Parameter((n_data, g.shape[0])), cp.Parameter(n_data)
         self.c, self.cv = cp.Parameter((n_anchor, g.shape[0])), cp.Parameter(n_anchor)
+        self.w, self.prior_norm = cp.Parameter(nonneg=True), np.linalg.norm(D)
         cons = [x >> MARGIN * np.eye(4) for x in self.x] + [theta == g @ vec] + ([z @ vec == 0] if len(z) else [])
         cons += [self.c @ theta == self.cv] if n_anchor else []
-        objective = cp.sum_squares(D @ theta - d) + (cp.sum_squares(self.ld @ theta - self.rd) if n_data else 0)
+        objective = self.w * cp.sum_squares(D @ theta - d) + (cp.sum_squares(self.ld @ theta - self.rd) if n_data else 0)
         self.theta = theta
         self.problem = cp.Problem(cp.Minimize(objective), cons)
 
     def solve(self, ld, rd, c, cv):
-
+        # the data may be many orders more informative than the prior (a noise-free log): both terms
+        # scaled by the data's size, so that the solver sees numbers of order one
+        scale = max(1.0, np.linalg.norm(ld) / self.prior_norm) if ld.size else 1.0
+        ld, rd, self.w.value = ld / scale, rd / scale, 1.0 / scale**2
         for p, value in ((self.ld, ld), (self.rd, rd), (self.c, c), (self.cv, cv)):
             if p.size:
                 p.value = value
