@@ -381,10 +381,14 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
         for steps in range(1, MAX_STEPS + 1):
             jac = _jacobian(param, theta)
             out = program.solve(data.L @ jac[data.free], data.r, jac[idx], cv)
-            if out is None:
+            if out is None and len(idx):
                 raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
-                                   f"({', '.join(param.names[i] for i in idx) or 'none'}) near the prior: check "
-                                   "`known` and the prior (`prior`)")
+                                   f"({', '.join(param.names[i] for i in idx)}) near the prior: check `known` and the "
+                                   "prior (`prior`)")
+            if out is None:  # nothing to meet: the solver failed, on data far more informative than the prior
+                ratio = (np.linalg.norm(data.L @ jac[data.free], 2) / np.linalg.norm(D, 2)) ** 2
+                raise SpaceidError(f"{where}: the MAP's convex step did not solve (the data are up to {ratio:.2g} times "
+                                   "as informative as the prior, as on a noise-free log): identify without `prior`")
             new, value_new = out[0], objective(out[0])
             for _ in range(30):  # a Gauss-Newton step that does not lower the objective is halved (convex set)
                 if value_new <= value * (1 + 1e-12) or not np.isfinite(value):
