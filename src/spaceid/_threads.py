@@ -71,5 +71,11 @@ def process_pool(workers: int, initializer, initargs=()):
             process.terminate()
         for process in processes:
             process.join(timeout=5)
+        # the executor's manager thread closes its wake-up pipe once it sees the workers gone; at exit
+        # Python wakes every such thread without a lock, and a pipe closed in between printed
+        # "Exception ignored ... Bad file descriptor" after the command's last line: let it finish first
+        manager = getattr(pool, "_executor_manager_thread", None)
+        if manager is not None:
+            manager.join(timeout=5)
         raise
     pool.shutdown(wait=True)
