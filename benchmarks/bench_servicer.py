@@ -49,7 +49,7 @@ from spaceid.data import differentiate_log, read_log, write_log  # noqa: E402
 from spaceid.dynamics import minimal_parameters  # noqa: E402
 from spaceid.estimation import Noise  # noqa: E402
 from spaceid.motion import FourierTrajectory, design_excitation, hermite_motion, load_trajectory, simulate  # noqa: E402
-from spaceid.studies import attitude_error_angle  # noqa: E402
+from spaceid.studies import attitude_error_angle, coverage  # noqa: E402
 
 URDF = Path(__file__).with_name("servicer-7dof.urdf")
 RATE = 50.0
@@ -114,14 +114,6 @@ def _held_out_error(param, values, held, h) -> float:
 
 def _z(result, truth) -> np.ndarray:
     return (result.values - truth) / np.where(result.std > 0, result.std, np.inf)
-
-
-def _whitened_rms(result, truth) -> float:
-    """Root-mean-square error in the eigenbasis of the covariance (on its support): 1 when the
-    covariance holds, whatever the correlations that make the marginal z's of one run move together."""
-    w, v = np.linalg.eigh(result.cov)
-    keep = w > 1e-12 * w.max()
-    return float(np.sqrt(np.mean(((v[:, keep].T @ (result.values - truth)) / np.sqrt(w[keep])) ** 2)))
 
 
 def _pooled(label, runs) -> str:
@@ -209,7 +201,7 @@ def _identified(args, case, param, log, h, truth, large, held, h_held, prior_err
             print(_row(label, result, param, truth, large, held, h_held, prior_error)
                   + f"  ({large.sum()} large, {time.perf_counter() - start:.0f} s, {len(seen)} warnings)",
                   flush=True)
-            pooled.setdefault(label, []).append((_z(result, truth)[large], _whitened_rms(result, truth)))
+            pooled.setdefault(label, []).append((_z(result, truth)[large], coverage(result, truth, np.arange(len(truth)))["whitened_rms"]))
             for w in seen:
                 print(f"    warning: {str(w.message)[:200]}")
 
