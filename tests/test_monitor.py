@@ -370,7 +370,10 @@ def test_estimated_raw_noise_levels_are_pooled_over_the_parts(cepheus, steady):
 
 def test_the_whole_warm_ups_determinacy_alone_is_that_of_its_prefixes(cepheus, steady, monkeypatch):
     """The screen's figures of a whole warm-up (:meth:`DeterminacyAccumulator.overall`, one
-    factor) are those that :meth:`~DeterminacyAccumulator.result` reaches through its prefixes."""
+    factor) are those that :meth:`~DeterminacyAccumulator.result` reaches through its prefixes;
+    each unknown's noise share is a Rayleigh quotient of the noise's information, at most the
+    largest (``noise_share``), and the warm-ups the monitor lengthened name the unknowns above
+    the bound (:meth:`Monitor.warm_up_estimate`)."""
     from spaceid.estimation import _monitor_determinacy as md
 
     _, param = cepheus
@@ -387,6 +390,21 @@ def test_the_whole_warm_ups_determinacy_alone_is_that_of_its_prefixes(cepheus, s
         assert alone.noise_share == pytest.approx(full.noise_share, rel=1e-8)
         assert alone.bias == pytest.approx(full.bias, rel=1e-8) and alone.noise == pytest.approx(full.noise, rel=1e-12)
         assert alone.determined == full.determined
+        assert np.allclose(alone.shares, full.shares, rtol=1e-8) and np.allclose(alone.variances, full.variances,
+                                                                                   rtol=1e-8)  # fmt: skip
+        assert np.all((full.shares >= -1e-12) & (full.shares <= full.noise_share * (1 + 1e-9)))
+        assert np.all(full.variances > 0)
+    mon, log, attempts = Monitor(param, H, noise=NOISE, warmup=24), _differentiated(steady, 3), []
+    for k in range(0, 250, 25):  # a warm-up of 24 samples, lengthened 6 times to 192
+        mon.update(log.select(slice(k, k + 25)))
+        attempts.append(mon.warm_up_estimate())
+    assert mon.estimate() is not None and attempts[-1] is None  # tested: no warm-up
+    waiting = [a for a in attempts if a is not None]
+    assert len(waiting) >= 4 and waiting[-1]["n_samples"] > 100
+    for a in waiting:  # the estimate so far, its standard errors covering the error
+        assert a["noise_share"] > a["bounds"]["noise_share"] and set(a["undetermined"]) <= set(param.names)
+        assert a["undetermined"] and max(a["undetermined"].values()) <= a["noise_share"] * (1 + 1e-9)
+        assert np.all(np.abs(a["values"] - param.true_values) <= 4 * a["std"]), a
 
 
 @pytest.mark.parametrize("estimator", ["ols", "wls"])

@@ -150,7 +150,8 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
 
 @pytest.fixture(scope="module")
 def twin_bag(tmp_path_factory):
-    """The end-to-end test's twin run (grasp 4 s into 12 s) as an MCAP bag, and the grasp time."""
+    """The end-to-end test's twin run (grasp 4 s into 12 s) as an MCAP bag, the grasp time and the
+    minimal parameters' true values before it."""
     from spaceid.data import write_bag
     from spaceid.ros import twin_recording
     from spaceid.studies import capture_protocol
@@ -158,7 +159,7 @@ def twin_bag(tmp_path_factory):
     run = twin_recording(capture=capture_protocol(), ideal=True, duration=12.0, seed=1)
     bag = tmp_path_factory.mktemp("ros") / "twin.mcap"
     write_bag(bag, run.recording, format="mcap")
-    return bag, run.meta["capture"]["time"]
+    return bag, run.meta["capture"]["time"], run.meta["capture"]["minimal_parameters"]["before"]["values"]
 
 
 def _live(**options):
@@ -192,7 +193,7 @@ def one_by_one(twin_bag):
     """The twin bag's messages fed to LiveMonitor one by one, each arriving at its own stamp (the
     monitor's clock: the data's, no processing time): the outputs ``(parts taken before, output)``
     and the run's record."""
-    bag, _ = twin_bag
+    bag, *_ = twin_bag
     now = [0.0]
     live = _live(link="link2", clock=lambda: now[0])
     outputs, parts = [], 0
@@ -221,8 +222,7 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag, one_by_one)
     returns a sample once that message is in, and the monitor takes it at once: it held it back
     half a differentiator window more before, 0.26 s); the grasp's change within 0.5 s of it, the
     payload after it within 2 sigma of 0.5 kg (due from the alarm: the segment after the grasp
-    may never determine its warm-up, and its event then completes at the end only); an estimate
-    is published when the monitor has one, with one standard error per parameter."""
+    may never determine its warm-up, and its event then completes at the end only)."""
     import numpy as np
 
     from spaceid import load_model, minimal_parameters
@@ -230,7 +230,7 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag, one_by_one)
     from spaceid.estimation import Noise, monitor
     from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
 
-    bag, grasp = twin_bag
+    bag, grasp, _ = twin_bag
     outputs, record = one_by_one
     m = load_model("cepheus-rw")
     expected = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels,
@@ -257,11 +257,55 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag, one_by_one)
     assert near, ([e["time"] + origin for _, e in detected], grasp)
     payloads = [o.data for _, o in outputs if o.kind == "payload" and o.data["event"] == near[0]["index"]]
     assert payloads and all(abs(p["mass"] - 0.5) <= 2 * p["std"]["mass"] for p in payloads), payloads
-    # the first warm-up is determined only after 4 s of motion, in whose own test the change is found, and
-    # the segment after it never is: no running estimate on this run (the monitor's record says the same)
-    estimates = [o.data for _, o in outputs if o.kind == "estimate"]
-    assert bool(estimates) == any(s.recursive is not None for s in record.segments)
-    assert all(len(e["std"]) == len(e["values"]) == len(e["names"]) for e in estimates)
+
+
+@pytest.mark.slow
+def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(twin_bag, one_by_one):
+    """The estimate is published after every aligned part, whatever the monitor's phase: on the data
+    clock at least every 0.5 s (the parts' 0.1 s, more where a part holds no sample), from the first
+    part (1 s of data) to the last. Before, only while a segment was tested: on this run the first
+    warm-up is determined after 3.5 s, 0.1 s before the alarm, and the segment after the grasp
+    never is: one estimate in the whole run. While a warm-up waits ("warming up", not determined),
+    the estimate is its last identification's, and the parameters the warm-up does not determine
+    are named; the first warm-up's estimates are within 3 standard errors of the truth (honest
+    errors: its samples determine them, or the noise shares say which do not and the standard
+    errors still cover here). After the alarm, what the warm-up leaves undetermined is published on
+    the events topic ("undetermined") at its first identification, a warm-up after the alarm,
+    parts before the end of the run, and again when its samples double; the comparison ("compared")
+    completes at the end only, this warm-up never being determined."""
+    import numpy as np
+
+    bag, _, before = twin_bag
+    outputs, record = one_by_one
+    estimates = [(k, o.data) for k, o in outputs if o.kind == "estimate"]
+    times = np.array([e["time"] for _, e in estimates])
+    parts = max(k for k, _ in outputs)
+    first, last = (_stamp_s(m) for m in (next(_bag_messages(bag))[1], list(_bag_messages(bag))[-1][1]))
+    origin = estimates[0][1]["time_origin_ns"] / 1e9
+    assert len(estimates) >= 80 and np.all(np.diff(times) > 0) and np.diff(times).max() <= 0.5, np.diff(times)
+    assert times[0] + origin <= first + 1.5 and times[-1] + origin >= last - 0.5
+    statuses = {e["status"] for _, e in estimates}
+    assert statuses == {"testing", "warming up"}
+    for _, e in estimates:
+        assert e["determined"] == (e["status"] == "testing")
+        if e["values"] is not None:
+            assert len(e["std"]) == len(e["values"]) == len(e["names"]) == 9
+        else:
+            assert e["status"] == "warming up" and e["warm_up"] is None  # before the warm-up's first identification
+    warming = [e for _, e in estimates if e["status"] == "warming up" and e["values"] is not None]
+    assert warming and all(e["warm_up"]["undetermined"] and e["warm_up"]["noise_share"] > 0.05 for e in warming)
+    for e in [e for e in warming if e["segment"] == 0]:
+        std = np.array(e["std"])
+        assert np.all(np.abs(np.array(e["values"]) - before)[std > 0] <= 3 * std[std > 0]), e
+    events = [(k, o.data) for k, o in outputs if o.kind == "event"]
+    stages = [e["stage"] for _, e in events]
+    assert stages == ["detected", "undetermined", "undetermined", "compared"], stages
+    (_, alarm), (k1, u1), (_, u2), (k_end, compared) = events
+    assert k1 < parts and k_end == parts  # published live, parts before the end; the comparison at the end
+    assert u1["index"] == u2["index"] == compared["index"] == alarm["index"]
+    assert u1["warm_up"]["n_samples"] == 100 and u2["warm_up"]["n_samples"] == 200
+    assert u1["warm_up"]["undetermined"] and u1["warm_up"]["noise_share"] > u1["warm_up"]["bounds"]["noise_share"]
+    assert record.segments[-1].warm_up is None  # the monitor's record: that warm-up never determined
 
 
 @pytest.mark.slow
@@ -277,7 +321,7 @@ def test_messages_taken_in_batches_give_the_events_of_one_by_one(twin_bag, one_b
 
     from spaceid.estimation import Noise
 
-    bag, _ = twin_bag
+    bag, *_ = twin_bag
     messages = [(topic, msg, 0.0) for topic, msg in _bag_messages(bag)]
     given = Noise(angle=1e-3, rate=1e-2, base_rate=1e-2, attitude=1e-3)
     records = {}
@@ -326,7 +370,7 @@ def test_poses_that_begin_late_are_waited_for(twin_bag):
     1 s of joint states, overlaps the poses by less than half a differentiator window and holds no
     sample; its messages wait for the next part (before, trimming them from the last sample
     returned, none, raised), and the samples after the poses' start are taken."""
-    bag, _ = twin_bag
+    bag, *_ = twin_bag
     live = _live()
     messages = list(_bag_messages(bag))
     first = _stamp_s(messages[0][1])
@@ -346,7 +390,7 @@ def test_a_stretch_of_lost_poses_is_skipped(twin_bag, one_by_one):
     after the gap, with a warning, where every later part was refused before (its record kept the
     gap: no sample taken after it). The samples of the gap and of the differentiator's half window
     each side are left out, the grasp before it is found as without the gap."""
-    bag, _ = twin_bag
+    bag, *_ = twin_bag
     live = _live(link="link2")
     messages = list(_bag_messages(bag))
     first = _stamp_s(messages[0][1])
@@ -366,7 +410,7 @@ def test_a_silent_pose_topic_is_named(monkeypatch, twin_bag):
     import spaceid.ros._live as live_module
     from spaceid import SpaceidError
 
-    bag, _ = twin_bag
+    bag, *_ = twin_bag
     monkeypatch.setattr(live_module, "MAX_HELD", 50)
     live = _live()
     joints = (pair for pair in _bag_messages(bag) if pair[0] == live.aligner.joint_topic)

@@ -75,7 +75,7 @@ from ._equations import _equations
 from ._linalg import _accumulate_factor, _column_scale
 from ._identify import estimate_only, identify
 from ._monitor_cusum import CHANGE_RATIO, FALSE_ALARM_RATE, Cusum, cusum_run_length, cusum_threshold
-from ._monitor_determinacy import DeterminacyAccumulator
+from ._monitor_determinacy import BIAS, NOISE_SHARE, DeterminacyAccumulator
 from ._monitor_filter import DifferentiatedWhitener
 from ._monitor_records import Z_CHANGED, Alarm, MonitorEvent, MonitorRecord, SegmentRecord
 from ._monitor_samples import Intake, Sample, Thinned, log_of
@@ -323,10 +323,11 @@ class Monitor:
             screen = self._screen(rows, label)
             segment.ident = None if screen is not None and screen.far_from_determined else \
                 self._identify(rows, label, segment.trail)
-        except SpaceidError:
+        except SpaceidError as err:
             if segment.target + self.warmup > self.max_segment:
                 raise
             segment.target += self.warmup  # not excited yet (e.g. the arm at rest): wait for more samples
+            segment.attempt = self._attempt(error=str(err))
             return []
         if segment.ident is None:
             return self._extend_warm_up(screen)
@@ -412,6 +413,7 @@ class Monitor:
         """Wait for a quarter of a warm-up more: the samples so far do not determine the estimate
         (``determinacy``); an error once the warm-up would outgrow ``max_segment``."""
         segment, step = self._segment, max(1, self.warmup // 4)
+        segment.attempt = self._attempt(determinacy)
         if segment.target + step > self.max_segment:
             share = "no information" if not np.isfinite(determinacy.noise_share) else \
                 f"{determinacy.noise_share:.2g} of the information"
@@ -422,6 +424,26 @@ class Monitor:
                 "('spaceid design') or give a larger `max_segment`")
         segment.target += step
         return []
+
+    def _attempt(self, determinacy=None, error: str | None = None) -> dict:
+        """The record of a warm-up identification that did not determine the estimate
+        (:meth:`warm_up_estimate`): its ``determinacy`` at the segment's ``theta_ref``, or the
+        ``error`` that refused its samples."""
+        segment = self._segment
+        out = {"n_samples": len(segment.warm), "time": float(segment.warm[-1].t), "values": None, "std": None,
+               "noise_share": None, "bias": None, "bounds": {"noise_share": NOISE_SHARE, "bias": BIAS},
+               "undetermined": {}, "error": error}  # fmt: skip
+        if determinacy is None:
+            return out
+        nf, names = len(self._eq.free), self._eq.names()
+        std = np.sqrt(determinacy.variances) / segment.scale
+        values, stds = self._eq.full(segment.theta_ref)[0], np.zeros(self.param.n_params)
+        stds[self._eq.free] = std[:nf]
+        out |= {"values": values, "std": stds, "noise_share": determinacy.noise_share, "bias": determinacy.bias,
+                "undetermined": {names[i]: float(s) for i, s in enumerate(determinacy.shares) if not s <= NOISE_SHARE}}
+        if self.drift:
+            out |= {"drift": segment.theta_ref[nf:], "drift_std": std[nf:]}
+        return out
 
     def _estimate_noise(self, rows: list):
         """The noise levels from the first warm-up's samples ``rows``, when not given."""
@@ -633,6 +655,28 @@ class Monitor:
             return self._identify(rows, f"segment {len(self.segments)}", history)
         except SpaceidError:
             return None
+
+    @property
+    def waiting(self):
+        """The last alarm (:class:`~spaceid.estimation._monitor_records.Alarm`) while its event waits
+        for the segment after it to have its warm-up identified (the comparison), else None."""
+        return self._waiting
+
+    def warm_up_estimate(self) -> dict | None:
+        """What the running segment's warm-up has shown while it waits for samples that determine
+        the estimate (:mod:`~spaceid.estimation._monitor_determinacy`), as its last identification
+        found it (each ``warmup / 4`` samples from ``warmup`` on): ``n_samples`` and ``time`` (its
+        last sample [s]); ``values`` and ``std`` ``(k,)``, the estimate of its samples (weighted least
+        squares when the estimator is ``ml`` and the samples are far from determined, else the
+        estimator's) and the standard errors their information gives (those of the parameters in
+        ``undetermined`` do not cover the errors-in-variables bias); ``noise_share`` and ``bias``
+        against their bounds ``NOISE_SHARE`` and ``BIAS``; ``undetermined``, ``{name: share}`` of
+        the unknowns whose information is more than ``NOISE_SHARE`` the regressor noise's; ``bounds``,
+        ``NOISE_SHARE`` and ``BIAS`` (:mod:`~spaceid.estimation._monitor_determinacy`); with drift,
+        ``drift`` and ``drift_std`` ``(n_d,)``. When the samples did not excite every parameter,
+        ``values`` and ``std`` are None and ``error`` says why. None while the segment is tested,
+        and before its warm-up's first identification."""
+        return None if self._segment.phase is Phase.TESTING else self._segment.attempt
 
     def estimate(self) -> dict | None:
         """The recursive estimate of the running segment: ``values`` (all minimal parameters),

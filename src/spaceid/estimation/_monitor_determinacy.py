@@ -91,6 +91,13 @@ class Determinacy:
         effect on it, from the last checkpoint before the sample (NaN: no honest prediction, the
         noise's share of the prediction's variance above ``PREDICTABLE``, where the first-order
         bias is no guide, or the samples before leave a direction without information).
+    shares : numpy.ndarray of shape (p,)
+        Per unknown, the regressor noise's share of the information along the direction its
+        estimate is read from, ``(P N P)_ii / P_ii`` with ``P = (R^T R)^-1`` (scale-free; at most
+        ``noise_share``): the unknowns above ``NOISE_SHARE`` are those the warm-up leaves
+        undetermined (NaN: a direction without information).
+    variances : numpy.ndarray of shape (p,)
+        The whole warm-up's ``P_ii``, the unknowns scaled as in the factor ``R`` (NaN as above).
     """
 
     noise_share: float
@@ -98,6 +105,8 @@ class Determinacy:
     noise: float
     determined_from: int
     inflation: np.ndarray
+    shares: np.ndarray | None = None
+    variances: np.ndarray | None = None
 
     @property
     def determined(self) -> bool:
@@ -186,6 +195,7 @@ class DeterminacyAccumulator:
         a = white[..., :p] / scale
         noise = level * np.concatenate(self.noise)  # each sample's error variance
         inflation, R, start, share, bias = np.full(n, np.nan), None, 0, np.inf, np.inf
+        last = None  # the whole warm-up's factor and noise information, when it has information in every direction
         total = float(np.sum(noise))
         determined_from = n
         with one_blas_thread():  # p x p factors: threads only wait on busy cores
@@ -196,9 +206,10 @@ class DeterminacyAccumulator:
                 prefix = _prefix(R, level * N / np.outer(scale, scale), level * g / scale)
                 if prefix is None:
                     share = bias = np.inf
-                    determined_from = n
+                    last, determined_from = None, n
                     continue
                 r, C, b, share, bias = prefix
+                last = r, C
                 so_far = float(np.sum(noise[:end]))
                 if not (share <= NOISE_SHARE and bias <= BIAS * so_far):
                     determined_from = n
@@ -214,8 +225,9 @@ class DeterminacyAccumulator:
                     ratio = 1 + shift / np.maximum(variance, np.finfo(float).tiny)
                     inflation[end : end + len(after)] = np.where(fake <= PREDICTABLE * pred, ratio, np.nan)
         bias = bias / total if total > 0 else np.inf  # against the residuals' noise
+        shares, variances = (np.full(p, np.nan),) * 2 if last is None else _per_unknown(*last)
         return Determinacy(noise_share=share, bias=bias, noise=total / level if level > 0 else total,
-                           determined_from=determined_from, inflation=inflation)
+                           determined_from=determined_from, inflation=inflation, shares=shares, variances=variances)
 
 
     def overall(self, white: np.ndarray, scale: np.ndarray, level: float = 1.0) -> Determinacy:
@@ -229,9 +241,19 @@ class DeterminacyAccumulator:
             R = _accumulate_factor(None, np.array((white[..., :p] / scale).reshape(-1, p), order="F"))
             prefix = _prefix(R, level * self._N / np.outer(scale, scale), level * self._g / scale)
         share, bias = (np.inf, np.inf) if prefix is None else prefix[3:]
+        shares, variances = (np.full(p, np.nan),) * 2 if prefix is None else _per_unknown(prefix[0], prefix[1])
         return Determinacy(noise_share=share, bias=bias / noise if noise > 0 else np.inf,
                            noise=noise / level if level > 0 else noise, determined_from=n,
-                           inflation=np.full(n, np.nan))
+                           inflation=np.full(n, np.nan), shares=shares, variances=variances)
+
+
+def _per_unknown(R: np.ndarray, C: np.ndarray) -> tuple:
+    """Per unknown, the noise's share of the information ``(P N P)_ii / P_ii`` and ``P_ii``
+    (:attr:`Determinacy.shares`, :attr:`Determinacy.variances`), from the factor ``R (p, p)`` and
+    ``C = R^-T N R^-1`` (:func:`_prefix`): with ``P = R^-1 R^-T``, ``P N P = R^-1 C R^-T``."""
+    Ri = solve_triangular(R, np.eye(len(R)))
+    variances = np.einsum("ij,ij->i", Ri, Ri)
+    return np.einsum("ij,jk,ik->i", Ri, C, Ri) / variances, variances
 
 
 def _prefix(R: np.ndarray, N: np.ndarray, g: np.ndarray):

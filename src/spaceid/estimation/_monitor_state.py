@@ -76,6 +76,9 @@ class Segment:
     sigma : numpy.ndarray of shape (n_x,) or None
         The signals' noise levels the score is taken at (the model's, or a differentiator's
         smoothed ones, times the root of the level the warm-up's residuals showed when below 1).
+    attempt : dict or None
+        What the warm-up's last identification that did not determine the estimate found
+        (:meth:`~spaceid.estimation.Monitor.warm_up_estimate`); None before one.
     """
 
     start: float | None
@@ -97,6 +100,7 @@ class Segment:
     warm_up: dict | None = None
     score: np.ndarray | None = None
     sigma: np.ndarray | None = None
+    attempt: dict | None = None
 
     def take(self, samples: list):
         """Add ``samples`` to the warm-up."""

@@ -154,6 +154,7 @@ class LiveMonitor:
         self._recent = collections.deque()  # the latest parts, at most HISTORY samples
         self._n_recent, self._unchecked = 0, False  # their samples; whether a part came since the payload's check
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
+        self._undetermined_due = 0  # the warm-up's samples after the last alarm at which to say what they leave undetermined
         self.n_messages, self.busy = 0, 0.0
         self._emit = None  # where the outputs go
         topics = (self.aligner.joint_topic, self.aligner.pose_topic)
@@ -212,9 +213,20 @@ class LiveMonitor:
         self._remember(part)
         for event in self.monitor.update(part):
             self._emit(self._stage(event, "compared", self._completed(event.detected_at)))
-        estimate = self.estimate()
-        if estimate is not None:
-            self._emit(LiveOutput("estimate", estimate))
+        self._undetermined()
+        self._emit(LiveOutput("estimate", self.estimate()))
+
+    def _undetermined(self):
+        """While the last alarm's comparison waits for a warm-up that determines the estimate after
+        it: what the warm-up's samples leave undetermined (``stage`` "undetermined", ``warm_up``:
+        :meth:`~spaceid.estimation.Monitor.warm_up_estimate` without the values), at its first
+        identification, then each time its samples double."""
+        alarm, attempt = self.monitor.waiting, self.monitor.warm_up_estimate()
+        if alarm is None or attempt is None or attempt["n_samples"] < self._undetermined_due:
+            return
+        self._undetermined_due = 2 * attempt["n_samples"]
+        summary = {k: v for k, v in attempt.items() if k not in ("values", "std", "drift", "drift_std")}
+        self._emit(self._stage(alarm, "undetermined", self._completed(attempt["time"]), warm_up=summary))
 
     def _completed(self, t: float) -> float:
         """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``clock``]
@@ -239,28 +251,41 @@ class LiveMonitor:
 
     def _alarmed(self, alarm):
         """The monitor's alarm: its message at once; the payload after it is due from now on."""
-        self._unchecked = True
+        self._unchecked, self._undetermined_due = True, 0
         if self._pmap is not None:
             self._payload_event, self._payload_due = alarm, 0
         self._emit(self._stage(alarm, "detected", self._completed(alarm.detected_at)))
 
-    def _stage(self, event, stage: str, received: float) -> LiveOutput:
+    def _stage(self, event, stage: str, received: float, **extra) -> LiveOutput:
         """An alarm's or an event's message on ``/spaceid/events``."""
-        data = {"stage": stage} | event.to_dict() | {"time_origin_ns": self._origin,
-                                                     "latency_s": self.clock() - received}
+        data = {"stage": stage} | event.to_dict() | extra | {"time_origin_ns": self._origin,
+                                                             "latency_s": self.clock() - received}
         return LiveOutput("event", _plain(data))
 
     def estimate(self) -> dict | None:
-        """The running segment's recursive estimate: ``time`` (its last sample [s]),
-        ``time_origin_ns``, ``n_samples``, ``segment``, ``names``, ``values``, ``std`` (and the
-        drift's); None before the segment's test began."""
-        est = self.monitor.estimate()
-        if est is None:
+        """The running segment's estimate, published after each aligned part: ``time`` (the last
+        sample taken [s]), ``time_origin_ns``, ``n_samples``, ``segment``, ``names``, ``status``
+        and ``determined``; while the segment is tested (``status`` "testing", ``determined``
+        true), ``values`` and ``std``, its recursive estimate (with drift terms, ``drift`` and
+        ``drift_std``); while its warm-up waits for samples that determine it (``status``
+        "warming up", ``determined`` false), those of the warm-up's last identification and
+        ``warm_up``, what it found (:meth:`~spaceid.estimation.Monitor.warm_up_estimate` without
+        the values; ``values``, ``std`` and ``warm_up`` None before the first). None before the
+        first part."""
+        if not self._recent:
             return None
-        extra = {k: est[k] for k in ("drift", "drift_std") if k in est}
+        est = self.monitor.estimate()
+        testing = est is not None
+        if not testing:
+            attempt = self.monitor.warm_up_estimate() or {}
+            est = {k: v for k, v in attempt.items() if k in ("values", "std", "drift", "drift_std")}
+            est = {"values": None, "std": None} | est | {
+                "warm_up": {k: v for k, v in attempt.items() if k not in est} if attempt else None}
+        est = {k: v for k, v in est.items() if k not in ("linearization", "momentum", "momentum_from")}
         return _plain({"time": self._recent[-1].t[-1], "time_origin_ns": self._origin,
                        "n_samples": self.monitor.n_samples, "segment": len(self.monitor.segments),
-                       "names": list(self.param.names), "values": est["values"], "std": est["std"]} | extra)  # fmt: skip
+                       "names": list(self.param.names), "status": "testing" if testing else "warming up",
+                       "determined": testing} | est)  # fmt: skip
 
     def payload(self) -> LiveOutput | None:
         """The payload after the last alarm, when due: once the samples after it allow (a warm-up
