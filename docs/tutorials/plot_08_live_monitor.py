@@ -89,24 +89,37 @@ print(f"{record.n_samples} samples monitored in {time.monotonic() - started:.1f}
 # %%
 # What was published
 # ------------------
-# On ``/spaceid/events`` each change comes twice: the alarm the moment the test raises it
+# On ``/spaceid/events`` each change comes first as the alarm the moment the test raises it
 # (``stage`` "detected": the estimated change time, the sample that crossed the threshold, with
-# ``latency_s`` from the arrival of the message that completed that sample), and
+# ``latency_s`` from the arrival of the message that completed that sample), and last as
 # its comparison once the segment after it has a warm-up identified (``stage`` "compared":
-# which parameters changed, with their z-scores). On ``/spaceid/payload``, the payload that
+# which parameters changed, with their z-scores). In between, while the samples after the
+# change do not determine the estimate (here they never do: after the grasp the arm barely moves
+# some directions of the parameters, and the comparison completes at the end), ``stage``
+# "undetermined" says which parameters they leave undetermined, a warm-up after the alarm and
+# each time the samples double. On ``/spaceid/payload``, the payload that
 # ``link2`` holds, identified from the samples after the alarm, first after a warm-up of them
-# and again each time they double. ``/spaceid/estimate`` carries the running segment's
-# recursive estimate whenever its test runs (here the first warm-up is determined only after
-# 4 s, and the change is found in its own test: :doc:`/theory/monitor`).
+# and again each time they double. ``/spaceid/estimate`` comes after every aligned part: the
+# running segment's recursive estimate while its test runs (``status`` "testing"), else its
+# warm-up's last identification with the parameters not yet determined (``status`` "warming
+# up"; here the first warm-up is determined only after 3.5 s, and the change is found in its
+# own test: :doc:`/theory/monitor`).
 
-origin = None
+origin, status = None, None
 for wall, out in seen:
     d = out.data
     if out.kind == "event":
         origin = d["time_origin_ns"] / 1e9
+        if d["stage"] == "undetermined":
+            print(f"[{wall:5.1f} s] change {d['index']} undetermined: the {d['warm_up']['n_samples']} samples after "
+                  f"it do not determine {', '.join(d['warm_up']['undetermined'])}")
+            continue
         print(f"[{wall:5.1f} s] change {d['index']} {d['stage']}: at {d['time'] + origin:.2f} s "
               f"(grasp {grasp:.2f} s; detected at {d['detected_at'] + origin:.2f} s), published "
               f"{1000 * d['latency_s']:.0f} ms after the message that completed the revealing sample")
+    elif out.kind == "estimate" and d["status"] != status:
+        status = d["status"]
+        print(f"[{wall:5.1f} s] estimate of segment {d['segment']}: {status}")
     elif out.kind == "payload" and "mass" in d:
         print(f"[{wall:5.1f} s] payload after change {d['event']}: {d['mass']:.3f} +/- {d['std']['mass']:.3f} kg "
               f"from {d['n_samples']} samples")

@@ -1803,6 +1803,12 @@ def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, p
         if item.kind == "event" and d["stage"] == "detected":
             out.print(f"change {d['index']} at t = {d['time']:.6g} s (detected at {d['detected_at']:.6g} s)",
                       highlight=False)
+        elif item.kind == "event" and d["stage"] == "undetermined":
+            w = d["warm_up"]
+            what = ", ".join(w["undetermined"]) or f"the estimate (bias {w['bias']:.2g})" if w["error"] is None \
+                else f"the parameters ({w['error']})"
+            out.print(f"change {d['index']} at t = {d['time']:.6g} s: not compared yet: the {w['n_samples']} samples "
+                      f"after it do not determine {what}", highlight=False)
         elif item.kind == "event":
             out.print(f"change {d['index']} at t = {d['time']:.6g} s: changed {', '.join(d['changed']) or 'none'}",
                       highlight=False)
