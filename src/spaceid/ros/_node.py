@@ -62,9 +62,11 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
                 for kind, topic in (("estimate", ESTIMATE_TOPIC), ("event", EVENTS_TOPIC), ("payload", PAYLOAD_TOPIC))}
         inbox = []
         jt, pt = live.aligner.joint_topic, live.aligner.pose_topic
-        node.create_subscription(JointState, jt, lambda m: inbox.append((jt, m, time.monotonic())), qos())
-        node.create_subscription(cls, pt, lambda m: inbox.append((pt, as_pose(m, pose_type), time.monotonic())),
-                                 qos())  # fmt: skip
+        subs = [(node.create_subscription(JointState, jt, lambda m, info: inbox.append((jt, m, _arrival(info))),
+                                          qos()), jt, None),
+                (node.create_subscription(cls, pt, lambda m, info: inbox.append((pt, as_pose(m, pose_type),
+                                                                                 _arrival(info))), qos()),
+                 pt, pose_type)]  # fmt: skip
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
 
@@ -74,21 +76,46 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
 
         with _interrupt_flag() as interrupted:
             while not interrupted() and (until is None or not until()):
-                executor.spin_once(timeout_sec=SPIN)
+                executor.spin_once(timeout_sec=SPIN)  # waits for a message; its callback puts it in the inbox
+                inbox += _take_all(subs)
                 while inbox and not interrupted():  # everything queued in one batch: one estimate, one payload check
-                    held = -1
-                    while len(inbox) != held:  # take in what else has arrived
-                        held = len(inbox)
-                        executor.spin_once(timeout_sec=0)
                     batch, inbox[:] = sorted(inbox, key=lambda x: _stamp_ns(x[1])), []
                     live.add_batch(batch, publish)
                     payload = live.payload()
                     if payload is not None:
                         publish(payload)
+                    inbox += _take_all(subs)  # what arrived meanwhile
         outputs, record = live.finish(publish)
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
     return outputs, record
+
+
+def _take_all(subscriptions) -> list:
+    """Every message the ``subscriptions`` ``(subscription, topic, pose_type or None)`` hold, as
+    ``(topic, message, arrival [s])``: taken from each at once (rclpy's take, as its executor takes
+    them), without the executor's round per message (a wait set built and waited on, 0.3 to 0.7 ms
+    of processor time each: at ten times real time, 1,500 messages a second, more than the
+    monitor's own work)."""
+    taken = []
+    for sub, topic, pose_type in subscriptions:
+        while True:
+            with sub.handle:
+                got = sub.handle.take_message(sub.msg_type, sub.raw)
+            if got is None:
+                break
+            msg = got[0] if pose_type is None else as_pose(got[0], pose_type)
+            taken.append((topic, msg, _arrival(got[1])))
+    return taken
+
+
+def _arrival(info) -> float:
+    """When a message reached this process [s, ``time.monotonic``]: the middleware's reception
+    time (``received_timestamp`` of its message info, system clock [ns]), not the later moment it
+    was taken while the node was busy, so that the latencies count the wait in the subscription's
+    queue; the moment it is taken when the middleware does not give it."""
+    now, received = time.monotonic(), info.get("received_timestamp") or 0
+    return now if received <= 0 else now - max(time.time_ns() - received, 0) / 1e9
 
 
 @contextlib.contextmanager
