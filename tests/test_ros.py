@@ -427,3 +427,16 @@ def test_a_silent_pose_topic_is_named(monkeypatch, twin_bag):
     with pytest.raises(SpaceidError, match=r"`pose_topic`: 51 messages wait for a base pose on '/vrpn"):
         for topic, msg in joints:
             live.add(topic, msg)
+
+
+def test_a_messages_arrival_is_its_reception_by_the_middleware(monkeypatch):
+    """The node times a message from the middleware's reception (``received_timestamp``, system
+    clock) on the monotonic clock, not from when it was taken: a message taken 0.3 s after it was
+    received (the node busy) counts those 0.3 s in the latencies; without a reception time, now."""
+    import spaceid.ros._node as node
+
+    monkeypatch.setattr(node.time, "monotonic", lambda: 100.0)
+    monkeypatch.setattr(node.time, "time_ns", lambda: 5_000_000_000)
+    assert node._arrival({"received_timestamp": 4_700_000_000}) == pytest.approx(99.7, abs=1e-12)
+    assert node._arrival({"received_timestamp": 0}) == node._arrival({}) == 100.0
+    assert node._arrival({"received_timestamp": 5_100_000_000}) == 100.0  # clocks a hair apart: never in the future

@@ -5,6 +5,7 @@ basis accumulated from the log's first sample), and a segment's evenly thinned s
 from __future__ import annotations
 
 import itertools
+import warnings
 from typing import NamedTuple
 
 import numpy as np
@@ -13,6 +14,9 @@ from ..data import Log
 from ._drift import drift_basis
 from ._uncertainty import correlation_length
 
+GAP_STEPS = 3.0
+"""Sample steps between two consecutive samples beyond which the drift basis's quadrature across
+them is an interpolation (a gap: messages lost, or skipped by the live aligner)."""
 BASIS_OVERLAP = 8
 """Samples before a chunk that the drift basis's quadrature of the chunk starts from (the Coulomb
 kind's sign changes are located by cubics through four samples on either side)."""
@@ -135,9 +139,28 @@ class Intake:
         continued from the last samples before them (:func:`drift_basis` over those and these: its
         one-sided fits and spline see across the chunks, the yaw is unwrapped across)."""
         tail, new = self._tail, samples_of(log)
+        self._warn_gaps(tail[-1:] + new)
         g = drift_basis(log_of(tail + new, self.model, self.where), self.drift)
         if tail:
             g = tail[-1].basis + g[len(tail) :] - g[len(tail) - 1]
         new = [s._replace(basis=gk) for s, gk in zip(new, g)]
         self._tail = (tail + new)[-BASIS_OVERLAP:]
         return new
+
+    def _warn_gaps(self, samples: list):
+        """Warn of each gap between ``samples`` (more than ``GAP_STEPS`` steps) that a drift kind's
+        basis is not exact across: the torque's (time) and the planar viscous one's (the yaw's
+        change) are; a spatial viscous or Coulomb basis is a spline quadrature of the base rate,
+        which the gap does not sample, and the planar Coulomb basis locates one sign change of the
+        rate in it by one-sided fits (two are missed). The error moves the momentum the segment
+        carries on, and the test may take it for a change."""
+        planar = self.model.planar
+        kinds = [k for k in self.drift if k == "coulomb" or (k == "viscous" and not planar)]
+        if not kinds or not self.step or len(samples) < 2:
+            return
+        t = np.array([s.t for s in samples])
+        for i in np.flatnonzero(np.diff(t) > GAP_STEPS * self.step):
+            warnings.warn(f"{self.where}: no sample for {t[i + 1] - t[i]:.3g} s from {t[i]:.6g} s: the {' and '.join(kinds)} "
+                          "drift basis is integrated across it as if the base had turned smoothly there (the base rate "
+                          "in the gap is not measured): its error moves the momentum after the gap, which the test "
+                          "may take for a change", stacklevel=4)
