@@ -26,7 +26,8 @@ levels given).
     poses/s), the monitor in its own process, this process subscribed to its topics and to the
     joint states: each estimate's publication after the arrival here of its last sample's joint
     state and, per alarm and event, ``latency_s`` (from the arrival of the message that completed
-    the revealing sample, half a differentiator window after it, to the publication) and the
+    the revealing sample, half a differentiator window after it, at the monitor's middleware, to
+    the publication; for "undetermined", of the warm-up's last sample) and the
     time from the revealing sample's own joint state to the message's arrival here, with the
     event's time on the data clock after the grasp. The data's own waits: the revealing sample's
     rate needs half a differentiator window (0.25 s of data), its part up to ``--block`` s more;
@@ -284,7 +285,9 @@ def over_dds(run, grasp, rate_factor, block):
         if k < stamps.size:
             lags.append(t - arrival[stamps[k]])
     print(f"(b) {rate_factor:g}x real time: {50 * rate_factor:.0f} joint samples/s in ({n} in {play.returncode=}), "
-          f"block {block:g} s; {len(got['estimate'])} estimates published, each after the arrival of its last "
+          f"block {block:g} s; {len(got['estimate'])} estimates published ("
+          f"{sum(d.get('status') == 'testing' for _, d in got['estimate'])} of them testing), each after the arrival "
+          f"of its last "
           f"sample's joint state (which waits half a differentiator window, 0.25 s of data, for its rate): "
           + (f"median {statistics.median(lags):.3f} s, max {max(lags):.3f} s" if lags else "none"))
     for t, e in got["events"]:
