@@ -152,3 +152,25 @@ for e in detected:
 bx.set(xlabel="twin clock [s]", ylabel="joint angles [rad]")
 bx.legend(loc="best", fontsize="small")
 plt.show()
+
+# %%
+# The estimate after each part
+# ----------------------------
+# ``/spaceid/estimate`` came after every aligned part. Here one parameter with its 2-sigma band:
+# while a warm-up waits (grey) the values are its last identification's, whose standard errors do
+# not cover the bias of the parameters it names undetermined; once its samples determine the
+# estimate (segment 0 from 3.5 s of motion), the recursive estimate of the test phase (blue).
+# After the grasp the segment's warm-up never is determined: its estimates stay grey.
+
+estimates = [out.data for _, out in seen if out.kind == "estimate" and out.data["values"] is not None]
+k = estimates[0]["names"].index("pi5")
+fig, ax = plt.subplots(figsize=(6, 3), layout="constrained")
+for status, color in (("warming up", "0.5"), ("testing", "C0")):
+    shown = [e for e in estimates if e["status"] == status]
+    t = np.array([e["time"] + e["time_origin_ns"] / 1e9 for e in shown])
+    v, s = np.array([e["values"][k] for e in shown]), np.array([e["std"][k] for e in shown])
+    ax.errorbar(t, v, yerr=2 * s, fmt=".", color=color, capsize=2, label=f"{status} ({len(shown)} messages)")
+ax.axvline(grasp, color="k", ls="--", lw=0.8, label="grasp")
+ax.set(xlabel="twin clock [s]", ylabel="pi5", title="/spaceid/estimate, pi5 +/- 2 sigma")
+ax.legend(fontsize="small")
+plt.show()
