@@ -111,7 +111,8 @@ def test_a_gap_in_the_samples_and_the_drift_basis(cepheus, turning, kinds):
         mon._intake.learn_window(gapped)
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            running = np.concatenate([_basis(mon, gapped.select(slice(i, i + 7))) for i in range(0, gapped.n_samples, 7)])
+            running = np.concatenate([_basis(mon, gapped.select(slice(i, i + 7)))
+                                      for i in range(0, gapped.n_samples, 7)])  # fmt: skip
         error = np.max(np.abs(running - drift_basis(turning, kinds)[keep]))
         said = [str(c.message) for c in caught if "drift basis is integrated across it" in str(c.message)]
         if kinds == ("coulomb",):
@@ -176,53 +177,6 @@ def test_a_drift_is_no_change(drifting, cepheus):
     assert abs(rec["drift"][0] - VISCOUS) < 4 * rec["drift_std"][0]
     assert np.all(np.abs(rec["values"] - param.true_values) < 5 * rec["std"])
     assert rec["momentum_from"] == drifting.t[0] and np.array_equal(rec["momentum"], H)
-
-
-@pytest.mark.parametrize("kinds", [("torque",), ("viscous",), ("coulomb",)])
-def test_a_gap_in_the_samples_and_the_drift_basis(cepheus, turning, kinds):
-    """0.3 s of samples lost (a gap the live aligner skips) where the base rate turns both ways (two
-    sign changes, 0.18 s apart, in the gap): the torque's basis (time) and the planar viscous one
-    (the yaw's change) are exact across it, without a warning; the planar Coulomb basis, which
-    sees the same sign at both ends, misses the 0.18 s the rate spent reversed, twice (0.36 s of
-    the basis: that times the friction torque in momentum), and the monitor warns that it
-    integrates across the gap as if the base had turned smoothly. Away from sign changes the
-    Coulomb basis across a gap is exact to the crossings' location (1e-6 s)."""
-    _, param = cepheus
-    w = turning.base_w[:, 2]
-    k = np.flatnonzero(np.diff(np.sign(w)) != 0)[:2]
-    assert k[1] - k[0] < 20  # two sign changes within 0.2 s
-    for lost, tolerance in [(slice(k[0] - 10, k[0] + 20), 0.3), (slice(500, 530), 1e-5)]:
-        keep = np.r_[0 : lost.start, lost.stop : turning.n_samples]
-        gapped = turning.select(keep)
-        mon = Monitor(param, H, drift=kinds)
-        mon._intake.learn_window(gapped)
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always")
-            running = np.concatenate([_basis(mon, gapped.select(slice(i, i + 7))) for i in range(0, gapped.n_samples, 7)])
-        error = np.max(np.abs(running - drift_basis(turning, kinds)[keep]))
-        said = [str(c.message) for c in caught if "drift basis is integrated across it" in str(c.message)]
-        if kinds == ("coulomb",):
-            assert len(said) == 1 and "no sample for 0.31 s" in said[0]
-            if lost.start < k[0] < k[1] < lost.stop:  # both sign changes in the gap: twice the time reversed
-                assert error == pytest.approx(2 * (turning.t[k[1]] - turning.t[k[0]]), abs=0.03)
-            else:
-                assert error < tolerance
-        else:
-            assert not said and error < 1e-12 * np.max(np.abs(running))
-
-
-def test_a_gap_in_a_spatial_log_is_warned_about():
-    """A spatial viscous drift basis across 0.3 s of lost samples is a spline through the gap: the
-    monitor warns (the chunked basis without the gap is the whole log's to 1e-9, above)."""
-    model = random_tree(np.random.default_rng(1), [0, 1], planar=False)
-    param = minimal_parameters(model)
-    log = simulate(param, param.true_values, _motion, np.arange(600) / 50, np.array([0.5, -0.4, 0.8]), model=model)
-    gapped = log.select(np.r_[0:300, 315:600])
-    mon = Monitor(param, np.array([0.5, -0.4, 0.8]), drift=("viscous",))
-    mon._intake.learn_window(gapped)
-    with pytest.warns(UserWarning, match=r"no sample for 0\.32 s from 5\.98 s: the viscous drift basis is integrated"):
-        for i in range(0, gapped.n_samples, 7):
-            _basis(mon, gapped.select(slice(i, i + 7)))
 
 
 # fast representatives: test_monitor.py::test_finds_the_capture_within_a_few_samples, test_cli_monitor_with_drift

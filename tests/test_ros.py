@@ -133,7 +133,8 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
         assert abs(payload["mass"] - 0.5) <= 2 * payload["std"]["mass"], payload
 
         def undetermined():  # what the warm-up after the grasp leaves undetermined, published live
-            return [e for e in listener.got["events"] if e["stage"] == "undetermined" and e["index"] == near()[0]["index"]]
+            return [e for e in listener.got["events"]
+                    if e["stage"] == "undetermined" and e["index"] == near()[0]["index"]]
 
         assert listener.wait(undetermined, TIMEOUT, [monitor]), listener.got["events"]
         assert undetermined()[0]["warm_up"]["undetermined"]

@@ -439,8 +439,9 @@ class Monitor:
         std = np.sqrt(determinacy.variances) / segment.scale
         values, stds = self._eq.full(segment.theta_ref)[0], np.zeros(self.param.n_params)
         stds[self._eq.free] = std[:nf]
+        undetermined = {names[i]: float(s) for i, s in enumerate(determinacy.shares) if not s <= NOISE_SHARE}
         out |= {"values": values, "std": stds, "noise_share": determinacy.noise_share, "bias": determinacy.bias,
-                "undetermined": {names[i]: float(s) for i, s in enumerate(determinacy.shares) if not s <= NOISE_SHARE}}
+                "undetermined": undetermined}
         if self.drift:
             out |= {"drift": segment.theta_ref[nf:], "drift_std": std[nf:]}
         return out

@@ -160,7 +160,7 @@ class Intake:
             return
         t = np.array([s.t for s in samples])
         for i in np.flatnonzero(np.diff(t) > GAP_STEPS * self.step):
-            warnings.warn(f"{self.where}: no sample for {t[i + 1] - t[i]:.3g} s from {t[i]:.6g} s: the {' and '.join(kinds)} "
-                          "drift basis is integrated across it as if the base had turned smoothly there (the base rate "
-                          "in the gap is not measured): its error moves the momentum after the gap, which the test "
-                          "may take for a change", stacklevel=4)
+            warnings.warn(f"{self.where}: no sample for {t[i + 1] - t[i]:.3g} s from {t[i]:.6g} s: the "
+                          f"{' and '.join(kinds)} drift basis is integrated across it as if the base had turned "
+                          "smoothly there (the base rate in the gap is not measured): its error moves the momentum "
+                          "after the gap, which the test may take for a change", stacklevel=4)

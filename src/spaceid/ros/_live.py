@@ -43,6 +43,8 @@ ARRIVALS = 20_000
 """Most recent messages whose arrival is remembered, to time the alarms from."""
 MAX_HELD = 50_000
 """Most messages held unaligned: more means the pose topic is silent (the joint states wait for it)."""
+VALUES = ("values", "std", "drift", "drift_std")
+"""The keys of an estimate that its message carries as they are (the rest of a warm-up's goes in ``warm_up``)."""
 HISTORY = 6000
 """Most recent samples kept for the payload's identification."""
 
@@ -154,7 +156,7 @@ class LiveMonitor:
         self._recent = collections.deque()  # the latest parts, at most HISTORY samples
         self._n_recent, self._unchecked = 0, False  # their samples; whether a part came since the payload's check
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
-        self._undetermined_due = 0  # the warm-up's samples after the last alarm at which to say what they leave undetermined
+        self._undetermined_due = 0  # warm-up samples after the last alarm when to say what they leave undetermined
         self.n_messages, self.busy = 0, 0.0
         self._emit = None  # where the outputs go
         topics = (self.aligner.joint_topic, self.aligner.pose_topic)
@@ -225,7 +227,7 @@ class LiveMonitor:
         if alarm is None or attempt is None or attempt["n_samples"] < self._undetermined_due:
             return
         self._undetermined_due = 2 * attempt["n_samples"]
-        summary = {k: v for k, v in attempt.items() if k not in ("values", "std", "drift", "drift_std")}
+        summary = {k: v for k, v in attempt.items() if k not in VALUES}
         self._emit(self._stage(alarm, "undetermined", self._completed(attempt["time"]), warm_up=summary))
 
     def _completed(self, t: float) -> float:
@@ -276,16 +278,17 @@ class LiveMonitor:
             return None
         est = self.monitor.estimate()
         testing = est is not None
-        if not testing:
-            attempt = self.monitor.warm_up_estimate() or {}
-            est = {k: v for k, v in attempt.items() if k in ("values", "std", "drift", "drift_std")}
-            est = {"values": None, "std": None} | est | {
-                "warm_up": {k: v for k, v in attempt.items() if k not in est} if attempt else None}
-        est = {k: v for k, v in est.items() if k not in ("linearization", "momentum", "momentum_from")}
+        if testing:
+            shown = {k: v for k, v in est.items() if k in VALUES}
+        else:
+            attempt, shown = self.monitor.warm_up_estimate(), {"values": None, "std": None, "warm_up": None}
+            if attempt is not None:
+                shown |= {k: v for k, v in attempt.items() if k in VALUES}
+                shown["warm_up"] = {k: v for k, v in attempt.items() if k not in VALUES}
         return _plain({"time": self._recent[-1].t[-1], "time_origin_ns": self._origin,
                        "n_samples": self.monitor.n_samples, "segment": len(self.monitor.segments),
                        "names": list(self.param.names), "status": "testing" if testing else "warming up",
-                       "determined": testing} | est)  # fmt: skip
+                       "determined": testing} | shown)  # fmt: skip
 
     def payload(self) -> LiveOutput | None:
         """The payload after the last alarm, when due: once the samples after it allow (a warm-up

@@ -94,8 +94,8 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
 def _take_all(subscriptions) -> list:
     """Every message the ``subscriptions`` ``(subscription, topic, pose_type or None)`` hold, as
     ``(topic, message, arrival [s])``: taken from each at once (rclpy's take, as its executor takes
-    them), without the executor's round per message (a wait set built and waited on, 0.3 to 0.7 ms
-    of processor time each: at ten times real time, 1,500 messages a second, more than the
+    them), without the executor's round per message (a wait set built and waited on, 0.3 to 0.5 ms
+    of processor time each: at ten times real time, 1,500 messages a second, as much as the
     monitor's own work)."""
     taken = []
     for sub, topic, pose_type in subscriptions:
