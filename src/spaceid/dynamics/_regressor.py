@@ -953,8 +953,9 @@ def identifiability(param: Parameterization, *, tol: float | None = None) -> Ide
     q, qd, w0 = _random_states(model, param.n_states, param.seed + 1)  # fresh states for the tests
     y = full_regressor(model, q, qd, w0)[:, slice(2, 3) if model.planar else slice(None), :].reshape(-1, len(names))
     energy = energy_regressor(model, q, qd, w0)
-    rowspace = np.linalg.svd(param.projection, full_matrices=False)[2]  # orthonormal rows, (k, n_full)
-    outside = energy - (energy @ rowspace.T) @ rowspace
+    with one_blas_thread():  # threaded, on busy cores, this SVD of the servicer's 496 x 1,980 took 35 s (measured)
+        rowspace = np.linalg.svd(param.projection, full_matrices=False)[2]  # orthonormal rows, (k, n_full)
+        outside = energy - (energy @ rowspace.T) @ rowspace
     energy_residual = float(np.linalg.norm(outside) / np.linalg.norm(energy))
     # a standard parameter acts through its own column and through the lumped products with it
     theta, first, pairs = _layout(model)
