@@ -141,13 +141,7 @@ def _accumulate_factor(R, block):
     return np.triu(R)
 
 
-def _accumulate_gram(G, block):
-    """``G + block^T block``, ``G (c, c)`` or None (nothing accumulated yet)."""
-    gram = block.T @ block
-    return gram if G is None else G + gram
-
-
-def _accumulate_gram_pair(G, A, b):
+def _accumulate_gram(G, A, b):
     """``G`` plus the Gram matrix ``(p + 1, p + 1)`` of ``[A | b]`` (``A (m, p)`` a view with unit column stride,
     ``b (m,)``), ``G`` None: nothing accumulated yet. ``A^T A`` by BLAS ``syrk`` on the rows in place: a scaled
     copy of them cost a sixth of the product (the servicer's 30,000 x 496, measured)."""
@@ -160,7 +154,8 @@ def _accumulate_gram_pair(G, A, b):
 
 def _blockwise(A, b, scale, accumulate, combine):
     """``accumulate`` over the blocks of ``ROW_BLOCK`` rows of ``[A / scale | b]`` (``A (rows, p)``,
-    ``b (rows,)``), as ``acc = accumulate(acc, block)`` from ``acc = None``: interleaved over
+    ``b (rows,)``), as ``acc = accumulate(acc, block)`` from ``acc = None`` (``accumulate(acc, A_rows, b_rows)`` for
+    :func:`_accumulate_gram`): interleaved over
     ``work_threads()`` threads (LAPACK and BLAS release the GIL), whose results ``combine(acc, acc)``
     joins. BLAS runs on one thread meanwhile. The blocks are copied scaled into LAPACK's column-major layout
     for the QR (:func:`_accumulate_factor`); the Gram matrix (:func:`_accumulate_gram`) is that of the rows
@@ -173,7 +168,7 @@ def _blockwise(A, b, scale, accumulate, combine):
         acc = None
         for start in part:
             if gram:  # the rows as they are (views, no copy), scaled once in the sum below
-                acc = _accumulate_gram_pair(acc, A[start : start + rows], b[start : start + rows])
+                acc = _accumulate_gram(acc, A[start : start + rows], b[start : start + rows])
                 continue
             block = np.empty((len(A[start : start + rows]), A.shape[1] + 1), order="F")  # one copy
             np.divide(A[start : start + rows], scale, out=block[:, :-1])
