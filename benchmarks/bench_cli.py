@@ -4,7 +4,9 @@ Each run is a fresh child process (``python -m spaceid.cli COMMAND ...``): its w
 time (user + system: steadier than the wall time on a loaded machine) and its peak resident memory
 (``ru_maxrss`` of that child alone, from ``os.wait4``). "Cold" is a first run: a fresh, empty
 ``NUMBA_CACHE_DIR`` (no compiled kernel) and ``SPACEID_CACHE_DIR`` (no minimal parameter set) for
-that one command; "warm" runs the same command again on the caches the cold run left. The
+that one command; "warm" runs the same command again on the caches the cold run left; "installed" is
+a first run after the install step: on a copy of the caches that ``spaceid demo`` left on empty ones
+(run once per tree, first; that demo is not in the table). The
 bytecode of both source trees is compiled first (``pip`` does that at install), so it counts in
 neither.
 
@@ -26,7 +28,7 @@ takes no model). The ``ros`` commands are left out. Prints one Markdown table (c
 and writes it to ``--markdown FILE`` when given. Prints only: it never fails on timings.
 
     python benchmarks/bench_cli.py [--presets cepheus satellite-7dof servicer-dual]
-        [--commands model identify-ols ...] [--states cold warm] [--samples 500]
+        [--commands model identify-ols ...] [--states cold warm installed] [--samples 500]
         [--baseline REF | --no-baseline] [--spatial-experiment] [--markdown FILE] [--keep DIR]
 """
 
@@ -135,11 +137,25 @@ def checkout(ref: str, folder: Path) -> Path:
     return folder / "src"
 
 
+def installed_caches(trees: dict, work: Path) -> dict:
+    """Per tree, the caches that ``spaceid demo`` (the install step) leaves on empty ones: a folder to copy."""
+    out = {}
+    for tree, src in trees.items():
+        out[tree] = work / "installed" / tree
+        shutil.rmtree(out[tree], ignore_errors=True)
+        (work / "installed" / f"{tree}-demo").mkdir(parents=True, exist_ok=True)
+        run = run_child(["demo", "--out", "report", "--overwrite"], src, work / "installed" / f"{tree}-demo", out[tree])
+        print(f"install step (spaceid demo on empty caches), {tree}: {run.wall:6.2f} s wall, {run.cpu:6.2f} s CPU",
+              flush=True)
+    return out
+
+
 def measure(presets, commands, states, samples, trees: dict, work: Path, spatial_experiment=False,
             progress=None) -> dict:
     """``{(preset, label): {(tree, state): Run}}``, the trees' runs alternated; ``progress(results)``
     is called after each command (the table so far)."""
     results = {}
+    installed = installed_caches(trees, work) if "installed" in states else {}
     for preset in presets:
         folder = work / preset
         for label, argv in command_lines(preset, samples, spatial_experiment).items():
@@ -157,8 +173,10 @@ def measure(presets, commands, states, samples, trees: dict, work: Path, spatial
                             if (folder / name).exists():
                                 shutil.copy(folder / name, cwd / name)
                     caches = work / "caches" / tree
-                    if state == "cold":
+                    if state in ("cold", "installed"):
                         shutil.rmtree(caches, ignore_errors=True)
+                    if state == "installed":
+                        shutil.copytree(installed[tree], caches)
                     cells[tree, state] = run = run_child(argv, src, cwd, caches)
                     print(f"{preset:15s} {label:13s} {tree:8s} {state}: {run.wall:6.2f} s wall, {run.cpu:6.2f} s CPU,"
                           f" {run.rss_mb:5.0f} MB{'' if run.code == 0 else f' (exit {run.code})'}", flush=True)
@@ -200,7 +218,7 @@ def main():
     parser.add_argument("--presets", nargs="+", default=list(PRESETS), choices=PRESETS)
     parser.add_argument("--commands", nargs="+", help="labels of the table's first column (default: all); the "
                         "inputs they read must exist, so keep the ones before them or use --keep")
-    parser.add_argument("--states", nargs="+", default=["cold", "warm"], choices=["cold", "warm"])
+    parser.add_argument("--states", nargs="+", default=["cold", "warm"], choices=["cold", "warm", "installed"])
     parser.add_argument("--samples", type=int, default=500, help="samples of the simulated log and the prediction")
     parser.add_argument("--baseline", help="git ref of the older version (default: the parent of the first commit "
                         "that names issue 29)")

@@ -30,8 +30,18 @@ def test_noise_reproduces_the_papers_error_size():
 
 
 @pytest.mark.slow
-def test_designed_demo_writes_report(tmp_path, capsys):
+def test_designed_demo_writes_report(tmp_path, capsys, monkeypatch):
+    from spaceid.dynamics import _regressor
+    from spaceid.models import PRESETS, load_model
+
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path / "cache"))
+    _regressor._minimal_cached.cache_clear()
     assert main(["demo", "--seed", "1", "--out", str(tmp_path / "rep"), "--json"]) == 0
+    # the install step: every preset's minimal set is cached, so no first command derives one
+    _regressor._minimal_cached.cache_clear()
+    monkeypatch.setattr(_regressor, "_derive_minimal", lambda *a: pytest.fail("derived although the demo warmed it"))
+    assert all(_regressor.minimal_parameters(load_model(name)).n_params for name in PRESETS)
+    _regressor._minimal_cached.cache_clear()
     out = json.loads(capsys.readouterr().out)
     assert out["condition_number"] < 37.8  # the design target (best known about 36)
     for p in out["parameters"]:

@@ -3,6 +3,7 @@ backquotes, never a command-line option; the command line shows each such name a
 that exists (``spaceid.cli.for_the_command_line``, ``OPTION_OF``)."""
 
 import ast
+import functools
 import re
 from pathlib import Path
 
@@ -155,6 +156,7 @@ def test_warnings_name_the_argument(case):
     assert not any(FLAG.search(m) for m in messages), messages
 
 
+@functools.cache  # two tests scan every module: parsed once
 def _message_strings(path):
     """The string constants of a module that are not docstrings (a statement of its own)."""
     tree = ast.parse(path.read_text(encoding="utf-8"))

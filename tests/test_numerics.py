@@ -161,3 +161,24 @@ def test_cholesky_factor_with_refinement_agrees_with_householder(dual_arm, ampli
         gram, gram_h = R[:-1, :-1].T @ R[:-1, :-1], householder[:-1, :-1].T @ householder[:-1, :-1]
         assert np.abs(gram - gram_h).max() < 1e-13 * np.abs(gram_h).max()
         assert abs(R[-1, -1]) == pytest.approx(abs(householder[-1, -1]), rel=1e-6, abs=1e-12 * np.linalg.norm(b))
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_gram_matrix_of_the_rows_as_they_are_is_that_of_the_scaled_rows(monkeypatch, threads):
+    """The blockwise Gram matrix of ``[A / scale | b]``, formed from the rows as they are (views of the stacked
+    ``[A | -b]``, several blocks, on one or two threads) and scaled once: each entry as the product of the scaled
+    copy's columns to 1e-13 of ``sqrt(G_ii G_jj)`` (its rounding), the right-hand side's sign and the scale's
+    placement included; columns of very different norms (1e-6 to 1e6)."""
+    from spaceid.estimation import _linalg
+
+    monkeypatch.setattr(_linalg, "work_threads", lambda: threads)
+    rng = np.random.default_rng(5)
+    phi = rng.standard_normal((3 * _linalg.ROW_BLOCK + 17, 3, 9)) * np.logspace(-6, 6, 9)
+    A, b = _split(phi)  # A: a view with a row stride of 9 columns, b = -phi[..., -1]
+    scale = _linalg._column_scale(A)
+    G = _linalg._blockwise(A, b, scale, _linalg._accumulate_gram, np.add)
+    scaled = np.column_stack([A / scale, b])
+    exact = scaled.T @ scaled
+    size = np.sqrt(np.outer(np.diag(exact), np.diag(exact)))
+    assert np.max(np.abs(G - exact) / size) < 1e-13
+    assert np.allclose(np.diag(G)[:-1], 1.0, rtol=1e-13, atol=0)  # unit-norm columns

@@ -792,7 +792,8 @@ def _derive_minimal(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
     n_states = _n_states(len(names), n_rows)
     q, qd, w0 = _random_states(model, n_states, seed)
     y_full = full_regressor(model, q, qd, w0)[:, rows, :].reshape(-1, len(names))
-    indep, basis = _independent(y_full, tol)
+    with one_blas_thread():  # its products and factorisations: on busy cores threaded BLAS took 1.5 to 2 times as long
+        indep, basis = _independent(y_full, tol)
     rank = len(indep)
     if rank == 0:
         raise SpaceidError(f"{model.source or model.name}: the momentum does not depend on any parameter "
@@ -801,7 +802,8 @@ def _derive_minimal(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
     if model.planar and symbolic and all(b.joint_type == "revolute" for b in model.bodies[1:]):
         terms = _planar_pairs(len(model.bodies))
         f = _planar_functions(model, terms, q, qd, w0)
-        coef, *_ = np.linalg.lstsq(f, y_full, rcond=None)
+        with one_blas_thread():
+            coef, *_ = np.linalg.lstsq(f, y_full, rcond=None)
         scale = np.abs(y_full).max()
         if np.abs(f @ coef - y_full).max() <= 1e-9 * scale:
             # rows of coef that are independent (and not structurally zero), in the paper's order
@@ -825,7 +827,8 @@ def _derive_minimal(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
             )
     # columns basis: pi_i = theta_i + sum_d beta_id theta_d over the dependent columns d
     dep = np.setdiff1d(np.arange(len(names)), indep)
-    beta = _dependency_coefficients(y_full, indep, dep, basis, tol)
+    with one_blas_thread():
+        beta = _dependency_coefficients(y_full, indep, dep, basis, tol)
     order = np.argsort(indep)  # the weakly independent columns were taken last
     indep, beta = indep[order], beta[order]
     proj = np.zeros((rank, len(names)))
@@ -950,8 +953,9 @@ def identifiability(param: Parameterization, *, tol: float | None = None) -> Ide
     q, qd, w0 = _random_states(model, param.n_states, param.seed + 1)  # fresh states for the tests
     y = full_regressor(model, q, qd, w0)[:, slice(2, 3) if model.planar else slice(None), :].reshape(-1, len(names))
     energy = energy_regressor(model, q, qd, w0)
-    rowspace = np.linalg.svd(param.projection, full_matrices=False)[2]  # orthonormal rows, (k, n_full)
-    outside = energy - (energy @ rowspace.T) @ rowspace
+    with one_blas_thread():  # threaded, on busy cores, this SVD of the servicer's 496 x 1,980 took 35 s (measured)
+        rowspace = np.linalg.svd(param.projection, full_matrices=False)[2]  # orthonormal rows, (k, n_full)
+        outside = energy - (energy @ rowspace.T) @ rowspace
     energy_residual = float(np.linalg.norm(outside) / np.linalg.norm(energy))
     # a standard parameter acts through its own column and through the lumped products with it
     theta, first, pairs = _layout(model)

@@ -321,12 +321,14 @@ def _in_spline_blocks(param, pi, motion, times, y0, advance, where) -> np.ndarra
     ``y``, with that block's rate splines (:func:`_rate_splines`) and returns the states at
     ``block``; consecutive blocks share their boundary sample."""
     parts, y = [], np.asarray(y0, float)
-    for start in range(0, max(len(times) - 1, 1), SPLINE_SAMPLES):
+    starts = range(0, max(len(times) - 1, 1), SPLINE_SAMPLES)
+    for start in starts:
         block = times[start : start + SPLINE_SAMPLES + 1]
         part = advance(*_rate_splines(param, pi, motion, block, where), y, block)
         parts.append(part if start == 0 else part[1:])
         y = part[-1]
-        gc.collect()  # solve_ivp's solver and its right-hand side form a cycle holding the block's splines
+        if start != starts[-1]:  # the last block's: freed by Python's next collection (a forced one took 0.5 s in a
+            gc.collect()  # large process); solve_ivp's solver and right-hand side form a cycle holding the splines
     return np.concatenate(parts)
 
 
