@@ -24,6 +24,8 @@ the Newey-West one.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 from scipy import sparse
 
@@ -294,10 +296,9 @@ def differentiated_sigma(log: Log, sigma: np.ndarray) -> np.ndarray:
             if column is not None and column < len(out):
                 out[column] = max(out[column], factor * record["noise"] * float(np.linalg.norm(gain)))
 
-    joints = info.get("joints") or {}
-    records = _channels(joints) if "method" in joints else None
-    for j, record in enumerate((records or [])[:nj]):
-        raised(record, j, nj + j)
+    joints = differentiated_series(replace(log, meta={**log.meta, "differentiation": {"joints": info.get("joints")}}))
+    for record, value, rate in joints or ():  # one record for every joint, or one per differentiated joint (a bag's)
+        raised(record, value, rate)
     base = info.get("base") or {}
     records = _channels(base) if base else None
     if records and log.planar:

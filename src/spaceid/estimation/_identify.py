@@ -29,6 +29,7 @@ from ..dynamics import Parameterization, full_parameter_names
 from ._angles import _angle_context
 from ._determined import WIDENED, equation_noise, undetermined_directions, undetermined_warning, widened
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
+from ._differentiated import differentiated_sigma
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _FitContext, _ols
@@ -457,7 +458,10 @@ def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, kn
         angles = replace(angles, start=None if start is None else start.theta)
     ctx = _FitContext(phi, factor, angles=angles,
                       **(_instrument_context(log, instruments, where) if estimator == "iv" else {}))
-    return _Prepared(eq, anchors, x, phi, noise, estimated, factor, cond_scaled, ctx, signal_sigma(param, noise),
+    # differentiated signals weighted at their filters' levels: estimated from the smoothed log itself they are
+    # understated, and the weights' errors-in-variables corrections fall short (docs/theory/noise.md)
+    return _Prepared(eq, anchors, x, phi, noise, estimated, factor, cond_scaled, ctx,
+                     differentiated_sigma(log, signal_sigma(param, noise)),
                      start)
 
 

@@ -583,6 +583,7 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     from ._equations import _split
     from ._linalg import _equation_whitener
     from ._determined import noise_gram, noise_rows
+    from ._differentiated import differentiated_sigma
     from ._noise import noise_from_log, signal_sigma
     from ._result import Identification
 
@@ -599,7 +600,7 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
         return np.linalg.lstsq(rest, b - A[:, :nf] @ pi_f, rcond=None)[0] if rest.shape[1] else np.zeros(0)
 
     theta0 = np.concatenate([pi0[eq.free], nuisance(pi0[eq.free])])
-    sigma = signal_sigma(param, noise)
+    sigma = differentiated_sigma(log, signal_sigma(param, noise))  # as identify weights them
     whitener = np.linalg.inv(_equation_whitener(eq, x, theta0, sigma))
     white = whitener @ phi
     rows, scale = noise_rows(len(x))  # the regressor's own noise, propagated from each signal's
