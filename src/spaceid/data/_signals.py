@@ -185,6 +185,14 @@ def differentiate(
     .. [4] P. Craven and G. Wahba, "Smoothing noisy data with spline functions", Numerische
        Mathematik 31, 1979.
     """
+    return _differentiated(t, x, method=method, window=window, order=order, smoothing=smoothing, quantum=quantum,
+                           wrap=wrap, name=name)
+
+
+def _differentiated(t, x, *, method, window, order, smoothing, quantum, wrap, name, shared=None):
+    """:func:`differentiate`; ``shared``: the channels take one automatic Savitzky-Golay setting, their
+    criteria summed and their noise spanning ``shared`` independent directions (:func:`_select_savgol`);
+    None: each channel its own."""
     t, x, shape = _check_series(t, x, name)
     quantum = _check_quantum(quantum, name)
     resolved, window, order = _check_tuning(t.size, method, window, order, smoothing, name)
@@ -193,9 +201,14 @@ def differentiate(
     _check_gaps(t, name)
     sigma, source = _noise(t, x, quantum)
     _check_resolution(t, x, sigma, name)
+    given = window, order
+    if shared and resolved == "savgol" and (window is None or order is None):
+        window, order = _select_savgol(t, x, sigma, window, order, shared)
     x_smooth, xdot, windows, orders, lams = _fit_channels(t, x, sigma, resolved, window, order, smoothing, name)
     step = float(np.median(np.diff(t)))
-    selection, rule = _selection(resolved, window, order, smoothing)
+    selection, rule = _selection(resolved, *given, smoothing)
+    if shared and rule != "manual" and resolved == "savgol":
+        rule += f"; one setting for the {x.shape[1]} channels, their criteria summed"
     info = {
         "method": resolved,
         "requested": method,
@@ -313,7 +326,10 @@ def differentiate_quaternion(t, quat, *, method="auto", window=None, order=None,
 
     The series is made sign-continuous (``q`` and ``-q`` are the same rotation, and motion
     capture may flip between them), its four components are smoothed and differentiated by
-    :func:`differentiate`, the smoothed quaternion is renormalised, and the body rate is::
+    :func:`differentiate` with one Savitzky-Golay window and order (chosen automatically for the
+    four together: the rate then does not depend on the inertial frame, and a component's own
+    noise, which varies with the attitude, does not set its window), the smoothed quaternion is
+    renormalised, and the body rate is::
 
         w_body = 2 * vec(conj(q) (x) qdot) / |q|^2,
 
@@ -356,7 +372,10 @@ def differentiate_quaternion(t, quat, *, method="auto", window=None, order=None,
         w_body[:, 2] = yaw_rate
         return yaw_to_quat(yaw), w_body, {**info, "planar": True, "sign_flips": 0}
     quat, flips = _sign_continuous(quat)
-    q, qdot, info = differentiate(t, quat, name="quat", **options)
+    # one setting for the four components: a linear filter then commutes with a change of inertial
+    # frame (the rate does not depend on it), and each component's noise varies with the attitude
+    # while their sum does not (_bias_shown)
+    q, qdot, info = _differentiated(t, quat, name="quat", quantum=None, wrap=False, shared=3, **options)
     quat_smooth, w_body = _body_rate(q, qdot)
     return quat_smooth, w_body, {**info, "planar": False, "sign_flips": flips}
 
