@@ -50,7 +50,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ._signal_checks import _check_gaps, _check_int, _check_quantum, _check_series, _finite_number, _require_samples
-from ._signal_noise import _NOISE_DIFFERENCE, _check_resolution, _noise
+from ._signal_noise import _NOISE_DIFFERENCE, _check_resolution, _noise, _pooled_noise
 from ._signal_savgol import _AUTO_ORDERS, _PILOT_EXTRA, _new_fits, _savgol, _savgol_gains, _select_savgol
 from ._signal_spline import _PROBES, _spline
 from ._timeseries import quat_to_yaw, yaw_to_quat
@@ -202,6 +202,8 @@ def _differentiated(t, x, *, method, window, order, smoothing, quantum, wrap, na
     sigma, source = _noise(t, x, quantum)
     _check_resolution(t, x, sigma, name)
     given = window, order
+    if shared:  # the channels' levels scaled to their total (the window check and the record take it)
+        sigma = sigma * np.sqrt(_pooled_noise(t, x, shared) / max(np.sum(sigma**2), 1e-300))
     if shared and resolved == "savgol" and (window is None or order is None):
         window, order = _select_savgol(t, x, sigma, window, order, shared)
     x_smooth, xdot, windows, orders, lams = _fit_channels(t, x, sigma, resolved, window, order, smoothing, name)
