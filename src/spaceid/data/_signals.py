@@ -358,7 +358,9 @@ def differentiate_quaternion(t, quat, *, method="auto", window=None, order=None,
         Base angular velocity in base axes [rad/s].
     info : dict
         The :func:`differentiate` record for the components (or the yaw), plus ``planar`` and
-        ``sign_flips`` (how many samples were negated).
+        ``sign_flips`` (how many samples were negated); the components' ``noise`` scaled to
+        their pooled total (a star tracker's small rotations, three directions: its level is
+        ``2 sqrt(sum noise^2 / 3)``).
 
     Raises
     ------
