@@ -229,10 +229,11 @@ def test_drift_test_level_on_conserved_spatial_logs_with_differentiated_rates(tm
 @pytest.mark.slow
 def test_drift_test_level_on_a_designed_motion_with_differentiated_rates(tmp_path):
     """Random robot 3 (28 parameters) on a designed motion (20 s, scaled condition number 92), rates
-    differentiated, levels estimated: no alarm on three conserved logs (each 1e-3). The drift coefficients
-    sat about three standard errors from zero, seed after seed, in the direction of the regressor noise's
-    errors-in-variables bias (the differentiated rates' noise, far above the sensors'): the test allows for
-    that bias, which it records, and it is the size of the fitted trend."""
+    differentiated, levels estimated: no alarm on three conserved logs (each 1e-3). While the quaternion's
+    components took a window each (the scalar one 5 samples: a body rate hundreds of times noisier than
+    the sensors'), the drift coefficients sat about three standard errors from zero, seed after seed, in
+    the direction of the regressor noise's errors-in-variables bias (1e-2 N m s over the log), which the
+    test allows for and records; with one window that bias is 1e-6 and the trend noise (p >= 0.2 here)."""
     model = random_robot(3, planar=False, max_arms=2, max_joints=4).load(tmp_path)
     param = minimal_parameters(model)
     lower, upper = model.joint_limits("lower"), model.joint_limits("upper")
@@ -246,5 +247,4 @@ def test_drift_test_level_on_a_designed_motion_with_differentiated_rates(tmp_pat
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         test = identify(param, logs[0], H_SPATIAL, estimator="ols").diagnostics.drift_test
-    trend, bias = np.array(list(test.trend.values())), np.array(test.errors_in_variables)
-    assert trend @ bias > 0 and 1 / 3 < np.linalg.norm(trend) / np.linalg.norm(bias) < 3
+    assert np.linalg.norm(test.errors_in_variables) < 1e-4 and test.p_value > 0.01, test

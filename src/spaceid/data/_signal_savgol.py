@@ -148,15 +148,20 @@ def _savgol_gains(t, window, order):
     return smooth, rate
 
 
-def _select_savgol(t, y, sigma, window, order):
+def _select_savgol(t, y, sigma, window, order, dimensions=1):
     """(window, order) minimising the plug-in criterion of :func:`differentiate`'s Notes (bias^2 +
     (w / n) variance: the error the derivatives leave in an estimate fitted over the record), among
     the windows shorter than the first whose bias the data show (:func:`_bias_shown`). A given
     ``window`` fixes the time resolution the caller wants of the rates themselves (a monitor's: a
     change shows within it), so the order is then chosen for their own error, bias^2 + variance (for
     the estimate's, quintics over 11 samples doubled the rates' noise and random robots' grasps went
-    unseen for 1.8 to 3 s)."""
+    unseen for 1.8 to 3 s).
+
+    ``y`` (n,) with noise level ``sigma``, or (n, m) channels that take one setting, of levels ``sigma
+    (m,)``: their criteria summed, their noise spanning ``dimensions`` independent directions (a unit
+    quaternion's four components: three, :func:`spaceid.data.differentiate_quaternion`)."""
     n = t.size
+    y, sigma = np.reshape(y, (n, -1)), np.reshape(sigma, -1)
     orders = [p for p in (_AUTO_ORDERS if order is None else (order,)) if window is None or p < window]
     best = (np.inf, None, None)
     for p in orders:
@@ -164,18 +169,20 @@ def _select_savgol(t, y, sigma, window, order):
             pilot = min(_PILOT_WIDTH * w + 1, n)
             if pilot <= p + _PILOT_EXTRA:  # only for the highest order on a 7- or 8-sample record
                 continue
-            if window is None and _bias_shown(t, y, sigma, _criterion_rows(n, w), int(w), p):
+            if window is None and _bias_shown(t, y, sigma, _criterion_rows(n, w), int(w), p, dimensions):
                 break
             share = w / n if window is None else 1.0
-            mse = _plugin_mse(t, y, sigma, _criterion_rows(n, pilot), int(w), p, pilot, share)
+            mse = sum(_plugin_mse(t, y[:, j], sigma[j], _criterion_rows(n, pilot), int(w), p, pilot, share)
+                      for j in range(y.shape[1]))  # fmt: skip
             if mse < best[0]:
                 best = (mse, int(w), p)
     return best[1], best[2]
 
 
-def _bias_shown(t, y, sigma, rows, window, order):
+def _bias_shown(t, y, sigma, rows, window, order, dimensions=1):
     """Whether the derivatives of the (window, order) fit at ``rows`` differ from those of the next
-    shorter candidate's fit by more than noise, on any of :data:`_BLOCKS` consecutive stretches.
+    shorter candidate's fit by more than noise, on any of :data:`_BLOCKS` consecutive stretches;
+    ``y`` (n, m) channels of noise levels ``sigma (m,)``, their squared differences summed.
 
     The shorter window is nested in the longer one, so the difference of the two derivatives is
     the difference of their biases plus noise of variance ``s_i^2 = sigma^2 (|h_i|^2 - |d_i|^2)``
@@ -183,21 +190,28 @@ def _bias_shown(t, y, sigma, rows, window, order):
     polynomial of degree ``order`` that ``d_i`` is on their window). Without bias, the mean of
     ``diff_i^2 / s_i^2`` over a stretch is taken as chi-square over as many degrees of freedom as
     rows tested in it, or as shorter windows fit in it where they are fewer (neighbouring rows share
-    their noise), tested at
-    :data:`_BIAS_LEVEL`.
+    their noise), times ``dimensions``, tested at :data:`_BIAS_LEVEL`. Summed over channels, only
+    the total noise ``sum sigma^2`` need be the same along the record: a unit quaternion's
+    components each have noise that varies with the attitude (``sigma sqrt(1 - q_j^2) / 2`` for a
+    small rotation of ``sigma`` per axis: on a servicer's star tracker log the scalar component's,
+    five times larger on one stretch than its average, cut its window to 5 to 7 samples and made
+    the base rate 50 times noisier), their sum does not (``3 sigma^2 / 4``).
     """
     shorter = max(int(window / _WINDOW_RATIO) | 1, _shortest_window(order))
     if shorter >= window:
         return False
-    rate, gain = _local_rates(t, y, rows, window, order)
-    rate_short, gain_short = _local_rates(t, y, rows, shorter, order)
-    ratio = (rate - rate_short) ** 2 / (sigma**2 * (gain_short - gain))
+    squares, gains = 0.0, None
+    for j in range(y.shape[1]):
+        rate, gain = _local_rates(t, y[:, j], rows, window, order)
+        rate_short, gain_short = _local_rates(t, y[:, j], rows, shorter, order)
+        squares, gains = squares + (rate - rate_short) ** 2, gain_short - gain
+    ratio = squares / (np.sum(sigma**2) * gains)
     for block in np.array_split(np.arange(rows.size), min(_BLOCKS, rows.size)):
         # independent terms: the rows tested, fewer where their windows overlap (counted as the stretch
         # over the shorter window); the stretch alone overcounted sparse rows (31 rows of a 6,000-sample
         # servicer log taken as 150 terms: a 3.9-sigma encoder sample cut a joint's window to 5 samples)
         dof = max(1, min(block.size, (rows[block[-1]] - rows[block[0]] + 1) // shorter))
-        if np.mean(ratio[block]) > _bias_threshold(dof):
+        if np.mean(ratio[block]) > _bias_threshold(dof * dimensions):
             return True
     return False
 

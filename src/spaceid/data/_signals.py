@@ -50,7 +50,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ._signal_checks import _check_gaps, _check_int, _check_quantum, _check_series, _finite_number, _require_samples
-from ._signal_noise import _NOISE_DIFFERENCE, _check_resolution, _noise
+from ._signal_noise import _NOISE_DIFFERENCE, _check_resolution, _noise, _pooled_noise
 from ._signal_savgol import _AUTO_ORDERS, _PILOT_EXTRA, _new_fits, _savgol, _savgol_gains, _select_savgol
 from ._signal_spline import _PROBES, _spline
 from ._timeseries import quat_to_yaw, yaw_to_quat
@@ -185,6 +185,14 @@ def differentiate(
     .. [4] P. Craven and G. Wahba, "Smoothing noisy data with spline functions", Numerische
        Mathematik 31, 1979.
     """
+    return _differentiated(t, x, method=method, window=window, order=order, smoothing=smoothing, quantum=quantum,
+                           wrap=wrap, name=name)
+
+
+def _differentiated(t, x, *, method, window, order, smoothing, quantum, wrap, name, shared=None):
+    """:func:`differentiate`; ``shared``: the channels take one automatic Savitzky-Golay setting, their
+    criteria summed and their noise spanning ``shared`` independent directions (:func:`_select_savgol`);
+    None: each channel its own."""
     t, x, shape = _check_series(t, x, name)
     quantum = _check_quantum(quantum, name)
     resolved, window, order = _check_tuning(t.size, method, window, order, smoothing, name)
@@ -193,9 +201,16 @@ def differentiate(
     _check_gaps(t, name)
     sigma, source = _noise(t, x, quantum)
     _check_resolution(t, x, sigma, name)
+    given = window, order
+    if shared:  # the channels' levels scaled to their total (the window check and the record take it)
+        sigma = sigma * np.sqrt(_pooled_noise(t, x, shared) / max(np.sum(sigma**2), 1e-300))
+    if shared and resolved == "savgol" and (window is None or order is None):
+        window, order = _select_savgol(t, x, sigma, window, order, shared)
     x_smooth, xdot, windows, orders, lams = _fit_channels(t, x, sigma, resolved, window, order, smoothing, name)
     step = float(np.median(np.diff(t)))
-    selection, rule = _selection(resolved, window, order, smoothing)
+    selection, rule = _selection(resolved, *given, smoothing)
+    if shared and rule != "manual" and resolved == "savgol":
+        rule += f"; one setting for the {x.shape[1]} channels, their criteria summed"
     info = {
         "method": resolved,
         "requested": method,
@@ -313,7 +328,10 @@ def differentiate_quaternion(t, quat, *, method="auto", window=None, order=None,
 
     The series is made sign-continuous (``q`` and ``-q`` are the same rotation, and motion
     capture may flip between them), its four components are smoothed and differentiated by
-    :func:`differentiate`, the smoothed quaternion is renormalised, and the body rate is::
+    :func:`differentiate` with one Savitzky-Golay window and order (chosen automatically for the
+    four together: the rate then does not depend on the inertial frame, and a component's own
+    noise, which varies with the attitude, does not set its window), the smoothed quaternion is
+    renormalised, and the body rate is::
 
         w_body = 2 * vec(conj(q) (x) qdot) / |q|^2,
 
@@ -340,7 +358,9 @@ def differentiate_quaternion(t, quat, *, method="auto", window=None, order=None,
         Base angular velocity in base axes [rad/s].
     info : dict
         The :func:`differentiate` record for the components (or the yaw), plus ``planar`` and
-        ``sign_flips`` (how many samples were negated).
+        ``sign_flips`` (how many samples were negated); the components' ``noise`` scaled to
+        their pooled total (a star tracker's small rotations, three directions: its level is
+        ``2 sqrt(sum noise^2 / 3)``).
 
     Raises
     ------
@@ -356,7 +376,10 @@ def differentiate_quaternion(t, quat, *, method="auto", window=None, order=None,
         w_body[:, 2] = yaw_rate
         return yaw_to_quat(yaw), w_body, {**info, "planar": True, "sign_flips": 0}
     quat, flips = _sign_continuous(quat)
-    q, qdot, info = differentiate(t, quat, name="quat", **options)
+    # one setting for the four components: a linear filter then commutes with a change of inertial
+    # frame (the rate does not depend on it), and each component's noise varies with the attitude
+    # while their sum does not (_bias_shown)
+    q, qdot, info = _differentiated(t, quat, name="quat", quantum=None, wrap=False, shared=3, **options)
     quat_smooth, w_body = _body_rate(q, qdot)
     return quat_smooth, w_body, {**info, "planar": False, "sign_flips": flips}
 

@@ -284,17 +284,16 @@ def differentiated_sigma(log: Log, sigma: np.ndarray) -> np.ndarray:
     estimated times the noise gain of the centred filter's smoothed value or derivative, on the
     record's uniform grid (the log may be a window cut from a longer record). Levels estimated from
     differentiated rates understate them (the filter smooths the sample-to-sample differences); a
-    spatial attitude's small rotation carries twice the quaternion's vector noise. Savitzky-Golay
-    channels only; the others as given."""
+    spatial attitude's small rotation and body rate mix the quaternion components' filters
+    (:func:`_attitude_levels`). Savitzky-Golay channels only; the others as given."""
     info = log.meta.get("differentiation") or {}
     nj, out = len(log.joints), np.array(sigma, float)
 
-    def raised(record, value, rate, factor=1.0):
-        window = record["window"]
-        _, smooth, slope = savgol_weights(record["step"] * np.arange(window), [window // 2], window, record["order"])
+    def raised(record, value, rate):
+        smooth, slope = _centred_weights(record)
         for column, gain in ((value, smooth), (rate, slope)):
             if column is not None and column < len(out):
-                out[column] = max(out[column], factor * record["noise"] * float(np.linalg.norm(gain)))
+                out[column] = max(out[column], record["noise"] * float(np.linalg.norm(gain)))
 
     joints = differentiated_series(replace(log, meta={**log.meta, "differentiation": {"joints": info.get("joints")}}))
     for record, value, rate in joints or ():  # one record for every joint, or one per differentiated joint (a bag's)
@@ -303,8 +302,48 @@ def differentiated_sigma(log: Log, sigma: np.ndarray) -> np.ndarray:
     records = _channels(base) if base else None
     if records and log.planar:
         raised(records[0], None, 2 * nj)
-    elif records and len(out) >= 2 * nj + 6:  # each quaternion component: its vector noise a half rotation
-        for record in records:
-            for axis in range(3):
-                raised(record, 2 * nj + 3 + axis, 2 * nj + axis, 2.0)
+    elif records and len(records) == 4 and len(out) >= 2 * nj + 6:
+        turn, rate = _attitude_levels(log, records)
+        out[2 * nj : 2 * nj + 3] = np.maximum(out[2 * nj : 2 * nj + 3], rate)
+        out[2 * nj + 3 : 2 * nj + 6] = np.maximum(out[2 * nj + 3 : 2 * nj + 6], turn)
     return out
+
+
+def _centred_weights(record) -> tuple:
+    """The smoothing ``(window,)`` [-] and derivative ``(window,)`` [1/s] weights of a channel's centred
+    Savitzky-Golay fit on its record's uniform grid."""
+    window = record["window"]
+    _, smooth, slope = savgol_weights(record["step"] * np.arange(window), [window // 2], window, record["order"])
+    return smooth[0], slope[0]
+
+
+def _attitude_levels(log: Log, records: list) -> tuple:
+    """The noise levels ``(3,)`` of a spatial base's smoothed small rotation and ``(3,)`` of its body
+    rate [rad, rad/s] about the base axes, the quaternion's four components differentiated by the
+    filters ``records``: the root mean square over the log of each sample's standard deviation.
+
+    As in :func:`_attitude_series`, the star tracker's small rotations ``eps`` (of level ``sigma``
+    per axis) reach the rate about axis ``i`` as ``sum_j sum_a P_j[i, a] (w_j eps_a)``, ``w_j`` the
+    centred derivative weights of component ``j`` and ``P_j`` its outer product, so its variance is
+    ``sigma^2 sum_a sum_jl P_j[i, a] P_l[i, a] w_j . w_l`` (the smoothing weights alike for the
+    rotation). One filter for all four components gives ``sigma |w|`` on every axis (``sum_j P_j =
+    I``); filters that differ do not: on a servicer log whose scalar component had a 7-sample window
+    and the others 23 to 289, the rate's error was 2.9e-4, 8.4e-4 and 1.2e-3 rad/s about the three
+    axes (the sum here: 2.7e-4, 8.6e-4, 1.2e-3), where the largest component's level put 1.4e-3 on
+    every axis and the undetermined directions' check took three determined ones for noise."""
+    s, v = log.base_quat[:, :1], log.base_quat[:, 1:]
+    E = np.concatenate([-v[:, None, :], s[:, :, None] * np.eye(3) + _skew(v)], axis=1)  # (n, 4, 3)
+    P = np.einsum("nja,njb->njab", E, E)  # (n, 4, 3, 3)
+    sigma = 2 * np.sqrt(sum(r["noise"] ** 2 for r in records) / 3)
+    weights = [_centred_weights(r) for r in records]
+    width = max(len(w[0]) for w in weights)
+
+    def level(which):  # the components' weights centred on one grid: their inner products C_jl
+        centred = np.zeros((len(records), width))
+        for j, w in enumerate(weights):
+            start = (width - len(w[which])) // 2
+            centred[j, start : start + len(w[which])] = w[which]
+        C = centred @ centred.T
+        return sigma * np.sqrt(np.einsum("njia,nlia,jl->ni", P, P, C).mean(axis=0))
+
+    return level(0), level(1)
