@@ -311,14 +311,16 @@ def _robot_392(tmp_path):
 
 def test_a_map_on_noise_free_data_far_more_informative_than_the_prior_solves(tmp_path):
     """Noise-free data of random spatial robot 392, about 4e17 times as informative as the prior: the MAP
-    recovers the truth (to 1e-7 of the largest parameter). Its convex step did not solve while the data's
-    covariance from the residuals was formed as products, ``bread Omega bread^T``: rounding left it with 8
-    negative eigenvalues (its Gram form has none)."""
+    recovers the truth (to 1e-5 of the largest parameter, as the other noise-free MAPs: the prior moves it
+    along the directions where the levels estimated from a noise-free log leave the data's information
+    near the noise's, weakened there by the sandwich ``mu / (mu - 1)``; 9e-7 measured, 1e-9 before that
+    sandwich). Its convex step did not solve while the data's covariance from the residuals was formed as
+    products, ``bread Omega bread^T``: rounding left it with 8 negative eigenvalues (its Gram form has none)."""
     param, log, h, prior = _robot_392(tmp_path)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         result = identify(param, log, h, prior=prior, prior_std=0.2)
-    assert np.abs(result.values - param.true_values).max() < 1e-7 * np.abs(param.true_values).max()
+    assert np.abs(result.values - param.true_values).max() < 1e-5 * np.abs(param.true_values).max()
 
 
 def test_a_map_that_does_not_solve_names_the_cause(tmp_path, monkeypatch):
@@ -333,3 +335,38 @@ def test_a_map_that_does_not_solve_names_the_cause(tmp_path, monkeypatch):
             identify(param, log, h, prior=prior, prior_std=0.2)
     said = str(caught.value)
     assert "did not solve" in said and "identify without `prior`" in said and "anchored" not in said and "\n" not in said
+
+
+def test_the_equations_data_term_carries_the_sandwich_of_correlated_errors():
+    """Whitened equations of a smooth regressor whose errors are correlated over 21 samples (a moving
+    average, as a differentiator's): the data term built with their score's covariance implies the
+    estimate's actual spread over 300 draws (whitened RMS near 1); without it, the white-noise
+    information claims about sqrt(21) times too little (what narrowed the servicer twin's posterior
+    bars)."""
+    from spaceid.estimation._prior import data_from_equations
+
+    rng = np.random.default_rng(5)
+    n, p, width = 1500, 3, 21
+    t = np.arange(n)
+    A = np.column_stack([np.sin(0.011 * t), 0.3 * np.cos(0.017 * t), 2.0 * np.sin(0.007 * t + 1.0)])  # smooth, as motion is
+    theta = np.array([1.0, -2.0, 0.5])
+    kernel = np.ones(width) / np.sqrt(width)  # unit variance per sample, correlated over the window
+    band = np.zeros((n, n))
+    for k in range(-(width - 1), width):  # covariance of a moving average: (width - |k|) / width
+        band = band + np.eye(n, k=k) * (width - abs(k)) / width
+    score = A.T @ band @ A
+    N = 1e-8 * np.eye(p + 1)
+
+    def term(e, with_sandwich):
+        white = np.column_stack([A, -(A @ theta + e)])
+        return data_from_equations(white, N, p, "test", {}, np.arange(p),
+                                   (lambda bread: bread @ score @ bread.T) if with_sandwich else None)
+
+    for with_sandwich, low, high in ((True, 0.8, 1.25), (False, 3.0, 6.0)):
+        z = []
+        for _ in range(300):
+            e = np.convolve(rng.standard_normal(n + width - 1), kernel, mode="valid")
+            d = term(e, with_sandwich)
+            z.append(d.L @ theta - d.r)  # the data term's whitened error at the truth
+        rms = np.sqrt(np.mean(np.square(z)))
+        assert low < rms < high, (with_sandwich, rms)

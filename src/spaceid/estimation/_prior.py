@@ -213,7 +213,7 @@ def data_from_estimate(values, cov, free, anchors) -> DataTerm:
                     std=np.sqrt(np.clip(np.diag(cov), 0, None)), anchors=dict(anchors))
 
 
-def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, free) -> DataTerm:
+def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, free, score_covariance=None) -> DataTerm:
     """The :class:`DataTerm` of whitened momentum equations ``white = [A_f | A_n | -b]`` (any leading
     shape, last axis ``p + 1``; ``A_f`` the ``n_free`` free parameters' columns, ``A_n`` the nuisance:
     momentum, drift) whose own noise has the Gram matrix ``noise_gram (p + 1, p + 1)``.
@@ -222,7 +222,13 @@ def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, fr
     information is ``G - N`` (bias-compensated least squares), the nuisance profiled out of both.
     Only the directions where ``G`` stands out of ``N`` beyond the spread of a pure-noise Gram
     matrix (the Marchenko-Pastur edge ``(1 + sqrt(p / n))^2``, doubled in excess) carry information: a
-    motion that does not excite a direction leaves it to the prior instead of to the noise."""
+    motion that does not excite a direction leaves it to the prior instead of to the noise.
+
+    Along the kept directions ``c = B^T N theta`` the data's estimate is ``c_hat = -D^-1 B^T (g_fb - n_fb)``,
+    ``D = diag(mu - 1)``; its covariance is ``D^-1`` for white noise of negligible size, and the sandwich
+    ``D^-1 B^T Omega B D^-1`` with ``score_covariance(B^T) = B^T Omega B`` given (the score's covariance:
+    errors correlated over a differentiator's window, and the regressor's own noise), the larger of the two
+    in every direction: the data term carries no more information than its errors allow."""
     white = np.asarray(white, float).reshape(-1, np.shape(white)[-1])
     p = white.shape[1] - 1
     with one_blas_thread():
@@ -238,8 +244,18 @@ def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, fr
     keep = mu > 1 + 2 * (edge - 1)
     basis = np.linalg.solve(upper, v[:, keep]) / scale[:, None]  # N-orthonormal: basis^T N basis = 1
     # the information along the kept directions: (mu - 1) in N's units; its right-hand side from G - N
-    L = np.sqrt(mu[keep] - 1)[:, None] * (basis.T @ n_ff)
-    rhs = -(basis.T @ (g_fb - n_fb)) / np.sqrt(mu[keep] - 1)
+    D = mu[keep] - 1
+    c_hat = -(basis.T @ (g_fb - n_fb)) / D
+    U = np.diag(np.sqrt(D))  # the information's square root in c: D^(1/2), or that of the sandwich's inverse
+    if score_covariance is not None and len(D):
+        from ._uncertainty import _larger_of
+
+        # in units of the white-noise covariance D^-1 (the sandwich spans the decades of D)
+        root = np.sqrt(D)
+        C = _larger_of(np.eye(len(D)), score_covariance(basis.T) / np.outer(root, root))[0]
+        U = np.linalg.inv(np.linalg.cholesky(0.5 * (C + C.T))) * root
+    L = U @ (basis.T @ n_ff)
+    rhs = U @ c_hat
     return DataTerm(L, rhs, np.asarray(free, int), "equations", reason, anchors=dict(anchors))
 
 
@@ -560,6 +576,27 @@ def identify_with_prior(identify, param: Parameterization, log, momentum, *, pri
     return _equations_with_prior(param, log, eq, model, prior_std, standard, noise, estimator, reason, where)
 
 
+def _score_covariance(log, eq, x, theta, sigma, whitener, white):
+    """``covariance(bread)``: ``bread Omega bread^T`` for ``bread (k, n_free)``, ``Omega`` the covariance
+    of the weighted equations' score for the free parameters, ``sum_n A_n^T S_n^-1 e_n`` with the
+    nuisance (momentum, drift) profiled out, from the signals' noise: the differentiated ones through
+    their filters (correlated over the windows), the others white
+    (:func:`~spaceid.estimation._differentiated.propagated_covariance`). ``whitener (n, rows, rows)``
+    ``L_n^-1``, ``white`` the whitened equations ``[A | -b]``."""
+    from ._differentiated import differentiated_series, propagated_covariance
+
+    nf, p = len(eq.free), white.shape[-1] - 1
+    A = white[..., :p]
+    flat = A.reshape(-1, p)
+    with one_blas_thread():
+        gram = flat.T @ flat
+    profile = np.linalg.pinv(gram[nf:, nf:], rcond=1e-13) @ gram[nf:, :nf] if p > nf else np.zeros((0, nf))
+    scores = np.swapaxes(whitener, -1, -2) @ (A[..., :nf] - A[..., nf:] @ profile)  # S_n^-1 A_n, profiled
+    series = differentiated_series(log, attitude=True) or []
+    jac = eq.jacobian(x, theta)
+    return lambda bread: propagated_covariance(series, log.t, [(slice(None), scores, jac)], bread, sigma)
+
+
 def _undetermined(param, log, momentum, minimal, where, cond_limit, drift, history) -> tuple:
     """Why the data alone do not determine the parameters (``""``: they do), and the equations."""
     from ._equations import _equations, _split
@@ -606,7 +643,8 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     rows, scale = noise_rows(len(x))  # the regressor's own noise, propagated from each signal's
     part = eq.select(rows)
     gram = noise_gram(lambda signals: whitener[rows] @ part.phi(signals), x[rows], sigma, scale, eq.rate_channels)
-    data = data_from_equations(white, gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free)
+    data = data_from_equations(white, gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free,
+                               _score_covariance(log, eq, x, theta0, sigma, whitener, white))
     pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard, where=where)
     theta = np.concatenate([pi[eq.free], nuisance(pi[eq.free])])
     h = eq.full(theta)[1]
