@@ -129,16 +129,17 @@ def test_rich_data_return_the_data_estimate(name, planar):
 
 def test_the_attribution_names_who_set_each_direction():
     """A constructed case: the data know the first variable 9 times better than the prior, the second
-    half as well; a prior that is not the identity is accounted for."""
-    prior = np.diag([4.0, 1.0, 2.0])
-    data = np.diag([36.0, 0.5, 0.0])
+    half as well; a prior that is not the identity is accounted for. The information is given by
+    square roots (``data_root^T data_root``)."""
+    prior = np.diag(np.sqrt([4.0, 1.0, 2.0]))
+    data = np.diag(np.sqrt([36.0, 0.5, 0.0]))
     out = attribution(data, prior, ["a", "b", "c"])
     assert [d["set_by"] for d in out] == ["data", "prior", "prior"]
     np.testing.assert_allclose([d["ratio"] for d in out], [9.0, 0.5, 0.0], atol=1e-12)
     assert [d["leading"][0][0] for d in out] == ["a", "b", "c"]
     assert out[0]["data_share"] == pytest.approx(0.9)
     rot = np.linalg.qr(np.random.default_rng(0).normal(size=(3, 3)))[0]  # a rotated case: the same ratios
-    out = attribution(rot @ data @ rot.T, rot @ prior @ rot.T, ["a", "b", "c"])
+    out = attribution(data @ rot.T, prior @ rot.T, ["a", "b", "c"])
     np.testing.assert_allclose([d["ratio"] for d in out], [9.0, 0.5, 0.0], atol=1e-10)
 
 
@@ -245,8 +246,9 @@ def test_the_attribution_ratios_are_the_generalised_eigenvalues(seed, n):
     data set exactly the directions where the ratio exceeds one."""
     rng = np.random.default_rng(seed)
     a, b = rng.normal(size=(n, n)), rng.normal(size=(n, n - 1 if n > 1 else 1))
-    prior, data = a @ a.T + 0.1 * np.eye(n), b @ b.T * rng.uniform(0.01, 10)
-    out = attribution(data, prior, [f"x{i}" for i in range(n)])
+    data_scale = rng.uniform(0.01, 10)
+    prior, data = a @ a.T + 0.1 * np.eye(n), b @ b.T * data_scale
+    out = attribution(np.sqrt(data_scale) * b.T, np.linalg.cholesky(prior).T, [f"x{i}" for i in range(n)])
     expected = np.sort(np.linalg.eigvals(np.linalg.solve(prior, data)).real)[::-1]
     np.testing.assert_allclose([d["ratio"] for d in out], np.clip(expected, 0, None), atol=1e-8 * expected.max())
     assert all((d["set_by"] == "data") == (d["ratio"] > 1) for d in out)
