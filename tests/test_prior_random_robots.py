@@ -42,7 +42,8 @@ def _with_prior(flown: Flown, noisy: bool):
 
 
 def _momentum_misfit(flown: Flown, values) -> float:
-    """``|Y (values - truth)| / |Y truth|`` over the log's samples: the error along the directions the log determines."""
+    """``|Y (values - truth)| / |Y truth|`` over the log's samples: the error along the directions the
+    log determines."""
     log, true = flown.log, flown.param.true_values
     y = flown.param.regressor(log.q, log.qd, log.base_w).reshape(-1, len(true))
     return float(np.linalg.norm(y @ (values - true)) / np.linalg.norm(y @ true))
@@ -70,8 +71,9 @@ def check_prior(flown: Flown, noisy: bool):
         # the prior's values along the rest: the truth fits the data as well, so the MAP is no further from the prior
         distance, truth = (np.sum(((x - theta0) / s) ** 2) for x in (theta, full_values(model)[: len(theta)]))
         assert distance <= truth + 1e-6, (distance, truth)
-        y_rank = np.linalg.matrix_rank(param.regressor(flown.log.q, flown.log.qd, flown.log.base_w).reshape(-1, len(true)))
-        assert record.n_data <= y_rank  # the data set no direction the log does not determine
+        log = flown.log
+        rank = np.linalg.matrix_rank(param.regressor(log.q, log.qd, log.base_w).reshape(-1, len(true)))
+        assert record.n_data <= rank  # the data set no direction the log does not determine
 
 
 @robots(1)

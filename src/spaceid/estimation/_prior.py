@@ -50,8 +50,8 @@ pin down the solver's noise (a part in 1e8 of the whitened parameters) moves it 
 MAX_STEPS = 40
 FLOOR = 1e-12
 """The data never know a combination of the minimal parameters better than this fraction of the
-prior's standard deviation (:func:`_floored`): 1e-13 of the parameter at the default 20 %, a few
-hundred units of round-off."""
+prior's standard deviation (:func:`_floored`): 2e-13 of the parameter at the default 20 %, some
+thousand units of round-off."""
 CAPPED = 1e3
 """The convex steps meet the data exactly along directions where they are more than ``CAPPED**2``
 times as informative as the prior (:class:`_MapProgram`); the polish that follows them weighs them."""
@@ -348,7 +348,8 @@ class _MapProgram:
         par = {"ld": cp.Parameter((self.n_data, n)), "rd": cp.Parameter(self.n_data),
                "c": cp.Parameter((self.n_anchor, n)), "cv": cp.Parameter(self.n_anchor),
                "e": cp.Parameter((n_exact, n)), "ev": cp.Parameter(n_exact)}  # fmt: skip
-        cons = [xb >> MARGIN * np.eye(4) for xb in x] + [theta == g @ vec] + ([self.z @ vec == 0] if len(self.z) else [])
+        cons = [xb >> MARGIN * np.eye(4) for xb in x] + [theta == g @ vec]
+        cons += [self.z @ vec == 0] if len(self.z) else []
         cons += [par["c"] @ theta == par["cv"]] if self.n_anchor else []
         cons += [par["e"] @ theta == par["ev"]] if n_exact else []
         objective = cp.sum_squares(self.D @ theta - self.d)
@@ -492,9 +493,10 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
     active = tuple(b.name for b, at, start in zip(model.bodies, *least) if at < min(ACTIVE, 0.5 * start))
     pi = param.projection @ full_values(with_theta(model, theta))
     names = full_parameter_names(model)[: len(theta)]
+    data_root = _weighted_rows(data.L @ jac[data.free], data.r, s)[0]
     record = PriorRecord(
         str(model.source or model.name), float(prior_std), data.kind, data.reason, known_standard, prior_pi,
-        prior_pi_std, data.values, data.std, attribution(_weighted_rows(data.L @ jac[data.free], data.r, s)[0], D, names), active, steps,
+        prior_pi_std, data.values, data.std, attribution(data_root, D, names), active, steps,
         {"names": names, "map": theta.tolist(), "prior": theta0.tolist(), "prior_std": s.tolist()})
     return pi, cov, record
 
@@ -579,8 +581,8 @@ def attribution(data_root, prior_root, names, top: int = 3) -> tuple:
     n = prior_root.shape[1]
     upper = np.linalg.qr(prior_root, mode="r")  # prior_info = R^T R
     white = solve_triangular(upper, data_root.T, trans="T").T if data_root.size else np.zeros((0, n))
-    _, sv, vt = np.linalg.svd(np.vstack([white, np.zeros((max(0, n - len(white)), n))]), full_matrices=True)
-    lam, vec = np.r_[sv, np.zeros(n - len(sv))] ** 2, vt.T
+    _, sv, vt = np.linalg.svd(np.vstack([white, np.zeros((max(0, n - len(white)), n))]))  # n values at least
+    lam, vec = sv[:n] ** 2, vt.T
     out = []
     for i in np.argsort(-lam, kind="stable"):
         v = vec[:, i] * np.sign(vec[np.argmax(np.abs(vec[:, i])), i])
@@ -614,7 +616,6 @@ def identify_with_prior(identify, param: Parameterization, log, momentum, *, pri
     """``identify(..., prior=...)``: the data term (the estimator's estimate when the data determine
     the parameters, else the weighted equations at the prior), the MAP and the record; ``identify``
     is :func:`spaceid.estimation.identify` without a prior."""
-
     minimal, standard = split_known(param, known, where)
     model = _prior_model(param, prior, where)
     reason, eq = _undetermined(param, log, momentum, minimal, where, cond_limit, drift, history)
