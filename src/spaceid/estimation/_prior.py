@@ -242,8 +242,8 @@ def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, fr
     white = np.asarray(white, float).reshape(-1, np.shape(white)[-1])
     p = white.shape[1] - 1
     nuisance = p - n_free
-    with one_blas_thread():  # the nuisance first: the free parameters' and b's rows with it profiled out
-        upper = np.linalg.qr(white[:, np.r_[n_free:p, 0:n_free, p]], mode="r")[nuisance:, nuisance:]
+    # the nuisance first: the free parameters' and b's rows with it profiled out
+    upper = np.linalg.qr(white[:, np.r_[n_free:p, 0:n_free, p]], mode="r")[nuisance:, nuisance:]
     m = min(len(upper), n_free)  # fewer samples than parameters: the missing rows are zeros
     root, rhs_root = np.zeros((n_free, n_free)), np.zeros(n_free)
     root[:m], rhs_root[:m] = upper[:m, :n_free], upper[:m, n_free]
@@ -445,6 +445,11 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
         ``(values (k,), cov (k, k), PriorRecord)``: the MAP, its posterior covariance (from the
         combined information at the MAP, the physical constraints taken as inactive; anchors exact).
     """
+    with one_blas_thread():  # small factorisations throughout: on busy cores BLAS threads only wait
+        return _map_estimate(param, prior, data, prior_std=prior_std, known_standard=known_standard, where=where)
+
+
+def _map_estimate(param, prior, data, *, prior_std, known_standard, where) -> tuple:
     if not (np.isfinite(prior_std) and prior_std > 0):
         raise SpaceidError(f"`prior_std`: {shown(prior_std)} is not a positive relative standard deviation: give "
                            "e.g. 0.2 (20 %)")
@@ -463,30 +468,29 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
     moved = lambda a, b: np.abs((a - b) / s).max()  # noqa: E731
     theta, value, steps = theta0.copy(), np.inf, 0
     objective = lambda th: _objective(param, data, D, d, th)  # noqa: E731
-    with one_blas_thread():
-        for steps in range(1, MAX_STEPS + 1):
-            jac = _jacobian(param, theta)
-            out = program.solve(data.L @ jac[data.free], data.r, jac[idx], cv)
-            if out is None and len(idx):
-                raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
-                                   f"({', '.join(param.names[i] for i in idx)}) near the prior: check `known` and the "
-                                   "prior (`prior`)")
-            if out is None:  # nothing to meet: the solver failed, on data far more informative than the prior
-                ratio = (np.linalg.norm(data.L @ jac[data.free], 2) / np.linalg.norm(D, 2)) ** 2
-                raise SpaceidError(f"{where}: the MAP's convex step did not solve (the data are up to {ratio:.2g} times "
-                                   "as informative as the prior, as on a noise-free log): identify without `prior`")
-            new, value_new = out, objective(out)
-            for _ in range(30):  # a Gauss-Newton step that does not lower the objective is halved (convex set)
-                if value_new <= value * (1 + 1e-12) or not np.isfinite(value):
-                    break
-                new = 0.5 * (theta + new)
-                value_new = objective(new)
-            step, gain, theta, value = moved(new, theta), value - value_new, new, value_new
-            if step < STEP_TOL or gain <= VALUE_TOL * value:  # settled, or only the solver's noise moves it
+    for steps in range(1, MAX_STEPS + 1):
+        jac = _jacobian(param, theta)
+        out = program.solve(data.L @ jac[data.free], data.r, jac[idx], cv)
+        if out is None and len(idx):
+            raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
+                               f"({', '.join(param.names[i] for i in idx)}) near the prior: check `known` and the "
+                               "prior (`prior`)")
+        if out is None:  # nothing to meet: the solver failed, on data far more informative than the prior
+            ratio = (np.linalg.norm(data.L @ jac[data.free], 2) / np.linalg.norm(D, 2)) ** 2
+            raise SpaceidError(f"{where}: the MAP's convex step did not solve (the data are up to {ratio:.2g} times "
+                               "as informative as the prior, as on a noise-free log): identify without `prior`")
+        new, value_new = out, objective(out)
+        for _ in range(30):  # a Gauss-Newton step that does not lower the objective is halved (convex set)
+            if value_new <= value * (1 + 1e-12) or not np.isfinite(value):
                 break
-        else:
-            warnings.warn(f"{where}: the MAP did not settle in {MAX_STEPS} convex steps (last move {step:.2g} prior "
-                          "standard deviations)", stacklevel=3)
+            new = 0.5 * (theta + new)
+            value_new = objective(new)
+        step, gain, theta, value = moved(new, theta), value - value_new, new, value_new
+        if step < STEP_TOL or gain <= VALUE_TOL * value:  # settled, or only the solver's noise moves it
+            break
+    else:
+        warnings.warn(f"{where}: the MAP did not settle in {MAX_STEPS} convex steps (last move {step:.2g} prior "
+                      "standard deviations)", stacklevel=4)
     theta = _polish(param, data, D, d, theta, idx, cv, s, g, z)
     cov, jac = _posterior(param, data, D, theta, idx, s)
     least = [_least_whitened(g, z, th) for th in (theta, theta0)]
@@ -696,7 +700,8 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     rows, scale = noise_rows(len(x))  # the regressor's own noise, propagated from each signal's
     part = eq.select(rows)
     gram = noise_gram(lambda signals: whitener[rows] @ part.phi(signals), x[rows], sigma, scale, eq.rate_channels)
-    data = data_from_equations(white, gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free)
+    with one_blas_thread():  # a QR of the equations, then factorisations of p x p matrices
+        data = data_from_equations(white, gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free)
     pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard, where=where)
     theta = np.concatenate([pi[eq.free], nuisance(pi[eq.free])])
     h = eq.full(theta)[1]
