@@ -96,5 +96,8 @@ def test_prior_on_more_random_robots_and_undesigned_motions(seed, planar, noisy,
 @pytest.mark.slow
 @robots(6)
 @given(seed=SEEDS, planar=st.booleans(), noisy=st.booleans())
+# noise-free: directions of round-off (a singular value 2e-13 of the largest, above a relative cut of 1e-13)
+# asked the first convex step to move 1e9 prior deviations, and Clarabel called it infeasible
+@example(seed=1473772, planar=False, noisy=False)
 def test_prior_on_random_robots_and_designed_motions(seed, planar, noisy, tmp_path):
     check_prior(_flown(seed, planar, tmp_path), noisy)

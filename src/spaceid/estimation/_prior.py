@@ -37,8 +37,6 @@ PRIOR_STD = 0.2
 KNOWN_STD = 1e-6
 """Relative standard deviation of a mass given as known (``known`` m_base=180, m_total=...): a
 tight prior, so that the covariance stays that of a proper density."""
-ROUND_OFF = 1e-13
-"""A singular value of the data's rows below this fraction of the largest is round-off (:func:`_rows`)."""
 ACTIVE = 1e-4
 """A body's physical constraint counts as active at the MAP when its whitened pseudo-inertia (the
 prior at the identity) has an eigenvalue below this."""
@@ -357,10 +355,10 @@ class _MapProgram:
         self.programs[n_exact] = cp.Problem(cp.Minimize(objective), cons), theta, par
         return self.programs[n_exact]
 
-    def solve(self, ld, rd, c, cv):
+    def solve(self, L, a, rd, c, cv):
         """``theta`` of the step (None when the solver fails): the data's strongest rows met exactly,
         else (no physical model meets them, as noisy data may ask) all capped at ``CAPPED``."""
-        sv, rows, rhs = _rows(ld, rd, self.s)
+        sv, rows, rhs = _rows(L, a, rd, self.s)
         exact = sv > CAPPED
         for n_exact in (int(exact.sum()), 0) if exact.any() else (0,):
             weight = np.minimum(sv, CAPPED) * (~exact if n_exact else 1)
@@ -377,28 +375,31 @@ class _MapProgram:
         return None
 
 
-def _rows(ld, rd, s) -> tuple:
-    """The data rows ``|ld theta - rd|^2`` (``ld (n, n_theta)``, ``rd (n,)``) on the singular
-    directions of ``ld diag(s)`` (the data's information relative to the prior's), those of
-    round-off left out: ``(sv (m,), rows (m, n_theta), rhs (m,))`` with the data term
-    ``sum sv_i^2 (rows_i theta - rhs_i)^2`` up to a constant, ``m <= min(n, n_theta)``.
+def _rows(L, a, rd, s) -> tuple:
+    """The data rows ``|L a theta - rd|^2`` (``L (n, n_free)``, ``a = d pi_f / d theta (n_free, n_theta)``,
+    ``rd (n,)``) on the singular directions of ``L a diag(s)`` (the data's information relative to the
+    prior's), those of round-off left out: ``(sv (m,), rows (m, n_theta), rhs (m,))`` with the data
+    term ``sum sv_i^2 (rows_i theta - rhs_i)^2`` up to a constant, ``m <= min(n, n_theta)``.
 
-    The minimal parameters do not depend on some combinations of the standard ones (``A v = 0``):
-    computed, ``ld v`` is round-off times the data's scale, which the rotation leaves out (below
-    ``ROUND_OFF`` of the largest). Noise-free data are up to 1e24 times as informative as the prior
-    (:data:`FLOOR`) along the directions they determine and leave others to the prior alone: no
-    interior-point solver resolves both in one objective, so the convex steps meet the first exactly
-    (:class:`_MapProgram`) and :func:`_polish` weighs them against the prior."""
+    The minimal parameters do not depend on some combinations of the standard ones (``a v = 0``):
+    computed, ``L a v`` is round-off, up to ``n eps |L| |a diag(s)|`` (spectral norms; noise-free
+    data: 1e2 to 1e4, as much as the prior's information or more), which the rotation leaves out.
+    Noise-free data are up to 1e24 times as informative as the prior (:data:`FLOOR`) along the
+    directions they determine and leave others to the prior alone: no interior-point solver resolves
+    both in one objective, so the convex steps meet the first exactly (:class:`_MapProgram`) and
+    :func:`_polish` weighs them against the prior."""
+    ld, aw = L @ a, a * s
     if not ld.size:
         return np.zeros(0), ld[:0], rd[:0]
     u, sv, vt = np.linalg.svd(ld * s, full_matrices=False)
-    keep = sv > ROUND_OFF * sv[0]
+    round_off = aw.shape[1] * np.finfo(float).eps * np.linalg.norm(L, 2) * np.linalg.norm(aw, 2)
+    keep = sv > max(round_off, np.finfo(float).tiny)
     return sv[keep], vt[keep] / s, (u[:, keep].T @ rd) / sv[keep]
 
 
-def _weighted_rows(ld, rd, s) -> tuple:
+def _weighted_rows(L, a, rd, s) -> tuple:
     """:func:`_rows` as least-squares rows ``(ld (m, n_theta), rd (m,))``."""
-    sv, rows, rhs = _rows(ld, rd, s)
+    sv, rows, rhs = _rows(L, a, rd, s)
     return sv[:, None] * rows, sv * rhs
 
 
@@ -470,7 +471,7 @@ def _map_estimate(param, prior, data, *, prior_std, known_standard, where) -> tu
     objective = lambda th: _objective(param, data, D, d, th)  # noqa: E731
     for steps in range(1, MAX_STEPS + 1):
         jac = _jacobian(param, theta)
-        out = program.solve(data.L @ jac[data.free], data.r, jac[idx], cv)
+        out = program.solve(data.L, jac[data.free], data.r, jac[idx], cv)
         if out is None and len(idx):
             raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
                                f"({', '.join(param.names[i] for i in idx)}) near the prior: check `known` and the "
@@ -497,7 +498,7 @@ def _map_estimate(param, prior, data, *, prior_std, known_standard, where) -> tu
     active = tuple(b.name for b, at, start in zip(model.bodies, *least) if at < min(ACTIVE, 0.5 * start))
     pi = param.projection @ full_values(with_theta(model, theta))
     names = full_parameter_names(model)[: len(theta)]
-    data_root = _weighted_rows(data.L @ jac[data.free], data.r, s)[0]
+    data_root = _weighted_rows(data.L, jac[data.free], data.r, s)[0]
     record = PriorRecord(
         str(model.source or model.name), float(prior_std), data.kind, data.reason, known_standard, prior_pi,
         prior_pi_std, data.values, data.std, attribution(data_root, D, names), active, steps,
@@ -512,7 +513,7 @@ def _polish(param, data, D, d, theta, idx, cv, s, g, z):
     value = _objective(param, data, D, d, theta)
     for _ in range(3):
         jac = _jacobian(param, theta)
-        ld, rd = _weighted_rows(data.L @ jac[data.free], data.r, s)
+        ld, rd = _weighted_rows(data.L, jac[data.free], data.r, s)
         rows, rhs = np.vstack([ld, D]) * s, np.r_[rd, d]  # columns scaled by s
         start, basis = np.zeros(len(theta)), np.eye(len(theta))
         if len(idx):
@@ -546,7 +547,7 @@ def _posterior(param, data, D, theta, idx, s) -> tuple:
     singular values of the stacked square roots, in the prior's deviations ``s`` (the information
     itself, the data's 1e24 times the prior's, would be singular in double precision)."""
     jac = _jacobian(param, theta)
-    rows = np.vstack([_weighted_rows(data.L @ jac[data.free], data.r, s)[0], D]) * s
+    rows = np.vstack([_weighted_rows(data.L, jac[data.free], data.r, s)[0], D]) * s
     basis = np.eye(len(theta))
     if len(idx):
         from scipy.linalg import null_space
