@@ -480,8 +480,14 @@ def _map_estimate(param, prior, data, *, prior_std, known_standard, where) -> tu
             tempered = replace(data, L=np.sqrt(weight) * data.L, r=np.sqrt(weight) * data.r)
             other, n = _convex_steps(param, program, tempered, D, d, other, idx, cv, s, where)
             steps += n
-        if _objective(param, data, D, d, other) < _objective(param, data, D, d, theta):
-            theta = other
+            if other is None:
+                break
+        value = (lambda th: np.inf if th is None else _objective(param, data, D, d, th))  # noqa: E731
+        theta = other if value(other) < value(theta) else theta
+    if theta is None:  # nothing to meet: the solver failed, on data far more informative than the prior
+        ratio = (np.linalg.norm(data.L @ prior_jac[data.free], 2) / np.linalg.norm(D, 2)) ** 2
+        raise SpaceidError(f"{where}: the MAP's convex step did not solve (the data are up to {ratio:.2g} times "
+                           "as informative as the prior, as on a noise-free log): identify without `prior`")
     theta = _polish(param, data, D, d, theta, idx, cv, s, g, z)
     cov, jac = _posterior(param, data, D, theta, idx, s)
     least = [_least_whitened(g, z, th) for th in (theta, theta0)]
@@ -497,7 +503,8 @@ def _map_estimate(param, prior, data, *, prior_std, known_standard, where) -> tu
 
 
 def _convex_steps(param, program, data, D, d, theta, idx, cv, s, where) -> tuple:
-    """Convex steps from ``theta`` until it settles: ``(theta, steps)``."""
+    """Convex steps from ``theta`` until it settles: ``(theta, steps)``, ``theta`` None when a step
+    does not solve."""
     moved = lambda a, b: np.abs((a - b) / s).max()  # noqa: E731
     value, step = np.inf, np.inf
     objective = lambda th: _objective(param, data, D, d, th)  # noqa: E731
@@ -508,10 +515,8 @@ def _convex_steps(param, program, data, D, d, theta, idx, cv, s, where) -> tuple
             raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
                                f"({', '.join(param.names[i] for i in idx)}) near the prior: check `known` and the "
                                "prior (`prior`)")
-        if out is None:  # nothing to meet: the solver failed, on data far more informative than the prior
-            ratio = (np.linalg.norm(data.L @ jac[data.free], 2) / np.linalg.norm(D, 2)) ** 2
-            raise SpaceidError(f"{where}: the MAP's convex step did not solve (the data are up to {ratio:.2g} times "
-                               "as informative as the prior, as on a noise-free log): identify without `prior`")
+        if out is None:  # nothing to meet: the solver failed (the caller says so)
+            return None, steps
         new, value_new = out, objective(out)
         for _ in range(30):  # a Gauss-Newton step that does not lower the objective is halved (convex set)
             if value_new <= value * (1 + 1e-12) or not np.isfinite(value):
