@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -46,6 +46,19 @@ VALUE_TOL = 1e-12
 """... or the objective falls by less than this fraction: in directions that neither data nor prior
 pin down the solver's noise (a part in 1e8 of the whitened parameters) moves it without end."""
 MAX_STEPS = 40
+TEMPERED = (1e2, 1e6)
+"""Data more informative than the prior by more than the last of these (their strongest direction)
+are also tempered to these many times the prior's information, each stage starting from the last,
+and the steps that end with the lower objective are kept: from the prior, a Gauss-Newton step
+towards noise-free data can land far off their curved set of models (random planar robot 105, 3 arms
+of 4 joints, stalled 1e-2 off the log's momentum), while other robots end closer without stages."""
+FLOOR = 1e-12
+"""The data never know a combination of the minimal parameters better than this fraction of the
+prior's standard deviation (:func:`_floored`): 2e-13 of the parameter at the default 20 %, some
+thousand units of round-off."""
+CAPPED = 1e3
+"""The convex steps meet the data exactly along directions where they are more than ``CAPPED**2``
+times as informative as the prior (:class:`_MapProgram`); the polish that follows them weighs them."""
 TOTAL_MASS = "m_total"
 """The name of the total mass in ``known``."""
 
@@ -224,38 +237,52 @@ def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, fr
     matrix (the Marchenko-Pastur edge ``(1 + sqrt(p / n))^2``, doubled in excess) carry information: a
     motion that does not excite a direction leaves it to the prior instead of to the noise.
 
-    Along the kept directions ``c = B^T N theta`` the data's estimate is ``c_hat = -D^-1 B^T (g_fb - n_fb)``,
-    ``D = diag(mu - 1)``; its covariance is ``D^-1`` for white noise of negligible size, and the sandwich
-    ``D^-1 B^T Omega B D^-1`` with ``score_covariance(B^T) = B^T Omega B`` given (the score's covariance:
-    errors correlated over a differentiator's window, and the regressor's own noise), the larger of the two
-    in every direction: the data term carries no more information than its errors allow."""
+    The rows ``L theta - rhs`` have unit covariance at the truth for white noise of negligible size. Their
+    first-order errors are ``bread s``, ``s`` the weighted equations' score for the free parameters; with
+    ``score_covariance(bread) = bread Omega bread^T`` given (``Omega`` the score's covariance: errors
+    correlated over a differentiator's window, and the regressor's own noise) the rows are whitened by
+    the larger of that sandwich and the identity in every direction: the data term carries no more
+    information than its errors allow.
+
+
+    The generalised eigenvalues ``mu = c^2 / s^2`` of ``G v = mu N v`` come from square roots
+    ``G = R^T R``, ``N = M^T M`` (the cosine-sine decomposition of ``[R; M] = [Q1; Q2] T``:
+    ``Q1 = U C W^T``, ``Q2 W = V S``), not from the Gram matrices: on a noise-free log ``N`` is 1e-20
+    of ``G``, and the directions near the edge would be lost to its round-off."""
+    from scipy.linalg import solve_triangular
+
     white = np.asarray(white, float).reshape(-1, np.shape(white)[-1])
     p = white.shape[1] - 1
-    with one_blas_thread():
-        gram = white.T @ white
-    profiled = [_profile(m, n_free, p) for m in (gram, np.asarray(noise_gram, float))]
-    (g_ff, g_fb), (n_ff, n_fb) = profiled
-    edge = (1 + np.sqrt(max(p, 1) / max(len(white), 1))) ** 2
+    nuisance = p - n_free
+    # the nuisance first: the free parameters' and b's rows with it profiled out
+    upper = np.linalg.qr(white[:, np.r_[n_free:p, 0:n_free, p]], mode="r")[nuisance:, nuisance:]
+    m = min(len(upper), n_free)  # fewer samples than parameters: the missing rows are zeros
+    root, rhs_root = np.zeros((n_free, n_free)), np.zeros(n_free)
+    root[:m], rhs_root[:m] = upper[:m, :n_free], upper[:m, n_free]
+    n_ff, n_fb = _profile(np.asarray(noise_gram, float), n_free, p)
     scale = np.sqrt(np.clip(np.diag(n_ff), 0, None)) + 1e-300
     n_s = n_ff / np.outer(scale, scale) + 1e-12 * np.eye(n_free)
-    upper = np.linalg.cholesky(0.5 * (n_s + n_s.T)).T
-    ratio = np.linalg.solve(upper.T, np.linalg.solve(upper.T, g_ff / np.outer(scale, scale)).T)
-    mu, v = np.linalg.eigh(0.5 * (ratio + ratio.T))
-    keep = mu > 1 + 2 * (edge - 1)
-    basis = np.linalg.solve(upper, v[:, keep]) / scale[:, None]  # N-orthonormal: basis^T N basis = 1
-    # the information along the kept directions: (mu - 1) in N's units; its right-hand side from G - N
-    D = mu[keep] - 1
-    c_hat = -(basis.T @ (g_fb - n_fb)) / D
-    U = np.diag(np.sqrt(D))  # the information's square root in c: D^(1/2), or that of the sandwich's inverse
-    if score_covariance is not None and len(D):
+    noise_root = np.linalg.cholesky(0.5 * (n_s + n_s.T)).T * scale  # N = M^T M
+    q, t = np.linalg.qr(np.vstack([root, noise_root]))
+    u, c, wt = np.linalg.svd(q[:n_free])
+    s = np.linalg.norm(q[n_free:] @ wt.T, axis=0)
+    edge = (1 + np.sqrt(max(p, 1) / max(len(white), 1))) ** 2
+    keep = c**2 > (1 + 2 * (edge - 1)) * s**2
+    gain = np.sqrt(np.clip(c**2 - s**2, 0, None))[keep]
+    L = gain[:, None] * (wt @ t)[keep]
+    # the right-hand side: W^T T^-T (g - n) with g = -R^T rhs_root (b enters as -b), n = -n_fb
+    x_inv_g = -(c * (u.T @ rhs_root))
+    x_inv_n = -(wt @ solve_triangular(t, n_fb, trans="T"))
+    rhs = (x_inv_g - x_inv_n)[keep] / gain
+    if score_covariance is not None and np.any(keep):
         from ._uncertainty import _larger_of
 
-        # in units of the white-noise covariance D^-1 (the sandwich spans the decades of D)
-        root = np.sqrt(D)
-        C = _larger_of(np.eye(len(D)), score_covariance(basis.T) / np.outer(root, root))[0]
-        U = np.linalg.inv(np.linalg.cholesky(0.5 * (C + C.T))) * root
-    L = U @ (basis.T @ n_ff)
-    rhs = U @ c_hat
+        # the rows' errors at the truth are bread (the score), bread = diag(1 / gain) (W^T T^-T)[keep]; white
+        # noise of negligible size makes their covariance the identity, the sandwich its larger
+        bread = (wt @ solve_triangular(t, np.eye(n_free), trans="T"))[keep] / gain[:, None]
+        C = _larger_of(np.eye(len(gain)), score_covariance(bread))[0]
+        U = np.linalg.inv(np.linalg.cholesky(0.5 * (C + C.T)))
+        L, rhs = U @ L, U @ rhs
     return DataTerm(L, rhs, np.asarray(free, int), "equations", reason, anchors=dict(anchors))
 
 
@@ -320,36 +347,99 @@ def _prior_terms(prior: Model, rel: float, known_standard: dict, where: str) -> 
 
 class _MapProgram:
     """One convex step: ``min |Ld theta - rd|^2 + |D theta - d|^2`` over ``theta = G vec X``,
-    ``X_b - MARGIN 1`` PSD, declared zeros, ``C theta = c`` (the anchors, linearised); ``Ld`` and
-    ``C`` are cvxpy parameters, so the program is compiled once."""
+    ``X_b - MARGIN 1`` PSD, declared zeros, ``C theta = c`` (the anchors, linearised), the data's
+    rows (:func:`_rows`) more than ``CAPPED**2`` times as informative as the prior met exactly
+    (``E theta = e``); cvxpy parameters, so each count of exact rows is compiled once."""
 
-    def __init__(self, g, z, n_data, D, d, n_anchor):
+    def __init__(self, g, z, n_data, D, d, n_anchor, s):
+        self.g, self.z, self.D, self.d, self.n_anchor, self.s = g, z, D, d, n_anchor, s
+        self.n_data = min(n_data, g.shape[0])
+        self.programs = {}
+
+    def _program(self, n_exact: int):
+        """The program with ``n_exact`` exact rows: ``(problem, theta, parameters)``."""
         import cvxpy as cp
 
-        nb = g.shape[1] // 16
-        self.x = [cp.Variable((4, 4), symmetric=True) for _ in range(nb)]
-        vec = cp.hstack([cp.vec(x, order="F") for x in self.x])
-        theta = cp.Variable(g.shape[0])
-        self.ld, self.rd = cp.Parameter((n_data, g.shape[0])), cp.Parameter(n_data)
-        self.c, self.cv = cp.Parameter((n_anchor, g.shape[0])), cp.Parameter(n_anchor)
-        self.w, self.prior_norm = cp.Parameter(nonneg=True), np.linalg.norm(D)
-        cons = [x >> MARGIN * np.eye(4) for x in self.x] + [theta == g @ vec] + ([z @ vec == 0] if len(z) else [])
-        cons += [self.c @ theta == self.cv] if n_anchor else []
-        objective = self.w * cp.sum_squares(D @ theta - d) + (cp.sum_squares(self.ld @ theta - self.rd) if n_data else 0)
-        self.theta = theta
-        self.problem = cp.Problem(cp.Minimize(objective), cons)
+        if n_exact in self.programs:
+            return self.programs[n_exact]
+        g, n = self.g, self.g.shape[0]
+        x = [cp.Variable((4, 4), symmetric=True) for _ in range(g.shape[1] // 16)]
+        vec = cp.hstack([cp.vec(xb, order="F") for xb in x])
+        theta = cp.Variable(n)
+        par = {"ld": cp.Parameter((self.n_data, n)), "rd": cp.Parameter(self.n_data),
+               "c": cp.Parameter((self.n_anchor, n)), "cv": cp.Parameter(self.n_anchor),
+               "e": cp.Parameter((n_exact, n)), "ev": cp.Parameter(n_exact)}  # fmt: skip
+        cons = [xb >> MARGIN * np.eye(4) for xb in x] + [theta == g @ vec]
+        cons += [self.z @ vec == 0] if len(self.z) else []
+        cons += [par["c"] @ theta == par["cv"]] if self.n_anchor else []
+        cons += [par["e"] @ theta == par["ev"]] if n_exact else []
+        objective = cp.sum_squares(self.D @ theta - self.d)
+        objective += cp.sum_squares(par["ld"] @ theta - par["rd"]) if self.n_data else 0
+        self.programs[n_exact] = cp.Problem(cp.Minimize(objective), cons), theta, par
+        return self.programs[n_exact]
 
-    def solve(self, ld, rd, c, cv):
-        # the data may be many orders more informative than the prior (a noise-free log): both terms
-        # scaled by the data's size, so that the solver sees numbers of order one
-        scale = max(1.0, np.linalg.norm(ld) / self.prior_norm) if ld.size else 1.0
-        ld, rd, self.w.value = ld / scale, rd / scale, 1.0 / scale**2
-        for p, value in ((self.ld, ld), (self.rd, rd), (self.c, c), (self.cv, cv)):
-            if p.size:
-                p.value = value
-        if not solved_tightly(self.problem):
-            return None
-        return np.asarray(self.theta.value, float), [np.asarray(x.value) for x in self.x]
+    def solve(self, L, a, rd, c, cv):
+        """``theta`` of the step (None when the solver fails): the data's strongest rows met exactly,
+        else (no physical model meets them, as noisy data may ask) all capped at ``CAPPED``."""
+        sv, rows, rhs = _rows(L, a, rd, self.s)
+        exact = sv > CAPPED
+        for n_exact in (int(exact.sum()), 0) if exact.any() else (0,):
+            weight = np.minimum(sv, CAPPED) * (~exact if n_exact else 1)
+            soft = np.zeros((self.n_data, rows.shape[1]))
+            soft[: len(sv)] = weight[:, None] * rows
+            values = {"ld": soft, "rd": np.r_[weight * rhs, np.zeros(self.n_data - len(sv))], "c": c, "cv": cv,
+                      "e": rows[exact] if n_exact else rows[:0], "ev": rhs[exact] if n_exact else rhs[:0]}
+            problem, theta, par = self._program(n_exact)
+            for key, p in par.items():
+                if p.size:
+                    p.value = values[key]
+            if solved_tightly(problem):
+                return np.asarray(theta.value, float)
+        return None
+
+
+def _rows(L, a, rd, s) -> tuple:
+    """The data rows ``|L a theta - rd|^2`` (``L (n, n_free)``, ``a = d pi_f / d theta (n_free, n_theta)``,
+    ``rd (n,)``) on the singular directions of ``L a diag(s)`` (the data's information relative to the
+    prior's), those of round-off left out: ``(sv (m,), rows (m, n_theta), rhs (m,))`` with the data
+    term ``sum sv_i^2 (rows_i theta - rhs_i)^2`` up to a constant, ``m <= min(n, n_theta)``.
+
+    The minimal parameters do not depend on some combinations of the standard ones (``a v = 0``):
+    computed, ``L a v`` is round-off, up to ``n eps |L| |a diag(s)|`` (spectral norms; noise-free
+    data: 1e2 to 1e4, as much as the prior's information or more), which the rotation leaves out.
+    Noise-free data are up to 1e24 times as informative as the prior (:data:`FLOOR`) along the
+    directions they determine and leave others to the prior alone: no interior-point solver resolves
+    both in one objective, so the convex steps meet the first exactly (:class:`_MapProgram`) and
+    :func:`_polish` weighs them against the prior."""
+    ld, aw = L @ a, a * s
+    if not ld.size:
+        return np.zeros(0), ld[:0], rd[:0]
+    u, sv, vt = np.linalg.svd(ld * s, full_matrices=False)
+    round_off = aw.shape[1] * np.finfo(float).eps * np.linalg.norm(L, 2) * np.linalg.norm(aw, 2)
+    keep = sv > max(round_off, np.finfo(float).tiny)
+    return sv[keep], vt[keep] / s, (u[:, keep].T @ rd) / sv[keep]
+
+
+def _weighted_rows(L, a, rd, s) -> tuple:
+    """:func:`_rows` as least-squares rows ``(ld (m, n_theta), rd (m,))``."""
+    sv, rows, rhs = _rows(L, a, rd, s)
+    return sv[:, None] * rows, sv * rhs
+
+
+def _floored(data: DataTerm, floor) -> DataTerm:
+    """``data`` with its information capped so that no combination of the free parameters is known
+    better than ``floor (n_free,)`` [their units] allows: ``L^T (1 + L F^2 L^T)^-1 L`` with
+    ``F = diag(floor)``, the data's covariance plus ``F^2``.
+
+    A noise-free log claims the parameters to a part in 1e17 of the prior: beyond what the model
+    computes them to in double precision, and beyond what any later step can tell from round-off
+    (the data's information on a direction the minimal parameters do not depend on, ``L A v`` with
+    ``A v`` zero to round-off, would be as large as the prior's)."""
+    if not data.L.size:
+        return data
+    u, sv, _ = np.linalg.svd(data.L * floor, full_matrices=False)
+    rotate = u.T / np.sqrt(1 + sv**2)[:, None]
+    return replace(data, L=rotate @ data.L, r=rotate @ data.r)
 
 
 def _jacobian(param, theta):
@@ -379,6 +469,11 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
         ``(values (k,), cov (k, k), PriorRecord)``: the MAP, its posterior covariance (from the
         combined information at the MAP, the physical constraints taken as inactive; anchors exact).
     """
+    with one_blas_thread():  # small factorisations throughout: on busy cores BLAS threads only wait
+        return _map_estimate(param, prior, data, prior_std=prior_std, known_standard=known_standard, where=where)
+
+
+def _map_estimate(param, prior, data, *, prior_std, known_standard, where) -> tuple:
     if not (np.isfinite(prior_std) and prior_std > 0):
         raise SpaceidError(f"`prior_std`: {shown(prior_std)} is not a positive relative standard deviation: give "
                            "e.g. 0.2 (20 %)")
@@ -389,48 +484,69 @@ def map_estimate(param: Parameterization, prior, data: DataTerm, *, prior_std: f
     g, z = pseudo_whitening(with_theta(model, full_values(model)[: len(theta0)]), "`prior`")
     idx = np.array(sorted(data.anchors), int)
     cv = np.array([data.anchors[i] for i in idx], float)
-    program = _MapProgram(g, z, len(data.L), D, d, len(idx))
-    moved = lambda a, b: np.abs((a - b) / s).max()  # noqa: E731
-    theta, value, steps = theta0.copy(), np.inf, 0
-    objective = lambda th: _objective(param, data, D, d, th)  # noqa: E731
-    with one_blas_thread():
-        for steps in range(1, MAX_STEPS + 1):
-            jac = _jacobian(param, theta)
-            out = program.solve(data.L @ jac[data.free], data.r, jac[idx], cv)
-            if out is None and len(idx):
-                raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
-                                   f"({', '.join(param.names[i] for i in idx)}) near the prior: check `known` and the "
-                                   "prior (`prior`)")
-            if out is None:  # nothing to meet: the solver failed, on data far more informative than the prior
-                ratio = (np.linalg.norm(data.L @ jac[data.free], 2) / np.linalg.norm(D, 2)) ** 2
-                raise SpaceidError(f"{where}: the MAP's convex step did not solve (the data are up to {ratio:.2g} times "
-                                   "as informative as the prior, as on a noise-free log): identify without `prior`")
-            new, value_new = out[0], objective(out[0])
-            for _ in range(30):  # a Gauss-Newton step that does not lower the objective is halved (convex set)
-                if value_new <= value * (1 + 1e-12) or not np.isfinite(value):
-                    break
-                new = 0.5 * (theta + new)
-                value_new = objective(new)
-            step, gain, theta, value = moved(new, theta), value - value_new, new, value_new
-            if step < STEP_TOL or gain <= VALUE_TOL * value:  # settled, or only the solver's noise moves it
+    prior_pi, prior_jac = param.projection @ full_values(model), _jacobian(param, theta0)
+    prior_cov = prior_jac @ np.linalg.pinv(D.T @ D) @ prior_jac.T
+    prior_pi_std = np.sqrt(np.clip(np.diag(prior_cov), 0, None))
+    data = _floored(data, FLOOR * prior_pi_std[data.free])
+    program = _MapProgram(g, z, len(data.L), D, d, len(idx), s)
+    theta, steps = _convex_steps(param, program, data, D, d, theta0.copy(), idx, cv, s, where)
+    strongest = np.linalg.norm((data.L @ prior_jac[data.free]) * s, 2) if data.L.size else 0.0
+    if strongest**2 > TEMPERED[-1]:  # also through tempered stages; the lower objective is kept
+        other = theta0.copy()
+        for weight in (*(w / strongest**2 for w in TEMPERED), 1.0):
+            tempered = replace(data, L=np.sqrt(weight) * data.L, r=np.sqrt(weight) * data.r)
+            other, n = _convex_steps(param, program, tempered, D, d, other, idx, cv, s, where)
+            steps += n
+            if other is None:
                 break
-        else:
-            warnings.warn(f"{where}: the MAP did not settle in {MAX_STEPS} convex steps (last move {step:.2g} prior "
-                          "standard deviations)", stacklevel=3)
+        value = (lambda th: np.inf if th is None else _objective(param, data, D, d, th))  # noqa: E731
+        theta = other if value(other) < value(theta) else theta
+    if theta is None:  # nothing to meet: the solver failed, on data far more informative than the prior
+        ratio = (np.linalg.norm(data.L @ prior_jac[data.free], 2) / np.linalg.norm(D, 2)) ** 2
+        raise SpaceidError(f"{where}: the MAP's convex step did not solve (the data are up to {ratio:.2g} times "
+                           "as informative as the prior, as on a noise-free log): identify without `prior`")
     theta = _polish(param, data, D, d, theta, idx, cv, s, g, z)
-    cov, jac = _posterior(param, data, D, theta, idx)
+    cov, jac = _posterior(param, data, D, theta, idx, s)
     least = [_least_whitened(g, z, th) for th in (theta, theta0)]
     active = tuple(b.name for b, at, start in zip(model.bodies, *least) if at < min(ACTIVE, 0.5 * start))
     pi = param.projection @ full_values(with_theta(model, theta))
-    prior_pi, prior_jac = param.projection @ full_values(model), _jacobian(param, theta0)
-    prior_cov = prior_jac @ np.linalg.pinv(D.T @ D) @ prior_jac.T
     names = full_parameter_names(model)[: len(theta)]
+    data_root = _weighted_rows(data.L, jac[data.free], data.r, s)[0]
     record = PriorRecord(
         str(model.source or model.name), float(prior_std), data.kind, data.reason, known_standard, prior_pi,
-        np.sqrt(np.clip(np.diag(prior_cov), 0, None)), data.values, data.std,
-        attribution((data.L @ jac[data.free]).T @ (data.L @ jac[data.free]), D.T @ D, names), active, steps,
+        prior_pi_std, data.values, data.std, attribution(data_root, D, names), active, steps,
         {"names": names, "map": theta.tolist(), "prior": theta0.tolist(), "prior_std": s.tolist()})
     return pi, cov, record
+
+
+def _convex_steps(param, program, data, D, d, theta, idx, cv, s, where) -> tuple:
+    """Convex steps from ``theta`` until it settles: ``(theta, steps)``, ``theta`` None when a step
+    does not solve."""
+    moved = lambda a, b: np.abs((a - b) / s).max()  # noqa: E731
+    value, step = np.inf, np.inf
+    objective = lambda th: _objective(param, data, D, d, th)  # noqa: E731
+    for steps in range(1, MAX_STEPS + 1):
+        jac = _jacobian(param, theta)
+        out = program.solve(data.L, jac[data.free], data.r, jac[idx], cv)
+        if out is None and len(idx):
+            raise SpaceidError(f"{where}: no physically consistent model meets the anchored parameters "
+                               f"({', '.join(param.names[i] for i in idx)}) near the prior: check `known` and the "
+                               "prior (`prior`)")
+        if out is None:  # nothing to meet: the solver failed (the caller says so)
+            return None, steps
+        new, value_new = out, objective(out)
+        for _ in range(30):  # a Gauss-Newton step that does not lower the objective is halved (convex set)
+            if value_new <= value * (1 + 1e-12) or not np.isfinite(value):
+                break
+            new = 0.5 * (theta + new)
+            value_new = objective(new)
+        step, gain, theta, value = moved(new, theta), value - value_new, new, value_new
+        if step < STEP_TOL or gain <= VALUE_TOL * value:  # settled, or only the solver's noise moves it
+            break
+    else:
+        warnings.warn(f"{where}: the MAP did not settle in {MAX_STEPS} convex steps (last move {step:.2g} prior "
+                      "standard deviations)", stacklevel=5)
+    return theta, steps
 
 
 def _polish(param, data, D, d, theta, idx, cv, s, g, z):
@@ -440,7 +556,8 @@ def _polish(param, data, D, d, theta, idx, cv, s, g, z):
     value = _objective(param, data, D, d, theta)
     for _ in range(3):
         jac = _jacobian(param, theta)
-        rows, rhs = np.vstack([data.L @ jac[data.free], D]) * s, np.r_[data.r, d]  # columns scaled by s
+        ld, rd = _weighted_rows(data.L, jac[data.free], data.r, s)
+        rows, rhs = np.vstack([ld, D]) * s, np.r_[rd, d]  # columns scaled by s
         start, basis = np.zeros(len(theta)), np.eye(len(theta))
         if len(idx):
             from scipy.linalg import null_space
@@ -467,30 +584,33 @@ def _objective(param, data, D, d, theta) -> float:
     return float(np.sum((data.L @ pi[data.free] - data.r) ** 2) + np.sum((D @ theta - d) ** 2))
 
 
-def _posterior(param, data, D, theta, idx) -> tuple:
+def _posterior(param, data, D, theta, idx, s) -> tuple:
     """The covariance ``(k, k)`` of ``pi`` from the combined information at ``theta`` in the null
-    space of the anchors (the physical constraints inactive), and the Jacobian there."""
+    space of the anchors (the physical constraints inactive), and the Jacobian there. From the
+    singular values of the stacked square roots, in the prior's deviations ``s`` (the information
+    itself, the data's 1e24 times the prior's, would be singular in double precision)."""
     jac = _jacobian(param, theta)
-    ld = data.L @ jac[data.free]
-    info = ld.T @ ld + D.T @ D
+    rows = np.vstack([_weighted_rows(data.L, jac[data.free], data.r, s)[0], D]) * s
     basis = np.eye(len(theta))
     if len(idx):
         from scipy.linalg import null_space
 
-        basis = null_space(jac[idx], rcond=1e-12)
-    cov_t = basis @ np.linalg.solve(basis.T @ info @ basis, basis.T)
-    cov = jac @ cov_t @ jac.T
+        basis = null_space(jac[idx] * s, rcond=1e-12)
+    _, sv, vt = np.linalg.svd(rows @ basis, full_matrices=False)  # sv > 0: the prior's rows have full rank
+    root = s[:, None] * (basis @ (vt.T / sv))  # cov_theta = root root^T
+    cov = (jac @ root) @ (jac @ root).T
     return 0.5 * (cov + cov.T), jac
 
 
-def attribution(data_info, prior_info, names, top: int = 3) -> tuple:
+def attribution(data_root, prior_root, names, top: int = 3) -> tuple:
     """Per eigen-direction of the data's information relative to the prior's: who sets it.
 
     Parameters
     ----------
-    data_info, prior_info : ndarray of shape (n, n)
-        The information matrices of the data and the prior on the same variables, the prior's
-        positive definite.
+    data_root : ndarray of shape (m, n)
+        The data's information as a square root: ``data_root^T data_root``.
+    prior_root : ndarray of shape (p, n)
+        The prior's, of full column rank (``p >= n``).
     names : sequence of str
         The variables' names.
 
@@ -500,14 +620,19 @@ def attribution(data_info, prior_info, names, top: int = 3) -> tuple:
         Largest ratio first: ``ratio`` (``lambda`` of ``data_info v = lambda prior_info v``),
         ``data_share`` (``lambda / (1 + lambda)``), ``set_by`` (``"data"`` when ``lambda > 1``) and
         ``leading``: the ``top`` variables with the largest weights in the direction (prior-whitened,
-        unit norm), as ``[name, weight]``.
+        unit norm), as ``[name, weight]``. The ratios are squared singular values of the whitened
+        root (from the information matrices, a ratio of 1e-3 beside one of 1e20 would be lost).
     """
-    upper = np.linalg.cholesky(prior_info).T  # prior_info = U^T U
-    white = np.linalg.solve(upper.T, np.linalg.solve(upper.T, data_info).T)
-    lam, vec = np.linalg.eigh(0.5 * (white + white.T))
-    lam = np.clip(lam, 0, None)
+    from scipy.linalg import solve_triangular
+
+    data_root, prior_root = np.atleast_2d(data_root), np.atleast_2d(prior_root)
+    n = prior_root.shape[1]
+    upper = np.linalg.qr(prior_root, mode="r")  # prior_info = R^T R
+    white = solve_triangular(upper, data_root.T, trans="T").T if data_root.size else np.zeros((0, n))
+    _, sv, vt = np.linalg.svd(np.vstack([white, np.zeros((max(0, n - len(white)), n))]))  # n values at least
+    lam, vec = sv[:n] ** 2, vt.T
     out = []
-    for i in np.argsort(-lam):
+    for i in np.argsort(-lam, kind="stable"):
         v = vec[:, i] * np.sign(vec[np.argmax(np.abs(vec[:, i])), i])
         order = np.argsort(-np.abs(v))[:top]
         out.append({"ratio": float(lam[i]), "data_share": float(lam[i] / (1 + lam[i])),
@@ -539,8 +664,6 @@ def identify_with_prior(identify, param: Parameterization, log, momentum, *, pri
     """``identify(..., prior=...)``: the data term (the estimator's estimate when the data determine
     the parameters, else the weighted equations at the prior), the MAP and the record; ``identify``
     is :func:`spaceid.estimation.identify` without a prior."""
-    from dataclasses import replace
-
     minimal, standard = split_known(param, known, where)
     model = _prior_model(param, prior, where)
     reason, eq = _undetermined(param, log, momentum, minimal, where, cond_limit, drift, history)
@@ -643,8 +766,10 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     rows, scale = noise_rows(len(x))  # the regressor's own noise, propagated from each signal's
     part = eq.select(rows)
     gram = noise_gram(lambda signals: whitener[rows] @ part.phi(signals), x[rows], sigma, scale, eq.rate_channels)
-    data = data_from_equations(white, gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free,
-                               _score_covariance(log, eq, x, theta0, sigma, whitener, white))
+    score_covariance = _score_covariance(log, eq, x, theta0, sigma, whitener, white)
+    with one_blas_thread():  # a QR of the equations, then factorisations of p x p matrices
+        data = data_from_equations(white, gram, nf, reason, dict(zip(eq.known, eq.known_values)), eq.free,
+                                   score_covariance)
     pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard, where=where)
     theta = np.concatenate([pi[eq.free], nuisance(pi[eq.free])])
     h = eq.full(theta)[1]
