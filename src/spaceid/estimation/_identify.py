@@ -307,7 +307,8 @@ def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float)
         ctx = _FitContext(eq.phi(x), check_excitation(eq.phi(x), eq.names(), cond_limit, where)[0])
         with warnings.catch_warnings():  # the start's own warnings are not the angles fit's
             warnings.simplefilter("ignore")
-            return _estimate(eq, x, diff, signal_sigma(param, noise_from_log(diff)), ctx, "ml", True)
+            return _estimate(eq, x, diff, differentiated_sigma(diff, signal_sigma(param, noise_from_log(diff))), ctx, "ml",
+                             True)  # fmt: skip
     except (SpaceidError, np.linalg.LinAlgError):
         return None
 
