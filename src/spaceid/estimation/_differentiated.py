@@ -96,13 +96,28 @@ def _attitude_series(log: Log, records: list, nj: int) -> list:
     the base's turn over a window (``|w0|`` times the window's span, relative) and the rate's
     dependence on the smoothed quaternion (``|w0|`` times the attitude error). Each component's
     recorded noise is ``sigma sqrt(1 - q_j^2) / 2`` on average, so ``sigma = 2 sqrt(sum_j noise_j^2 / 3)``."""
-    s, v = log.base_quat[:, :1], log.base_quat[:, 1:]
-    E = np.concatenate([-v[:, None, :], s[:, :, None] * np.eye(3) + _skew(v)], axis=1)  # (n, 4, 3)
-    P = np.einsum("nja,njb->njab", E, E)
-    sigma = 2 * np.sqrt(sum(r["noise"] ** 2 for r in records) / 3)
+    P, sigma = _quaternion_mix(log, records)
     values, rates = [2 * nj + 3 + c for c in range(3)], [2 * nj + c for c in range(3)]
     return [({**records[0], "noise": sigma, "parts": [(r, P[:, j, :, i]) for j, r in enumerate(records)]},
              values, rates) for i in range(3)]  # fmt: skip
+
+
+def _quaternion_mix(log: Log, records: list) -> tuple:
+    """How the star tracker's small rotations reach the quaternion components' filters: ``P (n, 4, 3, 3)``,
+    ``P_j`` the outer product of row ``j`` of ``E(q_n)`` (``E(q) u = q (x) [0, u]``), and the rotations'
+    level ``sigma`` [rad] per axis from the components' recorded noise (``2 sqrt(sum_j noise_j^2 / 3)``)."""
+    s, v = log.base_quat[:, :1], log.base_quat[:, 1:]
+    E = np.concatenate([-v[:, None, :], s[:, :, None] * np.eye(3) + _skew(v)], axis=1)  # (n, 4, 3)
+    return np.einsum("nja,njb->njab", E, E), 2 * np.sqrt(sum(r["noise"] ** 2 for r in records) / 3)
+
+
+def weighting_sigma(param, log: Log, noise) -> np.ndarray:
+    """The signals' noise levels ``(n_x,)`` that weight the equations and correct their errors in
+    variables: those of ``noise`` (:func:`~spaceid.estimation._noise.signal_sigma`), the differentiated
+    signals' raised to their filters' own (:func:`differentiated_sigma`)."""
+    from ._noise import signal_sigma
+
+    return differentiated_sigma(log, signal_sigma(param, noise))
 
 
 def _skew(v):
@@ -331,10 +346,7 @@ def _attitude_levels(log: Log, records: list) -> tuple:
     and the others 23 to 289, the rate's error was 2.9e-4, 8.4e-4 and 1.2e-3 rad/s about the three
     axes (the sum here: 2.7e-4, 8.6e-4, 1.2e-3), where the largest component's level put 1.4e-3 on
     every axis and the undetermined directions' check took three determined ones for noise."""
-    s, v = log.base_quat[:, :1], log.base_quat[:, 1:]
-    E = np.concatenate([-v[:, None, :], s[:, :, None] * np.eye(3) + _skew(v)], axis=1)  # (n, 4, 3)
-    P = np.einsum("nja,njb->njab", E, E)  # (n, 4, 3, 3)
-    sigma = 2 * np.sqrt(sum(r["noise"] ** 2 for r in records) / 3)
+    P, sigma = _quaternion_mix(log, records)
     weights = [_centred_weights(r) for r in records]
     width = max(len(w[0]) for w in weights)
 

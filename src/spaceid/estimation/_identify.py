@@ -29,13 +29,13 @@ from ..dynamics import Parameterization, full_parameter_names
 from ._angles import _angle_context
 from ._determined import WIDENED, equation_noise, undetermined_directions, undetermined_warning, widened
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
-from ._differentiated import differentiated_sigma
+from ._differentiated import weighting_sigma
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
 from ._equations import _equations, _split
 from ._estimators import _KERNELS, ESTIMATORS, _FitContext, _ols
 from ._gyro_bias import bias_test, identify_gyro_bias
 from ._linalg import _column_scale, _solve_factor, _triangular_factor
-from ._noise import Noise, noise_from_log, signal_sigma
+from ._noise import Noise, noise_from_log
 from ._prior import PRIOR_STD, identify_with_prior, split_known, standard_anchor_error
 from ._residuals import drift_columns, drift_test
 from ._result import Identification
@@ -307,8 +307,7 @@ def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float)
         ctx = _FitContext(eq.phi(x), check_excitation(eq.phi(x), eq.names(), cond_limit, where)[0])
         with warnings.catch_warnings():  # the start's own warnings are not the angles fit's
             warnings.simplefilter("ignore")
-            return _estimate(eq, x, diff, differentiated_sigma(diff, signal_sigma(param, noise_from_log(diff))), ctx, "ml",
-                             True)  # fmt: skip
+            return _estimate(eq, x, diff, weighting_sigma(param, diff, noise_from_log(diff)), ctx, "ml", True)
     except (SpaceidError, np.linalg.LinAlgError):
         return None
 
@@ -410,7 +409,8 @@ class _Prepared:
     ctx : _FitContext
         The estimators' context (``angles``: the angle estimator's, with its start).
     sigma : ndarray of shape (n_x,)
-        The signals' noise levels (:func:`~spaceid.estimation._noise.signal_sigma`).
+        The signals' noise levels that weight the equations
+        (:func:`~spaceid.estimation._differentiated.weighting_sigma`).
     start : _Fit or None
         The spatial ``angles`` fit's start (:func:`_rate_start`), else None.
     """
@@ -462,8 +462,7 @@ def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, kn
     # differentiated signals weighted at their filters' levels: estimated from the smoothed log itself they are
     # understated, and the weights' errors-in-variables corrections fall short (docs/theory/noise.md)
     return _Prepared(eq, anchors, x, phi, noise, estimated, factor, cond_scaled, ctx,
-                     differentiated_sigma(log, signal_sigma(param, noise)),
-                     start)
+                     weighting_sigma(param, log, noise), start)
 
 
 def estimate_only(param: Parameterization, log: Log, momentum, *, estimator: str, known: dict | None, noise: Noise,

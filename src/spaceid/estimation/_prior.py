@@ -244,7 +244,6 @@ def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, fr
     the larger of that sandwich and the identity in every direction: the data term carries no more
     information than its errors allow.
 
-
     The generalised eigenvalues ``mu = c^2 / s^2`` of ``G v = mu N v`` come from square roots
     ``G = R^T R``, ``N = M^T M`` (the cosine-sine decomposition of ``[R; M] = [Q1; Q2] T``:
     ``Q1 = U C W^T``, ``Q2 W = V S``), not from the Gram matrices: on a noise-free log ``N`` is 1e-20
@@ -710,10 +709,12 @@ def _score_covariance(log, eq, x, theta, sigma, whitener, white):
 
     nf, p = len(eq.free), white.shape[-1] - 1
     A = white[..., :p]
-    flat = A.reshape(-1, p)
-    with one_blas_thread():
-        gram = flat.T @ flat
-    profile = np.linalg.pinv(gram[nf:, nf:], rcond=1e-13) @ gram[nf:, :nf] if p > nf else np.zeros((0, nf))
+    profile = np.zeros((0, nf))
+    if p > nf:  # the nuisance's least squares on the free columns, profiled out of them
+        flat = A.reshape(-1, p)
+        with one_blas_thread():
+            gram = flat.T @ flat[:, nf:]
+        profile = np.linalg.pinv(gram[nf:], rcond=1e-13) @ gram[:nf].T
     scores = np.swapaxes(whitener, -1, -2) @ (A[..., :nf] - A[..., nf:] @ profile)  # S_n^-1 A_n, profiled
     series = differentiated_series(log, attitude=True) or []
     jac = eq.jacobian(x, theta)
@@ -743,8 +744,8 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     from ._equations import _split
     from ._linalg import _equation_whitener
     from ._determined import noise_gram, noise_rows
-    from ._differentiated import differentiated_sigma
-    from ._noise import noise_from_log, signal_sigma
+    from ._differentiated import weighting_sigma
+    from ._noise import noise_from_log
     from ._result import Identification
 
     noise = noise or noise_from_log(log)
@@ -760,7 +761,7 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
         return np.linalg.lstsq(rest, b - A[:, :nf] @ pi_f, rcond=None)[0] if rest.shape[1] else np.zeros(0)
 
     theta0 = np.concatenate([pi0[eq.free], nuisance(pi0[eq.free])])
-    sigma = differentiated_sigma(log, signal_sigma(param, noise))  # as identify weights them
+    sigma = weighting_sigma(param, log, noise)  # as identify weights them
     whitener = np.linalg.inv(_equation_whitener(eq, x, theta0, sigma))
     white = whitener @ phi
     rows, scale = noise_rows(len(x))  # the regressor's own noise, propagated from each signal's
