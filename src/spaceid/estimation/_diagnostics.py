@@ -200,7 +200,8 @@ class Diagnostics:
         ``Identification.condition_number``).
     estimator_info : dict
         What the estimator reports: ``iterations``, ``converged``, ``fallback`` (``ml``: the estimate
-        reported when it failed), ``knot_spacing`` (``angles``), ``chunk`` (streamed), ...
+        reported when it failed), ``held`` (``ml`` run over the directions the data determine only, the
+        others held at WLS's values: which, and why), ``knot_spacing`` (``angles``), ``chunk`` (streamed), ...
     undetermined : tuple of dict
         The directions of parameter space the data do not determine (the regressor's noise at least as
         large as its signal, :mod:`spaceid.estimation._determined`), worst first: ``noise_to_signal``

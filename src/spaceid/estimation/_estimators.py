@@ -248,12 +248,25 @@ def _ml_evaluate(eq, x, theta, sigma, size, equations, previous=None, gradient=T
     return out
 
 
-def _gram_solve(factor, g):
-    """``(A^T A)^-1 g`` for the factor ``(scale, R)`` of :func:`_triangular_factor`, by two triangular solves."""
+def _gram_solver(factor, subspace=None) -> tuple:
+    """``(solve, std)``: ``solve(g) = (A^T A)^-1 g`` for the factor ``(scale, R)`` of :func:`_triangular_factor`
+    (two triangular solves) and ``std (p,)`` the square roots of that inverse's diagonal; with ``subspace (p, k)``
+    of full column rank, both within its span: ``B (B^T A^T A B)^-1 B^T`` (``B = subspace``, by a QR factor)."""
     scale, R = factor
     r = R[:-1, :-1]
     with one_blas_thread():
-        return solve_triangular(r, solve_triangular(r, g / scale, trans="T")) / scale
+        if subspace is None:
+            def solve(g):
+                with one_blas_thread():
+                    return solve_triangular(r, solve_triangular(r, g / scale, trans="T")) / scale
+            return solve, np.sqrt(np.maximum(np.diag(_solve_factor(R, scale)[1]), 1e-300))
+        m = np.linalg.qr(r @ (subspace * scale[:, None]), mode="r")
+        spread = solve_triangular(m, subspace.T, trans="T")  # B m^-1, transposed
+
+    def solve_within(g):
+        with one_blas_thread():
+            return subspace @ solve_triangular(m, solve_triangular(m, subspace.T @ g, trans="T"))
+    return solve_within, np.sqrt(np.maximum(np.sum(spread**2, axis=0), 1e-300))
 
 
 def _anderson(history):
@@ -268,7 +281,7 @@ def _anderson(history):
     return proposals[-1] - gamma @ np.diff(proposals, axis=0)
 
 
-def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, halvings=6):
+def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, halvings=6, subspace=None):
     """The maximum-likelihood iteration on the signals ``x (n, n_x)`` from the OLS ``theta``, given
 
     - ``evaluate(theta, previous, gradient)``: :func:`_ml_evaluate` (``previous`` the last accepted
@@ -307,7 +320,8 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     start_theta = theta
     now = evaluate(theta, None, True)
     f, start, scaled = now["f"], now["f"], factor(now["L"])
-    target = theta - _gram_solve(scaled, now["grad"])  # the fundamental numerical scheme's first update
+    solve = _gram_solver(scaled, subspace)[0]
+    target = theta - solve(now["grad"])  # the fundamental numerical scheme's first update
     history, small, reason, damping = [], False, None, 1.0
     for it in range(1, max_iter + 1):
         trial = theta + damping * (target - theta)
@@ -316,8 +330,8 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
             change, f, theta, now, damping = f - new["f"], new["f"], trial, new, 1.0
             if not history:  # the weights of the first accepted estimate: closer to the fixed point's than the start's
                 scaled = factor(now["L"])
-                std = np.sqrt(np.maximum(np.diag(_solve_factor(scaled[1], scaled[0])[1]), 1e-300))  # for the tolerance
-            update = -_gram_solve(scaled, now["grad"])
+                solve, std = _gram_solver(scaled, subspace)  # std: for the tolerance
+            update = -solve(now["grad"])
             small = (np.abs(update) / std).max() < tol or np.abs(update).max() <= 1e-9 * np.abs(theta + update).max()
             if small and abs(change) <= ftol * f:
                 break

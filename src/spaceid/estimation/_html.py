@@ -34,6 +34,8 @@ def diagnostic_rows(result) -> list:
     info = d.estimator_info
     if info.get("fallback"):
         rows.append(("estimator", f"fell back to {info['fallback']}", True))
+    elif info.get("held"):
+        rows.append(("estimator", f"maximum likelihood {info['held']}", False))
     return rows
 
 

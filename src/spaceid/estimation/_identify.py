@@ -27,7 +27,8 @@ from .._threads import one_blas_thread
 from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import _angle_context
-from ._determined import WIDENED, equation_noise, undetermined_directions, undetermined_warning, widened
+from ._determined import (UNDETERMINED, WIDENED, equation_noise, noise_ratios, undetermined_directions,
+                          undetermined_warning, widened)
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._differentiated import weighting_sigma
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
@@ -282,6 +283,9 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
         theta, info = (streamed_estimate(eq, x, sigma, theta, estimator, ctx, chunk) if chunk else
                        _KERNELS[estimator](eq, x, sigma, theta, ctx))  # fmt: skip
         fallback = str(info.get("fallback")).split(":")[0]  # ML failed: WLS or OLS, with their covariance
+        if fallback in ("wls", "ols") and not chunk:
+            theta, info = _ml_determined(eq, x, log, sigma, theta, ctx, info)
+            fallback = str(info.get("fallback")).split(":")[0]
         if fallback in ("wls", "ols"):
             estimator, info = fallback, info | (ols_info if fallback == "ols" else {})
     if not np.all(np.isfinite(theta)):
@@ -292,6 +296,32 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
     else:
         reported = _reported_covariance(eq, x, ctx.phi, sigma, theta, estimator, info, log, estimated)
     return _Fit(theta, info, *reported)
+
+
+def _ml_determined(eq, x, log: Log, sigma, theta, ctx: _FitContext, info: dict) -> tuple:
+    """Maximum likelihood along the directions the data determine, when over all of them it did not converge:
+    ``(theta, info)`` of that fit from ML's fallback ``theta`` (WLS's or OLS's estimate, whose values it keeps
+    along the other directions), or of the fallback with ``info["fallback"]`` saying why when there is no such
+    direction or that fit does not converge either.
+
+    Along a direction whose regressor's noise is as large as its signal (:mod:`spaceid.estimation._determined`)
+    the errors-in-variables likelihood has no maximum the data fix: the corrected signals can absorb ever more
+    of the momentum as the parameters grow there (on the spatial twin's undesigned flight, 128 of 496
+    directions: the objective still falling after 200 iterations). Those directions keep the fallback's values,
+    and :func:`identify` widens their standard errors."""
+    mu, T = noise_ratios(eq, x, ctx.phi, sigma, theta, "wls", log)
+    weak = mu >= UNDETERMINED
+    if not weak.any():
+        return theta, info
+    why = f"; the data do not determine {weak.sum()} of {len(mu)} directions, along which the likelihood has no maximum"
+    if weak.all():
+        return theta, info | {"fallback": info["fallback"] + why}
+    held, fit = _KERNELS["ml"](eq, x, sigma, theta, ctx, subspace=T[:, ~weak])
+    if fit.get("fallback"):
+        return theta, info | {"fallback": info["fallback"] + why + ", nor over the others"}
+    return held, fit | {"held": (f"over the {(~weak).sum()} directions the data determine; the {weak.sum()} they do "
+                                 f"not keep the {info['fallback'].split(':')[0].upper()} estimate's values (along "
+                                 "them the likelihood has no maximum)")}
 
 
 def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float):
@@ -624,7 +654,6 @@ def identify(
                _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk))  # fmt: skip
         if gyro_bias:
             fit = gyro_bias.fused(eq, fit)
-        fit = replace(fit, implausible=_implausible_estimate(eq, fit.theta, fit.cov, where))
         if estimator == "ml" and not fit.info.get("fallback") and _implausible_estimate(eq, fit.theta, fit.cov, where,
                                                                                        z=FALLBACK_Z):
             fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
@@ -644,6 +673,9 @@ def identify(
             nominal = np.concatenate([param.true_values[eq.free], theta[len(eq.free):]])
             fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
             uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
+        # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
+        # wrong momentum or anchor
+        fit = replace(fit, implausible=_implausible_estimate(eq, theta, fit.cov, where))
         drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
                                                    whitener, chunk, gram, _factor_gram(white_factor))
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
