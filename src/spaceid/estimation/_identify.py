@@ -154,6 +154,9 @@ class _Fit:
         How the covariance was obtained (the record of :func:`_reported_covariance`).
     implausible : str
         The warning of :func:`_implausible` for this estimate (``""``: none, or not checked yet).
+    held : tuple or None
+        ``ml`` run over the directions the data determine only (:func:`_ml_determined`): the noise-to-signal
+        ratios and directions ``(mu, T)`` (:func:`~spaceid.estimation._determined.noise_to_signal`) it judged by.
     """
 
     theta: np.ndarray
@@ -162,6 +165,7 @@ class _Fit:
     rms: float
     uncertainty: dict
     implausible: str = ""
+    held: tuple | None = None
 
 
 def _full_covariance(eq, cov_t, k: int) -> tuple:
@@ -295,7 +299,7 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
         info["chunk"] = chunk
     else:
         reported = _reported_covariance(eq, x, ctx.phi, sigma, theta, estimator, info, log, estimated)
-    return _Fit(theta, info, *reported)
+    return _Fit(theta, info, *reported, held=info.pop("held_ratios", None))
 
 
 def _ml_determined(eq, x, log: Log, sigma, theta, ctx: _FitContext, info: dict) -> tuple:
@@ -321,7 +325,7 @@ def _ml_determined(eq, x, log: Log, sigma, theta, ctx: _FitContext, info: dict) 
         return theta, info | {"fallback": info["fallback"] + why + ", nor over the others"}
     return held, fit | {"held": (f"over the {(~weak).sum()} directions the data determine; the {weak.sum()} they do "
                                  f"not keep the {info['fallback'].split(':')[0].upper()} estimate's values (along "
-                                 "them the likelihood has no maximum)")}
+                                 "them the likelihood has no maximum)"), "held_ratios": (mu, T)}
 
 
 def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float):
@@ -654,7 +658,10 @@ def identify(
                _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk))  # fmt: skip
         if gyro_bias:
             fit = gyro_bias.fused(eq, fit)
-        if estimator == "ml" and not fit.info.get("fallback") and _implausible_estimate(eq, fit.theta, fit.cov, where,
+        nominal = np.concatenate([param.true_values[eq.free], fit.theta[len(eq.free):]])
+        # directions ML held (the data do not determine them) are judged with their widened errors
+        judged = fit.cov if fit.held is None else widened(fit.cov, *fit.held, fit.theta, nominal)
+        if estimator == "ml" and not fit.info.get("fallback") and _implausible_estimate(eq, fit.theta, judged, where,
                                                                                        z=FALLBACK_Z):
             fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
         theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
@@ -670,7 +677,6 @@ def identify(
         weak, ratios = ([], None) if gram is None else undetermined_directions(
             eq, x, phi, sigma, theta, estimator, log, whitener, gram[: eq.p, : eq.p], white_factor)
         if weak:  # the standard errors say what the data do not determine
-            nominal = np.concatenate([param.true_values[eq.free], theta[len(eq.free):]])
             fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
             uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
         # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
