@@ -102,7 +102,8 @@ RATE_FACTOR = "0.5"
 @pytest.mark.slow
 def test_twin_monitor_and_subscriber_over_dds(tmp_path):
     """The twin grasps 0.5 kg 4 s into a 12 s motion; the monitor, fed over DDS, announces the
-    change within 0.5 s of the grasp and publishes the payload mass within its 2-sigma bar, and
+    change within 0.5 s of the grasp and publishes the payload mass within its 2-sigma bar, the
+    first one before the end of the run (before, the payload came a warm-up after the alarm), and
     live, before the interrupt, an estimate after each part and what the warm-up after the grasp
     leaves undetermined (before, the estimate 0 to 4 times a run, the comparison at the end); all
     stop cleanly (the twin at its end, the monitor on SIGINT, writing EVENTS.json and RESULT.json).
@@ -117,6 +118,7 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
         twin = _start(["ros", "twin", "--capture", "--ideal", "--seed", "1", "--duration", "12", "--rate-factor",
                        RATE_FACTOR], env, tmp_path)  # fmt: skip
         assert listener.wait(lambda: twin.poll() is not None, TIMEOUT, [monitor]), "the twin did not finish"
+        live = [p for p in listener.got["payload"] if "mass" in p]  # received before the end of the run
         out = _output(twin, tmp_path, "twin")
         assert twin.returncode == 0, out
         grasp = float(re.search(r"grasp at (\S+) s", out)[1])
@@ -131,6 +133,8 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
         assert listener.wait(found, TIMEOUT, [monitor]), (listener.got["events"], listener.got["payload"])
         payload = [p for p in listener.got["payload"] if p["event"] == near()[0]["index"] and "mass" in p][-1]
         assert abs(payload["mass"] - 0.5) <= 2 * payload["std"]["mass"], payload
+        early = [p for p in live if p["event"] == near()[0]["index"]]
+        assert early and abs(early[0]["mass"] - 0.5) <= 2 * early[0]["std"]["mass"], live
 
         def undetermined():  # what the warm-up after the grasp leaves undetermined, published live
             return [e for e in listener.got["events"]
@@ -282,8 +286,11 @@ def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(t
     errors: its samples determine them, or the noise shares say which do not and the standard
     errors still cover here). After the alarm, what the warm-up leaves undetermined is published on
     the events topic ("undetermined") at its first identification, a warm-up after the alarm,
-    parts before the end of the run, and again when its samples double; the comparison ("compared")
-    completes at the end only, this warm-up never being determined."""
+    parts before the end of the run, and again when its samples double, with the change of the
+    parameters it determines so far (the segment before's identification against it); the
+    comparison of them all ("compared") completes at the end only, this warm-up never being
+    determined. The payload comes before that warm-up: from the first quarter warm-up of samples
+    after the alarm that determines its mass (more than 3 standard errors from zero)."""
     import numpy as np
 
     bag, _, before = twin_bag
@@ -317,6 +324,20 @@ def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(t
     assert u1["warm_up"]["n_samples"] == 100 and u2["warm_up"]["n_samples"] == 200
     assert u1["warm_up"]["undetermined"] and u1["warm_up"]["noise_share"] > u1["warm_up"]["bounds"]["noise_share"]
     assert record.segments[-1].warm_up is None  # the monitor's record: that warm-up never determined
+    seg0 = record.segments[0].identification
+    for u in (u1, u2):  # the change of the parameters the warm-up determines so far, the segment before's against it
+        compared_now = {q["name"]: q for q in u["parameters"]}
+        assert compared_now and not set(compared_now) & set(u["warm_up"]["undetermined"])
+        assert set(compared_now) | set(u["warm_up"]["undetermined"]) == set(seg0.names)
+        for name, q in compared_now.items():
+            assert q["before"] == seg0.values[seg0.names.index(name)]
+        assert u["changed"] == [n for n, q in compared_now.items() if q["z"] is not None and abs(q["z"]) > 3]
+    payloads = [(k, o.data) for k, o in outputs if o.kind == "payload"]
+    # the payload from the first quarter warm-up of samples after the alarm whose mass stands out of its
+    # standard error, here before a warm-up of them (then the first attempt, before); within 2 sigma of the truth
+    assert payloads[0][0] <= k1 and payloads[0][1]["n_samples"] < 100, payloads[0]
+    first = payloads[0][1]
+    assert abs(first["mass"] - 0.5) <= 2 * first["std"]["mass"] and 3 * first["std"]["mass"] < first["mass"], first
 
 
 @pytest.mark.slow

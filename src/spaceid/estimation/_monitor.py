@@ -712,6 +712,28 @@ class Monitor:
         and before its warm-up's first identification."""
         return None if self._segment.phase is Phase.TESTING else self._segment.attempt
 
+    def partial_change(self) -> dict | None:
+        """While the last alarm's comparison waits for a warm-up that determines the estimate after
+        it (:attr:`waiting`): the change of the parameters that the warm-up's samples determine so
+        far, the segment before's batch identification against the warm-up's last identification
+        (:meth:`warm_up_estimate`): ``parameters`` as in :class:`MonitorEvent`
+        (:func:`~spaceid.estimation.compare`) of those outside its ``undetermined`` (whose standard
+        errors cover the errors-in-variables bias), ``changed`` those beyond ``Z_CHANGED``,
+        ``undetermined`` the names left out. None when no comparison waits, before the warm-up's
+        first identification, when its samples do not excite every parameter, or when the segment
+        before has no identification (too short)."""
+        attempt = self.warm_up_estimate()
+        if self._waiting is None or attempt is None or attempt["values"] is None or not self.segments:
+            return None
+        before = self.segments[-1].identification
+        if before is None:
+            return None
+        after = dataclasses.replace(before, values=np.asarray(attempt["values"]), std=np.asarray(attempt["std"]))
+        left_out = attempt["undetermined"]
+        res = [q for q in compare(before, after, where=self.where).to_dict()["parameters"] if q["name"] not in left_out]
+        return {"changed": [q["name"] for q in res if abs(q["z"]) > Z_CHANGED], "parameters": res,
+                "undetermined": sorted(left_out)}
+
     def estimate(self) -> dict | None:
         """The recursive estimate of the running segment: ``values`` (all minimal parameters),
         ``std`` and the ``linearization`` point (the warm-up's batch estimate), each ``(k,)``; with

@@ -24,6 +24,7 @@ import numpy as np
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log, MessageAligner
+from ..estimation import Z_CHANGED
 
 __all__ = ["LIVE_BLOCK", "LIVE_CONTEXT", "LIVE_ORDER", "LiveMonitor", "LiveOutput"]
 
@@ -156,6 +157,7 @@ class LiveMonitor:
         self._recent = collections.deque()  # the latest parts, at most HISTORY samples
         self._n_recent, self._unchecked = 0, False  # their samples; whether a part came since the payload's check
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
+        self._payload_first = None  # samples after it of its first payload published
         self._undetermined_due = 0  # warm-up samples after the last alarm when to say what they leave undetermined
         self.n_messages, self.busy = 0, 0.0
         self._emit = None  # where the outputs go
@@ -228,7 +230,9 @@ class LiveMonitor:
             return
         self._undetermined_due = 2 * attempt["n_samples"]
         summary = {k: v for k, v in attempt.items() if k not in VALUES}
-        self._emit(self._stage(alarm, "undetermined", self._completed(attempt["time"]), warm_up=summary))
+        change = self.monitor.partial_change() or {"changed": [], "parameters": []}
+        self._emit(self._stage(alarm, "undetermined", self._completed(attempt["time"]), warm_up=summary,
+                               changed=change["changed"], parameters=change["parameters"]))
 
     def _completed(self, t: float) -> float:
         """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``clock``]
@@ -255,7 +259,7 @@ class LiveMonitor:
         """The monitor's alarm: its message at once; the payload after it is due from now on."""
         self._unchecked, self._undetermined_due = True, 0
         if self._pmap is not None:
-            self._payload_event, self._payload_due = alarm, 0
+            self._payload_event, self._payload_due, self._payload_first = alarm, 0, None
         self._emit(self._stage(alarm, "detected", self._completed(alarm.detected_at)))
 
     def _stage(self, event, stage: str, received: float, **extra) -> LiveOutput:
@@ -291,9 +295,11 @@ class LiveMonitor:
                        "determined": testing} | shown)  # fmt: skip
 
     def payload(self) -> LiveOutput | None:
-        """The payload after the last alarm, when due: once the samples after it allow (a warm-up
-        of them), then each time they double (while the history holds them); None otherwise or
-        without ``link``."""
+        """The payload after the last alarm, when due (None otherwise, or without ``link``):
+        identified from the samples after it each quarter warm-up of them (``warmup / 4``) and
+        published from the first whose mass stands out of its standard error (more than
+        ``Z_CHANGED`` of them), at the latest at a warm-up of them (then whatever it is, or the
+        error that refused them); then each time they double (while the history holds them)."""
         event = self._payload_event
         if event is None or not self._unchecked:  # no new samples: nothing new is due
             return None
@@ -305,19 +311,25 @@ class LiveMonitor:
             self._payload_event = None
             return None
         after = sum(p.n_samples - int(np.searchsorted(p.t, grasp, side="right")) for p in self._recent)
-        if after < max(self._payload_due, self.monitor.warmup):
+        step, first = max(1, self.monitor.warmup // 4), self._payload_first is None
+        if after < max(self._payload_due, step):
             return None
         log = _concatenate(list(self._recent))
-        self._payload_due = 2 * after
+        self._payload_due = after + step if first else 2 * after  # retried a quarter warm-up later until published
         mon = self.monitor
         try:
             with one_blas_thread():
                 res = payload_after_grasp(self._pmap, log, self.link, grasp, mon.momentum, noise=mon.noise,
                                           drift=mon.drift, where=self.where).estimate
         except SpaceidError as err:
+            if first and after < mon.warmup:
+                return None
             return LiveOutput("payload", {"event": event.index, "time": grasp, "error": str(err)})
         data = {"event": event.index, "time": grasp, "time_origin_ns": self._origin, "n_samples": after,
                 "names": list(res.names), "values": res.values, "std": res.std} | res.to_dict()
+        if first and after < mon.warmup and not abs(data["mass"]) > Z_CHANGED * data["std"]["mass"]:
+            return None
+        self._payload_first, self._payload_due = after, 2 * after
         return LiveOutput("payload", _plain(data))
 
     def finish(self, publish=None):
