@@ -462,3 +462,33 @@ def test_a_messages_arrival_is_its_reception_by_the_middleware(monkeypatch):
     assert node._arrival({"received_timestamp": 4_700_000_000}) == pytest.approx(99.7, abs=1e-12)
     assert node._arrival({"received_timestamp": 0}) == node._arrival({}) == 100.0
     assert node._arrival({"received_timestamp": 5_100_000_000}) == 100.0  # clocks a hair apart: never in the future
+
+
+def test_the_payloads_identification_runs_beside_the_parts():
+    """The node runs the payload's identification on a worker thread and publishes it when it is
+    ready: the call that starts it returns while it runs, so the parts that arrive meanwhile are
+    taken and tested (in line, an identification on thousands of samples held them, and the next
+    change's alarm, back for its whole length); the result is published once, through the engine's
+    message, and the next one is started only then."""
+    import threading
+
+    from spaceid.ros._node import _Worker
+
+    release, published, started = threading.Event(), [], []
+
+    class Engine:  # LiveMonitor's payload_fit / payload_message protocol
+        def payload_fit(self):
+            started.append(len(started))
+            return (lambda k=started[-1]: (release.wait(60), k)[1]) if len(started) == 1 else None
+
+        def payload_message(self, done):
+            return ("payload", done)
+
+    engine = Engine()
+    with _Worker() as worker:
+        worker.payload(engine, published.append)  # starts the identification and returns
+        worker.payload(engine, published.append)  # still running: nothing published, none started
+        assert not published and started == [0] and not worker.running.done()
+        release.set()
+        worker.payload(engine, published.append, wait=True)
+    assert published == [("payload", 0)]
