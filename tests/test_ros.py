@@ -166,7 +166,7 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
 @pytest.fixture(scope="module")
 def twin_bag(tmp_path_factory):
     """The end-to-end test's twin run (grasp 4 s into 12 s) as an MCAP bag, the grasp time and the
-    minimal parameters' true values before it."""
+    minimal parameters' true values before it and after it."""
     from spaceid.data import write_bag
     from spaceid.ros import twin_recording
     from spaceid.studies import capture_protocol
@@ -174,7 +174,8 @@ def twin_bag(tmp_path_factory):
     run = twin_recording(capture=capture_protocol(), ideal=True, duration=12.0, seed=1)
     bag = tmp_path_factory.mktemp("ros") / "twin.mcap"
     write_bag(bag, run.recording, format="mcap")
-    return bag, run.meta["capture"]["time"], run.meta["capture"]["minimal_parameters"]["before"]["values"]
+    truth = run.meta["capture"]["minimal_parameters"]
+    return bag, run.meta["capture"]["time"], truth["before"]["values"], truth["after"]["values"]
 
 
 def _live(**options):
@@ -245,7 +246,7 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag, one_by_one)
     from spaceid.estimation import Noise, monitor
     from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
 
-    bag, grasp, _ = twin_bag
+    bag, grasp, *_ = twin_bag
     outputs, record = one_by_one
     m = load_model("cepheus-rw")
     expected = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels,
@@ -275,6 +276,40 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag, one_by_one)
 
 
 @pytest.mark.slow
+def test_a_warm_ups_derivatives_remembered_are_those_computed_afresh(twin_bag, one_by_one, monkeypatch):
+    """The derivatives of a lengthened warm-up's equations, remembered from one identification of it
+    to the next (they do not depend on the linearisation point), give the record of those computed
+    afresh each time (none remembered: FIXED_BYTES 0), to the last bit: the same events, warm-up
+    records, prewhitening and identifications (on this run the first warm-up is identified four
+    times, the one after the grasp eleven)."""
+    import dataclasses
+
+    import numpy as np
+
+    from spaceid import load_model, minimal_parameters
+    from spaceid.data import bag_chunks
+    from spaceid.estimation import Noise, _monitor, monitor
+    from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
+
+    bag, *_ = twin_bag
+    _, remembered = one_by_one
+    monkeypatch.setattr(_monitor, "FIXED_BYTES", 0)
+    m = load_model("cepheus-rw")
+    afresh = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels,
+                                                       block=LIVE_BLOCK, context=LIVE_CONTEXT, window=25,
+                                                       order=LIVE_ORDER),
+                     np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
+                     noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
+    assert [repr(dataclasses.astuple(e)) for e in remembered.events] == [repr(dataclasses.astuple(e))  # NaN z: repr
+                                                                         for e in afresh.events] and afresh.events
+    for got, want in zip(remembered.segments, afresh.segments, strict=True):
+        assert (got.warm_up, got.prewhitening) == (want.warm_up, want.prewhitening)
+        assert np.array_equal(got.identification.values, want.identification.values)
+        assert np.array_equal(got.identification.std, want.identification.std)
+    assert remembered.segments[1].warm_up is None and remembered.segments[0].warm_up["n_samples"] > 100
+
+
+@pytest.mark.slow
 def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(twin_bag, one_by_one):
     """The estimate is published after every aligned part, whatever the monitor's phase: on the data
     clock at least every 0.5 s (the parts' 0.1 s, more where a part holds no sample), from the first
@@ -293,7 +328,7 @@ def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(t
     after the alarm that determines its mass (more than 3 standard errors from zero)."""
     import numpy as np
 
-    bag, _, before = twin_bag
+    bag, _, before, after = twin_bag
     outputs, record = one_by_one
     estimates = [(k, o.data) for k, o in outputs if o.kind == "estimate"]
     times = np.array([e["time"] for _, e in estimates])
@@ -330,7 +365,10 @@ def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(t
         assert compared_now and not set(compared_now) & set(u["warm_up"]["undetermined"])
         assert set(compared_now) | set(u["warm_up"]["undetermined"]) == set(seg0.names)
         for name, q in compared_now.items():
-            assert q["before"] == seg0.values[seg0.names.index(name)]
+            k = seg0.names.index(name)
+            assert q["before"] == seg0.values[k]
+            if q["z"]:  # the change's error within 3 of its standard errors (change / z) of the true change
+                assert abs(q["change"] - (after[k] - before[k])) <= 3 * abs(q["change"] / q["z"]), (name, q)
         assert u["changed"] == [n for n, q in compared_now.items() if q["z"] is not None and abs(q["z"]) > 3]
     payloads = [(k, o.data) for k, o in outputs if o.kind == "payload"]
     # the payload from the first quarter warm-up of samples after the alarm whose mass stands out of its
