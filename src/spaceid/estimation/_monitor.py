@@ -97,7 +97,7 @@ NOISE_SAMPLES = 500
 """Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
 FIXED_BYTES = 2**26
 """Most bytes of a warm-up's equations' derivatives remembered from one identification of it to
-the next (:meth:`Monitor._fixed`); beyond, the rest are computed each time."""
+the next (:meth:`Monitor._fixed`); a longer warm-up's are computed afresh at each."""
 
 
 def _check_options(forgetting: float, estimator: str, noise: Noise | None):
