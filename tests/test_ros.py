@@ -102,7 +102,8 @@ RATE_FACTOR = "0.5"
 @pytest.mark.slow
 def test_twin_monitor_and_subscriber_over_dds(tmp_path):
     """The twin grasps 0.5 kg 4 s into a 12 s motion; the monitor, fed over DDS, announces the
-    change within 0.5 s of the grasp and publishes the payload mass within its 2-sigma bar, and
+    change within 0.5 s of the grasp and publishes the payload mass within its 2-sigma bar, the
+    first one before the end of the run (before, the payload came a warm-up after the alarm), and
     live, before the interrupt, an estimate after each part and what the warm-up after the grasp
     leaves undetermined (before, the estimate 0 to 4 times a run, the comparison at the end); all
     stop cleanly (the twin at its end, the monitor on SIGINT, writing EVENTS.json and RESULT.json).
@@ -117,6 +118,7 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
         twin = _start(["ros", "twin", "--capture", "--ideal", "--seed", "1", "--duration", "12", "--rate-factor",
                        RATE_FACTOR], env, tmp_path)  # fmt: skip
         assert listener.wait(lambda: twin.poll() is not None, TIMEOUT, [monitor]), "the twin did not finish"
+        live = [p for p in listener.got["payload"] if "mass" in p]  # received before the end of the run
         out = _output(twin, tmp_path, "twin")
         assert twin.returncode == 0, out
         grasp = float(re.search(r"grasp at (\S+) s", out)[1])
@@ -131,6 +133,8 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
         assert listener.wait(found, TIMEOUT, [monitor]), (listener.got["events"], listener.got["payload"])
         payload = [p for p in listener.got["payload"] if p["event"] == near()[0]["index"] and "mass" in p][-1]
         assert abs(payload["mass"] - 0.5) <= 2 * payload["std"]["mass"], payload
+        early = [p for p in live if p["event"] == near()[0]["index"]]
+        assert early and abs(early[0]["mass"] - 0.5) <= 2 * early[0]["std"]["mass"], live
 
         def undetermined():  # what the warm-up after the grasp leaves undetermined, published live
             return [e for e in listener.got["events"]
@@ -162,7 +166,7 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
 @pytest.fixture(scope="module")
 def twin_bag(tmp_path_factory):
     """The end-to-end test's twin run (grasp 4 s into 12 s) as an MCAP bag, the grasp time and the
-    minimal parameters' true values before it."""
+    minimal parameters' true values before it and after it."""
     from spaceid.data import write_bag
     from spaceid.ros import twin_recording
     from spaceid.studies import capture_protocol
@@ -170,7 +174,8 @@ def twin_bag(tmp_path_factory):
     run = twin_recording(capture=capture_protocol(), ideal=True, duration=12.0, seed=1)
     bag = tmp_path_factory.mktemp("ros") / "twin.mcap"
     write_bag(bag, run.recording, format="mcap")
-    return bag, run.meta["capture"]["time"], run.meta["capture"]["minimal_parameters"]["before"]["values"]
+    truth = run.meta["capture"]["minimal_parameters"]
+    return bag, run.meta["capture"]["time"], truth["before"]["values"], truth["after"]["values"]
 
 
 def _live(**options):
@@ -241,7 +246,7 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag, one_by_one)
     from spaceid.estimation import Noise, monitor
     from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
 
-    bag, grasp, _ = twin_bag
+    bag, grasp, *_ = twin_bag
     outputs, record = one_by_one
     m = load_model("cepheus-rw")
     expected = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels,
@@ -271,6 +276,40 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag, one_by_one)
 
 
 @pytest.mark.slow
+def test_a_warm_ups_derivatives_remembered_are_those_computed_afresh(twin_bag, one_by_one, monkeypatch):
+    """The derivatives of a lengthened warm-up's equations, remembered from one identification of it
+    to the next (they do not depend on the linearisation point), give the record of those computed
+    afresh each time (none remembered: FIXED_BYTES 0), to the last bit: the same events, warm-up
+    records, prewhitening and identifications (on this run the first warm-up is identified four
+    times, the one after the grasp eleven)."""
+    import dataclasses
+
+    import numpy as np
+
+    from spaceid import load_model, minimal_parameters
+    from spaceid.data import bag_chunks
+    from spaceid.estimation import Noise, _monitor, monitor
+    from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
+
+    bag, *_ = twin_bag
+    _, remembered = one_by_one
+    monkeypatch.setattr(_monitor, "FIXED_BYTES", 0)
+    m = load_model("cepheus-rw")
+    afresh = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels,
+                                                       block=LIVE_BLOCK, context=LIVE_CONTEXT, window=25,
+                                                       order=LIVE_ORDER),
+                     np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
+                     noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
+    assert [repr(dataclasses.astuple(e)) for e in remembered.events] == [repr(dataclasses.astuple(e))  # NaN z: repr
+                                                                         for e in afresh.events] and afresh.events
+    for got, want in zip(remembered.segments, afresh.segments, strict=True):
+        assert (got.warm_up, got.prewhitening) == (want.warm_up, want.prewhitening)
+        assert np.array_equal(got.identification.values, want.identification.values)
+        assert np.array_equal(got.identification.std, want.identification.std)
+    assert remembered.segments[1].warm_up is None and remembered.segments[0].warm_up["n_samples"] > 100
+
+
+@pytest.mark.slow
 def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(twin_bag, one_by_one):
     """The estimate is published after every aligned part, whatever the monitor's phase: on the data
     clock at least every 0.5 s (the parts' 0.1 s, more where a part holds no sample), from the first
@@ -282,11 +321,14 @@ def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(t
     errors: its samples determine them, or the noise shares say which do not and the standard
     errors still cover here). After the alarm, what the warm-up leaves undetermined is published on
     the events topic ("undetermined") at its first identification, a warm-up after the alarm,
-    parts before the end of the run, and again when its samples double; the comparison ("compared")
-    completes at the end only, this warm-up never being determined."""
+    parts before the end of the run, and again when its samples double, with the change of the
+    parameters it determines so far (the segment before's identification against it); the
+    comparison of them all ("compared") completes at the end only, this warm-up never being
+    determined. The payload comes before that warm-up: from the first quarter warm-up of samples
+    after the alarm that determines its mass (more than 3 standard errors from zero)."""
     import numpy as np
 
-    bag, _, before = twin_bag
+    bag, _, before, after = twin_bag
     outputs, record = one_by_one
     estimates = [(k, o.data) for k, o in outputs if o.kind == "estimate"]
     times = np.array([e["time"] for _, e in estimates])
@@ -317,6 +359,23 @@ def test_the_estimate_after_each_part_and_what_the_warm_up_leaves_undetermined(t
     assert u1["warm_up"]["n_samples"] == 100 and u2["warm_up"]["n_samples"] == 200
     assert u1["warm_up"]["undetermined"] and u1["warm_up"]["noise_share"] > u1["warm_up"]["bounds"]["noise_share"]
     assert record.segments[-1].warm_up is None  # the monitor's record: that warm-up never determined
+    seg0 = record.segments[0].identification
+    for u in (u1, u2):  # the change of the parameters the warm-up determines so far, the segment before's against it
+        compared_now = {q["name"]: q for q in u["parameters"]}
+        assert compared_now and not set(compared_now) & set(u["warm_up"]["undetermined"])
+        assert set(compared_now) | set(u["warm_up"]["undetermined"]) == set(seg0.names)
+        for name, q in compared_now.items():
+            k = seg0.names.index(name)
+            assert q["before"] == seg0.values[k]
+            if q["z"]:  # the change's error within 3 of its standard errors (change / z) of the true change
+                assert abs(q["change"] - (after[k] - before[k])) <= 3 * abs(q["change"] / q["z"]), (name, q)
+        assert u["changed"] == [n for n, q in compared_now.items() if q["z"] is not None and abs(q["z"]) > 3]
+    payloads = [(k, o.data) for k, o in outputs if o.kind == "payload"]
+    # the payload from the first quarter warm-up of samples after the alarm whose mass stands out of its
+    # standard error, here before a warm-up of them (then the first attempt, before); within 2 sigma of the truth
+    assert payloads[0][0] <= k1 and payloads[0][1]["n_samples"] < 100, payloads[0]
+    first = payloads[0][1]
+    assert abs(first["mass"] - 0.5) <= 2 * first["std"]["mass"] and 3 * first["std"]["mass"] < first["mass"], first
 
 
 @pytest.mark.slow
@@ -441,3 +500,33 @@ def test_a_messages_arrival_is_its_reception_by_the_middleware(monkeypatch):
     assert node._arrival({"received_timestamp": 4_700_000_000}) == pytest.approx(99.7, abs=1e-12)
     assert node._arrival({"received_timestamp": 0}) == node._arrival({}) == 100.0
     assert node._arrival({"received_timestamp": 5_100_000_000}) == 100.0  # clocks a hair apart: never in the future
+
+
+def test_the_payloads_identification_runs_beside_the_parts():
+    """The node runs the payload's identification on a worker thread and publishes it when it is
+    ready: the call that starts it returns while it runs, so the parts that arrive meanwhile are
+    taken and tested (in line, an identification on thousands of samples held them, and the next
+    change's alarm, back for its whole length); the result is published once, through the engine's
+    message, and the next one is started only then."""
+    import threading
+
+    from spaceid.ros._node import _Worker
+
+    release, published, started = threading.Event(), [], []
+
+    class Engine:  # LiveMonitor's payload_fit / payload_message protocol
+        def payload_fit(self):
+            started.append(len(started))
+            return (lambda k=started[-1]: (release.wait(60), k)[1]) if len(started) == 1 else None
+
+        def payload_message(self, done):
+            return ("payload", done)
+
+    engine = Engine()
+    with _Worker() as worker:
+        worker.payload(engine, published.append)  # starts the identification and returns
+        worker.payload(engine, published.append)  # still running: nothing published, none started
+        assert not published and started == [0] and not worker.running.done()
+        release.set()
+        worker.payload(engine, published.append, wait=True)
+    assert published == [("payload", 0)]

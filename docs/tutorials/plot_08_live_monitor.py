@@ -96,10 +96,11 @@ print(f"{record.n_samples} samples monitored in {time.monotonic() - started:.1f}
 # which parameters changed, with their z-scores). In between, while the samples after the
 # change do not determine the estimate (here they never do: after the grasp the arm barely moves
 # some directions of the parameters, and the comparison completes at the end), ``stage``
-# "undetermined" says which parameters they leave undetermined, a warm-up after the alarm and
-# each time the samples double. On ``/spaceid/payload``, the payload that
-# ``link2`` holds, identified from the samples after the alarm, first after a warm-up of them
-# and again each time they double. ``/spaceid/estimate`` comes after every aligned part: the
+# "undetermined" says which parameters they leave undetermined, and how those they determine
+# changed, a warm-up after the alarm and each time the samples double. On ``/spaceid/payload``,
+# the payload that ``link2`` holds, identified from the samples after the alarm (the servicer
+# known: far fewer unknowns), first once its mass stands out of its standard error (tried each
+# quarter warm-up of samples), and again each time they double. ``/spaceid/estimate`` comes after every aligned part: the
 # running segment's recursive estimate while its test runs (``status`` "testing"), else its
 # warm-up's last identification with the parameters not yet determined (``status`` "warming
 # up"; here the first warm-up is determined only after 3.5 s, and the change is found in its

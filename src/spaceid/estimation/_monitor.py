@@ -81,7 +81,7 @@ from ._monitor_records import Z_CHANGED, Alarm, MonitorEvent, MonitorRecord, Seg
 from ._monitor_samples import Intake, Sample, Thinned, log_of
 from ._monitor_state import Phase, Segment
 from ._monitor_whitening import (_prediction, differentiator_innovations, kalman_check, prewhitening,
-                                 warm_up_innovations, whitened_equations, whitener_prior)
+                                 warm_up_innovations, whitened_equations, whitener_prior, equation_derivatives)
 from ._noise import Noise, equation_covariance, noise_from_log, signal_sigma
 from ._result import Identification, compare
 
@@ -95,6 +95,9 @@ CHECKED = 50
 (it takes those from where the warm-up's samples determine the estimate)."""
 NOISE_SAMPLES = 500
 """Samples the noise levels are estimated from when not given: the first warm-up is at least this long."""
+FIXED_BYTES = 2**26
+"""Most bytes of a warm-up's equations' derivatives remembered from one identification of it to
+the next (:meth:`Monitor._fixed`); a longer warm-up's are computed afresh at each."""
 
 
 def _check_options(forgetting: float, estimator: str, noise: Noise | None):
@@ -125,10 +128,14 @@ def _warmup_length(warmup: int | None, p: int, rows: int) -> int:
     return n
 
 
+def _derivative_size(param: Parameterization, p: int) -> int:
+    """Numbers in one sample's derivatives of its equations in each signal: ``rows (p + 1) n_x``."""
+    return param.rows * (p + 1) * (2 * len(param.model.joints) + (1 if param.model.planar else 6))
+
+
 def _block_size(param: Parameterization, p: int) -> int:
     """Samples whitened at once while testing: 32 MB of derivatives."""
-    n_x = 2 * len(param.model.joints) + (1 if param.model.planar else 6)
-    return max(1, 2**22 // (param.rows * (p + 1) * n_x))
+    return max(1, 2**22 // _derivative_size(param, p))
 
 
 def _raw_levels(noise: Noise | None) -> tuple:
@@ -403,7 +410,8 @@ class Monitor:
         sigma = self._whitener.smoothed(self._sigma) if self._whitener else self._sigma  # each sample's noise
         accumulator, parts = DeterminacyAccumulator(len(rows), self._segment.theta_ref, sigma), []
         for i in range(0, len(rows), self._block):
-            white, L, J, D = self._whitened(log.select(slice(i, i + self._block)), rows[i : i + self._block], True)
+            block = rows[i : i + self._block]
+            white, L, J, D = self._whitened(log.select(slice(i, i + self._block)), block, True, self._fixed(block))
             accumulator.add(L, D)
             parts.append((white, L, J))
         white, L, J = (np.concatenate(x) for x in zip(*parts))
@@ -511,7 +519,7 @@ class Monitor:
             self._segment.thinned.add(row)
             self._recent.append(row)
         self._cusum.restart()  # the samples after the warm-up are tested afresh, with this segment's whitening
-        self._segment.phase = Phase.TESTING
+        self._segment.phase, self._segment.fixed = Phase.TESTING, {}
 
     def _hand_on(self, rest: list):
         """Give the new segment the samples ``rest`` of the warm-up after a change in it."""
@@ -561,12 +569,37 @@ class Monitor:
             nu = solve_triangular(np.linalg.cholesky(C), b - a @ theta, lower=True)
         return segment.whitening.filtered(nu), score  # what the AR filter of the past innovations does not predict
 
-    def _whitened(self, log: Log, rows: list, derivatives: bool = False) -> tuple:
+    def _whitened(self, log: Log, rows: list, derivatives: bool = False, known=None) -> tuple:
         """``log``'s equations (its samples ``rows``) whitened at the segment's linearisation point
-        (:func:`~spaceid.estimation._monitor_whitening.whitened_equations`)."""
+        (:func:`~spaceid.estimation._monitor_whitening.whitened_equations`; ``known``, their
+        derivatives, when known)."""
         segment = self._segment
-        basis = np.array([r.basis for r in rows]) - segment.origin.basis if self.drift else None
-        return whitened_equations(self._eq, log, basis, segment.momentum, segment.theta_ref, self._sigma, derivatives)
+        return whitened_equations(self._eq, log, self._basis(rows), segment.momentum, segment.theta_ref, self._sigma,
+                                  derivatives, known)
+
+    def _basis(self, rows: list) -> np.ndarray | None:
+        """The drift basis ``(n, n_d, 3)`` of the samples ``rows`` since the segment's origin (None without drift)."""
+        return np.array([r.basis for r in rows]) - self._segment.origin.basis if self.drift else None
+
+    def _fixed(self, rows: list) -> np.ndarray:
+        """The derivatives of the warm-up samples ``rows``' equations in each signal
+        (:func:`~spaceid.estimation._monitor_whitening.equation_derivatives`), those of samples
+        new to the segment computed and remembered in its ``fixed``: a lengthened warm-up is
+        identified again and again, screened and then judged at its estimate, and they do not
+        depend on the estimate (the same numbers, laid out as computed at once)."""
+        known = self._segment.fixed
+        new = [r for r in rows if known.get(id(r), (None,))[0] is not r]
+        if (len(known) + len(new)) * _derivative_size(self.param, self._eq.p) * 8 > FIXED_BYTES:  # computed afresh
+            return equation_derivatives(self._eq, log_of(rows, self.param.model, self.where), self._basis(rows),
+                                        self._segment.momentum)
+        if new:
+            D = equation_derivatives(self._eq, log_of(new, self.param.model, self.where), self._basis(new),
+                                     self._segment.momentum)
+            known |= {id(r): (r, D[k]) for k, r in enumerate(new)}  # the sample held: its id stays its own
+            if len(new) == len(rows):
+                return D
+        # each sample's (n_x, rows, p + 1) stacked along the samples: the layout of one computation
+        return np.moveaxis(np.stack([np.moveaxis(known[id(r)][1], -1, 0) for r in rows], axis=1), 0, -1)
 
     def _alarm(self, row: Sample):
         """Close the segment at the estimated change and open the next one with the samples since
@@ -678,6 +711,28 @@ class Monitor:
         ``values`` and ``std`` are None and ``error`` says why. None while the segment is tested,
         and before its warm-up's first identification."""
         return None if self._segment.phase is Phase.TESTING else self._segment.attempt
+
+    def partial_change(self) -> dict | None:
+        """While the last alarm's comparison waits for a warm-up that determines the estimate after
+        it (:attr:`waiting`): the change of the parameters that the warm-up's samples determine so
+        far, the segment before's batch identification against the warm-up's last identification
+        (:meth:`warm_up_estimate`): ``parameters`` as in :class:`MonitorEvent`
+        (:func:`~spaceid.estimation.compare`) of those outside its ``undetermined`` (whose standard
+        errors cover the errors-in-variables bias), ``changed`` those beyond ``Z_CHANGED``,
+        ``undetermined`` the names left out. None when no comparison waits, before the warm-up's
+        first identification, when its samples do not excite every parameter, or when the segment
+        before has no identification (too short)."""
+        attempt = self.warm_up_estimate()
+        if self._waiting is None or attempt is None or attempt["values"] is None or not self.segments:
+            return None
+        before = self.segments[-1].identification
+        if before is None:
+            return None
+        after = dataclasses.replace(before, values=np.asarray(attempt["values"]), std=np.asarray(attempt["std"]))
+        left_out = attempt["undetermined"]
+        res = [q for q in compare(before, after, where=self.where).to_dict()["parameters"] if q["name"] not in left_out]
+        return {"changed": [q["name"] for q in res if abs(q["z"]) > Z_CHANGED], "parameters": res,
+                "undetermined": sorted(left_out)}
 
     def estimate(self) -> dict | None:
         """The recursive estimate of the running segment: ``values`` (all minimal parameters),

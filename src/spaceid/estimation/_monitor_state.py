@@ -79,6 +79,10 @@ class Segment:
     attempt : dict or None
         What the warm-up's last identification that did not determine the estimate found
         (:meth:`~spaceid.estimation.Monitor.warm_up_estimate`); None before one.
+    fixed : dict
+        The derivatives of the warm-up samples' equations in each signal, which do not depend on
+        the linearisation point, by the sample's ``id``: ``(sample, derivatives)``
+        (:meth:`~spaceid.estimation.Monitor._fixed`); emptied once the test begins.
     """
 
     start: float | None
@@ -101,6 +105,7 @@ class Segment:
     score: np.ndarray | None = None
     sigma: np.ndarray | None = None
     attempt: dict | None = None
+    fixed: dict = field(default_factory=dict)
 
     def take(self, samples: list):
         """Add ``samples`` to the warm-up."""

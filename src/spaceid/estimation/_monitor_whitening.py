@@ -40,7 +40,7 @@ filter's covariance update to round-off (on the twin, 1e13 against the raw noise
 indefinite and the innovations' Cholesky factorisation failed)."""
 
 
-def whitened_equations(eq, log, basis, momentum, theta_ref, sigma, derivatives: bool = False) -> tuple:
+def whitened_equations(eq, log, basis, momentum, theta_ref, sigma, derivatives: bool = False, known=None) -> tuple:
     """``log``'s equations ``[A | b]`` whitened by ``S_n`` at the linearisation point.
 
     Parameters
@@ -59,6 +59,8 @@ def whitened_equations(eq, log, basis, momentum, theta_ref, sigma, derivatives: 
         Signal noise levels (:func:`~spaceid.estimation.signal_sigma`).
     derivatives : bool
         Also return the derivatives of the equations in each signal.
+    known : numpy.ndarray, optional
+        Those derivatives, when known (:func:`equation_derivatives`: they do not depend on ``theta_ref``).
 
     Returns
     -------
@@ -72,7 +74,7 @@ def whitened_equations(eq, log, basis, momentum, theta_ref, sigma, derivatives: 
         If ``derivatives``, those of the equations ``[A | -b]`` (the equation error's Jacobian at
         any estimate is their product with ``[theta; 1]``).
     """
-    eq = dataclasses.replace(eq, rot=quat_to_matrix(log.base_quat), basis=basis, momentum=momentum)
+    eq = _at(eq, log, basis, momentum)
     x = eq.signals(log)
     J = eq.jacobian(x, theta_ref)
     L = _whiten(equation_covariance(J, sigma))
@@ -80,11 +82,31 @@ def whitened_equations(eq, log, basis, momentum, theta_ref, sigma, derivatives: 
     white[..., -1] *= -1
     if not derivatives:
         return white, L, J, None
+    return white, L, J, _derivatives(eq, x) if known is None else known
+
+
+def equation_derivatives(eq, log, basis, momentum) -> np.ndarray:
+    """The derivatives ``(n, rows, p + 1, n_x)`` of ``log``'s equations ``[A | -b]`` in each signal
+    (as :func:`whitened_equations` computes them, from the same arguments; they do not depend on
+    the linearisation point), a view of an array laid out ``(n_x, n, rows, p + 1)``: each sample's
+    are the same whatever samples they are computed with (those of the equations themselves are
+    not: the regressor's vectorised loops round a sample differently in batches of other sizes)."""
+    eq = _at(eq, log, basis, momentum)
+    return _derivatives(eq, eq.signals(log))
+
+
+def _at(eq, log, basis, momentum):
+    """The equations of ``log``'s samples: their base rotations, drift basis and momentum."""
+    return dataclasses.replace(eq, rot=quat_to_matrix(log.base_quat), basis=basis, momentum=momentum)
+
+
+def _derivatives(eq, x) -> np.ndarray:
+    """:func:`equation_derivatives` at the signals ``x (n, n_x)`` of ``eq``'s samples."""
     n, n_x = x.shape  # every signal direction in one call: the regressor's cost is mostly per call
     tiled = dataclasses.replace(eq, rot=np.tile(eq.rot, (n_x, 1, 1)),
-                                basis=None if basis is None else np.tile(basis, (n_x, 1, 1)))
+                                basis=None if eq.basis is None else np.tile(eq.basis, (n_x, 1, 1)))
     D = tiled.dphi(np.tile(x, (n_x, 1)), np.repeat(np.eye(n_x), n, axis=0))
-    return white, L, J, np.moveaxis(D.reshape((n_x, n) + D.shape[1:]), 0, -1)
+    return np.moveaxis(D.reshape((n_x, n) + D.shape[1:]), 0, -1)
 
 
 def _prediction(R: np.ndarray, a: np.ndarray) -> tuple:

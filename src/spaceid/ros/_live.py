@@ -24,6 +24,7 @@ import numpy as np
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log, MessageAligner
+from ..estimation import Z_CHANGED
 
 __all__ = ["LIVE_BLOCK", "LIVE_CONTEXT", "LIVE_ORDER", "LiveMonitor", "LiveOutput"]
 
@@ -156,6 +157,7 @@ class LiveMonitor:
         self._recent = collections.deque()  # the latest parts, at most HISTORY samples
         self._n_recent, self._unchecked = 0, False  # their samples; whether a part came since the payload's check
         self._payload_event, self._payload_due = None, None  # the event whose payload is due, at how many samples
+        self._payload_first = None  # samples after it of its first payload published
         self._undetermined_due = 0  # warm-up samples after the last alarm when to say what they leave undetermined
         self.n_messages, self.busy = 0, 0.0
         self._emit = None  # where the outputs go
@@ -228,7 +230,9 @@ class LiveMonitor:
             return
         self._undetermined_due = 2 * attempt["n_samples"]
         summary = {k: v for k, v in attempt.items() if k not in VALUES}
-        self._emit(self._stage(alarm, "undetermined", self._completed(attempt["time"]), warm_up=summary))
+        change = self.monitor.partial_change() or {"changed": [], "parameters": []}
+        self._emit(self._stage(alarm, "undetermined", self._completed(attempt["time"]), warm_up=summary,
+                               changed=change["changed"], parameters=change["parameters"]))
 
     def _completed(self, t: float) -> float:
         """When the sample at ``t`` [s] could first be aligned: the arrival [s, ``clock``]
@@ -255,7 +259,7 @@ class LiveMonitor:
         """The monitor's alarm: its message at once; the payload after it is due from now on."""
         self._unchecked, self._undetermined_due = True, 0
         if self._pmap is not None:
-            self._payload_event, self._payload_due = alarm, 0
+            self._payload_event, self._payload_due, self._payload_first = alarm, 0, None
         self._emit(self._stage(alarm, "detected", self._completed(alarm.detected_at)))
 
     def _stage(self, event, stage: str, received: float, **extra) -> LiveOutput:
@@ -291,9 +295,24 @@ class LiveMonitor:
                        "determined": testing} | shown)  # fmt: skip
 
     def payload(self) -> LiveOutput | None:
-        """The payload after the last alarm, when due: once the samples after it allow (a warm-up
-        of them), then each time they double (while the history holds them); None otherwise or
-        without ``link``."""
+        """The payload after the last alarm, when due (None otherwise, or without ``link``):
+        identified from the samples after it each quarter warm-up of them (``warmup / 4``) and
+        published from the first whose mass stands out of its standard error (more than
+        ``Z_CHANGED`` of them), at the latest at a warm-up of them (then whatever it is, or the
+        error that refused them); then each time they double (while the history holds them).
+        :meth:`payload_fit` and :meth:`payload_message`, run here one after the other."""
+        fit = self.payload_fit()
+        if fit is None:
+            return None
+        with one_blas_thread():  # small factorisations: BLAS threads only wait
+            return self.payload_message(fit())
+
+    def payload_fit(self):
+        """The payload's identification due now (:meth:`payload`), as a callable that runs it
+        without touching the engine (the samples are taken now), for a worker thread: its cost
+        grows with the samples after the change (up to ``HISTORY``), and run in line it would hold
+        back the tests of the parts that arrive meanwhile, and the next change's alarm. None when
+        none is due; none is due either until its result is given to :meth:`payload_message`."""
         event = self._payload_event
         if event is None or not self._unchecked:  # no new samples: nothing new is due
             return None
@@ -305,19 +324,39 @@ class LiveMonitor:
             self._payload_event = None
             return None
         after = sum(p.n_samples - int(np.searchsorted(p.t, grasp, side="right")) for p in self._recent)
-        if after < max(self._payload_due, self.monitor.warmup):
+        if after < max(self._payload_due, self.monitor.warmup // 4, 1):
             return None
-        log = _concatenate(list(self._recent))
-        self._payload_due = 2 * after
-        mon = self.monitor
-        try:
-            with one_blas_thread():
-                res = payload_after_grasp(self._pmap, log, self.link, grasp, mon.momentum, noise=mon.noise,
-                                          drift=mon.drift, where=self.where).estimate
-        except SpaceidError as err:
-            return LiveOutput("payload", {"event": event.index, "time": grasp, "error": str(err)})
+        self._payload_due = math.inf  # until this one's result is in
+        log, mon, pmap, link, where = _concatenate(list(self._recent)), self.monitor, self._pmap, self.link, self.where
+        noise, drift, momentum = mon.noise, mon.drift, mon.momentum
+
+        def fit():
+            try:
+                return event, grasp, after, payload_after_grasp(pmap, log, link, grasp, momentum, noise=noise,
+                                                                drift=drift, where=where).estimate
+            except SpaceidError as err:
+                return event, grasp, after, err
+
+        return fit
+
+    def payload_message(self, done) -> LiveOutput | None:
+        """The message of a payload identification's result ``done`` (what :meth:`payload_fit`'s
+        callable returned), or None when it is not published (before the first whose mass stands
+        out, :meth:`payload`); sets when the next is due."""
+        event, grasp, after, res = done
+        current, warmup = event is self._payload_event, self.monitor.warmup
+        first = current and self._payload_first is None
+        if current:
+            self._payload_due = after + max(1, warmup // 4) if first else 2 * after  # retried until published
+        if isinstance(res, SpaceidError):
+            return None if first and after < warmup else \
+                LiveOutput("payload", {"event": event.index, "time": grasp, "error": str(res)})
         data = {"event": event.index, "time": grasp, "time_origin_ns": self._origin, "n_samples": after,
                 "names": list(res.names), "values": res.values, "std": res.std} | res.to_dict()
+        if first and after < warmup and not abs(data["mass"]) > Z_CHANGED * data["std"]["mass"]:
+            return None
+        if current:
+            self._payload_first, self._payload_due = after, 2 * after
         return LiveOutput("payload", _plain(data))
 
     def finish(self, publish=None):

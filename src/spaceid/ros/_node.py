@@ -13,6 +13,7 @@ import time
 import numpy as np
 
 from .._errors import SpaceidError
+from .._threads import one_blas_thread
 from ._live import LiveMonitor, _stamp as _stamp_ns
 from ._rclpy import as_pose, pose_class, qos, ros_context, string_message
 
@@ -74,21 +75,50 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
             pubs[out.kind].publish(string_message(json.dumps(out.data, allow_nan=False, default=_null)))
             show(out)
 
-        with _interrupt_flag() as interrupted:
+        # BLAS on one thread all along (small factorisations), the payload's on the worker too
+        with _interrupt_flag() as interrupted, one_blas_thread(), _Worker() as worker:
             while not interrupted() and (until is None or not until()):
                 executor.spin_once(timeout_sec=SPIN)  # waits for a message; its callback puts it in the inbox
                 inbox += _take_all(subs)
                 while inbox and not interrupted():  # everything queued in one batch: one estimate, one payload check
                     batch, inbox[:] = sorted(inbox, key=lambda x: _stamp_ns(x[1])), []
                     live.add_batch(batch, publish)
-                    payload = live.payload()
-                    if payload is not None:
-                        publish(payload)
+                    worker.payload(live, publish)
                     inbox += _take_all(subs)  # what arrived meanwhile
+                worker.payload(live, publish)
+            worker.payload(live, publish, wait=True)
         outputs, record = live.finish(publish)
         executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
     return outputs, record
+
+
+class _Worker:
+    """The payload's identifications on a thread of their own (:meth:`~spaceid.ros.LiveMonitor.payload_fit`),
+    each published when it is ready: in line, one on thousands of samples would hold back the tests
+    of the parts that arrive meanwhile (and a change's alarm) for its whole length; beside them, it
+    shares the interpreter with them (the main thread gets it back within the switch interval)."""
+
+    def __enter__(self):
+        from concurrent.futures import ThreadPoolExecutor
+
+        self.pool, self.running = ThreadPoolExecutor(max_workers=1, thread_name_prefix="spaceid-payload"), None
+        return self
+
+    def payload(self, live, publish, wait: bool = False):
+        """Publish the identification that finished (with ``wait``, wait for the one running) and
+        start the next one due."""
+        if self.running is not None and (wait or self.running.done()):
+            out = live.payload_message(self.running.result())
+            self.running = None
+            if out is not None:
+                publish(out)
+        if self.running is None and not wait:
+            fit = live.payload_fit()
+            self.running = None if fit is None else self.pool.submit(fit)
+
+    def __exit__(self, *exc):
+        self.pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _take_all(subscriptions) -> list:
