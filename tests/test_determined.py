@@ -153,12 +153,13 @@ def test_ml_runs_over_the_directions_the_data_determine():
     """The elbow moving a thousandth of the paper's motion leaves 2 directions undetermined, along which the
     errors-in-variables likelihood has no maximum: over all directions ML does not converge (it fell back on
     WLS). It runs over the 6 the data determine instead, keeps WLS's values along the other 2 and reaches the
-    fixed point of the plain scheme restricted to those 6 (written out here, nothing reused; relinearised at
-    each step, it jitters by up to 1e-2 standard errors about ML's estimate, which is 0.23 from WLS's)."""
+    fixed point of the plain scheme confined to those 6 (``test_estimators._reference_ml``, nothing reused;
+    relinearised at each step, it jitters by up to 1e-2 standard errors about ML's estimate, which is 0.23
+    from WLS's)."""
     from spaceid.estimation import signal_sigma
     from spaceid.estimation._determined import noise_ratios
     from spaceid.estimation._equations import _equations
-    from spaceid.estimation._noise import equation_covariance
+    from test_estimators import _reference_ml
 
     noise = Noise(1e-4, 1e-3, 1e-3)
     param, log = _cepheus(1e-3)
@@ -178,19 +179,8 @@ def test_ml_runs_over_the_directions_the_data_determine():
     assert weak.sum() == 2
     held = np.linalg.solve(T, np.column_stack([ml.values[free], wls.values[free]]))[weak]
     np.testing.assert_allclose(held[:, 0], held[:, 1], rtol=1e-9)
-    B, theta = T[:, ~weak], wls.values[free]
-    xh = x
-    for _ in range(40):  # the scheme as first written, its update confined to B's span
-        phit = eq.linearized(xh, x - xh)
-        J = eq.jacobian(xh, theta)
-        L = np.linalg.cholesky(equation_covariance(J, sigma))
-        white = np.linalg.solve(L, phit)
-        A, b = white[..., :-1].reshape(-1, eq.p), -white[..., -1].ravel()
-        u = np.linalg.solve(np.swapaxes(L, 1, 2), white @ np.append(theta, 1.0)[:, None])[..., 0]
-        rhs = A.T @ b + eq.contracted_dphi(xh, sigma**2 * np.einsum("nrx,nr->nx", J, u), u) - A.T @ A @ theta
-        theta = theta + B @ np.linalg.solve(B.T @ A.T @ A @ B, B.T @ rhs)
-        u = np.linalg.solve(np.swapaxes(L, 1, 2), np.linalg.solve(L, phit @ np.append(theta, 1.0)[:, None]))[..., 0]
-        xh = x - sigma**2 * np.einsum("nrx,nr->nx", J, u)
+    B = T[:, ~weak]
+    theta = _reference_ml(eq, x, sigma, wls.values[free], subspace=B)
     first_order = np.sqrt(np.diag(B @ B.T))  # the standard errors along the determined directions
     assert (np.abs(ml.values[free] - theta) / first_order).max() < 2e-2
     assert (np.abs(ml.values[free] - wls.values[free]) / first_order).max() > 0.1  # ML is not WLS here

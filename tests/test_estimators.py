@@ -172,11 +172,12 @@ def test_ml_never_reports_physically_impossible_parameters_when_wls_has_none(cep
     assert ml.diagnostics.chi2_dof > 1e2 and any("contradict the noise model" in m for m in messages)
 
 
-def _reference_ml(eq, x, sigma, theta, iterations=40):
+def _reference_ml(eq, x, sigma, theta, iterations=40, subspace=None):
     """The fundamental numerical scheme as first written, with nothing reused: at each estimate the
     equations linearised at the corrected signals (their columns included, by
     ``Equations.linearized``), whitened by batched solves and refactorised by ``numpy.linalg.lstsq``;
-    the next linearisation point is the corrected signals of the update."""
+    the next linearisation point is the corrected signals of the update. With ``subspace (p, k)``
+    the update is confined to its span (the normal equations projected onto it)."""
     from spaceid.estimation._noise import equation_covariance
 
     xh = x
@@ -188,7 +189,11 @@ def _reference_ml(eq, x, sigma, theta, iterations=40):
         A, b = white[..., :-1].reshape(-1, eq.p), -white[..., -1].ravel()
         u = np.linalg.solve(np.swapaxes(L, 1, 2), white @ np.append(theta, 1.0)[:, None])[..., 0]
         extra = eq.contracted_dphi(xh, sigma**2 * np.einsum("nrx,nr->nx", J, u), u)
-        theta = np.linalg.solve(A.T @ A, A.T @ b + extra)
+        if subspace is None:
+            theta = np.linalg.solve(A.T @ A, A.T @ b + extra)
+        else:
+            B = subspace
+            theta = theta + B @ np.linalg.solve(B.T @ A.T @ A @ B, B.T @ (A.T @ b + extra - A.T @ A @ theta))
         u = np.linalg.solve(np.swapaxes(L, 1, 2), np.linalg.solve(L, phit @ np.append(theta, 1.0)[:, None]))[..., 0]
         xh = x - sigma**2 * np.einsum("nrx,nr->nx", J, u)
     return theta
