@@ -224,6 +224,22 @@ def one_by_one(twin_bag):
     return outputs + [(parts, o) for o in rest], record
 
 
+def _batch_monitor(bag):
+    """``spaceid.estimation.monitor`` on the bag's chunks as the live node aligns them (its record)."""
+    import numpy as np
+
+    from spaceid import load_model, minimal_parameters
+    from spaceid.data import bag_chunks
+    from spaceid.estimation import Noise, monitor
+    from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
+
+    m = load_model("cepheus-rw")
+    chunks = bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels, block=LIVE_BLOCK, context=LIVE_CONTEXT,
+                        window=25, order=LIVE_ORDER)
+    return monitor(minimal_parameters(m), chunks, np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
+                   noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))
+
+
 def _events(record) -> list:
     return [(e.time, e.detected_at, e.delay, e.statistic, e.changed) for e in record.events]
 
@@ -241,19 +257,11 @@ def test_the_live_engine_is_the_bag_reader_and_the_monitor(twin_bag, one_by_one)
     may never determine its warm-up, and its event then completes at the end only)."""
     import numpy as np
 
-    from spaceid import load_model, minimal_parameters
-    from spaceid.data import bag_chunks
-    from spaceid.estimation import Noise, monitor
-    from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
+    from spaceid.ros import LIVE_BLOCK
 
     bag, grasp, *_ = twin_bag
     outputs, record = one_by_one
-    m = load_model("cepheus-rw")
-    expected = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels,
-                                                         block=LIVE_BLOCK, context=LIVE_CONTEXT, window=25,
-                                                         order=LIVE_ORDER),
-                       np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
-                       noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
+    expected = _batch_monitor(bag)
     assert _events(record) == _events(expected) and record.events
     assert (record.n_samples, record.n_tested) == (expected.n_samples, expected.n_tested)
     for got, want in zip(record.segments, expected.segments, strict=True):
@@ -286,20 +294,12 @@ def test_a_warm_ups_derivatives_remembered_are_those_computed_afresh(twin_bag, o
 
     import numpy as np
 
-    from spaceid import load_model, minimal_parameters
-    from spaceid.data import bag_chunks
-    from spaceid.estimation import Noise, _monitor, monitor
-    from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER
+    from spaceid.estimation import _monitor
 
     bag, *_ = twin_bag
     _, remembered = one_by_one
     monkeypatch.setattr(_monitor, "FIXED_BYTES", 0)
-    m = load_model("cepheus-rw")
-    afresh = monitor(minimal_parameters(m), bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels,
-                                                       block=LIVE_BLOCK, context=LIVE_CONTEXT, window=25,
-                                                       order=LIVE_ORDER),
-                     np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
-                     noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))  # fmt: skip
+    afresh = _batch_monitor(bag)
     assert [repr(dataclasses.astuple(e)) for e in remembered.events] == [repr(dataclasses.astuple(e))  # NaN z: repr
                                                                          for e in afresh.events] and afresh.events
     for got, want in zip(remembered.segments, afresh.segments, strict=True):
