@@ -292,7 +292,7 @@ def spatial(runs, cases, jobs=None):
     if "tree" in cases:
         tree = minimal_parameters(random_tree(np.random.default_rng(7), [0, 1], planar=False))
         spatial_study("(s) random spatial tree (3 bodies), 5 s at 100 Hz", tree, spatial_motion(2, 1, 3),
-                      np.linspace(0, 5, 501), runs)  # fmt: skip
+                      np.linspace(0, 5, 501), runs, jobs=jobs)  # fmt: skip
     sat = minimal_parameters(spaceid.load_model("satellite-7dof"))
     if any(c.startswith("satellite-designed") for c in cases):
         t0 = time.perf_counter()
@@ -305,12 +305,12 @@ def spatial(runs, cases, jobs=None):
                             ("satellite-designed-hundredth", 0.01)):
             if case in cases:
                 spatial_study("(s) satellite-7dof, designed, 30 s at 20 Hz", sat, motion, np.linspace(0, 30, 601), runs,
-                              scale, knot_spacing=0.1)  # fmt: skip
+                              scale, knot_spacing=0.1, jobs=jobs)  # fmt: skip
     if "servicer-designed" in cases:
         servicer_study(runs, jobs)
     if "satellite-random" in cases:
         spatial_study("(s) satellite-7dof, undesigned, 10 s at 50 Hz", sat, spatial_motion(7, 1, 6),
-                      np.linspace(0, 10, 501), runs)  # fmt: skip
+                      np.linspace(0, 10, 501), runs, jobs=jobs)  # fmt: skip
 
 
 def servicer_study(runs, jobs=None, budget=90.0, seed=0):
