@@ -123,7 +123,7 @@ def test_validate_refuses_a_folder_of_the_users_files(work, capsys):
     assert (folder / "log.csv").read_bytes() == user
     manifest = json.loads((folder / MANIFEST).read_text())
     assert manifest["command"] == "spaceid validate"
-    assert manifest["files"] == ["metrics.json", "predicted.csv", "report.html", "validation.png"]  # not the user's log
+    assert manifest["files"] == ["metrics.json", "predicted.csv", "report.html"]  # not the user's log; no --png
     assert not _temporaries(work)
 
 
