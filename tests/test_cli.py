@@ -60,7 +60,8 @@ def test_predict_and_validate(workdir, capsys):
     pred = np.genfromtxt(workdir / "pred.csv", delimiter=",", names=True)
     np.testing.assert_allclose(pred["base_wz"], log["base_wz"], rtol=1e-9)
     capsys.readouterr()
-    assert run("validate", workdir / "result.json", workdir / "log.csv", "--momentum", 0.4934, "-o", workdir / "val") == 0
+    assert run("validate", workdir / "result.json", workdir / "log.csv", "--momentum", 0.4934, "-o", workdir / "val",
+               "--png") == 0
     metrics = json.loads((workdir / "val" / "metrics.json").read_text())
     assert metrics["base_w_nrms"] < 1e-9
     assert (workdir / "val" / "validation.png").stat().st_size > 10000
@@ -72,6 +73,7 @@ def test_predict_and_validate(workdir, capsys):
                workdir / "val2") == 0
     assert "warning" not in capsys.readouterr().err
     assert json.loads((workdir / "val2" / "metrics.json").read_text())["base_w_rms"] < 1e-3
+    assert not (workdir / "val2" / "validation.png").exists() and (workdir / "val2" / "report.html").is_file()  # no --png
 
 
 def test_predict_takes_the_trajectory_design_writes(workdir, capsys):

@@ -123,7 +123,7 @@ def test_validate_refuses_a_folder_of_the_users_files(work, capsys):
     assert (folder / "log.csv").read_bytes() == user
     manifest = json.loads((folder / MANIFEST).read_text())
     assert manifest["command"] == "spaceid validate"
-    assert manifest["files"] == ["metrics.json", "predicted.csv", "report.html", "validation.png"]  # not the user's log
+    assert manifest["files"] == ["metrics.json", "predicted.csv", "report.html"]  # not the user's log; no --png
     assert not _temporaries(work)
 
 
@@ -223,11 +223,11 @@ def test_a_failed_or_interrupted_run_leaves_the_old_folder(work, capsys, monkeyp
     import spaceid.studies
 
     folder = work / "v"
-    args = ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM, "-o", folder]
+    args = ["validate", work / "result.json", work / "log.csv", "--momentum", MOMENTUM, "-o", folder, "--png"]
     assert run(*args) == 0
     before = _snapshot(folder)
 
-    def fail(log, predicted, path, **k):
+    def fail(log, predicted, path, **k):  # the PNG (--png) fails half written
         Path(path).write_bytes(b"half a figure")
         raise failure
 

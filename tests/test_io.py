@@ -338,6 +338,9 @@ def test_json_round_trip_with_numpy_and_nan(tmp_path):
         "inf": math.inf,
         "source": tmp_path / "x.csv",
         "nested": [{"a": [], "b": {}}, [1, [2]]],
+        # taken whole when finite (arrays of numbers, lists of floats), value by value otherwise
+        "finite": np.array([[0.25, -3.0]]), "ints": np.arange(2), "flags": np.array([True, False]),
+        "float32": np.array([1.5], np.float32), "floats": [0.5, 1e300], "floats_nan": [0.5, -math.inf],
     }
     write_json(tmp_path / "r.json", obj)
     back = read_json(tmp_path / "r.json", what="result")
@@ -350,6 +353,8 @@ def test_json_round_trip_with_numpy_and_nan(tmp_path):
         "inf": None,
         "source": str(tmp_path / "x.csv"),
         "nested": [{"a": [], "b": {}}, [1, [2]]],
+        "finite": [[0.25, -3.0]], "ints": [0, 1], "flags": [True, False], "float32": [1.5], "floats": [0.5, 1e300],
+        "floats_nan": [0.5, None],
     }
     text = (tmp_path / "r.json").read_text()
     assert "NaN" not in text

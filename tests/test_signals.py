@@ -3,6 +3,7 @@ without noise, uneven stamps, quantisation, manual overrides, reproducibility, q
 errors. Signals are the paper's exciting trajectory (Table 2 Fourier part, docs/theory/excitation.md)
 sampled at 100 Hz for 5 s, with exact derivatives; every random draw is seeded."""
 
+import functools
 import json
 
 import numpy as np
@@ -308,11 +309,19 @@ def star_tracker_tumble():
     return t, measured, (0.05 + 0.06 * np.cos(0.3 * t))[:, None] * axis
 
 
+@functools.cache
+def tumble_rate():
+    """``differentiate_quaternion`` of :func:`star_tracker_tumble`'s measurement, window chosen automatically
+    (1.3 s of CPU: once for the tests that read it, which do not write into it)."""
+    t, measured, _ = star_tracker_tumble()
+    return differentiate_quaternion(t, measured)
+
+
 def test_quaternion_rate_does_not_depend_on_the_inertial_frame():
     """The four components take one window and order, so a constant change of inertial frame (``q_c (x) q``)
     leaves the body rate as it was, to round-off (one window per component moved it by 7e-3 rad/s here)."""
     t, measured, _ = star_tracker_tumble()
-    _, w_body, info = differentiate_quaternion(t, measured)
+    _, w_body, info = tumble_rate()
     frame = np.array([np.cos(1.2), np.sin(1.2) * 0.6, np.sin(1.2) * 0.8, 0.0])
     _, w_other, other = differentiate_quaternion(t, qmul(frame, measured))
     assert len(set(info["window"])) == 1 and len(set(info["order"])) == 1 and "one setting" in info["rule"]
@@ -326,7 +335,7 @@ def test_star_tracker_noise_does_not_cut_a_components_window():
     was 90 times larger)."""
     t, measured, w_true = star_tracker_tumble()
     inner = slice(100, -100)  # the ends: the shifted windows' larger noise
-    error = rmse(differentiate_quaternion(t, measured)[1][inner], w_true[inner])
+    error = rmse(tumble_rate()[1][inner], w_true[inner])
     best = min(rmse(differentiate_quaternion(t, measured, window=w, order=5)[1][inner], w_true[inner])
                for w in (71, 147, 301))  # fmt: skip
     assert error <= 2 * best, (error, best)
@@ -335,8 +344,7 @@ def test_star_tracker_noise_does_not_cut_a_components_window():
 def test_quaternion_noise_pooled_over_its_components():
     """The recorded component levels add up to the star tracker's total, ``3 sigma^2 / 4`` (to 5 %), where
     each component's own robust scale, its share varying along the tumble, left 8 % of it out."""
-    t, measured, _ = star_tracker_tumble()
-    total = np.sum(np.square(differentiate_quaternion(t, measured)[2]["noise"]))
+    total = np.sum(np.square(tumble_rate()[2]["noise"]))
     assert abs(total / (3 * 5e-5**2 / 4) - 1) < 0.05, total
 
 

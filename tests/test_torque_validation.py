@@ -89,7 +89,7 @@ def test_csv_and_command_line(setup, tmp_path, capsys):
     write_json(tmp_path / "r.json", ident.identification.to_dict())
     capsys.readouterr()
     assert main(["validate", str(tmp_path / "r.json"), str(tmp_path / "log.csv"), "--momentum", str(h[2]),
-                 "--torques", "--horizon", "1.5", "-o", str(tmp_path / "out")]) == 0
+                 "--torques", "--horizon", "1.5", "-o", str(tmp_path / "out"), "--png"]) == 0
     printed = capsys.readouterr().out
     assert "torque-driven joint angles, RMS error [rad]" in printed
     metrics = spaceid.data.read_json(tmp_path / "out" / "torque_metrics.json")

@@ -175,8 +175,9 @@ assert metrics["base_w_nrms"] < 1e-3  # the noise level, not a model error
 check.plot(fig=plt.figure(figsize=(7.2, 4.6), layout="constrained"))
 
 # %%
-# ``spaceid validate`` also writes ``predicted.csv``, ``metrics.json`` and ``validation.png``
-# into its output folder; ``plot_validation`` draws that figure, and writes it when given a path:
+# ``spaceid validate`` also writes ``predicted.csv``, ``metrics.json`` and ``report.html`` into its
+# output folder, and ``validation.png`` with ``--png``; ``plot_validation`` draws that figure, and
+# writes it when given a path:
 
 plot_validation(log, predicted, folder / "validation.png")
 assert (folder / "validation.png").stat().st_size > 10_000

@@ -1066,18 +1066,21 @@ def _require_sample_memory(what, n, model):
 @drift_option("Drift terms replacing those of RESULT.json (used by default): torque=TAU, viscous=C, coulomb=MU, "
               "as for 'spaceid simulate'; --momentum is the momentum at the log's first sample.", values=True)
 @click.option("--torques", is_flag=True, help="Also drive the identified model's forward dynamics with the log's "
-              "joint torques (columns tau_J [N m]) and compare the motion: torque_*.csv/json/png.")
+              "joint torques (columns tau_J [N m]) and compare the motion: torque_*.csv/json (and png with --png).")
 @click.option("--horizon", type=SECONDS, metavar="SECONDS", help="With --torques: restart from the measured state "
               "every SECONDS [s] (default: one run over the whole log).")
+@click.option("--png", is_flag=True, help="Also write the figures as 150 dpi images, validation.png (the paper's "
+              "Fig. 6) and with --torques torque_validation.png; report.html draws the same figures either way.")
 @log_options
-@out_folder("Report folder to write predicted.csv, metrics.json, validation.png and report.html (interactive) into.",
-            required=True)
+@out_folder("Report folder to write predicted.csv, metrics.json and report.html (interactive figures) into, and "
+            "validation.png with --png.", required=True)
 @click.option("-o", "--output", cls=_Deprecated, instead="--out DIR (-o/--output names a file, --out a folder)",
               into="folder")
 @OVERWRITE
-def validate(result, log_path, planar, momentum, drift, torques, horizon, folder, overwrite, reading):
+def validate(result, log_path, planar, momentum, drift, torques, horizon, png, folder, overwrite, reading):
     """Re-simulate an identified model (RESULT.json) or a model as it is (MODEL: a preset, URDF or
-    YAML file, with its standard parameters) against a measured log: metrics and Fig. 6 plots."""
+    YAML file, with its standard parameters) against a measured log: metrics and Fig. 6 plots
+    (report.html; the PNG with --png: drawing it took longer than the validation itself)."""
     if horizon is not None and not torques:
         raise SpaceidError("--horizon applies to --torques: add --torques or drop --horizon")
     from .studies import plot_validation, write_validation_html
@@ -1098,10 +1101,12 @@ def validate(result, log_path, planar, momentum, drift, torques, horizon, folder
     with _report_folder(folder, overwrite) as tmp:
         write_log(tmp / "predicted.csv", predicted)
         write_json(tmp / "metrics.json", {**metrics, "predicted_by": check.predicted_by})
-        plot_validation(log, predicted, tmp / "validation.png")
+        if png:
+            plot_validation(log, predicted, tmp / "validation.png")
         predictions, torque_metrics = [(predicted, None)], None
         if torques:
-            torque_metrics, torque_predicted, torque_title = _validate_torques(ident, log, h, horizon, tmp, str(result))
+            torque_metrics, torque_predicted, torque_title = _validate_torques(ident, log, h, horizon, tmp, str(result),
+                                                                               png)
             predictions.append((torque_predicted, torque_title.replace("\n", " ")))
         write_validation_html(tmp / "report.html", log, predictions, metrics, torque_metrics=torque_metrics,
                               title=f"spaceid validate: {shown_name(result)} on {shown_name(log_path)}",
@@ -1117,8 +1122,8 @@ def validate(result, log_path, planar, momentum, drift, torques, horizon, folder
     err.print(f"plots, metrics and report.html written to {shown_name(folder)}/")
 
 
-def _validate_torques(ident, log, h, horizon, output, where):
-    """``validate --torques``: the torque-driven prediction, its metrics and figure in ``output``;
+def _validate_torques(ident, log, h, horizon, output, where, png=False):
+    """``validate --torques``: the torque-driven prediction, its metrics and (with ``png``) figure in ``output``;
     returns the metrics, the predicted log and the figure's title."""
     from .data import write_json, write_log
     from .studies import TORQUE_VALIDATION_TITLE, plot_validation, validate_torques
@@ -1128,7 +1133,8 @@ def _validate_torques(ident, log, h, horizon, output, where):
     write_json(output / "torque_metrics.json", metrics)
     restarts = f"(restarted from the measured state every {metrics['horizon']:.3g} s)"
     title = f"{TORQUE_VALIDATION_TITLE}\n{restarts}"
-    plot_validation(log, predicted, output / "torque_validation.png", title=title)
+    if png:
+        plot_validation(log, predicted, output / "torque_validation.png", title=title)
     return metrics, predicted, title
 
 

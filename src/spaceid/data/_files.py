@@ -320,11 +320,16 @@ def _dumps(obj, level: int = 0) -> str:
 
 
 def _plain(obj):
-    """``obj`` with NumPy types, paths and non-finite floats turned into JSON values."""
+    """``obj`` with NumPy types, paths and non-finite floats turned into JSON values. Arrays of finite
+    numbers and lists of finite floats are taken whole (a value at a time, the 496-parameter
+    servicer's covariance took 0.2 s of CPU)."""
     if isinstance(obj, dict):
         return {str(k): _plain(v) for k, v in obj.items()}
     if isinstance(obj, np.ndarray):
-        return _plain(obj.tolist())
+        whole = obj.dtype.kind in "iub" or (obj.dtype.kind == "f" and bool(np.isfinite(obj).all()))
+        return obj.tolist() if whole else _plain(obj.tolist())
+    if type(obj) is list and all(type(v) is float for v in obj) and all(map(math.isfinite, obj)):
+        return list(obj)
     if isinstance(obj, (list, tuple)):
         return [_plain(v) for v in obj]
     if isinstance(obj, np.generic):
