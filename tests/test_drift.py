@@ -371,20 +371,3 @@ def test_drift_test_from_the_estimates_gram_matrix_equals_the_whole_refit(monkey
         d["parameters"] for d in whole.diagnostics.undetermined]
     np.testing.assert_allclose([d["noise_to_signal"] for d in reused.diagnostics.undetermined],
                                [d["noise_to_signal"] for d in whole.diagnostics.undetermined], rtol=1e-6)
-
-
-@pytest.mark.parametrize("n", [6, 7, 12, 400])
-def test_spline_integral_is_scipys_interpolating_quintic(n):
-    """The drift basis integrates by the quintic interpolating spline with not-a-knot ends, formed without
-    importing scipy.interpolate: SciPy's own to round-off, on uneven stamps (fewer than 6: the trapezoid rule)."""
-    from scipy.interpolate import make_interp_spline
-
-    from spaceid.estimation._drift import _spline_integral
-
-    rng = np.random.default_rng(n)
-    t = 2.0 + np.cumsum(rng.uniform(0.005, 0.015, n))
-    f = np.column_stack([np.sin(3 * t), t * np.cos(t), rng.standard_normal(n)])
-    expected = make_interp_spline(t, f, k=5, axis=0).antiderivative()(t)
-    np.testing.assert_allclose(_spline_integral(t, f), expected, rtol=0, atol=1e-14 * np.abs(expected).max())
-    trapezoid = np.concatenate([np.zeros((1, 3)), np.cumsum((f[1:5] + f[:4]) / 2 * np.diff(t[:5])[:, None], 0)])
-    np.testing.assert_array_equal(_spline_integral(t[:5], f[:5]), trapezoid)

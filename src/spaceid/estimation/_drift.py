@@ -66,47 +66,11 @@ def drift_names(kinds, planar: bool) -> tuple:
 def _spline_integral(t, f):
     """``int_{t0}^{t_n} f dt`` of samples ``f (n, 3)``: the antiderivative of the interpolating
     quintic spline (sixth order; the trapezoid rule's second order left 1e-4 relative errors in
-    the coefficients at 100 Hz on smooth motions, a cubic spline's fourth order 3e-6), with
-    not-a-knot ends: SciPy's ``make_interp_spline(t, f, k=5).antiderivative()(t)`` to round-off,
-    formed here (:func:`_bspline_basis`, a banded solve) because importing ``scipy.interpolate``
-    cost 0.3 s of CPU, a third of an ``identify`` of 500 servicer samples (measured)."""
-    from scipy.linalg import solve_banded
-
-    t, k = np.asarray(t, float), 5
-    if len(t) <= k:
+    the coefficients at 100 Hz on smooth motions, a cubic spline's fourth order 3e-6)."""
+    from scipy.interpolate import make_interp_spline
+    if len(t) < 6:
         return np.concatenate([np.zeros((1, 3)), np.cumsum((f[1:] + f[:-1]) / 2 * np.diff(t)[:, None], 0)])
-    knots = np.concatenate([np.full(k + 1, t[0]), t[(k + 1) // 2 : -((k + 1) // 2)], np.full(k + 1, t[-1])])
-    at, basis = _bspline_basis(knots, k, t)
-    banded = np.zeros((2 * k + 1, len(t)))  # the collocation matrix, LAPACK's band storage
-    for r in range(k + 1):
-        column = at - k + r
-        banded[k + np.arange(len(t)) - column, column] = basis[:, r]
-    c = solve_banded((k, k), banded, f)
-    # the antiderivative: one degree more on the end knots repeated once more, coefficients the partial sums
-    c = np.concatenate([np.zeros((1, f.shape[1])), np.cumsum(c * ((knots[k + 1 :] - knots[: -k - 1]) / (k + 1))[:, None],
-                                                             axis=0)])  # fmt: skip
-    knots = np.concatenate([[t[0]], knots, [t[-1]]])
-    at, basis = _bspline_basis(knots, k + 1, t)
-    return np.einsum("nr,nrc->nc", basis, c[at[:, None] - k - 1 + np.arange(k + 2)])
-
-
-def _bspline_basis(knots, k: int, x) -> tuple:
-    """The B-splines of degree ``k`` on ``knots`` that do not vanish at the points ``x (m,)`` (inside the
-    knots' span): the index ``l (m,)`` of each point's knot interval ``[knots[l], knots[l + 1])`` (the last
-    one closed) and the values ``(m, k + 1)`` of the B-splines ``l - k`` to ``l`` there (de Boor's
-    recurrence)."""
-    at = np.clip(np.searchsorted(knots, x, side="right") - 1, k, len(knots) - k - 2)
-    basis = np.ones((len(x), 1))
-    for d in range(1, k + 1):
-        out, saved = np.empty((len(x), d + 1)), np.zeros(len(x))
-        for r in range(d):
-            right, left = knots[at + r + 1], knots[at + r + 1 - d]
-            term = basis[:, r] / (right - left)
-            out[:, r] = saved + (right - x) * term
-            saved = (x - left) * term
-        out[:, d] = saved
-        basis = out
-    return at, basis
+    return make_interp_spline(t, f, k=5, axis=0).antiderivative()(t)
 
 
 def _crossing(t, w, i):
