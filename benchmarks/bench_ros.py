@@ -216,12 +216,12 @@ def steady(n, repeats):
 def over_dds(run, grasp, rate_factor, block):
     import rclpy
     from rclpy.context import Context
-    from rclpy.executors import SingleThreadedExecutor
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
     from sensor_msgs.msg import JointState
     from std_msgs.msg import String
 
     from spaceid.data import write_bag
+    from spaceid.ros._node import _take_all
 
     env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST", ROS_DOMAIN_ID=str(1 + os.getpid() % 100))
     folder = Path(tempfile.mkdtemp(prefix="bench_ros_"))
@@ -230,17 +230,22 @@ def over_dds(run, grasp, rate_factor, block):
     rclpy.init(context=context, domain_id=int(env["ROS_DOMAIN_ID"]))
     node = rclpy.create_node("bench_listener", context=context)
     got = {"estimate": [], "events": []}
-    for name in got:
+    subs = []  # taken as the node takes them, with the middleware's reception times: at 10x an executor's round
+    for name in got:  # per message let this listener fall seconds behind, and its callbacks' clocks with it
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL if name == "events" else DurabilityPolicy.VOLATILE)
-        node.create_subscription(String, f"/spaceid/{name}",
-                                 lambda m, name=name: got[name].append((time.monotonic(), json.loads(m.data))), qos)
+        subs.append((node.create_subscription(String, f"/spaceid/{name}", lambda m: None, qos), name, None))
+    reliable = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    subs.append((node.create_subscription(JointState, "/joint_states", lambda m: None, reliable), "joints", None))
     joints = []  # (stamp [ns], arrival here): when each joint state reached this process
-    node.create_subscription(JointState, "/joint_states", lambda m: joints.append(
-        (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, time.monotonic())),
-        QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))  # fmt: skip
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(node)
+
+    def take():
+        time.sleep(0.002)
+        for topic, msg, arrival in _take_all(subs):
+            if topic == "joints":
+                joints.append((msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec, arrival))
+            else:
+                got[topic].append((arrival, json.loads(msg.data)))
     cli = [sys.executable, "-m", "spaceid.cli", "ros"]
     logs = [open(folder / f"{name}.log", "w") for name in ("monitor", "play")]  # noqa: SIM115  (pipes could fill)
     monitor = subprocess.Popen(cli + ["monitor", "cepheus-rw", "--momentum", "0", "--known", f"Iczz_wheel={ROTOR}",
@@ -249,19 +254,23 @@ def over_dds(run, grasp, rate_factor, block):
                                       "--block", str(block), "--estimator", ESTIMATOR,
                                       "-o", str(folder / "events.json")],
                                env=env, stdout=logs[0], stderr=subprocess.STDOUT, text=True)
+    ready = time.monotonic() + 60  # this listener matched to the monitor's publishers before the play starts:
+    while time.monotonic() < ready and not all(node.count_publishers(f"/spaceid/{name}") for name in got):
+        take()  # at 10x the whole run lasts 1.2 s, and a late match delivered the events seconds after
     play = subprocess.Popen(cli + ["play", str(folder / "run.mcap"), "--rate-factor", str(rate_factor)], env=env,
                             stdout=logs[1], stderr=subprocess.STDOUT, text=True)
     deadline = time.monotonic() + 600
     try:
         while play.poll() is None and time.monotonic() < deadline:
-            executor.spin_once(timeout_sec=0.05)
+            take()
         ended = time.monotonic()
         settle = ended + max(5.0, 2 * block / rate_factor + 2.0)
         while time.monotonic() < settle:
-            executor.spin_once(timeout_sec=0.05)
+            take()
         monitor.send_signal(signal.SIGINT)
         while monitor.poll() is None and time.monotonic() < deadline:  # the rest is published at the interrupt
-            executor.spin_once(timeout_sec=0.05)
+            take()
+        take()
     finally:
         for p in (monitor, play):
             if p.poll() is None:
@@ -273,7 +282,6 @@ def over_dds(run, grasp, rate_factor, block):
     if monitor.returncode != 0:
         last = (folder / "monitor.log").read_text().strip().splitlines()[-1:]
         print(f"monitor exit code {monitor.returncode}: {last}")
-    executor.shutdown()
     node.destroy_node()
     context.try_shutdown()
     n = run.recording.joints.t.size
