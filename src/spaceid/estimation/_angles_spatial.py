@@ -28,7 +28,7 @@ from scipy.linalg import cho_factor, cho_solve
 
 from ..dynamics import momentum_jacobian, skew
 from ._angle_path import _basis
-from ._linalg import _accumulate_factor, _blockwise, _column_scale, _solve_factor
+from ._linalg import _column_scale, _factor_of_rows, _solve_factor
 from ._noise import signal_jacobian
 
 __all__: list = []
@@ -231,8 +231,7 @@ def _linearised(path, S, r_q, r_a, sigma_q, sigma_a, p):
 
     def solve(damping=0.0):
         rows = (A, np.sqrt(damping) * np.diag(norms)) if damping else (A,)
-        factor = _blockwise(np.vstack(rows), np.concatenate([b, np.zeros(p if damping else 0)]), norms,
-                            _accumulate_factor, _accumulate_factor)  # fmt: skip
+        factor = _factor_of_rows(np.vstack(rows), np.concatenate([b, np.zeros(p if damping else 0)]), norms)
         step, cov = _solve_factor(factor, norms)
         return np.concatenate([step, y - X @ step]), cov
 

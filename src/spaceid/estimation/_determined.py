@@ -156,15 +156,15 @@ def regressor_factor(A: np.ndarray) -> np.ndarray:
     """An upper triangular ``R (p, p)`` with ``R^T R = A^T A`` for ``A (m, p)``, accurate in the weakest
     directions: from the Gram matrix's Cholesky factor below :data:`DIRECTIONS_COND`, else by blocked
     Householder QR (both column-scaled, a block of rows at a time on the work threads)."""
-    from ._linalg import _accumulate_factor, _accumulate_gram, _blockwise, _column_scale
+    from ._linalg import _column_scale, _factor_of_rows, _gram_of_rows
 
     scale, zero = _column_scale(A), np.zeros(len(A))
-    gram = _blockwise(A, zero, scale, _accumulate_gram, np.add)[:-1, :-1]
+    gram = _gram_of_rows(A, zero, scale)[:-1, :-1]
     with one_blas_thread():
         r, info = lapack.dpotrf(gram)
         if info == 0 and lapack.dtrcon(r)[0] * DIRECTIONS_COND >= 1:
             return np.triu(r) * scale
-    return _blockwise(A, zero, scale, _accumulate_factor, _accumulate_factor)[:-1, :-1] * scale
+    return _factor_of_rows(A, zero, scale)[:-1, :-1] * scale
 
 
 def noise_ratios(eq, x, phi, sigma, theta, estimator: str, log, whitener=None, noise=None, factor=None) -> tuple:

@@ -24,8 +24,6 @@ the Newey-West one.
 
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 from scipy import sparse
 
@@ -59,21 +57,9 @@ def differentiated_series(log: Log, attitude: bool = False) -> list | None:
     if not info:
         return None
     nj = len(log.joints)
-    series = []
-    joints = info.get("joints")
-    if joints:
-        if "method" in joints:  # one record for every joint column (differentiate_log)
-            records = _channels(joints)
-            if records is None or len(records) != nj:
-                return None
-            series += [(r, j, nj + j) for j, r in enumerate(records)]
-        else:  # a record per differentiated joint (a bag; the others' rates were measured)
-            for name, record in joints.items():
-                records = _channels(record)
-                if records is None or name not in log.joints:
-                    return None
-                j = log.joints.index(name)
-                series.append((records[0], j, nj + j))
+    series = _joint_series(info.get("joints"), log.joints)
+    if series is None:
+        return None
     base = info.get("base")
     if base:
         records = _channels(base)
@@ -81,6 +67,26 @@ def differentiated_series(log: Log, attitude: bool = False) -> list | None:
             return None
         series += [(records[0], None, 2 * nj)] if log.planar else _attitude_series(log, records, nj)
     return series or None
+
+
+def _joint_series(joints, names) -> list | None:
+    """:func:`differentiated_series`' joint entries ``(record, value, rate)`` of the differentiation record
+    ``joints`` (None or empty: none) for a log of joints ``names``, or None when they cannot be propagated."""
+    nj, series = len(names), []
+    if not joints:
+        return series
+    if "method" in joints:  # one record for every joint column (differentiate_log)
+        records = _channels(joints)
+        if records is None or len(records) != nj:
+            return None
+        return [(r, j, nj + j) for j, r in enumerate(records)]
+    for name, record in joints.items():  # a record per differentiated joint (a bag; the others' rates measured)
+        records = _channels(record)
+        if records is None or name not in names:
+            return None
+        j = names.index(name)
+        series.append((records[0], j, nj + j))
+    return series
 
 
 def _attitude_series(log: Log, records: list, nj: int) -> list:
@@ -310,8 +316,7 @@ def differentiated_sigma(log: Log, sigma: np.ndarray) -> np.ndarray:
             if column is not None and column < len(out):
                 out[column] = max(out[column], record["noise"] * float(np.linalg.norm(gain)))
 
-    joints = differentiated_series(replace(log, meta={**log.meta, "differentiation": {"joints": info.get("joints")}}))
-    for record, value, rate in joints or ():  # one record for every joint, or one per differentiated joint (a bag's)
+    for record, value, rate in _joint_series(info.get("joints"), log.joints) or ():  # one record each, or a bag's
         raised(record, value, rate)
     base = info.get("base") or {}
     records = _channels(base) if base else None

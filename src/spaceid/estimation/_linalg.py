@@ -19,7 +19,7 @@ covariances use as their "bread" is ``R^-1 R^-T``; noise-free identification is 
 ``eps`` times the scaled condition number either way, and on the 496-parameter servicer the
 Cholesky path is about three times faster than the QR.
 
-Blocks of samples (``_parts``) and of rows (``_blockwise``) run on ``work_threads()`` threads,
+Blocks of samples (``_parts``) and of rows (``_blockwise``: ``_factor_of_rows``, ``_gram_of_rows``) run on ``work_threads()`` threads,
 their results joined in order, so nothing depends on the thread count.
 """
 
@@ -152,28 +152,18 @@ def _accumulate_gram(G, A, b):
     return gram if G is None else G + gram
 
 
-def _blockwise(A, b, scale, accumulate, combine):
-    """``accumulate`` over the blocks of ``ROW_BLOCK`` rows of ``[A / scale | b]`` (``A (rows, p)``,
-    ``b (rows,)``), as ``acc = accumulate(acc, block)`` from ``acc = None`` (``accumulate(acc, A_rows, b_rows)`` for
-    :func:`_accumulate_gram`): interleaved over
-    ``work_threads()`` threads (LAPACK and BLAS release the GIL), whose results ``combine(acc, acc)``
-    joins. BLAS runs on one thread meanwhile. The blocks are copied scaled into LAPACK's column-major layout
-    for the QR (:func:`_accumulate_factor`); the Gram matrix (:func:`_accumulate_gram`) is that of the rows
-    as they are, scaled once at the end (rounding of ``eps`` per entry either way)."""
+def _blockwise(A, b, accumulate, combine):
+    """``accumulate`` over the blocks of ``ROW_BLOCK`` rows of ``A (rows, p)`` and ``b (rows,)``, as
+    ``acc = accumulate(acc, A_rows, b_rows)`` from ``acc = None``: interleaved over ``work_threads()`` threads
+    (LAPACK and BLAS release the GIL), whose results ``combine(acc, acc)`` joins. BLAS runs on one thread
+    meanwhile."""
     rows = max(ROW_BLOCK, 4 * (A.shape[1] + 1))
     starts = range(0, len(A), rows)
-    gram = accumulate is _accumulate_gram
 
     def run(part):
         acc = None
         for start in part:
-            if gram:  # the rows as they are (views, no copy), scaled once in the sum below
-                acc = _accumulate_gram(acc, A[start : start + rows], b[start : start + rows])
-                continue
-            block = np.empty((len(A[start : start + rows]), A.shape[1] + 1), order="F")  # one copy
-            np.divide(A[start : start + rows], scale, out=block[:, :-1])
-            block[:, -1] = b[start : start + rows]
-            acc = accumulate(acc, block)
+            acc = accumulate(acc, A[start : start + rows], b[start : start + rows])
         return acc
 
     threads = min(len(starts), work_threads())
@@ -183,11 +173,29 @@ def _blockwise(A, b, scale, accumulate, combine):
                 parts = list(pool.map(run, [starts[i::threads] for i in range(threads)]))
         else:
             parts = [run(starts)]
-        out = functools.reduce(combine, parts[1:], parts[0])
-    if gram:
-        both = np.append(scale, 1.0)
-        out /= np.outer(both, both)
-    return out
+        return functools.reduce(combine, parts[1:], parts[0])
+
+
+def _factor_of_rows(A, b, scale):
+    """The upper triangular factor ``(p + 1, p + 1)`` of ``[A / scale | b]`` (``A (rows, p)``, ``b (rows,)``) by
+    blocked Householder QR (:func:`_accumulate_factor`), each block copied scaled into LAPACK's column-major
+    layout."""
+
+    def accumulate(R, A_rows, b_rows):
+        block = np.empty((len(A_rows), A_rows.shape[1] + 1), order="F")  # one copy
+        np.divide(A_rows, scale, out=block[:, :-1])
+        block[:, -1] = b_rows
+        return _accumulate_factor(R, block)
+
+    return _blockwise(A, b, accumulate, _accumulate_factor)
+
+
+def _gram_of_rows(A, b, scale):
+    """The Gram matrix ``(p + 1, p + 1)`` of ``[A / scale | b]`` (``A (rows, p)``, ``b (rows,)``): that of the rows
+    as they are (:func:`_accumulate_gram`, no copy), scaled once at the end (rounding of ``eps`` per entry either
+    way)."""
+    both = np.append(scale, 1.0)
+    return _blockwise(A, b, _accumulate_gram, np.add) / np.outer(both, both)
 
 
 def _gram_factor(A, b, scale):
@@ -198,7 +206,7 @@ def _gram_factor(A, b, scale):
         residual = b - A @ (x / scale)
         return (residual @ A) / scale, np.linalg.norm(residual)
 
-    return _cholesky_factor(_blockwise(A, b, scale, _accumulate_gram, np.add), refine)
+    return _cholesky_factor(_gram_of_rows(A, b, scale), refine)
 
 
 def _cholesky_factor(G, refine=None):
@@ -244,7 +252,7 @@ def _triangular_factor(A, b, scale):
     Either is accurate to about ``eps`` times the scaled condition number."""
     R = _gram_factor(A, b, scale)
     if R is None:
-        R = _blockwise(A, b, scale, _accumulate_factor, _accumulate_factor)
+        R = _factor_of_rows(A, b, scale)
     if not np.all(np.isfinite(R)):
         raise np.linalg.LinAlgError("the equations hold non-finite values")
     return R

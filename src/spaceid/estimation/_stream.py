@@ -47,7 +47,7 @@ from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ._equations import _split
 from ._estimators import _instrument_rows, _ml_evaluate, _ml_fit
-from ._linalg import (_accumulate_factor, _accumulate_gram, _blockwise, _equation_whitener, _gram_matrix_factor,
+from ._linalg import (_accumulate_factor, _equation_whitener, _factor_of_rows, _gram_matrix_factor, _gram_of_rows,
                       _inverse_times, _sandwich, _solve_factor, _whitened, _whitened_gram)  # fmt: skip
 from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores, _with_propagated
 
@@ -80,7 +80,7 @@ def _accumulated_factor(blocks):
     ``(M_c (m, c), b_c (m,))``, by blocked Householder QR (``R^T R`` their Gram matrix)."""
     R = None
     for M, b in blocks:
-        part = _blockwise(M, b, np.ones(M.shape[1]), _accumulate_factor, _accumulate_factor)
+        part = _factor_of_rows(M, b, np.ones(M.shape[1]))
         R = part if R is None else _accumulate_factor(R, np.asfortranarray(part))
     if not np.all(np.isfinite(R)):
         raise np.linalg.LinAlgError("the equations hold non-finite values")
@@ -105,7 +105,7 @@ def _streamed_factor(blocks, p, refined=True, gram=None):
         return correlation, np.sqrt(square)
 
     if gram is None:
-        gram = sum(_blockwise(A, b, np.ones(p), _accumulate_gram, np.add) for A, b in blocks())
+        gram = sum(_gram_of_rows(A, b, np.ones(p)) for A, b in blocks())
     scaled = _gram_matrix_factor(gram, refine if refined else None)
     if scaled is not None:
         return scaled
