@@ -155,7 +155,7 @@ def test_cholesky_factor_with_refinement_agrees_with_householder(dual_arm, ampli
         return
     for rhs in (b, b + 1e-3 * np.random.default_rng(0).standard_normal(len(b)) * np.abs(b).max()):
         R = linalg._gram_factor(A, rhs, scale)
-        householder = linalg._blockwise(A, rhs, scale, linalg._accumulate_factor, linalg._accumulate_factor)
+        householder = linalg._factor_of_rows(A, rhs, scale)
         x, x_h = linalg._solve_factor(R, scale)[0], linalg._solve_factor(householder, scale)[0]
         assert np.abs(x - x_h).max() <= 1e-9 * np.abs(x_h).max()
         gram, gram_h = R[:-1, :-1].T @ R[:-1, :-1], householder[:-1, :-1].T @ householder[:-1, :-1]
@@ -176,7 +176,7 @@ def test_gram_matrix_of_the_rows_as_they_are_is_that_of_the_scaled_rows(monkeypa
     phi = rng.standard_normal((3 * _linalg.ROW_BLOCK + 17, 3, 9)) * np.logspace(-6, 6, 9)
     A, b = _split(phi)  # A: a view with a row stride of 9 columns, b = -phi[..., -1]
     scale = _linalg._column_scale(A)
-    G = _linalg._blockwise(A, b, scale, _linalg._accumulate_gram, np.add)
+    G = _linalg._gram_of_rows(A, b, scale)
     scaled = np.column_stack([A / scale, b])
     exact = scaled.T @ scaled
     size = np.sqrt(np.outer(np.diag(exact), np.diag(exact)))
