@@ -93,6 +93,26 @@ def test_values_the_data_do_not_determine_are_not_called_impossible(seed, tmp_pa
     assert (np.abs(result.values - truth.true_values) / result.std).max() < 4
 
 
+@pytest.mark.parametrize("estimator", ["ols", "ml"])
+def test_checks_beside_the_drift_test_are_those_run_in_turn(estimator, tmp_path, monkeypatch):
+    """The noise Gram matrix and the directions it leaves undetermined are formed on an idle core beside the drift
+    test (``side_by_side``): on a motion that leaves directions undetermined the result is the same, bit for bit,
+    as with the checks run one after the other on a busy machine."""
+    from spaceid import _threads
+
+    _, truth, h, log = _undesigned_robot(tmp_path)
+    noisy = add_noise(log, angle=1e-4, rate=1e-4, seed=1)
+    results = []
+    for threads in (1, 2):
+        monkeypatch.setattr(_threads, "work_threads", lambda threads=threads: threads)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            results.append(identify(truth, noisy, h, estimator=estimator, noise=Noise(1e-4, 1e-4, 1e-4, 1e-4)))
+    serial, beside = (r.to_dict() for r in results)
+    assert results[0].diagnostics.undetermined and results[0].diagnostics.drift_test.run
+    assert np.array_equal(results[0].cov, results[1].cov) and serial == beside
+
+
 @pytest.mark.parametrize("nominal", ["true", pytest.param("cad", marks=pytest.mark.slow)])
 def test_standard_errors_cover_an_undesigned_motion(nominal, tmp_path, monkeypatch):
     """A random 66-parameter robot on a random motion that leaves 5 directions undetermined: the

@@ -327,6 +327,35 @@ def test_work_threads_leave_busy_cores_alone(monkeypatch):
         assert work_threads() == 1
 
 
+def test_side_by_side_runs_beside_on_an_idle_core_else_inline(monkeypatch):
+    """Work submitted side by side runs on a worker thread when a core is idle and in the caller otherwise, gives
+    its value or raises its error from ``result()`` either way, and the block's one-thread BLAS limit ends with it."""
+    import threading
+
+    from threadpoolctl import threadpool_limits
+
+    from spaceid import _threads
+
+    def where(x):
+        assert _threads.blas_threads() == 1  # the block's limit, in the worker too
+        return threading.current_thread().name, 2 * x
+
+    def fail():
+        raise ValueError("from the work")
+
+    for threads, beside in ((2, True), (1, False)):
+        monkeypatch.setattr(_threads, "work_threads", lambda threads=threads: threads)
+        with threadpool_limits(2, user_api="blas"):
+            with _threads.side_by_side() as submit:
+                name, value = submit(where, 21).result()
+                failed = submit(fail)
+                assert _threads.blas_threads() == 1
+                with pytest.raises(ValueError, match="from the work"):
+                    failed.result()
+            assert _threads.blas_threads() == 2
+        assert value == 42 and (name != threading.current_thread().name) == beside
+
+
 def test_one_naming_scheme_for_inertial_parameters():
     """Standard parameters are named as in the YAML known_zero (Pinocchio's order, body after an
     underscore); the planar definitions' CoM inertia has a distinct name, Iczz."""

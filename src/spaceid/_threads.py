@@ -1,5 +1,6 @@
 """Thread and process use: how many threads array work may take, single-threaded BLAS for small
-dense linear algebra, and process pools that an interrupt stops at once."""
+dense linear algebra, work run beside the caller on an idle core, and process pools that an
+interrupt stops at once."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import contextlib
 import functools
 import os
 import signal
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 
 from threadpoolctl import ThreadpoolController
 
@@ -41,6 +42,33 @@ def one_blas_thread():
     Threads gain little at these sizes, and when the cores are busy OpenBLAS's waiting threads
     made an eigendecomposition of 496 x 496 take 1.3 s instead of 10 ms (measured)."""
     return _controller().limit(limits=1, user_api="blas")
+
+
+def _done(fn, *args) -> Future:
+    """A finished :class:`~concurrent.futures.Future` of ``fn(*args)``, run now (its exception kept for ``result``)."""
+    future = Future()
+    try:
+        future.set_result(fn(*args))
+    except BaseException as exc:  # noqa: BLE001 (raised by result(), as from a worker)
+        future.set_exception(exc)
+    return future
+
+
+@contextlib.contextmanager
+def side_by_side():
+    """Context manager yielding ``submit(fn, *args)``, a :class:`~concurrent.futures.Future` of ``fn(*args)``: run
+    in submission order on one worker thread beside the caller when the machine leaves it an idle core
+    (:func:`work_threads`), else at once in the caller. Array work releases the GIL, so two independent
+    computations then take the longer one's time, not their sum; each is the same computation either way, so the
+    results are bit-identical. BLAS runs on one thread in the block (nested :func:`one_blas_thread` then restore
+    one thread, whichever thread leaves last); leaving it waits for the worker."""
+    beside = work_threads() > 1  # before the limit below, which it follows
+    with one_blas_thread():
+        if not beside:
+            yield _done
+            return
+        with ThreadPoolExecutor(1, thread_name_prefix="spaceid-side") as pool:
+            yield pool.submit
 
 
 def _start_worker(initializer, initargs):

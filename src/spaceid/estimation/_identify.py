@@ -23,7 +23,7 @@ from scipy.linalg import lapack
 from scipy.special import ndtri
 
 from .._errors import SpaceidError, shown
-from .._threads import one_blas_thread
+from .._threads import one_blas_thread, side_by_side
 from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import _angle_context
@@ -214,8 +214,8 @@ def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitene
                  noise=None, gram=None) -> tuple:
     """The :class:`~spaceid.estimation.DriftTest` of the residuals for an unmodelled drift
     (:func:`spaceid.estimation._residuals.drift_test`, ``whitener`` the estimator's own, if any; streamed in chunks
-    of ``chunk`` samples when given; ``noise`` the noise Gram matrix of the equations with the drift columns, if
-    formed; ``gram`` the Gram matrix of the columns whitened by ``whitener``, if formed) and its warning (``""``
+    of ``chunk`` samples when given; ``noise`` the noise Gram matrix of the equations with the drift columns, or a
+    function that returns it (computed beside the test), if formed; ``gram`` the Gram matrix of the columns whitened by ``whitener``, if formed) and its warning (``""``
     when silent); not run when drift terms are modelled."""
     if drift:
         return DriftTest.skipped(f"drift terms modelled: {', '.join(drift)}"), ""
@@ -665,25 +665,28 @@ def identify(
                                                                                        z=FALLBACK_Z):
             fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
         theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
-        s = _singular_values(factor)
         whitener = info.pop("whitener", None)
-        gram = None  # the noise Gram matrix of the columns and the drift test's candidates: once for both checks
-        if not chunk and estimator != "angles":
-            gram = equation_noise(eq, x, sigma, theta, estimator, log, whitener,
-                                  None if drift else drift_columns(eq, log))
         # the factor of the columns whitened as the checks take them (ols: the excitation check's; ml: its bread's)
         white_factor = (*factor, cond_scaled) if estimator == "ols" else _whitened_factor(info.pop("whitened_factor",
                                                                                                    None))
-        weak, ratios = ([], None) if gram is None else undetermined_directions(
-            eq, x, phi, sigma, theta, estimator, log, whitener, gram[: eq.p, : eq.p], white_factor)
+        with side_by_side() as submit:  # the noise Gram matrix and the directions it leaves beside the drift test
+            gram = directions = None  # the noise Gram matrix of the columns and the drift test's candidates: once
+            if not chunk and estimator != "angles":
+                gram = submit(equation_noise, eq, x, sigma, theta, estimator, log, whitener,
+                              None if drift else drift_columns(eq, log))
+                directions = submit(lambda: undetermined_directions(eq, x, phi, sigma, theta, estimator, log, whitener,
+                                                                    gram.result()[: eq.p, : eq.p], white_factor))
+            s = _singular_values(factor)
+            drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
+                                                       whitener, chunk, None if gram is None else gram.result,
+                                                       _factor_gram(white_factor))
+            weak, ratios = ([], None) if directions is None else directions.result()
         if weak:  # the standard errors say what the data do not determine
             fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
             uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
         # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
         # wrong momentum or anchor
         fit = replace(fit, implausible=_implausible_estimate(eq, theta, fit.cov, where))
-        drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
-                                                   whitener, chunk, gram, _factor_gram(white_factor))
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
             bias, warning = bias_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
                                       drift_record.to_dict(), where)

@@ -250,9 +250,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         Other columns to test instead of the drift's: ``(names, columns)``, ``columns(rows)`` those of
         the samples ``rows`` (a slice), ``(k, rows, q)`` (the gyro bias's:
         :func:`spaceid.estimation._gyro_bias.bias_test`).
-    noise : ndarray of shape (p + q, p + q), optional
+    noise : ndarray of shape (p + q, p + q) or callable, optional
         The noise Gram matrix of the equations with the drift columns (:func:`drift_columns`,
-        :func:`~spaceid.estimation._determined.equation_noise`), if already formed.
+        :func:`~spaceid.estimation._determined.equation_noise`) if already formed, or a function that returns it
+        (formed beside the test: called once the test needs it).
     gram : ndarray of shape (p, p), optional
         The Gram matrix of the equations' columns ``A`` whitened as here (by ``whitener``; as they are for
         ``ols``), if already formed (the estimate's factorisation): the refit's is completed from it by the
@@ -335,6 +336,8 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         scored = ((sl, M.whole() if L is None else np.swapaxes(np.linalg.inv(L), -1, -2) @ M.whole(), e.jacobian(xc, theta))
                   for (sl, e, xc, L), (_, M, *_) in zip(parts(), chunks()))  # fmt: skip
         cdd = _larger_of(propagated_covariance(series, log.t, scored, ginv[p:], sigma), cdd)[0]
+    if callable(noise):
+        noise = noise()
     if testing_drift and noise is None:  # (another candidate's columns: the drift test decided before)
         noise = equation_noise(eq, x, sigma, theta, estimator, log, whitener, drift_columns(eq, log),
                                None if phi is not None else chunk)
