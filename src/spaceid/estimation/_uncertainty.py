@@ -95,8 +95,10 @@ def newey_west_covariance(bread, M, r, bandwidth, p, dof_scale=True):
     Formed as the Gram matrix of ``bread Omega^(1/2)`` (:func:`_mapped_psd`): no negative variance
     from round-off. ``bread Omega bread^T`` as products gave 26 of 153 negative variances (NaN
     standard errors) on a noise-free satellite log, its ``bread`` at condition number 1e18."""
-    omega = _hac([_mapped_scores(None, M, r)], bandwidth, p, dof_scale)  # a Gram matrix: mapped after, p^3 not n p^2
-    return _mapped_psd(bread, omega)
+    # a Gram matrix, mapped after (p^3, not n p^2); the scores a block at a time (a whole log's, 40 MB of the
+    # servicer's, were fresh pages to fault in at each call: 0.1 s, five times their product's time)
+    blocks = (_mapped_scores(None, M[i : i + HAC_BLOCK], r[i : i + HAC_BLOCK]) for i in range(0, len(r), HAC_BLOCK))
+    return _mapped_psd(bread, _hac(blocks, bandwidth, p, dof_scale))
 
 
 def _mapped_psd(bread, omega):
