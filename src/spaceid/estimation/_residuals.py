@@ -128,18 +128,23 @@ class _Columns:
             return Y
         return (self.inverse @ Y) if Y.ndim == 3 else np.einsum("nrs,ns->nr", self.inverse, Y)
 
-    def _product(self, X, rhs):  # [A | C] X, plus -b when rhs, unwhitened: one GEMM on the regressor
+    def _product(self, X, rhs):  # [A | C] X, plus rhs times -b (rhs 0, 1 or one per column), unwhitened: one GEMM
         p = self.E.shape[-1] - 1
         E, C = self.E.reshape(-1, p + 1), self.C.reshape(-1, self.C.shape[-1])
-        top = np.concatenate([X[:p], np.ones((1, *X.shape[1:])) if rhs else np.zeros((1, *X.shape[1:]))])
+        top = np.concatenate([X[:p], np.broadcast_to(rhs, (1, *X.shape[1:]))])
         return (E @ top + C @ X[p:]).reshape(*self.shape[:2], *X.shape[1:])
 
     def __matmul__(self, X):
-        return self._white(self._product(X, False))
+        return self._white(self._product(X, 0.0))
 
     def residual(self, v):
         """``M v - L^-1 b`` ``(k, rows)`` (the equations' rows are ``[A | -b]``)."""
-        return self._white(self._product(v, True))
+        return self._white(self._product(v, 1.0))
+
+    def with_residual(self, X, v):
+        """``(M @ X, residual(v))`` from one pass over the regressor (``X (p + q, m)``, ``v (p + q,)``)."""
+        both = self._white(self._product(np.column_stack([X, v]), np.append(np.zeros(X.shape[1]), 1.0)))
+        return both[..., :-1], both[..., -1]
 
     def candidates(self):
         """``L^-1 C`` ``(k rows, q)``."""
@@ -324,8 +329,8 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         for _, M, cols, _ in chunks():
             change.append(float(np.abs(cols @ d).max()))
             with one_blas_thread():
-                both = M @ mapped
-            adjusted = _leverage_adjusted(M, root, ginv, M.residual(est), both[..., : -q])
+                both, residual = M.with_residual(mapped, est)
+            adjusted = _leverage_adjusted(M, root, ginv, residual, both[..., : -q])
             yield np.einsum("nrq,nr->nq", both[..., -q:], adjusted)  # ginv[p:] M_n^T e_n
 
     bandwidth = correlation_length(log)
