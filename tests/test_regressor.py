@@ -314,9 +314,11 @@ def test_work_threads_leave_busy_cores_alone(monkeypatch):
 
     from threadpoolctl import threadpool_limits
 
+    from spaceid import _threads
     from spaceid._threads import work_threads
 
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(_threads, "_running_now", lambda: 14)
     with threadpool_limits(2, user_api="blas"):
         monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.0, 0.0))
         assert work_threads() == 2
@@ -325,6 +327,34 @@ def test_work_threads_leave_busy_cores_alone(monkeypatch):
     with threadpool_limits(1, user_api="blas"):
         monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
         assert work_threads() == 1
+
+
+def test_work_threads_do_not_count_the_load_of_this_process(monkeypatch):
+    """The load this process made itself is not another's: a load of 1.9 on 2 cores leaves both to a process
+    that kept them busy, one to a process that did not, unless nothing else runs now. Its share follows its processor time as the kernel's
+    1-minute average follows the runnable threads: 2 cores busy for a minute make 2 (1 - 1/e)."""
+    import os
+
+    from threadpoolctl import threadpool_limits
+
+    from spaceid import _threads
+
+    clock = {"wall": 100.0, "cpu": 10.0}
+    monkeypatch.setattr(_threads.time, "monotonic", lambda: clock["wall"])
+    monkeypatch.setattr(_threads.time, "process_time", lambda: clock["cpu"])
+    monkeypatch.setattr(_threads, "_own", {"at": 100.0, "cpu": 10.0, "share": 0.0})
+    clock.update(wall=160.0, cpu=130.0)
+    assert _threads._own_load() == pytest.approx(2 * (1 - np.exp(-1)))
+    clock.update(wall=220.0)  # idle for a minute: the share decays by 1/e
+    assert _threads._own_load() == pytest.approx(2 * (1 - np.exp(-1)) * np.exp(-1))
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(os, "getloadavg", lambda: (1.9, 1.0, 0.5))
+    with threadpool_limits(2, user_api="blas"):
+        for own, running, threads in ((1.8, 1, 2), (0.0, 1, 1), (0.0, 0, 2)):  # the last: the load's maker has ended
+            monkeypatch.setattr(_threads, "_own_load", lambda own=own: own)
+            monkeypatch.setattr(_threads, "_running_now", lambda running=running: running)
+            assert _threads.work_threads() == threads
+    assert _threads._running_now() in (None, *range(0, 10_000))
 
 
 def test_side_by_side_runs_beside_on_an_idle_core_else_inline(monkeypatch):

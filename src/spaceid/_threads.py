@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import math
 import os
 import signal
+import threading
+import time
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 
 from threadpoolctl import ThreadpoolController
@@ -24,17 +27,53 @@ def blas_threads() -> int:
     return max([1] + [lib["num_threads"] for lib in _controller().info() if lib["user_api"] == "blas"])
 
 
+LOAD_WINDOW = 60.0
+"""Time constant [s] of the load average that :func:`work_threads` reads (Linux's 1-minute average)."""
+
+_own = {"at": time.monotonic(), "cpu": time.process_time(), "share": 0.0}
+_own_lock = threading.Lock()
+
+
+def _own_load() -> float:
+    """This process's share of the 1-minute load average: the cores its threads kept busy, averaged
+    as the kernel averages the load (exponentially, over :data:`LOAD_WINDOW`), from its processor time
+    since the last call (the first: since this module's import)."""
+    with _own_lock:
+        now, cpu = time.monotonic(), time.process_time()
+        elapsed = now - _own["at"]
+        if elapsed > 0:
+            keep = math.exp(-elapsed / LOAD_WINDOW)
+            _own.update(at=now, cpu=cpu, share=keep * _own["share"] + (1 - keep) * (cpu - _own["cpu"]) / elapsed)
+        return _own["share"]
+
+
+def _running_now() -> int | None:
+    """Threads running or runnable on the machine now, the caller's aside (Linux's ``/proc/loadavg``),
+    or None where that is not known."""
+    try:
+        with open("/proc/loadavg") as f:
+            return int(f.read().split()[3].split("/")[0]) - 1
+    except (OSError, IndexError, ValueError):
+        return None
+
+
 def work_threads() -> int:
     """Threads for block-parallel array work (the regressor's blocks, the blockwise factorisations):
-    :func:`blas_threads`, but no more than the cores the machine leaves idle (``os.cpu_count()`` less
-    the 1-minute load average, plus one for this process). On 2 cores under a load of 14 the Gram
-    product of 30,000 x 496 took 2.3 s on 2 such threads and 1.8 s on 1 (threaded BLAS: 3.7 s, one
-    BLAS thread 1.2 s; ``benchmarks/bench_stream.py``); on idle cores 2 threads halve it."""
+    :func:`blas_threads`, but no more than the cores the other processes leave idle: ``os.cpu_count()``
+    less their load, rounded. Their load: the 1-minute load average without this process's own share
+    (:func:`_own_load`), and at most the threads running now (:func:`_running_now`), so that a process
+    that has just ended does not count for a minute. On 2 cores under a load of 14 the Gram product of
+    30,000 x 496 took 2.3 s on 2 such threads and 1.8 s on 1 (threaded BLAS: 3.7 s, one BLAS thread
+    1.2 s; ``benchmarks/bench_stream.py``); on idle cores 2 threads halve it. Read as another's, the
+    load a process made itself or its predecessor left in the average kept it on one thread for a
+    minute on 2 idle cores (10,000 servicer samples identified in a row: ``benchmarks/bench_ml.py``)."""
     try:
-        idle = (os.cpu_count() or 1) - os.getloadavg()[0] + 1
+        others = max(os.getloadavg()[0] - _own_load(), 0.0)
     except OSError:  # no load average on this platform
-        idle = os.cpu_count() or 1
-    return max(1, min(blas_threads(), int(idle)))
+        others = 0.0
+    running = _running_now()
+    others = others if running is None else min(others, running)
+    return max(1, min(blas_threads(), int((os.cpu_count() or 1) - others + 0.5)))
 
 
 def one_blas_thread():
