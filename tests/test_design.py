@@ -638,3 +638,15 @@ def test_results_done_after_the_budget_ran_out_are_taken():
     tally.stop = "budget"
     tally.add([(0, (z, 3.0))], 2)
     assert [c[1] for c in tally.found] == [0, 1] and tally.best[:2] == (2.0, 1)
+
+
+def test_rank_check_passes_on_the_first_start_of_full_rank_and_fails_when_none_has_it():
+    """The design's rank check tries the starts in turn: one of full rank among deficient ones passes (the
+    later ones not needed), none raises the error that says what to change."""
+    from spaceid.motion._design_problem import _check_rank
+
+    rng = np.random.default_rng(0)
+    full, deficient = rng.standard_normal((30, 6)), rng.standard_normal((30, 5)) @ rng.standard_normal((5, 6))
+    _check_rank(types.SimpleNamespace(stacked_regressor=lambda Z: np.stack([deficient, full, deficient])), None)
+    with pytest.raises(SpaceidError, match="rank deficient on random start trajectories"):
+        _check_rank(types.SimpleNamespace(stacked_regressor=lambda Z: np.stack([deficient, deficient])), None)
