@@ -531,7 +531,8 @@ def _momentum(value, planar, *, allow_unknown=False):
 
 SUMMARY_ROWS = 20
 """``spaceid model`` lists this many parameters (definitions cut to a line) and this many names
-per identifiability list unless ``--all``: the servicer's 496 definitions fill thousands of lines."""
+per identifiability list unless ``--all``: the servicer's 496 definitions fill thousands of lines;
+``spaceid identify`` lists this many estimates unless ``--all``."""
 
 
 @app.command(short_help="Identifiability report: bodies, joints, standard and minimal parameters.")
@@ -799,8 +800,10 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @log_options
 @output("RESULT.json to write.")
 @report_option("the identification: diagnostics, sortable parameter table, figures")
+@click.option("--all", "show_all", is_flag=True, help=f"List every estimate in the terminal (default: the first "
+              f"{SUMMARY_ROWS}; RESULT.json and the report hold every one).")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, knot_spacing, drift,
-             with_com, chunk, prior_src, prior_std, gyro_bias, output, report, reading):
+             with_com, chunk, prior_src, prior_std, gyro_bias, output, report, reading, show_all):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -841,7 +844,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())
     _identification_html(ident, report, f"spaceid identify: {shown_name(log_path)}")
-    out.print(parameter_table(ident))
+    out.print(parameter_table(ident, rows=None if show_all else SUMMARY_ROWS, rest=f"--all lists them; "
+                              f"{shown_name(output)} and {shown_name(report)} hold every one"))
     s = ident.settings
     units = dict(zip(ident.names, ident.units))
     for a in s["anchors"]:
