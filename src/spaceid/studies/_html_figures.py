@@ -86,7 +86,8 @@ def parameter_figure(result: Identification, true=None):
     fig = _make(panels, 1, shared_xaxes=True, vertical_spacing=0.06)
     if true is not None:
         z = np.where(free, (result.values - true) / np.where(free, result.std, 1), np.nan)
-        fig.add_hrect(y0=-2, y1=2, fillcolor=TRUE, opacity=0.12, line_width=0, row=1, col=1)
+        fig.add_hrect(y0=-2, y1=2, fillcolor=TRUE, opacity=0.12, line_width=0, row=1, col=1,
+                      exclude_empty_subplots=False)  # else Plotly drops it: no trace on the panel yet
         fig.add_trace(go.Scatter(x=names, y=z, mode="markers", marker={"color": MEASURED, "size": size},
                                  name="z = (estimate - true) / std  (shaded: |z| <= 2)", text=hover,
                                  hovertemplate="%{text}<br>z = %{y:.3g}<extra></extra>"), 1, 1)  # fmt: skip
@@ -96,7 +97,8 @@ def parameter_figure(result: Identification, true=None):
         error, unit = np.zeros(k), None
     bar, unit = _sizes(result, 2 * result.std)
     row = panels
-    fig.add_hline(y=0, line_color=TRUE if true is not None else REFERENCE, line_width=1, row=row, col=1)
+    fig.add_hline(y=0, line_color=TRUE if true is not None else REFERENCE, line_width=1, row=row, col=1,
+                  exclude_empty_subplots=False)
     fig.add_trace(go.Scatter(x=[n for n, f in zip(names, free) if f], y=error[free], mode="markers",
                              error_y={"type": "data", "array": np.abs(bar[free]), "color": MEASURED, "thickness": 1},
                              marker={"color": MEASURED, "size": size}, text=[h for h, f in zip(hover, free) if f],
