@@ -532,7 +532,8 @@ def _momentum(value, planar, *, allow_unknown=False):
 SUMMARY_ROWS = 20
 """``spaceid model`` lists this many parameters (definitions cut to a line) and this many names
 per identifiability list unless ``--all``: the servicer's 496 definitions fill thousands of lines;
-``spaceid identify`` lists this many estimates unless ``--all``."""
+``spaceid identify`` lists this many estimates and ``spaceid montecarlo`` this many parameters per
+estimator unless ``--all``."""
 
 
 @app.command(short_help="Identifiability report: bodies, joints, standard and minimal parameters.")
@@ -1409,8 +1410,10 @@ def compare(before, after, as_json, show_all):
             "it in .FOLDER.tasks/ as it completes, for --resume, until they are written).")
 @RESUME
 @OVERWRITE
+@click.option("--all", "show_all", is_flag=True, help=f"List every parameter in the terminal (default: the first "
+              f"{SUMMARY_ROWS} of each estimator; --out's table.txt, montecarlo.json and report.html hold every one).")
 def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
-               noise, angles_only, seed, jobs, scheduler, folder, resume, overwrite):
+               noise, angles_only, seed, jobs, scheduler, folder, resume, overwrite, show_all):
     """Monte Carlo study: simulate once, identify under fresh noise RUNS times, and report per
     estimator and parameter the bias, RMSE, predicted vs actual spread and RMSE / CRB. The
     momentum of the simulated motion (--momentum) is required. Noise levels default to 1e-4
@@ -1428,7 +1431,8 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
                              samples=samples, runs=runs, estimators=estimators or ("ml", "ols"), seed=seed, jobs=jobs,
                              progress=progress, angles_only=angles_only, scheduler=scheduler, out=folder,
                              resume=resume, design={"harmonics": harmonics, "criterion": criterion})
-    out.print(montecarlo_table(res))
+    held = "" if folder is None else f"; {shown_name(folder)}/table.txt, montecarlo.json and report.html hold every one"
+    out.print(montecarlo_table(res, rows=None if show_all else SUMMARY_ROWS, rest=f"--all lists them{held}"))
     for e in res.estimators:
         w = res.summary(e)
         out.print(f"{e.upper()}, worst over parameters: RMSE {100 * w['relative_rmse']:.3g} %, "

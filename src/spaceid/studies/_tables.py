@@ -150,20 +150,31 @@ def parameter_table(result: Identification, *, true=None, reference=None, refere
             definitions.add_row(f"{name} =", definition)
     if listed == k:
         return Group(table, note, definitions)
-    return Group(table, note, definitions, Text(f"the first {listed} of {k} parameters listed, {k - listed} more"
-                                                + (f": {rest}" if rest else "")))
+    return Group(table, note, definitions, _rest_line(listed, k, rest))
 
 
-def montecarlo_table(result) -> Group:
+def _rest_line(listed: int, k: int, rest: str, per: str = "") -> Text:
+    """The last line of a table cut to its first ``listed`` of ``k`` parameters (``per``: e.g. each
+    estimator's): how many more there are, then ``rest``, where they are."""
+    return Text(f"the first {listed} of {k} parameters listed{per}, {k - listed} more" + (f": {rest}" if rest else ""))
+
+
+def montecarlo_table(result, *, rows=None, rest="") -> Group:
     """Monte Carlo statistics as a rich table, one section per estimator, and a line on the
     seed and noise under it.
 
     Columns per parameter: bias / std, relative RMSE [%], the relative Cramer-Rao std [%],
     mean predicted std / actual std (1: honest standard errors) and RMSE / CRB (1: efficient).
+    With ``rows``, each section lists the first ``rows`` parameters, in order, and a last line
+    says how many more there are (as :func:`parameter_table`).
 
     Parameters
     ----------
     result : spaceid.studies.MonteCarloResult
+    rows : int, optional
+        List only the first ``rows`` parameters of each estimator (default: all).
+    rest : str
+        With ``rows``: where the parameters not listed are, ending the last line.
     """
     s = result.settings
     noise = s["noise"]
@@ -181,16 +192,18 @@ def montecarlo_table(result) -> Group:
     for name in ("", "", "bias/std", "RMSE [%]", f"{crb} [%]", "pred/act std", f"RMSE/{crb}"):
         table.add_column(name, justify="left" if not name else "right", no_wrap=True)
     fmt = lambda v, spec: "-" if not np.isfinite(v) else format(v, spec)  # noqa: E731
+    k = len(result.names)
+    listed = k if rows is None else min(rows, k)
     for e in result.estimators:
         st = result.stats[e]
         with np.errstate(divide="ignore", invalid="ignore"):
             rel_crb = np.where(st["true"] != 0, st["crb_std"] / np.abs(st["true"]), np.nan)
             honest = st["predicted_std"] / st["std"]
-        for i, name in enumerate(result.names):
+        for i, name in enumerate(result.names[:listed]):
             table.add_row(e.upper() if i == 0 else "", name, fmt(st["bias_std"][i], "+.2f"),
                           fmt(100 * st["relative_rmse"][i], ".3g"), fmt(100 * rel_crb[i], ".3g"),
                           fmt(honest[i], ".2f"), fmt(st["rmse_crb"][i], ".2f"),
-                          end_section=i == len(result.names) - 1)  # fmt: skip
-    return Group(table, note)
+                          end_section=i == listed - 1)  # fmt: skip
+    return Group(table, note) if listed == k else Group(table, note, _rest_line(listed, k, rest, " per estimator"))
 
 
