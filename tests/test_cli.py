@@ -256,8 +256,17 @@ def test_spatial_pipeline_through_files(tmp_path, capsys):
     assert run("simulate", urdf, *common, "--noise-angle", 1e-5, "--noise-rate", 1e-5, "--seed", 2, "-o", tmp_path / "noisy.csv") == 0
     header = (tmp_path / "log.csv").read_text().splitlines()[0].split(",")
     assert {"base_qw", "base_qx", "base_qy", "base_qz", "base_wx", "base_wy", "base_wz", "q_arm_joint7"} <= set(header)
+    capsys.readouterr()
     assert run("identify", urdf, tmp_path / "log.csv", "--momentum", "1,-2,3", "-o", tmp_path / "r.json") == 0
-    assert run("identify", urdf, tmp_path / "noisy.csv", "--momentum", "1,-2,3", "-o", tmp_path / "n.json") == 0
+    summary = capsys.readouterr().out  # 153 estimates: the first 20 and where the others are
+    assert "pi20 " in summary and "pi21 " not in summary and len(summary.splitlines()) < 60
+    summary = " ".join(summary.split())  # rich wraps at the console's width
+    assert "the first 20 of 153 parameters listed, 133 more: --all lists them;" in summary
+    assert "r.json and " in summary and "r.html hold every one" in summary
+    assert run("identify", urdf, tmp_path / "noisy.csv", "--momentum", "1,-2,3", "-o", tmp_path / "n.json",
+               "--all") == 0
+    every = capsys.readouterr().out
+    assert all(f"pi{i} " in every for i in range(1, 154)) and "more: --all" not in every
     assert run("validate", tmp_path / "r.json", tmp_path / "log.csv", "--momentum", "1,-2,3", "-o", tmp_path / "val") == 0
     assert json.loads((tmp_path / "val" / "metrics.json").read_text())["base_w_nrms"] < 1e-6
     capsys.readouterr()

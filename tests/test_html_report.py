@@ -91,6 +91,21 @@ def test_the_identification_report_is_self_contained(identification, tmp_path):
         assert f'<td class="t">{name}</td>' in text and f'data-v="{float(f"{value:.6g}")!r}"' in text
 
 
+def test_the_parameter_figure_draws_its_band_and_zero_line(cepheus, identification):
+    """The z-scores' shaded |z| <= 2 band and the zero line under the errors, which Plotly left out when
+    they were drawn before their panel's trace."""
+    import json
+
+    import plotly.io as pio
+
+    from spaceid.studies._html_figures import parameter_figure
+
+    _, ident, _ = identification
+    for true, shapes in ((None, [("line", "y")]), (cepheus[1].true_values, [("rect", "y"), ("line", "y2")])):
+        layout = json.loads(pio.to_json(parameter_figure(ident, true)[0], validate=False))["layout"]
+        assert [(s["type"], s["yref"]) for s in layout["shapes"]] == shapes
+
+
 def test_downsampling_keeps_each_bins_extremes():
     rng = np.random.default_rng(0)
     t = np.arange(100_000) * 1e-3

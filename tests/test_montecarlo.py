@@ -40,6 +40,18 @@ def test_same_seed_same_numbers_other_seed_other_numbers(param):
     np.testing.assert_array_equal(longer.estimates["ml"][:6], a.estimates["ml"])
 
 
+def test_the_table_lists_the_first_rows_of_each_estimator(param):
+    from rich.console import Console
+
+    from spaceid.studies import montecarlo_table
+
+    console = Console(record=True, width=100)
+    console.print(montecarlo_table(study(param, runs=3, estimators=("ml", "ols")), rows=3, rest="--all lists them"))
+    text = console.export_text()
+    assert text.count("│ pi3 ") == 2 and "pi4" not in text  # ML and OLS
+    assert text.rstrip().splitlines()[-1] == "the first 3 of 8 parameters listed per estimator, 5 more: --all lists them"
+
+
 # fast representatives: test_same_seed_same_numbers_other_seed_other_numbers,
 # test_estimators.py::test_ml_on_threads_equals_serial
 @pytest.mark.slow

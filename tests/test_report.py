@@ -399,6 +399,20 @@ def test_large_systems_point_to_their_definitions(ident):
     assert f"{k} parameters: their definitions are in the result file and in 'spaceid model" in text
 
 
+def test_rows_lists_the_first_and_says_where_the_rest_are(ident):
+    k = 25  # up to DEFINITIONS_SHOWN, the definitions are listed: those of the listed parameters alone
+    big = replace(ident, names=tuple(f"pi{i + 1}" for i in range(k)), values=np.ones(k), std=np.ones(k),
+                  definitions=tuple(f"M_link{i + 1}" for i in range(k)), cov=np.eye(k))
+    console = Console(record=True, width=100)
+    console.print(parameter_table(big, rows=20, rest="--all lists them"))
+    text = console.export_text()
+    assert "pi20 " in text and "M_link20" in text and "pi21" not in text and "M_link21" not in text
+    assert text.rstrip().splitlines()[-1] == "the first 20 of 25 parameters listed, 5 more: --all lists them"
+    console.print(parameter_table(big, rows=k, rest="--all lists them"))
+    text = console.export_text()
+    assert "pi25 " in text and "M_link25" in text and "more" not in text
+
+
 @pytest.mark.slow
 def test_markdown_report(tmp_path, ident):
     plot_parameters(ident, tmp_path / "parameters.png", true=TRUE)

@@ -531,7 +531,9 @@ def _momentum(value, planar, *, allow_unknown=False):
 
 SUMMARY_ROWS = 20
 """``spaceid model`` lists this many parameters (definitions cut to a line) and this many names
-per identifiability list unless ``--all``: the servicer's 496 definitions fill thousands of lines."""
+per identifiability list unless ``--all``: the servicer's 496 definitions fill thousands of lines;
+``spaceid identify`` lists this many estimates and ``spaceid montecarlo`` this many parameters per
+estimator unless ``--all``."""
 
 
 @app.command(short_help="Identifiability report: bodies, joints, standard and minimal parameters.")
@@ -799,8 +801,10 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
 @log_options
 @output("RESULT.json to write.")
 @report_option("the identification: diagnostics, sortable parameter table, figures")
+@click.option("--all", "show_all", is_flag=True, help=f"List every estimate in the terminal (default: the first "
+              f"{SUMMARY_ROWS}; RESULT.json and the report hold every one).")
 def identify(model_src, log_path, planar, momentum, estimator, known, instruments, noise, knot_spacing, drift,
-             with_com, chunk, prior_src, prior_std, gyro_bias, output, report, reading):
+             with_com, chunk, prior_src, prior_std, gyro_bias, output, report, reading, show_all):
     """Estimate the minimal parameters from a log (LOG.csv, or a ROS bag).
 
     Noise levels not given are estimated from the log. Reaction wheels of the model (known rotor
@@ -841,7 +845,8 @@ def identify(model_src, log_path, planar, momentum, estimator, known, instrument
         ident = _identify_com(ident, log)
     write_json(output, ident.to_dict())
     _identification_html(ident, report, f"spaceid identify: {shown_name(log_path)}")
-    out.print(parameter_table(ident))
+    out.print(parameter_table(ident, rows=None if show_all else SUMMARY_ROWS, rest=f"--all lists them; "
+                              f"{shown_name(output)} and {shown_name(report)} hold every one"))
     s = ident.settings
     units = dict(zip(ident.names, ident.units))
     for a in s["anchors"]:
@@ -1405,8 +1410,10 @@ def compare(before, after, as_json, show_all):
             "it in .FOLDER.tasks/ as it completes, for --resume, until they are written).")
 @RESUME
 @OVERWRITE
+@click.option("--all", "show_all", is_flag=True, help=f"List every parameter in the terminal (default: the first "
+              f"{SUMMARY_ROWS} of each estimator; --out's table.txt, montecarlo.json and report.html hold every one).")
 def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, criterion, momentum, runs, estimators,
-               noise, angles_only, seed, jobs, scheduler, folder, resume, overwrite):
+               noise, angles_only, seed, jobs, scheduler, folder, resume, overwrite, show_all):
     """Monte Carlo study: simulate once, identify under fresh noise RUNS times, and report per
     estimator and parameter the bias, RMSE, predicted vs actual spread and RMSE / CRB. The
     momentum of the simulated motion (--momentum) is required. Noise levels default to 1e-4
@@ -1424,7 +1431,8 @@ def montecarlo(model_src, planar, trajectory, duration, samples, harmonics, crit
                              samples=samples, runs=runs, estimators=estimators or ("ml", "ols"), seed=seed, jobs=jobs,
                              progress=progress, angles_only=angles_only, scheduler=scheduler, out=folder,
                              resume=resume, design={"harmonics": harmonics, "criterion": criterion})
-    out.print(montecarlo_table(res))
+    held = "" if folder is None else f"; {shown_name(folder)}/table.txt, montecarlo.json and report.html hold every one"
+    out.print(montecarlo_table(res, rows=None if show_all else SUMMARY_ROWS, rest=f"--all lists them{held}"))
     for e in res.estimators:
         w = res.summary(e)
         out.print(f"{e.upper()}, worst over parameters: RMSE {100 * w['relative_rmse']:.3g} %, "

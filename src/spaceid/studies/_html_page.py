@@ -188,12 +188,13 @@ class Page:
         self._blocks.append(f'<div class="scroll">{table}</div>' if len(rows) > 25 else table)
 
     def figure(self, fig, caption: str) -> None:
-        """A plotly figure (``plotly.graph_objects.Figure``), drawn by the page's one plotly.js."""
+        """A plotly figure (``plotly.graph_objects.Figure``, or its plain dict, written unvalidated),
+        drawn by the page's one plotly.js."""
         import plotly.io as pio
 
         self._figures += 1
         div = pio.to_html(fig, full_html=False, include_plotlyjs=False, config=_CONFIG,
-                          div_id=f"figure-{self._figures}", default_width="100%")
+                          div_id=f"figure-{self._figures}", default_width="100%", validate=False)
         self._blocks.append(f'<figure class="plot">{div}<figcaption>{escape(caption)}</figcaption></figure>')
 
     def image(self, path, caption: str) -> None:

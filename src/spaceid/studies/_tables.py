@@ -86,12 +86,15 @@ DEFINITIONS_SHOWN = 30
 
 @deprecated_alias(old="ident", new="result")
 def parameter_table(result: Identification, *, true=None, reference=None, reference_true=None,
-                    reference_label="paper") -> Group:
+                    reference_label="paper", rows=None, rest="") -> Group:
     """The estimates as a rich table, with the definitions listed below it.
 
     The definitions (often long SymPy expressions) go under the table so that the numbers stay
     readable in an 80-column terminal; beyond ``DEFINITIONS_SHOWN`` parameters a line says where
-    they are instead.
+    they are instead. With ``rows``, only the first ``rows`` parameters are listed, in order (the
+    order of ``spaceid model``'s listing, so that the two read side by side; the conditioning and
+    the momentum-scaled std, which judge the whole set, are in the line under the table), and a
+    last line says how many more there are.
 
     Parameters
     ----------
@@ -104,11 +107,16 @@ def parameter_table(result: Identification, *, true=None, reference=None, refere
         Reference true values (e.g. the paper's Table 3).
     reference_label : str
         Name of the reference in its column headers.
+    rows : int, optional
+        List only the first ``rows`` parameters (default: all).
+    rest : str
+        With ``rows``: where the parameters not listed are, ending the last line (e.g.
+        ``"--all lists them; result.json holds every one"``).
     """
     true = per_parameter(true, result, "`true`")
     reference = per_parameter(reference, result, "`reference`")
     reference_true = per_parameter(reference_true, result, "`reference_true`")
-    header, rows = _columns(result, true, reference, reference_label, reference_true)
+    header, table_rows = _columns(result, true, reference, reference_label, reference_true)
     # one unit for all (every planar-basis pi is in kg m^2) goes in the caption, and the paper's
     # seven columns still fit 80
     shown = [i for i, name in enumerate(header)
@@ -128,29 +136,45 @@ def parameter_table(result: Identification, *, true=None, reference=None, refere
     for i in shown:
         table.add_column(short.get(header[i], header[i]), justify="left" if header[i] in ("parameter", "unit")
                          else "right", no_wrap=True)
-    for row in rows:
+    k = len(result.names)
+    listed = k if rows is None else min(rows, k)
+    for row in table_rows[:listed]:
         table.add_row(*(row[i] for i in shown))
-    if len(result.names) > DEFINITIONS_SHOWN:
-        return Group(table, note, f"{len(result.names)} parameters: their definitions are in the result file "
-                                  f"and in 'spaceid model {result.model}'")
-    definitions = Table.grid(padding=(0, 1))
-    definitions.add_column(no_wrap=True)
-    definitions.add_column(overflow="fold")
-    for name, definition in zip(result.names, result.definitions):
-        definitions.add_row(f"{name} =", definition)
-    return Group(table, note, definitions)
+    if k > DEFINITIONS_SHOWN:
+        definitions = f"{k} parameters: their definitions are in the result file and in 'spaceid model {result.model}'"
+    else:
+        definitions = Table.grid(padding=(0, 1))
+        definitions.add_column(no_wrap=True)
+        definitions.add_column(overflow="fold")
+        for name, definition in zip(result.names[:listed], result.definitions[:listed]):
+            definitions.add_row(f"{name} =", definition)
+    if listed == k:
+        return Group(table, note, definitions)
+    return Group(table, note, definitions, _rest_line(listed, k, rest))
 
 
-def montecarlo_table(result) -> Group:
+def _rest_line(listed: int, k: int, rest: str, per: str = "") -> Text:
+    """The last line of a table cut to its first ``listed`` of ``k`` parameters (``per``: e.g. each
+    estimator's): how many more there are, then ``rest``, where they are."""
+    return Text(f"the first {listed} of {k} parameters listed{per}, {k - listed} more" + (f": {rest}" if rest else ""))
+
+
+def montecarlo_table(result, *, rows=None, rest="") -> Group:
     """Monte Carlo statistics as a rich table, one section per estimator, and a line on the
     seed and noise under it.
 
     Columns per parameter: bias / std, relative RMSE [%], the relative Cramer-Rao std [%],
     mean predicted std / actual std (1: honest standard errors) and RMSE / CRB (1: efficient).
+    With ``rows``, each section lists the first ``rows`` parameters, in order, and a last line
+    says how many more there are (as :func:`parameter_table`).
 
     Parameters
     ----------
     result : spaceid.studies.MonteCarloResult
+    rows : int, optional
+        List only the first ``rows`` parameters of each estimator (default: all).
+    rest : str
+        With ``rows``: where the parameters not listed are, ending the last line.
     """
     s = result.settings
     noise = s["noise"]
@@ -168,16 +192,18 @@ def montecarlo_table(result) -> Group:
     for name in ("", "", "bias/std", "RMSE [%]", f"{crb} [%]", "pred/act std", f"RMSE/{crb}"):
         table.add_column(name, justify="left" if not name else "right", no_wrap=True)
     fmt = lambda v, spec: "-" if not np.isfinite(v) else format(v, spec)  # noqa: E731
+    k = len(result.names)
+    listed = k if rows is None else min(rows, k)
     for e in result.estimators:
         st = result.stats[e]
         with np.errstate(divide="ignore", invalid="ignore"):
             rel_crb = np.where(st["true"] != 0, st["crb_std"] / np.abs(st["true"]), np.nan)
             honest = st["predicted_std"] / st["std"]
-        for i, name in enumerate(result.names):
+        for i, name in enumerate(result.names[:listed]):
             table.add_row(e.upper() if i == 0 else "", name, fmt(st["bias_std"][i], "+.2f"),
                           fmt(100 * st["relative_rmse"][i], ".3g"), fmt(100 * rel_crb[i], ".3g"),
                           fmt(honest[i], ".2f"), fmt(st["rmse_crb"][i], ".2f"),
-                          end_section=i == len(result.names) - 1)  # fmt: skip
-    return Group(table, note)
+                          end_section=i == listed - 1)  # fmt: skip
+    return Group(table, note) if listed == k else Group(table, note, _rest_line(listed, k, rest, " per estimator"))
 
 
