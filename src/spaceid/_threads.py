@@ -48,11 +48,16 @@ def _own_load() -> float:
 
 
 def _running_now() -> int | None:
-    """Threads running or runnable on the machine now, the caller's aside (Linux's ``/proc/loadavg``),
-    or None where that is not known."""
+    """Threads of other processes running or runnable on the machine now (Linux: ``/proc/loadavg``'s count
+    less this process's own running threads, BLAS's spinning ones included), or None where that is not known."""
     try:
         with open("/proc/loadavg") as f:
-            return int(f.read().split()[3].split("/")[0]) - 1
+            running = int(f.read().split()[3].split("/")[0])
+        own = 0
+        for task in os.scandir("/proc/self/task"):
+            with open(os.path.join(task.path, "stat")) as f:
+                own += f.read().rpartition(")")[2].split()[0] == "R"  # the state follows the command's name
+        return max(running - own, 0)
     except (OSError, IndexError, ValueError):
         return None
 
@@ -67,13 +72,16 @@ def work_threads() -> int:
     1.2 s; ``benchmarks/bench_stream.py``); on idle cores 2 threads halve it. Read as another's, the
     load a process made itself or its predecessor left in the average kept it on one thread for a
     minute on 2 idle cores (10,000 servicer samples identified in a row: ``benchmarks/bench_ml.py``)."""
+    limit = blas_threads()
+    if limit == 1:  # (the load need not be read)
+        return 1
     try:
         others = max(os.getloadavg()[0] - _own_load(), 0.0)
     except OSError:  # no load average on this platform
         others = 0.0
     running = _running_now()
     others = others if running is None else min(others, running)
-    return max(1, min(blas_threads(), int((os.cpu_count() or 1) - others + 0.5)))
+    return max(1, min(limit, int((os.cpu_count() or 1) - others + 0.5)))
 
 
 def one_blas_thread():
