@@ -4,6 +4,7 @@ read such directions as a drift on conserved spatial logs (docs/theory/noise.md,
 errors mean"; docs/theory/drift.md)."""
 
 import dataclasses
+import re
 import warnings
 from pathlib import Path
 
@@ -91,6 +92,37 @@ def test_values_the_data_do_not_determine_are_not_called_impossible(seed, tmp_pa
     assert not any("physically impossible" in m or "maximum likelihood failed" in m for m in messages), messages
     assert result.diagnostics.plausibility.startswith("no ")
     assert (np.abs(result.values - truth.true_values) / result.std).max() < 4
+
+
+def test_ml_over_all_directions_stops_early_where_the_data_leave_some_undetermined(tmp_path, monkeypatch):
+    """Over all 66 directions of that motion ML had crept on to its 50th iteration before falling back (the
+    likelihood has no maximum along the 5 the data do not determine); not converged after ``STALL_CHECK``
+    iterations it asks, and stops. The fit over the others starts from the same fallback: the result is the
+    same, bit for bit, as when it ran on."""
+    from spaceid.estimation import _estimators as estimate
+    from spaceid.estimation import _identify
+
+    _, truth, h, log = _undesigned_robot(tmp_path)
+    noisy, noise = add_noise(log, angle=1e-4, rate=1e-4, seed=0), Noise(1e-4, 1e-4, 1e-4, 1e-4)
+    fits, fit = [], estimate._ml_fit
+
+    def recorded(*args, **kwargs):
+        out = fit(*args, **kwargs)
+        fits.append((kwargs.get("subspace") is None, out[1]["iterations"], out[1]["fallback"]))
+        return out
+
+    monkeypatch.setattr(estimate, "_ml_fit", recorded)
+    results = []
+    for ask in (True, False):
+        if not ask:
+            monkeypatch.setattr(_identify, "_undetermined_reason", lambda *args: lambda theta: "")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            results.append(identify(truth, noisy, h, noise=noise))
+    (over_all, iterations, why), held = fits[0], fits[1]
+    assert over_all and iterations == estimate.STALL_CHECK + 1 and re.search("do not determine [1-9][0-9]* of 66", why)
+    assert not held[0] and fits[2][:2] == (True, 50) and fits[3] == held
+    assert np.array_equal(results[0].values, results[1].values) and np.array_equal(results[0].cov, results[1].cov)
 
 
 @pytest.mark.parametrize("estimator", ["ols", "ml"])

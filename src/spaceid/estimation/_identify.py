@@ -285,7 +285,9 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
     if estimator != "ols":
         ols_info = info
         theta, info = (streamed_estimate(eq, x, sigma, theta, estimator, ctx, chunk) if chunk else
-                       _KERNELS[estimator](eq, x, sigma, theta, ctx))  # fmt: skip
+                       _KERNELS[estimator](eq, x, sigma, theta, ctx,
+                                           **({"stalled": _undetermined_reason(eq, x, log, sigma, ctx)}
+                                              if estimator == "ml" else {})))  # fmt: skip
         fallback = str(info.get("fallback")).split(":")[0]  # ML failed: WLS or OLS, with their covariance
         if fallback in ("wls", "ols") and not chunk:
             theta, info = _ml_determined(eq, x, log, sigma, theta, ctx, info)
@@ -300,6 +302,18 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
     else:
         reported = _reported_covariance(eq, x, ctx.phi, sigma, theta, estimator, info, log, estimated)
     return _Fit(theta, info, *reported, held=info.pop("held_ratios", None))
+
+
+def _undetermined_reason(eq, x, log: Log, sigma, ctx: _FitContext):
+    """``reason(theta)``: how many directions the data do not determine at ``theta`` (the noise-to-signal ratios
+    of the equations weighted as WLS's, :func:`~spaceid.estimation._determined.noise_ratios`), or ``""`` when
+    none: ML's fit stops on it when it has not converged after a few iterations (:func:`_ml_determined` then fits
+    the others)."""
+    def reason(theta):
+        mu, _ = noise_ratios(eq, x, ctx.phi, sigma, theta, "wls", log)
+        weak = int(np.sum(mu >= UNDETERMINED))
+        return f"the data do not determine {weak} of {len(mu)} directions" if weak else ""
+    return reason
 
 
 def _ml_determined(eq, x, log: Log, sigma, theta, ctx: _FitContext, info: dict) -> tuple:
