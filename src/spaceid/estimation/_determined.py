@@ -74,9 +74,13 @@ def noise_gram(build, x: np.ndarray, sigma: np.ndarray, scale: float = 1.0, line
             moved = (still if linear[c] else x).copy()
             moved[:, c] = 1.0 if linear[c] else moved[:, c] + FD_STEP
             D = (build(moved) - (rest if linear[c] else at)).reshape(-1, out.shape[0])
+            D *= sigma[c] if linear[c] else sigma[c] / FD_STEP
             cols = np.flatnonzero(np.any(D != 0, axis=0))
-            D = D[:, cols] * (sigma[c] if linear[c] else sigma[c] / FD_STEP)
-            out[np.ix_(cols, cols)] += D.T @ D
+            if len(cols) == len(out):  # (a copy of every column and a scattered sum cost a fifth of the product)
+                out += D.T @ D
+            else:
+                D = D[:, cols]
+                out[np.ix_(cols, cols)] += D.T @ D
     return out * scale
 
 
