@@ -114,7 +114,7 @@ def test_ml_stops_close_to_its_fixed_point(cepheus, monkeypatch):
     log = add_noise(make(501), angle=1e-2, rate=1e-2, seed=3)
     noise = Noise(1e-2, 1e-2, 1e-2)
     default = identify(param, log, H, estimator="ml", noise=noise)
-    monkeypatch.setitem(estimate._KERNELS, "ml", lambda *args: estimate._ml(*args, tol=1e-10))
+    monkeypatch.setitem(estimate._KERNELS, "ml", lambda *args, **kw: estimate._ml(*args, **kw, tol=1e-10))
     tight = identify(param, log, H, estimator="ml", noise=noise)
     assert tight.diagnostics.estimator_info["iterations"] > default.diagnostics.estimator_info["iterations"] >= 3
     assert (np.abs(default.values - tight.values) / default.std).max() < 1e-3
@@ -130,7 +130,7 @@ def test_ml_that_does_not_converge_falls_back(cepheus, monkeypatch):
     param, make = cepheus
     log = add_noise(make(501), angle=1e-2, rate=1e-2, seed=3)
     noise = Noise(1e-2, 1e-2, 1e-2)
-    monkeypatch.setitem(estimate._KERNELS, "ml", lambda *args: estimate._ml(*args, max_iter=1))
+    monkeypatch.setitem(estimate._KERNELS, "ml", lambda *args, **kw: estimate._ml(*args, **kw, max_iter=1))
     with pytest.warns(UserWarning, match=r"maximum likelihood failed, the estimate reported is (wls|ols): .*did not "
                                          r"converge in 1 iterations"):  # fmt: skip
         ml = identify(param, log, H, estimator="ml", noise=noise)
