@@ -215,8 +215,9 @@ def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitene
     """The :class:`~spaceid.estimation.DriftTest` of the residuals for an unmodelled drift
     (:func:`spaceid.estimation._residuals.drift_test`, ``whitener`` the estimator's own, if any; streamed in chunks
     of ``chunk`` samples when given; ``noise`` the noise Gram matrix of the equations with the drift columns, or a
-    function that returns it (computed beside the test), if formed; ``gram`` the Gram matrix of the columns whitened by ``whitener``, if formed) and its warning (``""``
-    when silent); not run when drift terms are modelled."""
+    function that returns it (computed beside the test), if formed; ``gram`` the Gram matrix of the columns
+    whitened by ``whitener``, if formed) and its warning (``""`` when silent); not run when drift terms are
+    modelled."""
     if drift:
         return DriftTest.skipped(f"drift terms modelled: {', '.join(drift)}"), ""
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
