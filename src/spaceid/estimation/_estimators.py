@@ -338,7 +338,7 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
         if it == STALL_CHECK + 1 and stalled is not None:
             why = stalled(theta)
             if why:
-                reason = f"had not converged after {STALL_CHECK} iterations, and {why}"
+                reason, it = f"had not converged after {STALL_CHECK} iterations, and {why}", STALL_CHECK
                 break
         trial = theta + damping * (target - theta)
         new = evaluate(trial, (theta, now["xh"], now["r"], now["L"], now["J"]), True)
