@@ -354,7 +354,36 @@ def test_work_threads_do_not_count_the_load_of_this_process(monkeypatch):
             monkeypatch.setattr(_threads, "_own_load", lambda own=own: own)
             monkeypatch.setattr(_threads, "_running_now", lambda running=running: running)
             assert _threads.work_threads() == threads
-    assert _threads._running_now() in (None, *range(0, 10_000))
+
+
+def test_threads_running_now_leave_out_this_process(monkeypatch):
+    """The threads running now that :func:`work_threads` counts are other processes': while a thread of this
+    process works beside the caller, the machine's count of running threads holds both, the count of others
+    neither (counted as others, they had kept a process on one thread)."""
+    import threading
+
+    from spaceid import _threads
+
+    if _threads._running_now() is None:
+        pytest.skip("no /proc/loadavg on this platform")
+    stop, a = threading.Event(), np.random.default_rng(0).standard_normal((300, 300))
+
+    def work():  # array work: running, the GIL released
+        while not stop.is_set():
+            np.linalg.eigvalsh(a)
+
+    worker = threading.Thread(target=work)
+    worker.start()
+    try:
+        own = []
+        for _ in range(50):
+            with open("/proc/loadavg") as f:
+                running = int(f.read().split()[3].split("/")[0])
+            own.append(running - _threads._running_now())
+    finally:
+        stop.set()
+        worker.join()
+    assert np.median(own) >= 2
 
 
 def test_side_by_side_runs_beside_on_an_idle_core_else_inline(monkeypatch):

@@ -19,8 +19,8 @@ covariances use as their "bread" is ``R^-1 R^-T``; noise-free identification is 
 ``eps`` times the scaled condition number either way, and on the 496-parameter servicer the
 Cholesky path is about three times faster than the QR.
 
-Blocks of samples (``_parts``) and of rows (``_blockwise``: ``_factor_of_rows``, ``_gram_of_rows``) run on ``work_threads()`` threads,
-their results joined in order, so nothing depends on the thread count.
+Blocks of samples (``_parts``) and of rows (``_blockwise``: ``_factor_of_rows``, ``_gram_of_rows``) run on
+``work_threads()`` threads, their results joined in order, so nothing depends on the thread count.
 """
 
 from __future__ import annotations
