@@ -477,3 +477,32 @@ def test_minimal_set_of_a_joint_axis_nearly_in_a_frame_plane(rng, axis_z):
     ref = pinocchio_momentum(to_pinocchio(model), q, qd, w0)
     error = np.abs(param.regressor(q, qd, w0) @ param.true_values - ref).max() / np.abs(ref).max()
     assert error < 1e-10
+
+
+def _worker_signals():
+    import signal
+
+    return signal.getsignal(signal.SIGINT) is signal.SIG_IGN, bool(signal.pthread_sigmask(signal.SIG_BLOCK, []))
+
+
+@pytest.mark.skipif(not hasattr(__import__("signal"), "pthread_sigmask"), reason="POSIX signal masks")
+def test_pool_workers_are_forked_with_the_signals_held_and_start_ignoring_ctrl_c(monkeypatch):
+    """The workers are forked with Ctrl-C and SIGTERM held back, and start with Ctrl-C ignored and nothing held;
+    the parent holds nothing back once they run (a Ctrl-C that came as a worker was forked had run the parent's
+    handler in it and left it hung)."""
+    import os
+    import signal
+
+    from spaceid._threads import process_pool
+
+    fork, held = os.fork, []
+
+    def recorded():  # the parent's mask as it forks
+        held.append(signal.pthread_sigmask(signal.SIG_BLOCK, []))
+        return fork()
+
+    monkeypatch.setattr(os, "fork", recorded)
+    with process_pool(2, int) as pool:
+        assert len(held) == 2 and all({signal.SIGINT, signal.SIGTERM} <= mask for mask in held)
+        assert not signal.pthread_sigmask(signal.SIG_BLOCK, [])
+        assert pool.submit(_worker_signals).result(timeout=60) == (True, False)

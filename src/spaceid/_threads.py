@@ -127,7 +127,27 @@ def _start_worker(initializer, initargs):
     exception that the pool's task loop catches and carries on)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if hasattr(signal, "pthread_sigmask"):  # held back while it was forked (process_pool): its own handlers now
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, _HELD)
     initializer(*initargs)
+
+
+_HELD = {signal.SIGINT, signal.SIGTERM}
+"""The signals held back while :func:`process_pool` forks its workers."""
+
+
+def _fork_workers(pool) -> None:
+    """Start the workers of ``pool`` (forked at its first task, all at once) with Ctrl-C and SIGTERM held
+    back meanwhile: a worker gets them only once it has its own handlers (:func:`_start_worker`). One that
+    came as it was forked ran the parent's handler in it, which left it hung, and the command waited for it
+    at exit (seen once in CI); held back, it reaches the parent when the workers are started."""
+    if not hasattr(signal, "pthread_sigmask"):
+        return
+    held = signal.pthread_sigmask(signal.SIG_BLOCK, _HELD)
+    try:
+        pool.submit(int)
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
 
 @contextlib.contextmanager
@@ -138,6 +158,7 @@ def process_pool(workers: int, initializer, initargs=()):
     reaped. Leaving the block normally waits for the tasks, as the executor does."""
     pool = ProcessPoolExecutor(workers, initializer=functools.partial(_start_worker, initializer, initargs))
     try:
+        _fork_workers(pool)
         yield pool
     except BaseException:
         processes = list((pool._processes or {}).values())  # the executor has no public terminate (Python < 3.14)
