@@ -132,7 +132,11 @@ class _Columns:
         p = self.E.shape[-1] - 1
         E, C = self.E.reshape(-1, p + 1), self.C.reshape(-1, self.C.shape[-1])
         top = np.concatenate([X[:p], np.broadcast_to(rhs, (1, *X.shape[1:]))])
-        return (E @ top + C @ X[p:]).reshape(*self.shape[:2], *X.shape[1:])
+        # several columns: OpenBLAS forms the tall product 1.4x faster transposed (measured: 0.066 s against 0.047
+        # for the servicer's 30,000 x 498 by 72, the copy back included)
+        out = E @ top if X.ndim == 1 else np.ascontiguousarray((top.T @ E.T).T)
+        out += C @ X[p:]
+        return out.reshape(*self.shape[:2], *X.shape[1:])
 
     def __matmul__(self, X):
         return self._white(self._product(X, 0.0))
