@@ -386,6 +386,44 @@ def test_threads_running_now_leave_out_this_process(monkeypatch):
     assert np.median(own) >= 2
 
 
+def test_threads_running_now_are_the_least_over_a_short_window(monkeypatch):
+    """A process that runs for an instant does not count as running (one reading of it had kept an identification on
+    one thread), one that keeps running does, and a reading older than the window no longer hides it."""
+    import collections
+
+    from spaceid import _threads
+
+    clock, readings = {"now": 0.0}, iter([0, 1, 1, 1, 1])
+    monkeypatch.setattr(_threads.time, "monotonic", lambda: clock["now"])
+    monkeypatch.setattr(_threads, "_read_running", lambda: next(readings))
+    monkeypatch.setattr(_threads, "_readings", collections.deque())
+    seen = []
+    for at in (0.0, 0.05, 0.1, 0.15, 0.25):  # the window is 0.2 s: the idle reading at 0 drops out at 0.25
+        clock["now"] = at
+        seen.append(_threads._running_now())
+    assert seen == [0, 0, 0, 0, 1]
+
+
+def test_side_by_side_keeps_the_callers_threads_and_gives_its_workers_one(monkeypatch):
+    """In a side-by-side block the caller's block-parallel work keeps the threads it had (BLAS's one thread is the
+    block's own limit, not a busy machine's), its workers' work runs on one, and the caller's count ends with it."""
+    from threadpoolctl import threadpool_limits
+
+    from spaceid import _threads
+
+    monkeypatch.setattr(_threads, "_running_now", lambda: 0)
+    monkeypatch.setattr(_threads.os, "getloadavg", lambda: (0.0, 0.0, 0.0))
+    monkeypatch.setattr(_threads.os, "cpu_count", lambda: 2)
+    with threadpool_limits(2, user_api="blas"):
+        with _threads.side_by_side(2) as submit:
+            assert _threads.work_threads() == 2 and _threads.blas_threads() == 1
+            assert submit(_threads.work_threads).result() == 1
+        assert _threads.work_threads() == 2 and not hasattr(_threads._caller, "threads")
+        # a process held to one thread (design's workers) stays on one
+        with threadpool_limits(1, user_api="blas"), _threads.side_by_side(2):
+            assert _threads.work_threads() == 1
+
+
 def test_side_by_side_runs_beside_on_an_idle_core_else_inline(monkeypatch):
     """Work submitted side by side runs on a worker thread when a core is idle and in the caller otherwise, gives
     its value or raises its error from ``result()`` either way, and the block's one-thread BLAS limit ends with it."""

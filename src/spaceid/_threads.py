@@ -4,6 +4,7 @@ interrupt stops at once."""
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import functools
 import math
@@ -47,9 +48,31 @@ def _own_load() -> float:
         return _own["share"]
 
 
+RUNNING_WINDOW = 0.2
+"""Time [s] over which :func:`_running_now` takes the least of its readings."""
+
+_readings = collections.deque()  # (time.monotonic(), others running) of the last RUNNING_WINDOW
+
+
 def _running_now() -> int | None:
     """Threads of other processes running or runnable on the machine now (Linux: ``/proc/loadavg``'s count
-    less this process's own running threads, BLAS's spinning ones included), or None where that is not known."""
+    less this process's own running threads, BLAS's spinning ones included), or None where that is not known.
+    The least of the readings of the last :data:`RUNNING_WINDOW`, this one included: processes that run for an
+    instant (on this machine one ran 100 times in 3 s, for 0.1 to 5 ms each) do not count, which in a single
+    reading kept an identification on one thread; a busy process runs in all of them."""
+    count = _read_running()
+    if count is None:
+        return None
+    now = time.monotonic()
+    with _own_lock:
+        _readings.append((now, count))
+        while _readings[0][0] < now - RUNNING_WINDOW:
+            _readings.popleft()
+        return min(count for _, count in _readings)
+
+
+def _read_running() -> int | None:
+    """One reading of :func:`_running_now`: ``/proc/loadavg``'s running threads less this process's own."""
     try:
         with open("/proc/loadavg") as f:
             running = int(f.read().split()[3].split("/")[0])
@@ -71,10 +94,12 @@ def work_threads() -> int:
     30,000 x 496 took 2.3 s on 2 such threads and 1.8 s on 1 (threaded BLAS: 3.7 s, one BLAS thread
     1.2 s; ``benchmarks/bench_stream.py``); on idle cores 2 threads halve it. Read as another's, the
     load a process made itself or its predecessor left in the average kept it on one thread for a
-    minute on 2 idle cores (10,000 servicer samples identified in a row: ``benchmarks/bench_ml.py``)."""
+    minute on 2 idle cores (10,000 servicer samples identified in a row: ``benchmarks/bench_ml.py``). In a
+    :func:`side_by_side` block, the caller's thread keeps the threads it had on entering it (BLAS's one thread
+    there is the block's own limit), its workers one."""
     limit = blas_threads()
     if limit == 1:  # (the load need not be read)
-        return 1
+        return getattr(_caller, "threads", 1)
     try:
         others = max(os.getloadavg()[0] - _own_load(), 0.0)
     except OSError:  # no load average on this platform
@@ -101,21 +126,33 @@ def _done(fn, *args) -> Future:
     return future
 
 
+_caller = threading.local()
+"""``threads``: the :func:`work_threads` of the thread that opened a :func:`side_by_side` block, while in it."""
+
+
 @contextlib.contextmanager
-def side_by_side():
+def side_by_side(workers: int = 1):
     """Context manager yielding ``submit(fn, *args)``, a :class:`~concurrent.futures.Future` of ``fn(*args)``: run
-    in submission order on one worker thread beside the caller when the machine leaves it an idle core
-    (:func:`work_threads`), else at once in the caller. Array work releases the GIL, so two independent
-    computations then take the longer one's time, not their sum; each is the same computation either way, so the
-    results are bit-identical. BLAS runs on one thread in the block (nested :func:`one_blas_thread` then restore
-    one thread, whichever thread leaves last); leaving it waits for the worker."""
-    beside = work_threads() > 1  # before the limit below, which it follows
+    in submission order on ``workers`` threads beside the caller when the machine leaves it an idle core
+    (:func:`work_threads`), else at once in the caller. Array work releases the GIL, so independent computations
+    then take the longest one's time, not their sum; each is the same computation either way, so the results are
+    bit-identical. A job that needs another's result waits in the queue, not on a worker, when submitted after it.
+    BLAS runs on one thread in the block (nested :func:`one_blas_thread` then restore one thread, whichever thread
+    leaves last); leaving it waits for the workers."""
+    threads = work_threads()  # before the limit below, which it follows
     with one_blas_thread():
-        if not beside:
+        if threads < 2:
             yield _done
             return
-        with ThreadPoolExecutor(1, thread_name_prefix="spaceid-side") as pool:
-            yield pool.submit
+        kept, _caller.threads = getattr(_caller, "threads", None), threads
+        try:
+            with ThreadPoolExecutor(workers, thread_name_prefix="spaceid-side") as pool:
+                yield pool.submit
+        finally:
+            if kept is None:
+                del _caller.threads
+            else:
+                _caller.threads = kept
 
 
 def _start_worker(initializer, initargs):
