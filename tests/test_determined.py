@@ -140,9 +140,10 @@ def _undesigned_planar_robot(folder):
 @pytest.mark.parametrize("robot", [_undesigned_robot, _undesigned_planar_robot])
 def test_checks_beside_the_drift_test_are_those_run_in_turn(estimator, robot, tmp_path, monkeypatch):
     """The noise Gram matrix and the directions it leaves undetermined are formed on an idle core beside the drift
-    test (``side_by_side``): on random spatial and planar robots' undesigned motions (the spatial one leaves
-    directions undetermined) the result is the same, bit for bit, as with the checks run one after the other on
-    a busy machine."""
+    test (``side_by_side``; ``ols``'s beside the equations, and its drift test on a second worker beside the
+    covariance): on random spatial and planar robots' undesigned motions (the spatial one leaves directions
+    undetermined) the result is the same, bit for bit, as with the checks run one after the other on a busy
+    machine."""
     from spaceid import _threads
 
     _, truth, h, log = robot(tmp_path)

@@ -15,6 +15,7 @@ References
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from dataclasses import dataclass, replace
 
@@ -264,6 +265,14 @@ def _log_regressor(eq, phi, estimator: str):
     return phi[..., : eq.param.n_params]
 
 
+def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, drift):
+    """A future, from ``submit`` (:func:`~spaceid._threads.side_by_side`), of the noise Gram matrix of the equations'
+    columns with the drift test's candidates (none when ``drift`` is modelled), whitened by the estimator's
+    ``whitener`` (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``): formed
+    once, for the undetermined directions and the drift test."""
+    return submit(equation_noise, eq, x, sigma, theta, estimator, log, whitener, None if drift else drift_columns(eq, log))
+
+
 def _singular_values(factor) -> np.ndarray:
     """Singular values of the unscaled regressor (the paper's condition number), largest first,
     from the factor ``(scale, R)`` of the scaled equations: those of ``R[:p, :p] diag(scale)``."""
@@ -272,12 +281,14 @@ def _singular_values(factor) -> np.ndarray:
         return np.linalg.svd(R[:-1, :-1] * scale, compute_uv=False)
 
 
-def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimated: bool, chunk=None) -> _Fit:
+def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimated: bool, chunk=None,
+              estimated_hook=None) -> _Fit:
     """The :class:`_Fit` of ``estimator`` (not yet checked for plausibility): ``theta``, the estimator's record
     and :func:`_reported_covariance`'s covariance, RMS and record, from the OLS start, streamed over chunks of
     ``chunk`` samples when given (:mod:`spaceid.estimation._stream`); raises ``LinAlgError`` when the estimate is
     not finite (as the factorisations do on singular systems), which :func:`identify` turns into a
-    ``SpaceidError``."""
+    ``SpaceidError``. ``estimated_hook(theta)``, if given, is called with the estimate before its covariance is
+    formed (:func:`identify` starts the drift test beside it)."""
     if chunk:
         theta, ginv = _solve_factor(*ctx.factor[::-1])
         info = {"ginv": ginv}
@@ -297,6 +308,8 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
             estimator, info = fallback, info | (ols_info if fallback == "ols" else {})
     if not np.all(np.isfinite(theta)):
         raise np.linalg.LinAlgError("the estimate is not finite")
+    if estimated_hook is not None:
+        estimated_hook(theta)
     if chunk:
         reported = streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimated, chunk)
         info["chunk"] = chunk
@@ -479,13 +492,14 @@ class _Prepared:
 
 def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, known, noise, where: str,
               cond_limit: float, drift: tuple = (), history=None, instruments=None, knot_spacing=None,
-              chunk=None, gyro_bias=False) -> _Prepared:
+              chunk=None, gyro_bias=False, signals_hook=None) -> _Prepared:
     """The first steps of :func:`identify` and :func:`estimate_only`: the equations, the sample
     count, the signals, the noise model, the excitation check (over chunks of ``chunk`` samples
     when given) and the estimators' context. Arguments as :func:`identify`'s, ``momentum`` an
     array or None, ``drift`` checked, ``gyro_bias`` False or a pass of :func:`identify_gyro_bias`.
     Raises as :func:`identify` on too few samples, a vanishing right-hand side or a motion that
-    does not excite every parameter."""
+    does not excite every parameter. ``signals_hook(eq, x, sigma)``, if given, is called once the signals and
+    their weighting levels are known, before the equations are built (:func:`identify` starts work beside them)."""
     eq, anchors = _equations(param, log, momentum, known, where, drift, history)
     if gyro_bias:
         eq = replace(eq, bias=gyro_bias.columns)
@@ -493,6 +507,11 @@ def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, kn
     x = eq.signals(log)
     estimated = noise is None and estimator != "ols"  # ols needs no noise model
     noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
+    # differentiated signals weighted at their filters' levels: estimated from the smoothed log itself they are
+    # understated, and the weights' errors-in-variables corrections fall short (docs/theory/noise.md)
+    sigma = weighting_sigma(param, log, noise)
+    if signals_hook is not None:
+        signals_hook(eq, x, sigma)
     if chunk:
         phi, angles = None, None
         factor, nonzero = streamed_ols_factor(eq, x, chunk)
@@ -508,10 +527,7 @@ def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, kn
         angles = replace(angles, start=None if start is None else start.theta)
     ctx = _FitContext(phi, factor, angles=angles,
                       **(_instrument_context(log, instruments, where) if estimator == "iv" else {}))
-    # differentiated signals weighted at their filters' levels: estimated from the smoothed log itself they are
-    # understated, and the weights' errors-in-variables corrections fall short (docs/theory/noise.md)
-    return _Prepared(eq, anchors, x, phi, noise, estimated, factor, cond_scaled, ctx,
-                     weighting_sigma(param, log, noise), start)
+    return _Prepared(eq, anchors, x, phi, noise, estimated, factor, cond_scaled, ctx, sigma, start)
 
 
 def estimate_only(param: Parameterization, log: Log, momentum, *, estimator: str, known: dict | None, noise: Noise,
@@ -661,41 +677,57 @@ def identify(
         raise SpaceidError("`drift`: not available with `estimator` angles (its equations do not carry drift "
                            "columns): use another estimator, or no drift terms")
     chunk = None if chunk is None else check_chunk(chunk, estimator)
+    # the checks beside the work before them: ols's noise Gram matrix (it needs no estimate) beside the equations and
+    # the estimate, and on a second worker the drift test beside the covariance; the others' beside the drift test
+    early = estimator == "ols" and not chunk and not gyro_bias
     try:
-        prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
-                         cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
-                         knot_spacing=knot_spacing, chunk=chunk, gyro_bias=gyro_bias)
-        eq, x, phi, noise, estimated, factor, cond_scaled, ctx, sigma, start = (
-            prep.eq, prep.x, prep.phi, prep.noise, prep.estimated, prep.factor, prep.cond_scaled, prep.ctx, prep.sigma,
-            prep.start)
-        angles = ctx.angles
-        fit = (_angles_estimate(eq, x, log, sigma, ctx, estimated, start) if angles is not None else
-               _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk))  # fmt: skip
-        if gyro_bias:
-            fit = gyro_bias.fused(eq, fit)
-        nominal = np.concatenate([param.true_values[eq.free], fit.theta[len(eq.free):]])
-        # directions ML held (the data do not determine them) are judged with their widened errors
-        judged = fit.cov if fit.held is None else widened(fit.cov, *fit.held, fit.theta, nominal)
-        if estimator == "ml" and not fit.info.get("fallback") and _implausible_estimate(eq, fit.theta, judged, where,
-                                                                                       z=FALLBACK_Z):
-            fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
-        theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
-        whitener = info.pop("whitener", None)
-        # the factor of the columns whitened as the checks take them (ols: the excitation check's; ml: its bread's)
-        white_factor = (*factor, cond_scaled) if estimator == "ols" else _whitened_factor(info.pop("whitened_factor",
-                                                                                                   None))
-        with side_by_side() as submit:  # the noise Gram matrix and the directions it leaves beside the drift test
-            gram = directions = None  # the noise Gram matrix of the columns and the drift test's candidates: once
-            if not chunk and estimator != "angles":
-                gram = submit(equation_noise, eq, x, sigma, theta, estimator, log, whitener,
-                              None if drift else drift_columns(eq, log))
-                directions = submit(lambda: undetermined_directions(eq, x, phi, sigma, theta, estimator, log, whitener,
-                                                                    gram.result()[: eq.p, : eq.p], white_factor))
+        with contextlib.ExitStack() as beside:
+            submit = beside.enter_context(side_by_side(2)) if early else None
+            jobs = {}
+
+            def noise_beside(eq, x, sigma):
+                jobs["gram"] = _noise_gram(submit, eq, x, sigma, None, estimator, log, None, drift)
+
+            prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
+                             cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
+                             knot_spacing=knot_spacing, chunk=chunk, gyro_bias=gyro_bias,
+                             signals_hook=noise_beside if early else None)
+            eq, x, phi, noise, estimated, factor, cond_scaled, ctx, sigma, start = (
+                prep.eq, prep.x, prep.phi, prep.noise, prep.estimated, prep.factor, prep.cond_scaled, prep.ctx,
+                prep.sigma, prep.start)
+            angles = ctx.angles
+
+            def drift_beside(theta):  # (ols: no whitener, the excitation check's factor)
+                jobs["drift"] = submit(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, None, None,
+                                       jobs["gram"].result, _factor_gram(factor))
+
+            fit = (_angles_estimate(eq, x, log, sigma, ctx, estimated, start) if angles is not None else
+                   _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk, drift_beside if early else None))
+            if gyro_bias:
+                fit = gyro_bias.fused(eq, fit)
+            nominal = np.concatenate([param.true_values[eq.free], fit.theta[len(eq.free):]])
+            if estimator == "ml" and not fit.info.get("fallback"):  # held directions judged with their widened errors
+                judged = fit.cov if fit.held is None else widened(fit.cov, *fit.held, fit.theta, nominal)
+                if _implausible_estimate(eq, fit.theta, judged, where, z=FALLBACK_Z):
+                    fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
+            theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
+            whitener = info.pop("whitener", None)
+            # the factor of the columns whitened as the checks take them (ols: the excitation check's; ml: its bread's)
+            white_factor = (*factor, cond_scaled) if estimator == "ols" else _whitened_factor(info.pop("whitened_factor",
+                                                                                                       None))
+            if not early:
+                submit = beside.enter_context(side_by_side())
+                if not chunk and estimator != "angles":
+                    jobs["gram"] = _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, drift)
+            if "gram" in jobs:
+                jobs["directions"] = submit(lambda: undetermined_directions(
+                    eq, x, phi, sigma, theta, estimator, log, whitener, jobs["gram"].result()[: eq.p, : eq.p],
+                    white_factor))
             s = _singular_values(factor)
-            drift_record, drift_warning = _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
-                                                       whitener, chunk, None if gram is None else gram.result,
-                                                       _factor_gram(white_factor))
-            weak, ratios = ([], None) if directions is None else directions.result()
+            drift_record, drift_warning = jobs["drift"].result() if early else _drift_check(
+                eq, x, phi, sigma, theta, estimator, log, drift, where, whitener, chunk,
+                jobs["gram"].result if "gram" in jobs else None, _factor_gram(white_factor))
+            weak, ratios = jobs["directions"].result() if "directions" in jobs else ([], None)
         if weak:  # the standard errors say what the data do not determine
             fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
             uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
