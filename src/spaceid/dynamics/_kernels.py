@@ -197,3 +197,63 @@ def _tangent_columns(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, pr
             x1, y1, z1 = _column(rate, rows, c)
             x2, y2, z2 = _column(pose, rows, c)
             out[n, 0, c], out[n, 1, c], out[n, 2, c] = x1 + x2, y1 + y2, z1 + z2
+
+
+@kernel
+def _joint_jacobian(features, summed, S, U, omega, local, parents, revolute, jac):
+    """The momentum's derivatives ``jac (m, 3, 2 n_joints + 3)`` by ``[q, qd, w0]`` from the per-body sums
+    ``features (n_bodies, 45, m)`` of :func:`spaceid.dynamics._momentum_jacobian._chunk_jacobian` and their sums
+    over each joint's subtree ``summed (n_joints, 45, m)`` (entries ``3 x + y`` of ``S V^T``, ``S Z^T``, ``U Z^T``
+    and ``I``, then ``I w``, ``V_0`` and ``Z_0``), the pose and rate rows ``S, U (n_bodies, 4, 3, m)``, the bodies'
+    angular velocities ``omega (3, n_bodies, m)``, the joint axes in their parents' axes ``local (n_joints, 3)``,
+    the parents and the revolute flags: the formulas of that module's docstring, samples innermost (the inputs
+    hold them last: read in order)."""
+    nj, m, nb = summed.shape[0], summed.shape[2], features.shape[0]
+    for x in range(3):  # the base rate's columns: the trace of sum S Z^T, less sum S Z^T, plus sum I
+        for y in range(3):
+            for n in range(m):
+                jac[n, x, 2 * nj + y] = 0.0
+            for b in range(nb):
+                for n in range(m):
+                    jac[n, x, 2 * nj + y] += features[b, 27 + 3 * x + y, n] - features[b, 9 + 3 * x + y, n]
+                    if x == y:
+                        jac[n, x, 2 * nj + y] += features[b, 9, n] + features[b, 13, n] + features[b, 17, n]
+    for j in range(nj):
+        p, f, l0, l1, l2 = parents[j], summed[j], local[j, 0], local[j, 1], local[j, 2]
+        for n in range(m):
+            a0 = l0 * S[p, 1, 0, n] + l1 * S[p, 2, 0, n] + l2 * S[p, 3, 0, n]
+            a1 = l0 * S[p, 1, 1, n] + l1 * S[p, 2, 1, n] + l2 * S[p, 3, 1, n]
+            a2 = l0 * S[p, 1, 2, n] + l1 * S[p, 2, 2, n] + l2 * S[p, 3, 2, n]
+            w0, w1, w2 = omega[0, p, n], omega[1, p, n], omega[2, p, n]
+            r0, r1, r2 = w1 * a2 - w2 * a1, w2 * a0 - w0 * a2, w0 * a1 - w1 * a0  # D a = w_parent x a
+            v0, v1, v2, z0, z1, z2 = f[39, n], f[40, n], f[41, n], f[42, n], f[43, n], f[44, n]
+            if not revolute[j]:  # a prismatic joint translates its subtree along a: a x V0 + Z0 x Da, Z0 x a
+                jac[n, 0, j] = a1 * v2 - a2 * v1 + z1 * r2 - z2 * r1
+                jac[n, 1, j] = a2 * v0 - a0 * v2 + z2 * r0 - z0 * r2
+                jac[n, 2, j] = a0 * v1 - a1 * v0 + z0 * r1 - z1 * r0
+                jac[n, 0, nj + j], jac[n, 1, nj + j], jac[n, 2, nj + j] = z1 * a2 - z2 * a1, z2 * a0 - z0 * a2, \
+                    z0 * a1 - z1 * a0
+                continue
+            o0, o1, o2 = S[j + 1, 0, 0, n], S[j + 1, 0, 1, n], S[j + 1, 0, 2, n]  # the child's origin, its rate
+            u0, u1, u2 = U[j + 1, 0, 0, n], U[j + 1, 0, 1, n], U[j + 1, 0, 2, n]
+            zs = f[9, n] + f[13, n] + f[17, n] - (o0 * z0 + o1 * z1 + o2 * z2)
+            zt = f[18, n] + f[22, n] + f[26, n] - (u0 * z0 + u1 * z1 + u2 * z2)
+            vs = f[0, n] + f[4, n] + f[8, n] - (o0 * v0 + o1 * v1 + o2 * v2)
+            v0a, z0a, z0r = v0 * a0 + v1 * a1 + v2 * a2, z0 * a0 + z1 * a1 + z2 * a2, z0 * r0 + z1 * r1 + z2 * r2
+            iw0, iw1, iw2 = f[36, n], f[37, n], f[38, n]
+            for x in range(3):
+                a_x = a0 if x == 0 else a1 if x == 1 else a2
+                r_x = r0 if x == 0 else r1 if x == 1 else r2
+                o_x = o0 if x == 0 else o1 if x == 1 else o2
+                u_x = u0 if x == 0 else u1 if x == 1 else u2
+                k = 3 * x
+                sv = f[k, n] * a0 + f[k + 1, n] * a1 + f[k + 2, n] * a2
+                sz_r = f[9 + k, n] * r0 + f[10 + k, n] * r1 + f[11 + k, n] * r2 - o_x * z0r
+                sz_a = f[9 + k, n] * a0 + f[10 + k, n] * a1 + f[11 + k, n] * a2 - o_x * z0a
+                uz = f[18 + k, n] * a0 + f[19 + k, n] * a1 + f[20 + k, n] * a2
+                i_r = f[27 + k, n] * r0 + f[28 + k, n] * r1 + f[29 + k, n] * r2
+                i_a = f[27 + k, n] * a0 + f[28 + k, n] * a1 + f[29 + k, n] * a2
+                spin = a1 * iw2 - a2 * iw1 if x == 0 else a2 * iw0 - a0 * iw2 if x == 1 else a0 * iw1 - a1 * iw0
+                jac[n, x, j] = (sv - o_x * v0a - a_x * vs + r_x * zs - sz_r + a_x * zt - uz + u_x * z0a + spin
+                                + i_r)  # fmt: skip
+                jac[n, x, nj + j] = a_x * zs - sz_a + i_a

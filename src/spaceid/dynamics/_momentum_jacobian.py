@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._threads import one_blas_thread
+from ._kernels import _joint_jacobian
 from ._kinematics import _constants, _flatten_states, _Geometry, frame_table
 from ._regressor import Parameterization
 
@@ -59,14 +60,6 @@ def _weights(param: Parameterization, pi):
     return W, K
 
 
-def _dot(a, b):
-    return np.einsum("x...,x...->...", a, b)
-
-
-def _matvec(m, v):
-    return np.einsum("xy...,y...->x...", m, v)
-
-
 def _products(a, b):
     """``sum_f a_f b_f^T`` over the four rows of each body: ``(n_bodies, 9, m)`` (entry ``3 x + y``)
     from ``(n_bodies, 4, 3, m)`` tables."""
@@ -87,34 +80,10 @@ def _chunk_jacobian(model, steps, path, W, K, q, qd, w0):
     features = np.concatenate([_products(S, V), _products(S, Z), _products(U, Z), inertia.reshape(nb, 9, m),
                                np.einsum("bxym,bym->bxm", inertia, omega), V[:, 0], Z[:, 0]], 1)  # fmt: skip
     summed = (path.T @ features.reshape(nb, -1)).reshape(nj, -1, m)  # over each joint's subtree
-    sub = dict(zip(("SV", "SZ", "UZ", "I"), np.moveaxis(summed[:, :36].reshape(nj, 4, 3, 3, m), 0, -2)))
-    sub.update(zip(("Iw", "V0", "Z0"), np.moveaxis(summed[:, 36:].reshape(nj, 3, 3, m), 0, -2)))
-    total = {"SZ": features[:, 9:18].sum(0).reshape(3, 3, m), "I": features[:, 27:36].sum(0).reshape(3, 3, m)}
-    parents = [s[0] for s in steps]
-    local = np.array([s[2][10] for s in steps])  # joint axes in parent axes
-    a = np.einsum("jkxm,jk->xjm", rot[parents], local)  # joint axes, base axes (3, nj, m)
-    a_rate = np.cross(ft.omega[0][:, parents], a, axis=0)  # D a_j = w_parent x a_j
-    o, v_o = S[1:, 0].transpose(1, 0, 2), U[1:, 0].transpose(1, 0, 2)  # child origins and their rates
     jac = np.empty((m, 3, 2 * nj + 3))
-    revolute = np.array([s[1] for s in steps])
-    zs = np.trace(sub["SZ"]) - _dot(o, sub["Z0"])  # sum Z . (S - delta o)
-    zt = np.trace(sub["UZ"]) - _dot(v_o, sub["Z0"])  # sum Z . (U - delta v_o)
-    vs = np.trace(sub["SV"]) - _dot(o, sub["V0"])  # sum V . (S - delta o)
-
-    def s_z(d):  # sum (S - delta o) Z^T d
-        return _matvec(sub["SZ"], d) - o * _dot(sub["Z0"], d)
-
-    d_q = (_matvec(sub["SV"], a) - o * _dot(sub["V0"], a) - a * vs + a_rate * zs - s_z(a_rate) + a * zt
-           - _matvec(sub["UZ"], a) + v_o * _dot(sub["Z0"], a) + np.cross(a, sub["Iw"], axis=0)
-           + _matvec(sub["I"], a_rate))  # fmt: skip
-    d_qd = a * zs - s_z(a) + _matvec(sub["I"], a)
-    if not revolute.all():  # prismatic joints translate their subtree along a_j
-        slide = ~revolute
-        d_q[:, slide] = (np.cross(a, sub["V0"], axis=0) + np.cross(sub["Z0"], a_rate, axis=0))[:, slide]
-        d_qd[:, slide] = np.cross(sub["Z0"], a, axis=0)[:, slide]
-    jac[:, :, :nj], jac[:, :, nj : 2 * nj] = d_q.transpose(2, 0, 1), d_qd.transpose(2, 0, 1)
-    base = np.trace(total["SZ"])[None, None] * np.eye(3)[:, :, None] - total["SZ"] + total["I"]
-    jac[:, :, 2 * nj :] = base.transpose(2, 0, 1)
+    local = np.array([s[2][10] for s in steps]).reshape(nj, 3)  # joint axes in parent axes
+    _joint_jacobian(features, summed, S, U, ft.omega[0], local, np.array([s[0] for s in steps], np.int64),
+                    np.array([s[1] for s in steps], bool), jac)
     return jac
 
 
