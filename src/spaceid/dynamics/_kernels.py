@@ -96,6 +96,38 @@ def _frame_blocks(parents, revolute, joints, q, qd, w0, table, omega, spin):
 
 
 @kernel
+def _frame_tangents(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, table, d_table, spin, d_spin):
+    """:func:`_frame_blocks`'s pose and rate rows and body-axes rates of the samples ``q, qd (m, n_joints)``, ``w0
+    (m, 3)`` into ``table (3, 8 n_bodies, m)`` and ``spin (3, n_bodies, m)`` (one block), and their derivatives
+    along ``(dq, dqd, dw0)`` (shaped alike) by central differences of steps ``eps (m,)`` into ``d_table`` and
+    ``d_spin``: three kinematics a sample, the states and differences formed as NumPy forms them."""
+    m, nj, n_rows, nb = q.shape[0], q.shape[1], table.shape[1], spin.shape[1]
+    frames, sp = np.empty((3, _CHUNK, n_rows, 3)), np.empty((3, _CHUNK, nb, 3))
+    om, work, qs, qds, ws = np.empty((nb, 3)), np.empty((5, 3)), np.empty(nj), np.empty(nj), np.empty(3)
+    for start in range(0, m, _CHUNK):
+        c = min(_CHUNK, m - start)
+        for s in range(c):
+            n = start + s
+            for i in range(2):  # x + eps d, x - eps d
+                sign = 1.0 - 2.0 * i
+                for j in range(nj):
+                    qs[j], qds[j] = q[n, j] + sign * eps[n] * dq[n, j], qd[n, j] + sign * eps[n] * dqd[n, j]
+                for r in range(3):
+                    ws[r] = w0[n, r] + sign * eps[n] * dw0[n, r]
+                _sample_frames(parents, revolute, joints, qs, qds, ws, frames[i, s], om, sp[i, s], work)
+            _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames[2, s], om, sp[2, s], work)
+        for r in range(3):  # samples last, each row written in order
+            for k in range(n_rows):
+                for s in range(c):
+                    table[r, k, start + s] = frames[2, s, k, r]
+                    d_table[r, k, start + s] = (frames[0, s, k, r] - frames[1, s, k, r]) / (2 * eps[start + s])
+            for b in range(nb):
+                for s in range(c):
+                    spin[r, b, start + s] = sp[2, s, b, r]
+                    d_spin[r, b, start + s] = (sp[0, s, b, r] - sp[1, s, b, r]) / (2 * eps[start + s])
+
+
+@kernel
 def _spun_rows(ext, spin):
     """The rows ``R e_k wb_m`` of one sample's extended table ``ext (17 n_bodies, 3)`` (rows
     ``8 nb + 9 b + 3 k + m``) from its axes (rows ``4 b + 1 + k``) and ``spin (n_bodies, 3)``,

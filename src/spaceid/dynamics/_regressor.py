@@ -46,7 +46,7 @@ from .._cache import cache_key, read_cached, write_cached
 from .._errors import SpaceidError
 from .._threads import one_blas_thread, work_threads
 from ._definitions import column_definitions, planar_definitions
-from ._kernels import _columns_of_states, _momentum_of_states, _tangent_columns
+from ._kernels import _columns_of_states, _frame_tangents, _momentum_of_states, _tangent_columns
 from ._kinematics import FrameTable, _flatten_states, _Geometry, _joint_arrays, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
 from ..models.internal import symbol_suffix
@@ -317,14 +317,15 @@ def _steps(direction, step: float) -> np.ndarray:
 
 
 def _frame_derivative(model: Model, states, step: float):
-    """The frame table (one block) of ``states = [q, qd, w0, dq, dqd, dw0]`` (each ``(m, .)``) at
-    ``(q, qd, w0)`` and the derivatives of its table and body-axes rates along ``(dq, dqd, dw0)``,
-    by central differences (:func:`_steps`)."""
-    x, d = states[:3], states[3:]
-    m, eps = len(x[0]), _steps(d, step)
-    plus, minus = (frame_table(model, *(a + sign * eps[:, None] * b for a, b in zip(x, d)), m) for sign in (1, -1))
-    d_table, d_spin = plus.table - minus.table, plus.omega_body - minus.omega_body
-    return frame_table(model, *x, m), d_table / (2 * eps), d_spin / (2 * eps)
+    """The pose and rate rows ``(3, 8 n_bodies, m)`` and body-axes rates ``(3, n_bodies, m)`` of ``states = [q, qd,
+    w0, dq, dqd, dw0]`` (each ``(m, .)``) at ``(q, qd, w0)``, and their derivatives along ``(dq, dqd, dw0)``, by
+    central differences (:func:`_steps`) in one compiled pass (three kinematics a sample)."""
+    m, nb = len(states[0]), len(model.bodies)
+    table, d_table, spin, d_spin = np.empty((3, 8 * nb, m)), np.empty((3, 8 * nb, m)), np.empty((3, nb, m)), \
+        np.empty((3, nb, m))
+    _frame_tangents(*_joint_arrays(_Geometry(model)), *(np.ascontiguousarray(a, float) for a in states),
+                    _steps(states[3:], step), table, d_table, spin, d_spin)
+    return table, d_table, spin, d_spin
 
 
 def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights, step: float, group: int = 1024):
@@ -350,13 +351,12 @@ def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights
             part = slice(start, start + group)
             states = [np.asarray(a, float)[part] for a in (q, qd, w0, *direction)]
             m = len(states[0])
-            frames, d_table, d_spin = _frame_derivative(model, states, step)
-            t, dt = frames.table[0].reshape(3, 8 * nb, m), d_table[0].reshape(3, 8 * nb, m)
+            t, dt, spin, d_spin = _frame_derivative(model, states, step)
             u = np.asarray(weights, float)[part].T[:, None]  # (3, 1, m)
             for r in range(3):
                 G += dt[r] @ (t[(r + 1) % 3] * u[(r + 2) % 3] - t[(r + 2) % 3] * u[(r + 1) % 3]).T  # dT . (T x u)
-            P += (u * dt).sum(0) @ frames.omega_body[0].reshape(3 * nb, m).T
-            P += (u * t).sum(0) @ d_spin[0].reshape(3 * nb, m).T
+            P += (u * dt).sum(0) @ spin.reshape(3 * nb, m).T
+            P += (u * t).sum(0) @ d_spin.reshape(3 * nb, m).T
     rows = plan.rows[plan.pair_at].T  # the table rows of X1, Y1, X2, Y2
     out = np.empty(plan.n_cols)
     out[plan.pair_at] = (G - G.T)[rows[0], rows[1]] + (G - G.T)[rows[2], rows[3]]
