@@ -319,6 +319,7 @@ def test_work_threads_leave_busy_cores_alone(monkeypatch):
 
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
     monkeypatch.setattr(_threads, "_running_now", lambda: 14)
+    monkeypatch.setattr(_threads, "_busy_others", lambda: None)  # (the load average alone decides)
     with threadpool_limits(2, user_api="blas"):
         monkeypatch.setattr(os, "getloadavg", lambda: (0.2, 0.0, 0.0))
         assert work_threads() == 2
@@ -349,6 +350,7 @@ def test_work_threads_do_not_count_the_load_of_this_process(monkeypatch):
     assert _threads._own_load() == pytest.approx(2 * (1 - np.exp(-1)) * np.exp(-1))
     monkeypatch.setattr(os, "cpu_count", lambda: 2)
     monkeypatch.setattr(os, "getloadavg", lambda: (1.9, 1.0, 0.5))
+    monkeypatch.setattr(_threads, "_busy_others", lambda: None)  # (not yet measured)
     with threadpool_limits(2, user_api="blas"):
         for own, running, threads in ((1.8, 1, 2), (0.0, 1, 1), (0.0, 0, 2)):  # the last: the load's maker has ended
             monkeypatch.setattr(_threads, "_own_load", lambda own=own: own)
@@ -386,22 +388,33 @@ def test_threads_running_now_leave_out_this_process(monkeypatch):
     assert np.median(own) >= 2
 
 
-def test_threads_running_now_are_the_least_over_a_short_window(monkeypatch):
-    """A process that runs for an instant does not count as running (one reading of it had kept an identification on
-    one thread), one that keeps running does, and a reading older than the window no longer hides it."""
-    import collections
+def test_work_threads_count_the_cores_others_kept_busy_lately(monkeypatch):
+    """A process that runs for an instant, counted running now, does not take a core (one reading of it had kept an
+    identification on one thread): the cores the others kept busy lately, the machine's processor time less this
+    process's over the last window, are what counts; a process that keeps running counts, and a window too short
+    to measure changes nothing."""
+    import os
+
+    from threadpoolctl import threadpool_limits
 
     from spaceid import _threads
 
-    clock, readings = {"now": 0.0}, iter([0, 1, 1, 1, 1])
-    monkeypatch.setattr(_threads.time, "monotonic", lambda: clock["now"])
-    monkeypatch.setattr(_threads, "_read_running", lambda: next(readings))
-    monkeypatch.setattr(_threads, "_readings", collections.deque())
-    seen = []
-    for at in (0.0, 0.05, 0.1, 0.15, 0.25):  # the window is 0.2 s: the idle reading at 0 drops out at 0.25
-        clock["now"] = at
-        seen.append(_threads._running_now())
-    assert seen == [0, 0, 0, 0, 1]
+    clock = {"wall": 10.0, "cpu": 1.0, "busy": 100.0}
+    monkeypatch.setattr(_threads.time, "monotonic", lambda: clock["wall"])
+    monkeypatch.setattr(_threads.time, "process_time", lambda: clock["cpu"])
+    monkeypatch.setattr(_threads, "_busy_time", lambda: clock["busy"])
+    monkeypatch.setattr(_threads, "_busy", {"at": 10.0, "cpu": 1.0, "busy": 100.0, "share": None})
+    monkeypatch.setattr(_threads, "_own_load", lambda: 0.0)
+    monkeypatch.setattr(_threads, "_running_now", lambda: 1)  # another process running as the threads are counted
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)
+    monkeypatch.setattr(os, "getloadavg", lambda: (0.9, 0.5, 0.2))
+    with threadpool_limits(2, user_api="blas"):
+        clock.update(wall=10.1, cpu=1.2, busy=100.2)  # 0.1 s: too short a window to measure
+        assert _threads._busy_others() is None and _threads.work_threads() == 1
+        clock.update(wall=10.5, cpu=1.9, busy=100.91)  # 0.5 s: this process 0.9 s, the others 0.01 s
+        assert _threads._busy_others() == pytest.approx(0.02) and _threads.work_threads() == 2
+        clock.update(wall=11.5, cpu=2.9, busy=102.91)  # a second: the others kept a core busy
+        assert _threads._busy_others() == pytest.approx(1.0) and _threads.work_threads() == 1
 
 
 def test_side_by_side_keeps_the_callers_threads_and_gives_its_workers_one(monkeypatch):

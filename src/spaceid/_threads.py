@@ -4,7 +4,6 @@ interrupt stops at once."""
 
 from __future__ import annotations
 
-import collections
 import contextlib
 import functools
 import math
@@ -48,31 +47,9 @@ def _own_load() -> float:
         return _own["share"]
 
 
-RUNNING_WINDOW = 0.2
-"""Time [s] over which :func:`_running_now` takes the least of its readings."""
-
-_readings = collections.deque()  # (time.monotonic(), others running) of the last RUNNING_WINDOW
-
-
 def _running_now() -> int | None:
     """Threads of other processes running or runnable on the machine now (Linux: ``/proc/loadavg``'s count
-    less this process's own running threads, BLAS's spinning ones included), or None where that is not known.
-    The least of the readings of the last :data:`RUNNING_WINDOW`, this one included: processes that run for an
-    instant (on this machine one ran 100 times in 3 s, for 0.1 to 5 ms each) do not count, which in a single
-    reading kept an identification on one thread; a busy process runs in all of them."""
-    count = _read_running()
-    if count is None:
-        return None
-    now = time.monotonic()
-    with _own_lock:
-        _readings.append((now, count))
-        while _readings[0][0] < now - RUNNING_WINDOW:
-            _readings.popleft()
-        return min(count for _, count in _readings)
-
-
-def _read_running() -> int | None:
-    """One reading of :func:`_running_now`: ``/proc/loadavg``'s running threads less this process's own."""
+    less this process's own running threads, BLAS's spinning ones included), or None where that is not known."""
     try:
         with open("/proc/loadavg") as f:
             running = int(f.read().split()[3].split("/")[0])
@@ -85,12 +62,46 @@ def _read_running() -> int | None:
         return None
 
 
+BUSY_WINDOW = 0.25
+"""Shortest time [s] over which :func:`_busy_others` measures the other processes' processor time."""
+
+
+def _busy_time() -> float | None:
+    """The machine's processor time [s] since boot, all cores (Linux: ``/proc/stat``, idle and waiting
+    excluded), or None where that is not known."""
+    try:
+        with open("/proc/stat") as f:
+            ticks = [int(v) for v in f.readline().split()[1:]]
+        return (sum(ticks) - ticks[3] - ticks[4]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return None
+
+
+_busy = {"at": time.monotonic(), "cpu": time.process_time(), "busy": _busy_time(), "share": None}
+
+
+def _busy_others() -> float | None:
+    """The cores the other processes kept busy lately: the machine's processor time less this process's, over
+    the last :data:`BUSY_WINDOW` or more (from this module's import on), or None before the first window has
+    passed or where it is not known. A process that runs for an instant (one ran 100 times in 3 s here, for 0.1
+    to 5 ms each) is running in :func:`_running_now` while it does, which had kept identifications on one thread;
+    here it is the few milliseconds it took."""
+    busy, now, cpu = _busy_time(), time.monotonic(), time.process_time()
+    with _own_lock:
+        last = _busy
+        if busy is not None and last["busy"] is not None and now - last["at"] >= BUSY_WINDOW:
+            share = (busy - last["busy"] - (cpu - last["cpu"])) / (now - last["at"])
+            last.update(at=now, cpu=cpu, busy=busy, share=max(share, 0.0))
+        return last["share"]
+
+
 def work_threads() -> int:
     """Threads for block-parallel array work (the regressor's blocks, the blockwise factorisations):
     :func:`blas_threads`, but no more than the cores the other processes leave idle: ``os.cpu_count()``
     less their load, rounded. Their load: the 1-minute load average without this process's own share
-    (:func:`_own_load`), and at most the threads running now (:func:`_running_now`), so that a process
-    that has just ended does not count for a minute. On 2 cores under a load of 14 the Gram product of
+    (:func:`_own_load`), at most the threads running now (:func:`_running_now`), so that a process
+    that has just ended does not count for a minute, and at most the cores they kept busy lately
+    (:func:`_busy_others`), so that one that runs for an instant does not count either. On 2 cores under a load of 14 the Gram product of
     30,000 x 496 took 2.3 s on 2 such threads and 1.8 s on 1 (threaded BLAS: 3.7 s, one BLAS thread
     1.2 s; ``benchmarks/bench_stream.py``); on idle cores 2 threads halve it. Read as another's, the
     load a process made itself or its predecessor left in the average kept it on one thread for a
@@ -104,8 +115,7 @@ def work_threads() -> int:
         others = max(os.getloadavg()[0] - _own_load(), 0.0)
     except OSError:  # no load average on this platform
         others = 0.0
-    running = _running_now()
-    others = others if running is None else min(others, running)
+    others = min([others] + [v for v in (_running_now(), _busy_others()) if v is not None])
     return max(1, min(limit, int((os.cpu_count() or 1) - others + 0.5)))
 
 
