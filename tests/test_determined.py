@@ -160,6 +160,41 @@ def test_checks_beside_the_drift_test_are_those_run_in_turn(estimator, robot, tm
     assert np.array_equal(results[0].cov, results[1].cov) and serial == beside
 
 
+@pytest.mark.parametrize("fallback", [False, True])
+def test_ml_noise_checks_started_at_convergence_are_those_at_the_weights_reported(fallback, tmp_path, monkeypatch):
+    """ML's noise Gram matrix starts as the fit converges, at its weights, beside the factor at them: on a random
+    planar robot's undesigned motion the result is the same, bit for bit, as with it formed after the estimate, and
+    when a fallback to WLS changes the weights (forced here) it is formed again at WLS's."""
+    from spaceid import _threads
+    from spaceid.estimation import _estimators, _identify
+
+    _, truth, h, log = _undesigned_planar_robot(tmp_path)
+    # (at 1e-6 the fit over all directions converges; at 1e-4 the data leave some undetermined)
+    noisy, noise = add_noise(log, angle=1e-6, rate=1e-6, seed=1), Noise(1e-6, 1e-6, 1e-6, 1e-6)
+    monkeypatch.setattr(_threads, "work_threads", lambda: 2)
+    if fallback:  # ML's estimate judged impossible, WLS's not
+        calls = iter([True, False])
+        monkeypatch.setattr(_identify, "_implausible_estimate",
+                            lambda *a, z=None, **k: (next(calls) and "impossible") if z else "")
+    fit = _estimators._ml_fit
+    results, started = [], []
+    for hooked in (True, False):
+        def ml_fit(*args, converged=None, hooked=hooked, **kw):
+            started.append(hooked and converged is not None)
+            return fit(*args, converged=converged if hooked else None, **kw)
+
+        monkeypatch.setattr(_estimators, "_ml_fit", ml_fit)
+        if fallback:
+            calls = iter([True, False])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            results.append(identify(truth, noisy, h, estimator="ml", noise=noise))
+    info = results[0].diagnostics.estimator_info
+    assert started[0] and info.get("converged")
+    assert str(info.get("fallback")).startswith("wls") == fallback
+    assert np.array_equal(results[0].cov, results[1].cov) and results[0].to_dict() == results[1].to_dict()
+
+
 @pytest.mark.parametrize("nominal", ["true", pytest.param("cad", marks=pytest.mark.slow)])
 def test_standard_errors_cover_an_undesigned_motion(nominal, tmp_path, monkeypatch):
     """A random 66-parameter robot on a random motion that leaves 5 directions undetermined: the

@@ -290,7 +290,7 @@ iteration at the 50th)."""
 
 
 def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, halvings=6, subspace=None,
-            stalled=None):
+            stalled=None, converged=None):
     """The maximum-likelihood iteration on the signals ``x (n, n_x)`` from the OLS ``theta``, given
 
     - ``evaluate(theta, previous, gradient)``: :func:`_ml_evaluate` (``previous`` the last accepted
@@ -327,7 +327,9 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     estimate when that one is physically possible). The estimate is then WLS when its objective is below
     the OLS start's, else OLS: ``info["fallback"]`` says which and why, and the objective is never
     worse than the start's. Converged, ``info`` holds the factor of the equations whitened at the estimate, the
-    whitener and the residuals (``factor``, ``whitener``, ``residuals``: the covariance's terms)."""
+    whitener and the residuals (``factor``, ``whitener``, ``residuals``: the covariance's terms); ``converged(theta,
+    L)`` (optional) is called first, with the estimate and the whitener (:func:`spaceid.estimation.identify` starts
+    its checks beside the factor)."""
     start_theta = theta
     now = evaluate(theta, None, True)
     f, start, scaled = now["f"], now["f"], factor(now["L"])
@@ -367,6 +369,8 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     info = {"iterations": it, "converged": reason is None, "objective_start": start, "objective_end": f,
             "fallback": None}  # fmt: skip
     if reason is None:
+        if converged is not None:
+            converged(theta, now["L"])
         return theta, info | {"factor": factor(now["L"]), "whitener": now["L"], "residuals": now["r"]}
     estimate = wls()
     f_wls = evaluate(estimate, None, False)["f"]

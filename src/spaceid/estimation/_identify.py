@@ -282,24 +282,27 @@ def _singular_values(factor) -> np.ndarray:
 
 
 def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimated: bool, chunk=None,
-              estimated_hook=None) -> _Fit:
+              on_estimate=None) -> _Fit:
     """The :class:`_Fit` of ``estimator`` (not yet checked for plausibility): ``theta``, the estimator's record
     and :func:`_reported_covariance`'s covariance, RMS and record, from the OLS start, streamed over chunks of
     ``chunk`` samples when given (:mod:`spaceid.estimation._stream`); raises ``LinAlgError`` when the estimate is
     not finite (as the factorisations do on singular systems), which :func:`identify` turns into a
-    ``SpaceidError``. ``estimated_hook(theta)``, if given, is called with the estimate before its covariance is
-    formed (:func:`identify` starts the drift test beside it)."""
+    ``SpaceidError``. ``on_estimate(theta, whitener)``, if given, is called with the estimate as soon as it is
+    known, before the work that follows (:func:`identify` starts checks beside it): ``ols``'s (no whitener) before
+    its covariance, ``ml``'s in memory once it converges, with its whitener, before the factor at its weights."""
     if chunk:
         theta, ginv = _solve_factor(*ctx.factor[::-1])
         info = {"ginv": ginv}
     else:
         theta, info = _ols(eq, x, sigma, None, ctx)
+    if estimator == "ols" and on_estimate is not None and np.all(np.isfinite(theta)):
+        on_estimate(theta, None)
     if estimator != "ols":
         ols_info = info
         theta, info = (streamed_estimate(eq, x, sigma, theta, estimator, ctx, chunk) if chunk else
                        _KERNELS[estimator](eq, x, sigma, theta, ctx,
-                                           **({"stalled": _undetermined_reason(eq, x, log, sigma, ctx)}
-                                              if estimator == "ml" else {})))  # fmt: skip
+                                           **({"stalled": _undetermined_reason(eq, x, log, sigma, ctx),
+                                               "converged": on_estimate} if estimator == "ml" else {})))  # fmt: skip
         fallback = str(info.get("fallback")).split(":")[0]  # ML failed: WLS or OLS, with their covariance
         if fallback in ("wls", "ols") and not chunk:
             theta, info = _ml_determined(eq, x, log, sigma, theta, ctx, info)
@@ -308,8 +311,6 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
             estimator, info = fallback, info | (ols_info if fallback == "ols" else {})
     if not np.all(np.isfinite(theta)):
         raise np.linalg.LinAlgError("the estimate is not finite")
-    if estimated_hook is not None:
-        estimated_hook(theta)
     if chunk:
         reported = streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimated, chunk)
         info["chunk"] = chunk
@@ -677,16 +678,19 @@ def identify(
         raise SpaceidError("`drift`: not available with `estimator` angles (its equations do not carry drift "
                            "columns): use another estimator, or no drift terms")
     chunk = None if chunk is None else check_chunk(chunk, estimator)
-    # the checks beside the work before them: ols's noise Gram matrix (it needs no estimate) beside the equations and
-    # the estimate, and on a second worker the drift test beside the covariance; the others' beside the drift test
-    early = estimator == "ols" and not chunk and not gyro_bias
+    # the checks beside the work before them. ols's need no estimate: its noise Gram matrix starts beside the equations
+    # and, on a second worker, its drift test beside the covariance. ml's noise Gram matrix starts once it converges,
+    # beside the factor at its weights (again after it, should a fallback change them). The others' checks start
+    # after the estimate, beside the drift test.
+    early, converging = estimator == "ols" and not chunk and not gyro_bias, estimator == "ml" and not chunk
     try:
         with contextlib.ExitStack() as beside:
-            submit = beside.enter_context(side_by_side(2)) if early else None
+            submit = beside.enter_context(side_by_side(2 if early else 1)) if early or converging else None
             jobs = {}
 
-            def noise_beside(eq, x, sigma):
-                jobs["gram"] = _noise_gram(submit, eq, x, sigma, None, estimator, log, None, drift)
+            def noise_beside(eq, x, sigma, theta=None, whitener=None):
+                jobs["gram"], jobs["weights"] = _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener,
+                                                            drift), whitener
 
             prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
                              cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
@@ -697,12 +701,16 @@ def identify(
                 prep.sigma, prep.start)
             angles = ctx.angles
 
-            def drift_beside(theta):  # (ols: no whitener, the excitation check's factor)
-                jobs["drift"] = submit(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, None, None,
-                                       jobs["gram"].result, _factor_gram(factor))
+            def on_estimate(theta, whitener):
+                if early:  # (ols: no whitener, the excitation check's factor)
+                    jobs["drift"] = submit(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, None,
+                                           None, jobs["gram"].result, _factor_gram(factor))
+                else:
+                    noise_beside(eq, x, sigma, theta, whitener)
 
             fit = (_angles_estimate(eq, x, log, sigma, ctx, estimated, start) if angles is not None else
-                   _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk, drift_beside if early else None))
+                   _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk,
+                             on_estimate if early or converging else None))
             if gyro_bias:
                 fit = gyro_bias.fused(eq, fit)
             nominal = np.concatenate([param.true_values[eq.free], fit.theta[len(eq.free):]])
@@ -715,10 +723,9 @@ def identify(
             # the factor of the columns whitened as the checks take them (ols: the excitation check's; ml: its bread's)
             white_factor = (*factor, cond_scaled) if estimator == "ols" else _whitened_factor(info.pop("whitened_factor",
                                                                                                        None))
-            if not early:
-                submit = beside.enter_context(side_by_side())
-                if not chunk and estimator != "angles":
-                    jobs["gram"] = _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, drift)
+            submit = submit or beside.enter_context(side_by_side())
+            if not chunk and estimator != "angles" and not ("gram" in jobs and jobs["weights"] is whitener):
+                noise_beside(eq, x, sigma, theta, whitener)
             if "gram" in jobs:
                 jobs["directions"] = submit(lambda: undetermined_directions(
                     eq, x, phi, sigma, theta, estimator, log, whitener, jobs["gram"].result()[: eq.p, : eq.p],
