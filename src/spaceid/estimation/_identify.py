@@ -731,6 +731,7 @@ def identify(
                     eq, x, phi, sigma, theta, estimator, log, whitener, jobs["gram"].result()[: eq.p, : eq.p],
                     white_factor))
             s = _singular_values(factor)
+            scale = log_momentum_scale(param, log, regressor=_log_regressor(eq, phi, estimator))  # (while ols waits)
             drift_record, drift_warning = jobs["drift"].result() if early else _drift_check(
                 eq, x, phi, sigma, theta, estimator, log, drift, where, whitener, chunk,
                 jobs["gram"].result if "gram" in jobs else None, _factor_gram(white_factor))
@@ -796,6 +797,6 @@ def identify(
         condition_number=float(s[0] / s[-1]) if s[-1] > 0 else np.inf, singular_values=s, residual_rms=fit.rms,
         n_samples=log.n_samples, estimator=estimator, momentum=h, model=param.model.source or param.model.name,
         planar=param.model.planar, settings=settings, units=param.units, drift=terms, momentum_std=h_std,
-        diagnostics=diagnostics, scale=log_momentum_scale(param, log, regressor=_log_regressor(eq, phi, estimator)),
+        diagnostics=diagnostics, scale=scale,
         gyro_bias=gyro_bias.terms(eq, theta, fit.cov) if gyro_bias else (),
     )
