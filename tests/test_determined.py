@@ -98,7 +98,8 @@ def test_ml_over_all_directions_stops_early_where_the_data_leave_some_undetermin
     """Over all 66 directions of that motion ML had crept on to its 50th iteration before falling back (the
     likelihood has no maximum along the 5 the data do not determine); not converged after ``STALL_CHECK``
     iterations it asks, and stops. The fit over the others starts from the same fallback: the result is the
-    same, bit for bit, as when it ran on."""
+    same, bit for bit, as when it ran on. The ratios that stopped it are those at the fallback (WLS's estimate
+    here), from which the fit over the others starts: formed once, not again for that fit."""
     from spaceid.estimation import _estimators as estimate
     from spaceid.estimation import _identify
 
@@ -112,6 +113,8 @@ def test_ml_over_all_directions_stops_early_where_the_data_leave_some_undetermin
         return out
 
     monkeypatch.setattr(estimate, "_ml_fit", recorded)
+    ratios, formed = _identify.noise_ratios, []
+    monkeypatch.setattr(_identify, "noise_ratios", lambda *args: formed.append(args[5]) or ratios(*args))
     results = []
     for ask in (True, False):
         if not ask:
@@ -121,6 +124,7 @@ def test_ml_over_all_directions_stops_early_where_the_data_leave_some_undetermin
             results.append(identify(truth, noisy, h, noise=noise))
     (over_all, iterations, why), held = fits[0], fits[1]
     assert over_all and iterations == estimate.STALL_CHECK and re.search("do not determine [1-9][0-9]* of 66", why)
+    assert len(formed) == 2  # once as it stops (at the fallback, WLS here), once in the run without the check
     assert not held[0] and fits[2][:2] == (True, 50) and fits[3] == held
     assert np.array_equal(results[0].values, results[1].values) and np.array_equal(results[0].cov, results[1].cov)
 

@@ -58,6 +58,7 @@ References
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -315,8 +316,8 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     standard error (or 1e-9 relative: the finite differences leave a jitter of ~1e-10) and the
     objective changed by less than ``ftol`` relative: the estimate is then within about ``tol``
     standard errors of the fixed point. Not converged after :data:`STALL_CHECK` iterations, it stops when
-    ``stalled(theta)`` (optional) gives a reason at the estimate reached (directions the data do not
-    determine), as when it does not converge.
+    ``stalled(theta)`` (optional) gives a reason at the estimate it would report on failing (below; directions
+    the data do not determine, which the iterate itself runs off along), as when it does not converge.
 
     When it does not converge (``max_iter`` reached, or the line search stalls) the iterates are
     not reported, whatever their objective: with a wrong noise model the objective can keep
@@ -331,6 +332,13 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     L)`` (optional) is called first, with the estimate and the whitener (:func:`spaceid.estimation.identify` starts
     its checks beside the factor)."""
     start_theta = theta
+
+    @functools.cache
+    def fallback():  # the estimate reported on failing, WLS's or the OLS start's, and WLS's objective
+        estimate = wls()
+        f_wls = evaluate(estimate, None, False)["f"]
+        return (estimate if f_wls < start else start_theta), f_wls
+
     now = evaluate(theta, None, True)
     f, start, scaled = now["f"], now["f"], factor(now["L"])
     solve = _gram_solver(scaled, subspace)[0]
@@ -338,7 +346,7 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     history, small, reason, damping = [], False, None, 1.0
     for it in range(1, max_iter + 1):
         if it == STALL_CHECK + 1 and stalled is not None:
-            why = stalled(theta)
+            why = stalled(fallback()[0])
             if why:
                 reason, it = f"had not converged after {STALL_CHECK} iterations, and {why}", STALL_CHECK
                 break
@@ -372,8 +380,7 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
         if converged is not None:
             converged(theta, now["L"])
         return theta, info | {"factor": factor(now["L"]), "whitener": now["L"], "residuals": now["r"]}
-    estimate = wls()
-    f_wls = evaluate(estimate, None, False)["f"]
+    estimate, f_wls = fallback()
     info["objective_end"] = min(f_wls, start)
     if f_wls < start:
         info["fallback"] = (f"wls: maximum likelihood {reason} (objective {f:.4g}, from {start:.4g} at the OLS start); "
