@@ -58,11 +58,13 @@ WARM_CHECK = """
 import numpy as np
 import spaceid
 from spaceid.dynamics import _kernels
+from spaceid.dynamics._momentum_jacobian import momentum_jacobian
 from spaceid.dynamics._regressor import _random_states
 from spaceid.motion import _attitude, simulate
 from spaceid.studies import predict, warm_spatial_kernels
 
-kernels = (_kernels._momentum_of_states, _kernels._tangent_columns, _attitude.collocation_steps)  # (its stage rate inlined)
+kernels = (_kernels._momentum_of_states, _kernels._tangent_columns, _attitude.collocation_steps,  # (its stage rate inlined)
+           _kernels._frame_tangents, _kernels._joint_jacobian)
 assert not any(k.signatures for k in kernels)
 warm_spatial_kernels()
 warmed = [list(k.signatures) for k in kernels]
@@ -73,6 +75,10 @@ log = simulate(param, param.true_values, lambda t: (np.sin(t)[:, None] * np.ones
                np.linspace(0, 2, 40), np.array([0.5, 0.1, -0.2]), model=param.model)
 predict("satellite-7dof", log.t, log.q, log.qd, momentum=np.array([0.5, 0.1, -0.2]))
 param.linearized_regressor(q, qd, w0, (qd, q, w0), step=1e-6, primal=False)
+# ml's: the weights' derivative along signals sliced out of a wider array (as the equations unpack them), the Jacobian
+x = np.hstack([q, qd, w0])
+param.contracted_tangent(q, qd, w0, (x[:, :7], x[:, 7:14], x[:, 14:]), x[:, :3], step=1e-6)
+momentum_jacobian(param, q, qd, w0, param.true_values)
 assert [list(k.signatures) for k in kernels] == warmed and all(len(s) == 1 for s in warmed), warmed
 print("ok")
 """
@@ -80,7 +86,8 @@ print("ok")
 
 def test_demo_warms_the_spatial_kernels_with_the_signatures_the_commands_use():
     """``warm_spatial_kernels`` (the end of ``spaceid demo``, the install step) runs the kernels only spatial
-    robots' commands call (the momentum, the attitude's collocation steps, the linearised regressor),
+    robots' commands call (the momentum, the attitude's collocation steps, the linearised regressor, its contracted
+    derivative and the momentum's Jacobian),
     each with the one signature that a spatial simulation, prediction and linearisation then use: a fresh
     process compiles nothing more after it (another signature would compile the kernel again, seconds)."""
     import os

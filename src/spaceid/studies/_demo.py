@@ -22,6 +22,7 @@ from ..data import write_json, write_log
 from ..models import PRESETS, load_model
 from ..estimation import Noise
 from ..dynamics import minimal_parameters
+from ..dynamics._momentum_jacobian import momentum_jacobian
 from ..motion import add_noise, simulate
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ._validate import validate
@@ -126,10 +127,11 @@ def run_demo(
 def warm_spatial_kernels() -> None:
     """Compile the kernels that the commands on spatial robots call and the Cepheus study does not (or load
     them from Numba's cache): the momentum of the re-simulation, the attitude's collocation steps and their
-    stage rate, and the linearised regressor (``monitor``), each once on a few samples of the satellite-7dof
-    preset, whose minimal set is cached on the way. ``spaceid demo`` ends with it, so that a first spatial
-    command compiles nothing (about 3 s of CPU on fresh caches; 0.7 s on warm ones, mostly loading the
-    kernels)."""
+    stage rate, the linearised regressor (``monitor``), its contracted derivative and the momentum's Jacobian
+    (``ml``; Cepheus's study calls the last too), each once on a few
+    samples of the satellite-7dof preset, whose minimal set is cached on the way. ``spaceid demo`` ends with it,
+    so that a first spatial command compiles nothing (about 3 s of CPU on fresh caches; 0.7 s on warm ones,
+    mostly loading the kernels; a kernel left out cost the first spatial ``identify`` 0.5 s)."""
     model = load_model("satellite-7dof")
     param = minimal_parameters(model)
     n = len(model.joints)
@@ -140,6 +142,9 @@ def warm_spatial_kernels() -> None:
 
     log = simulate(param, param.true_values, motion, times, np.array([0.1, -0.2, 0.3]), model=model)
     param.linearized_regressor(log.q, log.qd, log.base_w, (log.qd, log.qd, log.base_w), step=1e-6)
+    param.contracted_tangent(log.q, log.qd, log.base_w, (log.qd, log.qd, log.base_w), np.ones((len(log.t), 3)),
+                             step=1e-6)  # ml's weights' derivative
+    momentum_jacobian(param, log.q, log.qd, log.base_w, param.true_values)  # and its signal Jacobian
 
 
 def warm_preset_sets(presets=PRESETS) -> None:
