@@ -96,12 +96,16 @@ def _frame_blocks(parents, revolute, joints, q, qd, w0, table, omega, spin):
 
 
 @kernel
-def _frame_tangents(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, table, d_table, spin, d_spin):
-    """:func:`_frame_blocks`'s pose and rate rows and body-axes rates of the samples ``q, qd (m, n_joints)``, ``w0
-    (m, 3)`` into ``table (3, 8 n_bodies, m)`` and ``spin (3, n_bodies, m)`` (one block), and their derivatives
-    along ``(dq, dqd, dw0)`` (shaped alike) by central differences of steps ``eps (m,)`` into ``d_table`` and
-    ``d_spin``: three kinematics a sample, the states and differences formed as NumPy forms them."""
-    m, nj, n_rows, nb = q.shape[0], q.shape[1], table.shape[1], spin.shape[1]
+def _contracted_rows(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, u, d_table, crossed, tu, dtu, spin,
+                     d_spin):
+    """What :func:`spaceid.dynamics._regressor._contracted_tangent` contracts, for the samples ``q, qd (m,
+    n_joints)``, ``w0 (m, 3)`` and their weights ``u (m, 3)``: the derivatives ``d_table (3, 8 n_bodies, m)`` of
+    :func:`_frame_blocks`'s pose and rate rows ``T`` along ``(dq, dqd, dw0)`` by central differences of steps ``eps
+    (m,)``, the rows crossed with the weights ``crossed`` (``T x u``, shaped alike), their products with the
+    weights ``tu`` and ``dtu (8 n_bodies, m)`` (``u . T``, ``u . dT``), and the body-axes rates ``spin (3, n_bodies,
+    m)`` with their derivatives ``d_spin``: three kinematics a sample, the states and sums formed as NumPy
+    forms them (the results are NumPy's bit for bit)."""
+    m, nj, n_rows, nb = q.shape[0], q.shape[1], d_table.shape[1], spin.shape[1]
     frames, sp = np.empty((3, _CHUNK, n_rows, 3)), np.empty((3, _CHUNK, nb, 3))
     om, work, qs, qds, ws = np.empty((nb, 3)), np.empty((5, 3)), np.empty(nj), np.empty(nj), np.empty(3)
     for start in range(0, m, _CHUNK):
@@ -116,11 +120,19 @@ def _frame_tangents(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, tab
                     ws[r] = w0[n, r] + sign * eps[n] * dw0[n, r]
                 _sample_frames(parents, revolute, joints, qs, qds, ws, frames[i, s], om, sp[i, s], work)
             _sample_frames(parents, revolute, joints, q[n], qd[n], w0[n], frames[2, s], om, sp[2, s], work)
-        for r in range(3):  # samples last, each row written in order
-            for k in range(n_rows):
-                for s in range(c):
-                    table[r, k, start + s] = frames[2, s, k, r]
-                    d_table[r, k, start + s] = (frames[0, s, k, r] - frames[1, s, k, r]) / (2 * eps[start + s])
+        for k in range(n_rows):  # samples last, each row written in order
+            for s in range(c):
+                n, t = start + s, frames[2, s, k]
+                d0 = (frames[0, s, k, 0] - frames[1, s, k, 0]) / (2 * eps[n])
+                d1 = (frames[0, s, k, 1] - frames[1, s, k, 1]) / (2 * eps[n])
+                d2 = (frames[0, s, k, 2] - frames[1, s, k, 2]) / (2 * eps[n])
+                d_table[0, k, n], d_table[1, k, n], d_table[2, k, n] = d0, d1, d2
+                crossed[0, k, n] = t[1] * u[n, 2] - t[2] * u[n, 1]
+                crossed[1, k, n] = t[2] * u[n, 0] - t[0] * u[n, 2]
+                crossed[2, k, n] = t[0] * u[n, 1] - t[1] * u[n, 0]
+                tu[k, n] = u[n, 0] * t[0] + u[n, 1] * t[1] + u[n, 2] * t[2]
+                dtu[k, n] = u[n, 0] * d0 + u[n, 1] * d1 + u[n, 2] * d2
+        for r in range(3):
             for b in range(nb):
                 for s in range(c):
                     spin[r, b, start + s] = sp[2, s, b, r]
@@ -229,6 +241,38 @@ def _tangent_columns(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, pr
             x1, y1, z1 = _column(rate, rows, c)
             x2, y2, z2 = _column(pose, rows, c)
             out[n, 0, c], out[n, 1, c], out[n, 2, c] = x1 + x2, y1 + y2, z1 + z2
+
+
+@kernel
+def _body_features(S, U, Z, V, K, omega, features):
+    """The per-body sums ``features (n_bodies, 45, m)`` of :func:`spaceid.dynamics._momentum_jacobian._chunk_jacobian`
+    from the pose and rate rows ``S, U (n_bodies, 4, 3, m)``, their weighted sums ``Z = W S`` and ``V = W U``, the
+    bodies' rotor inertias in their own axes ``K (n_bodies, 3, 3)`` and angular velocities ``omega (3, n_bodies,
+    m)``: entries ``3 x + y`` of ``S V^T``, ``S Z^T`` and ``U Z^T`` summed over each body's four rows, of ``I = R K
+    R^T`` (``R`` the body's axes, rows 1 to 3 of ``S``), then ``I w``, ``V_0`` and ``Z_0``; samples innermost."""
+    nb, m = S.shape[0], S.shape[3]
+    for b in range(nb):
+        for x in range(3):
+            for y in range(3):
+                k = 3 * x + y
+                for n in range(m):
+                    sv = sz = uz = 0.0
+                    for f in range(4):
+                        sv += S[b, f, x, n] * V[b, f, y, n]
+                        sz += S[b, f, x, n] * Z[b, f, y, n]
+                        uz += U[b, f, x, n] * Z[b, f, y, n]
+                    features[b, k, n], features[b, 9 + k, n], features[b, 18 + k, n] = sv, sz, uz
+                    inertia = 0.0
+                    for i in range(3):
+                        for j in range(3):
+                            inertia += S[b, 1 + i, x, n] * K[b, i, j] * S[b, 1 + j, y, n]
+                    features[b, 27 + k, n] = inertia
+        for x in range(3):
+            for n in range(m):
+                features[b, 36 + x, n] = (features[b, 27 + 3 * x, n] * omega[0, b, n]
+                                          + features[b, 28 + 3 * x, n] * omega[1, b, n]
+                                          + features[b, 29 + 3 * x, n] * omega[2, b, n])  # fmt: skip
+                features[b, 39 + x, n], features[b, 42 + x, n] = V[b, 0, x, n], Z[b, 0, x, n]
 
 
 @kernel

@@ -25,7 +25,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._threads import one_blas_thread
-from ._kernels import _joint_jacobian
+from ._kernels import _body_features, _joint_jacobian
 from ._kinematics import _constants, _flatten_states, _Geometry, frame_table
 from ._regressor import Parameterization
 
@@ -60,12 +60,6 @@ def _weights(param: Parameterization, pi):
     return W, K
 
 
-def _products(a, b):
-    """``sum_f a_f b_f^T`` over the four rows of each body: ``(n_bodies, 9, m)`` (entry ``3 x + y``)
-    from ``(n_bodies, 4, 3, m)`` tables."""
-    return np.einsum("bfxm,bfym->bxym", a, b).reshape(len(a), 9, -1)  # one pass: nine products and sums took 3.5x
-
-
 def _chunk_jacobian(model, steps, path, W, K, q, qd, w0):
     """:func:`momentum_jacobian` of ``m`` samples: ``(m, 3, 2 n_joints + 3)``."""
     nb, nj, m = len(model.bodies), len(steps), len(q)
@@ -74,11 +68,8 @@ def _chunk_jacobian(model, steps, path, W, K, q, qd, w0):
     table = np.ascontiguousarray(ft.table[0].transpose(1, 2, 3, 0, 4)).reshape(2, 4 * nb, 3 * m)
     S, U = table.reshape(2, nb, 4, 3, m)
     Z, V = (W @ table).reshape(2, nb, 4, 3, m)
-    rot = S[:, 1:]  # (nb, 3 axes, 3, m): R_b e_k
-    inertia = np.einsum("bkxm,bkl,blym->bxym", rot, K, rot)  # I_b in base axes
-    omega = ft.omega[0].transpose(1, 0, 2)  # (nb, 3, m)
-    features = np.concatenate([_products(S, V), _products(S, Z), _products(U, Z), inertia.reshape(nb, 9, m),
-                               np.einsum("bxym,bym->bxm", inertia, omega), V[:, 0], Z[:, 0]], 1)  # fmt: skip
+    features = np.empty((nb, 45, m))  # the per-body sums (S V^T, S Z^T, U Z^T, I, I w, V_0, Z_0), compiled
+    _body_features(S, U, Z, V, K, ft.omega[0], features)
     summed = (path.T @ features.reshape(nb, -1)).reshape(nj, -1, m)  # over each joint's subtree
     jac = np.empty((m, 3, 2 * nj + 3))
     local = np.array([s[2][10] for s in steps]).reshape(nj, 3)  # joint axes in parent axes

@@ -46,7 +46,8 @@ from .._cache import cache_key, read_cached, write_cached
 from .._errors import SpaceidError
 from .._threads import one_blas_thread, work_threads
 from ._definitions import column_definitions, planar_definitions
-from ._kernels import _columns_of_states, _frame_tangents, _momentum_of_states, _tangent_columns
+from ._kernels import _columns_of_states, _momentum_of_states, _tangent_columns
+from ._kernels import _contracted_rows
 from ._kinematics import FrameTable, _flatten_states, _Geometry, _joint_arrays, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
 from ..models.internal import symbol_suffix
@@ -316,16 +317,16 @@ def _steps(direction, step: float) -> np.ndarray:
     return step / np.where(size > 0, size, 1.0)
 
 
-def _frame_derivative(model: Model, states, step: float):
-    """The pose and rate rows ``(3, 8 n_bodies, m)`` and body-axes rates ``(3, n_bodies, m)`` of ``states = [q, qd,
-    w0, dq, dqd, dw0]`` (each ``(m, .)``) at ``(q, qd, w0)``, and their derivatives along ``(dq, dqd, dw0)``, by
-    central differences (:func:`_steps`) in one compiled pass (three kinematics a sample)."""
+def _contracted_frames(model: Model, states, weights, step: float) -> tuple:
+    """:func:`~spaceid.dynamics._kernels._contracted_rows` of ``states = [q, qd, w0, dq, dqd, dw0]`` (each ``(m,
+    .)``) and ``weights (m, 3)``, the central differences' steps from :func:`_steps`: ``(d_table, crossed, tu, dtu,
+    spin, d_spin)``."""
     m, nb = len(states[0]), len(model.bodies)
-    table, d_table, spin, d_spin = np.empty((3, 8 * nb, m)), np.empty((3, 8 * nb, m)), np.empty((3, nb, m)), \
-        np.empty((3, nb, m))
-    _frame_tangents(*_joint_arrays(_Geometry(model)), *(np.ascontiguousarray(a, float) for a in states),
-                    _steps(states[3:], step), table, d_table, spin, d_spin)
-    return table, d_table, spin, d_spin
+    out = [np.empty((3, 8 * nb, m)), np.empty((3, 8 * nb, m)), np.empty((8 * nb, m)), np.empty((8 * nb, m)),
+           np.empty((3, nb, m)), np.empty((3, nb, m))]  # fmt: skip
+    _contracted_rows(*_joint_arrays(_Geometry(model)), *(np.ascontiguousarray(a, float) for a in states),
+                     _steps(states[3:], step), np.ascontiguousarray(weights, float), *out)
+    return tuple(out)
 
 
 def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights, step: float, group: int = 1024):
@@ -351,12 +352,11 @@ def _contracted_tangent(model: Model, plan: _Plan, q, qd, w0, direction, weights
             part = slice(start, start + group)
             states = [np.asarray(a, float)[part] for a in (q, qd, w0, *direction)]
             m = len(states[0])
-            t, dt, spin, d_spin = _frame_derivative(model, states, step)
-            u = np.asarray(weights, float)[part].T[:, None]  # (3, 1, m)
+            dt, crossed, tu, dtu, spin, d_spin = _contracted_frames(model, states, np.asarray(weights)[part], step)
             for r in range(3):
-                G += dt[r] @ (t[(r + 1) % 3] * u[(r + 2) % 3] - t[(r + 2) % 3] * u[(r + 1) % 3]).T  # dT . (T x u)
-            P += (u * dt).sum(0) @ spin.reshape(3 * nb, m).T
-            P += (u * t).sum(0) @ d_spin.reshape(3 * nb, m).T
+                G += dt[r] @ crossed[r].T  # dT . (T x u)
+            P += dtu @ spin.reshape(3 * nb, m).T
+            P += tu @ d_spin.reshape(3 * nb, m).T
     rows = plan.rows[plan.pair_at].T  # the table rows of X1, Y1, X2, Y2
     out = np.empty(plan.n_cols)
     out[plan.pair_at] = (G - G.T)[rows[0], rows[1]] + (G - G.T)[rows[2], rows[3]]

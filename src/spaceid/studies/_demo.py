@@ -21,8 +21,7 @@ from ..estimation import Identification, identify
 from ..data import write_json, write_log
 from ..models import PRESETS, load_model
 from ..estimation import Noise
-from ..dynamics import minimal_parameters
-from ..dynamics._momentum_jacobian import momentum_jacobian
+from ..dynamics import minimal_parameters, momentum_jacobian
 from ..motion import add_noise, simulate
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ._validate import validate
