@@ -63,7 +63,8 @@ from spaceid.dynamics._regressor import _random_states
 from spaceid.motion import _attitude, simulate
 from spaceid.studies import predict, warm_spatial_kernels
 
-kernels = (_kernels._momentum_of_states, _kernels._tangent_columns, _attitude.collocation_steps,  # (its stage rate inlined)
+kernels = (_kernels._momentum_of_states, _kernels._tangent_columns,
+           _attitude.collocation_steps,  # (its stage rate inlined)
            _kernels._contracted_rows, _kernels._joint_jacobian, _kernels._body_features)
 assert not any(k.signatures for k in kernels)
 warm_spatial_kernels()

@@ -101,9 +101,10 @@ def work_threads() -> int:
     less their load, rounded. Their load: the 1-minute load average without this process's own share
     (:func:`_own_load`), at most the threads running now (:func:`_running_now`), so that a process
     that has just ended does not count for a minute, and at most the cores they kept busy lately
-    (:func:`_busy_others`), so that one that runs for an instant does not count either. On 2 cores under a load of 14 the Gram product of
-    30,000 x 496 took 2.3 s on 2 such threads and 1.8 s on 1 (threaded BLAS: 3.7 s, one BLAS thread
-    1.2 s; ``benchmarks/bench_stream.py``); on idle cores 2 threads halve it. Read as another's, the
+    (:func:`_busy_others`), so that one that runs for an instant does not count either. On 2 cores
+    under a load of 14 the Gram product of 30,000 x 496 took 2.3 s on 2 such threads and 1.8 s on 1
+    (threaded BLAS: 3.7 s, one BLAS thread 1.2 s; ``benchmarks/bench_stream.py``); on idle cores 2
+    threads halve it. Read as another's, the
     load a process made itself or its predecessor left in the average kept it on one thread for a
     minute on 2 idle cores (10,000 servicer samples identified in a row: ``benchmarks/bench_ml.py``). In a
     :func:`side_by_side` block, the caller's thread keeps the threads it had on entering it (BLAS's one thread
@@ -146,7 +147,7 @@ def side_by_side(workers: int = 1):
     in submission order on ``workers`` threads beside the caller when the machine leaves it an idle core
     (:func:`work_threads`), else at once in the caller. Array work releases the GIL, so independent computations
     then take the longest one's time, not their sum; each is the same computation either way, so the results are
-    bit-identical. A job that needs another's result waits in the queue, not on a worker, when submitted after it.
+    bit-identical. A job that waits on another's result holds its worker meanwhile: submit it after that one.
     BLAS runs on one thread in the block (nested :func:`one_blas_thread` then restore one thread, whichever thread
     leaves last); leaving it waits for the workers."""
     threads = work_threads()  # before the limit below, which it follows

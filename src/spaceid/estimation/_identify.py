@@ -270,7 +270,8 @@ def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, drift):
     columns with the drift test's candidates (none when ``drift`` is modelled), whitened by the estimator's
     ``whitener`` (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``): formed
     once, for the undetermined directions and the drift test."""
-    return submit(equation_noise, eq, x, sigma, theta, estimator, log, whitener, None if drift else drift_columns(eq, log))
+    columns = None if drift else drift_columns(eq, log)
+    return submit(equation_noise, eq, x, sigma, theta, estimator, log, whitener, columns)
 
 
 def _singular_values(factor) -> np.ndarray:
@@ -727,8 +728,8 @@ def identify(
             theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
             whitener = info.pop("whitener", None)
             # the factor of the columns whitened as the checks take them (ols: the excitation check's; ml: its bread's)
-            white_factor = (*factor, cond_scaled) if estimator == "ols" else _whitened_factor(info.pop("whitened_factor",
-                                                                                                       None))
+            white_factor = ((*factor, cond_scaled) if estimator == "ols" else
+                            _whitened_factor(info.pop("whitened_factor", None)))
             submit = submit or beside.enter_context(side_by_side())
             if not chunk and estimator != "angles" and not ("gram" in jobs and jobs["weights"] is whitener):
                 noise_beside(eq, x, sigma, theta, whitener)
