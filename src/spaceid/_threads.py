@@ -104,11 +104,10 @@ def work_threads() -> int:
     (:func:`_busy_others`), so that one that runs for an instant does not count either. On 2 cores
     under a load of 14 the Gram product of 30,000 x 496 took 2.3 s on 2 such threads and 1.8 s on 1
     (threaded BLAS: 3.7 s, one BLAS thread 1.2 s; ``benchmarks/bench_stream.py``); on idle cores 2
-    threads halve it. Read as another's, the
-    load a process made itself or its predecessor left in the average kept it on one thread for a
-    minute on 2 idle cores (10,000 servicer samples identified in a row: ``benchmarks/bench_ml.py``). In a
-    :func:`side_by_side` block, the caller's thread keeps the threads it had on entering it (BLAS's one thread
-    there is the block's own limit), its workers one."""
+    threads halve it. Read as another's, the load a process made itself or its predecessor left in the
+    average kept it on one thread for a minute on 2 idle cores (10,000 servicer samples identified in a
+    row: ``benchmarks/bench_ml.py``). In a :func:`side_by_side` block, the caller's thread keeps the
+    threads it had on entering it (BLAS's one thread there is the block's own limit), its workers one."""
     limit = blas_threads()
     if limit == 1:  # (the load need not be read)
         return getattr(_caller, "threads", 1)

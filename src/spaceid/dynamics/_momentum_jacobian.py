@@ -26,7 +26,7 @@ import numpy as np
 
 from .._threads import one_blas_thread
 from ._kernels import _body_features, _joint_jacobian
-from ._kinematics import _constants, _flatten_states, _Geometry, frame_table
+from ._kinematics import _constants, _flatten_states, _Geometry, _joint_arrays, frame_table
 from ._regressor import Parameterization
 
 __all__ = ["momentum_jacobian"]
@@ -72,9 +72,9 @@ def _chunk_jacobian(model, steps, path, W, K, q, qd, w0):
     _body_features(S, U, Z, V, K, ft.omega[0], features)
     summed = (path.T @ features.reshape(nb, -1)).reshape(nj, -1, m)  # over each joint's subtree
     jac = np.empty((m, 3, 2 * nj + 3))
-    local = np.array([s[2][10] for s in steps]).reshape(nj, 3)  # joint axes in parent axes
-    _joint_jacobian(features, summed, S, U, ft.omega[0], local, np.array([s[0] for s in steps], np.int64),
-                    np.array([s[1] for s in steps], bool), jac)
+    parents, revolute, joints = _joint_arrays(_Geometry(model))
+    local = np.ascontiguousarray(joints[:, :, 10])  # joint axes in parent axes
+    _joint_jacobian(features, summed, S, U, ft.omega[0], local, parents, revolute, jac)
     return jac
 
 

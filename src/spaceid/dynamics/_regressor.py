@@ -46,8 +46,7 @@ from .._cache import cache_key, read_cached, write_cached
 from .._errors import SpaceidError
 from .._threads import one_blas_thread, work_threads
 from ._definitions import column_definitions, planar_definitions
-from ._kernels import _columns_of_states, _momentum_of_states, _tangent_columns
-from ._kernels import _contracted_rows
+from ._kernels import _columns_of_states, _contracted_rows, _momentum_of_states, _tangent_columns
 from ._kinematics import FrameTable, _flatten_states, _Geometry, _joint_arrays, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
 from ..models.internal import symbol_suffix

@@ -127,10 +127,10 @@ def warm_spatial_kernels() -> None:
     """Compile the kernels that the commands on spatial robots call and the Cepheus study does not (or load
     them from Numba's cache): the momentum of the re-simulation, the attitude's collocation steps and their
     stage rate, the linearised regressor (``monitor``), its contracted derivative and the momentum's Jacobian
-    (``ml``; Cepheus's study calls the last too), each once on a few
-    samples of the satellite-7dof preset, whose minimal set is cached on the way. ``spaceid demo`` ends with it,
-    so that a first spatial command compiles nothing (about 3 s of CPU on fresh caches; 0.7 s on warm ones,
-    mostly loading the kernels; a kernel left out cost the first spatial ``identify`` 0.5 s)."""
+    (``ml``; Cepheus's study calls the last too), each once on a few samples of the satellite-7dof preset, whose
+    minimal set is cached on the way. ``spaceid demo`` ends with it, so that a first spatial command compiles
+    nothing (about 3 s of CPU on fresh caches; 0.7 s on warm ones, mostly loading the kernels; a kernel left out
+    cost the first spatial ``identify`` 0.5 s)."""
     model = load_model("satellite-7dof")
     param = minimal_parameters(model)
     n = len(model.joints)
