@@ -1,6 +1,7 @@
 """The command line end to end on a temporary directory, and its handling of bad input."""
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -327,3 +328,19 @@ def test_simulate_base_position_feeds_identify_com(tmp_path):
     com = json.loads((tmp_path / "r.json").read_text())["com"]
     np.testing.assert_allclose(com["inertial_com"], 0.0, atol=1e-9)  # the simulated CM is the origin
     assert com["residual_rms"] < 1e-9
+
+
+def test_the_program_ends_with_its_output_exit_handlers_and_exit_code(tmp_path):
+    """``spaceid`` (:func:`spaceid.cli.run`) ends its process without the interpreter's teardown: the output,
+    the exit handlers' (printed to a pipe, block-buffered: lost unless flushed) and the exit code all arrive; bad
+    input still ends with exit code 2 and its one error line."""
+    program = ("import atexit, sys\nfrom spaceid.cli import run\n"
+               "atexit.register(lambda: print('handler ran'))\nrun(sys.argv[1:])")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    ok = subprocess.run([sys.executable, "-c", program, "model", "cepheus"], capture_output=True, text=True,
+                        cwd=tmp_path, env=env, timeout=120, check=False)
+    assert ok.returncode == 0 and not ok.stderr
+    assert ok.stdout.startswith("cepheus") and ok.stdout.endswith("Izz_link2\nhandler ran\n")
+    bad = subprocess.run([sys.executable, "-c", program, "model", "no-such-robot"], capture_output=True, text=True,
+                         cwd=tmp_path, env=env, timeout=120, check=False)
+    assert bad.returncode == 2 and bad.stderr.startswith("error: ") and bad.stdout == "handler ran\n"
