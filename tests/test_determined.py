@@ -164,6 +164,43 @@ def test_checks_beside_the_drift_test_are_those_run_in_turn(estimator, robot, tm
     assert np.array_equal(results[0].cov, results[1].cov) and serial == beside
 
 
+@pytest.mark.parametrize("estimator", ["ols", "wls"])
+@pytest.mark.parametrize("robot", [_undesigned_robot, _undesigned_planar_robot])
+def test_noise_gram_is_the_same_on_one_thread_and_on_two(estimator, robot, tmp_path, monkeypatch):
+    """The noise Gram matrix sums its samples in fixed parts, in order: shared by two threads (where two are free)
+    it is the same, bit for bit, as on one, with and without the drift test's columns; the parts' sum is the whole
+    log's (against one part of every sample, to rounding)."""
+    import threading
+
+    from spaceid.estimation import _determined, _linalg
+    from spaceid.estimation._differentiated import weighting_sigma
+    from spaceid.estimation._equations import _equations
+    from spaceid.estimation._residuals import drift_columns
+
+    _, truth, h, log = robot(tmp_path)
+    noisy = add_noise(log, angle=1e-4, rate=1e-4, seed=1)
+    eq, _ = _equations(truth, noisy, h, {}, "log")
+    x, sigma = eq.signals(noisy), weighting_sigma(truth, noisy, Noise(1e-4, 1e-4, 1e-4, 1e-4))
+    gram, names = _determined.noise_gram, set()
+
+    def spied(*args, **kw):
+        names.add(threading.current_thread().name)
+        return gram(*args, **kw)
+
+    monkeypatch.setattr(_determined, "noise_gram", spied)
+    for extra in (None, drift_columns(eq, noisy)):
+        formed = []
+        for threads in (1, 2):
+            monkeypatch.setattr(_linalg, "work_threads", lambda threads=threads: threads)
+            names.clear()
+            formed.append(_determined.equation_noise(eq, x, sigma, truth.true_values, estimator, noisy, extra=extra))
+            assert len(names) == threads
+        whole = _determined.equation_noise(eq, x, sigma, truth.true_values, estimator, noisy, extra=extra,
+                                           chunk=len(x))
+        assert np.array_equal(formed[0], formed[1])
+        np.testing.assert_allclose(formed[0], whole, rtol=1e-10, atol=1e-10 * np.abs(whole).max())
+
+
 @pytest.mark.parametrize("fallback", [False, True])
 def test_ml_noise_checks_started_at_convergence_are_those_at_the_weights_reported(fallback, tmp_path, monkeypatch):
     """ML's noise Gram matrix starts as the fit converges, at its weights, beside the factor at them: on a random

@@ -45,6 +45,12 @@ a smooth motion give it), and the derivatives cost an equation build per signal 
 product per build (1,000 samples: half of a 10,000-sample servicer identification's time)."""
 
 
+NOISE_PARTS = 2
+"""Parts of :func:`noise_rows`' samples whose sums :func:`equation_noise` adds, in order: two threads share
+them when the cores are free (the stalled fit's check on the servicer's 500-sample log: 0.24 to 0.13 s),
+and the sums are the same on one."""
+
+
 def noise_rows(n: int) -> tuple:
     """The rows ``(m,)`` of a log of ``n`` samples that :func:`noise_gram` sums over and the scale
     ``n / m`` that makes their sum the log's."""
@@ -87,25 +93,32 @@ def noise_gram(build, x: np.ndarray, sigma: np.ndarray, scale: float = 1.0, line
 def equation_noise(eq, x, sigma, theta, estimator: str, log, whitener=None, extra=None, chunk=None) -> np.ndarray:
     """:func:`noise_gram` ``(p + q, p + q)`` of the columns ``A`` of the equations ``eq`` at the signals
     ``x (n, n_x)`` and estimate ``theta``, with ``extra(part, signals, rows)`` ``(m, rows, q)`` columns
-    appended (the drift test's candidates; None: none), summed over :func:`noise_rows`' samples, ``chunk``
-    of them at a time (None: all at once). Whitened as the estimator's equations: by ``whitener`` (its
-    Cholesky factors, ``(n, rows, rows)``) or the noise model's at ``theta`` for the weighted estimators,
+    appended (the drift test's candidates; None: none), summed over :func:`noise_rows`' samples in
+    :data:`NOISE_PARTS` parts (or ``chunk`` samples at a time, when given), in order: the parts on the work
+    threads when they are free, the same sums on one. Whitened as the estimator's equations: by ``whitener``
+    (its Cholesky factors, ``(n, rows, rows)``) or the noise model's at ``theta`` for the weighted estimators,
     as they are for ``ols``; the noise at :func:`signal_levels` of ``sigma (n_x,)``, the estimator's levels."""
-    from ._linalg import _equation_whitener, _whitened
+    from ._linalg import _equation_whitener, _parts, _whitened
 
     every, scale = noise_rows(len(x))
-    levels, out = signal_levels(eq.param, log, sigma), 0.0
-    for rows in np.array_split(every, -(-len(every) // (chunk or len(every)))):
+    levels = signal_levels(eq.param, log, sigma)
+
+    def gram_of(span):  # the noise Gram matrix of the rows every[span]
+        rows = every[span]
         part = eq.select(rows)
         L = None if estimator == "ols" else whitener[rows] if whitener is not None else _equation_whitener(
             part, x[rows], theta, sigma)
 
-        def build(signals, part=part, rows=rows, L=L):  # the (whitened) columns of the rows
+        def build(signals):  # the (whitened) columns of the rows
             M = part.phi(signals)[..., :-1]
             M = M if extra is None else np.concatenate([M, extra(part, signals, rows)], -1)
             return M if L is None else _whitened(L, M)
 
-        out = out + noise_gram(build, x[rows], levels, scale, eq.rate_channels)
+        return noise_gram(build, x[rows], levels, scale, eq.rate_channels)
+
+    out = 0.0
+    for _, gram in _parts(gram_of, len(every), chunk or -(-len(every) // NOISE_PARTS)):
+        out = out + gram
     return out
 
 
