@@ -265,13 +265,15 @@ def _log_regressor(eq, phi, estimator: str):
     return phi[..., : eq.param.n_params]
 
 
-def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, drift):
+def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, columns):
     """A future, from ``submit`` (:func:`~spaceid._threads.side_by_side`), of the noise Gram matrix of the equations'
-    columns with the drift test's candidates (none when ``drift`` is modelled), whitened by the estimator's
-    ``whitener`` (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``): formed
-    once, for the undetermined directions and the drift test."""
-    columns = None if drift else drift_columns(eq, log)
-    return submit(equation_noise, eq, x, sigma, theta, estimator, log, whitener, columns)
+    columns with the drift test's candidates, whitened by the estimator's ``whitener``
+    (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``): formed once, for the
+    undetermined directions and the drift test. ``columns``: a future of the candidates (:func:`drift_columns`),
+    None when drift terms are modelled."""
+    def job():
+        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, columns and columns.result())
+    return submit(job)
 
 
 def _singular_values(factor) -> np.ndarray:
@@ -695,9 +697,13 @@ def identify(
             submit = beside.enter_context(side_by_side(2 if early else 1)) if early or converging else None
             jobs = {}
 
+            def columns_beside(eq):  # the drift test's candidates (their first spline imports SciPy's: 0.1 s)
+                jobs.setdefault("columns", None if drift else submit(drift_columns, eq, log))
+
             def noise_beside(eq, x, sigma, theta=None, whitener=None):
+                columns_beside(eq)
                 jobs["gram"], jobs["weights"] = _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener,
-                                                            drift), whitener
+                                                            jobs["columns"]), whitener
 
             prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
                              cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
@@ -707,6 +713,8 @@ def identify(
                 prep.eq, prep.x, prep.phi, prep.noise, prep.estimated, prep.factor, prep.cond_scaled, prep.ctx,
                 prep.sigma, prep.start)
             angles = ctx.angles
+            if converging and angles is None:  # formed while ml iterates
+                columns_beside(eq)
 
             def on_estimate(theta, whitener):
                 if early:  # (ols: no whitener, the excitation check's factor)
