@@ -348,6 +348,30 @@ def test_the_equations_data_term_carries_the_sandwich_of_correlated_errors():
         assert low < rms < high, (with_sandwich, rms)
 
 
+def test_a_column_no_noisy_signal_enters_is_information_not_a_failure():
+    """A parameter whose column carries none of the signals' noise (the base inertia's when the base rate is
+    given as noise-free: the satellite's and servicer's presets with only --noise-angle and --noise-rate, where
+    ``identify --prior`` ended in "SVD did not converge"): its noise scale had been 0 and 0 / 0 filled the noise
+    root with NaN. It is now information, as with a vanishing noise: the same data term as with that column's
+    noise 1e-12 of the others'."""
+    from spaceid.estimation._prior import data_from_equations
+
+    rng = np.random.default_rng(3)
+    n, p = 400, 4
+    A, theta = rng.standard_normal((n, p)), np.array([1.0, -2.0, 0.5, 3.0])
+    white = np.column_stack([A, -(A @ theta + 1e-3 * rng.standard_normal(n))])
+    M = 1e-3 * rng.standard_normal((50, p + 1))
+    M[:, 2] = 0.0  # the third parameter's column: no noise
+    terms = [data_from_equations(white, M.T @ M, p, "test", {}, np.arange(p))]
+    M[:, 2] = 1e-15 * rng.standard_normal(50)
+    terms.append(data_from_equations(white, M.T @ M, p, "test", {}, np.arange(p)))
+    for d in terms:
+        assert np.all(np.isfinite(d.L)) and np.all(np.isfinite(d.r)) and len(d.L) == p
+    np.testing.assert_allclose(terms[0].L.T @ terms[0].L, terms[1].L.T @ terms[1].L, rtol=1e-6)
+    np.testing.assert_allclose(np.linalg.solve(terms[0].L, terms[0].r), np.linalg.solve(terms[1].L, terms[1].r),
+                               rtol=1e-6)
+
+
 def test_a_solver_panic_is_a_failed_solve(monkeypatch):
     """Clarabel's Rust core can panic (pyo3's PanicException, a BaseException): a failed solve, not a
     traceback; an interrupt still propagates."""

@@ -259,7 +259,10 @@ def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, fr
     root, rhs_root = np.zeros((n_free, n_free)), np.zeros(n_free)
     root[:m], rhs_root[:m] = upper[:m, :n_free], upper[:m, n_free]
     n_ff, n_fb = _profile(np.asarray(noise_gram, float), n_free, p)
-    scale = np.sqrt(np.clip(np.diag(n_ff), 0, None)) + 1e-300
+    # each column's noise scale; a column no noisy signal enters (the base inertia's, on a noise-free base rate)
+    # has none: 1e-8 of its signal's instead, which leaves its noise negligible (a vanishing scale made 0 / 0)
+    noise_scale, signal_scale = np.sqrt(np.clip(np.diag(n_ff), 0, None)), 1e-8 * np.linalg.norm(root, axis=0)
+    scale = np.where(noise_scale > 0, noise_scale, np.where(signal_scale > 0, signal_scale, 1.0))
     n_s = n_ff / np.outer(scale, scale) + 1e-12 * np.eye(n_free)
     noise_root = np.linalg.cholesky(0.5 * (n_s + n_s.T)).T * scale  # N = M^T M
     q, t = np.linalg.qr(np.vstack([root, noise_root]))
