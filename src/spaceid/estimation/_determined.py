@@ -47,7 +47,7 @@ product per build (1,000 samples: half of a 10,000-sample servicer identificatio
 
 NOISE_PARTS = 2
 """Parts of :func:`noise_rows`' samples whose sums :func:`equation_noise` adds, in order: two threads share
-them when the cores are free (the stalled fit's check on the servicer's 500-sample log: 0.24 to 0.13 s),
+them when the cores are free (the stalled fit's check on the servicer's 500-sample log: 0.24 to 0.16 s),
 and the sums are the same on one."""
 
 

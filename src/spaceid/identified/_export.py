@@ -158,13 +158,15 @@ class _Program:
         x = [cp.Variable((4, 4), symmetric=True) for _ in range(self.g.shape[1] // 16)]
         vec = cp.hstack([cp.vec(b, order="F") for b in x])
         theta = cp.Variable(self.g.shape[0])  # a variable of its own: a matrix @ variable compiles fast
-        cons = [b >> MARGIN * np.eye(4) for b in x] + [theta == self.g @ vec] + ([self.z @ vec == 0] if len(self.z) else [])
+        cons = [b >> MARGIN * np.eye(4) for b in x] + [theta == self.g @ vec]
+        cons += [self.z @ vec == 0] if len(self.z) else []
         eq = a_eq @ theta - b_eq if len(a_eq) else None
         ball = cp.norm(a_w @ theta - b_w) if len(a_w) else None
         if self.elastic:
             self.slack = cp.Variable(len(a_eq)) if len(a_eq) else None
             self.excess = cp.Variable(nonneg=True)
-            cons += ([eq == self.slack] if len(a_eq) else []) + ([ball <= self.radius + self.excess] if len(a_w) else [])
+            cons += [eq == self.slack] if len(a_eq) else []
+            cons += [ball <= self.radius + self.excess] if len(a_w) else []
             objective = (cp.norm1(self.slack) if len(a_eq) else 0) + self.excess
         else:
             cons += ([eq == 0] if len(a_eq) else []) + ([ball <= self.radius] if len(a_w) else [])
