@@ -119,15 +119,17 @@ def test_minimal_parameters_of_a_preset_from_the_cache(monkeypatch, tmp_path):
 
 
 def test_warmed_presets_are_read_not_derived(monkeypatch, tmp_path):
-    """``warm_preset_sets`` (the end of ``spaceid demo``) leaves each preset's set in the cache: a later process
-    (the in-memory cache cleared) reads it, deriving nothing. Two small presets here; the demo warms them all
+    """``warm_preset_sets`` (the end of ``spaceid demo``) leaves each preset's set in the cache, and those of a
+    payload on each body with declared zeros (cepheus-rw's wheel and two links): a later process (the in-memory
+    cache cleared) reads them, deriving nothing. Two small presets here; the demo warms them all
     (test_demo.py::test_designed_demo_writes_report)."""
+    from spaceid.identified import payload_map
     from spaceid.studies import warm_preset_sets
 
     monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path))
     _regressor._minimal_cached.cache_clear()
     warm_preset_sets(["cepheus-rw", "satellite-7dof"])
-    assert len(list((tmp_path / "minimal-set").glob("*.npz"))) == 2
+    assert len(list((tmp_path / "minimal-set").glob("*.npz"))) == 2 + 3
     _regressor._minimal_cached.cache_clear()
 
     def no_derivation(*args):
@@ -136,4 +138,5 @@ def test_warmed_presets_are_read_not_derived(monkeypatch, tmp_path):
     monkeypatch.setattr(_regressor, "_derive_minimal", no_derivation)
     for name in ("cepheus-rw", "satellite-7dof"):
         assert spaceid.minimal_parameters(spaceid.load_model(name)).n_params > 0
+    assert payload_map("cepheus-rw", "link2").param.n_params > 0
     _regressor._minimal_cached.cache_clear()

@@ -148,11 +148,19 @@ def warm_spatial_kernels() -> None:
 
 def warm_preset_sets(presets=PRESETS) -> None:
     """Derive the minimal parameter set of every preset model in ``presets`` (default: all) into the on-disk
-    cache (:func:`~spaceid.dynamics.minimal_parameters`; read from it when it is there). ``spaceid demo`` ends
-    with it, so that no first command on a preset derives one (the servicer's: about 3 s of CPU, the others'
-    under 1 s; reading a cached set takes milliseconds)."""
+    cache (:func:`~spaceid.dynamics.minimal_parameters`; read from it when it is there), and those of a payload
+    on each of its bodies with declared zeros (a payload frees them: another set; Cepheus's links, 0.4 s each
+    in a first ``spaceid payload``). ``spaceid demo`` ends with it, so that no first command on a preset
+    derives one (the servicer's: about 3 s of CPU, the others' under 1 s; reading a cached set takes
+    milliseconds)."""
+    from ..identified import payload_map
+
     for name in presets:
-        minimal_parameters(load_model(name))
+        model = load_model(name)
+        minimal_parameters(model)
+        for body in model.bodies:
+            if body.known_zero:
+                payload_map(model, body.name)
 
 
 def _write_report(result: DemoResult, log, fine, predicted) -> None:
