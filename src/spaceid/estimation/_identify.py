@@ -272,7 +272,8 @@ def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, columns):
     undetermined directions and the drift test. ``columns``: a future of the candidates (:func:`drift_columns`),
     None when drift terms are modelled."""
     def job():
-        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, columns and columns.result())
+        extra = None if columns is None else columns.result()
+        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra)
     return submit(job)
 
 
@@ -713,7 +714,7 @@ def identify(
                 prep.eq, prep.x, prep.phi, prep.noise, prep.estimated, prep.factor, prep.cond_scaled, prep.ctx,
                 prep.sigma, prep.start)
             angles = ctx.angles
-            if converging and angles is None:  # formed while ml iterates
+            if submit is not None:  # formed while the estimator runs (ols's are already, beside the equations)
                 columns_beside(eq)
 
             def on_estimate(theta, whitener):

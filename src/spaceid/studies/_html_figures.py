@@ -33,6 +33,13 @@ def _house(title: str, height: int) -> dict:
             "margin": {"l": 70, "r": 20, "t": 95, "b": 60}}  # fmt: skip
 
 
+def _plain_layout(title: str, height: int) -> dict:
+    """The house layout (:func:`_house`, template ``plotly_white``) of a figure written as Plotly's plain dict."""
+    import plotly.io as pio
+
+    return {"template": pio.templates["plotly_white"].to_plotly_json(), **_house(title, height)}
+
+
 def _layout(fig, title: str, height: int) -> None:
     """The house layout (:func:`_house`, template ``plotly_white``) on a graph object, every axis styled."""
     fig.update_layout(template="plotly_white", **_house(title, height))
@@ -51,10 +58,8 @@ def _column(panels, xaxis: dict, title: str, height: int) -> dict:
     panels : sequence of (list of dict, list of dict, dict)
         From the top, each panel's traces, its shapes (spanning its width) and its y axis.
     """
-    import plotly.io as pio
-
     n = len(panels)
-    layout = {"template": pio.templates["plotly_white"].to_plotly_json(), **_house(title, height), "shapes": []}
+    layout = {**_plain_layout(title, height), "shapes": []}
     if n > 1:  # plotly.js lays out the panels: a gap of 0.06 of the figure's height (ygap: of a panel and its gap)
         layout["grid"] = {"rows": n, "columns": 1, "pattern": "independent", "ygap": 0.06 * n / 1.06}
     data = []
@@ -170,16 +175,13 @@ def validation_figure(measured: Log, predicted: Log, title: str):
     attitude), the residual below each with its RMS; long logs thinned (:func:`downsample`). With its
     caption. The figure is Plotly's plain dict, as :func:`_column`'s (as graph objects, in subplots, it took
     0.16 s of a Cepheus validation's 0.8 s)."""
-    import plotly.io as pio
-
     _check_same_motion(measured, predicted)
     signals = _base_signals(measured, predicted)
     n, gap = len(signals), 0.08
     width, tops = (1 - gap * (n - 1)) / n, (0.64 * (1 - gap), 0.36 * (1 - gap))  # columns' widths, rows' heights
     rows = ((1 - tops[0], 1.0), (0.0, tops[1]))  # the rows' vertical domains, measured and predicted above
-    layout = {"template": pio.templates["plotly_white"].to_plotly_json(), **_house(title, 580), "hovermode": "x unified",
-              "legend": {"orientation": "h", "x": 0, "xanchor": "left", "y": -0.13, "yanchor": "top"},
-              "shapes": [], "annotations": []}  # fmt: skip
+    layout = {**_plain_layout(title, 580), "hovermode": "x unified", "shapes": [], "annotations": [],
+              "legend": {"orientation": "h", "x": 0, "xanchor": "left", "y": -0.13, "yanchor": "top"}}
     layout["margin"] = {**layout["margin"], "b": 90}
     data, shown = [], measured.n_samples
     for c, (label, _, unit, y_meas, y_pred, residual, residual_label) in enumerate(signals):
@@ -188,12 +190,12 @@ def validation_figure(measured: Log, predicted: Log, title: str):
         t, y_meas, y_pred, _ = downsample(measured.t, y_meas, y_pred)
         shown, first, x = t.size, c == 0, (c * (width + gap), c * (width + gap) + width)
         top, bottom = str(c + 1) if c else "", str(n + c + 1)  # the axes' numbers, row by row
-        line = {"type": "scatter", "showlegend": first}
-        data += [{**line, "x": t, "y": y_meas, "name": "measured", "legendgroup": "m",
+        trace = {"type": "scatter", "showlegend": first}
+        data += [{**trace, "x": t, "y": y_meas, "name": "measured", "legendgroup": "m",
                   "line": {"color": MEASURED, "width": 1.5}, "xaxis": f"x{top}", "yaxis": f"y{top}"},
-                 {**line, "x": t, "y": y_pred, "name": predicted_label(predicted), "legendgroup": "p",
+                 {**trace, "x": t, "y": y_pred, "name": predicted_label(predicted), "legendgroup": "p",
                   "line": {"color": MODEL, "width": 1.5, "dash": "dash"}, "xaxis": f"x{top}", "yaxis": f"y{top}"},
-                 {**line, "x": t_r, "y": residual, "name": "residual", "legendgroup": "r",
+                 {**trace, "x": t_r, "y": residual, "name": "residual", "legendgroup": "r",
                   "line": {"color": MODEL, "width": 1}, "xaxis": f"x{bottom}", "yaxis": f"y{bottom}"}]
         words = "error angle " if "angle" in residual_label else "pred. - meas. " if first else ""
         layout[f"xaxis{top}"] = {**_X_AXIS, "anchor": f"y{top}", "domain": x, "matches": f"x{bottom}",
@@ -315,7 +317,7 @@ def _statistic_figure(record):
 
 def _segments_figure(record):
     """Each identified segment's parameters against the first's in combined standard errors: Plotly's plain dict
-    (:func:`_column`; a graph object per parameter took 0.3 s of the satellite's 153)."""
+    (:func:`_column`; a graph object per parameter took 0.11 to 0.24 s of the satellite's 153, this 3 ms)."""
     t, z = record.z_over_time()
     names = record.settings["parameter_names"]
     z_changed = record.settings.get("z_changed", 3.0)
