@@ -452,3 +452,22 @@ def test_drift_test_level_on_a_designed_motion_with_differentiated_rates(tmp_pat
         warnings.simplefilter("ignore")
         test = identify(param, logs[0], H_SPATIAL, estimator="ols").diagnostics.drift_test
     assert np.linalg.norm(test.errors_in_variables) < 1e-4 and test.p_value > 0.01, test
+
+
+@pytest.mark.parametrize("estimator", ["ols", "ml"])
+def test_drift_candidates_formed_once_per_identification(estimator, tmp_path, monkeypatch):
+    """The drift test's candidate columns are formed once on a worker, however many times the checks ask for
+    them beside the work (ols: as its signals are known and again once its equations are; ml: once its
+    equations are, and as it converges)."""
+    from spaceid import _threads
+    from spaceid.estimation import _identify
+
+    _, truth, h, log = _undesigned_planar_robot(tmp_path)
+    noisy = add_noise(log, angle=1e-4, rate=1e-4, seed=1)
+    monkeypatch.setattr(_threads, "work_threads", lambda: 2)
+    columns, formed = _identify.drift_columns, []
+    monkeypatch.setattr(_identify, "drift_columns", lambda *args: formed.append(args) or columns(*args))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = identify(truth, noisy, h, estimator=estimator, noise=Noise(1e-4, 1e-4, 1e-4, 1e-4))
+    assert result.diagnostics.drift_test.run and len(formed) == 1

@@ -698,8 +698,9 @@ def identify(
             submit = beside.enter_context(side_by_side(2 if early else 1)) if early or converging else None
             jobs = {}
 
-            def columns_beside(eq):  # the drift test's candidates (their first spline imports SciPy's: 0.1 s)
-                jobs.setdefault("columns", None if drift else submit(drift_columns, eq, log))
+            def columns_beside(eq):  # the drift test's candidates (their first spline imports SciPy's: 0.1 s), once
+                if "columns" not in jobs:
+                    jobs["columns"] = None if drift else submit(drift_columns, eq, log)
 
             def noise_beside(eq, x, sigma, theta=None, whitener=None):
                 columns_beside(eq)
