@@ -749,16 +749,18 @@ def identify(
                     white_factor))
             s = _singular_values(factor)
             scale = log_momentum_scale(param, log, regressor=_log_regressor(eq, phi, estimator))  # (while ols waits)
-            drift_record, drift_warning = jobs["drift"].result() if early else _drift_check(
-                eq, x, phi, sigma, theta, estimator, log, drift, where, whitener, chunk,
-                jobs["gram"].result if "gram" in jobs else None, _factor_gram(white_factor))
+            # the drift test here while the directions are found beside (ols's is on a worker: taken last)
+            checked = None if early else _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
+                                                      whitener, chunk, jobs["gram"].result if "gram" in jobs else None,
+                                                      _factor_gram(white_factor))
             weak, ratios = jobs["directions"].result() if "directions" in jobs else ([], None)
-        if weak:  # the standard errors say what the data do not determine
-            fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
-            uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
-        # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
-        # wrong momentum or anchor
-        fit = replace(fit, implausible=_implausible_estimate(eq, theta, fit.cov, where))
+            if weak:  # the standard errors say what the data do not determine
+                fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
+                uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
+            # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
+            # wrong momentum or anchor
+            fit = replace(fit, implausible=_implausible_estimate(eq, theta, fit.cov, where))
+            drift_record, drift_warning = checked or jobs["drift"].result()
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
             bias, warning = bias_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
                                       drift_record.to_dict(), where)
