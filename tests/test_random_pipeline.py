@@ -155,7 +155,7 @@ def _check_monitor(flown: Flown):
     differentiated = bool(rng.integers(2))
     run = robot_grasp_run(Robot(model, param, h, twice, rng), seed, True, differentiated, False,
                           rng.uniform(), 2 * traj.duration)  # fmt: skip
-    if run.grasp is not None:  # None: too weak a grasp to show within 0.25 s, or the first warm-up left no time
+    if run.grasp is not None:  # None: too weak a grasp to show within 0.25 s, or the last warm-up left no time
         with stage("monitor", **flown.case, noisy=True, differentiated=differentiated):
             check_grasp(run)  # (a 66-parameter spatial tree, rates differentiated, was not determined in 20 s)
 
@@ -175,6 +175,9 @@ def test_pipeline_on_random_robots_and_undesigned_motions(seed, planar, tmp_path
 @pytest.mark.slow
 @SLOW
 @given(seed=SEEDS, planar=st.booleans())
+# a planar tree whose changeless log raised one false alarm (at 15.26 s, 11.6 against 8.9): the grasp's log, the
+# same up to the grasp, raised it again, and it was counted twice
+@example(seed=1084775, planar=True)
 def test_pipeline_and_payload_on_more_random_robots_and_undesigned_motions(seed, planar, tmp_path):
     flown = _undesigned(seed, planar, tmp_path)
     _check_pipeline(flown)
