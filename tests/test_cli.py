@@ -52,6 +52,23 @@ def test_noisy_log_at_rate(workdir):
     assert run("identify", "cepheus", workdir / "noisy.csv", "--momentum", 0.4934, "-o", workdir / "noisy.json") == 0
 
 
+def test_noise_levels_mean_the_same_in_simulate_and_identify(workdir):
+    """``--noise-angle`` and ``--noise-rate`` alone give the base's levels too, in ``identify`` as in ``simulate``
+    (which drew noisy.csv's gyro noise at the rate's level): the same result as with all four given; a
+    noise-free gyro is given as 0. (Taken as 0 before, the satellite's ML errors reached 10 standard errors.)"""
+    levels = {}
+    for name, extra in (("alone", []), ("all", ["--noise-base-rate", 1e-4, "--noise-attitude", 1e-4]),
+                        ("gyro", ["--noise-base-rate", 0])):
+        out = workdir / f"levels-{name}.json"
+        assert run("identify", "cepheus", workdir / "noisy.csv", "--momentum", 0.4934, "--estimator", "wls",
+                   "--noise-angle", 1e-4, "--noise-rate", 1e-4, *extra, "-o", out) == 0
+        result = json.loads(out.read_text())
+        levels[name] = (result["settings"]["noise"], [p["value"] for p in result["parameters"]])
+    assert levels["alone"] == levels["all"]
+    assert levels["alone"][0] == {"angle": 1e-4, "rate": 1e-4, "base_rate": 1e-4, "attitude": 1e-4, "source": "given"}
+    assert levels["gyro"][0]["base_rate"] == 0.0 and levels["gyro"][1] != levels["alone"][1]
+
+
 def test_predict_and_validate(workdir, capsys):
     log = np.genfromtxt(workdir / "log.csv", delimiter=",", names=True)
     traj = workdir / "joints.csv"

@@ -678,7 +678,7 @@ def test_monitor_on_a_bag_reads_it_in_parts(capture_bag, tmp_path, capsys):
     # after it; with an AR filter fitted to those residuals, 0.08 s before it, in the differentiator's lead)
     param = minimal_parameters(load_model("cepheus-rw"))
     (expected,) = monitor(param, whole, np.zeros(3), known={"Iczz_wheel": _rotor()}, warmup=100,
-                          noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2)).events  # fmt: skip
+                          noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2, attitude=1e-3)).events  # fmt: skip
     assert abs(event["time"] - expected.time) <= 0.04 and -0.5 < event["time"] - grasp <= 0.04 + 1e-9, (event, grasp)
     assert main(args + ["--follow"]) == 2
     assert "a bag cannot be read while it is recorded" in capsys.readouterr().err

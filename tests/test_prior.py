@@ -350,7 +350,7 @@ def test_the_equations_data_term_carries_the_sandwich_of_correlated_errors():
 
 def test_a_column_no_noisy_signal_enters_is_information_not_a_failure():
     """A parameter whose column carries none of the signals' noise (the base inertia's when the base rate is
-    given as noise-free: the satellite's and servicer's presets with only --noise-angle and --noise-rate, where
+    given as noise-free: the satellite's and servicer's presets with --noise-base-rate 0, where
     ``identify --prior`` ended in "SVD did not converge"): its noise scale had been 0 and 0 / 0 filled the noise
     root with NaN. It is now information, as with a vanishing noise: the same data term as with that column's
     noise 1e-12 of the others'."""

@@ -186,7 +186,7 @@ def _live(**options):
     from spaceid.ros import LiveMonitor
 
     param = minimal_parameters(load_model("cepheus-rw"))
-    options = {"noise": Noise(angle=1e-3, rate=1e-2, base_rate=1e-2)} | options
+    options = {"noise": Noise(angle=1e-3, rate=1e-2, base_rate=1e-2, attitude=1e-3)} | options
     return LiveMonitor(param, np.zeros(3), reading={"window": 25}, known={"Iczz_wheel": float(ROTOR)}, warmup=100,
                        **options)  # fmt: skip
 
@@ -237,7 +237,7 @@ def _batch_monitor(bag):
     chunks = bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels, block=LIVE_BLOCK, context=LIVE_CONTEXT,
                         window=25, order=LIVE_ORDER)
     return monitor(minimal_parameters(m), chunks, np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
-                   noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2))
+                   noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2, attitude=1e-3))
 
 
 def _events(record) -> list:

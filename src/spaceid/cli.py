@@ -363,10 +363,19 @@ def _failure(exc, ctx) -> tuple:
     raise exc
 
 
+def sensor_levels(angle, rate, base_rate, attitude) -> dict:
+    """The noise levels of the ``--noise-*`` options as :class:`spaceid.estimation.Noise`'s fields, the same in
+    every command: an unset ``--noise-base-rate`` is ``--noise-rate`` and an unset ``--noise-attitude`` is
+    ``--noise-angle`` (one level for joints and base alike, as ``simulate`` draws them), the others unset 0."""
+    angle, rate = angle or 0.0, rate or 0.0
+    return {"angle": angle, "rate": rate, "base_rate": rate if base_rate is None else base_rate,
+            "attitude": angle if attitude is None else attitude}
+
+
 def noise_options(f):
     """Options ``--noise-angle``, ``--noise-rate``, ``--noise-base-rate``, ``--noise-attitude``
     (standard deviations of the measured signals), handed to the command as one ``noise``
-    argument: a :class:`spaceid.estimation.Noise` (unset ones zero), or None when none is given."""
+    argument: a :class:`spaceid.estimation.Noise` of :func:`sensor_levels`, or None when none is given."""
     names = ("angle", "rate", "base_rate", "attitude")
 
     @functools.wraps(f)
@@ -376,16 +385,17 @@ def noise_options(f):
         if any(v is not None for v in values.values()):
             from .estimation import Noise
 
-            noise = Noise(**{n: v or 0.0 for n, v in values.items()})
+            noise = Noise(**sensor_levels(**values))
         return f(*args, noise=noise, **kwargs)
 
     return _options(
         click.option("--noise-angle", type=NOISE_LEVEL, help="Noise std of the joint angles [rad]."),
         click.option("--noise-rate", type=NOISE_LEVEL, help="Noise std of the joint rates [rad/s]."),
         click.option("--noise-base-rate", type=NOISE_LEVEL,
-                     help="Noise std of the base angular velocity, per axis [rad/s]."),
+                     help="Noise std of the base angular velocity, per axis [rad/s] [default: --noise-rate]."),
         click.option("--noise-attitude", type=NOISE_LEVEL,
-                     help="Noise std of the base attitude, per axis [rad] (planar: the yaw)."),
+                     help="Noise std of the base attitude, per axis [rad] (planar: the yaw) [default: "
+                     "--noise-angle]."),
     )(command)
 
 
@@ -743,8 +753,7 @@ def simulate(model_src, planar, trajectory, momentum, samples, rate, noise_angle
     if any(v for v in sensors.values()) or quantum or gyro_bias is not None or not joint_rate_sensors:
         from .estimation import Noise
 
-        sensors = Noise(**(sensors | {"attitude": noise_angle if noise_attitude is None else noise_attitude,
-                                      "base_rate": noise_rate if noise_base_rate is None else noise_base_rate}))
+        sensors = Noise(**sensor_levels(**sensors))
         bias = None if gyro_bias is None else _gyro_bias(gyro_bias)
         log = add_noise(log, noise=sensors, quantum=quantum or 0.0, gyro_bias=bias, seed=seed,
                         joint_rate_sensors=joint_rate_sensors)
