@@ -368,6 +368,34 @@ def test_estimated_raw_noise_levels_are_pooled_over_the_parts(cepheus, steady):
     assert np.allclose(levels(mon._whitener), pooled, rtol=1e-12, atol=0)
 
 
+@pytest.mark.parametrize("rows, n_x", [(1, 5), (3, 20)])
+def test_determinacy_sums_are_the_formulas(rows, n_x):
+    """The accumulator's noise information ``N = sum_n sum_x sigma_x^2 (L_n^-1 dA_n/dx)^T (L_n^-1 dA_n/dx)``, its
+    score ``g = sum_n sum_x sigma_x^2 (L_n^-1 dA_n/dx)^T (L_n^-1 dr_n/dx)`` and each sample's error variance,
+    fed in uneven blocks across its checkpoints, against the formulas evaluated sample by sample."""
+    from spaceid.estimation._monitor_determinacy import CHECKPOINTS, DeterminacyAccumulator
+
+    rng = np.random.default_rng(rows)
+    n, p = 3 * CHECKPOINTS + 7, 6
+    theta, sigma = rng.standard_normal(p), rng.uniform(0.5, 2.0, n_x)
+    L = np.tril(rng.standard_normal((n, rows, rows))) + 3 * np.eye(rows)
+    D = rng.standard_normal((n, rows, p + 1, n_x))
+    acc = DeterminacyAccumulator(n, theta, sigma)
+    for a, b in ((0, 5), (5, 130), (130, n)):
+        acc.add(L[a:b], D[a:b])
+    N, g, variance = np.zeros((p, p)), np.zeros(p), []
+    for k in range(n):
+        white = [np.linalg.solve(L[k], D[k, :, :, x]) * sigma[x] for x in range(n_x)]  # (rows, p + 1) each
+        errors = [w @ np.append(theta, 1.0) for w in white]
+        N += sum(w[:, :p].T @ w[:, :p] for w in white)
+        g += sum(w[:, :p].T @ e for w, e in zip(white, errors))
+        variance.append(sum(e @ e for e in errors))
+    np.testing.assert_allclose(acc.score, g, rtol=1e-12, atol=1e-12 * np.abs(g).max())
+    np.testing.assert_allclose(acc.N[-1], N, rtol=1e-12, atol=1e-12 * np.abs(N).max())
+    np.testing.assert_allclose(np.concatenate(acc.noise), variance, rtol=1e-12)
+    assert len(acc.N) == len(acc.g) == -(-n // acc.size)
+
+
 def test_the_whole_warm_ups_determinacy_alone_is_that_of_its_prefixes(cepheus, steady, monkeypatch):
     """The screen's figures of a whole warm-up (:meth:`DeterminacyAccumulator.overall`, one
     factor) are those that :meth:`~DeterminacyAccumulator.result` reaches through its prefixes;
