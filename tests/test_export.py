@@ -152,14 +152,27 @@ def test_yaml_keeps_planar_mode_and_declared_zeros(cepheus, tmp_path):
         write_export(res, path, fmt="step")
 
 
-def test_infeasible_pi_is_one_line_naming_it(cepheus):
+def test_infeasible_pi_is_one_line_naming_it(cepheus, monkeypatch):
+    """Named from the restoring step's own program, whose stall ends each attempt (the exact one, then each
+    automatic ellipsoid's): no program is solved again to name them."""
+    from spaceid.identified import _export
+
     _, prior, ident, _ = cepheus
     values = ident.values.copy()
     values[7] = -abs(values[7])  # pi8 = Iczz_link2 + (positive terms): negative, no physical body has it
     bad = Identification(**{**ident.__dict__, "values": values})
+    solve, elastic = _export._Program.solve, []
+
+    def counted(self, *args):
+        if self.elastic:
+            elastic.append(self)
+        return solve(self, *args)
+
+    monkeypatch.setattr(_export._Program, "solve", counted)
     with pytest.raises(spaceid.SpaceidError, match=r"not physically realisable.*pi8.*`region`") as info:
         export_model(bad, prior, where="bad.json")
     assert "\n" not in str(info.value)
+    assert len(set(map(id, elastic))) == 1 + len(_export.AUTO_REGIONS)  # an attempt's restoring program, no other
 
 
 def test_bad_region_and_other_joints_are_refused(cepheus):

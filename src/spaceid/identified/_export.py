@@ -159,10 +159,10 @@ class _Program:
 
     def __init__(self, g, z, radius, *, elastic=False):
         self.g, self.z, self.radius, self.elastic = g, z, radius, elastic
-        self.slack = self.excess = None
+        self.slack = self.excess = self.solution = None
 
     def solve(self, a_eq, b_eq, a_w, b_w):
-        """The solution ``vec X`` (16 nb,), or None when the program is infeasible."""
+        """The solution ``vec X`` (16 nb,), or None when the program is infeasible (also kept as ``solution``)."""
         import cvxpy as cp
 
         x = [cp.Variable((4, 4), symmetric=True) for _ in range(self.g.shape[1] // 16)]
@@ -181,9 +181,10 @@ class _Program:
         else:
             cons += ([eq == 0] if len(a_eq) else []) + ([ball <= self.radius] if len(a_w) else [])
             objective = sum(cp.trace(b) - cp.log_det(b) for b in x)
-        if not solved_tightly(cp.Problem(cp.Minimize(objective), cons)):
-            return None
-        return np.concatenate([b.value.ravel(order="F") for b in x])
+        self.solution = None
+        if solved_tightly(cp.Problem(cp.Minimize(objective), cons)):
+            self.solution = np.concatenate([b.value.ravel(order="F") for b in x])
+        return self.solution
 
 
 def _conditions(param, g, theta, e, w, pi, *, project=True):
@@ -206,10 +207,14 @@ def _conditions(param, g, theta, e, w, pi, *, project=True):
     return a_eq, b_eq, w @ jac, w @ pi
 
 
-def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region):
-    """The error naming the conditions that no physical model meets (from the elastic program)."""
-    program = _Program(g, z, radius, elastic=True)
-    x = program.solve(*_conditions(param, g, theta, e, w, result.values, project=False))
+def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region, program=None):
+    """The error naming the conditions that no physical model meets, from the elastic program at ``theta``:
+    ``program`` when it was just solved there (the restoring step's, whose stall ends the export), else solved
+    here."""
+    if program is None:
+        program = _Program(g, z, radius, elastic=True)
+        program.solve(*_conditions(param, g, theta, e, w, result.values, project=False))
+    x = program.solution
     names = []
     if x is not None and program.slack is not None:
         slack = np.abs(program.slack.value)
@@ -347,11 +352,11 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
     for steps in range(1, MAX_STEPS + 1):
         new = program.solve(*_conditions(param, g, theta, e, w, pi))
         if new is None:  # linearised at theta, the conditions reach no physical model: move towards them first
-            restore = restore or _Program(g, z, radius * (1 - SHRINK), elastic=True)
+            restore = restore or _Program(g, z, radius, elastic=True)  # (its last solve names what is infeasible)
             new = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False))
             new, violation = _damped(param, g, x, new, e, w, pi, radius, violation)
             if new is None:  # stalled: no physical model meets them
-                raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
+                raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region, restore)
         moved = np.abs(new - x).max()
         x, theta = new, g @ new
         if moved < STEP_TOL:
