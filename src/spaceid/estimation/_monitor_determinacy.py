@@ -154,8 +154,8 @@ class DeterminacyAccumulator:
         (:func:`~spaceid.estimation._monitor_whitening.whitened_equations`)."""
         m, rows, c, n_x = D.shape
         # In the derivatives' own layout (n_x, m, rows, p + 1) (no copy), whitened a row at a time (a batched product
-        # of 3 x 3 whiteners: 4 times as long); the sums from the Gram matrix G of the whitened [A | -b] rows, per
-        # signal a matrix product (einsum's own loops: 5 times as long, 0.2 s of each of the satellite's warm-up
+        # of 3 x 3 whiteners: 4 times as long); the sums from the Gram matrix G of the whitened [A | -b] rows, one
+        # matrix product a checkpoint (einsum's own loops: 5 times as long, 0.2 s of each of the satellite's warm-up
         # screens): N = G[:p, :p], and g = G[:p] [theta; 1], A's product with the rows' errors.
         inverse, signals = np.linalg.inv(L), np.moveaxis(D, -1, 0)
         E = np.empty(signals.shape)
