@@ -572,7 +572,7 @@ def test_cli_design_with_noise(tmp_path, capsys):
     assert main([*args, "-o", str(tmp_path / "none.json")]) == 2
     assert "give --noise-angle" in capsys.readouterr().err
     assert not (tmp_path / "none.json").exists()
-    noise = ["--noise-angle", "1e-4", "--noise-rate", "1e-4", "--noise-base-rate", "1e-4"]
+    noise = ["--noise-angle", "1e-4", "--noise-rate", "1e-4", "--noise-attitude", "0"]  # (the base rate's: the rate's)
     assert main([*args, *noise, "-o", str(tmp_path / "traj.json")]) == 0
     line = " ".join(capsys.readouterr().err.split())  # rich wraps at the terminal's width
     assert re.search(r"predicted CRB: worst std \S+ % of the momentum scale \(pi\d\); worst relative std of "
