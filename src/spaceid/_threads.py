@@ -202,23 +202,24 @@ def process_pool(workers: int, initializer, initargs=()):
     """A :class:`~concurrent.futures.ProcessPoolExecutor` of ``workers`` processes, each started
     by ``initializer(*initargs)``, that an exception in the block (a Ctrl-C, a SIGTERM turned
     into an exception, an error) ends at once: pending tasks cancelled, workers terminated and
-    reaped. Leaving the block normally waits for the tasks, as the executor does."""
+    reaped. Leaving the block normally waits for the tasks, as the executor does (and a Ctrl-C while it waits
+    ends them the same way)."""
     pool = ProcessPoolExecutor(workers, initializer=functools.partial(_start_worker, initializer, initargs))
     try:
         _fork_workers(pool)
         yield pool
+        pool.shutdown(wait=True)  # (a Ctrl-C here, as the last tasks end, had left the manager thread running)
     except BaseException:
         processes = list((pool._processes or {}).values())  # the executor has no public terminate (Python < 3.14)
+        # the executor's manager thread closes its wake-up pipe once it sees the workers gone; at exit Python wakes
+        # every such thread without a lock, and a pipe closed in between printed "Exception ignored ... Bad file
+        # descriptor" after the command's last line: it is let finish first (taken before shutdown, which drops it)
+        manager = pool._executor_manager_thread
         pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             process.terminate()
         for process in processes:
             process.join(timeout=5)
-        # the executor's manager thread closes its wake-up pipe once it sees the workers gone; at exit
-        # Python wakes every such thread without a lock, and a pipe closed in between printed
-        # "Exception ignored ... Bad file descriptor" after the command's last line: let it finish first
-        manager = getattr(pool, "_executor_manager_thread", None)
         if manager is not None:
             manager.join(timeout=5)
         raise
-    pool.shutdown(wait=True)
