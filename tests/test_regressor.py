@@ -577,8 +577,7 @@ def test_a_ctrl_c_as_the_pool_waits_for_its_last_tasks_ends_its_workers_and_mana
         return shutdown(self, wait=wait, **kwargs)
 
     monkeypatch.setattr(ProcessPoolExecutor, "shutdown", interrupted)
-    with pytest.raises(KeyboardInterrupt):
-        with process_pool(2, int) as pool:
-            assert pool.submit(int).result(timeout=60) == 0
-            processes, manager = list(pool._processes.values()), pool._executor_manager_thread
+    with pytest.raises(KeyboardInterrupt), process_pool(2, int) as pool:
+        assert pool.submit(int).result(timeout=60) == 0
+        processes, manager = list(pool._processes.values()), pool._executor_manager_thread
     assert seen == [pool] and not any(p.is_alive() for p in processes) and not manager.is_alive()
