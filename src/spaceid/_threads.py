@@ -214,7 +214,7 @@ def process_pool(workers: int, initializer, initargs=()):
         # the executor's manager thread closes its wake-up pipe once it sees the workers gone; at exit Python wakes
         # every such thread without a lock, and a pipe closed in between printed "Exception ignored ... Bad file
         # descriptor" after the command's last line: it is let finish first (taken before shutdown, which drops it)
-        manager = pool._executor_manager_thread
+        manager = getattr(pool, "_executor_manager_thread", None)  # (a private attribute: None if it goes)
         pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             process.terminate()

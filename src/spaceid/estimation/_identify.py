@@ -760,7 +760,7 @@ def identify(
             # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
             # wrong momentum or anchor
             fit = replace(fit, implausible=_implausible_estimate(eq, theta, fit.cov, where))
-            drift_record, drift_warning = checked or jobs["drift"].result()
+            drift_record, drift_warning = jobs["drift"].result() if early else checked
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
             bias, warning = bias_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
                                       drift_record.to_dict(), where)
