@@ -103,6 +103,36 @@ def spatial_log():
     return param, log, h0, drift
 
 
+@pytest.mark.parametrize("n", [1, 2, 3, 7, 8, 40])
+def test_sample_integral_is_exact_for_polynomials_of_its_degree(n):
+    """Each interval is integrated through eight samples (all of a shorter log): exact to round-off for a
+    polynomial of degree 7 (of n - 1 on n < 8 samples: the trapezoid rule on two) on uneven times."""
+    from spaceid.estimation._drift import _sample_integral
+
+    rng = np.random.default_rng(n)
+    t = np.sort(rng.uniform(0.0, 3.0, n)) + np.arange(n) * 0.05
+    degree = min(n, 8) - 1
+    c = rng.standard_normal((degree + 1, 2))
+    powers = np.arange(degree + 1)
+    f, F = t[:, None] ** powers @ c, t[:, None] ** (powers + 1) / (powers + 1) @ c
+    assert np.allclose(_sample_integral(t, f), F - F[0], rtol=0, atol=1e-11 * np.abs(F).max())
+    if n >= 8:  # one degree more is not exact: the test can fail
+        assert not np.allclose(_sample_integral(t, t[:, None] ** 8), (t[:, None] ** 9 - t[0] ** 9) / 9, rtol=1e-9)
+
+
+def test_sample_integral_converges_at_eighth_order():
+    """Halving the spacing divides the error on a smooth signal by about 2^8 (a sixth-order rule: 2^6)."""
+    from spaceid.estimation._drift import _sample_integral
+
+    errors = []
+    for rate in (4.0, 8.0):
+        t = np.arange(0.0, 10.0, 1 / rate)
+        f = np.sin(1.3 * t + 0.2)[:, None]
+        exact = (np.cos(0.2) - np.cos(1.3 * t + 0.2)) / 1.3
+        errors.append(np.abs(_sample_integral(t, f)[:, 0] - exact).max())
+    assert errors[0] / errors[1] > 2**8
+
+
 @pytest.mark.slow
 def test_spatial_noise_free_recovers_pi_and_drift(spatial_log):
     param, log, h0, drift = spatial_log
