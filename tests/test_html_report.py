@@ -91,6 +91,25 @@ def test_the_identification_report_is_self_contained(identification, tmp_path):
         assert f'<td class="t">{name}</td>' in text and f'data-v="{float(f"{value:.6g}")!r}"' in text
 
 
+def test_a_figure_is_the_plotly_call_with_its_json_kept_inside_its_script():
+    """A figure's data, layout and configuration as Plotly.newPlot's arguments: a name holding ``</script>``
+    does not end the script, arrays and NaN are JSON (null), and the div takes the layout's height."""
+    import json
+
+    from spaceid.studies._html_page import Page
+
+    page = Page("t")
+    page.figure({"data": [{"type": "scatter", "x": ["a</script><b>"], "y": np.array([np.nan])}],
+                 "layout": {"height": 321}}, "caption")
+    text = page.html()
+    call = re.search(r'<div id="figure-1" class="plotly-graph-div" style="height:321px; width:100%;"></div>'
+                     r'<script type="text/javascript">Plotly\.newPlot\((.*?)\)</script>', text)
+    assert call and "</script><b>" not in text
+    key, data, layout, config = json.loads(f"[{call.group(1)}]")
+    assert key == "figure-1" and data == [{"type": "scatter", "x": ["a</script><b>"], "y": [None]}]
+    assert layout == {"height": 321} and config["displaylogo"] is False
+
+
 def test_the_parameter_figure_draws_its_band_and_zero_line(cepheus, identification):
     """The z-scores' shaded |z| <= 2 band and the zero line under the errors, which Plotly left out when
     they were drawn before their panel's trace."""
