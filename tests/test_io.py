@@ -341,6 +341,7 @@ def test_json_round_trip_with_numpy_and_nan(tmp_path):
         # taken whole when finite (arrays of numbers, lists of floats), value by value otherwise
         "finite": np.array([[0.25, -3.0]]), "ints": np.arange(2), "flags": np.array([True, False]),
         "float32": np.array([1.5], np.float32), "floats": [0.5, 1e300], "floats_nan": [0.5, -math.inf],
+        "entropy": 2**100, "entropies": [2**100, 1],  # beyond 64 bits: a seed sequence's entropy
     }
     write_json(tmp_path / "r.json", obj)
     back = read_json(tmp_path / "r.json", what="result")
@@ -354,11 +355,11 @@ def test_json_round_trip_with_numpy_and_nan(tmp_path):
         "source": str(tmp_path / "x.csv"),
         "nested": [{"a": [], "b": {}}, [1, [2]]],
         "finite": [[0.25, -3.0]], "ints": [0, 1], "flags": [True, False], "float32": [1.5], "floats": [0.5, 1e300],
-        "floats_nan": [0.5, None],
+        "floats_nan": [0.5, None], "entropy": 2**100, "entropies": [2**100, 1],
     }
     text = (tmp_path / "r.json").read_text()
     assert "NaN" not in text
-    assert '    [1.5, null],\n    [0.1, 0.6666666666666666]\n' in text  # a matrix one row a line
+    assert '    [1.5,null],\n    [0.1,0.6666666666666666]\n' in text  # a matrix one row a line
     json.loads((tmp_path / "r.json").read_text())  # strict JSON
 
 

@@ -32,7 +32,6 @@ quaternion stored x, y, z, w give a warning naming the columns (stamps in ns an 
 from __future__ import annotations
 
 import json
-import math
 import warnings
 from pathlib import Path
 
@@ -40,6 +39,7 @@ import numpy as np
 
 from .._atomic import atomic_path, write_text_atomic
 from .._errors import SpaceidError
+from .._json import json_text
 from . import _bags as bags
 from ._tables import (_read_text, _read_csv, _check_joint_columns, _require, _column, _check_time, _check_angles,
                       _check_rates, _unit_quaternions, _stack, _is_rate, _PLANAR_BASE, _SPATIAL_BASE)
@@ -273,10 +273,10 @@ def write_json(path, obj) -> None:
 
     NumPy arrays become (nested) lists, NumPy scalars Python numbers, paths strings, and NaN or
     infinite floats ``null`` (JSON has no NaN). Lists of numbers stay on one line, a matrix
-    one row a line: a 496-parameter covariance reads row by row (and writes ~1.4x faster).
+    one row a line (:func:`spaceid._json.json_text`).
     """
     try:
-        write_text_atomic(path, _dumps(_plain(obj)) + "\n")
+        write_text_atomic(path, json_text(obj) + "\n")
     except OSError as err:
         raise SpaceidError(
             f"{path}: cannot write ({err.strerror or err}): check the path is writable"
@@ -307,35 +307,3 @@ def read_json(path, *, what="JSON file"):
         raise SpaceidError(f"{path}: a value of the {what} cannot be read ({str(err)[:80]}): fix the JSON") from None
 
 
-def _dumps(obj, level: int = 0) -> str:
-    """JSON text of plain ``obj``: containers indented by two spaces, a list of scalars on one
-    line (``json.dumps`` in C for it: the indenting encoder is pure Python)."""
-    pad, inner = "  " * level, "  " * (level + 1)
-    if isinstance(obj, dict) and obj:
-        items = (f"{inner}{json.dumps(k)}: {_dumps(v, level + 1)}" for k, v in obj.items())
-        return "{\n" + ",\n".join(items) + f"\n{pad}}}"
-    if isinstance(obj, list) and any(isinstance(v, (dict, list)) for v in obj):
-        return "[\n" + ",\n".join(inner + _dumps(v, level + 1) for v in obj) + f"\n{pad}]"
-    return json.dumps(obj, allow_nan=False)
-
-
-def _plain(obj):
-    """``obj`` with NumPy types, paths and non-finite floats turned into JSON values. Arrays of finite
-    numbers and lists of finite floats are taken whole (a value at a time, the 496-parameter
-    servicer's covariance took 0.2 s of CPU)."""
-    if isinstance(obj, dict):
-        return {str(k): _plain(v) for k, v in obj.items()}
-    if isinstance(obj, np.ndarray):
-        whole = obj.dtype.kind in "iub" or (obj.dtype.kind == "f" and bool(np.isfinite(obj).all()))
-        return obj.tolist() if whole else _plain(obj.tolist())
-    if type(obj) is list and all(type(v) is float for v in obj) and all(map(math.isfinite, obj)):
-        return list(obj)
-    if isinstance(obj, (list, tuple)):
-        return [_plain(v) for v in obj]
-    if isinstance(obj, np.generic):
-        obj = obj.item()
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return None
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj

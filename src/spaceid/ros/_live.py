@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from .._errors import SpaceidError
+from .._json import json_values
 from .._threads import one_blas_thread
 from ..data import Log, MessageAligner
 from ..estimation import Z_CHANGED
@@ -64,21 +65,6 @@ class LiveOutput:
 
     kind: str
     data: dict
-
-
-def _plain(value):
-    """NumPy arrays and scalars as lists and numbers, NaN and infinities as None, for JSON."""
-    if isinstance(value, dict):
-        return {k: _plain(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 def _stamp(msg) -> int:
@@ -266,7 +252,7 @@ class LiveMonitor:
         """An alarm's or an event's message on ``/spaceid/events``."""
         data = {"stage": stage} | event.to_dict() | extra | {"time_origin_ns": self._origin,
                                                              "latency_s": self.clock() - received}
-        return LiveOutput("event", _plain(data))
+        return LiveOutput("event", json_values(data))
 
     def estimate(self) -> dict | None:
         """The running segment's estimate, published after each aligned part: ``time`` (the last
@@ -289,7 +275,7 @@ class LiveMonitor:
             if attempt is not None:
                 shown |= {k: v for k, v in attempt.items() if k in VALUES}
                 shown["warm_up"] = {k: v for k, v in attempt.items() if k not in VALUES}
-        return _plain({"time": self._recent[-1].t[-1], "time_origin_ns": self._origin,
+        return json_values({"time": self._recent[-1].t[-1], "time_origin_ns": self._origin,
                        "n_samples": self.monitor.n_samples, "segment": len(self.monitor.segments),
                        "names": list(self.param.names), "status": "testing" if testing else "warming up",
                        "determined": testing} | shown)  # fmt: skip
@@ -357,7 +343,7 @@ class LiveMonitor:
             return None
         if current:
             self._payload_first, self._payload_due = after, 2 * after
-        return LiveOutput("payload", _plain(data))
+        return LiveOutput("payload", json_values(data))
 
     def finish(self, publish=None):
         """The rest of the messages held, then the run's record: ``(outputs, record)``, the record a
