@@ -698,7 +698,7 @@ def identify(
             submit = beside.enter_context(side_by_side(2 if early else 1)) if early or converging else None
             jobs = {}
 
-            def columns_beside(eq):  # the drift test's candidates (their first spline imports SciPy's: 0.1 s), once
+            def columns_beside(eq):  # the drift test's candidates (a quadrature of the base rate), once
                 if "columns" not in jobs:
                     jobs["columns"] = None if drift else submit(drift_columns, eq, log)
 
