@@ -7,6 +7,8 @@ from html import escape
 
 import numpy as np
 
+from ._residuals import CONFOUNDED, DRIFT_FLOOR
+
 __all__ = ["identification_html"]
 
 _STYLE = ("<style>.spaceid-id table{border-collapse:collapse;font-size:12px}"
@@ -26,9 +28,7 @@ def diagnostic_rows(result) -> list:
             ("chi2 / dof", _number(d.chi2_dof), bool(d.noise_model_warning)),
             ("covariance", d.covariance or d.covariance_method or "–", False)]
     if d.drift_test is not None:
-        t = d.drift_test
-        text = f"p = {_number(t.p_value)}" if t.run else f"not run: {t.reason}"
-        rows.append(("drift test", text, bool(t.run and t.p_value is not None and t.p_value < t.alpha)))
+        rows.append(("drift test", *_drift_row(d.drift_test)))
     rows += [("noise model", d.noise_model_warning, True)] if d.noise_model_warning else []
     rows += [("plausibility", d.plausibility, not d.plausibility.startswith("no "))] if d.plausibility else []
     info = d.estimator_info
@@ -37,6 +37,25 @@ def diagnostic_rows(result) -> list:
     elif info.get("held"):
         rows.append(("estimator", f"maximum likelihood {info['held']}", False))
     return rows
+
+
+def _drift_row(t) -> tuple:
+    """(text, warning?) of the drift test: its p-value and what it decided, a warning only when it warned. A
+    p-value under its level without a warning says why the test did not decide (on an undesigned spatial log,
+    the directions the data do not determine; :mod:`spaceid.estimation._residuals`)."""
+    if not t.run:
+        return f"not run: {t.reason}", False
+    text = f"p = {_number(t.p_value)}"
+    if t.drift:
+        cause = f"a gyro bias of {', '.join(f'{b:.3g}' for b in t.gyro_bias)} rad/s" if t.gyro_bias else \
+            f"a momentum drift of {100 * t.relative_drift:.2g} % of its RMS"
+        return f"{text} < {t.alpha:g}: {cause}", True
+    if t.p_value is None or t.p_value >= t.alpha:
+        return f"{text}: no drift", False
+    if t.confounded is not None and t.confounded >= CONFOUNDED:
+        return (f"{text} < {t.alpha:g}, not decided: {100 * t.confounded:.3g} % of a drift coefficient's variance "
+                "comes from directions the data do not determine"), False
+    return f"{text} < {t.alpha:g}, not decided: the fitted drift is round-off (below {DRIFT_FLOOR:g} of the RMS)", False
 
 
 def identification_html(result) -> str:
