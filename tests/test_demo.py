@@ -42,6 +42,8 @@ def test_designed_demo_writes_report(tmp_path, capsys, monkeypatch):
     monkeypatch.setattr(_regressor, "_derive_minimal", lambda *a: pytest.fail("derived although the demo warmed it"))
     assert all(_regressor.minimal_parameters(load_model(name)).n_params for name in PRESETS)
     _regressor._minimal_cached.cache_clear()
+    # and the monitor's default threshold for planar and spatial equations (one row, three)
+    assert len(list((tmp_path / "cache" / "cusum-threshold").glob("*.npz"))) == 2
     out = json.loads(capsys.readouterr().out)
     assert out["condition_number"] < 37.8  # the design target (best known about 36)
     for p in out["parameters"]:

@@ -96,6 +96,28 @@ def test_threshold_gives_the_stated_run_length(rows):
     assert cusum_run_length(h, rows, actual=4.0) < cusum_run_length(h, rows) / 10  # a change shortens it
 
 
+def test_threshold_is_cached_on_disk_by_its_arguments(monkeypatch, tmp_path):
+    """A threshold is written to the on-disk cache and read back bit for bit in a later process (the run length
+    is not evaluated again); other arguments, or a damaged entry, are computed anew."""
+    from spaceid.estimation import _monitor_cusum
+
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path))
+    cusum_threshold.cache_clear()
+    h = cusum_threshold(2e-3, 3)
+    entries = list((tmp_path / "cusum-threshold").glob("*.npz"))
+    assert len(entries) == 1
+    cusum_threshold.cache_clear()  # a later process: its memory empty, the disk not
+    with monkeypatch.context() as m:
+        m.setattr(_monitor_cusum, "cusum_run_length", lambda *a, **k: pytest.fail("evaluated although cached"))
+        assert cusum_threshold(2e-3, 3) == h
+    cusum_threshold.cache_clear()
+    assert cusum_threshold(2e-3, 1) != h and len(list((tmp_path / "cusum-threshold").glob("*.npz"))) == 2
+    entries[0].write_bytes(b"damaged")
+    cusum_threshold.cache_clear()
+    assert cusum_threshold(2e-3, 3) == h
+    cusum_threshold.cache_clear()
+
+
 def test_recursive_estimate_equals_batch_weighted_least_squares(cepheus, steady):
     _, param = cepheus
     log = _noisy(steady, 3)

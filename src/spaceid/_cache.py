@@ -17,7 +17,7 @@ import numpy as np
 
 from ._atomic import atomic_path
 
-__all__ = ["cache_dir", "cache_key", "read_cached", "write_cached"]
+__all__ = ["cache_dir", "cache_key", "read_cached", "source_digest", "write_cached"]
 
 
 def cache_dir() -> Path:
@@ -32,6 +32,12 @@ def cache_dir() -> Path:
 def cache_key(*parts) -> str:
     """Hex SHA-256 of the ``repr`` of ``parts`` (give them in a deterministic form: no sets)."""
     return hashlib.sha256(repr(parts).encode()).hexdigest()
+
+
+def source_digest(*paths) -> str:
+    """Hash of the source files ``paths``: in an entry's key, a change to the code that derives it makes the entry
+    stale."""
+    return cache_key(*(hashlib.sha256(Path(path).read_bytes()).hexdigest() for path in paths))
 
 
 def _path(kind: str, key: str) -> Path:

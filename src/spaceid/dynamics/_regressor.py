@@ -34,7 +34,6 @@ from __future__ import annotations
 
 import contextlib
 import functools
-import hashlib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -42,7 +41,7 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg import solve_triangular
 
-from .._cache import cache_key, read_cached, write_cached
+from .._cache import cache_key, read_cached, source_digest, write_cached
 from .._errors import SpaceidError
 from .._threads import one_blas_thread, work_threads
 from ._definitions import column_definitions, planar_definitions
@@ -725,8 +724,7 @@ _DERIVATION_SOURCES = ("_regressor.py", "_definitions.py", "_kinematics.py", "_k
 @functools.cache
 def _derivation_digest() -> str:
     """Hash of the code the derivation runs: a changed derivation makes old cache entries stale."""
-    here = Path(__file__).parent
-    return cache_key(*(hashlib.sha256((here / name).read_bytes()).hexdigest() for name in _DERIVATION_SOURCES))
+    return source_digest(*(Path(__file__).parent / name for name in _DERIVATION_SOURCES))
 
 
 def _set_key(geometry: _Geometry, tol: float, seed: int) -> str:

@@ -15,6 +15,7 @@ import math
 import numpy as np
 from .._distributions import chi2_cdf
 
+from .._cache import cache_key, read_cached, source_digest, write_cached
 from .._constants import CHANGE_RATIO, FALSE_ALARM_RATE
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
@@ -71,7 +72,10 @@ def cusum_run_length(threshold: float, rows: int, ratio: float = CHANGE_RATIO, *
 @functools.lru_cache(maxsize=64)
 def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RATIO) -> float:
     """The CUSUM threshold whose run length between false alarms is ``1 / false_alarm_rate``; remembered
-    for the process (a root of :func:`cusum_run_length`: a dozen of its evaluations, 0.1 s).
+    for the process and in the on-disk cache (:mod:`spaceid._cache`, keyed by the arguments and this code):
+    a root of :func:`cusum_run_length`, a dozen of its evaluations and SciPy's root finder, whose import
+    with them took 0.12 s of a first ``monitor`` (``spaceid demo``, the install step, caches the default
+    rate's for planar and spatial systems).
 
     Parameters
     ----------
@@ -92,16 +96,32 @@ def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RA
     SpaceidError
         ``false_alarm_rate`` outside (0, 0.5) or ``ratio`` not above 1.
     """
-    from scipy.optimize import brentq
     if not 0 < false_alarm_rate < 0.5:
         raise SpaceidError(f"`false_alarm_rate`: {false_alarm_rate!r}: give false alarms per sample in (0, 0.5), "
                            f"e.g. {FALSE_ALARM_RATE:g}")
     if not ratio > 1:
         raise SpaceidError(f"`change_ratio`: {ratio!r}: give an innovation variance ratio above 1, "
                            f"e.g. {CHANGE_RATIO:g}")
+    key = cache_key(float(false_alarm_rate), int(rows), float(ratio), np.__version__, _threshold_digest())
+    stored = read_cached(_CACHE_KIND, key)
+    if stored is not None:
+        return float(stored["threshold"])
+    from scipy.optimize import brentq
+
     target = math.log(1 / false_alarm_rate)
     gap = lambda h: math.log(cusum_run_length(h, rows, ratio)) - target  # noqa: E731
-    return float(brentq(gap, 1e-6, target + 1.0, xtol=1e-6))
+    threshold = float(brentq(gap, 1e-6, target + 1.0, xtol=1e-6))
+    write_cached(_CACHE_KIND, key, {"threshold": np.array(threshold)})
+    return threshold
+
+
+_CACHE_KIND = "cusum-threshold"
+
+
+@functools.cache
+def _threshold_digest() -> str:
+    """Hash of the code a threshold comes from (this module's run lengths, the chi-square distribution)."""
+    return source_digest(__file__, chi2_cdf.__code__.co_filename)
 
 
 class StatisticTrace:

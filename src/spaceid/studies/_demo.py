@@ -17,7 +17,8 @@ from pathlib import Path
 import numpy as np
 
 from ..motion import design_excitation
-from ..estimation import Identification, identify
+from .._constants import FALSE_ALARM_RATE
+from ..estimation import Identification, cusum_threshold, identify
 from ..data import write_json, write_log
 from ..models import PRESETS, load_model
 from ..estimation import Noise
@@ -150,14 +151,15 @@ def warm_preset_sets(presets=PRESETS) -> None:
     """Derive the minimal parameter set of every preset model in ``presets`` (default: all) into the on-disk
     cache (:func:`~spaceid.dynamics.minimal_parameters`; read from it when it is there), and those of a payload
     on each of its bodies with declared zeros (a payload frees them: another set; Cepheus's links, 0.4 s each
-    in a first ``spaceid payload``). ``spaceid demo`` ends with it, so that no first command on a preset
-    derives one (the servicer's: about 3 s of CPU, the others' under 1 s; reading a cached set takes
-    milliseconds)."""
+    in a first ``spaceid payload``), and the monitor's CUSUM threshold at its default false-alarm rate for
+    each preset's equations (:func:`~spaceid.estimation.cusum_threshold`, 0.12 s of a first ``monitor``).
+    ``spaceid demo`` ends with it, so that no first command on a preset derives one (the servicer's set: about
+    3 s of CPU, the others' under 1 s; reading a cached set takes milliseconds)."""
     from ..identified import payload_map
 
     for name in presets:
         model = load_model(name)
-        minimal_parameters(model)
+        cusum_threshold(FALSE_ALARM_RATE, minimal_parameters(model).rows)
         for body in model.bodies:
             if body.known_zero:
                 payload_map(model, body.name)
