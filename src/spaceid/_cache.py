@@ -1,5 +1,6 @@
 """The on-disk cache of derived data (the minimal parameter sets, the monitor's CUSUM thresholds): arrays
-in ``.npz`` files named by a key, under ``$SPACEID_CACHE_DIR``, else ``$XDG_CACHE_HOME/spaceid``, else ``~/.cache/spaceid``.
+in ``.npz`` files named by a key, under ``$SPACEID_CACHE_DIR``, else ``$XDG_CACHE_HOME/spaceid``, else
+``~/.cache/spaceid``.
 
 An entry records its key: a file that does not load, or holds another key, is ignored (and the
 caller's rewrite replaces it). Writes are atomic; a cache that cannot be written is skipped.
