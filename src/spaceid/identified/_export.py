@@ -171,7 +171,7 @@ class _Program:
         cons = [b >> MARGIN * np.eye(4) for b in x] + [theta == self.g @ vec]
         cons += [self.z @ vec == 0] if len(self.z) else []
         eq = a_eq @ theta - b_eq if len(a_eq) else None
-        ball = cp.norm(a_w @ theta - b_w) if len(a_w) else None
+        ball = cp.norm(_ball_residual(a_w, b_w, theta)) if len(a_w) else None
         if self.elastic:
             self.slack = cp.Variable(len(a_eq)) if len(a_eq) else None
             self.excess = cp.Variable(nonneg=True)
@@ -185,6 +185,20 @@ class _Program:
         if solved_tightly(cp.Problem(cp.Minimize(objective), cons)):
             self.solution = np.concatenate([b.value.ravel(order="F") for b in x])
         return self.solution
+
+
+def _ball_residual(a_w, b_w, theta):
+    """``A_w theta - b_w`` as an expression of the same norm: with more rows than unknowns (a spatial robot's
+    minimal parameters outnumber the standard ones), ``[R theta - Q^T b_w; |b_w - Q Q^T b_w|]`` from the
+    economy QR ``A_w = Q R``, exact up to rounding: the ellipsoid's cone holds ``n_theta + 1`` entries, not one a
+    minimal parameter (the servicer's programs: 170 + 1 against 496, each solve ~0.4 s with the dense one)."""
+    import cvxpy as cp
+
+    if len(a_w) <= a_w.shape[1]:
+        return a_w @ theta - b_w
+    q, r = np.linalg.qr(a_w)
+    qb = q.T @ b_w
+    return cp.hstack([r @ theta - qb, np.atleast_1d(np.linalg.norm(b_w - q @ qb))])
 
 
 def _conditions(param, g, theta, e, w, pi, *, project=True):
