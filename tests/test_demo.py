@@ -32,10 +32,12 @@ def test_noise_reproduces_the_papers_error_size():
 @pytest.mark.slow
 def test_designed_demo_writes_report(tmp_path, capsys, monkeypatch):
     from spaceid.dynamics import _regressor
+    from spaceid.estimation import cusum_threshold
     from spaceid.models import PRESETS, load_model
 
     monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path / "cache"))
     _regressor._minimal_cached.cache_clear()
+    cusum_threshold.cache_clear()  # as in a fresh process: a threshold an earlier test computed is not remembered
     assert main(["demo", "--seed", "1", "--out", str(tmp_path / "rep"), "--json"]) == 0
     # the install step: every preset's minimal set is cached, so no first command derives one
     _regressor._minimal_cached.cache_clear()
