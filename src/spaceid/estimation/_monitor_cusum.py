@@ -13,6 +13,7 @@ import functools
 import math
 
 import numpy as np
+import scipy
 from .._distributions import chi2_cdf
 
 from .._cache import cache_key, read_cached, source_digest, write_cached
@@ -69,6 +70,9 @@ def cusum_run_length(threshold: float, rows: int, ratio: float = CHANGE_RATIO, *
         return float(np.linalg.solve(np.eye(cells + 1) - Q, np.ones(cells + 1))[0])
 
 
+_CACHE_KIND = "cusum-threshold"
+
+
 @functools.lru_cache(maxsize=64)
 def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RATIO) -> float:
     """The CUSUM threshold whose run length between false alarms is ``1 / false_alarm_rate``; remembered
@@ -102,7 +106,8 @@ def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RA
     if not ratio > 1:
         raise SpaceidError(f"`change_ratio`: {ratio!r}: give an innovation variance ratio above 1, "
                            f"e.g. {CHANGE_RATIO:g}")
-    key = cache_key(float(false_alarm_rate), int(rows), float(ratio), np.__version__, _threshold_digest())
+    key = cache_key(float(false_alarm_rate), int(rows), float(ratio), np.__version__, scipy.__version__,
+                    _threshold_digest())
     stored = read_cached(_CACHE_KIND, key)
     if stored is not None:
         return float(stored["threshold"])
@@ -113,9 +118,6 @@ def cusum_threshold(false_alarm_rate: float, rows: int, ratio: float = CHANGE_RA
     threshold = float(brentq(gap, 1e-6, target + 1.0, xtol=1e-6))
     write_cached(_CACHE_KIND, key, {"threshold": np.array(threshold)})
     return threshold
-
-
-_CACHE_KIND = "cusum-threshold"
 
 
 @functools.cache

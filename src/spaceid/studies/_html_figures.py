@@ -4,7 +4,9 @@ study's errors and efficiency, and a monitor's statistic, events and parameter c
 figures (:mod:`spaceid.studies._figures`) show the same for print; these zoom and hover, and read
 at hundreds of parameters (hover names each point; zoom spreads the ticks).
 
-Plotly is imported when a figure is drawn.
+The figures written as Plotly's plain dicts (an identification's, a validation's) import nothing of
+Plotly; those built as its graph objects (a Monte Carlo study's, a monitor's statistic and events)
+import them when drawn.
 """
 
 from __future__ import annotations

@@ -9,14 +9,13 @@ a page with a figure is written (for plotly.js), not with this module.
 from __future__ import annotations
 
 import base64
-import json
 from html import escape
 from pathlib import Path
 
 import numpy as np
 
 from .._atomic import write_text_atomic
-from .._json import json_values
+from .._json import json_line
 
 __all__ = ["Page", "MAX_POINTS", "downsample"]
 
@@ -80,11 +79,16 @@ document.querySelectorAll("table.sortable").forEach(function(table){
 _CONFIG = {"displaylogo": False, "responsive": True, "toImageButtonOptions": {"format": "png", "scale": 2}}
 
 
+_SCRIPT_UNSAFE = {"<": "\\u003c", ">": "\\u003e", "/": "\\u002f", "\u2028": "\\u2028", "\u2029": "\\u2029"}
+
+
 def _script_json(value) -> str:
-    """``value`` as JSON that is safe inside a ``<script>`` (``<``, ``>`` and ``/`` escaped, as Plotly's own
-    writer does: a name holding ``</script>`` cannot end it), NumPy arrays as lists, non-finite floats null."""
-    text = json.dumps(json_values(value), separators=(",", ":"), allow_nan=False)
-    return text.replace("<", "\\u003c").replace(">", "\\u003e").replace("/", "\\u002f")
+    """``value`` as compact JSON (:func:`~spaceid._json.json_line`) that is safe inside a ``<script>``: the
+    characters Plotly's own writer escapes there escaped (a name holding ``</script>`` cannot end it)."""
+    text = json_line(value)
+    for char, escaped in _SCRIPT_UNSAFE.items():
+        text = text.replace(char, escaped)
+    return text
 
 
 def downsample(t, *ys, max_points: int = MAX_POINTS) -> tuple:
