@@ -9,6 +9,7 @@ import pytest
 from rich.console import Console
 
 import spaceid
+from spaceid._figure_style import RANKED_SIZE
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import (
     LARGE_SHARE,
@@ -17,7 +18,6 @@ from spaceid.estimation import (
     log_momentum_scale,
     momentum_scale,
 )
-from spaceid.estimation._plots import RANKED_SIZE
 from spaceid.motion import FourierTrajectory, bound_summary, simulate
 from spaceid.studies import parameter_table, plot_parameters
 

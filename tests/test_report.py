@@ -281,6 +281,15 @@ def test_singular_value_figure(tmp_path, ident):
         plot_singular_values(empty, tmp_path / "sv2.png")
 
 
+def test_singular_value_figure_of_many_parameters(ident):
+    """496 singular values (the servicer's): integer ticks matplotlib spaces, not one per index, which overlapped."""
+    many = Identification(**{**ident.__dict__, "singular_values": np.geomspace(57.1, 1e-3, 496)})
+    (ax,) = draw_singular_values(many).axes
+    ticks = [t for t in ax.get_xticks() if 1 <= t <= 496]
+    assert 3 <= len(ticks) <= 12 and all(float(t).is_integer() for t in ticks)
+    assert len(ax.get_lines()[0].get_xdata()) == 496
+
+
 def test_trajectory_figure(tmp_path):
     t = np.linspace(0, 5, 301)
     q = np.stack([0.6 * np.sin(t), np.sin(2 * t)], axis=1)
@@ -361,6 +370,48 @@ def test_montecarlo_figure(tmp_path, montecarlo):
     assert any("s.e." in label and "sqrt{2R}" in label for label in labels)
     assert {"ML (R = 4 runs)", "OLS (R = 3 runs)", "CRB $\\pm 2\\sigma$"} <= set(labels)
     assert bars.get_ylim()[1] >= np.nanmax(centre + half)
+
+
+def _many_parameter_study(k=150, runs=6, seed=0):
+    """A Monte Carlo result of ``k`` parameters, two estimators and ``runs`` runs (OLS's first failed), its statistics
+    those of its estimates: every record field as a study of a large robot fills it."""
+    from spaceid.studies import MonteCarloResult
+    from spaceid.studies._montecarlo_stats import _statistics
+
+    rng = np.random.default_rng(seed)
+    true, crb = rng.uniform(0.5, 2.0, k), rng.uniform(0.01, 0.05, k)
+    spread = {"ml": rng.uniform(0.8, 1.5, k), "ols": rng.uniform(0.8, 40.0, k)}
+    estimates = {e: true + spread[e] * crb * rng.standard_normal((runs, k)) for e in spread}
+    estimates["ols"][0] = np.nan
+    predicted = {e: np.tile(crb, (runs, 1)) for e in spread}
+    stats = {e: _statistics(estimates[e], predicted[e], true, crb) for e in spread}
+    names = tuple(f"pi{i + 1}" for i in range(k))
+    return MonteCarloResult(names, names, true, ("ml", "ols"), estimates, predicted, np.diag(crb**2), crb, stats,
+                            settings={"runs": runs, "n_samples": 400, "seed": seed,
+                                      "noise": {"angle": 1e-3, "rate": 1e-3, "base_rate": 1e-3, "attitude": 1e-3}})
+
+
+def test_montecarlo_figure_ranks_many_parameters(tmp_path):
+    """150 parameters: the efficiency panel ranks them at a fixed width (it had a bar and a tick each: the servicer's
+    496 drew 37,575 pixels wide in 9 s), every estimator at the ranks of the first's ratios, the worst named."""
+    study = _many_parameter_study()
+    fig = _draw_montecarlo(study)
+    _assert_titled_and_labelled(fig)
+    assert fig.get_size_inches()[0] <= 9.0
+    (panel,) = [ax for ax in fig.axes if "ranked" in ax.get_title(loc="left")]
+    assert "rank of the 150 minimal parameters by ML's RMSE / CRB" in panel.get_xlabel() and not panel.get_xticklabels()[0].get_text().startswith("$")
+    order = np.argsort(-study.stats["ml"]["rmse_crb"])
+    for e, runs_ok in (("ml", 6), ("ols", 5)):
+        ratio = study.stats[e]["rmse_crb"][order]
+        line = _line(panel, f"{e.upper()} (R = {runs_ok} runs)")
+        np.testing.assert_array_equal(line.get_xdata(), np.arange(1, 151))
+        np.testing.assert_allclose(line.get_ydata(), ratio, rtol=1e-12)
+    assert panel.get_yscale() == "log"  # OLS's ratios reach 40: a linear axis would flatten ML's
+    (box,) = [t.get_text() for t in panel.texts if t.get_text().startswith("worst")]
+    assert box.split("\n")[1:] == [f"$\\pi_{{{i + 1}}}$: {study.stats['ml']['rmse_crb'][i]:.3g}" for i in order[:8]]
+    plot_montecarlo(study, tmp_path / "mc.png")
+    width, height = _png_size(tmp_path / "mc.png")
+    assert width <= 1350 and height <= 1500, (width, height)
 
 
 def test_figures_leave_global_matplotlib_state_alone(tmp_path, ident):

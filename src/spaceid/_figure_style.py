@@ -52,6 +52,17 @@ COLOR_MEASURED, COLOR_MODEL, COLOR_TRUE = "0.15", "tab:red", "tab:green"
 COLOR_REFERENCE, COLOR_LIMIT, COLOR_ANCHOR = "0.55", "tab:orange", "tab:blue"
 
 
+MANY = 40
+"""Above this many parameters a figure ranks them instead of giving each a tick (an identification's estimates,
+:func:`spaceid.estimation._plots._draw_ranked`; a Monte Carlo study's efficiency,
+:func:`spaceid.studies._figures._rmse_crb_ranked`): a per-parameter axis grows with the count (11,175 pixels at
+120) and is unreadable."""
+LABELLED = 8
+"""Parameters named on a ranked figure: the worst this many."""
+RANKED_SIZE = (8.0, 6.2)
+"""Size [in] of a ranked figure, whatever the number of parameters (1200 x 930 pixels at 150 dpi)."""
+
+
 def styled(draw):
     """Run a ``_draw_*`` function under the house style (artists take their style when created)."""
 
@@ -147,3 +158,16 @@ def tex_unit(unit: str) -> str:
 
 def rms(x) -> float:
     return float(np.sqrt(np.mean(np.square(x))))
+
+
+def mark_worst(ax, x, y, names, order, unit: str, corner: str) -> None:
+    """Mark the points ``order[:LABELLED]`` (the worst first) and list their names and values in a
+    box at ``corner`` ("upper right", ...): labels beside crowded points would overlap."""
+    worst = order[:LABELLED]
+    ax.plot(x[worst], y[worst], "o", markersize=5, markerfacecolor="none", markeredgecolor=COLOR_MODEL,
+            label=f"the worst {len(worst)}")  # fmt: skip
+    lines = [f"{tex_name(names[i])}: {y[i]:.3g}{unit}" for i in worst]
+    top, right = corner.startswith("upper"), corner.endswith("right")
+    ax.text(0.99 if right else 0.01, 0.97 if top else 0.03, "worst\n" + "\n".join(lines), transform=ax.transAxes,
+            ha="right" if right else "left", va="top" if top else "bottom", fontsize=7, color=COLOR_MODEL,
+            bbox={"boxstyle": "round", "facecolor": "white", "edgecolor": "0.8", "alpha": 0.9})  # fmt: skip

@@ -11,8 +11,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .._errors import SpaceidError
-from .._figure_style import (COLOR_ANCHOR, COLOR_MEASURED, COLOR_MODEL, COLOR_REFERENCE, COLOR_TRUE, figure_legend,
-                             new_axes, new_figure, styled, tex_name, tex_unit)
+from .._figure_style import (COLOR_ANCHOR, COLOR_MEASURED, COLOR_REFERENCE, COLOR_TRUE, MANY, RANKED_SIZE,
+                             figure_legend, mark_worst, new_axes, new_figure, styled, tex_name, tex_unit)
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
@@ -67,20 +67,11 @@ def _percent_errors(ident: Identification, true):
     return signed, 200 * rel_std, r"signed error $(\hat\pi_i - \pi_i)\,/\,|\pi_i|$ [%]"
 
 
-MANY = 40
-"""Above this many parameters the figure ranks them (:func:`_draw_ranked`) instead of giving each a
-tick: a per-parameter axis grows with the count (11,175 pixels at 120) and is unreadable."""
-LABELLED = 8
-"""Parameters named on a ranked figure: the worst this many."""
-RANKED_SIZE = (8.0, 6.2)
-"""Size [in] of a ranked figure, whatever the number of parameters (1200 x 930 pixels at 150 dpi)."""
-
-
 @styled
 def draw_parameters(ident: Identification, true=None, reference=None, reference_label="paper", ax=None) -> Figure:
     """The figure of :func:`spaceid.studies.plot_parameters`, on ``ax`` when given (the legend then on
-    ``ax``), else on a new figure (the legend below the axes). Above :data:`MANY` parameters, the
-    ranked figure of :func:`_draw_ranked` (``reference`` is not drawn there)."""
+    ``ax``), else on a new figure (the legend below the axes). Above :data:`~spaceid._figure_style.MANY`
+    parameters, the ranked figure of :func:`_draw_ranked` (``reference`` is not drawn there)."""
     true = per_parameter(true, ident, "`true`")
     reference = per_parameter(reference, ident, "`reference`")
     if len(ident.names) > MANY:
@@ -137,8 +128,13 @@ def draw_singular_values(ident: Identification, ax=None) -> Figure:
         raise SpaceidError("plot_singular_values: the result has no singular values: identify again (spaceid identify)")
     i = np.arange(1, s.size + 1)
     fig, ax = new_axes(ax, (5.0, 3.2))
-    ax.semilogy(i, s / s[0], "o-", color=COLOR_MEASURED)
-    ax.set_xticks(i)
+    ax.semilogy(i, s / s[0], "o-", color=COLOR_MEASURED, markersize=4 if s.size <= MANY else 2)
+    if s.size <= MANY:
+        ax.set_xticks(i)
+    else:  # a tick per index would overlap (the servicer's 496): matplotlib's integer ticks
+        from matplotlib.ticker import MaxNLocator
+
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.set_xlabel("index $i$ (decreasing order)")
     ax.set_ylabel(r"$\sigma_i / \sigma_1$ of $\hat Y$ [-]")
     ax.set_title(rf"Singular values of the stacked regressor $\hat Y$ (N = {ident.n_samples}):" "\n"
@@ -146,25 +142,12 @@ def draw_singular_values(ident: Identification, ax=None) -> Figure:
     return fig
 
 
-def _mark_worst(ax, x, y, names, order, unit: str, corner: str) -> None:
-    """Mark the points ``order[:LABELLED]`` (the worst first) and list their names and values in a
-    box at ``corner`` ("upper right", ...): labels beside crowded points would overlap."""
-    worst = order[:LABELLED]
-    ax.plot(x[worst], y[worst], "o", markersize=5, markerfacecolor="none", markeredgecolor=COLOR_MODEL,
-            label=f"the worst {len(worst)}")  # fmt: skip
-    lines = [f"{tex_name(names[i])}: {y[i]:.3g}{unit}" for i in worst]
-    top, right = corner.startswith("upper"), corner.endswith("right")
-    ax.text(0.99 if right else 0.01, 0.97 if top else 0.03, "worst\n" + "\n".join(lines), transform=ax.transAxes,
-            ha="right" if right else "left", va="top" if top else "bottom", fontsize=7, color=COLOR_MODEL,
-            bbox={"boxstyle": "round", "facecolor": "white", "edgecolor": "0.8", "alpha": 0.9})  # fmt: skip
-
-
 def _draw_ranked(ident: Identification, true, ax) -> Figure:
     """Many parameters ranked, at a fixed size: with ``true``, their z-scores ``(estimate - true) /
     std`` sorted (the 2-sigma band marked) over their errors as the momentum they cause (a fraction of
     the momentum scale, :class:`~spaceid.estimation.MomentumScale`), sorted; without, the standard
     deviations so scaled (relative to the estimate for results without a scale). The worst
-    :data:`LABELLED` are named."""
+    :data:`~spaceid._figure_style.LABELLED` are named."""
     free = np.flatnonzero(~_anchored(ident) & (ident.std > 0))
     names = list(ident.names)
     panels = 2 if true is not None else 1
@@ -186,7 +169,7 @@ def _draw_ranked(ident: Identification, true, ax) -> Figure:
         top.plot(rank, z[order], "o", color=COLOR_MEASURED, markersize=3,
                  label=r"$z = (\hat\pi_i - \pi_i)\,/\,\sigma_i$, sorted")  # fmt: skip
         worst = np.argsort(-np.abs(z[order]))
-        _mark_worst(top, rank, z[order], [names[i] for i in free[order]], worst, "", "lower right")
+        mark_worst(top, rank, z[order], [names[i] for i in free[order]], worst, "", "lower right")
         within = np.mean(np.abs(z) <= 2)
         top.set_ylabel("z-score [-]")
         top.set_xlabel(f"rank of the {len(z)} estimated parameters (anchored ones left out)")
@@ -199,7 +182,7 @@ def _draw_ranked(ident: Identification, true, ax) -> Figure:
     order = np.argsort(-values)
     rank = np.arange(1, len(values) + 1)
     bottom.semilogy(rank, values[order], "o", color=COLOR_MEASURED, markersize=3, label=label)
-    _mark_worst(bottom, rank, values[order], [names[i] for i in free[order]], np.arange(len(values)), " %",
+    mark_worst(bottom, rank, values[order], [names[i] for i in free[order]], np.arange(len(values)), " %",
                 "upper right")
     bottom.set_xlabel(f"rank of the {len(values)} estimated parameters, largest first")
     bottom.set_ylabel(label.split(":")[0])

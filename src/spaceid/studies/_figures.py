@@ -21,7 +21,8 @@ import numpy as np
 from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from .._figure_style import (COLOR_ANCHOR, COLOR_LIMIT, COLOR_MEASURED, COLOR_MODEL, COLOR_REFERENCE, COLOR_TRUE,
-                             canvas, figure_legend, finish_figure, rms, styled, tex_name)
+                             LABELLED, MANY, RANKED_SIZE, canvas, figure_legend, finish_figure, mark_worst, rms,
+                             styled, tex_name)
 from ..data import Log
 from ..estimation import Identification
 from ..estimation.internal import draw_parameters, draw_singular_values
@@ -300,33 +301,76 @@ def _noise_text(settings: dict) -> str:
             f"attitude {n['attitude']} rad")  # fmt: skip
 
 
+def _monte_carlo_ratios(result, estimator) -> tuple:
+    """``(ratio, half, label)`` of ``estimator``: RMSE / CRB of every parameter ``(k,)``, the half-width of its
+    Monte Carlo uncertainty (over R runs an RMSE has a relative standard error of about ``1 / sqrt(2 R)``;
+    +-2 of it) and the legend label naming R."""
+    ratio = np.asarray(result.stats[estimator]["rmse_crb"], float)
+    runs_ok = result.summary(estimator)["runs_ok"]
+    return ratio, 2 * ratio / np.sqrt(2 * max(runs_ok, 1)), f"{estimator.upper()} (R = {runs_ok} runs)"
+
+
+SE_LABEL = r"$\pm 2$ s.e. of a Monte Carlo RMSE, $\approx 2/\sqrt{2R}$ relative"
+"""Legend label of the Monte Carlo uncertainty of the RMSE / CRB ratios."""
+
+
+def _efficiency_axis(ax, top: float, crb_label: str) -> None:
+    """The line of an efficient estimator, the y scale (log when a ratio ``top`` beyond 10 would flatten the
+    others) and the y label of an RMSE / CRB panel."""
+    ax.axhline(1.0, color=COLOR_MEASURED, linewidth=0.9, label=f"RMSE = {crb_label} (efficient)")
+    if top > 10:
+        ax.set_yscale("log")  # a badly biased estimator would flatten the others
+    else:
+        ax.set_ylim(0, 1.08 * top)
+    ax.set_ylabel(f"RMSE / {crb_label} [-]")
+
+
 def _rmse_crb_bars(ax, result, colours, crb_label) -> None:
-    """RMSE / CRB of every parameter and estimator, with the Monte Carlo uncertainty of each ratio:
-    over R runs an RMSE has a relative standard error of about ``1 / sqrt(2 R)``; bars +-2 of it."""
+    """RMSE / CRB of every parameter and estimator as bars, each with its Monte Carlo uncertainty
+    (:func:`_monte_carlo_ratios`); above :data:`~spaceid._figure_style.MANY` parameters ranked instead
+    (:func:`_rmse_crb_ranked`)."""
+    if len(result.names) > MANY:
+        return _rmse_crb_ranked(ax, result, colours, crb_label)
     ests, k = result.estimators, len(result.names)
     x = np.arange(k)
     width = 0.8 / len(ests)
     xs, ratios, errors = [], [], []
     for j, (e, colour) in enumerate(zip(ests, colours)):
-        ratio = result.stats[e]["rmse_crb"]
-        runs_ok = result.summary(e)["runs_ok"]
+        ratio, half, label = _monte_carlo_ratios(result, e)
         xs.append(x + (j - (len(ests) - 1) / 2) * width)
         ratios.append(ratio)
-        errors.append(2 * ratio / np.sqrt(2 * max(runs_ok, 1)))
-        ax.bar(xs[-1], ratio, width, color=colour, alpha=0.8, label=f"{e.upper()} (R = {runs_ok} runs)")
+        errors.append(half)
+        ax.bar(xs[-1], ratio, width, color=colour, alpha=0.8, label=label)
     xs, ratios, errors = (np.concatenate(a) for a in (xs, ratios, errors))
-    ax.errorbar(xs, ratios, yerr=errors, fmt="none", ecolor="black", elinewidth=0.9, capsize=2,
-                label=r"$\pm 2$ s.e. of a Monte Carlo RMSE, $\approx 2/\sqrt{2R}$ relative")  # fmt: skip
-    ax.axhline(1.0, color=COLOR_MEASURED, linewidth=0.9, label=f"RMSE = {crb_label} (efficient)")
-    top = np.nanmax(np.append(ratios + errors, 1.0))
-    if top > 10:
-        ax.set_yscale("log")  # a badly biased estimator would flatten the others
-    else:
-        ax.set_ylim(0, 1.08 * top)
+    ax.errorbar(xs, ratios, yerr=errors, fmt="none", ecolor="black", elinewidth=0.9, capsize=2, label=SE_LABEL)
+    _efficiency_axis(ax, np.nanmax(np.append(ratios + errors, 1.0)), crb_label)
     ax.set_xticks(x, [tex_name(n) for n in result.names])
     ax.set_xlabel("minimal parameter")
-    ax.set_ylabel(f"RMSE / {crb_label} [-]")
     ax.set_title(f"Efficiency: RMSE over the runs / {crb_label} std of each parameter", loc="left")
+
+
+def _rmse_crb_ranked(ax, result, colours, crb_label) -> None:
+    """RMSE / CRB of many parameters, ranked by the first estimator's (largest first; parameters without a
+    ratio last): every estimator's at the same parameter's rank, with its Monte Carlo uncertainty, and the
+    first estimator's worst :data:`~spaceid._figure_style.LABELLED` named. A bar and a tick per parameter
+    would make the figure a foot wide per 25 parameters (the servicer's 496: 37,575 pixels, 9 s to draw)."""
+    ests, k = result.estimators, len(result.names)
+    first = _monte_carlo_ratios(result, ests[0])[0]
+    order = np.argsort(-np.nan_to_num(first, nan=-np.inf), kind="stable")
+    rank = np.arange(1, k + 1)
+    tops = [1.0]
+    for e, colour in zip(ests, colours):
+        ratio, half, label = _monte_carlo_ratios(result, e)
+        ratio, half = ratio[order], half[order]
+        ax.plot(rank, ratio, "o", markersize=2.5, color=colour, alpha=0.8, label=label)
+        ax.errorbar(rank, ratio, yerr=half, fmt="none", ecolor=colour, elinewidth=0.5, capsize=0, alpha=0.5,
+                    label=SE_LABEL)  # (one legend entry: the figure's legend keeps the first)
+        tops.append(np.nanmax(np.append(ratio + half, 1.0)))
+    _efficiency_axis(ax, max(tops), crb_label)
+    mark_worst(ax, rank, first[order], [result.names[i] for i in order], np.arange(min(LABELLED, k)), "",
+               "upper right")
+    ax.set_xlabel(f"rank of the {k} minimal parameters by {ests[0].upper()}'s RMSE / {crb_label}, largest first")
+    ax.set_title(f"Efficiency: RMSE over the runs / {crb_label} std of each parameter, ranked", loc="left")
 
 
 @styled
@@ -347,7 +391,8 @@ def _draw_montecarlo(result, max_panels: int = 12, fig=None) -> Figure:
     mosaic.append(["bars"] * ncols)
     colours = [_ESTIMATOR_COLOURS.get(e, COLOR_MEASURED) for e in ests]
     crb_label = "white-noise-equivalent CRB" if result.settings.get("angles_only") else "CRB"
-    fig = canvas(fig, (max(7.0, 2.1 * ncols + 0.6, 0.5 * k + 2.5), 1.9 * nrows + 3.9))  # 7 in: the title
+    width = 0.5 * k + 2.5 if k <= MANY else RANKED_SIZE[0]  # a bar per parameter, or ranked (_rmse_crb_bars)
+    fig = canvas(fig, (max(7.0, 2.1 * ncols + 0.6, width), 1.9 * nrows + 3.9))  # 7 in: the title
     axes = fig.subplot_mosaic(mosaic, height_ratios=[1] * nrows + [1.35])
     for p, i in enumerate(shown):
         ax = axes[f"p{p}"]
