@@ -49,6 +49,28 @@ def test_noise_to_signal_of_constructed_directions():
     assert noise_to_signal(held, noisy)[0][-1] >= UNDETERMINED
 
 
+def test_noise_to_signal_above_a_level_is_empty_or_whole():
+    """With ``above``: empty when no ratio reaches it (the directions are not formed), every ratio and direction
+    as without it when one does, even just."""
+    rng = np.random.default_rng(2)
+    k = 7
+    Wi = np.linalg.inv(rng.standard_normal((k, k)))
+    for noise, expect in ((np.full(k, 0.1), 0), (np.append(np.full(k - 1, 0.1), 10.0), 1), (np.full(k, 2.0), k)):
+        gram, noisy = Wi.T @ np.diag(1.0 + noise**2) @ Wi, Wi.T @ np.diag(noise**2) @ Wi
+        R = np.linalg.cholesky(gram).T
+        whole = noise_to_signal(R, noisy)
+        mu, T = noise_to_signal(R, noisy, above=UNDETERMINED)
+        assert np.sum(whole[0] >= UNDETERMINED) == expect
+        if expect:
+            np.testing.assert_array_equal(mu, whole[0])
+            np.testing.assert_array_equal(T, whole[1])
+        else:
+            assert mu.shape == (0,) and T.shape == (k, 0)
+    level = noise_to_signal(R, noisy)[0][-1]  # every ratio 0.8: just below the largest, every direction formed
+    assert noise_to_signal(R, noisy, above=level * (1 - 1e-9))[1].shape == (k, k)
+    assert noise_to_signal(R, noisy, above=level * (1 + 1e-9))[1].shape == (k, 0)
+
+
 def test_widened_only_along_the_undetermined_coordinates():
     """In the coordinates ``c = T^-1 theta`` the covariance gains ``c(theta)^2 + c(nominal)^2`` on the
     undetermined ones and nothing elsewhere."""

@@ -16,6 +16,7 @@ References
 from __future__ import annotations
 
 import contextlib
+import functools
 import warnings
 from dataclasses import dataclass, replace
 
@@ -33,13 +34,13 @@ from ._determined import (UNDETERMINED, WIDENED, equation_noise, noise_ratios, u
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._differentiated import weighting_sigma
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
-from ._equations import _equations, _split
+from ._equations import _equations, _split, equation_residuals
 from ._estimators import _KERNELS, ESTIMATORS, _FitContext, _ols
 from ._gyro_bias import bias_test, identify_gyro_bias
-from ._linalg import _column_scale, _solve_factor, _triangular_factor
+from ._linalg import _column_scale, _factor_solution, _solve_factor, _triangular_factor
 from ._noise import Noise, noise_from_log
 from ._prior import PRIOR_STD, identify_with_prior, split_known, standard_anchor_error
-from ._residuals import drift_columns, drift_test
+from ._residuals import candidate_basis, drift_columns, drift_test
 from ._result import Identification
 from ._scales import log_momentum_scale
 from ._stream import check_chunk, streamed_covariance, streamed_estimate, streamed_ols_factor
@@ -212,18 +213,19 @@ def _drift_collinear(eq, cov_t, where) -> tuple:
 
 
 def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitener=None, chunk=None,
-                 noise=None, gram=None) -> tuple:
+                 noise=None, gram=None, basis=None, residuals=None) -> tuple:
     """The :class:`~spaceid.estimation.DriftTest` of the residuals for an unmodelled drift
     (:func:`spaceid.estimation._residuals.drift_test`, ``whitener`` the estimator's own, if any; streamed in chunks
     of ``chunk`` samples when given; ``noise`` the noise Gram matrix of the equations with the drift columns, or a
     function that returns it (computed beside the test), if formed; ``gram`` the Gram matrix of the columns
-    whitened by ``whitener``, if formed) and its warning (``""`` when silent); not run when drift terms are
-    modelled."""
+    whitened by ``whitener``, ``basis`` the candidates' and ``residuals`` those of ``theta``, if formed) and its
+    warning (``""`` when silent); not run when drift terms are modelled."""
     if drift:
         return DriftTest.skipped(f"drift terms modelled: {', '.join(drift)}"), ""
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
         return DriftTest.skipped("not defined for the angles estimator"), ""
-    test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk, noise=noise, gram=gram)
+    test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk, noise=noise, gram=gram, basis=basis,
+                      residuals=residuals)
     record = DriftTest.from_dict(test)
     if not test["drift"]:
         return record, ""
@@ -265,14 +267,14 @@ def _log_regressor(eq, phi, estimator: str):
     return phi[..., : eq.param.n_params]
 
 
-def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, columns):
+def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, basis):
     """A future, from ``submit`` (:func:`~spaceid._threads.side_by_side`), of the noise Gram matrix of the equations'
     columns with the drift test's candidates, whitened by the estimator's ``whitener``
     (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``): formed once, for the
-    undetermined directions and the drift test. ``columns``: a future of the candidates (:func:`drift_columns`),
-    None when drift terms are modelled."""
+    undetermined directions and the drift test. ``basis``: a future of the candidates'
+    (:func:`~spaceid.estimation._residuals.candidate_basis`), None when drift terms are modelled."""
     def job():
-        extra = None if columns is None else columns.result()
+        extra = None if basis is None else drift_columns(eq, log, basis.result())
         return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra)
     return submit(job)
 
@@ -293,14 +295,22 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
     not finite (as the factorisations do on singular systems), which :func:`identify` turns into a
     ``SpaceidError``. ``on_estimate(theta, whitener)``, if given, is called with the estimate as soon as it is
     known, before the work that follows (:func:`identify` starts checks beside it): ``ols``'s (no whitener) before
-    its covariance, ``ml``'s in memory once it converges, with its whitener, before the factor at its weights."""
+    its covariance, with its residuals ``phi [theta; 1]`` ``(n, rows)`` as a third argument (formed once, for the
+    covariance and the drift test), ``ml``'s in memory once it converges, with its whitener, before the factor at
+    its weights."""
+    residuals = None
+    if estimator == "ols" and on_estimate is not None and not chunk:  # before the inverse Gram matrix (p^3)
+        theta = _factor_solution(*ctx.factor[::-1])
+        if np.all(np.isfinite(theta)):
+            residuals = equation_residuals(ctx.phi, theta)  # formed once: the covariance's and the drift test's
+            on_estimate(theta, None, residuals)
     if chunk:
         theta, ginv = _solve_factor(*ctx.factor[::-1])
         info = {"ginv": ginv}
     else:
         theta, info = _ols(eq, x, sigma, None, ctx)
-    if estimator == "ols" and on_estimate is not None and np.all(np.isfinite(theta)):
-        on_estimate(theta, None)
+    if residuals is not None:
+        info["residuals"] = residuals
     if estimator != "ols":
         ols_info = info
         seen = {}  # ml: the ratios that stop a stalled fit (see _undetermined_reason)
@@ -690,22 +700,25 @@ def identify(
     chunk = None if chunk is None else check_chunk(chunk, estimator)
     # the checks beside the work before them. ols's need no estimate: its noise Gram matrix starts beside the equations
     # and, on a second worker, its drift test beside the covariance. ml's noise Gram matrix starts once it converges,
-    # beside the factor at its weights (again after it, should a fallback change them). The others' checks start
-    # after the estimate, beside the drift test.
+    # beside the factor at its weights (again after it, should a fallback change them), its drift test on the second
+    # worker once the factor is formed. The others' checks start after the estimate, beside the drift test.
     early, converging = estimator == "ols" and not chunk and not gyro_bias, estimator == "ml" and not chunk
     try:
         with contextlib.ExitStack() as beside:
-            submit = beside.enter_context(side_by_side(2 if early else 1)) if early or converging else None
+            submit = beside.enter_context(side_by_side(2)) if early or converging else None
             jobs = {}
 
-            def columns_beside(eq):  # the drift test's candidates (a quadrature of the base rate), once
-                if "columns" not in jobs:
-                    jobs["columns"] = None if drift else submit(drift_columns, eq, log)
+            def basis_beside():  # the drift test's candidates (a quadrature of the base rate), once
+                if "basis" not in jobs:
+                    jobs["basis"] = None if drift else submit(candidate_basis, log)
 
             def noise_beside(eq, x, sigma, theta=None, whitener=None):
-                columns_beside(eq)
+                basis_beside()
                 jobs["gram"], jobs["weights"] = _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener,
-                                                            jobs["columns"]), whitener
+                                                            jobs["basis"]), whitener
+
+            def basis():  # the candidates' basis, if formed beside
+                return jobs["basis"].result() if jobs.get("basis") is not None else None
 
             prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
                              cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
@@ -716,12 +729,12 @@ def identify(
                 prep.sigma, prep.start)
             angles = ctx.angles
             if submit is not None:  # formed while the estimator runs (ols's are already, beside the equations)
-                columns_beside(eq)
+                basis_beside()
 
-            def on_estimate(theta, whitener):
-                if early:  # (ols: no whitener, the excitation check's factor)
+            def on_estimate(theta, whitener, residuals=None):
+                if early:  # (ols: no whitener, the excitation check's factor, its residuals)
                     jobs["drift"] = submit(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, None,
-                                           None, jobs["gram"].result, _factor_gram(factor))
+                                           None, jobs["gram"].result, _factor_gram(factor), basis(), residuals)
                 else:
                     noise_beside(eq, x, sigma, theta, whitener)
 
@@ -743,16 +756,20 @@ def identify(
             submit = submit or beside.enter_context(side_by_side())
             if not chunk and estimator != "angles" and not ("gram" in jobs and jobs["weights"] is whitener):
                 noise_beside(eq, x, sigma, theta, whitener)
+            drift_job = jobs.get("drift")  # ols's, on a worker since its estimate
+            if not early:  # ml's on the second worker, submitted before the directions (they wait for the noise)
+                check = functools.partial(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, whitener,
+                                          chunk, jobs["gram"].result if "gram" in jobs else None,
+                                          _factor_gram(white_factor), basis())
+                drift_job = submit(check) if converging else None
             if "gram" in jobs:
                 jobs["directions"] = submit(lambda: undetermined_directions(
                     eq, x, phi, sigma, theta, estimator, log, whitener, jobs["gram"].result()[: eq.p, : eq.p],
                     white_factor))
             s = _singular_values(factor)
             scale = log_momentum_scale(param, log, regressor=_log_regressor(eq, phi, estimator))  # (while ols waits)
-            # the drift test here while the directions are found beside (ols's is on a worker: taken last)
-            checked = None if early else _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where,
-                                                      whitener, chunk, jobs["gram"].result if "gram" in jobs else None,
-                                                      _factor_gram(white_factor))
+            # the others' drift test here while the directions are found beside (ols's and ml's on a worker: taken last)
+            checked = None if drift_job else check()
             weak, ratios = jobs["directions"].result() if "directions" in jobs else ([], None)
             if weak:  # the standard errors say what the data do not determine
                 fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
@@ -760,7 +777,7 @@ def identify(
             # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
             # wrong momentum or anchor
             fit = replace(fit, implausible=_implausible_estimate(eq, theta, fit.cov, where))
-            drift_record, drift_warning = jobs["drift"].result() if early else checked
+            drift_record, drift_warning = drift_job.result() if drift_job else checked
         if drift_record.drift and not gyro_bias:  # an unestimated gyro bias trends too: named if it fits better
             bias, warning = bias_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk,
                                       drift_record.to_dict(), where)

@@ -266,9 +266,18 @@ def _solve_factor(R, scale, extra=None):
     p = len(scale)
     r = R[:p, :p]
     with one_blas_thread():
-        rhs = R[:p, p] if extra is None else R[:p, p] + solve_triangular(r, extra / scale, trans="T")
         r_inv = solve_triangular(r, np.eye(p))
-        return solve_triangular(r, rhs) / scale, (r_inv @ r_inv.T) / np.outer(scale, scale)
+        return _factor_solution(R, scale, extra), (r_inv @ r_inv.T) / np.outer(scale, scale)
+
+
+def _factor_solution(R, scale, extra=None):
+    """The least-squares solution ``(p,)`` of :func:`_solve_factor` alone (``O(p^2)``, where the inverse Gram
+    matrix costs ``p^3``)."""
+    p = len(scale)
+    r = R[:p, :p]
+    with one_blas_thread():
+        rhs = R[:p, p] if extra is None else R[:p, p] + solve_triangular(r, extra / scale, trans="T")
+        return solve_triangular(r, rhs) / scale
 
 
 def _solve(A, b, extra=None, factor=None):

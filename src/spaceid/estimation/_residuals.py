@@ -57,12 +57,16 @@ def _serial_sums(white, before) -> np.ndarray:
     return np.array([np.sum(white**2), np.sum(w[1:] * w[:-1]), np.sum(np.diff(w, axis=0) ** 2)])
 
 
-LEVERAGE_SKETCH = 64
-"""Columns of the Gaussian sketch by which the leverages of a fit of more than four times as many unknowns
-are estimated (a Johnson-Lindenstrauss estimate, relative error about ``sqrt(2 / 64)`` = 18 % of each
-leverage, the HC3 factor's ``h / (1 - h)`` of it: 0.3 % on a 10,000-sample servicer log, whose leverages
+LEVERAGE_SKETCH = 32
+"""Columns of the Gaussian sketch by which the leverages of a fit of more than :data:`LEVERAGE_SKETCHED`
+unknowns are estimated (a Johnson-Lindenstrauss estimate, relative error about ``sqrt(2 / 32)`` = 25 % of
+each leverage, the HC3 factor's ``h / (1 - h)`` of it: 0.4 % on a 10,000-sample servicer log, whose leverages
 are about 0.02); the samples estimated above :data:`LEVERAGE_EXACT` are recomputed exactly. Exact ones
-cost as much as the fit's factorisation again (``n rows p^2``), the sketch ``n rows p 64``."""
+cost as much as the fit's factorisation again (``n rows p^2``), the sketch ``n rows p 32``: its product is
+most of the drift test's time (64 columns: 0.02 s more of the servicer's 0.14 s, for 18 % of each leverage)."""
+
+LEVERAGE_SKETCHED = 256
+"""Unknowns above which the leverages are sketched (:data:`LEVERAGE_SKETCH`): exact up to it."""
 
 LEVERAGE_EXACT = 0.1
 """Largest estimated leverage (trace of a sample's block) that is kept from the sketch."""
@@ -75,10 +79,10 @@ def _leverage_root(factor) -> tuple:
     """``(B (c, k), exact)``: ``B B^T`` the inverse Gram matrix of the fit whose column-scaled factor is
     ``factor = (scale (c,), R (c + 1, c + 1))`` (``B = diag(1 / scale) R^-1``, ``k = c``), or its sketch
     (``B Omega / sqrt(k)``, ``Omega (c, k)`` Gaussian, ``k`` = :data:`LEVERAGE_SKETCH`) when ``c`` exceeds
-    four times that; ``exact`` whether it is the root itself."""
+    :data:`LEVERAGE_SKETCHED`; ``exact`` whether it is the root itself."""
     scale, R = factor
     c = len(scale)
-    exact = c <= 4 * LEVERAGE_SKETCH
+    exact = c <= LEVERAGE_SKETCHED
     omega = np.eye(c) if exact else np.random.default_rng(LEVERAGE_SEED).standard_normal((c, LEVERAGE_SKETCH))
     with one_blas_thread():
         root = solve_triangular(R[:c, :c], omega) / scale[:, None]
@@ -189,11 +193,19 @@ def _completed_gram(gram, residuals) -> np.ndarray:
     return np.block([[gram, cross], [cross.T, inner]])
 
 
-def drift_columns(eq, log):
+def candidate_basis(log) -> np.ndarray:
+    """The momentum change per unit coefficient of the drift test's candidates, ``torque`` and ``viscous``,
+    ``(n, q, 3)`` in inertial axes (:func:`~spaceid.estimation._drift.drift_basis`, a quadrature of the base
+    rate): formed once per identification for :func:`drift_columns` and :func:`drift_test`."""
+    return drift_basis(log, _CANDIDATES)
+
+
+def drift_columns(eq, log, basis=None):
     """The drift test's candidate columns as :func:`~spaceid.estimation._determined.equation_noise` takes
     them, ``columns(part, signals, rows)`` ``(m, rows, q)``: the momentum change per unit ``torque`` and
-    ``viscous`` coefficient, in base axes at the signals' attitude."""
-    basis = drift_basis(log, _CANDIDATES)
+    ``viscous`` coefficient, in base axes at the signals' attitude (``basis``: :func:`candidate_basis`, if
+    formed)."""
+    basis = candidate_basis(log) if basis is None else basis
 
     def columns(part, signals, rows):
         rot_t = np.swapaxes(part.unpack(signals)[3], -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
@@ -213,7 +225,7 @@ def _confounded(noise, R, p) -> float:
     noise of their own beyond the attitude's, take up the momentum they leave: the test would read a
     parameter the log does not determine as a drift (on the 7-DOF satellite's undesigned conserved
     log 57 of 153 directions were noise, and 92-97 % of each drift coefficient's variance theirs)."""
-    mu, directions = noise_to_signal(R, noise)
+    mu, directions = noise_to_signal(R, noise, UNDETERMINED)  # (empty when no direction is undetermined)
     d = directions[p:]
     return float(np.max(np.sum(d[:, mu >= UNDETERMINED] ** 2, 1) / np.maximum(np.sum(d**2, 1), 1e-300)))
 
@@ -230,7 +242,7 @@ def _errors_in_variables(noise, ginv, theta, p) -> np.ndarray:
 
 
 def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None, candidates=None,
-               noise=None, gram=None) -> dict:
+               noise=None, gram=None, basis=None, residuals=None) -> dict:
     """Whether the residuals of a drift-free identification show an unmodelled drift.
 
     Parameters
@@ -267,6 +279,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         The Gram matrix of the equations' columns ``A`` whitened as here (by ``whitener``; as they are for
         ``ols``), if already formed (the estimate's factorisation): the refit's is completed from it by the
         candidate columns and the residuals alone (:func:`_completed_gram`).
+    basis : ndarray of shape (n, q, 3), optional
+        :func:`candidate_basis` of ``log``, if already formed.
+    residuals : ndarray of shape (n, rows), optional
+        ``phi [theta; 1]``, the residuals of ``theta``, if already formed (``ols`` in memory: its covariance's).
 
     Returns
     -------
@@ -281,7 +297,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     testing_drift = candidates is None
     if testing_drift:
         rot_t = np.swapaxes(eq.rot, -1, -2)[:, slice(2, 3) if eq.planar else slice(None)]
-        basis = drift_basis(log, _CANDIDATES)
+        basis = candidate_basis(log) if basis is None else basis
         candidates = (drift_names(_CANDIDATES, eq.planar)[0],
                       lambda sl: -np.einsum("nri,nki->nrk", rot_t[sl], basis[sl]))  # the momentum change, base axes
     names, columns = candidates
@@ -301,10 +317,11 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         chunks = lambda: iter(built)  # noqa: E731
     sums = {"b2": 0.0, "serial": np.zeros(3), "last": None, "done": False}  # of b and the whitened residuals of theta
 
-    def residuals():  # the columns and the whitened residuals of theta, chunk by chunk; the sums in the first pass
+    def residual_chunks():  # the columns and the whitened residuals of theta, chunk by chunk; the sums in the first pass
         first = not sums["done"]
         for _, M, _, b2 in chunks():
-            white = M.residual(np.append(theta, np.zeros(q)))
+            given = residuals is not None and phi is not None and M.inverse is None  # (in memory, not whitened)
+            white = residuals if given else M.residual(np.append(theta, np.zeros(q)))
             if first:
                 sums["b2"], sums["serial"] = sums["b2"] + b2, sums["serial"] + _serial_sums(white, sums["last"])
                 sums["last"] = white[-1]
@@ -312,11 +329,11 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         sums["done"] = True
 
     def corrections():  # the refit as a correction of theta: [A | C] (delta, d) = -white, in least squares
-        for M, white in residuals():
+        for M, white in residual_chunks():
             yield M.whole().reshape(-1, p + q), -white.ravel()
 
     if gram is not None:
-        gram = _completed_gram(gram, residuals())
+        gram = _completed_gram(gram, residual_chunks())
     # From the Gram matrix without refinement passes: its rounding, eps cond^2, is relative to the correction
     # (of the size of the noise), not to theta, whose refined accuracy it keeps (see the docstring).
     factor = _streamed_factor(corrections, p + q, refined=False, gram=gram)
@@ -348,7 +365,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     if callable(noise):
         noise = noise()
     if testing_drift and noise is None:  # (another candidate's columns: the drift test decided before)
-        noise = equation_noise(eq, x, sigma, theta, estimator, log, whitener, drift_columns(eq, log),
+        noise = equation_noise(eq, x, sigma, theta, estimator, log, whitener, drift_columns(eq, log, basis),
                                None if phi is not None else chunk)
     eiv = _errors_in_variables(noise, ginv, theta, p) if testing_drift else np.zeros(q)
     cdd = cdd + np.outer(eiv, eiv)

@@ -45,7 +45,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
-from ._equations import _split
+from ._equations import _split, equation_residuals
 from ._estimators import _instrument_rows, _ml_evaluate, _ml_fit
 from ._linalg import (_accumulate_factor, _equation_whitener, _factor_of_rows, _gram_matrix_factor, _gram_of_rows,
                       _inverse_times, _sandwich, _solve_factor, _whitened, _whitened_gram)  # fmt: skip
@@ -196,7 +196,7 @@ def _residual_pass(eq, x, sigma, theta, estimator, info, ctx, chunk) -> tuple:
     def blocks():
         for sl, e, xc in _chunks(eq, x, chunk):
             phi = e.phi(xc)
-            r[sl] = phi @ np.append(theta, 1.0)
+            r[sl] = equation_residuals(phi, theta)
             if L is not None:
                 L[sl] = _equation_whitener(e, xc, theta, sigma)
             if estimator == "wls":

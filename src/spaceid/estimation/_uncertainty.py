@@ -36,7 +36,7 @@ from ..data import Log
 from ..dynamics import Parameterization
 from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import drift_vector
-from ._equations import _equations, _split
+from ._equations import _equations, _split, equation_residuals
 from ._linalg import _column_scale, _equation_whitener, _inverse_gram, _inverse_times, _sandwich, _solve, _whitened
 from ._noise import Noise, signal_sigma
 
@@ -76,7 +76,7 @@ def _covariance_terms(eq, x, phi, sigma, theta, estimator, info):
     if "terms" in info:
         return info.pop("terms")
     A = phi[..., :-1]
-    r = phi @ np.append(theta, 1.0)
+    r = info.pop("residuals") if "residuals" in info else equation_residuals(phi, theta)  # (identify forms ols's)
     if estimator == "ols":
         return {"M": A, "bread": info.pop("ginv"), "L": None, "r": r, "scored": r, "white": None}
     L = _equation_whitener(eq, x, theta, sigma)
