@@ -60,7 +60,7 @@ def _serial_sums(white, before) -> np.ndarray:
 LEVERAGE_SKETCH = 32
 """Columns of the Gaussian sketch by which the leverages of a fit of more than :data:`LEVERAGE_SKETCHED`
 unknowns are estimated (a Johnson-Lindenstrauss estimate, relative error about ``sqrt(2 / 32)`` = 25 % of
-each leverage, the HC3 factor's ``h / (1 - h)`` of it: 0.4 % on a 10,000-sample servicer log, whose leverages
+each leverage, the HC3 factor's ``h / (1 - h)`` of it: 0.5 % on a 10,000-sample servicer log, whose leverages
 are about 0.02); the samples estimated above :data:`LEVERAGE_EXACT` are recomputed exactly. Exact ones
 cost as much as the fit's factorisation again (``n rows p^2``), the sketch ``n rows p 32``: its product is
 most of the drift test's time (64 columns: 0.02 s more of the servicer's 0.14 s, for 18 % of each leverage)."""
