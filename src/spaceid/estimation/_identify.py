@@ -756,12 +756,11 @@ def identify(
             submit = submit or beside.enter_context(side_by_side())
             if not chunk and estimator != "angles" and not ("gram" in jobs and jobs["weights"] is whitener):
                 noise_beside(eq, x, sigma, theta, whitener)
-            drift_job = jobs.get("drift")  # ols's, on a worker since its estimate
-            if not early:  # ml's on the second worker, submitted before the directions (they wait for the noise)
-                check = functools.partial(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, whitener,
-                                          chunk, jobs["gram"].result if "gram" in jobs else None,
-                                          _factor_gram(white_factor), basis())
-                drift_job = submit(check) if converging else None
+            check = functools.partial(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, whitener,
+                                      chunk, jobs["gram"].result if "gram" in jobs else None)
+            # ols's on a worker since its estimate; ml's on the second worker now, before the directions (which wait
+            # for the noise Gram matrix)
+            drift_job = jobs.get("drift") or (submit(check, _factor_gram(white_factor), basis()) if converging else None)
             if "gram" in jobs:
                 jobs["directions"] = submit(lambda: undetermined_directions(
                     eq, x, phi, sigma, theta, estimator, log, whitener, jobs["gram"].result()[: eq.p, : eq.p],
@@ -769,7 +768,7 @@ def identify(
             s = _singular_values(factor)
             scale = log_momentum_scale(param, log, regressor=_log_regressor(eq, phi, estimator))  # (while ols waits)
             # the others' drift test here while the directions are found beside (ols's and ml's on a worker: taken last)
-            checked = None if drift_job else check()
+            checked = None if drift_job else check(_factor_gram(white_factor), basis())
             weak, ratios = jobs["directions"].result() if "directions" in jobs else ([], None)
             if weak:  # the standard errors say what the data do not determine
                 fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
