@@ -260,7 +260,8 @@ def _gram_solver(factor, subspace=None) -> tuple:
             def solve(g):
                 with one_blas_thread():
                     return solve_triangular(r, solve_triangular(r, g / scale, trans="T")) / scale
-            return solve, np.sqrt(np.maximum(np.diag(_solve_factor(R, scale)[1]), 1e-300))
+            # the inverse's diagonal: the row norms of R^-1 (its product with itself, p^3, is not needed)
+            return solve, np.maximum(np.linalg.norm(solve_triangular(r, np.eye(len(r))), axis=1) / scale, 1e-150)
         m = np.linalg.qr(r @ (subspace * scale[:, None]), mode="r")
         spread = solve_triangular(m, subspace.T, trans="T")  # B m^-1, transposed
 
