@@ -288,10 +288,11 @@ def _split(phi):
     return flat[:, :-1], -flat[:, -1]
 
 
-def equation_residuals(phi, theta) -> np.ndarray:
-    """``A theta - b`` ``(n, rows)`` of stacked ``phi = [A | -b] (n, rows, p + 1)``: one product of the rows
-    (a product per sample, as ``phi @ v`` forms it, took three times longer)."""
-    return (phi.reshape(-1, phi.shape[-1]) @ np.append(theta, 1.0)).reshape(phi.shape[:2])
+def equation_residuals(phi, theta, rhs: float = 1.0) -> np.ndarray:
+    """``A theta - rhs b`` ``(n, rows)`` of stacked ``phi = [A | -b] (n, rows, p + 1)`` (the residuals of
+    ``theta``; ``rhs`` 0: ``A theta`` alone): one product of the rows (a product per sample, as ``phi @ v``
+    forms it, took three times longer)."""
+    return (phi.reshape(-1, phi.shape[-1]) @ np.append(theta, rhs)).reshape(phi.shape[:2])
 
 
 def drift_basis_at(log, drift, history, where):

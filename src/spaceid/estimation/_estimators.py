@@ -69,7 +69,7 @@ from .._constants import ESTIMATORS
 from .._threads import one_blas_thread
 from ..dynamics import base_rate
 from ._angles import _angles_ml
-from ._equations import _split
+from ._equations import _split, equation_residuals
 from ._linalg import (_column_scale, _equation_whitener, _gram_matrix_factor, _inverse_times, _parts, _solve,
                       _solve_factor, _triangular_factor, _whiten, _whitened, _whitened_gram)  # fmt: skip
 from ._noise import FD_STEP, equation_covariance
@@ -210,7 +210,7 @@ def _ml_part(eq, x, theta, sigma, equations, previous=None, gradient=True) -> di
     if previous is not None:
         theta_0, xh_0, r_0, L_0, J_0 = previous
         J_0 = eq.jacobian(xh_0, theta_0) if J_0 is None else J_0
-        u_0 = _inverse_times(L_0, (r_0 + phi @ np.append(theta - theta_0, 0.0))[..., None])[..., 0]
+        u_0 = _inverse_times(L_0, (r_0 + equation_residuals(phi, theta - theta_0, 0.0))[..., None])[..., 0]
         xh = x - sigma**2 * np.einsum("nrx,nr->nx", J_0, u_0)
     J = eq.jacobian(xh, theta)
     r = eq.error(xh, theta, J) + np.einsum("nrx,nx->nr", J, x - xh)
