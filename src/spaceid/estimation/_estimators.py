@@ -71,7 +71,7 @@ from ..dynamics import base_rate
 from ._angles import _angles_ml
 from ._equations import _split, equation_residuals
 from ._linalg import (_column_scale, _equation_whitener, _gram_matrix_factor, _inverse_times, _parts, _solve,
-                      _solve_factor, _triangular_factor, _whiten, _whitened, _whitened_gram)  # fmt: skip
+                      _solve_factor, _triangular_factor, _whiten, _whitened, _whitened_gram, lower_inverse)  # fmt: skip
 from ._noise import FD_STEP, equation_covariance
 
 if TYPE_CHECKING:
@@ -215,7 +215,7 @@ def _ml_part(eq, x, theta, sigma, equations, previous=None, gradient=True) -> di
     J = eq.jacobian(xh, theta)
     r = eq.error(xh, theta, J) + np.einsum("nrx,nx->nr", J, x - xh)
     L = _whiten(equation_covariance(J, sigma))
-    inverse = np.linalg.inv(L)
+    inverse = lower_inverse(L)
     white = np.einsum("nrs,ns->nr", inverse, r)
     part = {"f": float(np.sum(white**2)), "xh": xh, "L": L, "r": r, "J": J}
     if gradient:

@@ -46,7 +46,7 @@ from scipy.linalg import LinAlgError, solve_triangular
 from .._distributions import chi2_ppf
 
 from .._threads import one_blas_thread
-from ._linalg import _accumulate_factor
+from ._linalg import _accumulate_factor, lower_inverse
 
 NOISE_SHARE = 0.05
 """Largest share of the regressor noise in the information along any direction of the parameters."""
@@ -157,7 +157,7 @@ class DeterminacyAccumulator:
         # of 3 x 3 whiteners: 4 times as long); the sums from the Gram matrix G of the whitened [A | -b] rows, one
         # matrix product a checkpoint (einsum's own loops: 5 times as long, 0.2 s of each of the satellite's warm-up
         # screens): N = G[:p, :p], and g = G[:p] [theta; 1], A's product with the rows' errors.
-        inverse, signals = np.linalg.inv(L), np.moveaxis(D, -1, 0)
+        inverse, signals = lower_inverse(L), np.moveaxis(D, -1, 0)
         E = np.empty(signals.shape)
         for i in range(rows):
             np.einsum("ns,xnsc->xnc", inverse[:, i], signals, out=E[:, :, i])

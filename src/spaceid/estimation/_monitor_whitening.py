@@ -18,7 +18,7 @@ from scipy.linalg import lapack, solve_triangular
 from .._distributions import chi2_cdf, chi2_sf
 
 from ..data import quat_to_matrix
-from ._linalg import _accumulate_factor, _whiten
+from ._linalg import _accumulate_factor, _whiten, lower_inverse
 from ._noise import equation_covariance
 from ._uncertainty import SIGNIFICANCE, _residual_checks
 
@@ -213,7 +213,7 @@ def differentiator_innovations(whitener, t, a, res, L, J, sigma, p: int, start: 
     start : int
         The first of them that the check took.
     """
-    Li = np.linalg.inv(L)
+    Li = lower_inverse(L)
     R = Li @ equation_covariance(J, whitener.uncovered(sigma)) @ np.swapaxes(Li, -1, -2)
     nu = [whitener.innovation(r, whitener.design(tk, ak, li @ j), c)
           for tk, r, ak, li, j, c in zip(t, res, a, Li, J, R)]  # fmt: skip

@@ -745,7 +745,7 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     """The MAP with the momentum equations weighted by their noise at the prior as the data."""
     from ._diagnostics import Diagnostics
     from ._equations import _split
-    from ._linalg import _equation_whitener
+    from ._linalg import _equation_whitener, lower_inverse
     from ._determined import noise_gram, noise_rows
     from ._differentiated import weighting_sigma
     from ._noise import noise_from_log
@@ -765,7 +765,7 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
 
     theta0 = np.concatenate([pi0[eq.free], nuisance(pi0[eq.free])])
     sigma = weighting_sigma(param, log, noise)  # as identify weights them
-    whitener = np.linalg.inv(_equation_whitener(eq, x, theta0, sigma))
+    whitener = lower_inverse(_equation_whitener(eq, x, theta0, sigma))
     white = whitener @ phi
     rows, scale = noise_rows(len(x))  # the regressor's own noise, propagated from each signal's
     part = eq.select(rows)

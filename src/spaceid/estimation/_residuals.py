@@ -28,7 +28,7 @@ from .._distributions import f_sf, norm_sf
 from ._differentiated import differentiated_series, propagated_covariance
 from ._determined import UNDETERMINED, equation_noise, noise_to_signal
 from ._drift import drift_basis, drift_names
-from ._linalg import _equation_whitener, _solve_factor
+from ._linalg import _equation_whitener, _solve_factor, lower_inverse
 from ._stream import _chunks, _streamed_factor
 from .._threads import one_blas_thread
 from ._uncertainty import _hac, _larger_of, correlation_length
@@ -176,7 +176,7 @@ class _Columns:
 def _drift_equations(phi, cols, L) -> tuple:
     """The equations of ``phi = [A | -b] (k, rows, p + 1)`` with the candidate columns ``C (k, rows, q)``:
     ``[A | C]`` as :class:`_Columns`, whitened by ``L (k, rows, rows)`` (None: as they are), ``C`` and ``|b|^2``."""
-    return _Columns(phi, cols, None if L is None else np.linalg.inv(L)), cols, float(np.sum(phi[..., -1] ** 2))
+    return _Columns(phi, cols, None if L is None else lower_inverse(L)), cols, float(np.sum(phi[..., -1] ** 2))
 
 
 def _completed_gram(gram, residuals) -> np.ndarray:
@@ -359,7 +359,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     cdd = _hac(scores(), bandwidth, q, dof_scale=False)
     series = differentiated_series(log, attitude=True)
     if series is not None:  # the differentiators' own correlation, where it is larger than the residuals show
-        scored = ((sl, M.whole() if L is None else np.swapaxes(np.linalg.inv(L), -1, -2) @ M.whole(), e.jacobian(xc, theta))
+        scored = ((sl, M.whole() if L is None else np.swapaxes(lower_inverse(L), -1, -2) @ M.whole(), e.jacobian(xc, theta))
                   for (sl, e, xc, L), (_, M, *_) in zip(parts(), chunks()))  # fmt: skip
         cdd = _larger_of(propagated_covariance(series, log.t, scored, ginv[p:], sigma), cdd)[0]
     if callable(noise):
