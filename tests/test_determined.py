@@ -144,10 +144,10 @@ def test_ml_over_all_directions_stops_early_where_the_data_leave_some_undetermin
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             results.append(identify(truth, noisy, h, noise=noise))
-    (over_all, iterations, why), held = fits[0], fits[1]
+    (over_all, iterations, why), held, moved = fits[0], fits[1], fits[2]  # moved: the held values at the model's
     assert over_all and iterations == estimate.STALL_CHECK and re.search("do not determine [1-9][0-9]* of 66", why)
     assert len(formed) == 2  # once as it stops (at the fallback, WLS here), once in the run without the check
-    assert not held[0] and fits[2][:2] == (True, 50) and fits[3] == held
+    assert not held[0] and not moved[0] and fits[3][:2] == (True, 50) and fits[4:6] == [held, moved]
     assert np.array_equal(results[0].values, results[1].values) and np.array_equal(results[0].cov, results[1].cov)
 
 
@@ -273,10 +273,37 @@ def test_standard_errors_cover_an_undesigned_motion(nominal, tmp_path, monkeypat
     assert result.diagnostics.undetermined and "widened along" in result.diagnostics.covariance
     assert (np.abs(result.values - truth.true_values) / result.std).max() < 4
     monkeypatch.setattr("spaceid.estimation._identify.widened", lambda cov, *args: cov)
+    monkeypatch.setattr("spaceid.estimation._identify._held_shift", lambda *args: None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         first_order = identify(param, noisy, h, noise=noise)
     assert (np.abs(first_order.values - truth.true_values) / first_order.std).max() > 8
+
+
+def test_a_stalled_fit_is_widened_along_what_its_held_values_move(tmp_path, monkeypatch):
+    """Random robot 6089925 (45 parameters) on its undesigned motion (``test_random_pipeline``'s): ML stalls, fits
+    the 44 directions the data determine and holds WLS's value along the last. The others follow the held value
+    through the likelihood (two parameters 13.5 and 12 standard errors off, held at WLS's errors-in-variables
+    attenuated value; 1.6 held at the truth): the covariance is widened along the fit's change had it held the
+    model's own values, and covers every error, where without that it does not."""
+    from test_random_pipeline import NOISE, _undesigned
+
+    flown = _undesigned(6089925, False, tmp_path)
+    noise = Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE)
+    noisy = add_noise(flown.log, angle=NOISE, rate=NOISE, seed=6089925)
+    true = flown.param.true_values
+
+    def worst(result):
+        free = result.std > 0
+        return (np.abs(result.values - true)[free] / result.std[free]).max()
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        result = identify(flown.param, noisy, flown.momentum, noise=noise)
+        assert "held" in result.diagnostics.estimator_info and "model's own values" in result.diagnostics.covariance
+        assert worst(result) < 3
+        monkeypatch.setattr("spaceid.estimation._identify._held_shift", lambda *args: None)
+        assert worst(identify(flown.param, noisy, flown.momentum, noise=noise)) > 10
 
 
 def _cepheus(scale):

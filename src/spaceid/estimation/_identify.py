@@ -331,7 +331,17 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
         info["chunk"] = chunk
     else:
         reported = _reported_covariance(eq, x, ctx.phi, sigma, theta, estimator, info, log, estimated)
-    return _Fit(theta, info, *reported, held=info.pop("held_ratios", None))
+    fit = _Fit(theta, info, *reported, held=info.pop("held_ratios", None))
+    shift = info.pop("held_shift", None)
+    if shift is None:
+        return fit
+    return replace(fit, cov=fit.cov + np.outer(shift, shift), uncertainty={
+        **fit.uncertainty, "covariance": f"{fit.uncertainty['covariance']}; {HELD_WIDENED}"})
+
+
+HELD_WIDENED = ("widened along the estimate's change had the directions ML held been at the model's own values (the "
+                "others follow them)")
+"""How the covariance's description ends when :func:`_held_shift`'s change widened it."""
 
 
 def _undetermined_reason(eq, x, log: Log, sigma, ctx: _FitContext, seen: dict):
@@ -372,9 +382,25 @@ def _ml_determined(eq, x, log: Log, sigma, theta, ctx: _FitContext, info: dict, 
     held, fit = _KERNELS["ml"](eq, x, sigma, theta, ctx, subspace=T[:, ~weak], converged=on_estimate)
     if fit.get("fallback"):
         return theta, info | {"fallback": info["fallback"] + why + ", nor over the others"}
+    shift = _held_shift(eq, x, sigma, ctx, theta, held, T, weak)
     return held, fit | {"held": (f"over the {(~weak).sum()} directions the data determine; the {weak.sum()} they do "
                                  f"not keep the {info['fallback'].split(':')[0].upper()} estimate's values (along "
-                                 "them the likelihood has no maximum)"), "held_ratios": (mu, T)}
+                                 "them the likelihood has no maximum)"), "held_ratios": (mu, T),
+                        **({} if shift is None else {"held_shift": shift})}
+
+
+def _held_shift(eq, x, sigma, ctx: _FitContext, start, held, T, weak):
+    """The change ``(p,)`` of :func:`_ml_determined`'s fit ``held`` (from ``start``, its coordinates ``T^-1 theta``
+    along the ``weak`` directions kept) had those coordinates been the model's own (its parameters', the scale
+    :func:`~spaceid.estimation._determined.widened` takes), or None when that fit does not converge. The likelihood
+    couples the coordinates: the others follow the held ones (random robot 6089925's undesigned log, one direction
+    held at WLS's values, attenuated by their errors in variables: two parameters 13 and 12 standard errors off;
+    held at OLS's 2.1, at the truth 1.6), which the covariance of the fit with them fixed does not say."""
+    nominal = np.concatenate([eq.param.true_values[eq.free], start[len(eq.free):]])
+    coords = np.linalg.solve(T, np.column_stack([start, nominal]))
+    moved = start + T[:, weak] @ (coords[weak, 1] - coords[weak, 0])
+    other, fit = _KERNELS["ml"](eq, x, sigma, moved, ctx, subspace=T[:, ~weak])
+    return None if fit.get("fallback") else other - held
 
 
 def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float):
