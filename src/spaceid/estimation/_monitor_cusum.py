@@ -14,10 +14,10 @@ import math
 
 import numpy as np
 import scipy
-from .._distributions import chi2_cdf
 
 from .._cache import cache_key, read_cached, source_digest, write_cached
 from .._constants import CHANGE_RATIO, FALSE_ALARM_RATE
+from .._distributions import chi2_cdf
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 
