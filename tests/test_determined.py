@@ -16,7 +16,7 @@ import spaceid
 from spaceid.data import differentiate_log
 from spaceid.dynamics import minimal_parameters
 from spaceid.estimation import Diagnostics, Noise, identify
-from spaceid.estimation._determined import UNDETERMINED, noise_to_signal, widened
+from spaceid.estimation._determined import UNDETERMINED, eiv_bias, noise_to_signal, widened
 from spaceid.motion import FourierTrajectory, add_noise, design_excitation, load_trajectory, sample_times, simulate
 
 H = np.array([0.0, 0.0, 0.4934])
@@ -69,6 +69,30 @@ def test_noise_to_signal_above_a_level_is_empty_or_whole():
     level = noise_to_signal(R, noisy)[0][-1]  # every ratio 0.8: just below the largest, every direction formed
     assert noise_to_signal(R, noisy, above=level * (1 - 1e-9))[1].shape == (k, k)
     assert noise_to_signal(R, noisy, above=level * (1 + 1e-9))[1].shape == (k, 0)
+
+
+def test_eiv_bias_is_the_mean_error_of_least_squares():
+    """Least squares on a regressor with white noise in its columns and data: over 300 seeds its mean error is
+    :func:`eiv_bias` of each estimate (to the first order's attenuation and the mean's spread), a bias of many
+    standard errors of the mean; and noise levels the residuals do not hold (the equations exact) predict none."""
+    rng = np.random.default_rng(5)
+    m, k, sa, sb = 400, 4, 0.15, 0.1
+    A0 = rng.standard_normal((m, k)) * [1.0, 2.0, 0.5, 1.0]
+    theta = np.array([1.0, -0.5, 2.0, 0.3])
+    N = np.diag(np.append(np.full(k, m * sa**2), m * sb**2))  # of [A | -b]
+    errors, predicted = [], []
+    for seed in range(300):
+        r = np.random.default_rng(seed)
+        A, b = A0 + sa * r.standard_normal((m, k)), A0 @ theta + sb * r.standard_normal(m)
+        est = np.linalg.lstsq(A, b, rcond=None)[0]
+        R = np.linalg.qr(np.column_stack([A, -b]), mode="r")
+        errors.append(est - theta)
+        predicted.append(eiv_bias((np.ones(k), R), N, est, np.sum((A @ est - b) ** 2), m))
+    mean, spread = np.mean(errors, 0), np.std(errors, 0) / np.sqrt(len(errors))
+    assert np.all(np.abs(mean) > 5 * spread)
+    np.testing.assert_array_less(np.abs(mean - np.mean(predicted, 0)), 4 * spread + 0.15 * np.abs(mean))
+    R0 = np.linalg.qr(np.column_stack([A0, -A0 @ theta]), mode="r")
+    assert np.all(eiv_bias((np.ones(k), R0), N, theta, 0.0, m) == 0)
 
 
 def test_widened_only_along_the_undetermined_coordinates():

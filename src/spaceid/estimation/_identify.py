@@ -29,8 +29,8 @@ from .._threads import one_blas_thread, side_by_side
 from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import _angle_context
-from ._determined import (UNDETERMINED, WIDENED, equation_noise, noise_ratios, undetermined_directions,
-                          undetermined_warning, widened)
+from ._determined import (EIV_SAID, EIV_WIDENED, UNDETERMINED, WIDENED, eiv_bias, equation_noise, noise_ratios,
+                          undetermined_directions, undetermined_warning, widened)
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._differentiated import weighting_sigma
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
@@ -270,13 +270,32 @@ def _log_regressor(eq, phi, estimator: str):
 def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, basis):
     """A future, from ``submit`` (:func:`~spaceid._threads.side_by_side`), of the noise Gram matrix of the equations'
     columns with the drift test's candidates, whitened by the estimator's ``whitener``
-    (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``): formed once, for the
-    undetermined directions and the drift test. ``basis``: a future of the candidates'
-    (:func:`~spaceid.estimation._residuals.candidate_basis`), None when drift terms are modelled."""
+    (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``, and has ``-b`` last, for
+    its bias): formed once, for the undetermined directions, the drift test and ``ols``'s bias. ``basis``: a future
+    of the candidates' (:func:`~spaceid.estimation._residuals.candidate_basis`), None when drift terms are modelled."""
     def job():
         extra = None if basis is None else drift_columns(eq, log, basis.result())
-        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra)
+        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra, rhs=estimator == "ols")
     return submit(job)
+
+
+def _eiv_widened(fit, factor, noise, m: int, where: str, names) -> tuple:
+    """``(fit, largest, warning)``: ``ols``'s ``fit`` with its covariance widened by its first-order
+    errors-in-variables bias (:func:`~spaceid.estimation._determined.eiv_bias`, ``factor``, ``noise`` and the ``m``
+    equations as there),
+    the bias's largest ratio to a standard error before, and the warning when it reaches one (``""`` when not): least squares does not correct it, and its first-order
+    covariance holds only the spread (a random robot's differentiated encoders and 1e-3 rad/s of gyro noise put it
+    8.6 standard errors off, of which this predicted 5.4)."""
+    bias = eiv_bias(factor, noise, fit.theta, fit.rms**2 * m, m)
+    std = np.sqrt(np.diag(fit.cov))
+    ratio = np.abs(bias) / np.where(std > 0, std, np.inf)
+    fit = replace(fit, cov=fit.cov + np.outer(bias, bias))
+    if not ratio.max(initial=0) >= 1:
+        return fit, ratio.max(initial=0), ""
+    lead = ", ".join(str(names[i]) for i in np.argsort(-ratio)[:3] if ratio[i] >= 1)
+    return fit, ratio.max(), (f"{where}: the regressor's noise biases least squares by up to {ratio.max():.2g} of its "
+                              f"standard errors (errors in variables, to first order; {lead} most): they are widened "
+                              "by the bias; `estimator` ml corrects it")
 
 
 def _singular_values(factor) -> np.ndarray:
@@ -552,8 +571,10 @@ def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, kn
         eq = replace(eq, bias=gyro_bias.columns)
     _check_sample_count(eq, log, where)
     x = eq.signals(log)
-    estimated = noise is None and estimator != "ols"  # ols needs no noise model
-    noise = noise_from_log(log) if estimated else (noise or Noise(source="not used (ols)"))
+    # none given: the log's own levels, which ols weights by none but its checks and propagated covariance need
+    # (zero, a measured gyro's noise was left out beside differentiated encoders: a false gyro bias, 14 std errors)
+    estimated = noise is None
+    noise = noise_from_log(log) if estimated else noise
     # differentiated signals weighted at their filters' levels: estimated from the smoothed log itself they are
     # understated, and the weights' errors-in-variables corrections fall short (docs/theory/noise.md)
     sigma = weighting_sigma(param, log, noise)
@@ -746,6 +767,10 @@ def identify(
             def basis():  # the candidates' basis, if formed beside
                 return jobs["basis"].result() if jobs.get("basis") is not None else None
 
+            def drift_noise():  # the noise Gram matrix of the columns and the candidates (ols's without -b)
+                noise = jobs["gram"].result()
+                return noise[:-1, :-1] if estimator == "ols" else noise
+
             prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
                              cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
                              knot_spacing=knot_spacing, chunk=chunk, gyro_bias=gyro_bias,
@@ -760,7 +785,7 @@ def identify(
             def on_estimate(theta, whitener, residuals=None):
                 if early:  # (ols: no whitener, the excitation check's factor, its residuals)
                     jobs["drift"] = submit(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, None,
-                                           None, jobs["gram"].result, _factor_gram(factor), basis(), residuals)
+                                           None, drift_noise, _factor_gram(factor), basis(), residuals)
                 else:
                     noise_beside(eq, x, sigma, theta, whitener)
 
@@ -783,7 +808,7 @@ def identify(
             if not chunk and estimator != "angles" and not ("gram" in jobs and jobs["weights"] is whitener):
                 noise_beside(eq, x, sigma, theta, whitener)
             check = functools.partial(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, whitener,
-                                      chunk, jobs["gram"].result if "gram" in jobs else None)
+                                      chunk, drift_noise if "gram" in jobs else None)
             # ols's on a worker since its estimate; ml's on the second worker now, before the directions (which wait
             # for the noise Gram matrix)
             drift_job = jobs.get("drift") or (submit(check, _factor_gram(white_factor), basis()) if converging else None)
@@ -799,6 +824,15 @@ def identify(
             if weak:  # the standard errors say what the data do not determine
                 fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
                 uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
+            biased = ""
+            if (info.get("fallback") or estimator).startswith("ols"):  # and the bias ols leaves
+                ols_noise = jobs["gram"].result() if estimator == "ols" and "gram" in jobs else equation_noise(
+                    eq, x, sigma, theta, "ols", log, chunk=chunk, rhs=True)  # (streamed: none; ml's is whitened)
+                fit, largest, biased = _eiv_widened(fit, (*factor, cond_scaled), ols_noise, len(x) * param.rows,
+                                                    where, eq.names())
+                if largest >= EIV_SAID:
+                    uncertainty = {**uncertainty,
+                                   "covariance": f"{uncertainty['covariance']}; {EIV_WIDENED.format(largest)}"}
             # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
             # wrong momentum or anchor
             fit = replace(fit, implausible=_implausible_estimate(eq, theta, fit.cov, where))
@@ -826,7 +860,7 @@ def identify(
                       "(spaceid design) or `estimator` ml on differentiated rates", stacklevel=2)
     if uncertainty["noise_model_warning"]:
         warnings.warn(f"{where}: {uncertainty['noise_model_warning']}", stacklevel=2)
-    for warning in (fit.implausible, drift_warning, collinear, undetermined_warning(weak, eq.p, where)):
+    for warning in (fit.implausible, drift_warning, collinear, undetermined_warning(weak, eq.p, where), biased):
         if warning:
             warnings.warn(warning, stacklevel=2)
     units = drift_names(drift, param.model.planar)[1]
