@@ -87,12 +87,12 @@ def test_eiv_bias_is_the_mean_error_of_least_squares():
         est = np.linalg.lstsq(A, b, rcond=None)[0]
         R = np.linalg.qr(np.column_stack([A, -b]), mode="r")
         errors.append(est - theta)
-        predicted.append(eiv_bias((np.ones(k), R), N, est, np.sum((A @ est - b) ** 2), m))
+        predicted.append(eiv_bias(R[:k, :k], N, est, np.sum((A @ est - b) ** 2), m))
     mean, spread = np.mean(errors, 0), np.std(errors, 0) / np.sqrt(len(errors))
     assert np.all(np.abs(mean) > 5 * spread)
     np.testing.assert_array_less(np.abs(mean - np.mean(predicted, 0)), 4 * spread + 0.15 * np.abs(mean))
     R0 = np.linalg.qr(np.column_stack([A0, -A0 @ theta]), mode="r")
-    assert np.all(eiv_bias((np.ones(k), R0), N, theta, 0.0, m) == 0)
+    assert np.all(eiv_bias(R0[:k, :k], N, theta, 0.0, m) == 0)
 
 
 def test_widened_only_along_the_undetermined_coordinates():

@@ -266,18 +266,20 @@ def test_differentiated_joint_rates_with_the_gyro(cepheus):
     assert abs(b["value"] - BIAS) < 4 * b["std"] and b["std"] < 1e-5
 
 
-def test_ols_without_levels_judges_a_noisy_gyro_by_the_logs_own(tmp_path):
-    """ols given no levels on differentiated encoders and a measured gyro, no bias: its checks and its
-    covariance take the log's own levels, the gyro's among them (left at zero, a random robot's white gyro noise
-    was called a bias), and its standard errors hold the bias the gyro's noise gives it (8.6 of them without)."""
+@pytest.mark.parametrize("estimator", ["ols", "wls"])
+def test_least_squares_without_levels_judges_a_noisy_gyro_by_the_logs_own(estimator, tmp_path):
+    """Least squares given no levels on differentiated encoders and a measured gyro, no bias: its checks and its
+    covariance take the log's own levels, the gyro's among them (ols left it at zero: a random robot's white gyro
+    noise was called a bias), and its standard errors hold the bias the gyro's noise gives it (8.6 and 8.7 of them
+    without)."""
     param, h, clean = _random(3, False, tmp_path)
     sensors = Noise(angle=1e-4, rate=0.0, base_rate=1e-3, attitude=5e-5)
     log = differentiate_log(add_noise(clean, noise=sensors, joint_rate_sensors=False, seed=1), base=False)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        res = identify(param, log, h, estimator="ols")
+        res = identify(param, log, h, estimator=estimator)
     text = " ".join(str(w.message) for w in caught)
-    assert "gyro bias" not in text and "the regressor's noise biases least squares by up to" in text
+    assert "gyro bias" not in text and f"the regressor's noise biases the {estimator} estimate by up to" in text
     assert "widened by the first-order bias" in res.diagnostics.covariance
     noise = res.settings["noise"]
     assert noise["source"].startswith("estimated from the log") and noise["base_rate"] == pytest.approx(1e-3, rel=0.3)

@@ -139,34 +139,33 @@ def signal_levels(param, log, sigma: np.ndarray) -> np.ndarray:
     return differentiated_sigma(log, sigma if np.any(sigma) else signal_sigma(param, noise_from_log(log)))
 
 
-EIV_WIDENED = ("widened by the first-order bias that the regressor's noise gives least squares (errors in variables: "
-               "up to {:.2g} of the standard errors before)")
+EIV_WIDENED = ("widened by the first-order bias that the regressor's noise gives {} (errors in variables: up to {:.2g} of "
+               "the standard errors before)")
 """How the covariance's description ends when :func:`eiv_bias` widened it by at least :data:`EIV_SAID`."""
 EIV_SAID = 0.1
 """Largest ratio of the bias to a standard error at which the widening goes unsaid (the errors grow by 0.5 %)."""
 
 
-def eiv_bias(factor: tuple, noise: np.ndarray, theta: np.ndarray, rss: float, m: int) -> np.ndarray:
-    """The first-order errors-in-variables bias ``(k,)`` of the least-squares estimate ``theta (k,)``:
-    ``-s G^-1 N_A [theta; 1]``, ``G = R^T R`` the Gram matrix of the regressor ``A`` (``factor = (scale, R,
-    ...)``, the column-scaled factor of ``[A | -b]``) and ``N_A`` the first ``k`` rows of the noise Gram
-    matrix ``N`` of ``[A | ... | -b]`` (:func:`equation_noise` with ``rhs``), the ``k`` columns of ``A`` and the
-    last. The regressor's noise correlates with the equations' error (``E[A^T (A theta - b)] = N_A [theta;
-    1]``): least squares is off by this on average, a bias that shrinks no faster than its standard errors
-    (both scale with the noise level). ``theta``, itself attenuated, stands in for the truth: the bias is
-    understated where it is large.
+def eiv_bias(R: np.ndarray, noise: np.ndarray, theta: np.ndarray, rss: float, m: int) -> np.ndarray:
+    """The first-order errors-in-variables bias ``(k,)`` of the (weighted) least-squares estimate ``theta (k,)``:
+    ``-s G^-1 N_A [theta; 1]``, ``G = R^T R`` the Gram matrix of the regressor ``A`` as the estimator whitens it
+    (``R (k, k)`` upper triangular) and ``N_A`` the first ``k`` rows of the noise Gram matrix ``N`` of ``[A | ...
+    | -b]`` whitened alike (:func:`equation_noise` with ``rhs``), the ``k`` columns of ``A`` and the last. The
+    regressor's noise correlates with the equations' error (``E[A^T (A theta - b)] = N_A [theta; 1]``): least
+    squares is off by this on average, a bias that shrinks no faster than its standard errors (both scale with
+    the noise level). ``theta``, itself attenuated, stands in for the truth: the bias is understated where it is
+    large.
 
     ``s = min(1, rss / ((1 - k / m) [theta; 1]^T N [theta; 1]))`` scales the levels down to what the residuals
-    hold, ``rss`` their sum of squares over ``m`` equations: levels estimated from a sparse noise-free log (the
-    signal's curvature in its sixth-order differences, 1e-4 rad/s at 12 Hz) predicted a bias of 5e9 standard
-    errors where the estimate was exact to 4e-12."""
+    hold, ``rss`` their (whitened) sum of squares over ``m`` equations: levels estimated from a sparse noise-free
+    log (the signal's curvature in its sixth-order differences, 1e-4 rad/s at 12 Hz) predicted a bias of 5e9
+    standard errors where the estimate was exact to 4e-12."""
     k = len(theta)
     v = noise[:k, :k] @ theta + noise[:k, -1]
     predicted = (1 - min(k / m, 0.5)) * (theta @ v + theta @ noise[:k, -1] + noise[-1, -1])
     share = min(1.0, rss / predicted) if predicted > 0 else 0.0
-    r = factor[1][:-1, :-1] * factor[0]
     with one_blas_thread():
-        return -share * solve_triangular(r, solve_triangular(r, v, trans="T"))
+        return -share * solve_triangular(R, solve_triangular(R, v, trans="T"))
 
 
 def noise_to_signal(factor: np.ndarray, noise: np.ndarray, above: float | None = None) -> tuple:

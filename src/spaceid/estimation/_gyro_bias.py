@@ -199,12 +199,21 @@ class BiasPass:
         """``fit`` (theta and its covariance ``cov``) updated by the attitude's measurement of the
         correction ``db``, ``b_attitude - bias`` (a Kalman update: the two are independent to first
         order; docs/theory/sensors.md)."""
-        s = slice(len(eq.free) + eq.n_h, len(eq.free) + eq.n_h + eq.n_b)
-        P = fit.cov
-        gain = np.linalg.solve(P[s, s] + self.attitude["cov"], P[s, :]).T
+        s, gain = self._gain(eq, fit.cov)
         innovation = self.attitude["value"] - self.bias[_axes(eq.planar)] - fit.theta[s]
-        cov = P - gain @ P[s, :]
+        cov = fit.cov - gain @ fit.cov[s, :]
         return replace(fit, theta=fit.theta + gain @ innovation, cov=(cov + cov.T) / 2)
+
+    def carried(self, eq, cov, error):
+        """``error (p,)`` of the regression's estimate (of covariance ``cov``) as it carries into the
+        :meth:`fused` one, whose update is linear in it."""
+        s, gain = self._gain(eq, cov)
+        return error - gain @ error[s]
+
+    def _gain(self, eq, cov) -> tuple:
+        """The correction's columns (a slice) and the Kalman gain ``(p, n_b)`` of :meth:`fused`."""
+        s = slice(len(eq.free) + eq.n_h, len(eq.free) + eq.n_h + eq.n_b)
+        return s, np.linalg.solve(cov[s, s] + self.attitude["cov"], cov[s, :]).T
 
     def terms(self, eq, theta, cov) -> tuple:
         """The bias estimated, ``{name, value, std, unit}`` per axis: ``bias + db``."""

@@ -43,7 +43,7 @@ from ._prior import PRIOR_STD, identify_with_prior, split_known, standard_anchor
 from ._residuals import candidate_basis, drift_columns, drift_test
 from ._result import Identification
 from ._scales import log_momentum_scale
-from ._stream import check_chunk, streamed_covariance, streamed_estimate, streamed_ols_factor
+from ._stream import check_chunk, streamed_covariance, streamed_estimate, streamed_ols_factor, weighted_factor
 from ._uncertainty import _reported_covariance
 
 __all__ = ["identify"]
@@ -270,32 +270,53 @@ def _log_regressor(eq, phi, estimator: str):
 def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, basis):
     """A future, from ``submit`` (:func:`~spaceid._threads.side_by_side`), of the noise Gram matrix of the equations'
     columns with the drift test's candidates, whitened by the estimator's ``whitener``
-    (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``, and has ``-b`` last, for
-    its bias): formed once, for the undetermined directions, the drift test and ``ols``'s bias. ``basis``: a future
+    (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``; least squares' has ``-b``
+    last, for its bias): formed once, for the undetermined directions, the drift test and least squares' bias. ``basis``: a future
     of the candidates' (:func:`~spaceid.estimation._residuals.candidate_basis`), None when drift terms are modelled."""
     def job():
         extra = None if basis is None else drift_columns(eq, log, basis.result())
-        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra, rhs=estimator == "ols")
+        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra, rhs=estimator in LEAST_SQUARES)
     return submit(job)
 
 
-def _eiv_widened(fit, factor, noise, m: int, where: str, names) -> tuple:
-    """``(fit, largest, warning)``: ``ols``'s ``fit`` with its covariance widened by its first-order
-    errors-in-variables bias (:func:`~spaceid.estimation._determined.eiv_bias`, ``factor``, ``noise`` and the ``m``
-    equations as there),
-    the bias's largest ratio to a standard error before, and the warning when it reaches one (``""`` when not): least squares does not correct it, and its first-order
-    covariance holds only the spread (a random robot's differentiated encoders and 1e-3 rad/s of gyro noise put it
-    8.6 standard errors off, of which this predicted 5.4)."""
-    bias = eiv_bias(factor, noise, fit.theta, fit.rms**2 * m, m)
+LEAST_SQUARES = ("ols", "wls")
+"""The estimators that leave the errors-in-variables bias (:func:`_eiv_widened`), as estimates and as ML's fallbacks."""
+
+
+def _eiv_widened(fit, regression, reported: str, eq, x, sigma, log, chunk, noise, factor, where: str,
+                 gyro_bias=None) -> tuple:
+    """``(fit, largest, warning)``: the ``reported`` estimate's ``fit`` (``ols`` or ``wls``, or ML's fallback to it)
+    with its covariance widened by its first-order errors-in-variables bias
+    (:func:`~spaceid.estimation._determined.eiv_bias`), the bias's largest ratio to a standard error before, and
+    the warning when it reaches one (``""`` when not). ``noise``: the noise Gram matrix of the equations whitened as
+    the estimator's with ``-b`` last (the checks' own), None to form it here; ``factor``: the column-scaled factor
+    ``(scale, R, ...)`` of ``[A | -b]`` whitened alike (None: WLS's at the estimate, formed here). With a
+    ``gyro_bias`` pass, ``regression`` is the fit before the attitude's update (:meth:`fused`), whose bias that update
+    carries (much of the bias correction's, measured by the attitude). Least squares does
+    not correct the bias, and its first-order covariance holds only the spread: a random robot's differentiated
+    encoders and 1e-3 rad/s of gyro noise put ``ols`` 8.6 standard errors off, of which this predicted 5.4."""
+    m = len(x) * eq.param.rows
+    if noise is None:
+        noise = equation_noise(eq, x, sigma, fit.theta, reported, log, chunk=chunk, rhs=True)
+    if factor is None:
+        factor = weighted_factor(eq, x, fit.theta, sigma, chunk, refined=False)
+    rss = fit.rms**2 * m if reported == "ols" else fit.uncertainty["chi2_dof"] * max(m - eq.p, 1)  # (whitened)
+    bias = eiv_bias(factor[1][:-1, :-1] * factor[0], noise, regression.theta, rss, m)
+    if gyro_bias:
+        bias = gyro_bias.carried(eq, regression.cov, bias)
     std = np.sqrt(np.diag(fit.cov))
     ratio = np.abs(bias) / np.where(std > 0, std, np.inf)
+    largest = float(ratio.max(initial=0))
     fit = replace(fit, cov=fit.cov + np.outer(bias, bias))
-    if not ratio.max(initial=0) >= 1:
-        return fit, ratio.max(initial=0), ""
-    lead = ", ".join(str(names[i]) for i in np.argsort(-ratio)[:3] if ratio[i] >= 1)
-    return fit, ratio.max(), (f"{where}: the regressor's noise biases least squares by up to {ratio.max():.2g} of its "
-                              f"standard errors (errors in variables, to first order; {lead} most): they are widened "
-                              "by the bias; `estimator` ml corrects it")
+    if largest >= EIV_SAID:
+        fit = replace(fit, uncertainty={**fit.uncertainty, "covariance": f"{fit.uncertainty['covariance']}; "
+                                                                         f"{EIV_WIDENED.format(reported, largest)}"})
+    if not largest >= 1:
+        return fit, ""
+    lead = ", ".join(str(eq.names()[i]) for i in np.argsort(-ratio)[:3] if ratio[i] >= 1)
+    return fit, (f"{where}: the regressor's noise biases the {reported} estimate by up to {largest:.2g} of its "
+                 f"standard errors (errors in variables, to first order; {lead} most): they are widened by the bias; "
+                 "`estimator` ml corrects it")
 
 
 def _singular_values(factor) -> np.ndarray:
@@ -767,9 +788,9 @@ def identify(
             def basis():  # the candidates' basis, if formed beside
                 return jobs["basis"].result() if jobs.get("basis") is not None else None
 
-            def drift_noise():  # the noise Gram matrix of the columns and the candidates (ols's without -b)
+            def drift_noise():  # the noise Gram matrix of the columns and the candidates (least squares': without -b)
                 noise = jobs["gram"].result()
-                return noise[:-1, :-1] if estimator == "ols" else noise
+                return noise[:-1, :-1] if estimator in LEAST_SQUARES else noise
 
             prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
                              cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
@@ -792,18 +813,21 @@ def identify(
             fit = (_angles_estimate(eq, x, log, sigma, ctx, estimated, start) if angles is not None else
                    _estimate(eq, x, log, sigma, ctx, estimator, estimated, chunk,
                              on_estimate if early or converging else None))
-            if gyro_bias:
-                fit = gyro_bias.fused(eq, fit)
+            # the data's fit, and the one reported: updated by the attitude's measurement of the gyro bias, if estimated
+            regression, fit, fused_by = fit, gyro_bias.fused(eq, fit) if gyro_bias else fit, gyro_bias or None
             nominal = np.concatenate([param.true_values[eq.free], fit.theta[len(eq.free):]])
             if estimator == "ml" and not fit.info.get("fallback"):  # held directions judged with their widened errors
                 judged = fit.cov if fit.held is None else widened(fit.cov, *fit.held, fit.theta, nominal)
                 if _implausible_estimate(eq, fit.theta, judged, where, z=FALLBACK_Z):
-                    fit = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
+                    fit = regression = _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, fit, where)
+                    fused_by = None
             theta, info, uncertainty = fit.theta, fit.info, fit.uncertainty  # the warnings below name them
             whitener = info.pop("whitener", None)
             # the factor of the columns whitened as the checks take them (ols: the excitation check's; ml: its bread's)
             white_factor = ((*factor, cond_scaled) if estimator == "ols" else
                             _whitened_factor(info.pop("whitened_factor", None)))
+            if estimator == "wls" and not chunk:  # its weights' at the estimate: for the checks and its bias
+                white_factor = _whitened_factor(weighted_factor(eq, x, theta, sigma, refined=False, phi=phi))
             submit = submit or beside.enter_context(side_by_side())
             if not chunk and estimator != "angles" and not ("gram" in jobs and jobs["weights"] is whitener):
                 noise_beside(eq, x, sigma, theta, whitener)
@@ -824,15 +848,13 @@ def identify(
             if weak:  # the standard errors say what the data do not determine
                 fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
                 uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
-            biased = ""
-            if (info.get("fallback") or estimator).startswith("ols"):  # and the bias ols leaves
-                ols_noise = jobs["gram"].result() if estimator == "ols" and "gram" in jobs else equation_noise(
-                    eq, x, sigma, theta, "ols", log, chunk=chunk, rhs=True)  # (streamed: none; ml's is whitened)
-                fit, largest, biased = _eiv_widened(fit, (*factor, cond_scaled), ols_noise, len(x) * param.rows,
-                                                    where, eq.names())
-                if largest >= EIV_SAID:
-                    uncertainty = {**uncertainty,
-                                   "covariance": f"{uncertainty['covariance']}; {EIV_WIDENED.format(largest)}"}
+            reported, biased = (info.get("fallback") or estimator).split(":")[0], ""
+            if reported in LEAST_SQUARES:  # and the bias least squares leaves
+                own = jobs["gram"].result() if reported == estimator and "gram" in jobs else None
+                fit, biased = _eiv_widened(replace(fit, uncertainty=uncertainty), regression, reported, eq, x, sigma,
+                                           log, chunk, own, (*factor, cond_scaled) if reported == "ols" else white_factor,
+                                           where, fused_by)
+                uncertainty = fit.uncertainty
             # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
             # wrong momentum or anchor
             fit = replace(fit, implausible=_implausible_estimate(eq, theta, fit.cov, where))

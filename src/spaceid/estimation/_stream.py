@@ -129,14 +129,23 @@ def streamed_ols_factor(eq, x, chunk) -> tuple:
     return _streamed_factor(blocks, eq.p), any(nonzero)
 
 
+def weighted_factor(eq, x, theta, sigma, chunk=None, refined=True, phi=None) -> tuple:
+    """The factor ``(scale, R)`` of the equations of ``x`` whitened by the noise model at ``theta`` (levels
+    ``sigma``), WLS's at its weights: a chunk of ``chunk`` samples at a time, or in one block (of their columns
+    ``phi``, when built)."""
+    def blocks():
+        if phi is not None:
+            return iter([_split(_whitened(_equation_whitener(eq, x, theta, sigma), phi))])
+        return (_split(_whitened(_equation_whitener(e, xc, theta, sigma), e.phi(xc))) for _, e, xc in
+                _chunks(eq, x, chunk or len(x)))  # fmt: skip
+
+    return _streamed_factor(blocks, eq.p, refined)
+
+
 def _streamed_wls(eq, x, sigma, theta, chunk, iterations=2):
     """:func:`~spaceid.estimation._estimators._wls`, a factor per iteration."""
     for _ in range(iterations):
-        def blocks(theta=theta):
-            return (_split(_whitened(_equation_whitener(e, xc, theta, sigma), e.phi(xc))) for _, e, xc in
-                    _chunks(eq, x, chunk))  # fmt: skip
-
-        theta = _solve_factor(*_streamed_factor(blocks, eq.p)[::-1])[0]
+        theta = _solve_factor(*weighted_factor(eq, x, theta, sigma, chunk)[::-1])[0]
     return theta, {"iterations": iterations}
 
 
