@@ -4,13 +4,15 @@ For each case (robot, designed or undesigned motion, rates measured or different
 estimator) the same noise-free log is given ``--seeds`` noise draws (encoders 1e-4 rad, joint-rate
 sensors 1e-4 rad/s, gyro 1e-5 rad/s, star tracker 5e-5 rad, per axis; the momentum conserved to
 round-off) and identified with the levels given (measured rates) or estimated from the log
-(differentiated, as the CLI does). Printed per case, over the large parameters (|pi| at least 1e-3
+(differentiated, as the CLI does; ``encoders``: the joint rates differentiated from the encoders, the
+gyro's rate kept, a servicer's sensors). Printed per case, over the large parameters (|pi| at least 1e-3
 of the largest): the fraction of errors within 2 reported standard errors, the largest |z|, the
 root-mean-square z, the median number of directions the data do not determine
 (``diagnostics.undetermined``), and the drift test's false alarms on these conserved logs against
 its level (``alpha`` times the logs: the expected count).
 
     python benchmarks/bench_coverage.py [--seeds 10] [--robots satellite 3] [--estimators ols wls ml]
+                                        [--rates measured differentiated encoders] [--gyro 1e-5]
                                         [--duration 20] [--rate 100] [--budget 20]
 
 Designed motions: ``design_excitation`` (cond criterion, 5 harmonics, 200 samples, |qdd| <= 0.5, the
@@ -80,16 +82,16 @@ def motion(param, kind: str, duration: float, budget: float):
     return FourierTrajectory(param.model.joints, duration, a, b)
 
 
-def case(param, log, rates: str, estimator: str, seeds: int) -> dict:
+def case(param, log, rates: str, estimator: str, seeds: int, levels: Noise = LEVELS) -> dict:
     large = np.abs(param.true_values) >= 1e-3 * np.abs(param.true_values).max()
     z, alarms, weak, elapsed = [], 0, [], time.perf_counter()
     for seed in range(seeds):
-        noisy = with_noise(log, LEVELS, seed)
-        if rates == "differentiated":
-            noisy = differentiate_log(noisy)
+        noisy = with_noise(log, levels, seed)
+        if rates != "measured":
+            noisy = differentiate_log(noisy, base=rates == "differentiated")
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            result = identify(param, noisy, H, estimator=estimator, noise=LEVELS if rates == "measured" else None)
+            result = identify(param, noisy, H, estimator=estimator, noise=levels if rates == "measured" else None)
         z.append(((result.values - param.true_values) / result.std)[large])
         alarms += bool(result.diagnostics.drift_test.drift)
         weak.append(len(result.diagnostics.undetermined))
@@ -104,14 +106,17 @@ def main():
     parser.add_argument("--robots", nargs="+", default=["satellite", "3"])
     parser.add_argument("--estimators", nargs="+", default=["ols", "wls", "ml"])
     parser.add_argument("--kinds", nargs="+", default=["designed", "undesigned"])
-    parser.add_argument("--rates", nargs="+", default=["measured", "differentiated"])
+    parser.add_argument("--rates", nargs="+", default=["measured", "differentiated"],
+                        choices=["measured", "differentiated", "encoders"])
+    parser.add_argument("--gyro", type=float, default=LEVELS.base_rate, help="the gyro's white noise [rad/s]")
     parser.add_argument("--duration", type=float, default=20.0)
     parser.add_argument("--rate", type=float, default=100.0)
     parser.add_argument("--budget", type=float, default=20.0)
     parser.add_argument("--folder", type=Path, default=Path("/tmp"))
     args = parser.parse_args()
     alpha = 1e-3
-    print(f"noise {LEVELS.to_dict()}, h = {H.tolist()} N m s, {args.duration:g} s at {args.rate:g} Hz, "
+    levels = dataclasses.replace(LEVELS, base_rate=args.gyro)
+    print(f"noise {levels.to_dict()}, h = {H.tolist()} N m s, {args.duration:g} s at {args.rate:g} Hz, "
           f"{args.seeds} noise seeds per case; drift test level {alpha:g}: {alpha * args.seeds:.2g} alarms expected")
     print(f"{'robot':>10} {'motion':>10} {'rates':>14} {'est':>4} {'p':>4} {'cond':>8} {'within2':>8} {'max|z|':>8} "
           f"{'rms z':>7} {'undet':>6} {'alarms':>7} {'s/fit':>6}")
@@ -124,7 +129,7 @@ def main():
             cond = identify(param, log, H, estimator="ols").diagnostics.condition_number_scaled
             for rates in args.rates:
                 for estimator in args.estimators:
-                    r = case(param, log, rates, estimator, args.seeds)
+                    r = case(param, log, rates, estimator, args.seeds, levels)
                     print(f"{name:>10} {kind:>10} {rates:>14} {estimator:>4} {param.n_params:>4} {cond:>8.2g} "
                           f"{r['within2']:>8.3f} {r['max']:>8.3g} {r['rms']:>7.3g} {r['undetermined']:>6g} "
                           f"{r['alarms']:>3}/{args.seeds:<3} {r['seconds'] / args.seeds:>6.2f}", flush=True)
