@@ -139,8 +139,8 @@ def signal_levels(param, log, sigma: np.ndarray) -> np.ndarray:
     return differentiated_sigma(log, sigma if np.any(sigma) else signal_sigma(param, noise_from_log(log)))
 
 
-EIV_WIDENED = ("widened by the first-order bias that the regressor's noise gives {} (errors in variables: up to {:.2g} of "
-               "the standard errors before)")
+EIV_WIDENED = ("widened by the first-order bias that the regressor's noise gives {} (errors in variables: up to "
+               "{:.2g} of the standard errors before)")
 """How the covariance's description ends when :func:`eiv_bias` widened it by at least :data:`EIV_SAID`."""
 EIV_SAID = 0.1
 """Largest ratio of the bias to a standard error at which the widening goes unsaid (the errors grow by 0.5 %)."""

@@ -271,8 +271,9 @@ def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, basis):
     """A future, from ``submit`` (:func:`~spaceid._threads.side_by_side`), of the noise Gram matrix of the equations'
     columns with the drift test's candidates, whitened by the estimator's ``whitener``
     (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``; least squares' has ``-b``
-    last, for its bias): formed once, for the undetermined directions, the drift test and least squares' bias. ``basis``: a future
-    of the candidates' (:func:`~spaceid.estimation._residuals.candidate_basis`), None when drift terms are modelled."""
+    last, for its bias): formed once, for the undetermined directions, the drift test and least squares' bias.
+    ``basis``: a future of the candidates' (:func:`~spaceid.estimation._residuals.candidate_basis`), None when drift
+    terms are modelled."""
     def job():
         extra = None if basis is None else drift_columns(eq, log, basis.result())
         return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra, rhs=estimator in LEAST_SQUARES)
@@ -285,16 +286,17 @@ LEAST_SQUARES = ("ols", "wls")
 
 def _eiv_widened(fit, regression, reported: str, eq, x, sigma, log, chunk, noise, factor, where: str,
                  gyro_bias=None) -> tuple:
-    """``(fit, largest, warning)``: the ``reported`` estimate's ``fit`` (``ols`` or ``wls``, or ML's fallback to it)
-    with its covariance widened by its first-order errors-in-variables bias
-    (:func:`~spaceid.estimation._determined.eiv_bias`), the bias's largest ratio to a standard error before, and
-    the warning when it reaches one (``""`` when not). ``noise``: the noise Gram matrix of the equations whitened as
-    the estimator's with ``-b`` last (the checks' own), None to form it here; ``factor``: the column-scaled factor
-    ``(scale, R, ...)`` of ``[A | -b]`` whitened alike (None: WLS's at the estimate, formed here). With a
-    ``gyro_bias`` pass, ``regression`` is the fit before the attitude's update (:meth:`fused`), whose bias that update
-    carries (much of the bias correction's, measured by the attitude). Least squares does
-    not correct the bias, and its first-order covariance holds only the spread: a random robot's differentiated
-    encoders and 1e-3 rad/s of gyro noise put ``ols`` 8.6 standard errors off, of which this predicted 5.4."""
+    """``(fit, warning)``: the ``reported`` estimate's ``fit`` (``ols`` or ``wls``, or ML's fallback to it) with its
+    covariance widened by its first-order errors-in-variables bias (:func:`~spaceid.estimation._determined.eiv_bias`;
+    its description says so from :data:`~spaceid.estimation._determined.EIV_SAID` of a standard error), and the
+    warning when the bias reaches one standard error (``""`` when not). ``noise``: the noise Gram matrix of the
+    equations whitened as the estimator's with ``-b`` last (the checks' own), None to form it here; ``factor``: the
+    column-scaled factor ``(scale, R, ...)`` of ``[A | -b]`` whitened alike (None: WLS's at the estimate, formed
+    here). ``regression`` is the data's own fit; with a ``gyro_bias`` pass, ``fit`` is it after the attitude's update
+    (:meth:`~spaceid.estimation._gyro_bias.BiasPass.fused`), which carries its bias too (little of the bias
+    correction's, which the attitude measures). Least squares does not correct the bias, and its first-order
+    covariance holds only the spread: a random robot's differentiated encoders and 1e-3 rad/s of gyro noise put
+    ``ols`` 8.6 standard errors off, of which this predicted 5.4."""
     m = len(x) * eq.param.rows
     if noise is None:
         noise = equation_noise(eq, x, sigma, fit.theta, reported, log, chunk=chunk, rhs=True)
@@ -851,9 +853,9 @@ def identify(
             reported, biased = (info.get("fallback") or estimator).split(":")[0], ""
             if reported in LEAST_SQUARES:  # and the bias least squares leaves
                 own = jobs["gram"].result() if reported == estimator and "gram" in jobs else None
+                own_factor = (*factor, cond_scaled) if reported == "ols" else white_factor
                 fit, biased = _eiv_widened(replace(fit, uncertainty=uncertainty), regression, reported, eq, x, sigma,
-                                           log, chunk, own, (*factor, cond_scaled) if reported == "ols" else white_factor,
-                                           where, fused_by)
+                                           log, chunk, own, own_factor, where, fused_by)
                 uncertainty = fit.uncertainty
             # judged with the widened errors: an undetermined direction's value, pulled towards zero, is no sign of a
             # wrong momentum or anchor
