@@ -287,6 +287,24 @@ def test_least_squares_without_levels_judges_a_noisy_gyro_by_the_logs_own(estima
     assert np.abs(z).max() < 4.5
 
 
+@robots(2)
+@given(seed=st.integers(0, 2**31 - 1), planar=st.booleans(), estimator=st.sampled_from(["ols", "wls"]))
+def test_least_squares_standard_errors_hold_a_noisy_gyros_bias_on_any_random_robot(seed, planar, estimator, tmp_path):
+    """A servicer's sensors (encoders differentiated, a MEMS-class gyro of 1e-3 rad/s white noise kept, a star
+    tracker), levels estimated: least squares' errors within its standard errors, its errors-in-variables bias
+    among them (on 28 random robots, 0.3 to 3.2 of them at most over the large parameters, as ``ml``'s)."""
+    with stage(f"identify {estimator}: a noisy gyro's bias in the standard errors", seed=seed, planar=planar,
+               motion="harmonic"):
+        param, h, clean = _random(seed, planar, tmp_path)
+        sensors = Noise(angle=1e-4, rate=0.0, base_rate=1e-3, attitude=5e-5)
+        log = differentiate_log(add_noise(clean, noise=sensors, joint_rate_sensors=False, seed=1), base=False)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            res = identify(param, log, h, estimator=estimator)
+        large = np.abs(param.true_values) >= 1e-3 * np.abs(param.true_values).max()
+        assert np.abs((res.values - param.true_values) / res.std)[large].max() < 4.5
+
+
 # --- a bias not estimated: named, not taken for a drift ---------------------------------------------
 
 
