@@ -431,6 +431,12 @@ def _ml_determined(eq, x, log: Log, sigma, theta, ctx: _FitContext, info: dict, 
                         **({} if shift is None else {"held_shift": shift})}
 
 
+def _nominal(eq, theta) -> np.ndarray:
+    """The model's own values ``(p,)`` of the unknowns ``theta``'s: its parameters' (the URDF's inertias), and
+    ``theta``'s for the momentum, bias and drift terms, which the model does not know (the widenings' scale)."""
+    return np.concatenate([eq.param.true_values[eq.free], theta[len(eq.free):]])
+
+
 def _held_shift(eq, x, sigma, ctx: _FitContext, start, held, T, weak):
     """The change ``(p,)`` of :func:`_ml_determined`'s fit ``held`` (from ``start``, its coordinates ``T^-1 theta``
     along the ``weak`` directions kept) had those coordinates been the model's own (its parameters', the scale
@@ -438,8 +444,7 @@ def _held_shift(eq, x, sigma, ctx: _FitContext, start, held, T, weak):
     couples the coordinates: the others follow the held ones (random robot 6089925's undesigned log, one direction
     held at WLS's values, attenuated by their errors in variables: two parameters 13 and 12 standard errors off;
     held at OLS's 2.1, at the truth 1.6), which the covariance of the fit with them fixed does not say."""
-    nominal = np.concatenate([eq.param.true_values[eq.free], start[len(eq.free):]])
-    coords = np.linalg.solve(T, np.column_stack([start, nominal]))
+    coords = np.linalg.solve(T, np.column_stack([start, _nominal(eq, start)]))
     moved = start + T[:, weak] @ (coords[weak, 1] - coords[weak, 0])
     other, fit = _KERNELS["ml"](eq, x, sigma, moved, ctx, subspace=T[:, ~weak])
     return None if fit.get("fallback") else other - held
@@ -595,7 +600,8 @@ def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, kn
     _check_sample_count(eq, log, where)
     x = eq.signals(log)
     # none given: the log's own levels, which ols weights by none but its checks and propagated covariance need
-    # (zero, a measured gyro's noise was left out beside differentiated encoders: a false gyro bias, 14 std errors)
+    # (at zero, a measured gyro's noise beside differentiated encoders was read as a gyro bias: the 7-DOF satellite's
+    # undetermined directions went unseen, its parameters 14 standard errors off)
     estimated = noise is None
     noise = noise_from_log(log) if estimated else noise
     # differentiated signals weighted at their filters' levels: estimated from the smoothed log itself they are
@@ -817,7 +823,7 @@ def identify(
                              on_estimate if early or converging else None))
             # the data's fit, and the one reported: updated by the attitude's measurement of the gyro bias, if estimated
             regression, fit, fused_by = fit, gyro_bias.fused(eq, fit) if gyro_bias else fit, gyro_bias or None
-            nominal = np.concatenate([param.true_values[eq.free], fit.theta[len(eq.free):]])
+            nominal = _nominal(eq, fit.theta)
             if estimator == "ml" and not fit.info.get("fallback"):  # held directions judged with their widened errors
                 judged = fit.cov if fit.held is None else widened(fit.cov, *fit.held, fit.theta, nominal)
                 if _implausible_estimate(eq, fit.theta, judged, where, z=FALLBACK_Z):
@@ -837,7 +843,8 @@ def identify(
                                       chunk, drift_noise if "gram" in jobs else None)
             # ols's on a worker since its estimate; ml's on the second worker now, before the directions (which wait
             # for the noise Gram matrix)
-            drift_job = jobs.get("drift") or (submit(check, _factor_gram(white_factor), basis()) if converging else None)
+            drift_job = jobs.get("drift") or (submit(check, _factor_gram(white_factor), basis()) if converging
+                                              else None)
             if "gram" in jobs:
                 jobs["directions"] = submit(lambda: undetermined_directions(
                     eq, x, phi, sigma, theta, estimator, log, whitener, jobs["gram"].result()[: eq.p, : eq.p],
