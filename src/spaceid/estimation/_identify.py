@@ -270,13 +270,13 @@ def _log_regressor(eq, phi, estimator: str):
 def _noise_gram(submit, eq, x, sigma, theta, estimator, log, whitener, basis):
     """A future, from ``submit`` (:func:`~spaceid._threads.side_by_side`), of the noise Gram matrix of the equations'
     columns with the drift test's candidates, whitened by the estimator's ``whitener``
-    (:func:`~spaceid.estimation._determined.equation_noise`; ``ols``'s needs no ``theta``; least squares' has ``-b``
-    last, for its bias): formed once, for the undetermined directions, the drift test and least squares' bias.
+    (:func:`~spaceid.estimation._determined.equation_noise` with ``-b`` last; ``ols``'s needs no ``theta``): formed
+    once, for the undetermined directions, the drift test and least squares' bias.
     ``basis``: a future of the candidates' (:func:`~spaceid.estimation._residuals.candidate_basis`), None when drift
     terms are modelled."""
     def job():
         extra = None if basis is None else drift_columns(eq, log, basis.result())
-        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra, rhs=estimator in LEAST_SQUARES)
+        return equation_noise(eq, x, sigma, theta, estimator, log, whitener, extra, rhs=True)
     return submit(job)
 
 
@@ -796,10 +796,6 @@ def identify(
             def basis():  # the candidates' basis, if formed beside
                 return jobs["basis"].result() if jobs.get("basis") is not None else None
 
-            def drift_noise():  # the noise Gram matrix of the columns and the candidates (least squares': without -b)
-                noise = jobs["gram"].result()
-                return noise[:-1, :-1] if estimator in LEAST_SQUARES else noise
-
             prep = _prepared(param, log, momentum, estimator=estimator, known=known, noise=noise, where=where,
                              cond_limit=cond_limit, drift=drift, history=history, instruments=instruments,
                              knot_spacing=knot_spacing, chunk=chunk, gyro_bias=gyro_bias,
@@ -814,7 +810,7 @@ def identify(
             def on_estimate(theta, whitener, residuals=None):
                 if early:  # (ols: no whitener, the excitation check's factor, its residuals)
                     jobs["drift"] = submit(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, None,
-                                           None, drift_noise, _factor_gram(factor), basis(), residuals)
+                                           None, jobs["gram"].result, _factor_gram(factor), basis(), residuals)
                 else:
                     noise_beside(eq, x, sigma, theta, whitener)
 
@@ -840,7 +836,7 @@ def identify(
             if not chunk and estimator != "angles" and not ("gram" in jobs and jobs["weights"] is whitener):
                 noise_beside(eq, x, sigma, theta, whitener)
             check = functools.partial(_drift_check, eq, x, phi, sigma, theta, estimator, log, drift, where, whitener,
-                                      chunk, drift_noise if "gram" in jobs else None)
+                                      chunk, jobs["gram"].result if "gram" in jobs else None)
             # ols's on a worker since its estimate; ml's on the second worker now, before the directions (which wait
             # for the noise Gram matrix)
             drift_job = jobs.get("drift") or (submit(check, _factor_gram(white_factor), basis()) if converging

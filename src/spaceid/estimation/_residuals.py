@@ -232,13 +232,14 @@ def _confounded(noise, R, p) -> float:
 
 def _errors_in_variables(noise, ginv, theta, p) -> np.ndarray:
     """The drift coefficients ``(q,)`` that the refit takes up from the regressor's own noise: its
-    first-order errors-in-variables bias ``-[G^-1 N [theta; 0]]_d`` (``N`` the noise Gram matrix of
-    ``[A | C]``, ``ginv = G^-1`` the refit's, ``p`` the columns of ``A``). Noise in the regressor
+    first-order errors-in-variables bias ``-[G^-1 N [theta; 0; 1]]_d`` (``N`` the noise Gram matrix of
+    ``[A | C | -b]``, ``ginv = G^-1`` the refit's, ``p`` the columns of ``A``). Noise in the regressor
     correlates with it (``E[A^T dA] = N``), and the drift columns, which carry none, take up what it
     pulls out of ``theta``: on a designed motion with rates differentiated from noisy angles the
     drift coefficients sat three of their standard errors from zero in the direction this predicts,
-    seed after seed."""
-    return -(ginv[p:] @ (noise[:, :p] @ theta[:p]))
+    seed after seed. The right-hand side shares the columns' noise where parameters are anchored (their
+    columns move into ``b``): an anchor's share of the bias is its column's, as if it were estimated."""
+    return -(ginv[p:] @ (noise[:-1, :p] @ theta[:p] + noise[:-1, -1]))
 
 
 def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None, candidates=None,
@@ -271,10 +272,10 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         Other columns to test instead of the drift's: ``(names, columns)``, ``columns(rows)`` those of
         the samples ``rows`` (a slice), ``(k, rows, q)`` (the gyro bias's:
         :func:`spaceid.estimation._gyro_bias.bias_test`).
-    noise : ndarray of shape (p + q, p + q) or callable, optional
-        The noise Gram matrix of the equations with the drift columns (:func:`drift_columns`,
-        :func:`~spaceid.estimation._determined.equation_noise`) if already formed, or a function that returns it
-        (formed beside the test: called once the test needs it).
+    noise : ndarray of shape (p + q + 1, p + q + 1) or callable, optional
+        The noise Gram matrix of the equations with the drift columns and ``-b`` last (:func:`drift_columns`,
+        :func:`~spaceid.estimation._determined.equation_noise` with ``rhs``) if already formed, or a function that
+        returns it (formed beside the test: called once the test needs it).
     gram : ndarray of shape (p, p), optional
         The Gram matrix of the equations' columns ``A`` whitened as here (by ``whitener``; as they are for
         ``ols``), if already formed (the estimate's factorisation): the refit's is completed from it by the
@@ -366,12 +367,12 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
         noise = noise()
     if testing_drift and noise is None:  # (another candidate's columns: the drift test decided before)
         noise = equation_noise(eq, x, sigma, theta, estimator, log, whitener, drift_columns(eq, log, basis),
-                               None if phi is not None else chunk)
+                               None if phi is not None else chunk, rhs=True)
     eiv = _errors_in_variables(noise, ginv, theta, p) if testing_drift else np.zeros(q)
     cdd = cdd + np.outer(eiv, eiv)
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     size = n * eq.param.rows
-    confounded = _confounded(noise, factor[1][:-1, :-1] * factor[0], p) if testing_drift else None
+    confounded = _confounded(noise[:-1, :-1], factor[1][:-1, :-1] * factor[0], p) if testing_drift else None
     p_value = float(f_sf(wald / q, q, max(size - p - q, 1)))
     change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
     square, lagged, differences = sums["serial"]
