@@ -175,6 +175,27 @@ def test_sweep_on_a_small_grid_matches_direct_calls(param, tmp_path):
     assert (tmp_path / "sweep.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow  # two designs and a sweep (seconds)
+def test_sweep_bounds_each_search_by_max_steps(param, tmp_path):
+    """``--max-steps`` reaches every setting's design (the row is the direct design with the same bound, which
+    stops short of the unbounded one's) and is recorded; a bad bound is named."""
+    from spaceid.studies import run_sweep
+
+    result = CliRunner().invoke(app, ["sweep", "cepheus", "--momentum", "0.4934", "--durations", "5", "--harmonics",
+                                      "2", "--samples", "35", "--starts", "1", "--max-steps", "2", "--seed", "4",
+                                      "--jobs", "1", "--out", str(tmp_path)], catch_exceptions=False)  # fmt: skip
+    assert result.exit_code == 0, result.output
+    saved = json.loads((tmp_path / "sweep.json").read_text())
+    row = saved["rows"][0]
+    assert saved["settings"]["max_steps"] == 2
+    design = {"duration": 5.0, "harmonics": 2, "samples": 35, "momentum": H, "seed": row["seed"], "n_starts": 1,
+              "jobs": 1}
+    assert design_excitation(param, **design, max_steps=2).value == row["criterion_value"]
+    assert design_excitation(param, **design).value < row["criterion_value"]
+    with pytest.raises(SpaceidError, match="^`max_steps`: 0 is not an integer >= 1"):
+        run_sweep(param, momentum=H, durations=[5.0], harmonics=[2], samples=[35], max_steps=0)
+
+
 def test_design_cli_names_a_bad_scheduler(tmp_path, capsys):
     code = main(["design", "cepheus", "--duration", "5", "--harmonics", "2", "--samples", "35", "--momentum",
                  "0.4934", "--starts", "2", "--scheduler", "threads", "-o", str(tmp_path / "t.json")])  # fmt: skip

@@ -1606,6 +1606,9 @@ def _number_list(value, option, kind):
 @click.option("--criterion", type=click.Choice(DESIGN_CRITERIA), default="cond", show_default=True,
               help="Design criterion of every setting (see 'spaceid design').")
 @click.option("--starts", type=STARTS, default=8, show_default=True, help="Local searches of each setting's design.")
+@click.option("--max-steps", type=click.IntRange(min=1), metavar="N", help="Most linearisations of the regressor each "
+              "setting's local searches make (as 'spaceid design --max-steps'): bounds a setting's work, with the same "
+              "rows on any machine [default: to convergence for small regressors, 40 for large ones].")
 @noise_options
 @SEED
 @click.option("--jobs", type=JOBS, help="Worker processes [default: all cores].")
@@ -1614,8 +1617,8 @@ def _number_list(value, option, kind):
             ".FOLDER.tasks/ as it completes, for --resume, until they are written).", required=True)
 @RESUME
 @OVERWRITE
-def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion, starts, noise, seed, jobs, scheduler,
-          folder, resume, overwrite):
+def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion, starts, max_steps, noise, seed, jobs,
+          scheduler, folder, resume, overwrite):
     """Design study: an excitation designed for every setting of the grid durations x harmonics
     x samples, and per setting the condition number of its regressor and the predicted
     Cramer-Rao standard deviation relative to the nominal parameters (worst parameter), for
@@ -1630,7 +1633,8 @@ def sweep(model_src, planar, momentum, durations, harmonics, samples, criterion,
             "samples": _number_list(samples, "--samples", int)}  # fmt: skip
     with _progress("settings") as progress:
         res = run_sweep(param, momentum=h, **grid, noise=noise or DEFAULT_NOISE, criterion=criterion, n_starts=starts,
-                        seed=seed, scheduler=scheduler, jobs=jobs, out=folder, resume=resume, progress=progress)
+                        max_steps=max_steps, seed=seed, scheduler=scheduler, jobs=jobs, out=folder, resume=resume,
+                        progress=progress)
     out.print(sweep_table(res))
     with _report_folder(folder, overwrite) as tmp:
         write_sweep(res, tmp)

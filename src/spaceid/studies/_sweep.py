@@ -3,7 +3,7 @@
 Every setting of the grid ``durations x harmonics x samples`` is one campaign task
 (:func:`spaceid._campaign.run_campaign`): an excitation designed for it
 (:func:`spaceid.motion.design_excitation`, ``n_starts`` local searches, no time budget so that
-the result depends on the seed alone), then two figures of merit of that trajectory at its
+the result depends on the seed alone; ``max_steps`` bounds each search's work on any machine), then two figures of merit of that trajectory at its
 samples: the condition number of the stacked regressor (the paper's criterion) and the predicted
 Cramer-Rao standard deviation of every parameter relative to its nominal value, for the noise
 given (the worst over the parameters is reported). Setting i designs from
@@ -45,13 +45,15 @@ class _Sweep:
     noise: Noise
     criterion: str
     n_starts: int
+    max_steps: int | None = None
 
     def setting(self, duration: float, harmonics: int, samples: int, seed: int) -> dict:
         """Design for one setting, then its condition number and relative CRB (see the module
         docstring); the searches run in this process."""
         res = design_excitation(self.param, duration=duration, harmonics=harmonics, samples=samples,
                                 momentum=self.momentum, seed=int(seed), criterion=self.criterion, noise=self.noise,
-                                n_starts=self.n_starts, jobs=1, scheduler="processes")  # fmt: skip
+                                n_starts=self.n_starts, max_steps=self.max_steps, jobs=1,
+                                scheduler="processes")  # fmt: skip
         q, qd, _ = res.trajectory.evaluate(sample_times(duration, samples))
         cond = float(np.linalg.cond(excitation_regressor(self.param, self.param.true_values, self.momentum)(q, qd)))
         relative = {n: v for n, v in res.trajectory.meta["crb_relative_std"].items() if v is not None}
@@ -76,8 +78,9 @@ class SweepResult:
         ``criterion_value`` (the design criterion's value), ``crb_relative_std`` (per parameter)
         and ``trajectory`` (the designed trajectory's dictionary).
     settings : dict
-        Model, grid, criterion, starts, noise, momentum, root seed and how setting seeds derive
-        from it, scheduler, jobs, resumed settings, wall time.
+        Model, grid, criterion, starts, each search's most steps (``max_steps``, None: its own),
+        noise, momentum, root seed and how setting seeds derive from it, scheduler, jobs, resumed
+        settings, wall time.
     """
 
     rows: tuple
@@ -105,8 +108,9 @@ def _grid_values(values, option: str, kind) -> tuple:
 
 @deprecated_alias(old="folder", new="out")
 def run_sweep(param: Parameterization, *, momentum, durations, harmonics, samples, noise: Noise = DEFAULT_NOISE,
-              criterion: str = "cond", n_starts: int = 8, seed: int = 0, scheduler: str | None = None,
-              jobs: int | None = None, out=None, resume: bool = False, progress=None) -> SweepResult:
+              criterion: str = "cond", n_starts: int = 8, max_steps: int | None = None, seed: int = 0,
+              scheduler: str | None = None, jobs: int | None = None, out=None, resume: bool = False,
+              progress=None) -> SweepResult:
     """Design an excitation for every setting of a grid; condition number and relative CRB of each.
 
     Parameters
@@ -127,6 +131,11 @@ def run_sweep(param: Parameterization, *, momentum, durations, harmonics, sample
         Design criterion (see :func:`spaceid.motion.design_excitation`).
     n_starts : int
         Local searches of each design.
+    max_steps : int, optional
+        Most linearisations of the regressor each design's local search makes
+        (:func:`spaceid.motion.design_excitation`): the work of a setting bounded alike on any machine
+        (the dual-arm servicer's 496 parameters take about 80 s a start to their default of 40).
+        Default: each search's own (to convergence for small regressors, 40 for large ones).
     seed : int
         Root seed (>= 0); setting i designs from its i-th spawned seed.
     scheduler, jobs, out, resume
@@ -147,17 +156,20 @@ def run_sweep(param: Parameterization, *, momentum, durations, harmonics, sample
     t_start = time.perf_counter()
     seed = _check_int(seed, "`seed`", 0, "give a non-negative integer")
     n_starts = _check_int(n_starts, "`n_starts`", 1, "give 1 or more local searches")
+    if max_steps is not None:
+        max_steps = _check_int(max_steps, "`max_steps`", 1, "give 1 or more linearisations, or None")
     jobs = _cores() if jobs is None else _check_int(jobs, "`jobs`", 1, "give 1 or more worker processes")
     scheduler = resolve_scheduler(scheduler)
     grid = list(itertools.product(_grid_values(durations, "`durations`", float),
                                   _grid_values(harmonics, "`harmonics`", int),
                                   _grid_values(samples, "`samples`", int)))  # fmt: skip
-    sweep = _Sweep(param, _check_momentum(momentum), noise, criterion, n_starts)
+    sweep = _Sweep(param, _check_momentum(momentum), noise, criterion, n_starts, max_steps)
     seeds = task_seeds(seed, len(grid))
     tasks = {f"setting-{i:05d}": (*setting, int(s)) for i, (setting, s) in enumerate(zip(grid, seeds))}
     settings = {"model": param.model.source or param.model.name, "names": list(param.names),
                 "durations": sorted({g[0] for g in grid}), "harmonics": sorted({g[1] for g in grid}),
                 "samples": sorted({g[2] for g in grid}), "criterion": criterion, "n_starts": n_starts,
+                "max_steps": max_steps,
                 "noise": noise.to_dict(), "momentum": sweep.momentum.tolist(), "seed": seed,
                 "setting_seeds": "np.random.SeedSequence(seed).spawn(n_settings)[i].generate_state(1)[0], settings "
                                  "in grid order (durations slowest, samples fastest)"}  # fmt: skip
