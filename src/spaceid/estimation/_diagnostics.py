@@ -104,8 +104,9 @@ class DriftTest:
         measured rates (None: results written before it was recorded).
     confounded : float or None
         Largest share of a drift coefficient's variance from directions the data do not determine
-        (the regressor's noise as large as its signal); above ``CONFOUNDED`` (0.01) the test does not
-        decide: a drift cannot be told from those parameters (None: not recorded).
+        (the regressor's noise as large as its signal), directly or through the errors-in-variables
+        allowance, which moves with the estimate along them; above ``CONFOUNDED`` (0.01) the test does
+        not decide: a drift cannot be told from those parameters (None: not recorded).
     errors_in_variables : tuple of float
         The drift coefficients predicted from the regressor's own noise (its first-order
         errors-in-variables bias, one per term): allowed for in the Wald test's covariance, so that a

@@ -225,7 +225,7 @@ def _drift_check(eq, x, phi, sigma, theta, estimator, log, drift, where, whitene
     if estimator == "angles":  # its equations are line integrals over knot spans, not per-sample momenta
         return DriftTest.skipped("not defined for the angles estimator"), ""
     test = drift_test(eq, x, phi, sigma, theta, estimator, log, whitener, chunk, noise=noise, gram=gram, basis=basis,
-                      residuals=residuals)
+                      residuals=residuals, nominal=_nominal(eq, theta))
     record = DriftTest.from_dict(test)
     if not test["drift"]:
         return record, ""
