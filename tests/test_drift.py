@@ -191,29 +191,16 @@ def test_residual_test_silent_on_clean_logs_and_fires_on_drift(cepheus):
     assert test.alpha == 1e-3 and test.durbin_watson < 1.8  # white: 2 +- 0.09
 
 
-def _at_rest_random_robot(seed, planar, folder):
-    """``(param, anchor, log)``: a random robot released at rest (zero momentum) on an undesigned motion (Fourier, 0.05
-    to 0.5 rad/s a harmonic), 10 s, its scale anchored by one parameter of over 5 % of the largest's size."""
-    from random_robots import random_robot
-
-    model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(folder)
-    param, rng = minimal_parameters(model), np.random.default_rng(seed)
-    a, b = 10 ** rng.uniform(-1.3, -0.3) * rng.standard_normal((2, model.n_joints, 3))
-    times = sample_times(10.0, 4 * max(60, 3 * param.n_params // param.rows))
-    log = simulate(param, param.true_values, FourierTrajectory(model.joints, 10.0, a, b), times, np.zeros(3),
-                   model=model)  # fmt: skip
-    true = param.true_values
-    j = int(rng.choice(np.flatnonzero(np.abs(true) > 0.05 * np.abs(true).max())))
-    return param, {param.names[j]: float(true[j])}, log
-
-
 @pytest.mark.parametrize("estimator", ["ols", "ml"])
 def test_no_drift_alarm_at_zero_momentum_where_the_allowance_is_not_determined(estimator, tmp_path):
     """Planar random robot 12 released at rest, one parameter anchored, 1e-4 on every signal: one direction the data do
     not determine. The allowance for the regressor noise's pull moves with the estimate's coordinate along it, and the
     drift coefficients came out 24 times the allowance at the estimate (p 4.9e-22 with ``ols``, 4.3e-55 with ``ml``,
     first-order variance shares 0.0087 and 0.0038): the test now says the log cannot decide."""
-    param, anchor, log = _at_rest_random_robot(12, True, tmp_path)
+    from test_random_pipeline import flown_at_rest
+
+    flown, anchor = flown_at_rest(12, True, tmp_path)
+    param, log = flown.param, flown.log
     noise = Noise(angle=1e-4, rate=1e-4, base_rate=1e-4, attitude=1e-4)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

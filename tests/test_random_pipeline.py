@@ -5,6 +5,7 @@ definitions, independently of the parameters), identify noise-free (recovery to 
 monitor finding a grasp of one."""
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pytest
@@ -92,6 +93,21 @@ def _undesigned(seed, planar, tmp_path) -> Flown:
     return Flown(case, model, param, h, trajectory, log)
 
 
+def flown_at_rest(seed, planar, folder) -> tuple:
+    """``(Flown, anchor)``: a random robot released at rest (zero momentum) on a motion nobody designed, as
+    :func:`_undesigned`'s, its scale anchored by one parameter of over 5 % of the largest's size, drawn at random."""
+    case = {"seed": seed, "planar": planar, "motion": "undesigned", "momentum": "zero"}
+    model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(folder)
+    param, rng, h = minimal_parameters(model), np.random.default_rng(seed), np.zeros(3)
+    a, b = 10 ** rng.uniform(-1.3, -0.3) * rng.standard_normal((2, model.n_joints, 3))
+    trajectory = FourierTrajectory(model.joints, 10.0, a, b, meta={"source": f"random:{seed}"})
+    log = simulate(param, param.true_values, trajectory, sample_times(10.0, 4 * max(60, 3 * param.n_params //
+                                                                                     param.rows)), h, model=model)
+    true = param.true_values
+    j = int(rng.choice(np.flatnonzero(np.abs(true) > 0.05 * np.abs(true).max())))
+    return Flown(case, model, param, h, trajectory, log), {param.names[j]: float(true[j])}
+
+
 def _check_pipeline(flown: Flown):
     param, h, traj, log, seed = flown.param, flown.momentum, flown.trajectory, flown.log, flown.case["seed"]
     true = param.true_values
@@ -170,6 +186,29 @@ def test_pipeline_on_random_robots(seed, planar, tmp_path):
 @given(seed=SEEDS, planar=st.booleans())
 def test_pipeline_on_random_robots_and_undesigned_motions(seed, planar, tmp_path):
     _check_pipeline(_undesigned(seed, planar, tmp_path))
+
+
+@FAST
+@given(seed=SEEDS, planar=st.booleans())
+def test_random_robots_released_at_rest_with_an_anchor(seed, planar, tmp_path):
+    """Zero momentum, the scale from one known parameter: recovered to round-off from the noise-free log; from a noisy
+    one (1e-4 on every signal, rates measured) the drift test raises no alarm on the conserved log with either
+    estimator (it fired on 3 of 24 such robots: the errors-in-variables allowance was not determined). The standard
+    errors are not asserted: at zero momentum they do not always hold (theory/noise, "What the standard errors
+    mean": spatial robot 33485, ``ml`` falling back to a WLS estimate 17 standard errors off)."""
+    flown, anchor = flown_at_rest(seed, planar, tmp_path)
+    param, h, log, true = flown.param, flown.momentum, flown.log, flown.param.true_values
+    with stage("identify noise-free", **flown.case):
+        exact = identify(param, log, h, known=anchor, estimator="ols")
+        assert np.abs(exact.values - true).max() <= 1e-10 * exact.condition_number * np.abs(true).max()
+    noise = Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE)
+    noisy = add_noise(log, angle=NOISE, rate=NOISE, seed=seed)
+    for estimator in ("ml", "ols"):
+        with stage(f"identify noisy {estimator}", **flown.case):
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                ident = identify(param, noisy, h, known=anchor, estimator=estimator, noise=noise)
+            assert not ident.diagnostics.drift_test.drift, ident.diagnostics.drift_test
 
 
 @pytest.mark.slow
