@@ -3,10 +3,11 @@
 Every setting of the grid ``durations x harmonics x samples`` is one campaign task
 (:func:`spaceid._campaign.run_campaign`): an excitation designed for it
 (:func:`spaceid.motion.design_excitation`, ``n_starts`` local searches, no time budget so that
-the result depends on the seed alone; ``max_steps`` bounds each search's work on any machine), then two figures of merit of that trajectory at its
-samples: the condition number of the stacked regressor (the paper's criterion) and the predicted
-Cramer-Rao standard deviation of every parameter relative to its nominal value, for the noise
-given (the worst over the parameters is reported). Setting i designs from
+the result depends on the seed alone; ``max_steps`` bounds each search's work on any machine),
+then two figures of merit of that trajectory at its samples: the condition number of the stacked
+regressor (the paper's criterion) and the predicted Cramer-Rao standard deviation of every
+parameter relative to its nominal value, for the noise given (the worst over the parameters is
+reported). Setting i designs from
 ``np.random.SeedSequence(seed).spawn(n_settings)[i]`` (:func:`spaceid._campaign.task_seeds`).
 """
 
