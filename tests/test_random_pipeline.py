@@ -192,10 +192,12 @@ def test_pipeline_on_random_robots_and_undesigned_motions(seed, planar, tmp_path
 @given(seed=SEEDS, planar=st.booleans())
 def test_random_robots_released_at_rest_with_an_anchor(seed, planar, tmp_path):
     """Zero momentum, the scale from one known parameter: recovered to round-off from the noise-free log; from a noisy
-    one (1e-4 on every signal, rates measured) the drift test raises no alarm on the conserved log with either
-    estimator (it fired on 3 of 24 such robots: the errors-in-variables allowance was not determined). The standard
-    errors are not asserted: at zero momentum they do not always hold (theory/noise, "What the standard errors
-    mean": spatial robot 33485, ``ml`` falling back to a WLS estimate 17 standard errors off)."""
+    one (1e-4 on every signal, rates measured) ``ml``'s standard errors hold the error (spatial robot 33485 was 17 of
+    them off: ML's fallback at degenerate weights, :func:`test_ml_holds_the_undetermined_at_the_models_own_values`),
+    and the drift test raises no alarm beyond its level on the conserved log with either estimator (it fired on 3 of
+    24 such robots, p down to 4e-55: the errors-in-variables allowance was not determined). ``ols``'s standard
+    errors are not asserted: its first-order bias understates the attenuation at zero momentum (theory/noise, "What
+    the standard errors mean")."""
     flown, anchor = flown_at_rest(seed, planar, tmp_path)
     param, h, log, true = flown.param, flown.momentum, flown.log, flown.param.true_values
     with stage("identify noise-free", **flown.case):
@@ -208,7 +210,38 @@ def test_random_robots_released_at_rest_with_an_anchor(seed, planar, tmp_path):
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 ident = identify(param, noisy, h, known=anchor, estimator=estimator, noise=noise)
-            assert not ident.diagnostics.drift_test.drift, ident.diagnostics.drift_test
+            test = ident.diagnostics.drift_test
+            # a conserved log fires at the test's level (1e-3) by design: one log is held to alarms it does not explain
+            assert not (test.drift and test.p_value < 1e-6), test
+            if estimator == "ml":
+                free = ident.std > 0
+                z = np.abs(ident.values - true)[free] / ident.std[free]
+                assert z.max() < 5, f"max |z| {z.max():.3g} over {free.sum()} parameters"
+
+
+@pytest.mark.slow  # a 36-parameter robot's ML, held twice (seconds)
+def test_ml_holds_the_undetermined_at_the_models_own_values(tmp_path):
+    """Spatial random robot 33485 released at rest (36 parameters, one direction the data do not determine), its model's
+    bodies 20 % off the truth: OLS's and WLS's estimates attenuate its inertias until the equations' error covariance
+    is nearly singular there, ML did not converge over every direction nor with that direction held at WLS's value,
+    and its fallback, WLS's estimate, was 17 standard errors off (chi2/dof 426). Held at the model's own values, the
+    others converge and the errors are within their standard errors."""
+    flown, anchor = flown_at_rest(33485, False, tmp_path)
+    rng = np.random.default_rng(1)
+    model = dataclasses.replace(flown.model, bodies=tuple(
+        dataclasses.replace(b, inertial=b.inertial * (1 + 0.2 * rng.choice([-1.0, 1.0]))) for b in flown.model.bodies))
+    param = minimal_parameters(model)  # the same kinematics: the same minimal set, the model's values 20 % off
+    true = flown.param.true_values
+    assert param.names == flown.param.names and np.abs(param.true_values / true - 1).max() > 0.1
+    anchor = {name: float(true[param.names.index(name)]) for name in anchor}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        ident = identify(param, add_noise(flown.log, angle=NOISE, rate=NOISE, seed=33485), flown.momentum, known=anchor,
+                         noise=Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE))  # fmt: skip
+    info = ident.diagnostics.estimator_info
+    assert "keep the model's own values" in info.get("held", ""), info.get("fallback")
+    free = ident.std > 0
+    assert (np.abs(ident.values - true)[free] / ident.std[free]).max() < 3
 
 
 @pytest.mark.slow

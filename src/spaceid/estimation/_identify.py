@@ -422,13 +422,29 @@ def _ml_determined(eq, x, log: Log, sigma, theta, ctx: _FitContext, info: dict, 
     if weak.all():
         return theta, info | {"fallback": info["fallback"] + why}
     held, fit = _KERNELS["ml"](eq, x, sigma, theta, ctx, subspace=T[:, ~weak], converged=on_estimate)
-    if fit.get("fallback"):
-        return theta, info | {"fallback": info["fallback"] + why + ", nor over the others"}
-    shift = _held_shift(eq, x, sigma, ctx, theta, held, T, weak)
+    kept, shift = f"the {info['fallback'].split(':')[0].upper()} estimate's", None
+    if fit.get("fallback"):  # the fallback's values there can leave the weights degenerate: the model's own
+        held, fit = _KERNELS["ml"](eq, x, sigma, _own_coordinates(eq, theta, T, weak), ctx, subspace=T[:, ~weak],
+                                   converged=on_estimate)
+        kept = "the model's own"
+        if fit.get("fallback"):
+            return theta, info | {"fallback": info["fallback"] + why + ", nor over the others"}
+    else:
+        shift = _held_shift(eq, x, sigma, ctx, theta, held, T, weak)
     return held, fit | {"held": (f"over the {(~weak).sum()} directions the data determine; the {weak.sum()} they do "
-                                 f"not keep the {info['fallback'].split(':')[0].upper()} estimate's values (along "
-                                 "them the likelihood has no maximum)"), "held_ratios": (mu, T),
-                        **({} if shift is None else {"held_shift": shift})}
+                                 f"not keep {kept} values (along them the likelihood has no maximum)"),
+                        "held_ratios": (mu, T), **({} if shift is None else {"held_shift": shift})}
+
+
+def _own_coordinates(eq, theta, T, weak) -> np.ndarray:
+    """``theta (p,)`` with its coordinates ``T^-1 theta`` along the ``weak`` directions the model's own (its
+    parameters', :func:`_nominal`). Held there when held at ML's fallback's values the fit did not converge: at zero
+    momentum an anchored robot's OLS and WLS estimates attenuate its inertias so far that the equations' error
+    covariance at them is nearly singular (spatial random robot 33485: the whiteners' smallest diagonal 9e-8 against
+    1.7e-3 at the truth), and that fallback was reported 17 standard errors off; held at the model's own values, or
+    at values 20 % off them, the fit converged within 0.75 of its standard errors."""
+    coords = np.linalg.solve(T, np.column_stack([theta, _nominal(eq, theta)]))
+    return theta + T[:, weak] @ (coords[weak, 1] - coords[weak, 0])
 
 
 def _nominal(eq, theta) -> np.ndarray:
@@ -444,9 +460,7 @@ def _held_shift(eq, x, sigma, ctx: _FitContext, start, held, T, weak):
     couples the coordinates: the others follow the held ones (random robot 6089925's undesigned log, one direction
     held at WLS's values, attenuated by their errors in variables: two parameters 13 and 12 standard errors off;
     held at OLS's 2.1, at the truth 1.6), which the covariance of the fit with them fixed does not say."""
-    coords = np.linalg.solve(T, np.column_stack([start, _nominal(eq, start)]))
-    moved = start + T[:, weak] @ (coords[weak, 1] - coords[weak, 0])
-    other, fit = _KERNELS["ml"](eq, x, sigma, moved, ctx, subspace=T[:, ~weak])
+    other, fit = _KERNELS["ml"](eq, x, sigma, _own_coordinates(eq, start, T, weak), ctx, subspace=T[:, ~weak])
     return None if fit.get("fallback") else other - held
 
 
