@@ -188,7 +188,8 @@ def test_infeasible_pi_is_one_line_naming_it(cepheus, monkeypatch):
         return solve(self, *args)
 
     monkeypatch.setattr(_export._Program, "solve", counted)
-    with pytest.raises(spaceid.SpaceidError, match=r"not physically realisable.*pi8.*`region`") as info:
+    with pytest.raises(spaceid.SpaceidError, match=r"not physically realisable from the prior.*pi8.*local.*`region`.*"
+                                                    r"closer to the robot") as info:
         export_model(bad, prior, where="bad.json")
     assert "\n" not in str(info.value)
     assert len(set(map(id, elastic))) == 1 + len(_export.AUTO_REGIONS)  # an attempt's restoring program, no other

@@ -237,9 +237,10 @@ def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region,
         names += [f"{len(worst) - 3} more"] if len(worst) > 3 else []
     if region is None:
         return SpaceidError(
-            f"{where}: the identified parameters are not physically realisable (no positive masses, inertias and "
-            f"triangle inequalities reproduce {', '.join(names) or 'them'}): export within the confidence ellipsoid "
-            "(`region`, a probability such as 0.95), or check the identification")
+            f"{where}: the identified parameters are not physically realisable from the prior (no positive masses, "
+            f"inertias and triangle inequalities found near it reproduce {', '.join(names) or 'them'}; the search is "
+            "local): export within the confidence ellipsoid (`region`, a probability such as 0.95), give a prior "
+            "closer to the robot, or check the identification")
     outside = "" if x is None or program.excess.value <= 1e-9 else "the ellipsoid reaches no physical model; "
     return SpaceidError(
         f"{where}: no physical model within the {region:g} confidence ellipsoid ({outside}"
