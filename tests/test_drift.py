@@ -493,7 +493,7 @@ def test_errors_in_variables_allowance_holds_an_anchors_noise():
         estimate = np.linalg.lstsq(A[:, :p], b, rcond=None)[0]
         M = np.hstack([A[:, :p], C])
         fitted.append(np.linalg.lstsq(M, b, rcond=None)[0][p:])
-        allowed.append(_errors_in_variables(N, np.linalg.inv(M.T @ M), estimate, p))
+        allowed.append(_errors_in_variables(N, np.linalg.inv(M.T @ M), estimate, p)[0])
     mean, spread = np.mean(fitted, 0), np.std(fitted, 0) / np.sqrt(len(fitted))
     assert np.all(np.abs(mean) > 20 * spread)
     np.testing.assert_array_less(np.abs(mean - np.mean(allowed, 0)), 4 * spread + 0.1 * np.abs(mean))

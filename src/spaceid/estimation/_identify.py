@@ -441,8 +441,9 @@ def _own_coordinates(eq, theta, T, weak) -> np.ndarray:
     parameters', :func:`_nominal`). Held there when held at ML's fallback's values the fit did not converge: at zero
     momentum an anchored robot's OLS and WLS estimates attenuate its inertias so far that the equations' error
     covariance at them is nearly singular (spatial random robot 33485: the whiteners' smallest diagonal 9e-8 against
-    1.7e-3 at the truth), and that fallback was reported 17 standard errors off; held at the model's own values, or
-    at values 20 % off them, the fit converged within 0.75 of its standard errors."""
+    1.7e-3 at the truth), and that fallback was reported 17 standard errors off; held at the model's own values the
+    fit converged within 0.73 of its standard errors (0.75 with the minimal parameters 20 % off them, 0.77 with every
+    body 20 % off)."""
     coords = np.linalg.solve(T, np.column_stack([theta, _nominal(eq, theta)]))
     return theta + T[:, weak] @ (coords[weak, 1] - coords[weak, 0])
 

@@ -215,14 +215,15 @@ def drift_columns(eq, log, basis=None):
     return columns
 
 
-def _confounded(noise, R, p, ginv, values, cdd) -> float:
+def _confounded(noise, R, p, slope, values, cdd) -> float:
     """The largest share of a drift coefficient's variance that comes from directions of ``[A | C]`` the
     data do not determine (:mod:`spaceid.estimation._determined`: the regressor's noise as large as its
     signal), directly or through the errors-in-variables allowance (:func:`_errors_in_variables`).
     ``R (p + q, p + q)`` is the triangular factor of the whitened ``[A | C]``, ``noise`` the noise Gram
     matrix of ``[A | C | -b]`` (:func:`~spaceid.estimation._determined.equation_noise`), ``p`` the columns of
-    ``A``, ``ginv`` the refit's inverse Gram matrix, ``values`` the estimate and the model's own values of
-    the unknowns (``(p,)`` each) and ``cdd (q, q)`` the drift coefficients' covariance as tested.
+    ``A``, ``slope (q, p)`` the allowance's change per unit of the estimate (:func:`_errors_in_variables`),
+    ``values`` the estimate and the model's own values of the unknowns (``(p,)`` each) and ``cdd (q, q)`` the
+    drift coefficients' covariance as tested.
 
     Along such directions the estimate is pulled towards zero, and the drift columns, which carry no
     noise of their own beyond the attitude's, take up the momentum they leave: the test would read a
@@ -239,14 +240,14 @@ def _confounded(noise, R, p, ginv, values, cdd) -> float:
     if share == 0.0:
         return share
     q = len(d)
-    moved = -(ginv[p:] @ noise[:-1, :p])  # the allowance's change per unit of theta
     spread = widened(np.zeros((p + q, p + q)), mu, directions, *(np.append(v[:p], np.zeros(q)) for v in values))
-    pulled = np.einsum("ij,jk,ik->i", moved, spread[:p, :p], moved)
+    pulled = np.einsum("ij,jk,ik->i", slope, spread[:p, :p], slope)
     return max(share, float(np.max(pulled / np.maximum(pulled + np.diag(cdd), 1e-300))))
 
 
-def _errors_in_variables(noise, ginv, theta, p) -> np.ndarray:
-    """The drift coefficients ``(q,)`` that the refit takes up from the regressor's own noise: its
+def _errors_in_variables(noise, ginv, theta, p) -> tuple:
+    """``(allowance (q,), slope (q, p))``: the drift coefficients that the refit takes up from the regressor's
+    own noise, and their change per unit of ``theta`` (the allowance is linear in it): its
     first-order errors-in-variables bias ``-[G^-1 N [theta; 0; 1]]_d`` (``N`` the noise Gram matrix of
     ``[A | C | -b]``, ``ginv = G^-1`` the refit's, ``p`` the columns of ``A``). Noise in the regressor
     correlates with it (``E[A^T dA] = N``), and the drift columns, which carry none, take up what it
@@ -254,7 +255,8 @@ def _errors_in_variables(noise, ginv, theta, p) -> np.ndarray:
     drift coefficients sat three of their standard errors from zero in the direction this predicts,
     seed after seed. The right-hand side shares the columns' noise where parameters are anchored (their
     columns move into ``b``): an anchor's share of the bias is its column's, as if it were estimated."""
-    return -(ginv[p:] @ (noise[:-1, :p] @ theta[:p] + noise[:-1, -1]))
+    slope = -(ginv[p:] @ noise[:-1, :p])
+    return slope @ theta[:p] - ginv[p:] @ noise[:-1, -1], slope
 
 
 def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=None, candidates=None,
@@ -386,12 +388,12 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     if testing_drift and noise is None:  # (another candidate's columns: the drift test decided before)
         noise = equation_noise(eq, x, sigma, theta, estimator, log, whitener, drift_columns(eq, log, basis),
                                None if phi is not None else chunk, rhs=True)
-    eiv = _errors_in_variables(noise, ginv, theta, p) if testing_drift else np.zeros(q)
+    eiv, slope = _errors_in_variables(noise, ginv, theta, p) if testing_drift else (np.zeros(q), None)
     cdd = cdd + np.outer(eiv, eiv)
     wald = float(d @ np.linalg.lstsq(cdd, d, rcond=None)[0]) if np.any(cdd) else 0.0
     size = n * eq.param.rows
     values = (theta, theta if nominal is None else nominal)
-    confounded = _confounded(noise, factor[1][:-1, :-1] * factor[0], p, ginv, values, cdd) if testing_drift else None
+    confounded = _confounded(noise, factor[1][:-1, :-1] * factor[0], p, slope, values, cdd) if testing_drift else None
     p_value = float(f_sf(wald / q, q, max(size - p - q, 1)))
     change = max(change) / max(float(np.sqrt(sums["b2"] / size)), 1e-300)
     square, lagged, differences = sums["serial"]
