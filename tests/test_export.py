@@ -3,6 +3,7 @@ closest to a prior, as a URDF that Pinocchio loads and whose momentum is the ide
 
 import dataclasses
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pinocchio as pin
@@ -173,7 +174,7 @@ def test_the_ellipsoid_cone_holds_as_many_entries_as_unknowns(rows, cols):
 
 def test_infeasible_pi_is_one_line_naming_it(cepheus, monkeypatch):
     """Named from the restoring step's own program, whose stall ends each attempt (the exact one, then each
-    automatic ellipsoid's): no program is solved again to name them."""
+    automatic ellipsoid tried): no program is solved again to name them."""
     from spaceid.identified import _export
 
     _, prior, ident, _ = cepheus
@@ -192,7 +193,28 @@ def test_infeasible_pi_is_one_line_naming_it(cepheus, monkeypatch):
                                                     r"closer to the robot") as info:
         export_model(bad, prior, where="bad.json")
     assert "\n" not in str(info.value)
-    assert len(set(map(id, elastic))) == 1 + len(_export.AUTO_REGIONS)  # an attempt's restoring program, no other
+    assert len(set(map(id, elastic))) == 3  # an attempt's restoring program, no other: the exact one, the smallest
+    # and the largest automatic ellipsoid's (nested: none in the largest, none in those between)
+
+
+@pytest.mark.parametrize("holds", [0.95, 0.99, 0.999, None])
+def test_automatic_ellipsoid_is_the_smallest_that_holds_a_physical_model(holds, monkeypatch):
+    """Whichever automatic ellipsoid is the first to hold one (None: none does), the export is within the smallest
+    that does, and a refusal tries two: the ellipsoids are nested."""
+    from spaceid.identified import _export
+
+    tried = []
+
+    def export_from(result, prior, param, region, where, prior_name):
+        tried.append(region)
+        if holds is None or region < holds:
+            raise spaceid.SpaceidError("none within it")
+        return SimpleNamespace(region=region)
+
+    monkeypatch.setattr(_export, "_export", export_from)
+    found = _export._auto_export(None, None, None, "r.json", "prior")
+    assert (found and found.region) == holds
+    assert tried == {0.95: [0.95], 0.99: [0.95, 0.999, 0.99], 0.999: [0.95, 0.999, 0.99], None: [0.95, 0.999]}[holds]
 
 
 def test_bad_region_and_other_joints_are_refused(cepheus):

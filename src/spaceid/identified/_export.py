@@ -35,8 +35,8 @@ STEP_TOL = 1e-7
 solver's own noise is ~3e-9); the last Newton steps then meet the equalities to round-off."""
 MAX_STEPS = 60
 AUTO_REGIONS = (0.95, 0.99, 0.999)
-"""The confidence ellipsoids tried in turn, smallest first, when an estimate is not physically
-realisable exactly and no region is given."""
+"""The confidence ellipsoids searched, when an estimate is not physically realisable exactly and no region
+is given, for the smallest that holds a physical model (:func:`_auto_export`)."""
 MET = 1e-9
 """Largest violation of the equalities, in units of the prior's distribution (each row of the conditions of
 unit norm in the whitened parameters), that an export takes as met."""
@@ -344,15 +344,30 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
         except SpaceidError as exact_failure:
             if region is not None or not np.any(np.diag(result.cov) > 0):
                 raise
-            for auto in AUTO_REGIONS:  # the point estimate is not physical: the closest ellipsoid that is
-                try:
-                    export = _export(result, prior, param, auto, where, prior_name)
-                except SpaceidError:
-                    continue
-                warnings.warn(f"{where}: the estimate is not physically realisable exactly: exported the model "
-                              f"closest to the prior within its {auto:g} confidence ellipsoid", stacklevel=2)
-                return export
-            raise exact_failure from None
+            export = _auto_export(result, prior, param, where, prior_name)  # the estimate is not physical
+            if export is None:
+                raise exact_failure from None
+            warnings.warn(f"{where}: the estimate is not physically realisable exactly: exported the model "
+                          f"closest to the prior within its {export.region:g} confidence ellipsoid", stacklevel=2)
+            return export
+
+
+def _auto_export(result, prior, param, where, prior_name) -> Export | None:
+    """:func:`_export` within the smallest of the :data:`AUTO_REGIONS` ellipsoids that holds a physical model
+    (None: none does). The smallest is tried first, then the largest: the ellipsoids are nested, so when the
+    largest holds none, neither does one between them (a refusal costs two attempts, not one an ellipsoid);
+    when it holds one, those between are tried in turn."""
+    def attempt(region):
+        try:
+            return _export(result, prior, param, region, where, prior_name)
+        except SpaceidError:
+            return None
+
+    smallest, *between, largest = AUTO_REGIONS
+    found = attempt(smallest)
+    if found is None and (found := attempt(largest)) is not None:
+        found = next((export for export in map(attempt, between) if export is not None), found)
+    return found
 
 
 def _export(result, prior, param, region, where, prior_name) -> Export:
