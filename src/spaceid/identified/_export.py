@@ -34,6 +34,10 @@ STEP_TOL = 1e-7
 """The convex steps stop when the whitened parameters (the prior at the identity) move less (the
 solver's own noise is ~3e-9); the last Newton steps then meet the equalities to round-off."""
 MAX_STEPS = 60
+STAGES = 4
+"""When the steps from the prior stall, the export searches again along the way from the prior's own minimal
+parameters to the estimate's, in this many stages, each starting where the last ended (a local search that
+the non-convex conditions had stopped short finds the model from a nearer start)."""
 AUTO_REGIONS = (0.95, 0.99, 0.999)
 """The confidence ellipsoids searched, when an estimate is not physically realisable exactly and no region
 is given, for the smallest that holds a physical model (:func:`_auto_export`)."""
@@ -359,7 +363,7 @@ def _auto_export(result, prior, param, where, prior_name) -> Export | None:
     when it holds one, those between are tried in turn."""
     def attempt(region):
         try:
-            return _export(result, prior, param, region, where, prior_name)
+            return _export(result, prior, param, region, where, prior_name, staged=False)
         except SpaceidError:
             return None
 
@@ -370,30 +374,29 @@ def _auto_export(result, prior, param, where, prior_name) -> Export | None:
     return found
 
 
-def _export(result, prior, param, region, where, prior_name) -> Export:
-    """:func:`export_model` once the prior is checked."""
+def _export(result, prior, param, region, where, prior_name, staged=True) -> Export:
+    """:func:`export_model` once the prior is checked; ``staged``: when the steps from the prior stall, search
+    again in :data:`STAGES` (the automatic ellipsoids are not: a refusal would take three times as long)."""
     pi = np.asarray(result.values, float)
     g, z = pseudo_whitening(prior, prior_name)
     e, labels, w, radius = _constraint_rows(result, region)
-    program = _Program(g, z, radius * (1 - SHRINK))
-    theta = prior_theta = full_values(prior)[: g.shape[0]]
-    x = np.concatenate([np.eye(4).ravel()] * len(prior.bodies))
-    restore, violation = None, np.inf
-    for steps in range(1, MAX_STEPS + 1):
-        new = program.solve(*_conditions(param, g, theta, e, w, pi))
-        if new is None:  # linearised at theta, the conditions reach no physical model: move towards them first
-            restore = restore or _Program(g, z, radius, elastic=True)  # (its last solve names what is infeasible)
-            new = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False))
-            new, violation = _damped(param, g, x, new, e, w, pi, radius, violation)
-            if new is None:  # stalled: no physical model meets them
-                raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region, restore)
-        moved = np.abs(new - x).max()
-        x, theta = new, g @ new
-        if moved < STEP_TOL:
-            break
-    else:
-        warnings.warn(f"{where}: the export did not settle in {MAX_STEPS} convex steps (last move {moved:.2g})",
-                      stacklevel=3)
+    prior_theta = full_values(prior)[: g.shape[0]]
+    start = np.concatenate([np.eye(4).ravel()] * len(prior.bodies))  # vec X of the prior
+    search = _Search(param, g, z, e, w, radius)
+    try:
+        try:
+            x = search.run(pi, start, prior_theta)
+        except _Stalled:  # the steps from the prior stalled: again from the prior's own values to the estimate's
+            if not staged:
+                raise
+            x = _staged(search, param.projection @ full_values(prior), pi, start, prior_theta)
+    except _Stalled as stall:
+        raise _infeasible(result, param, g, z, e, labels, w, radius, g @ stall.x, where, region,
+                          stall.restore) from None
+    if search.moved >= STEP_TOL:
+        warnings.warn(f"{where}: the export did not settle in {MAX_STEPS} convex steps (last move "
+                      f"{search.moved:.2g})", stacklevel=3)
+    steps, theta = search.steps, g @ x
     scale = np.abs(g).max(axis=1)  # of each standard parameter, for a unit change of X
     theta = _polish(param, theta, e, pi, scale, g)
     hidden = _hidden(param)
@@ -411,6 +414,59 @@ def _export(result, prior, param, region, where, prior_name) -> Export:
             for n, b in enumerate(prior.bodies)}  # fmt: skip
     return Export(model, prior, param, values, region, float(np.sum((w @ (values - pi)) ** 2)),
                   float(radius**2) if region is not None else None, pseudo_divergence(model, prior), steps, seen)
+
+
+class _Stalled(Exception):
+    """The restoring steps of :meth:`_Search.run` found no step that lowers the violation, at ``x`` (vec X);
+    ``restore``: their program (its last solve names what is infeasible)."""
+
+    def __init__(self, x, restore):
+        super().__init__()
+        self.x, self.restore = x, restore
+
+
+class _Search:
+    """The convex steps of an export, from some ``vec X`` to the conditions at some minimal parameters: each a
+    :class:`_Program` at the conditions linearised where it stands; where that reaches no physical model, an
+    elastic program's step towards them first (:func:`_damped`). ``steps`` counts them over every run, ``moved``
+    is the last one's size."""
+
+    def __init__(self, param, g, z, e, w, radius):
+        self.param, self.g, self.z, self.e, self.w, self.radius = param, g, z, e, w, radius
+        self.program = _Program(g, z, radius * (1 - SHRINK))
+        self.steps, self.moved = 0, 0.0
+
+    def run(self, pi, x, theta=None) -> np.ndarray:
+        """The ``vec X`` that meets the conditions at ``pi``, stepping from ``x`` (linearised first at ``theta``,
+        by default ``g x``), after at most :data:`MAX_STEPS` steps; raises :class:`_Stalled`."""
+        param, g, e, w, radius = self.param, self.g, self.e, self.w, self.radius
+        theta, restore, violation = g @ x if theta is None else theta, None, np.inf
+        for _ in range(MAX_STEPS):
+            self.steps += 1
+            new = self.program.solve(*_conditions(param, g, theta, e, w, pi))
+            if new is None:  # linearised at theta, the conditions reach no physical model: move towards them first
+                restore = restore or _Program(g, self.z, radius, elastic=True)
+                new = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False))
+                new, violation = _damped(param, g, x, new, e, w, pi, radius, violation)
+                if new is None:
+                    raise _Stalled(x, restore)
+            self.moved = np.abs(new - x).max()
+            x, theta = new, g @ new
+            if self.moved < STEP_TOL:
+                break
+        return x
+
+
+def _staged(search, own, pi, start, theta) -> np.ndarray:
+    """``search`` run to ``own + k / STAGES (pi - own)``, ``k = 1 .. STAGES``, each stage from where the last
+    ended (the first from ``start``, linearised at ``theta``): the ``vec X`` at ``pi``. Raises :class:`_Stalled`,
+    with no program unless the last stage's (an earlier one's is at other values)."""
+    for stage in range(1, STAGES + 1):
+        try:
+            start = search.run(own + stage / STAGES * (pi - own), start, theta if stage == 1 else None)
+        except _Stalled as stall:
+            raise stall if stage == STAGES else _Stalled(stall.x, None) from None
+    return start
 
 
 def _met(result: Identification, param, theta, e, pi, violation: float) -> bool:
