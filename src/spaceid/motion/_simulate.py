@@ -90,6 +90,57 @@ def _cumulative_integral(f, times, rtol):
     raise SpaceidError("simulation failed: the base rate is too rough to integrate; sample the motion more finely")
 
 
+def _gauss_cumulative(order: int = 8) -> np.ndarray:
+    """``S (order, order)``: ``S @ v`` is the integral from -1 to each Gauss-Legendre node of the polynomial
+    (degree ``order - 1``) through the values ``v`` at the nodes."""
+    from numpy.polynomial import legendre
+
+    nodes, _ = legendre.leggauss(order)
+    lagrange = np.linalg.inv(legendre.legvander(nodes, order - 1))  # column j: coefficients of the j-th basis
+    return legendre.legval(nodes, legendre.legint(lagrange, lbnd=-1)).T
+
+
+def _planar_linear_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
+    """States ``[yaw, h_z]`` ``(n, 2)`` at ``times`` of a planar system under a constant torque ``tau`` and
+    viscous friction ``c`` about z (no Coulomb torque): with ``L`` the locked inertia and ``o`` the joints'
+    own momentum, the momentum obeys the linear ``dh/dt = -(c / L) h + tau + c o / L``, solved through its
+    integrating factor ``exp(int c / L)`` and the yaw rate ``(h - o) / L`` integrated, all on the 8-point
+    Gauss-Legendre panels of :func:`_cumulative_integral` (each sample interval, where the joint motion is
+    smooth, split into ``m`` panels, ``m`` doubling until two results agree to ``rtol``): a quadrature,
+    vectorised, where an ODE solver stepped through every kink of the interpolated joint rates."""
+    from itertools import accumulate
+
+    nodes, weights = np.polynomial.legendre.leggauss(8)
+    cumulative = _gauss_cumulative(8).T
+    tau, c = float(np.asarray(terms.get("torque", np.zeros(3)), float)[2]), float(terms.get("viscous", 0.0))
+
+    def pieces(t):  # the joints' own momentum about z and the locked inertia, (n, 2)
+        free, unit, _ = rate_pieces(param, *motion(t), functools.partial(param.momentum, pi=pi))
+        return np.column_stack([free[:, 0], unit[0][:, 0]])
+
+    lo, width, previous = times[:-1], np.diff(times), None
+    for m in (1, 2, 4, 8, 16, 32, 64):
+        half = np.repeat(width / m / 2, m)  # of each panel, (P,)
+        t = (lo[:, None] + width[:, None] * np.arange(m) / m).ravel()[:, None] + half[:, None] * (nodes + 1)
+        own, locked = np.moveaxis(_in_blocks(pieces, t.ravel()).reshape(t.shape + (2,)), -1, 0)
+        a, f = c / locked, tau + c * own / locked
+        grow = half[:, None] * (a @ cumulative)  # int a from the panel's start to each node
+        lift = np.exp(grow) * f
+        gain = half[:, None] * (lift @ cumulative)
+        # the momentum at the panels' starts: h_{p+1} = exp(-int_p a) (h_p + int_p exp(int a) f)
+        steps = zip(np.exp(-half * (a @ weights)), half * (lift @ weights))
+        starts = np.fromiter(accumulate(steps, lambda h, step: step[0] * (h + step[1]), initial=float(y0[1])), float,
+                             len(half) + 1)
+        rate = (np.exp(-grow) * (starts[:-1, None] + gain) - own) / locked
+        turned = np.concatenate([[0.0], np.cumsum((half * (rate @ weights)).reshape(-1, m).sum(1))])
+        current = np.column_stack([turned, starts[::m]])
+        if previous is not None and np.all(np.abs(current - previous).max(0)
+                                           <= rtol * np.maximum(np.abs(current).max(0), 1e-300)):
+            return current + [y0[0], 0.0]
+        previous = current
+    raise SpaceidError("simulation failed: the base rate is too rough to integrate; sample the motion more finely")
+
+
 def _quat_rate(quat, w):
     """Time derivative of a scalar-first quaternion for body-axes angular velocity ``w``."""
     qw, qx, qy, qz = quat
@@ -146,13 +197,16 @@ def simulate(
         Relative tolerance of the attitude integration: for planar systems a Gauss-Legendre
         quadrature of the yaw rate, for spatial ones Gauss-Legendre collocation on the quaternion
         (order 8), both with their steps halved until two successive results agree to ``rtol``
-        at every sample; with ``drift``, DOP853 on the attitude and the momentum.
+        at every sample; with ``drift``, planar without a Coulomb torque, the same quadrature of
+        the momentum's linear equation (:func:`_planar_linear_drift`), otherwise DOP853 on the
+        attitude and the momentum.
     drift : dict, optional
         External torques on the base, ``{"torque": tau, "viscous": c, "coulomb": mu}`` (any
         subset; ``tau`` [N m] 3 inertial components or, planar, a number about z; ``c`` [N m
         s/rad], ``mu`` [N m]): the momentum becomes a state, ``dh/dt = tau - c R0 w0 - mu R0 w0 /
-        |w0|`` (docs/theory/drift.md), integrated with the attitude (DOP853; a Coulomb torque's
-        sign changes are located as events, and a base it would hold at rest is an error).
+        |w0|`` (docs/theory/drift.md), integrated with the attitude (a quadrature where that is
+        linear, else DOP853; a Coulomb torque's sign changes are located as events, and a base it
+        would hold at rest is an error).
         ``meta["momentum_balance_error"]`` then records the largest difference of the output's
         momentum change from the integral of the external torque (the quadrature that
         identification uses), relative to the momentum (a warning above 1e-6: samples too sparse
@@ -516,7 +570,10 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
         rhs, rate = _drift_rhs(param, locked, offset, terms)
         return _integrate_drifting(rhs, rate, y, block, rtol, coulomb=bool(terms.get("coulomb")))
 
-    y = _in_spline_blocks(param, pi, motion, times, y0, advance, where)
+    if param.model.planar and not np.any(terms.get("coulomb", 0.0)):  # linear in the momentum: a quadrature
+        y = _planar_linear_drift(param, pi, motion, times, y0, terms, rtol)
+    else:
+        y = _in_spline_blocks(param, pi, motion, times, y0, advance, where)
     if param.model.planar:
         quat, h = yaw_to_quat(y[:, 0]), np.outer(y[:, 1], [0.0, 0.0, 1.0])
     else:
