@@ -197,16 +197,15 @@ def simulate(
         Relative tolerance of the attitude integration: for planar systems a Gauss-Legendre
         quadrature of the yaw rate, for spatial ones Gauss-Legendre collocation on the quaternion
         (order 8), both with their steps halved until two successive results agree to ``rtol``
-        at every sample; with ``drift``, planar without a Coulomb torque, the same quadrature of
-        the momentum's linear equation (:func:`_planar_linear_drift`), otherwise DOP853 on the
-        attitude and the momentum.
+        at every sample; with ``drift`` and no Coulomb torque, planar: the same quadrature of the
+        momentum's linear equation (:func:`_planar_linear_drift`), spatial: the same collocation
+        carrying the momentum; with a Coulomb torque, DOP853 on the attitude and the momentum.
     drift : dict, optional
         External torques on the base, ``{"torque": tau, "viscous": c, "coulomb": mu}`` (any
         subset; ``tau`` [N m] 3 inertial components or, planar, a number about z; ``c`` [N m
         s/rad], ``mu`` [N m]): the momentum becomes a state, ``dh/dt = tau - c R0 w0 - mu R0 w0 /
-        |w0|`` (docs/theory/drift.md), integrated with the attitude (a quadrature where that is
-        linear, else DOP853; a Coulomb torque's sign changes are located as events, and a base it
-        would hold at rest is an error).
+        |w0|`` (docs/theory/drift.md), integrated with the attitude (see ``rtol``; a Coulomb
+        torque's sign changes are located as events, and a base it would hold at rest is an error).
         ``meta["momentum_balance_error"]`` then records the largest difference of the output's
         momentum change from the integral of the external torque (the quadrature that
         identification uses), relative to the momentum (a warning above 1e-6: samples too sparse
@@ -255,7 +254,7 @@ def simulate(
         # w0 = A(t)^-1 (R0^T h - b(t)): A and b depend on the joint motion only, evaluated vectorised at
         # every stage time; the attitude is then integrated step by step (:mod:`._attitude`); the output
         # rates are solved exactly at the samples, so momentum holds there
-        quat = _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where)
+        quat = _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where)[:, :4]
     q, qd = _in_blocks(motion, times)
     h_base = np.einsum("nji,j->ni", quat_to_matrix(quat), momentum)
     w0 = _in_blocks(lambda k: base_rate(param, pi, q[k.astype(int)], qd[k.astype(int)], h_base[k.astype(int)]),
@@ -277,34 +276,40 @@ def simulate(
     return Log(times, names, q, qd, quat, w0, param.model.planar, meta, position)
 
 
-def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where) -> np.ndarray:
-    """Base attitudes ``(n, 4)`` at ``times`` for constant inertial ``momentum`` (spatial systems).
+def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where, torque=None, viscous=0.0) -> np.ndarray:
+    """Base attitudes and inertial momenta ``(n, 7)`` at ``times`` of a spatial system whose momentum is
+    ``momentum`` at ``times[0]`` and changes by a constant external ``torque`` (3, inertial axes; default
+    none) and viscous friction ``viscous`` [N m s/rad] (default 0: the momentum constant).
 
-    A block of :data:`SPLINE_SAMPLES` samples at a time, from the attitude the block before
-    ended with: Gauss-Legendre collocation (:func:`._attitude.collocation_steps`) with ``m`` steps
+    A block of :data:`SPLINE_SAMPLES` samples at a time, from the state the block before ended
+    with: Gauss-Legendre collocation (:func:`._attitude.collocation_steps`) with ``m`` steps
     between samples, ``m`` doubling from 1 until two successive solutions differ by at most
-    ``rtol`` at every sample of the block (the error of the finer, of order 8, is then about
-    ``rtol / 256``), or by no more than round-off explains. The locked inertia is refused
-    where it is not positive definite at a stage time (:func:`_refuse_indefinite`); the stage
-    times evaluated count against :data:`MAX_EVALUATIONS`."""
+    ``rtol`` at every sample of the block (the momentum relative to its largest; the error of the
+    finer, of order 8, is then about ``rtol / 256``), or by no more than round-off explains. The
+    locked inertia is refused where it is not positive definite at a stage time
+    (:func:`_refuse_indefinite`); the stage times evaluated count against :data:`MAX_EVALUATIONS`."""
     c, b, a = gauss_tableau()
     budget = [MAX_EVALUATIONS[0] + MAX_EVALUATIONS[1] * len(times)]
-    parts, quat = [], np.asarray(quat0, float) / np.linalg.norm(quat0)
+    drift = (np.zeros(3) if torque is None else np.asarray(torque, float), float(viscous))
+    parts = []
+    state = np.concatenate([np.asarray(quat0, float) / np.linalg.norm(quat0), np.asarray(momentum, float)])
     for start in range(0, max(len(times) - 1, 1), SPLINE_SAMPLES):
         block = times[start : start + SPLINE_SAMPLES + 1]
-        part = _attitude_block(param, pi, motion, block, quat, momentum, rtol, where, (c, b, a), budget)
+        part = _attitude_block(param, pi, motion, block, state, rtol, where, (c, b, a), budget, drift)
         parts.append(part if start == 0 else part[1:])
-        quat = part[-1]
-    quat = np.concatenate(parts)
-    return quat / np.linalg.norm(quat, axis=1, keepdims=True)
+        state = part[-1]
+    states = np.concatenate(parts)
+    states[:, :4] /= np.linalg.norm(states[:, :4], axis=1, keepdims=True)
+    return states
 
 
-def _attitude_block(param, pi, motion, block, quat, momentum, rtol, where, tableau, budget) -> np.ndarray:
-    """:func:`_integrated_attitude` over the samples ``block (n,)`` from ``quat`` at ``block[0]``;
-    ``budget`` (one number in a list) is what is left of the evaluations and is spent here."""
+def _attitude_block(param, pi, motion, block, state, rtol, where, tableau, budget, drift) -> np.ndarray:
+    """:func:`_integrated_attitude` over the samples ``block (n,)`` from ``state`` (attitude and momentum) at
+    ``block[0]`` under ``drift`` (torque, viscous); ``budget`` (one number in a list) is what is left of the
+    evaluations and is spent here."""
     c, b, a = tableau
     if len(block) < 2:
-        return quat[None]
+        return state[None]
     previous, gap, where_worst, m = None, np.inf, block[0], 1
     while True:
         widths = np.repeat(np.diff(block) / m, m)
@@ -318,15 +323,16 @@ def _attitude_block(param, pi, motion, block, quat, momentum, rtol, where, table
                                "parameters against a physical model, or sample the motion more finely")
         inverse, offset = _in_blocks(lambda t: _inverse_pieces(param, pi, motion, t, where), nodes.ravel())
         shape = nodes.shape
-        out = np.empty((len(widths) + 1, 4))
-        failed = collocation_steps(quat, inverse.reshape(shape + (3, 3)), offset.reshape(shape + (3,)),
-                                   np.asarray(momentum, float), widths, a, b, out)
+        out = np.empty((len(widths) + 1, 7))
+        failed = collocation_steps(state, inverse.reshape(shape + (3, 3)), offset.reshape(shape + (3,)), *drift,
+                                   widths, a, b, out)
         if failed >= 0:  # the stage equations diverge on steps this long: halve them
             previous, where_worst = None, starts[failed]
         else:
             current = out[::m]
             if previous is not None:
-                diff = np.abs(current - previous).max(axis=1)
+                scale = np.r_[np.ones(4), np.full(3, max(np.abs(current[:, 4:]).max(), 1e-300))]
+                diff = (np.abs(current - previous) / scale).max(axis=1)
                 # within the tolerance, or refinement no longer changes it beyond round-off
                 floor = 64 * np.finfo(float).eps * np.sqrt(len(widths))
                 if diff.max() <= max(rtol, floor) or (diff.max() >= gap / 4 and diff.max() <= 1e3 * floor):
@@ -365,7 +371,7 @@ BALANCE_TOLERANCE = 1e-6
 
 SPLINE_SAMPLES = 4096
 """Output samples per block of the spatial attitude integration: the stage values of a block
-(:func:`_integrated_attitude`), or with drift its rate splines, about 8 times as many points, so
+(:func:`_integrated_attitude`), or with a Coulomb torque its rate splines, about 8 times as many points, so
 memory is bounded by the block whatever the log's length."""
 
 
@@ -420,9 +426,9 @@ def _rate_splines(param, pi, motion, times, where):
 MAX_EVALUATIONS = (100_000, 200)
 """An attitude integration stops with an error after ``a + b n`` evaluations of the base rate
 for ``n`` output times: stage times of the collocation (constant momentum: 12 a sample when the
-first halving agrees, as on 900 samples of a 30 s satellite-7dof motion), right-hand sides of
-DOP853 (with drift: ~10 a sample even at ``rtol`` 1e-12 on a random 20 s motion of servicer-dual
-or satellite-7dof at 401 samples). A base rate that grows without bound (a locked inertia
+first halving agrees, as on 900 samples of a 30 s satellite-7dof motion; with a torque and viscous
+friction too), right-hand sides of DOP853 (with a Coulomb torque: ~10 a sample even at ``rtol``
+1e-12 on a random 20 s motion of servicer-dual or satellite-7dof at 401 samples). A base rate that grows without bound (a locked inertia
 singular between the checked times) would otherwise make the steps ever smaller for hours."""
 
 
@@ -572,6 +578,9 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
 
     if param.model.planar and not np.any(terms.get("coulomb", 0.0)):  # linear in the momentum: a quadrature
         y = _planar_linear_drift(param, pi, motion, times, y0, terms, rtol)
+    elif not np.any(terms.get("coulomb", 0.0)):  # smooth: the attitude's collocation, the momentum with it
+        y = _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where,
+                                 torque=terms.get("torque"), viscous=terms.get("viscous", 0.0))
     else:
         y = _in_spline_blocks(param, pi, motion, times, y0, advance, where)
     if param.model.planar:
