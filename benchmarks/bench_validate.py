@@ -10,8 +10,12 @@ the time of ``spaceid.studies.validate`` alone, and the largest attitude error o
 re-simulation against SciPy's DOP853 at rtol 1e-13, restarted at every sample, with the base rate
 solved from the momentum at every evaluation (the old solver's route, tightened; spatial only).
 
+``--drift``: the logs drift under a constant torque and viscous friction of the base, identified
+with the parameters (``--drift torque,viscous``) and re-simulated with the identified terms; the
+reference then carries the momentum as a state too (planar presets included).
+
     python benchmarks/bench_validate.py [--samples 900] [--duration 30] [--repeats 3] [--presets ...]
-                                        [--trajectory DESIGN.json]
+                                        [--trajectory DESIGN.json] [--drift]
 
 Run it with ``PYTHONPATH`` set to another source tree to time that version (the CLI runs
 ``python -m spaceid.cli`` of whatever ``spaceid`` imports).
@@ -42,14 +46,25 @@ SETTINGS = {  # momentum [N m s], noise (angles and rates) of the logs
 }
 
 
-def _log(model, param, momentum, seed, samples, duration, noise, trajectory=None):
+DRIFT = {"torque": (2e-3, -1e-3, 5e-4), "viscous": 0.02}
+"""The drift of ``--drift``: torque [N m] (inertial axes; planar: about z) and viscous friction [N m s/rad]."""
+
+
+def _drift(model, on: bool) -> dict | None:
+    if not on:
+        return None
+    return {"torque": DRIFT["torque"][2] if model.planar else list(DRIFT["torque"]), "viscous": DRIFT["viscous"]}
+
+
+def _log(model, param, momentum, seed, samples, duration, noise, trajectory=None, drift=None):
     rng = np.random.default_rng(seed)
     shape = (model.n_joints, 3)
     motion = FourierTrajectory(model.joints, duration, rng.uniform(-0.3, 0.3, shape), rng.uniform(-0.3, 0.3, shape))
     if trajectory is not None:
         motion = load_trajectory(trajectory, joints=model.joints)
         duration = motion.duration
-    log = simulate(param, param.true_values, motion, np.linspace(0.0, duration, samples), momentum, model=model)
+    log = simulate(param, param.true_values, motion, np.linspace(0.0, duration, samples), momentum, model=model,
+                   drift=drift)
     return add_noise(log, angle=noise, rate=noise, seed=seed)
 
 
@@ -61,29 +76,34 @@ def _cli_seconds(args):
     return time.perf_counter() - start
 
 
-def _reference_error(param, pi, log, momentum, predicted):
+def _reference_error(param, pi, log, momentum, predicted, drift=None):
     """Largest attitude error angle [rad] of ``predicted`` against DOP853 at rtol 1e-13 on the
     same (Hermite) joint motion, restarted at every sample (where the motion is only once
-    differentiable)."""
+    differentiable); with ``drift`` (torque, viscous) the inertial momentum is a state too."""
     from scipy.integrate import solve_ivp
 
     from spaceid.motion import hermite_motion
     from spaceid.studies import attitude_error_angle
 
     motion = hermite_motion(log.t, log.q, log.qd)
+    tau = np.zeros(3) if not drift else np.asarray(drift.get("torque", np.zeros(3)), float) * np.ones(3)
+    if param.model.planar:
+        tau[:2] = 0.0  # a number about z
+    c = drift.get("viscous", 0.0) if drift else 0.0
 
     def rhs(t, y):
         q, qd = motion(np.array([t]))
-        w = base_rate(param, pi, q, qd, (quat_to_matrix(y / np.linalg.norm(y)).T @ momentum)[None])[0]
-        x, v = y[0], y[1:]
-        return 0.5 * np.r_[-v @ w, x * w + np.cross(v, w)]
+        rot = quat_to_matrix(y[:4] / np.linalg.norm(y[:4]))
+        w = base_rate(param, pi, q, qd, (rot.T @ y[4:])[None])[0]
+        x, v = y[0], y[1:4]
+        return np.r_[0.5 * np.r_[-v @ w, x * w + np.cross(v, w)], tau - c * rot @ w]
 
-    ref = [log.base_quat[0]]  # interval by interval: the Hermite motion is smooth between samples only
+    ref = [np.r_[log.base_quat[0], momentum]]  # interval by interval: the Hermite motion is smooth between samples only
     for t0, t1 in zip(log.t[:-1], log.t[1:]):
         y = solve_ivp(rhs, (t0, t1), ref[-1], method="DOP853", rtol=1e-13, atol=1e-15).y[:, -1]
-        ref.append(y / np.linalg.norm(y))
+        ref.append(np.r_[y[:4] / np.linalg.norm(y[:4]), y[4:]])
     ref = np.array(ref)
-    return float(attitude_error_angle(ref, predicted.base_quat).max())
+    return float(attitude_error_angle(ref[:, :4], predicted.base_quat).max())
 
 
 def run(name, args, folder):
@@ -92,11 +112,13 @@ def run(name, args, folder):
     momentum_text, noise = SETTINGS[name]
     momentum = np.array([0.0, 0.0, float(momentum_text)]) if model.planar else np.array(momentum_text.split(","), float)
     fit, held = (folder / f"{name}-{s}.csv" for s in (1, 2))
+    drift = _drift(model, args.drift)
     for seed, path in ((1, fit), (2, held)):
-        write_log(path, _log(model, param, momentum, seed, args.samples, args.duration, noise, args.trajectory))
+        write_log(path, _log(model, param, momentum, seed, args.samples, args.duration, noise, args.trajectory, drift))
     result, out = folder / f"{name}.json", folder / f"{name}-validation"
     noise_options = ["--noise-angle", f"{noise:g}", "--noise-rate", f"{noise:g}"]
-    identify = ["identify", name, str(fit), "--momentum", momentum_text, *noise_options, "-o", str(result)]
+    identify = ["identify", name, str(fit), "--momentum", momentum_text, *noise_options, "-o", str(result),
+                *(["--drift", "torque,viscous"] if drift else [])]
     validate = ["validate", str(result), str(held), "--momentum", momentum_text, "--out", str(out), "--overwrite"]
     times = {"identify": [], "validate": []}
     for _ in range(args.repeats):
@@ -115,7 +137,8 @@ def run(name, args, folder):
         start = time.perf_counter()
         check = run_validate(source, log, momentum=momentum)
         inside = time.perf_counter() - start
-    error = "-" if model.planar else f"{_reference_error(source.param, source.values, log, momentum, check.predicted):.1e}"
+    error = "-" if model.planar and not drift else \
+        f"{_reference_error(source.param, source.values, log, momentum, check.predicted, source.drift):.1e}"
     print(f"{name:15s} {args.samples:6d} {med['identify']:9.2f} {med['validate']:9.2f} "
           f"{med['validate'] / med['identify']:6.2f} {inside:10.3f} {error:>12s}", flush=True)
 
@@ -129,6 +152,8 @@ def main():
     parser.add_argument("--trajectory", help="A 'spaceid design' output to fly instead of the random motions (both "
                         "logs then differ by their noise only; servicer-dual needs one: a random motion leaves "
                         "parameters unexcited)")
+    parser.add_argument("--drift", action="store_true", help="logs that drift under a torque and viscous friction, "
+                        "identified and re-simulated with them")
     args = parser.parse_args()
     print(f"spaceid from {Path(spaceid.__file__).parent}; {os.cpu_count()} cores; medians of {args.repeats} CLI runs [s]")
     print(f"{'preset':15s} {'N':>6s} {'identify':>9s} {'validate':>9s} {'ratio':>6s} {'validate()':>10s} "
