@@ -80,6 +80,19 @@ def test_simulated_momentum_balances_the_external_torque(cepheus):
     assert drifting(cepheus, ("coulomb",)).meta["momentum_balance_error"] < 1e-9
 
 
+@pytest.mark.parametrize("drift", [{"torque": 1e-3, "viscous": 5e-3}, {"viscous": 5e-3, "coulomb": 2e-3}])
+def test_drifting_simulation_in_blocks_of_samples(cepheus, drift, monkeypatch):
+    """A long log is integrated a block of samples at a time, each from the state the last ended with (the memory
+    stays bounded): in blocks of 16 samples, as in one (the quadrature; with a Coulomb torque, DOP853)."""
+    from spaceid.motion import _simulate
+
+    whole = simulate(cepheus, cepheus.true_values, motion, TIMES[::8], H, drift=drift)
+    monkeypatch.setattr(_simulate, "SPLINE_SAMPLES", 16)
+    blocks = simulate(cepheus, cepheus.true_values, motion, TIMES[::8], H, drift=drift)
+    np.testing.assert_allclose(blocks.base_w, whole.base_w, rtol=0, atol=1e-10 * np.abs(whole.base_w).max())
+    np.testing.assert_allclose(blocks.base_yaw, whole.base_yaw, rtol=0, atol=1e-10)
+
+
 def test_drift_free_simulation_is_unchanged(cepheus):
     t = np.linspace(0, 5, 35)
     a = simulate(cepheus, cepheus.true_values, motion, t, H)

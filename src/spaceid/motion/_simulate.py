@@ -101,9 +101,10 @@ def _gauss_cumulative(order: int = 8) -> np.ndarray:
 
 
 def _planar_linear_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
-    """States ``[yaw, h_z]`` ``(n, 2)`` at ``times`` of a planar system under a constant torque ``tau`` and
-    viscous friction ``c`` about z (no Coulomb torque): with ``L`` the locked inertia and ``o`` the joints'
-    own momentum, the momentum obeys the linear ``dh/dt = -(c / L) h + tau + c o / L``, solved through its
+    """States ``[yaw, h_z]`` ``(n, 2)`` at ``times`` (a block of :func:`_in_sample_blocks`) from ``y0`` at
+    ``times[0]``, of a planar system under a constant torque ``tau`` and viscous friction ``c`` about z (no
+    Coulomb torque): with ``L`` the locked inertia and ``o`` the joints' own momentum, the momentum obeys
+    the linear ``dh/dt = -(c / L) h + tau + c o / L``, solved through its
     integrating factor ``exp(int c / L)`` and the yaw rate ``(h - o) / L`` integrated, all on the 8-point
     Gauss-Legendre panels of :func:`_cumulative_integral` (each sample interval, where the joint motion is
     smooth, split into ``m`` panels, ``m`` doubling until two results agree to ``rtol``): a quadrature,
@@ -375,21 +376,28 @@ SPLINE_SAMPLES = 4096
 memory is bounded by the block whatever the log's length."""
 
 
-def _in_spline_blocks(param, pi, motion, times, y0, advance, where) -> np.ndarray:
+def _in_sample_blocks(times, y0, advance, between=None) -> np.ndarray:
     """States ``(n, len(y0))`` at ``times``, integrated a block of :data:`SPLINE_SAMPLES` samples at a
-    time: ``advance(locked, offset, y, block)`` integrates from ``block[0]``, where the state is
-    ``y``, with that block's rate splines (:func:`_rate_splines`) and returns the states at
-    ``block``; consecutive blocks share their boundary sample."""
+    time: ``advance(y, block)`` integrates from ``block[0]``, where the state is ``y``, and returns the
+    states at ``block``; consecutive blocks share their boundary sample. ``between()``, if given, runs
+    between blocks."""
     parts, y = [], np.asarray(y0, float)
     starts = range(0, max(len(times) - 1, 1), SPLINE_SAMPLES)
     for start in starts:
-        block = times[start : start + SPLINE_SAMPLES + 1]
-        part = advance(*_rate_splines(param, pi, motion, block, where), y, block)
+        part = advance(y, times[start : start + SPLINE_SAMPLES + 1])
         parts.append(part if start == 0 else part[1:])
         y = part[-1]
-        if start != starts[-1]:  # the last block's: freed by Python's next collection (a forced one took 0.5 s in a
-            gc.collect()  # large process); solve_ivp's solver and right-hand side form a cycle holding the splines
+        if between is not None and start != starts[-1]:
+            between()
     return np.concatenate(parts)
+
+
+def _in_spline_blocks(param, pi, motion, times, y0, advance, where) -> np.ndarray:
+    """:func:`_in_sample_blocks` where ``advance(locked, offset, y, block)`` takes that block's rate splines
+    (:func:`_rate_splines`) too. Between blocks a collection frees the last block's (a forced one after the last
+    took 0.5 s in a large process): solve_ivp's solver and right-hand side form a cycle holding the splines."""
+    return _in_sample_blocks(times, y0, lambda y, block: advance(*_rate_splines(param, pi, motion, block, where), y,
+                                                                 block), between=gc.collect)
 
 
 def _grid(times):
@@ -577,7 +585,8 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
         return _integrate_drifting(rhs, rate, y, block, rtol, coulomb=bool(terms.get("coulomb")))
 
     if param.model.planar and not np.any(terms.get("coulomb", 0.0)):  # linear in the momentum: a quadrature
-        y = _planar_linear_drift(param, pi, motion, times, y0, terms, rtol)
+        y = _in_sample_blocks(times, y0, lambda y, block: _planar_linear_drift(param, pi, motion, block, y, terms,
+                                                                                  rtol))
     elif not np.any(terms.get("coulomb", 0.0)):  # smooth: the attitude's collocation, the momentum with it
         y = _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where,
                                  torque=terms.get("torque"), viscous=terms.get("viscous", 0.0))
