@@ -53,6 +53,35 @@ def test_planar_regressor_equals_direct_momentum(rng, parents):
     assert np.abs(pinocchio_momentum(to_pinocchio(model), q, qd, w0) - direct).max() < 1e-12 * scale
 
 
+@pytest.mark.parametrize("seed", range(6))
+def test_planar_closed_form_equals_the_kinematics(seed):
+    """The planar basis's functions in closed form (every axis along z: the rotations commute) against those of the
+    general kinematics, on trees with frames turned upside down (a half-turn about x: the next axis is -z in
+    base axes) and rotated about z; an axis tilted off z by more than round-off takes the kinematics."""
+    from dataclasses import replace
+
+    from spaceid.dynamics._regressor import _planar_functions, _planar_pairs, _planar_turns
+
+    rng = np.random.default_rng(seed)
+    model = random_tree(rng, [[0], [0, 1], [0, 1, 2], [0, 1, 0, 3], [0, 1, 1]][seed % 5])
+    half_turn, quarter_y = np.diag([1.0, -1.0, -1.0]), np.array([[0.0, 0, 1], [0, 1, 0], [-1, 0, 0]])
+    bodies = [b if i == 0 or rng.uniform() < 0.5 else replace(b, rotation=b.rotation @ half_turn)
+              for i, b in enumerate(model.bodies)]  # fmt: skip
+    for leaf in [i for i in range(1, len(bodies)) if all(b.parent != i for b in bodies)]:
+        # the leaves' x axes out of the plane (each joint turns about its body's x axis, along z in base axes)
+        bodies[leaf] = replace(bodies[leaf], rotation=bodies[leaf].rotation @ quarter_y, axis=-bodies[leaf].axis[::-1])
+    model = replace(model.as_planar(), bodies=tuple(bodies)).as_planar()
+    terms = _planar_pairs(len(model.bodies))
+    closed = _planar_turns(model, terms)
+    assert closed is not None and set(np.abs(closed.turns[closed.turns != 0])) == {1.0}
+    q, qd, w0 = random_states(rng, model, 50)
+    w0[:, :2] = rng.standard_normal((50, 2))  # a table's tilt rates: they do not enter h_z
+    general = _planar_functions(model, terms, q, qd, w0)
+    assert np.abs(_planar_functions(model, terms, q, qd, w0, closed) - general).max() < 1e-13 * np.abs(general).max()
+    tilted = replace(bodies[1], axis=bodies[1].axis + 1e-10)
+    assert _planar_turns(replace(model, bodies=(bodies[0], tilted, *bodies[2:])), terms) is None
+
+
 @pytest.mark.parametrize("parents", TREES)
 def test_minimal_count_equals_rank(rng, parents):
     model = random_tree(rng, parents)

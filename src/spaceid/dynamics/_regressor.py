@@ -515,8 +515,68 @@ def _planar_pairs(n_bodies):
     )
 
 
-def _planar_functions(model: Model, terms, q, qd, w0):
-    """Body-pair functions at the states, shape ``(..., n_terms)``."""
+@dataclass(frozen=True)
+class _PlanarTurns:
+    """The body-pair functions of a planar tree of revolute joints in closed form.
+
+    Every joint axis is the base z axis (up to sign), so the rotations along a path commute: body
+    b's rotation is ``Rz(turns_b . q) R_b(0)`` and its spin ``w0_z + turns_b . qd``. The entry of
+    ``R_a^T R_b`` a term reads is then ``c cos(d) + s sin(d) + k`` with ``d = (turns_b - turns_a) . q``.
+    A spin term is ``k = 1/2`` over the pair (b, b), exactly ``w_z`` of b.
+
+    Attributes
+    ----------
+    turns : ndarray of shape (n_bodies, n_joints)
+        Signed path matrix: +1 or -1 where a joint (axis along +z or -z) is on the body's path.
+    relative : ndarray of shape (n_terms, n_joints)
+        ``turns_b - turns_a`` of each term.
+    trig : ndarray of shape (3, n_terms)
+        ``c, s, k`` of each term.
+    first, second : ndarray of shape (n_terms,)
+        The bodies a and b of each term.
+    """
+
+    turns: np.ndarray
+    relative: np.ndarray
+    trig: np.ndarray
+    first: np.ndarray
+    second: np.ndarray
+
+
+def _planar_turns(model: Model, terms) -> _PlanarTurns | None:
+    """The closed form of ``terms`` on ``model`` (:class:`_PlanarTurns`), or None when an axis is tilted off z
+    by more than round-off (planar mode allows 1e-9: the general kinematics then decide)."""
+    if not model.planar or any(b.joint_type != "revolute" for b in model.bodies[1:]):
+        return None
+    rot, turns = [np.eye(3)], np.zeros((len(model.bodies), len(model.bodies) - 1))
+    for j, b in enumerate(model.bodies[1:]):
+        rot.append(rot[b.parent] @ b.rotation)
+        axis = rot[-1] @ b.axis
+        if np.abs(axis[:2]).max() > 1e-12:
+            return None
+        turns[j + 1] = turns[b.parent]
+        turns[j + 1, j] = np.sign(axis[2])
+    first = np.array([a for _, a, _ in terms], int)
+    second = np.array([b for _, _, b in terms], int)
+    trig = np.zeros((3, len(terms)))
+    for i, (kind, a, b) in enumerate(terms):
+        if kind == "spin":
+            trig[2, i] = 0.5
+            continue
+        v, u = rot[a][:, 0 if kind == "cos" else 1], rot[b][:, 0]
+        trig[:, i] = v[0] * u[0] + v[1] * u[1], v[1] * u[0] - v[0] * u[1], v[2] * u[2]
+    return _PlanarTurns(turns, turns[second] - turns[first], trig, first, second)
+
+
+def _planar_functions(model: Model, terms, q, qd, w0, closed: _PlanarTurns | None = None):
+    """Body-pair functions at the states, shape ``(..., n_terms)``: from ``closed`` (the terms' closed form,
+    :func:`_planar_turns`) when given, else from the kinematics."""
+    if closed is not None:
+        q, qd, w0 = (np.asarray(a, float) for a in (q, qd, w0))
+        d = q @ closed.relative.T
+        wz = w0[..., 2:3] + qd @ closed.turns.T
+        c, s, k = closed.trig
+        return (c * np.cos(d) + s * np.sin(d) + k) * (wz[..., closed.first] + wz[..., closed.second])
     st = body_states(model, q, qd, w0)
     rot, wz = st.rotation, st.omega[..., 2]
     cols = []
@@ -596,6 +656,12 @@ class Parameterization:
         return _plan(self.model, None), np.linalg.pinv(self.projection)
 
     @functools.cached_property
+    def _closed_form(self) -> _PlanarTurns | None:
+        """The planar basis's functions in closed form (:func:`_planar_turns`); None for the columns basis."""
+        kind, data, _ = self._eval
+        return _planar_turns(self.model, data) if kind == "planar" else None
+
+    @functools.cached_property
     def true_values(self) -> np.ndarray:
         """``pi`` of the model's own inertial parameters, shape ``(k,)``."""
         return self.projection @ full_values(self.model)
@@ -610,7 +676,8 @@ class Parameterization:
         """
         kind, data, weights = self._eval
         if kind == "planar":
-            return _into(out, (_planar_functions(self.model, data, q, qd, w0) @ weights)[..., None, :])
+            f = _planar_functions(self.model, data, q, qd, w0, self._closed_form)
+            return _into(out, (f @ weights)[..., None, :])
         if not self.model.planar:
             return _regressor(self.model, q, qd, w0, data, energy=False, out=out)  # the independent columns
         return _into(out, _regressor(self.model, q, qd, w0, data, energy=False)[..., 2:3, :])
@@ -664,7 +731,7 @@ class Parameterization:
         kind, data, weights = self._eval
         pi = np.asarray(pi, float)
         if kind == "planar":
-            return (_planar_functions(self.model, data, q, qd, w0) @ (weights @ pi))[..., None]
+            return (_planar_functions(self.model, data, q, qd, w0, self._closed_form) @ (weights @ pi))[..., None]
         h = _regressor(self.model, q, qd, w0, data, energy=False, weights=pi)
         return h[..., 2:3] if self.model.planar else h
 
@@ -798,7 +865,7 @@ def _derive_minimal(geometry: _Geometry, tol: float, seed: int) -> Parameterizat
     symbolic = len(model.bodies) <= PLANAR_SYMBOLIC_BODIES
     if model.planar and symbolic and all(b.joint_type == "revolute" for b in model.bodies[1:]):
         terms = _planar_pairs(len(model.bodies))
-        f = _planar_functions(model, terms, q, qd, w0)
+        f = _planar_functions(model, terms, q, qd, w0, _planar_turns(model, terms))
         with one_blas_thread():
             coef, *_ = np.linalg.lstsq(f, y_full, rcond=None)
         scale = np.abs(y_full).max()
