@@ -125,6 +125,23 @@ def test_the_parameter_figure_draws_its_band_and_zero_line(cepheus, identificati
         assert [(s["type"], s["yref"]) for s in layout["shapes"]] == shapes
 
 
+def test_the_monitor_figures_draw_the_threshold_the_changes_and_the_unchanged_band(cepheus, capture):
+    """The statistic's threshold line and each change's lines, and the event figure's |z| < 3 band, which Plotly
+    left out when the figure was a graph object given the band before its bars; every figure valid for Plotly."""
+    import plotly.graph_objects as go
+
+    from spaceid.studies._html_figures import monitor_figures
+
+    record = monitor(cepheus[1], capture, H, noise=NOISE)
+    (statistic, _), _, (changes, _) = figures = monitor_figures(record)
+    for fig, _ in figures:
+        go.Figure(fig)  # raises on a property Plotly does not know
+    threshold, (event,) = record.settings["threshold"], record.events
+    assert [(s["type"], s["y0"], s.get("x0")) for s in statistic["layout"]["shapes"]] == [
+        ("line", threshold, 0), ("line", 0, event.time), ("line", 0, event.detected_at)]
+    assert [(s["type"], s["y0"], s["y1"]) for s in changes["layout"]["shapes"]] == [("rect", -3.0, 3.0)]
+
+
 def test_downsampling_keeps_each_bins_extremes():
     rng = np.random.default_rng(0)
     t = np.arange(100_000) * 1e-3
