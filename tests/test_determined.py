@@ -237,7 +237,7 @@ def test_noise_gram_is_the_same_on_one_thread_and_on_two(estimator, robot, tmp_p
     for extra in (None, drift_columns(eq, noisy)):
         formed = []
         for threads in (1, 2):
-            monkeypatch.setattr(_linalg, "work_threads", lambda threads=threads: threads)
+            monkeypatch.setattr(_linalg, "threads_for", lambda tasks, threads=threads: min(tasks, threads))
             names.clear()
             formed.append(_determined.equation_noise(eq, x, sigma, truth.true_values, estimator, noisy, extra=extra))
             assert (names == {"MainThread"}) == (threads == 1)  # two: on the pool's threads

@@ -255,7 +255,7 @@ def test_ml_on_threads_equals_serial(cepheus, monkeypatch):
     log, noise = add_noise(make(2501), angle=1e-3, rate=1e-3, seed=2), Noise(1e-3, 1e-3, 1e-3)
     results = []
     for threads in (1, 2):
-        monkeypatch.setattr(linalg, "work_threads", lambda threads=threads: threads)
+        monkeypatch.setattr(linalg, "threads_for", lambda tasks, threads=threads: min(tasks, threads))
         results.append(identify(param, log, H, estimator="ml", noise=noise))
     assert np.array_equal(results[0].values, results[1].values) and np.array_equal(results[0].cov, results[1].cov)
 

@@ -171,7 +171,7 @@ def test_gram_matrix_of_the_rows_as_they_are_is_that_of_the_scaled_rows(monkeypa
     placement included; columns of very different norms (1e-6 to 1e6)."""
     from spaceid.estimation import _linalg
 
-    monkeypatch.setattr(_linalg, "work_threads", lambda: threads)
+    monkeypatch.setattr(_linalg, "threads_for", lambda tasks: min(tasks, threads))
     rng = np.random.default_rng(5)
     phi = rng.standard_normal((3 * _linalg.ROW_BLOCK + 17, 3, 9)) * np.logspace(-6, 6, 9)
     A, b = _split(phi)  # A: a view with a row stride of 9 columns, b = -phi[..., -1]

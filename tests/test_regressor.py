@@ -314,7 +314,7 @@ def test_groups_and_threads_do_not_show(rng, monkeypatch):
     whole, energy = evaluate(q, qd, w0, *direction), energy_regressor(model, q, qd, w0)
     one_by_one = [np.stack(a) for a in zip(*(evaluate(*(a[n] for a in (q, qd, w0, *direction))) for n in range(29)))]
     monkeypatch.setattr(regressor, "_GROUP", 12)  # several groups, the last one short
-    monkeypatch.setattr(regressor, "work_threads", lambda: 2)  # three groups on two threads
+    monkeypatch.setattr(regressor, "threads_for", lambda tasks: min(tasks, 2))  # three groups, two threads
     for got, ref in zip([*evaluate(q, qd, w0, *direction), *one_by_one], [*whole, *whole]):
         np.testing.assert_array_equal(got, ref)
     np.testing.assert_allclose(energy_regressor(model, q, qd, w0), energy, rtol=0, atol=1e-14 * np.abs(energy).max())
@@ -357,6 +357,26 @@ def test_work_threads_leave_busy_cores_alone(monkeypatch):
     with threadpool_limits(1, user_api="blas"):
         monkeypatch.setattr(os, "getloadavg", lambda: (0.0, 0.0, 0.0))
         assert work_threads() == 1
+
+
+def test_one_block_runs_in_the_caller_without_asking_the_machine(monkeypatch):
+    """:func:`threads_for` of one block is 1 without reading the machine's load (0.13 ms, more than a few samples'
+    kinematics), of more at most one thread a block; the regressor's plan of a geometry and columns is kept."""
+    from spaceid import _threads
+    from spaceid.dynamics._regressor import _plan
+
+    def asked():
+        raise AssertionError("asked the machine")
+
+    monkeypatch.setattr(_threads, "work_threads", asked)
+    assert _threads.threads_for(1) == 1 and _threads.threads_for(0) == 1
+    monkeypatch.setattr(_threads, "work_threads", lambda: 2)
+    assert _threads.threads_for(5) == 2
+    monkeypatch.setattr(_threads, "work_threads", lambda: 8)
+    assert _threads.threads_for(3) == 3
+    model = random_tree(np.random.default_rng(1), [0, 1])
+    assert _plan(model, None) is _plan(model, None) and _plan(model, [0, 2]) is _plan(model, np.array([0, 2]))
+    assert list(_plan(model, [2, 0]).columns) == [2, 0]
 
 
 def test_work_threads_do_not_count_the_load_of_this_process(monkeypatch):

@@ -43,7 +43,7 @@ from scipy.linalg import solve_triangular
 
 from .._cache import cache_key, read_cached, source_digest, write_cached
 from .._errors import SpaceidError
-from .._threads import one_blas_thread, work_threads
+from .._threads import one_blas_thread, threads_for
 from ._definitions import column_definitions, planar_definitions
 from ._kernels import _columns_of_states, _contracted_rows, _momentum_of_states, _tangent_columns
 from ._kinematics import FrameTable, _flatten_states, _Geometry, _joint_arrays, body_states, frame_table
@@ -197,9 +197,17 @@ class _Plan:
 
 def _plan(model: Model, columns) -> _Plan:
     """Evaluation plan of the requested columns (indices into ``full_parameter_names``,
-    default all)."""
+    default all), kept per geometry and columns: the forward dynamics ask for the energy's at every
+    step (forming it took 0.2 ms, five times the energy of a few Cepheus states)."""
+    return _plan_of(_Geometry(model), None if columns is None else np.asarray(columns, dtype=np.int64).tobytes())
+
+
+@functools.lru_cache(maxsize=64)
+def _plan_of(geometry: _Geometry, columns: bytes | None) -> _Plan:
+    """:func:`_plan` of ``geometry``'s model, ``columns`` the bytes of the indices (None: all)."""
+    model = geometry.model
     theta, first, pairs = _layout(model)
-    cols = np.arange(len(theta) + len(pairs)) if columns is None else np.asarray(columns, dtype=int)
+    cols = np.arange(len(theta) + len(pairs)) if columns is None else np.frombuffer(columns, np.int64).astype(int)
     nb = len(model.bodies)
     pair, pair_at, inertia, inertia_at = [], [], [], []
     for n, c in enumerate(cols):
@@ -285,7 +293,7 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
             part[...] = block
 
     starts = range(0, n, _GROUP)
-    threads = min(len(starts), work_threads())
+    threads = threads_for(len(starts))
     if threads > 1:  # a pool per call: no idle threads left behind for forked workers to inherit
         with ThreadPoolExecutor(threads) as pool:
             list(pool.map(run, starts))

@@ -31,7 +31,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from scipy.linalg import cho_solve, lapack, solve_triangular
 
-from .._threads import one_blas_thread, work_threads
+from .._threads import one_blas_thread, threads_for
 from ._noise import equation_covariance
 
 
@@ -180,7 +180,7 @@ def _blockwise(A, b, accumulate, combine):
             acc = accumulate(acc, A[start : start + rows], b[start : start + rows])
         return acc
 
-    threads = min(len(starts), work_threads())
+    threads = threads_for(len(starts))
     with one_blas_thread():
         if threads > 1:  # a pool per call, as for the regressor: no idle threads left for forked workers
             with ThreadPoolExecutor(threads) as pool:
@@ -321,7 +321,7 @@ def _parts(fn, n, size):
     generator): ``work_threads()`` slices at a time on threads (the kinematics and the array
     operations release the GIL), so no more parts than that are in memory at once."""
     slices = [slice(start, min(start + size, n)) for start in range(0, n, size)]
-    threads = min(len(slices), work_threads())
+    threads = threads_for(len(slices))
     with one_blas_thread():
         if threads < 2:
             yield from zip(slices, map(fn, slices))
