@@ -315,6 +315,7 @@ def test_groups_and_threads_do_not_show(rng, monkeypatch):
     one_by_one = [np.stack(a) for a in zip(*(evaluate(*(a[n] for a in (q, qd, w0, *direction))) for n in range(29)))]
     monkeypatch.setattr(regressor, "_GROUP", 12)  # several groups, the last one short
     monkeypatch.setattr(regressor, "threads_for", lambda tasks: min(tasks, 2))  # three groups, two threads
+    monkeypatch.setattr(regressor, "_THREADED_WORK", 0)  # however small the work
     for got, ref in zip([*evaluate(q, qd, w0, *direction), *one_by_one], [*whole, *whole]):
         np.testing.assert_array_equal(got, ref)
     np.testing.assert_allclose(energy_regressor(model, q, qd, w0), energy, rtol=0, atol=1e-14 * np.abs(energy).max())

@@ -247,6 +247,10 @@ def _plan_of(geometry: _Geometry, columns: bytes | None) -> _Plan:
 _GROUP = 256
 """Samples per task of a thread (and per kinematics call of the energy and the tangent, whose
 NumPy tables stay in cache at this size)."""
+_THREADED_WORK = 1_000_000
+"""Samples times columns from which the compiled kernels' groups go to threads: below it a pool costs more than
+it saves (the servicer's 496 columns: 0.78 against 1.33 ms at 300 samples, equal at 1,000, 11.3 against 7.0 ms at
+3,000; Cepheus's 8 columns gain nothing at 3,000)."""
 
 
 def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=None, direction=None, step=None,
@@ -258,8 +262,9 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
     ``primal`` (:func:`_tangent_columns`, central differences of step ``step``). ``out`` (a view
     is fine) receives the result, shape ``(n_samples, 3, n_cols)`` for the columns.
 
-    Groups of ``_GROUP`` samples go to threads (the kernels and NumPy's long operations release
-    the GIL); each group writes its own rows of ``out``."""
+    Groups of ``_GROUP`` samples go to threads when the work is large (:data:`_THREADED_WORK`; the kernels
+    release the GIL), each writing its own rows of ``out``; the energy's groups run in turn (their short NumPy
+    operations hold the GIL between them: on two threads the energy took 1.2 to 4.5 times as long)."""
     lead, flat = _flatten_states(q, qd, w0)
     if direction is not None:
         flat += [np.broadcast_to(np.asarray(a, float), lead + b.shape[-1:]).reshape(b.shape)
@@ -293,7 +298,7 @@ def _regressor(model: Model, q, qd, w0, plan: _Plan, *, energy: bool, weights=No
             part[...] = block
 
     starts = range(0, n, _GROUP)
-    threads = threads_for(len(starts))
+    threads = 1 if energy or n * plan.n_cols < _THREADED_WORK else threads_for(len(starts))
     if threads > 1:  # a pool per call: no idle threads left behind for forked workers to inherit
         with ThreadPoolExecutor(threads) as pool:
             list(pool.map(run, starts))
