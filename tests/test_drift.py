@@ -93,6 +93,63 @@ def test_drifting_simulation_in_blocks_of_samples(cepheus, drift, monkeypatch):
     np.testing.assert_allclose(blocks.base_yaw, whole.base_yaw, rtol=0, atol=1e-10)
 
 
+@robots(4)
+@given(seed=st.integers(0, 2**31 - 1), coulomb=st.floats(1e-4, 0.02), viscous=st.sampled_from([0.0, 0.01]))
+def test_coulomb_friction_against_an_ode_solver_on_random_robots(seed, coulomb, viscous, tmp_path):
+    """A random planar robot whose base turns back and forth under Coulomb friction ``-mu sign(w)`` (and viscous),
+    on a motion nobody designed, against DOP853 on ``[yaw, h]`` with the base rate solved from the momentum at every
+    evaluation and the torque's sign flipped at each zero crossing (events): the quadrature segment by segment,
+    its crossings located by root finding. Where it reports stiction, the friction can indeed hold the base: the
+    torque that keeps the base rate at zero, the joints' own momentum's rate (the rigid-body momentum at a base at
+    rest, differenced), is within mu."""
+    from scipy.integrate import solve_ivp
+
+    model = random_robot(seed, planar=True, max_arms=2, max_joints=2).load(tmp_path)
+    param, rng = minimal_parameters(model), np.random.default_rng(seed)
+    pi = param.true_values
+    a, b = 10 ** rng.uniform(-1, -0.3) * rng.standard_normal((2, model.n_joints, 3))
+    trajectory = FourierTrajectory(model.joints, 10.0, a, b)
+    times = sample_times(10.0, 201)
+    h0 = np.array([0.0, 0.0, rng.uniform(-0.02, 0.02)])  # small: the arms turn the base back
+    drift = {"coulomb": coulomb, "viscous": viscous}
+
+    def rate(t, h):
+        q, qd, _ = trajectory.evaluate(np.atleast_1d(t))
+        return base_rate(param, pi, q, qd, np.array([0.0, 0.0, h]))[0, 2]
+
+    def own(t):  # the joints' own momentum about z, the base at rest (rigid-body definitions)
+        q, qd, _ = trajectory.evaluate(np.atleast_1d(t))
+        return angular_momentum(model, q, qd, np.zeros((1, 3)))[0, 2]
+
+    with stage("simulate coulomb", seed=seed, coulomb=coulomb, viscous=viscous):
+        try:
+            log = simulate(param, pi, trajectory, times, h0, drift=drift)
+        except spaceid.SpaceidError as exc:
+            assert "stiction" in str(exc)
+            t_stuck, dt = float(str(exc).split("at t = ")[1].split(" s")[0]), 1e-5
+            assert abs((own(t_stuck + dt) - own(t_stuck - dt)) / (2 * dt)) <= coulomb * (1 + 1e-3)
+            return
+        t0, y, s, ys, ts = 0.0, np.array([0.0, h0[2]]), np.sign(rate(0.0, h0[2])), [], []
+        while t0 < 10.0:
+            def crossed(t, y, s=s):
+                return s * rate(t, y[1])
+            crossed.terminal, crossed.direction = True, -1
+            ref = solve_ivp(lambda t, y, s=s: [rate(t, y[1]), -viscous * rate(t, y[1]) - coulomb * s], (t0, 10.0), y,
+                            method="DOP853", t_eval=times[times > t0] if ys else times, rtol=1e-12, atol=1e-14,
+                            events=crossed)
+            ys.append(ref.y.T), ts.append(ref.t)
+            if ref.status != 1:
+                break
+            t0, y, s = ref.t_events[0][0], ref.y_events[0][0], -s
+        ref_y, ref_t = np.concatenate(ys), np.concatenate(ts)
+        np.testing.assert_array_equal(ref_t, times)
+        assert np.count_nonzero(np.diff(np.sign(log.base_w[:, 2]))) == len(ys) - 1  # the same crossings
+        scale = np.abs(log.base_w[:, 2]).max()
+        w = np.array([rate(t, h) for t, h in zip(times, ref_y[:, 1])])
+        np.testing.assert_allclose(log.base_w[:, 2], w, rtol=0, atol=1e-8 * scale)
+        np.testing.assert_allclose(log.base_yaw, ref_y[:, 0], rtol=0, atol=1e-8 * max(10.0 * scale, 1.0))
+
+
 def test_drift_free_simulation_is_unchanged(cepheus):
     t = np.linspace(0, 5, 35)
     a = simulate(cepheus, cepheus.true_values, motion, t, H)

@@ -100,30 +100,37 @@ def _gauss_cumulative(order: int = 8) -> np.ndarray:
     return legendre.legval(nodes, legendre.legint(lagrange, lbnd=-1)).T
 
 
-def _planar_linear_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
-    """States ``[yaw, h_z]`` ``(n, 2)`` at ``times`` (a block of :func:`_in_sample_blocks`) from ``y0`` at
-    ``times[0]``, of a planar system under a constant torque ``tau`` and viscous friction ``c`` about z (no
-    Coulomb torque): with ``L`` the locked inertia and ``o`` the joints' own momentum, the momentum obeys
-    the linear ``dh/dt = -(c / L) h + tau + c o / L``, solved through its
-    integrating factor ``exp(int c / L)`` and the yaw rate ``(h - o) / L`` integrated, all on the 8-point
-    Gauss-Legendre panels of :func:`_cumulative_integral` (each sample interval, where the joint motion is
+def _planar_pieces(param, pi, motion, t) -> tuple:
+    """The joints' own momentum about z [N m s] and the locked inertia about z [kg m^2] at the times ``t (n,)``,
+    each ``(n,)``: the yaw rate for a momentum ``h`` is ``(h - own) / locked``."""
+    def pieces(t):
+        free, unit, _ = rate_pieces(param, *motion(t), functools.partial(param.momentum, pi=pi))
+        return np.column_stack([free[:, 0], unit[0][:, 0]])
+
+    both = _in_blocks(pieces, np.atleast_1d(np.asarray(t, float)))
+    return both[:, 0], both[:, 1]
+
+
+def _planar_linear_drift(param, pi, motion, times, y0, tau, c, rtol) -> tuple:
+    """States ``[yaw, h_z]`` ``(n, 2)`` at ``times`` from ``y0`` at ``times[0]``, of a planar system under a
+    constant torque ``tau`` and viscous friction ``c`` about z: with ``L`` the locked inertia and ``o`` the
+    joints' own momentum, the momentum obeys the linear ``dh/dt = -(c / L) h + tau + c o / L``, solved through
+    its integrating factor ``exp(int c / L)`` and the yaw rate ``(h - o) / L`` integrated, all on the 8-point
+    Gauss-Legendre panels of :func:`_gauss_cumulative` (each sample interval, where the joint motion is
     smooth, split into ``m`` panels, ``m`` doubling until two results agree to ``rtol``): a quadrature,
-    vectorised, where an ODE solver stepped through every kink of the interpolated joint rates."""
+    vectorised, where an ODE solver stepped through every kink of the interpolated joint rates (agreeing to
+    ``rtol`` of the momentum's magnitude and of the yaw's, or of the most the rate could turn it: a short span
+    where the rate crosses zero turns it by next to nothing). Also the panels' node times and the yaw rate
+    there, each ``(n - 1, 8 m)`` in time order (where a Coulomb torque's sign change shows)."""
     from itertools import accumulate
 
     nodes, weights = np.polynomial.legendre.leggauss(8)
     cumulative = _gauss_cumulative(8).T
-    tau, c = float(np.asarray(terms.get("torque", np.zeros(3)), float)[2]), float(terms.get("viscous", 0.0))
-
-    def pieces(t):  # the joints' own momentum about z and the locked inertia, (n, 2)
-        free, unit, _ = rate_pieces(param, *motion(t), functools.partial(param.momentum, pi=pi))
-        return np.column_stack([free[:, 0], unit[0][:, 0]])
-
     lo, width, previous = times[:-1], np.diff(times), None
     for m in (1, 2, 4, 8, 16, 32, 64):
         half = np.repeat(width / m / 2, m)  # of each panel, (P,)
         t = (lo[:, None] + width[:, None] * np.arange(m) / m).ravel()[:, None] + half[:, None] * (nodes + 1)
-        own, locked = np.moveaxis(_in_blocks(pieces, t.ravel()).reshape(t.shape + (2,)), -1, 0)
+        own, locked = (a.reshape(t.shape) for a in _planar_pieces(param, pi, motion, t.ravel()))
         a, f = c / locked, tau + c * own / locked
         grow = half[:, None] * (a @ cumulative)  # int a from the panel's start to each node
         lift = np.exp(grow) * f
@@ -135,11 +142,74 @@ def _planar_linear_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarra
         rate = (np.exp(-grow) * (starts[:-1, None] + gain) - own) / locked
         turned = np.concatenate([[0.0], np.cumsum((half * (rate @ weights)).reshape(-1, m).sum(1))])
         current = np.column_stack([turned, starts[::m]])
+        reach = [abs(y0[0]) + np.abs(rate).max() * (times[-1] - times[0]), 1e-300]
         if previous is not None and np.all(np.abs(current - previous).max(0)
-                                           <= rtol * np.maximum(np.abs(current).max(0), 1e-300)):
-            return current + [y0[0], 0.0]
+                                           <= rtol * np.maximum(np.abs(current).max(0), reach)):
+            return current + [y0[0], 0.0], t.reshape(len(lo), -1), rate.reshape(len(lo), -1)
         previous = current
     raise SpaceidError("simulation failed: the base rate is too rough to integrate; sample the motion more finely")
+
+
+_STICTION = "the Coulomb torque (drift coulomb) holds the base at rest (stiction), which is not modelled: use a " \
+            "smaller coulomb value"
+
+
+def _planar_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
+    """States ``[yaw, h_z]`` ``(n, 2)`` at ``times`` (a block of :func:`_in_sample_blocks`) from ``y0``: the
+    quadrature of :func:`_planar_linear_drift`, under a Coulomb torque ``-mu sign(w)`` segment by segment, the
+    torque constant between the zero crossings of the yaw rate ``w``. A crossing shows as a sign change of the
+    rate at the samples or the panels' nodes; Brent's method locates it to round-off (the state at each trial
+    time integrated from the sample before), and the next segment starts from there with the other sign; a
+    torque that would hold the base at rest there is an error (stiction is not modelled)."""
+    from scipy.optimize import brentq
+
+    tau = float(np.asarray(terms.get("torque", np.zeros(3)), float)[2])
+    c, mu = float(terms.get("viscous", 0.0)), float(terms.get("coulomb", 0.0))
+    if not mu:
+        return _planar_linear_drift(param, pi, motion, times, y0, tau, c, rtol)[0]
+
+    def rate(t, h):
+        own, locked = _planar_pieces(param, pi, motion, t)
+        return (h - own) / locked
+
+    def leaves(t, h, s):  # whether the rate, at zero, moves to the side of s under the torque of that sign
+        step = 1e-7 * (times[-1] - times[0])
+        return s * (rate(t + step, h + step * (tau - mu * s)) - rate(t, h))[0] > 0
+
+    t0, y = times[0], np.asarray(y0, float)
+    s = np.sign(rate(t0, y[1])[0]) or next((side for side in (1.0, -1.0) if leaves(t0, y[1], side)), 0.0)
+    out = []
+    while True:
+        if not s:
+            raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {_STICTION}")
+        grid = np.concatenate([[t0], times[times > t0]])
+        states, node_t, node_w = _planar_linear_drift(param, pi, motion, grid, y, tau - mu * s, c, rtol)
+        probe_t = np.append(np.column_stack([grid[:-1], node_t]).ravel(), grid[-1])  # samples and nodes in order
+        probe_w = np.append(np.column_stack([rate(grid[:-1], states[:-1, 1]), node_w]).ravel(), rate(grid[-1],
+                                                                                                  states[-1, 1]))
+        past = np.flatnonzero(s * probe_w[1:] <= 0)
+        if not len(past):
+            out.append(states if not out else states[1:])
+            return np.concatenate(out)
+        left, right = probe_t[past[0]], probe_t[past[0] + 1]  # the rate of sign s at left, past zero at right
+        k = np.searchsorted(grid, left, "right") - 1  # the sample interval holding both
+
+        def state(t, k=k, start=states[k], s=s):  # from the sample before, under the torque of sign s
+            if t == grid[k]:
+                return start
+            return _planar_linear_drift(param, pi, motion, np.array([grid[k], t]), start, tau - mu * s, c, rtol)[0][-1]
+
+        def signed(t, s=s):  # s w (t); at the segment's start, where w is zero to round-off, of sign s
+            value = s * rate(t, state(t)[1])[0]
+            return max(value, np.finfo(float).tiny) if t == grid[0] else value
+
+        t0 = brentq(signed, left, right, xtol=1e-14 * max(abs(right), 1.0), rtol=4 * np.finfo(float).eps)
+        out.append(states[: k + 1] if not out else states[1 : k + 1])  # the samples before the crossing
+        y, s = state(t0), -s
+        if not leaves(t0, y[1], s):
+            raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {_STICTION}")
+        if len(out) > 10 * len(times) + 1000:
+            raise SpaceidError("simulation failed: the base rate changes sign too often for the Coulomb torque")
 
 
 def _quat_rate(quat, w):
@@ -198,15 +268,16 @@ def simulate(
         Relative tolerance of the attitude integration: for planar systems a Gauss-Legendre
         quadrature of the yaw rate, for spatial ones Gauss-Legendre collocation on the quaternion
         (order 8), both with their steps halved until two successive results agree to ``rtol``
-        at every sample; with ``drift`` and no Coulomb torque, planar: the same quadrature of the
-        momentum's linear equation (:func:`_planar_linear_drift`), spatial: the same collocation
-        carrying the momentum; with a Coulomb torque, DOP853 on the attitude and the momentum.
+        at every sample; with ``drift``, planar: the same quadrature of the momentum's linear
+        equation (:func:`_planar_drift`; under a Coulomb torque segment by segment between its sign
+        changes), spatial: the same collocation carrying the momentum, or with a Coulomb torque DOP853
+        on the attitude and the momentum.
     drift : dict, optional
         External torques on the base, ``{"torque": tau, "viscous": c, "coulomb": mu}`` (any
         subset; ``tau`` [N m] 3 inertial components or, planar, a number about z; ``c`` [N m
         s/rad], ``mu`` [N m]): the momentum becomes a state, ``dh/dt = tau - c R0 w0 - mu R0 w0 /
-        |w0|`` (docs/theory/drift.md), integrated with the attitude (see ``rtol``; a Coulomb
-        torque's sign changes are located as events, and a base it would hold at rest is an error).
+        |w0|`` (docs/theory/drift.md), integrated with the attitude (see ``rtol``; a planar Coulomb
+        torque's sign changes are located by root finding, and a base it would hold at rest is an error).
         ``meta["momentum_balance_error"]`` then records the largest difference of the output's
         momentum change from the integral of the external torque (the quadrature that
         identification uses), relative to the momentum (a warning above 1e-6: samples too sparse
@@ -510,67 +581,21 @@ def _refuse_indefinite(param, pi, motion, t, locked, where):
         "parameters, whose base rate diverges: use a physical model or an identification that is one")
 
 
-def _drift_rhs(param, locked, offset, terms):
-    """``f(t, y, s)`` of the state ``y = [yaw, h_z]`` (planar) or ``[quat, h]`` (spatial) under
-    the external torque ``terms``, and the base rate about z ``w(t, y)`` (planar; its sign ``s``
-    is held between the events of a Coulomb torque)."""
+def _coulomb_rhs(locked, offset, terms):
+    """``f(t, y)`` of the spatial state ``y = [quat, h]`` (the inertial momentum) under the external torque
+    ``terms`` with a Coulomb torque ``-mu w / |w|``, the base rate from the rate splines ``locked``, ``offset``
+    (:func:`_rate_splines`): smooth wherever the base turns, which in space it does but for an instant."""
     tau = np.asarray(terms.get("torque", np.zeros(3)), float)
     c, mu = terms.get("viscous", 0.0), terms.get("coulomb", 0.0)
-    if param.model.planar:
-        def rate(t, y):
-            return (y[1] - offset(t)[0]) / locked(t)[0, 0]
 
-        def rhs(t, y, s):
-            w = rate(t, y)
-            return np.array([w, tau[2] - c * w - mu * s])
-
-        return rhs, rate
-
-    def rhs(t, y, s):
-        quat = y[:4] / np.linalg.norm(y[:4])
-        rot = quat_to_matrix(quat)
+    def rhs(t, y):
+        rot = quat_to_matrix(y[:4] / np.linalg.norm(y[:4]))
         w = np.linalg.solve(locked(t), rot.T @ y[4:] - offset(t))
         wi = rot @ w
         norm = np.linalg.norm(wi)
         return np.concatenate([_quat_rate(y[:4], w), tau - c * wi - (mu * wi / norm if norm > 0 else 0.0)])
 
-    return rhs, None
-
-
-def _moves_away(rhs, rate, t, y, s, span):
-    """Whether the base rate, at a zero, moves to the side of sign ``s`` under the Coulomb torque
-    of that sign (``False``: the torque would hold the base at rest)."""
-    step = 1e-7 * span
-    return s * (rate(t + step, y + step * rhs(t, y, s)) - rate(t, y)) > 0
-
-
-def _integrate_drifting(rhs, rate, y0, times, rtol, coulomb):
-    """States ``(n, len(y0))`` at ``times``; with a planar Coulomb torque, segment by segment
-    between the zero crossings of the base rate (events), the sign of the torque flipped at each."""
-    out, t0, y = [], times[0], np.asarray(y0, float)
-    span = times[-1] - times[0]
-    stuck = "the Coulomb torque (drift coulomb) holds the base at rest (stiction), which is not modelled: use a " \
-            "smaller coulomb value"
-    s, events = 0.0, None
-    if rate is not None:
-        s = np.sign(rate(t0, y)) or next((c for c in (1.0, -1.0) if _moves_away(rhs, rate, t0, y, c, span)), 0.0)
-        if coulomb and not s:
-            raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {stuck}")
-    while True:
-        if coulomb and rate is not None:
-            events = lambda t, yy, s=s: s * rate(t, yy)  # noqa: E731 - positive until the rate crosses zero
-            events.terminal, events.direction = True, -1
-        sol = _solve(rhs, (t0, times[-1]), y, times[times >= t0], rtol, args=(s,), events=events)
-        done = sol.t_events[0] if events is not None and len(sol.t_events[0]) else []
-        out.append(sol.y.T[sol.t < done[0]] if len(done) else sol.y.T)
-        if not len(done):
-            break
-        t0, y, s = done[0], sol.y_events[0][0], -s
-        if not _moves_away(rhs, rate, t0, y, s, span):
-            raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {stuck}")
-        if len(out) > 10 * len(times) + 1000:
-            raise SpaceidError("simulation failed: the base rate changes sign too often for the Coulomb torque")
-    return np.concatenate(out)
+    return rhs
 
 
 def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol, where) -> Log:
@@ -580,13 +605,11 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
     else:
         y0 = np.concatenate([quat0, momentum])
 
-    def advance(locked, offset, y, block):
-        rhs, rate = _drift_rhs(param, locked, offset, terms)
-        return _integrate_drifting(rhs, rate, y, block, rtol, coulomb=bool(terms.get("coulomb")))
+    def advance(locked, offset, y, block):  # DOP853 on the spatial state under a Coulomb torque
+        return _solve(_coulomb_rhs(locked, offset, terms), (block[0], block[-1]), y, block, rtol).y.T
 
-    if param.model.planar and not np.any(terms.get("coulomb", 0.0)):  # linear in the momentum: a quadrature
-        y = _in_sample_blocks(times, y0, lambda y, block: _planar_linear_drift(param, pi, motion, block, y, terms,
-                                                                                  rtol))
+    if param.model.planar:  # linear in the momentum between a Coulomb torque's sign changes: a quadrature
+        y = _in_sample_blocks(times, y0, lambda y, block: _planar_drift(param, pi, motion, block, y, terms, rtol))
     elif not np.any(terms.get("coulomb", 0.0)):  # smooth: the attitude's collocation, the momentum with it
         y = _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where,
                                  torque=terms.get("torque"), viscous=terms.get("viscous", 0.0))
