@@ -12,10 +12,12 @@ solved from the momentum at every evaluation (the old solver's route, tightened;
 
 ``--drift``: the logs drift under a constant torque and viscous friction of the base, identified
 with the parameters (``--drift torque,viscous``) and re-simulated with the identified terms; the
-reference then carries the momentum as a state too (planar presets included).
+reference then carries the momentum as a state too (planar presets included). ``--drift coulomb``:
+under Coulomb friction instead (``--drift coulomb``), whose sign the reference flips at the zero
+crossings of the base rate (planar; events of the solver).
 
     python benchmarks/bench_validate.py [--samples 900] [--duration 30] [--repeats 3] [--presets ...]
-                                        [--trajectory DESIGN.json] [--drift]
+                                        [--trajectory DESIGN.json] [--drift [coulomb]]
 
 Run it with ``PYTHONPATH`` set to another source tree to time that version (the CLI runs
 ``python -m spaceid.cli`` of whatever ``spaceid`` imports).
@@ -46,13 +48,16 @@ SETTINGS = {  # momentum [N m s], noise (angles and rates) of the logs
 }
 
 
-DRIFT = {"torque": (2e-3, -1e-3, 5e-4), "viscous": 0.02}
-"""The drift of ``--drift``: torque [N m] (inertial axes; planar: about z) and viscous friction [N m s/rad]."""
+DRIFT = {"torque": (2e-3, -1e-3, 5e-4), "viscous": 0.02, "coulomb": 2e-4}
+"""The drift of ``--drift``: torque [N m] (inertial axes; planar: about z) and viscous friction [N m s/rad];
+of ``--drift coulomb``: Coulomb friction [N m]."""
 
 
-def _drift(model, on: bool) -> dict | None:
-    if not on:
+def _drift(model, kind) -> dict | None:
+    if kind is None:
         return None
+    if kind == "coulomb":
+        return {"coulomb": DRIFT["coulomb"]}
     return {"torque": DRIFT["torque"][2] if model.planar else list(DRIFT["torque"]), "viscous": DRIFT["viscous"]}
 
 
@@ -79,7 +84,8 @@ def _cli_seconds(args):
 def _reference_error(param, pi, log, momentum, predicted, drift=None):
     """Largest attitude error angle [rad] of ``predicted`` against DOP853 at rtol 1e-13 on the
     same (Hermite) joint motion, restarted at every sample (where the motion is only once
-    differentiable); with ``drift`` (torque, viscous) the inertial momentum is a state too."""
+    differentiable); with ``drift`` the inertial momentum is a state too, a planar Coulomb torque's sign
+    flipped at the zero crossings of the base rate (events, each restarting the interval's integration)."""
     from scipy.integrate import solve_ivp
 
     from spaceid.motion import hermite_motion
@@ -89,18 +95,34 @@ def _reference_error(param, pi, log, momentum, predicted, drift=None):
     tau = np.zeros(3) if not drift else np.asarray(drift.get("torque", np.zeros(3)), float) * np.ones(3)
     if param.model.planar:
         tau[:2] = 0.0  # a number about z
-    c = drift.get("viscous", 0.0) if drift else 0.0
+    c, mu = (drift.get(k, 0.0) if drift else 0.0 for k in ("viscous", "coulomb"))
 
-    def rhs(t, y):
+    def rate(t, y):
         q, qd = motion(np.array([t]))
         rot = quat_to_matrix(y[:4] / np.linalg.norm(y[:4]))
-        w = base_rate(param, pi, q, qd, (rot.T @ y[4:])[None])[0]
-        x, v = y[0], y[1:4]
-        return np.r_[0.5 * np.r_[-v @ w, x * w + np.cross(v, w)], tau - c * rot @ w]
+        return rot, base_rate(param, pi, q, qd, (rot.T @ y[4:])[None])[0]
 
+    def rhs(t, y, s):
+        rot, w = rate(t, y)
+        wi, x, v = rot @ w, y[0], y[1:4]
+        friction = mu * (np.array([0.0, 0.0, s]) if param.model.planar else wi / np.linalg.norm(wi))
+        return np.r_[0.5 * np.r_[-v @ w, x * w + np.cross(v, w)], tau - c * wi - friction]
+
+    def crossing(t, y, s):  # the planar base rate's zero, where a Coulomb torque turns
+        return s * rate(t, y)[1][2]
+
+    crossing.terminal, crossing.direction = True, -1
     ref = [np.r_[log.base_quat[0], momentum]]  # interval by interval: the Hermite motion is smooth between samples only
+    s = np.sign(rate(log.t[0], ref[0])[1][2])
     for t0, t1 in zip(log.t[:-1], log.t[1:]):
-        y = solve_ivp(rhs, (t0, t1), ref[-1], method="DOP853", rtol=1e-13, atol=1e-15).y[:, -1]
+        y = ref[-1]
+        while True:
+            sol = solve_ivp(rhs, (t0, t1), y, method="DOP853", rtol=1e-13, atol=1e-15, args=(s,),
+                            events=crossing if mu and param.model.planar else None)
+            y = sol.y[:, -1]
+            if sol.status != 1:
+                break
+            t0, y, s = sol.t_events[0][0], sol.y_events[0][0], -s
         ref.append(np.r_[y[:4] / np.linalg.norm(y[:4]), y[4:]])
     ref = np.array(ref)
     return float(attitude_error_angle(ref[:, :4], predicted.base_quat).max())
@@ -118,7 +140,7 @@ def run(name, args, folder):
     result, out = folder / f"{name}.json", folder / f"{name}-validation"
     noise_options = ["--noise-angle", f"{noise:g}", "--noise-rate", f"{noise:g}"]
     identify = ["identify", name, str(fit), "--momentum", momentum_text, *noise_options, "-o", str(result),
-                *(["--drift", "torque,viscous"] if drift else [])]
+                *(["--drift", ",".join(drift)] if drift else [])]
     validate = ["validate", str(result), str(held), "--momentum", momentum_text, "--out", str(out), "--overwrite"]
     times = {"identify": [], "validate": []}
     for _ in range(args.repeats):
@@ -152,8 +174,9 @@ def main():
     parser.add_argument("--trajectory", help="A 'spaceid design' output to fly instead of the random motions (both "
                         "logs then differ by their noise only; servicer-dual needs one: a random motion leaves "
                         "parameters unexcited)")
-    parser.add_argument("--drift", action="store_true", help="logs that drift under a torque and viscous friction, "
-                        "identified and re-simulated with them")
+    parser.add_argument("--drift", nargs="?", const="torque,viscous", choices=["torque,viscous", "coulomb"],
+                        help="logs that drift under a torque and viscous friction (or Coulomb friction: "
+                        "--drift coulomb), identified and re-simulated with them")
     args = parser.parse_args()
     print(f"spaceid from {Path(spaceid.__file__).parent}; {os.cpu_count()} cores; medians of {args.repeats} CLI runs [s]")
     print(f"{'preset':15s} {'N':>6s} {'identify':>9s} {'validate':>9s} {'ratio':>6s} {'validate()':>10s} "

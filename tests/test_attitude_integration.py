@@ -79,7 +79,7 @@ def test_steps_halved_until_two_solutions_agree(monkeypatch, tmp_path):
     param = minimal_parameters(model)
     steps = []
     original = _simulate.collocation_steps
-    monkeypatch.setattr(_simulate, "collocation_steps", lambda *a: steps.append(len(a[5])) or original(*a))
+    monkeypatch.setattr(_simulate, "collocation_steps", lambda *a: steps.append(len(a[6])) or original(*a))
     motion, times, momentum = _motion(model, 5, 20.0), np.linspace(0.0, 20.0, 6), np.array([0.3, -0.2, 0.5])
     log = simulate(param, param.true_values, motion, times, momentum)
     assert len(steps) >= 3 and steps == [5 * 2**i for i in range(len(steps))]
@@ -98,7 +98,7 @@ def test_unit_quaternion_kept_by_the_collocation():
     offset = rng.uniform(-1, 1, (n, 4, 3))
     out = np.empty((n + 1, 7))
     start = np.array([1.0, 0, 0, 0, 3.0, -1.0, 2.0])  # the attitude, then the momentum: constant without drift
-    assert _attitude.collocation_steps(start, inverse, offset, np.zeros(3), 0.0, np.full(n, 0.05), a, b, out) == -1
+    assert _attitude.collocation_steps(start, inverse, offset, np.zeros(3), 0.0, 0.0, np.full(n, 0.05), a, b, out) == -1
     assert np.abs(np.linalg.norm(out[:, :4], axis=1) - 1).max() < 1e-13 and (out[:, 4:] == start[4:]).all()
 
 

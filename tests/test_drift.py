@@ -87,7 +87,7 @@ def test_drifting_simulation_in_blocks_of_samples(cepheus, drift, monkeypatch):
     from spaceid.motion import _simulate
 
     whole = simulate(cepheus, cepheus.true_values, motion, TIMES[::8], H, drift=drift)
-    monkeypatch.setattr(_simulate, "SPLINE_SAMPLES", 16)
+    monkeypatch.setattr(_simulate, "BLOCK_SAMPLES", 16)
     blocks = simulate(cepheus, cepheus.true_values, motion, TIMES[::8], H, drift=drift)
     np.testing.assert_allclose(blocks.base_w, whole.base_w, rtol=0, atol=1e-10 * np.abs(whole.base_w).max())
     np.testing.assert_allclose(blocks.base_yaw, whole.base_yaw, rtol=0, atol=1e-10)
@@ -164,13 +164,13 @@ def test_coulomb_stiction_is_an_error(cepheus):
 
 @robots(4)
 @given(seed=st.integers(0, 2**31 - 1), planar=st.booleans(), viscous=st.sampled_from([1e-4, 0.5, -0.05]),
-       torque=st.floats(-0.01, 0.01))
-def test_smooth_drift_against_an_ode_solver_on_random_robots(seed, planar, viscous, torque, tmp_path):
+       torque=st.floats(-0.01, 0.01), coulomb=st.sampled_from([0.0, 0.003]))
+def test_smooth_drift_against_an_ode_solver_on_random_robots(seed, planar, viscous, torque, coulomb, tmp_path):
     """The base motion of a random robot under a torque and viscous friction (weak; strong, the momentum changing
-    many-fold over the motion; negative, as an estimate may be), on a motion nobody designed, against DOP853 on the
-    same equations with the base rate solved from the momentum at every evaluation (no interpolated joint motion, no
-    quadrature, no collocation): planar, the momentum's linear equation as a quadrature; spatial, the attitude's
-    collocation carrying the momentum."""
+    many-fold over the motion; negative, as an estimate may be), spatial with Coulomb friction too (smooth while the
+    base turns), on a motion nobody designed, against DOP853 on the same equations with the base rate solved from
+    the momentum at every evaluation (no interpolated joint motion, no quadrature, no collocation): planar, the
+    momentum's linear equation as a quadrature; spatial, the attitude's collocation carrying the momentum."""
     from scipy.integrate import solve_ivp
 
     from spaceid.data import quat_to_matrix
@@ -186,9 +186,10 @@ def test_smooth_drift_against_an_ode_solver_on_random_robots(seed, planar, visco
     tau = np.array([0.0, 0.0, torque]) if planar else torque * rng.standard_normal(3)
     quat0 = np.array([1.0, 0.0, 0.0, 0.0]) if planar else rng.standard_normal(4) / 2
     quat0 /= np.linalg.norm(quat0)
-    with stage("simulate smooth drift", seed=seed, planar=planar, viscous=viscous, torque=torque):
+    coulomb = 0.0 if planar else coulomb  # (planar: sign changes, test_coulomb_friction_against_an_ode_solver)
+    with stage("simulate smooth drift", seed=seed, planar=planar, viscous=viscous, torque=torque, coulomb=coulomb):
         log = simulate(param, pi, trajectory, times, h0, initial_quat=quat0,
-                       drift={"torque": tau[2] if planar else tau, "viscous": viscous})
+                       drift={"torque": tau[2] if planar else tau, "viscous": viscous, "coulomb": coulomb})
 
         def rate(t, y):  # the base rate in base axes, from the state [quat, inertial momentum]
             q, qd, _ = trajectory.evaluate(np.atleast_1d(t))
@@ -201,7 +202,8 @@ def test_smooth_drift_against_an_ode_solver_on_random_robots(seed, planar, visco
                 w[:2] = 0.0
             p = y[:4]
             turn = 0.5 * np.array([-p[1:] @ w, *(p[0] * w + np.cross(p[1:], w))])
-            return np.concatenate([turn, tau - viscous * rot @ w])
+            wi = rot @ w
+            return np.concatenate([turn, tau - viscous * wi - coulomb * wi / np.linalg.norm(wi)])
 
         ref = solve_ivp(rhs, (0.0, 10.0), np.r_[quat0, h0], method="DOP853", t_eval=times, rtol=1e-12, atol=1e-13)
         w = np.array([rate(t, y)[1] for t, y in zip(times, ref.y.T)])

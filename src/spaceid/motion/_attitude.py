@@ -1,6 +1,6 @@
 """The base attitude of a spatial free-floating system under a prescribed joint motion, by
 Gauss-Legendre collocation on the unit quaternions (docs/theory/momentum.md), and with it the
-momentum under a constant external torque and viscous friction.
+momentum under a constant external torque, viscous and Coulomb friction.
 
 With constant momentum the base rate is ``w0 = A(t)^-1 (R0^T h - b(t))``: the locked inertia
 ``A`` and the joints' own momentum ``b`` follow from the joint motion alone, so they are
@@ -8,9 +8,10 @@ evaluated beforehand, vectorised, at every stage time of every step; what is lef
 step by step is a smooth, non-stiff ODE of the attitude, ``dq/dt = q (x) [0, w0] / 2``, which
 this module's kernel does with the s-stage Gauss-Legendre method (order 2 s). Its stage
 equations are solved by fixed-point iteration, and the method keeps |q| = 1 exactly (a
-quadratic invariant of the flow) up to round-off. Under a constant external torque and viscous
-friction the inertial momentum is integrated with the attitude, its rate ``tau - c R0 w0`` at
-the same stages.
+quadratic invariant of the flow) up to round-off. Under a constant external torque, viscous and
+Coulomb friction the inertial momentum is integrated with the attitude, its rate
+``tau - c R0 w0 - mu R0 w0 / |w0|`` at the same stages (smooth wherever the base turns, which in
+space it does but for an instant).
 """
 
 from __future__ import annotations
@@ -53,10 +54,11 @@ caller then halves the steps): each gains about ``-log10(w0 dt)`` digits."""
 
 
 @kernel
-def _stage_rate(state, inv_locked, offset, torque, viscous, out):
+def _stage_rate(state, inv_locked, offset, torque, viscous, coulomb, out):
     """``out (7,)``: the rate of the state ``[quat, h]`` (scalar-first attitude, inertial momentum [N m s]):
     ``quat (x) [0, w0] / 2`` with ``w0 = inv_locked (R^T h) - offset``, ``R`` the rotation of ``quat``
-    normalised (base to inertial axes), and ``torque - viscous R w0`` (zero for a constant momentum)."""
+    normalised (base to inertial axes), and ``torque - viscous R w0 - coulomb R w0 / |w0|`` (zero for a
+    constant momentum)."""
     norm = np.sqrt(state[0] ** 2 + state[1] ** 2 + state[2] ** 2 + state[3] ** 2)
     w, x, y, z = state[0] / norm, state[1] / norm, state[2] / norm, state[3] / norm
     hx, hy, hz = state[4], state[5], state[6]
@@ -72,14 +74,19 @@ def _stage_rate(state, inv_locked, offset, torque, viscous, out):
     out[1] = 0.5 * (qw * wx + qy * wz - qz * wy)
     out[2] = 0.5 * (qw * wy - qx * wz + qz * wx)
     out[3] = 0.5 * (qw * wz + qx * wy - qy * wx)
-    # the viscous torque opposes the base rate in inertial axes, R w0
-    out[4] = torque[0] - viscous * ((1 - 2 * (y * y + z * z)) * wx + 2 * (x * y - w * z) * wy + 2 * (x * z + w * y) * wz)
-    out[5] = torque[1] - viscous * (2 * (x * y + w * z) * wx + (1 - 2 * (x * x + z * z)) * wy + 2 * (y * z - w * x) * wz)
-    out[6] = torque[2] - viscous * (2 * (x * z - w * y) * wx + 2 * (y * z + w * x) * wy + (1 - 2 * (x * x + y * y)) * wz)
+    # the friction opposes the base rate in inertial axes, R w0: viscous in proportion, Coulomb along it
+    ix = (1 - 2 * (y * y + z * z)) * wx + 2 * (x * y - w * z) * wy + 2 * (x * z + w * y) * wz
+    iy = 2 * (x * y + w * z) * wx + (1 - 2 * (x * x + z * z)) * wy + 2 * (y * z - w * x) * wz
+    iz = 2 * (x * z - w * y) * wx + 2 * (y * z + w * x) * wy + (1 - 2 * (x * x + y * y)) * wz
+    turning = np.sqrt(ix * ix + iy * iy + iz * iz)
+    along = coulomb / turning if turning > 0 else 0.0
+    out[4] = torque[0] - (viscous + along) * ix
+    out[5] = torque[1] - (viscous + along) * iy
+    out[6] = torque[2] - (viscous + along) * iz
 
 
 @kernel
-def collocation_steps(state0, inv_locked, offset, torque, viscous, widths, a, b, out):
+def collocation_steps(state0, inv_locked, offset, torque, viscous, coulomb, widths, a, b, out):
     """Gauss-Legendre collocation of the base attitude and the momentum over consecutive steps.
 
     Parameters
@@ -94,6 +101,8 @@ def collocation_steps(state0, inv_locked, offset, torque, viscous, widths, a, b,
         Constant external torque in inertial axes [N m] (zeros: with ``viscous`` 0, a constant momentum).
     viscous : float
         Viscous friction of the base [N m s/rad].
+    coulomb : float
+        Coulomb friction of the base [N m].
     widths : ndarray of shape (n_steps,)
         Step widths [s].
     a, b : ndarray
@@ -115,7 +124,7 @@ def collocation_steps(state0, inv_locked, offset, torque, viscous, widths, a, b,
     for i in range(widths.shape[0]):
         dt = widths[i]
         for j in range(s):  # start: the rate at the step's start state, at each stage time
-            _stage_rate(out[i], inv_locked[i, j], offset[i, j], torque, viscous, new)
+            _stage_rate(out[i], inv_locked[i, j], offset[i, j], torque, viscous, coulomb, new)
             for c in range(7):
                 k[j, c] = new[c]
         change, last, converged = np.inf, np.inf, False
@@ -127,7 +136,7 @@ def collocation_steps(state0, inv_locked, offset, torque, viscous, widths, a, b,
                     for m in range(s):
                         acc += a[j, m] * k[m, c]
                     stage[c] = out[i, c] + dt * acc
-                _stage_rate(stage, inv_locked[i, j], offset[i, j], torque, viscous, new)
+                _stage_rate(stage, inv_locked[i, j], offset[i, j], torque, viscous, coulomb, new)
                 for c in range(4):  # the attitude's stages; the momentum's follow them (linear in the rate)
                     change = max(change, abs(new[c] - k[j, c]) * dt)
                 for c in range(7):

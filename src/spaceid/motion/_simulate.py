@@ -9,7 +9,6 @@ identified model (only ``pi`` is needed) for prediction and validation.
 from __future__ import annotations
 
 import functools
-import gc
 import warnings
 from dataclasses import replace
 
@@ -311,8 +310,8 @@ def simulate(
     momentum = np.asarray(momentum, float)
     quat0 = np.array([1.0, 0, 0, 0]) if initial_quat is None else np.asarray(initial_quat, float)
     terms = drift_terms(drift, param.model.planar, where="`drift`", physical=False)  # estimates may be < 0
-    # before integrating: at the samples here (planar: on the denser grid too, a 1 x 1 inertia), and
-    # on each block's spline grid as it is built (the pieces are evaluated there anyway)
+    # before integrating: at the samples here (planar: on the denser grid too, a 1 x 1 inertia), and at the
+    # stage times of the spatial collocation as it goes (the pieces are evaluated there anyway)
     check = _grid(times) if param.model.planar else times
     _in_blocks(lambda t: _check_locked_inertia(param, pi, motion, t, where), check)
     if any(np.any(v) for v in terms.values()):
@@ -348,13 +347,14 @@ def simulate(
     return Log(times, names, q, qd, quat, w0, param.model.planar, meta, position)
 
 
-def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where, torque=None, viscous=0.0) -> np.ndarray:
+def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where, torque=None, viscous=0.0,
+                         coulomb=0.0) -> np.ndarray:
     """Base attitudes and inertial momenta ``(n, 7)`` at ``times`` of a spatial system whose momentum is
     ``momentum`` at ``times[0]`` and changes by a constant external ``torque`` (3, inertial axes; default
-    none) and viscous friction ``viscous`` [N m s/rad] (default 0: the momentum constant).
+    none), viscous friction ``viscous`` [N m s/rad] and Coulomb friction ``coulomb`` [N m] (default 0: the
+    momentum constant).
 
-    A block of :data:`SPLINE_SAMPLES` samples at a time, from the state the block before ended
-    with: Gauss-Legendre collocation (:func:`._attitude.collocation_steps`) with ``m`` steps
+    A block of :data:`BLOCK_SAMPLES` samples at a time (:func:`_in_sample_blocks`): Gauss-Legendre collocation (:func:`._attitude.collocation_steps`) with ``m`` steps
     between samples, ``m`` doubling from 1 until two successive solutions differ by at most
     ``rtol`` at every sample of the block (the momentum relative to its largest; the error of the
     finer, of order 8, is then about ``rtol / 256``), or by no more than round-off explains. The
@@ -362,22 +362,17 @@ def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where,
     (:func:`_refuse_indefinite`); the stage times evaluated count against :data:`MAX_EVALUATIONS`."""
     c, b, a = gauss_tableau()
     budget = [MAX_EVALUATIONS[0] + MAX_EVALUATIONS[1] * len(times)]
-    drift = (np.zeros(3) if torque is None else np.asarray(torque, float), float(viscous))
-    parts = []
+    drift = (np.zeros(3) if torque is None else np.asarray(torque, float), float(viscous), float(coulomb))
     state = np.concatenate([np.asarray(quat0, float) / np.linalg.norm(quat0), np.asarray(momentum, float)])
-    for start in range(0, max(len(times) - 1, 1), SPLINE_SAMPLES):
-        block = times[start : start + SPLINE_SAMPLES + 1]
-        part = _attitude_block(param, pi, motion, block, state, rtol, where, (c, b, a), budget, drift)
-        parts.append(part if start == 0 else part[1:])
-        state = part[-1]
-    states = np.concatenate(parts)
+    states = _in_sample_blocks(times, state, lambda state, block: _attitude_block(
+        param, pi, motion, block, state, rtol, where, (c, b, a), budget, drift))
     states[:, :4] /= np.linalg.norm(states[:, :4], axis=1, keepdims=True)
     return states
 
 
 def _attitude_block(param, pi, motion, block, state, rtol, where, tableau, budget, drift) -> np.ndarray:
     """:func:`_integrated_attitude` over the samples ``block (n,)`` from ``state`` (attitude and momentum) at
-    ``block[0]`` under ``drift`` (torque, viscous); ``budget`` (one number in a list) is what is left of the
+    ``block[0]`` under ``drift`` (torque, viscous, Coulomb); ``budget`` (one number in a list) is what is left of the
     evaluations and is spent here."""
     c, b, a = tableau
     if len(block) < 2:
@@ -441,101 +436,41 @@ BALANCE_TOLERANCE = 1e-6
 """Largest relative momentum-balance error of a drifting simulation without a warning."""
 
 
-SPLINE_SAMPLES = 4096
-"""Output samples per block of the spatial attitude integration: the stage values of a block
-(:func:`_integrated_attitude`), or with a Coulomb torque its rate splines, about 8 times as many points, so
-memory is bounded by the block whatever the log's length."""
+BLOCK_SAMPLES = 4096
+"""Output samples per block of a re-simulation (:func:`_in_sample_blocks`): the collocation's stage values of a
+block (spatial) or the quadrature's panels (planar, with drift) are held a block at a time, so memory is bounded
+by the block whatever the log's length."""
 
 
-def _in_sample_blocks(times, y0, advance, between=None) -> np.ndarray:
-    """States ``(n, len(y0))`` at ``times``, integrated a block of :data:`SPLINE_SAMPLES` samples at a
+def _in_sample_blocks(times, y0, advance) -> np.ndarray:
+    """States ``(n, len(y0))`` at ``times``, integrated a block of :data:`BLOCK_SAMPLES` samples at a
     time: ``advance(y, block)`` integrates from ``block[0]``, where the state is ``y``, and returns the
-    states at ``block``; consecutive blocks share their boundary sample. ``between()``, if given, runs
-    between blocks."""
+    states at ``block``; consecutive blocks share their boundary sample."""
     parts, y = [], np.asarray(y0, float)
-    starts = range(0, max(len(times) - 1, 1), SPLINE_SAMPLES)
-    for start in starts:
-        part = advance(y, times[start : start + SPLINE_SAMPLES + 1])
+    for start in range(0, max(len(times) - 1, 1), BLOCK_SAMPLES):
+        part = advance(y, times[start : start + BLOCK_SAMPLES + 1])
         parts.append(part if start == 0 else part[1:])
         y = part[-1]
-        if between is not None and start != starts[-1]:
-            between()
     return np.concatenate(parts)
 
 
-def _in_spline_blocks(param, pi, motion, times, y0, advance, where) -> np.ndarray:
-    """:func:`_in_sample_blocks` where ``advance(locked, offset, y, block)`` takes that block's rate splines
-    (:func:`_rate_splines`) too. Between blocks a collection frees the last block's (a forced one after the last
-    took 0.5 s in a large process): solve_ivp's solver and right-hand side form a cycle holding the splines."""
-    return _in_sample_blocks(times, y0, lambda y, block: advance(*_rate_splines(param, pi, motion, block, where), y,
-                                                                 block), between=gc.collect)
-
-
 def _grid(times):
-    """The output times and a grid 8 times denser, shape ``(m,)``: where the joint motion's
-    locked inertia is splined (spatial) and checked (:func:`_check_locked_inertia`). The dense
-    points within 1e-4 of their spacing of an output time are left out: a node a rounding error
-    from another (``k / 50`` and ``13.92 j / 7576`` differ by 1e-15 s) made a spline interval
-    whose slope was rounding, and the attitude integrated through it jumped by 4e-8 rad at that
-    sample (left out within a quarter of the spacing, the spline's wider intervals cost a
-    fourth-order attitude a factor 6 in accuracy)."""
+    """The output times and a grid 8 times denser, shape ``(m,)``: where a planar joint motion's
+    locked inertia is checked (:func:`_check_locked_inertia`). The dense points within 1e-4 of their
+    spacing of an output time are left out (a node a rounding error from another: ``k / 50`` and
+    ``13.92 j / 7576`` differ by 1e-15 s)."""
     dense = np.linspace(times[0], times[-1], 8 * len(times) + 2001)
     after = np.clip(np.searchsorted(times, dense), 1, max(len(times) - 1, 1))
     gap = np.minimum(np.abs(dense - times[after - 1]), np.abs(times[np.minimum(after, len(times) - 1)] - dense))
     return np.union1d(times, dense[gap > 1e-4 * (dense[1] - dense[0])])
 
 
-def _rate_splines(param, pi, motion, times, where):
-    """Splines of the locked inertia ``(rows, n_axes)`` and free momentum ``(rows,)`` of the joint
-    motion on :func:`_grid` (the output times among its nodes), the inertia refused where it is not
-    positive definite (:func:`_refuse_indefinite`): the base rate for a momentum ``h_base`` in base
-    axes is ``locked^-1 (h_base[rows] - offset)``."""
-    from scipy.interpolate import CubicSpline
-    grid = _grid(times)
-
-    def pieces(t):  # (n, rows, 1 + axes): the free momentum, then the locked inertia's columns
-        free, unit, _ = rate_pieces(param, *motion(t), functools.partial(param.momentum, pi=pi))
-        _refuse_indefinite(param, pi, motion, t, np.stack(unit, -1), where)
-        return np.stack([free, *unit], -1)
-
-    both = _in_blocks(pieces, grid)
-    return CubicSpline(grid, both[..., 1:]), CubicSpline(grid, both[..., 0])
-
-
 MAX_EVALUATIONS = (100_000, 200)
 """An attitude integration stops with an error after ``a + b n`` evaluations of the base rate
-for ``n`` output times: stage times of the collocation (constant momentum: 12 a sample when the
-first halving agrees, as on 900 samples of a 30 s satellite-7dof motion; with a torque and viscous
-friction too), right-hand sides of DOP853 (with a Coulomb torque: ~10 a sample even at ``rtol``
-1e-12 on a random 20 s motion of servicer-dual or satellite-7dof at 401 samples). A base rate that grows without bound (a locked inertia
-singular between the checked times) would otherwise make the steps ever smaller for hours."""
-
-
-def _solve(rhs, span, y0, t_eval, rtol, **kwargs):
-    """``solve_ivp`` (DOP853) of ``rhs`` over ``span`` at the times ``t_eval``, stopped with a
-    :class:`SpaceidError` after :data:`MAX_EVALUATIONS` or on the integrator's failure."""
-    from scipy.integrate import solve_ivp
-    calls, budget = [0], MAX_EVALUATIONS[0] + MAX_EVALUATIONS[1] * len(t_eval)
-
-    def counted(t, y, *args):
-        calls[0] += 1
-        if calls[0] > budget:
-            raise _Runaway(t)
-        return rhs(t, y, *args)
-
-    try:
-        sol = solve_ivp(counted, span, y0, method="DOP853", t_eval=t_eval, rtol=rtol, atol=1e-14, **kwargs)
-    except _Runaway as stop:
-        raise SpaceidError(f"simulation failed: the base rate is too steep to integrate near t = {stop.args[0]:.6g} s "
-                           f"({budget} evaluations): a locked inertia near singular there; check the parameters "
-                           "against a physical model, or sample the motion more finely") from None
-    if not sol.success:
-        raise SpaceidError(f"simulation failed near t = {sol.t[-1]:.6g} s: {sol.message}")
-    return sol
-
-
-class _Runaway(Exception):
-    """The integration of :func:`_solve` exceeded its evaluations (carries the time reached)."""
+for ``n`` output times, stage times of the collocation (12 a sample when the first halving agrees,
+as on 900 samples of a 30 s satellite-7dof motion, with or without drift). A base rate that grows
+without bound (a locked inertia singular between the checked times) would otherwise make the steps
+ever smaller for hours."""
 
 
 def _check_locked_inertia(param, pi, motion, t, where):
@@ -581,23 +516,6 @@ def _refuse_indefinite(param, pi, motion, t, locked, where):
         "parameters, whose base rate diverges: use a physical model or an identification that is one")
 
 
-def _coulomb_rhs(locked, offset, terms):
-    """``f(t, y)`` of the spatial state ``y = [quat, h]`` (the inertial momentum) under the external torque
-    ``terms`` with a Coulomb torque ``-mu w / |w|``, the base rate from the rate splines ``locked``, ``offset``
-    (:func:`_rate_splines`): smooth wherever the base turns, which in space it does but for an instant."""
-    tau = np.asarray(terms.get("torque", np.zeros(3)), float)
-    c, mu = terms.get("viscous", 0.0), terms.get("coulomb", 0.0)
-
-    def rhs(t, y):
-        rot = quat_to_matrix(y[:4] / np.linalg.norm(y[:4]))
-        w = np.linalg.solve(locked(t), rot.T @ y[4:] - offset(t))
-        wi = rot @ w
-        norm = np.linalg.norm(wi)
-        return np.concatenate([_quat_rate(y[:4], w), tau - c * wi - (mu * wi / norm if norm > 0 else 0.0)])
-
-    return rhs
-
-
 def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, joints, rtol, where) -> Log:
     """:func:`simulate` with the momentum a state driven by the external torque ``terms``."""
     if param.model.planar:
@@ -605,16 +523,11 @@ def _simulate_drifting(param, pi, motion, times, momentum, terms, quat0, model, 
     else:
         y0 = np.concatenate([quat0, momentum])
 
-    def advance(locked, offset, y, block):  # DOP853 on the spatial state under a Coulomb torque
-        return _solve(_coulomb_rhs(locked, offset, terms), (block[0], block[-1]), y, block, rtol).y.T
-
     if param.model.planar:  # linear in the momentum between a Coulomb torque's sign changes: a quadrature
         y = _in_sample_blocks(times, y0, lambda y, block: _planar_drift(param, pi, motion, block, y, terms, rtol))
-    elif not np.any(terms.get("coulomb", 0.0)):  # smooth: the attitude's collocation, the momentum with it
-        y = _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where,
-                                 torque=terms.get("torque"), viscous=terms.get("viscous", 0.0))
-    else:
-        y = _in_spline_blocks(param, pi, motion, times, y0, advance, where)
+    else:  # the attitude's collocation, the momentum with it
+        y = _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where, torque=terms.get("torque"),
+                                 viscous=terms.get("viscous", 0.0), coulomb=terms.get("coulomb", 0.0))
     if param.model.planar:
         quat, h = yaw_to_quat(y[:, 0]), np.outer(y[:, 1], [0.0, 0.0, 1.0])
     else:
