@@ -53,6 +53,11 @@ DRIFT = {"torque": (2e-3, -1e-3, 5e-4), "viscous": 0.02, "coulomb": 2e-4}
 of ``--drift coulomb``: Coulomb friction [N m]."""
 
 
+COULOMB_MOMENTUM = "0.001"
+"""A planar preset's momentum [N m s] under ``--drift coulomb``: small, so that the base turns back and forth
+(Cepheus: 6 and 9 sign changes of the base rate in the two logs)."""
+
+
 def _drift(model, kind) -> dict | None:
     if kind is None:
         return None
@@ -132,6 +137,8 @@ def run(name, args, folder):
     model = load_model(name)
     param = minimal_parameters(model)
     momentum_text, noise = SETTINGS[name]
+    if args.drift == "coulomb" and model.planar:
+        momentum_text = COULOMB_MOMENTUM  # the base turns back and forth: the torque changes sign
     momentum = np.array([0.0, 0.0, float(momentum_text)]) if model.planar else np.array(momentum_text.split(","), float)
     fit, held = (folder / f"{name}-{s}.csv" for s in (1, 2))
     drift = _drift(model, args.drift)

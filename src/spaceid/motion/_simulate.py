@@ -149,6 +149,9 @@ def _planar_linear_drift(param, pi, motion, times, y0, tau, c, rtol) -> tuple:
     raise SpaceidError("simulation failed: the base rate is too rough to integrate; sample the motion more finely")
 
 
+_AHEAD = 128
+"""Samples a segment of :func:`_planar_drift` integrates at a time: past a sign change the rest is integrated
+again with the other sign, so the work a change wastes is bounded."""
 _STICTION = "the Coulomb torque (drift coulomb) holds the base at rest (stiction), which is not modelled: use a " \
             "smaller coulomb value"
 
@@ -156,10 +159,11 @@ _STICTION = "the Coulomb torque (drift coulomb) holds the base at rest (stiction
 def _planar_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
     """States ``[yaw, h_z]`` ``(n, 2)`` at ``times`` (a block of :func:`_in_sample_blocks`) from ``y0``: the
     quadrature of :func:`_planar_linear_drift`, under a Coulomb torque ``-mu sign(w)`` segment by segment, the
-    torque constant between the zero crossings of the yaw rate ``w``. A crossing shows as a sign change of the
-    rate at the samples or the panels' nodes; Brent's method locates it to round-off (the state at each trial
-    time integrated from the sample before), and the next segment starts from there with the other sign; a
-    torque that would hold the base at rest there is an error (stiction is not modelled)."""
+    torque constant between the zero crossings of the yaw rate ``w``, :data:`_AHEAD` samples at a time. A
+    crossing shows as a sign change of the rate at the samples or the panels' nodes; Brent's method locates it
+    to round-off (the state at each trial time integrated from the sample before), and the next segment starts
+    from there with the other sign; a torque that would hold the base at rest there is an error (stiction is
+    not modelled)."""
     from scipy.optimize import brentq
 
     tau = float(np.asarray(terms.get("torque", np.zeros(3)), float)[2])
@@ -181,15 +185,18 @@ def _planar_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
     while True:
         if not s:
             raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {_STICTION}")
-        grid = np.concatenate([[t0], times[times > t0]])
+        grid = np.concatenate([[t0], times[times > t0][:_AHEAD]])
         states, node_t, node_w = _planar_linear_drift(param, pi, motion, grid, y, tau - mu * s, c, rtol)
         probe_t = np.append(np.column_stack([grid[:-1], node_t]).ravel(), grid[-1])  # samples and nodes in order
         probe_w = np.append(np.column_stack([rate(grid[:-1], states[:-1, 1]), node_w]).ravel(), rate(grid[-1],
                                                                                                   states[-1, 1]))
         past = np.flatnonzero(s * probe_w[1:] <= 0)
-        if not len(past):
+        if not len(past):  # on to the next samples, or done
             out.append(states if not out else states[1:])
-            return np.concatenate(out)
+            if grid[-1] == times[-1]:
+                return np.concatenate(out)
+            t0, y = grid[-1], states[-1]
+            continue
         left, right = probe_t[past[0]], probe_t[past[0] + 1]  # the rate of sign s at left, past zero at right
         k = np.searchsorted(grid, left, "right") - 1  # the sample interval holding both
 
@@ -207,7 +214,7 @@ def _planar_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
         y, s = state(t0), -s
         if not leaves(t0, y[1], s):
             raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {_STICTION}")
-        if len(out) > 10 * len(times) + 1000:
+        if len(out) > 10 * len(times) + 1000:  # (windows and sign changes)
             raise SpaceidError("simulation failed: the base rate changes sign too often for the Coulomb torque")
 
 
