@@ -93,6 +93,15 @@ def test_drifting_simulation_in_blocks_of_samples(cepheus, drift, monkeypatch):
     np.testing.assert_allclose(blocks.base_yaw, whole.base_yaw, rtol=0, atol=1e-10)
 
 
+def _random_flight(seed, planar, folder, smallest=-1.3):
+    """A random robot of at most two arms of two joints (in ``folder``), its minimal set, the seeded generator and
+    a random 10 s motion of three harmonics, amplitudes 10^(``smallest`` .. -0.3) rad."""
+    model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(folder)
+    param, rng = minimal_parameters(model), np.random.default_rng(seed)
+    a, b = 10 ** rng.uniform(smallest, -0.3) * rng.standard_normal((2, model.n_joints, 3))
+    return model, param, rng, FourierTrajectory(model.joints, 10.0, a, b)
+
+
 @robots(4)
 @given(seed=st.integers(0, 2**31 - 1), coulomb=st.floats(1e-4, 0.02), viscous=st.sampled_from([0.0, 0.01]))
 def test_coulomb_friction_against_an_ode_solver_on_random_robots(seed, coulomb, viscous, tmp_path):
@@ -104,12 +113,8 @@ def test_coulomb_friction_against_an_ode_solver_on_random_robots(seed, coulomb, 
     rest, differenced), is within mu."""
     from scipy.integrate import solve_ivp
 
-    model = random_robot(seed, planar=True, max_arms=2, max_joints=2).load(tmp_path)
-    param, rng = minimal_parameters(model), np.random.default_rng(seed)
-    pi = param.true_values
-    a, b = 10 ** rng.uniform(-1, -0.3) * rng.standard_normal((2, model.n_joints, 3))
-    trajectory = FourierTrajectory(model.joints, 10.0, a, b)
-    times = sample_times(10.0, 201)
+    model, param, rng, trajectory = _random_flight(seed, True, tmp_path, smallest=-1.0)
+    pi, times = param.true_values, sample_times(10.0, 201)
     h0 = np.array([0.0, 0.0, rng.uniform(-0.02, 0.02)])  # small: the arms turn the base back
     drift = {"coulomb": coulomb, "viscous": viscous}
 
@@ -176,12 +181,8 @@ def test_smooth_drift_against_an_ode_solver_on_random_robots(seed, planar, visco
     from spaceid.data import quat_to_matrix
     from spaceid.studies import attitude_error_angle
 
-    model = random_robot(seed, planar=planar, max_arms=2, max_joints=2).load(tmp_path)
-    param, rng = minimal_parameters(model), np.random.default_rng(seed)
-    pi = param.true_values
-    a, b = 10 ** rng.uniform(-1.3, -0.3) * rng.standard_normal((2, model.n_joints, 3))
-    trajectory = FourierTrajectory(model.joints, 10.0, a, b)
-    times = sample_times(10.0, 101)
+    model, param, rng, trajectory = _random_flight(seed, planar, tmp_path)
+    pi, times = param.true_values, sample_times(10.0, 101)
     h0 = np.array([0.0, 0.0, rng.uniform(-0.5, 0.5)]) if planar else rng.uniform(-0.5, 0.5, 3)
     tau = np.array([0.0, 0.0, torque]) if planar else torque * rng.standard_normal(3)
     quat0 = np.array([1.0, 0.0, 0.0, 0.0]) if planar else rng.standard_normal(4) / 2
