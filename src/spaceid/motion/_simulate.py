@@ -276,8 +276,7 @@ def simulate(
         (order 8), both with their steps halved until two successive results agree to ``rtol``
         at every sample; with ``drift``, planar: the same quadrature of the momentum's linear
         equation (:func:`_planar_drift`; under a Coulomb torque segment by segment between its sign
-        changes), spatial: the same collocation carrying the momentum, or with a Coulomb torque DOP853
-        on the attitude and the momentum.
+        changes), spatial: the same collocation carrying the momentum.
     drift : dict, optional
         External torques on the base, ``{"torque": tau, "viscous": c, "coulomb": mu}`` (any
         subset; ``tau`` [N m] 3 inertial components or, planar, a number about z; ``c`` [N m
@@ -361,8 +360,8 @@ def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where,
     none), viscous friction ``viscous`` [N m s/rad] and Coulomb friction ``coulomb`` [N m] (default 0: the
     momentum constant).
 
-    A block of :data:`BLOCK_SAMPLES` samples at a time (:func:`_in_sample_blocks`): Gauss-Legendre collocation (:func:`._attitude.collocation_steps`) with ``m`` steps
-    between samples, ``m`` doubling from 1 until two successive solutions differ by at most
+    A block of :data:`BLOCK_SAMPLES` samples at a time (:func:`_in_sample_blocks`): Gauss-Legendre
+    collocation (:func:`._attitude.collocation_steps`) with ``m`` steps between samples, ``m`` doubling from 1 until two successive solutions differ by at most
     ``rtol`` at every sample of the block (the momentum relative to its largest; the error of the
     finer, of order 8, is then about ``rtol / 256``), or by no more than round-off explains. The
     locked inertia is refused where it is not positive definite at a stage time
@@ -379,8 +378,8 @@ def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where,
 
 def _attitude_block(param, pi, motion, block, state, rtol, where, tableau, budget, drift) -> np.ndarray:
     """:func:`_integrated_attitude` over the samples ``block (n,)`` from ``state`` (attitude and momentum) at
-    ``block[0]`` under ``drift`` (torque, viscous, Coulomb); ``budget`` (one number in a list) is what is left of the
-    evaluations and is spent here."""
+    ``block[0]`` under ``drift`` (torque, viscous, Coulomb); ``budget`` (one number in a list) is what is left
+    of the evaluations and is spent here."""
     c, b, a = tableau
     if len(block) < 2:
         return state[None]

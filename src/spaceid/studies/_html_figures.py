@@ -253,8 +253,9 @@ def montecarlo_figures(result) -> list:
                                    "thickness": 1}})  # fmt: skip
     top = max(np.nanmax(np.asarray(result.stats[e]["rmse_crb"], float)) for e in result.estimators)
     efficient = {"type": "line", "y0": 1, "y1": 1, "line": {"color": MEASURED, "width": 1}}
-    bars = _column([(traces, [efficient], {"title": {"text": "RMSE / CRB [-]"}, "type": "log" if top > 10 else "linear"})],
-                   xaxis, "Efficiency: RMSE over the runs / Cramer-Rao std of each parameter", 460)
+    yaxis = {"title": {"text": "RMSE / CRB [-]"}, "type": "log" if top > 10 else "linear"}
+    bars = _column([(traces, [efficient], yaxis)], xaxis, "Efficiency: RMSE over the runs / Cramer-Rao std of each "
+                   "parameter", 460)
     bars["layout"] |= {"barmode": "group", "annotations": [
         {"text": "RMSE = CRB (efficient)", "showarrow": False, "x": 0, "xanchor": "left", "xref": "x domain", "y": 1,
          "yanchor": "bottom", "yref": "y"}]}  # fmt: skip
