@@ -102,6 +102,7 @@ def _random_flight(seed, planar, folder, smallest=-1.3):
     return model, param, rng, FourierTrajectory(model.joints, 10.0, a, b)
 
 
+@pytest.mark.slow  # 4 to 8 s: its reference restarts DOP853 at every sign change
 @robots(4)
 @given(seed=st.integers(0, 2**31 - 1), coulomb=st.floats(1e-4, 0.02), viscous=st.sampled_from([0.0, 0.01]))
 def test_coulomb_friction_against_an_ode_solver_on_random_robots(seed, coulomb, viscous, tmp_path):
