@@ -188,8 +188,8 @@ def _planar_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
         grid = np.concatenate([[t0], times[times > t0][:_AHEAD]])
         states, node_t, node_w = _planar_linear_drift(param, pi, motion, grid, y, tau - mu * s, c, rtol)
         probe_t = np.append(np.column_stack([grid[:-1], node_t]).ravel(), grid[-1])  # samples and nodes in order
-        probe_w = np.append(np.column_stack([rate(grid[:-1], states[:-1, 1]), node_w]).ravel(), rate(grid[-1],
-                                                                                                  states[-1, 1]))
+        at_samples = rate(grid, states[:, 1])  # one evaluation of the joint motion at every sample
+        probe_w = np.append(np.column_stack([at_samples[:-1], node_w]).ravel(), at_samples[-1])
         past = np.flatnonzero(s * probe_w[1:] <= 0)
         if not len(past):  # on to the next samples, or done
             out.append(states if not out else states[1:])
