@@ -48,7 +48,7 @@ from ._definitions import column_definitions, planar_definitions
 from ._kernels import _columns_of_states, _contracted_rows, _momentum_of_states, _tangent_columns
 from ._kinematics import FrameTable, _flatten_states, _Geometry, _joint_arrays, body_states, frame_table
 from ..models import INERTIAL_NAMES, Model
-from ..models.internal import symbol_suffix
+from ..models.internal import symbol_suffix, zero_rotations
 
 __all__ = [
     "Parameterization",
@@ -561,10 +561,9 @@ def _planar_turns(model: Model, terms) -> _PlanarTurns | None:
     by more than round-off (planar mode allows 1e-9: the general kinematics then decide)."""
     if not model.planar or any(b.joint_type != "revolute" for b in model.bodies[1:]):
         return None
-    rot, turns = [np.eye(3)], np.zeros((len(model.bodies), len(model.bodies) - 1))
+    rot, turns = zero_rotations(model), np.zeros((len(model.bodies), len(model.bodies) - 1))
     for j, b in enumerate(model.bodies[1:]):
-        rot.append(rot[b.parent] @ b.rotation)
-        axis = rot[-1] @ b.axis
+        axis = rot[j + 1] @ b.axis
         if np.abs(axis[:2]).max() > 1e-12:
             return None
         turns[j + 1] = turns[b.parent]

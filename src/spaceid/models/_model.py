@@ -188,14 +188,19 @@ class Model:
 
 
 def _axes_in_base(model: Model) -> list:
-    """Joint axes of the bodies after the base, in base axes at the zero configuration, each
-    (3,); one pass down the tree (parents come first)."""
+    """Joint axes of the bodies after the base, in base axes at the zero configuration, each (3,)."""
+    # Every rotation on the path is about an axis parallel to z in planar mode, so the
+    # zero configuration is representative; ``as_planar`` checks exactly this.
+    return [r @ b.axis for r, b in zip(zero_rotations(model)[1:], model.bodies[1:])]
+
+
+def zero_rotations(model: Model) -> list:
+    """Orientation of every body's frame in base axes at the zero configuration, each (3, 3), the base's the
+    identity; one pass down the tree (parents come first)."""
     rot = [np.eye(3)]
     for b in model.bodies[1:]:
         rot.append(rot[b.parent] @ b.rotation)
-    # Every rotation on the path is about an axis parallel to z in planar mode, so the
-    # zero configuration is representative; ``as_planar`` checks exactly this.
-    return [r @ b.axis for r, b in zip(rot[1:], model.bodies[1:])]
+    return rot
 
 
 def symbol_suffix(name: str) -> str:

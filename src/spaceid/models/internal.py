@@ -10,6 +10,8 @@ a name below is a change to an interface between subpackages, to be made with it
     A body's inertia about its origin as a 3x3 matrix from its ten standard parameters.
 ``symbol_suffix``
     A body or joint name as the suffix of a parameter or symbol name.
+``zero_rotations``
+    The orientation of every body's frame in base axes at the zero configuration.
 ``add_to_body``
     A model with inertial parameters added to one body, unchecked (a trial or zero payload too).
 ``pseudo_inertia``, ``inertial_from_pseudo``, ``reference_pseudo``
@@ -25,10 +27,10 @@ a name below is a change to an interface between subpackages, to be made with it
     solver's tolerances, and a program solved at them.
 """
 
-from ._model import add_to_body, inertia_matrix, symbol_suffix
+from ._model import add_to_body, inertia_matrix, symbol_suffix, zero_rotations
 from ._pseudo import (CLARABEL_TOLERANCES, MARGIN, SPREAD, inertial_from_pseudo, pseudo_inertia, pseudo_whitening,
                       reference_pseudo, solved_tightly, theta_slots, whitened_physical, with_theta)
 
-__all__ = ["inertia_matrix", "symbol_suffix", "add_to_body", "pseudo_inertia", "inertial_from_pseudo",
+__all__ = ["inertia_matrix", "symbol_suffix", "zero_rotations", "add_to_body", "pseudo_inertia", "inertial_from_pseudo",
            "reference_pseudo", "theta_slots", "with_theta", "pseudo_whitening", "whitened_physical", "MARGIN",
            "SPREAD", "CLARABEL_TOLERANCES", "solved_tightly"]
