@@ -196,6 +196,7 @@ def test_infeasible_pi_is_one_line_naming_it(cepheus, monkeypatch):
     assert regions == [(None, True), (0.95, False), (0.999, False)]
 
 
+@pytest.mark.slow  # 3 to 4 s; fast representative of the search: test_infeasible_pi_is_one_line_naming_it
 def test_a_search_stalled_from_the_prior_is_run_again_in_stages(tmp_path):
     """Random planar robot 3 released at rest, identified from its noise-free log (9 parameters): from a prior 20 % /
     1 cm off, the steps stalled at a violation of 0.0042 (no step lowered it) and the export was refused though the

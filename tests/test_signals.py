@@ -317,6 +317,7 @@ def tumble_rate():
     return differentiate_quaternion(t, measured)
 
 
+@pytest.mark.slow  # a second 1.3 s window choice; fast representative: the star tracker tests below
 def test_quaternion_rate_does_not_depend_on_the_inertial_frame():
     """The four components take one window and order, so a constant change of inertial frame (``q_c (x) q``)
     leaves the body rate as it was, to round-off (one window per component moved it by 7e-3 rad/s here)."""
