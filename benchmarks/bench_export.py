@@ -1,0 +1,122 @@
+"""Where an export's time goes: cvxpy's compilation of each convex program against Clarabel's solve (issue 29,
+item 3: the spatial presets' export refusals are over 2 s).
+
+For each preset: a random smooth joint motion (three harmonics, seed 1) of ``--duration`` seconds simulated at
+``--samples`` samples with 1e-4 rad and rad/s of noise on the joints (seed 1), identified with ``ml``, then
+exported from the preset itself as the prior (as ``bench_cli.py``'s ``export`` line does) ``--repeats`` times in
+this process, after one run that imports and warms everything. Per run: the wall time of ``export_model``, the
+programs solved, the time inside ``cvxpy.Problem.get_problem_data`` (cvxpy's compilation of a program to the
+solver's data, which every solve repeats: the programs are built anew at each step) and inside Clarabel's
+``solve_via_data`` (the solver itself); the medians, and whether the export was refused.
+
+    python benchmarks/bench_export.py [--presets satellite-7dof servicer-dual] [--samples 500] [--duration 30]
+                                      [--repeats 5]
+"""
+
+import argparse
+import statistics
+import time
+import warnings
+
+import numpy as np
+
+from spaceid import SpaceidError
+from spaceid.dynamics import minimal_parameters
+from spaceid.estimation import Noise, identify
+from spaceid.identified import export_model
+from spaceid.models import load_model
+from spaceid.motion import FourierTrajectory, add_noise, sample_times, simulate
+
+MOMENTUM = {"cepheus": (0.0, 0.0, 0.4934), "satellite-7dof": (0.1, -0.2, 0.3), "servicer-dual": (0.1, -0.2, 0.3)}
+NOISE = 1e-4
+
+
+class Timers:
+    """Time spent in cvxpy's compilation and in Clarabel's solve, with the calls counted, while installed."""
+
+    def __init__(self):
+        import cvxpy as cp
+        from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
+
+        self.compile = self.solve = 0.0
+        self.programs = 0
+        self._patched = [(cp.Problem, "get_problem_data"), (CLARABEL, "solve_via_data")]
+        self._originals = [getattr(owner, name) for owner, name in self._patched]
+
+    def __enter__(self):
+        (problem, compile_name), (solver, solve_name) = self._patched
+        compile_data, solve = self._originals
+
+        def timed_compile(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return compile_data(*args, **kwargs)
+            finally:
+                self.compile += time.perf_counter() - start
+                self.programs += 1
+
+        def timed_solve(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return solve(*args, **kwargs)
+            finally:
+                self.solve += time.perf_counter() - start
+
+        setattr(problem, compile_name, timed_compile)
+        setattr(solver, solve_name, timed_solve)
+        return self
+
+    def __exit__(self, *exc):
+        for (owner, name), original in zip(self._patched, self._originals):
+            setattr(owner, name, original)
+
+
+def estimate(preset: str, samples: int, duration: float):
+    """The preset's model and the ``ml`` identification of a noisy log of a random smooth motion."""
+    model = load_model(preset)
+    param = minimal_parameters(model)
+    rng = np.random.default_rng(1)
+    a, b = 0.2 * rng.standard_normal((2, model.n_joints, 3))
+    motion = FourierTrajectory(model.joints, duration, a, b, meta={"source": "random:1"})
+    h = np.array(MOMENTUM[preset])
+    log = simulate(param, param.true_values, motion, sample_times(duration, samples), h, model=model)
+    noise = Noise(angle=NOISE, rate=NOISE)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return model, identify(param, add_noise(log, angle=NOISE, rate=NOISE, seed=1), h, noise=noise)
+
+
+def export_once(result, prior) -> tuple:
+    """``(wall, compile, solve, programs, outcome)`` of one ``export_model``."""
+    with Timers() as timers, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        start = time.perf_counter()
+        try:
+            export = export_model(result, prior)
+            outcome = "exact" if export.region is None else f"region {export.region:g}"
+        except SpaceidError:
+            outcome = "refused"
+        wall = time.perf_counter() - start
+    return wall, timers.compile, timers.solve, timers.programs, outcome
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--presets", nargs="+", default=["satellite-7dof", "servicer-dual"], choices=list(MOMENTUM))
+    parser.add_argument("--samples", type=int, default=500)
+    parser.add_argument("--duration", type=float, default=30.0)
+    parser.add_argument("--repeats", type=int, default=5)
+    args = parser.parse_args()
+    print("| Preset | outcome | programs | export [s] | cvxpy compile [s] | Clarabel solve [s] | compile / solve |")
+    print("| --- | --- | --- | --- | --- | --- | --- |")
+    for preset in args.presets:
+        model, result = estimate(preset, args.samples, args.duration)
+        export_once(result, model)  # imports, kernels, caches
+        runs = [export_once(result, model) for _ in range(args.repeats)]
+        wall, compile_s, solve_s = (statistics.median(r[i] for r in runs) for i in range(3))
+        print(f"| {preset} | {runs[-1][4]} | {runs[-1][3]} | {wall:.3f} | {compile_s:.3f} | {solve_s:.3f} | "
+              f"{compile_s / solve_s:.2f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
