@@ -49,6 +49,25 @@ def test_nothing_links_outside_the_repository():
     assert not hits, f"files that point outside the repository: {hits}"
 
 
+def test_no_text_holds_a_control_character():
+    """No tracked text file holds a control character but the newline: a LaTeX command written in a Python string
+    whose backslash began an escape (``\\times`` as a tab and "imes", ``\\frac`` as a form feed or tab and "rac") rendered
+    as garbage in the built documentation."""
+    tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
+    if not tracked:
+        pytest.skip("not a git checkout")
+    control = re.compile(r"[\x00-\x09\x0b-\x1f\x7f]")
+    hits = []
+    for name in tracked:
+        path = ROOT / name
+        if path.suffix not in {".md", ".py", ".rst", ".toml", ".yaml", ".yml", ".txt", ".urdf", ".json", ".cfg"}:
+            continue
+        for number, line in enumerate(path.read_text(errors="ignore").split("\n"), 1):  # splitlines() would split at a form feed
+            if control.search(line):
+                hits.append(f"{name}:{number}")
+    assert not hits, f"control characters (a backslash escape where a LaTeX command was meant?): {hits}"
+
+
 def test_readme_fits_on_two_screens():
     assert len(README.splitlines()) <= 110
 

@@ -51,6 +51,10 @@ accuracy. A spatial system has more minimal parameters than the standard ones sp
 estimate lies on the set they reach only to its round-off, which the Newton steps cannot reduce: 2.9e-11 and
 4.2e-12 of the largest parameter on two random trees of 120 and 171 parameters (condition numbers 3.6e6 and
 2.3e4), 1.2e-9 and 1.5e-9 in the prior's units. A noisy estimate's is the noise's, far above."""
+REACHED = 1e-6
+"""An elastic program's optimum (the violation of the linearised conditions, in the units of :data:`MET`) above
+this shows the conditions out of every physical model's reach where they were linearised, so the main program
+there is infeasible; a reachable point's is at the solver's tolerance (1e-12)."""
 SHRINK = 1e-6
 """``region``: the ellipsoid used is this much smaller (relative radius), so the exported
 parameters lie inside the stated one despite the solver's tolerance."""
@@ -438,23 +442,36 @@ class _Search:
 
     def run(self, pi, x, theta=None) -> np.ndarray:
         """The ``vec X`` that meets the conditions at ``pi``, stepping from ``x`` (linearised first at ``theta``,
-        by default ``g x``), after at most :data:`MAX_STEPS` steps; raises :class:`_Stalled`."""
+        by default ``g x``), after at most :data:`MAX_STEPS` steps; raises :class:`_Stalled`. After a restoring
+        step the elastic program is solved first, and the main one only once the conditions are within reach
+        (:data:`REACHED`): a main program out of reach is infeasible, and was half the programs of a refusal."""
         param, g, e, w, radius = self.param, self.g, self.e, self.w, self.radius
-        theta, restore, violation = g @ x if theta is None else theta, None, np.inf
+        theta, restore, violation, restoring = g @ x if theta is None else theta, None, np.inf, False
         for _ in range(MAX_STEPS):
             self.steps += 1
-            new = self.program.solve(*_conditions(param, g, theta, e, w, pi))
+            towards = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False)) if restoring else None
+            new = None
+            if towards is None or _violation(restore) <= REACHED:
+                new = self.program.solve(*_conditions(param, g, theta, e, w, pi))
             if new is None:  # linearised at theta, the conditions reach no physical model: move towards them first
                 restore = restore or _Program(g, self.z, radius, elastic=True)
-                new = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False))
-                new, violation = _damped(param, g, x, new, e, w, pi, radius, violation)
+                if not restoring:
+                    towards = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False))
+                new, violation = _damped(param, g, x, towards, e, w, pi, radius, violation)
                 if new is None:
                     raise _Stalled(x, restore)
+            restoring = new is not self.program.solution
             self.moved = np.abs(new - x).max()
             x, theta = new, g @ new
             if self.moved < STEP_TOL:
                 break
         return x
+
+
+def _violation(program: _Program) -> float:
+    """The optimum of an elastic ``program``'s last solve: the summed violation of the conditions."""
+    slack = 0.0 if program.slack is None else np.abs(program.slack.value).sum()
+    return float(slack + program.excess.value)
 
 
 def _staged(search, own, pi, start, theta) -> np.ndarray:
