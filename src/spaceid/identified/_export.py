@@ -444,15 +444,14 @@ class _Search:
         """The ``vec X`` that meets the conditions at ``pi``, stepping from ``x`` (linearised first at ``theta``,
         by default ``g x``), after at most :data:`MAX_STEPS` steps; raises :class:`_Stalled`. After a restoring
         step the elastic program is solved first, and the main one only once the conditions are within reach
-        (:data:`REACHED`): a main program out of reach is infeasible, and was half the programs of a refusal."""
+        (:data:`REACHED`): a main program out of reach is infeasible (a third of a refusal's programs were)."""
         param, g, e, w, radius = self.param, self.g, self.e, self.w, self.radius
         theta, restore, violation, restoring = g @ x if theta is None else theta, None, np.inf, False
         for _ in range(MAX_STEPS):
             self.steps += 1
             towards = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False)) if restoring else None
-            new = None
-            if towards is None or _violation(restore) <= REACHED:
-                new = self.program.solve(*_conditions(param, g, theta, e, w, pi))
+            out_of_reach = towards is not None and _violation(restore) > REACHED
+            new = None if out_of_reach else self.program.solve(*_conditions(param, g, theta, e, w, pi))
             if new is None:  # linearised at theta, the conditions reach no physical model: move towards them first
                 restore = restore or _Program(g, self.z, radius, elastic=True)
                 if not restoring:
@@ -460,7 +459,7 @@ class _Search:
                 new, violation = _damped(param, g, x, towards, e, w, pi, radius, violation)
                 if new is None:
                     raise _Stalled(x, restore)
-            restoring = new is not self.program.solution
+            restoring = new is not self.program.solution  # a restoring step's
             self.moved = np.abs(new - x).max()
             x, theta = new, g @ new
             if self.moved < STEP_TOL:
