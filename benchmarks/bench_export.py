@@ -44,27 +44,28 @@ class Timers:
         self._originals = [getattr(owner, name) for owner, name in self._patched]
 
     def __enter__(self):
+        def timed(function, add):
+            def wrapper(*args, **kwargs):
+                start = time.perf_counter()
+                try:
+                    return function(*args, **kwargs)
+                finally:
+                    add(time.perf_counter() - start)
+
+            return wrapper
+
         (problem, compile_name), (solver, solve_name) = self._patched
         compile_data, solve = self._originals
-
-        def timed_compile(*args, **kwargs):
-            start = time.perf_counter()
-            try:
-                return compile_data(*args, **kwargs)
-            finally:
-                self.compile += time.perf_counter() - start
-                self.programs += 1
-
-        def timed_solve(*args, **kwargs):
-            start = time.perf_counter()
-            try:
-                return solve(*args, **kwargs)
-            finally:
-                self.solve += time.perf_counter() - start
-
-        setattr(problem, compile_name, timed_compile)
-        setattr(solver, solve_name, timed_solve)
+        setattr(problem, compile_name, timed(compile_data, self._compiled))
+        setattr(solver, solve_name, timed(solve, self._solved))
         return self
+
+    def _compiled(self, seconds):
+        self.compile += seconds
+        self.programs += 1
+
+    def _solved(self, seconds):
+        self.solve += seconds
 
     def __exit__(self, *exc):
         for (owner, name), original in zip(self._patched, self._originals):

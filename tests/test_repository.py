@@ -33,19 +33,21 @@ def test_readme_python_example_runs(tmp_path):
     assert out.returncode == 0, out.stderr
 
 
-def test_nothing_links_outside_the_repository():
+def _tracked(suffixes=None):
+    """``(name, text)`` of every file git tracks (of ``suffixes`` only, when given; the binary logs and images never)."""
     tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
     if not tracked:
         pytest.skip("not a git checkout")
-    outside = re.compile(r"\.\./shared|shared/design|shared/seed|MATH\.md")
-    hits = []
     for name in tracked:
         path = ROOT / name
-        if path.suffix in {".png", ".bag", ".mcap", ".db3"} or not path.is_file():
-            continue
-        text = path.read_text(errors="ignore")
-        if name != "tests/test_repository.py" and outside.search(text):
-            hits.append(name)
+        if path.is_file() and path.suffix not in {".png", ".bag", ".mcap", ".db3"}:
+            if suffixes is None or path.suffix in suffixes:
+                yield name, path.read_text(errors="ignore")
+
+
+def test_nothing_links_outside_the_repository():
+    outside = re.compile(r"\.\./shared|shared/design|shared/seed|MATH\.md")
+    hits = [name for name, text in _tracked() if name != "tests/test_repository.py" and outside.search(text)]
     assert not hits, f"files that point outside the repository: {hits}"
 
 
@@ -53,18 +55,10 @@ def test_no_text_holds_a_control_character():
     """No tracked text file holds a control character but the newline: a LaTeX command written in a Python string
     whose backslash began an escape (``\\times`` as a tab and "imes", ``\\frac`` as a form feed or tab and "rac") rendered
     as garbage in the built documentation."""
-    tracked = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True).stdout.split()
-    if not tracked:
-        pytest.skip("not a git checkout")
     control = re.compile(r"[\x00-\x09\x0b-\x1f\x7f]")
-    hits = []
-    for name in tracked:
-        path = ROOT / name
-        if path.suffix not in {".md", ".py", ".rst", ".toml", ".yaml", ".yml", ".txt", ".urdf", ".json", ".cfg"}:
-            continue
-        for number, line in enumerate(path.read_text(errors="ignore").split("\n"), 1):  # splitlines() would split at a form feed
-            if control.search(line):
-                hits.append(f"{name}:{number}")
+    texts = _tracked({".md", ".py", ".rst", ".toml", ".yaml", ".yml", ".txt", ".urdf", ".json", ".cfg"})
+    hits = [f"{name}:{number}" for name, text in texts
+            for number, line in enumerate(text.split("\n"), 1) if control.search(line)]  # splitlines() splits at a form feed
     assert not hits, f"control characters (a backslash escape where a LaTeX command was meant?): {hits}"
 
 
