@@ -4,6 +4,9 @@ import numpy as np
 import pytest
 import sympy as sp
 from conftest import pinocchio_momentum, random_states, random_tree
+from hypothesis import given
+from hypothesis import strategies as st
+from robot_tally import robots
 
 import spaceid
 from spaceid._threads import one_blas_thread
@@ -293,18 +296,24 @@ def test_kinematics_equal_pinocchio(rng):
             np.testing.assert_allclose(st.velocity[n, b], pose.rotation @ twist.linear, atol=1e-13)
 
 
-def test_groups_and_threads_do_not_show(rng, monkeypatch):
+@robots(1)
+@given(seed=st.integers(0, 2**31 - 1), planar=st.booleans(),
+       shape=st.integers(1, 4).flatmap(lambda n: st.tuples(*[st.integers(0, i) for i in range(n)])))
+def test_groups_and_threads_do_not_show(seed, planar, shape, monkeypatch):
     """Samples are evaluated in groups on threads, each sample on its own by compiled kernels
-    without fastmath: small groups on two threads, one sample at a time and the default groups
-    give the same regressor, momentum and linearised regressor bit for bit, the same energy, and
-    the momentum is the regressor times pi."""
+    without fastmath: on a random planar or spatial tree (its prismatic joints drawn too), small groups on two
+    threads, one sample at a time and the default groups give the same regressor, momentum and linearised
+    regressor bit for bit, the same energy, and the momentum is the regressor times pi."""
     from spaceid.dynamics import _regressor as regressor
     from spaceid.dynamics import energy_regressor
 
-    model = random_tree(rng, [0, 1, 1], planar=False, prismatic=(3,))
+    rng = np.random.default_rng(seed)
+    prismatic = tuple(i + 1 for i in range(len(shape)) if rng.uniform() < 0.3)
+    model = random_tree(rng, list(shape), planar=planar, prismatic=prismatic)
     param = minimal_parameters(model)
     q, qd, w0 = random_states(rng, model, 29)
-    q[:, 2] = rng.uniform(-0.5, 0.5, 29)
+    for body in prismatic:  # a travel of half a metre at most
+        q[:, body - 1] = rng.uniform(-0.5, 0.5, 29)
     direction = random_states(rng, model, 29)
 
     def evaluate(*x):
@@ -313,12 +322,14 @@ def test_groups_and_threads_do_not_show(rng, monkeypatch):
 
     whole, energy = evaluate(q, qd, w0, *direction), energy_regressor(model, q, qd, w0)
     one_by_one = [np.stack(a) for a in zip(*(evaluate(*(a[n] for a in (q, qd, w0, *direction))) for n in range(29)))]
-    monkeypatch.setattr(regressor, "_GROUP", 12)  # several groups, the last one short
-    monkeypatch.setattr(regressor, "threads_for", lambda tasks: min(tasks, 2))  # three groups, two threads
-    monkeypatch.setattr(regressor, "_THREADED_WORK", 0)  # however small the work
-    for got, ref in zip([*evaluate(q, qd, w0, *direction), *one_by_one], [*whole, *whole]):
-        np.testing.assert_array_equal(got, ref)
-    np.testing.assert_allclose(energy_regressor(model, q, qd, w0), energy, rtol=0, atol=1e-14 * np.abs(energy).max())
+    with monkeypatch.context() as patch:  # undone after each example
+        patch.setattr(regressor, "_GROUP", 12)  # several groups, the last one short
+        patch.setattr(regressor, "threads_for", lambda tasks: min(tasks, 2))  # three groups, two threads
+        patch.setattr(regressor, "_THREADED_WORK", 0)  # however small the work
+        for got, ref in zip([*evaluate(q, qd, w0, *direction), *one_by_one], [*whole, *whole]):
+            np.testing.assert_array_equal(got, ref)
+        np.testing.assert_allclose(energy_regressor(model, q, qd, w0), energy, rtol=0,
+                                   atol=1e-14 * np.abs(energy).max())  # fmt: skip
     h = whole[0] @ param.true_values
     np.testing.assert_allclose(whole[1], h, rtol=0, atol=1e-14 * np.abs(h).max())
 

@@ -585,8 +585,11 @@ def _planar_functions(model: Model, terms, q, qd, w0, closed: _PlanarTurns | Non
     :func:`_planar_turns`) when given, else from the kinematics."""
     if closed is not None:
         q, qd, w0 = (np.asarray(a, float) for a in (q, qd, w0))
-        d = q @ closed.relative.T
-        wz = w0[..., 2:3] + qd @ closed.turns.T
+        # einsum's own loops, not BLAS, here and in the products with the basis's weights: a sample's sums in one
+        # order whatever the batch (a BLAS product's kernel depends on its rows: one sample alone and in a batch of
+        # 29 differed by an ulp), as the spatial kernels give
+        d = np.einsum("...j,kj->...k", q, closed.relative)
+        wz = w0[..., 2:3] + np.einsum("...j,kj->...k", qd, closed.turns)
         c, s, k = closed.trig
         return (c * np.cos(d) + s * np.sin(d) + k) * (wz[..., closed.first] + wz[..., closed.second])
     st = body_states(model, q, qd, w0)
@@ -689,7 +692,7 @@ class Parameterization:
         kind, data, weights = self._eval
         if kind == "planar":
             f = _planar_functions(self.model, data, q, qd, w0, self._closed_form)
-            return _into(out, (f @ weights)[..., None, :])
+            return _into(out, np.einsum("...m,mk->...k", f, weights)[..., None, :])  # batch-independent: see there
         if not self.model.planar:
             return _regressor(self.model, q, qd, w0, data, energy=False, out=out)  # the independent columns
         return _into(out, _regressor(self.model, q, qd, w0, data, energy=False)[..., 2:3, :])
@@ -743,7 +746,8 @@ class Parameterization:
         kind, data, weights = self._eval
         pi = np.asarray(pi, float)
         if kind == "planar":
-            return (_planar_functions(self.model, data, q, qd, w0, self._closed_form) @ (weights @ pi))[..., None]
+            f = _planar_functions(self.model, data, q, qd, w0, self._closed_form)
+            return np.einsum("...m,m->...", f, weights @ pi)[..., None]
         h = _regressor(self.model, q, qd, w0, data, energy=False, weights=pi)
         return h[..., 2:3] if self.model.planar else h
 
