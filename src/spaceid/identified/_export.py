@@ -52,9 +52,9 @@ estimate lies on the set they reach only to its round-off, which the Newton step
 4.2e-12 of the largest parameter on two random trees of 120 and 171 parameters (condition numbers 3.6e6 and
 2.3e4), 1.2e-9 and 1.5e-9 in the prior's units. A noisy estimate's is the noise's, far above."""
 REACHED = 1e-6
-"""An elastic program's optimum (the violation of the linearised conditions, in the units of :data:`MET`) above
-this shows the conditions out of every physical model's reach where they were linearised, so the main program
-there is infeasible; a reachable point's is at the solver's tolerance (1e-12)."""
+"""An elastic program's optimum (the linearised conditions' violation: the equalities' in the units of :data:`MET`,
+the ellipsoid's in its whitened radius) above this shows them out of every physical model's reach where they were
+linearised, so the main program there is infeasible; a reachable point's is at the solver's tolerance (1e-12)."""
 SHRINK = 1e-6
 """``region``: the ellipsoid used is this much smaller (relative radius), so the exported
 parameters lie inside the stated one despite the solver's tolerance."""
