@@ -183,15 +183,16 @@ RUNS = 8
 
 
 def _check_montecarlo(flown: Flown, every_run: bool | None = None):
-    """A Monte Carlo study of the robot's motion (``RUNS`` draws of 1e-4 on every signal, ML and OLS, the log's
-    sample times). Its runs are the first of a longer study of the same seed (run i's noise depends on the seed and
-    i only, bit for bit). ML's errors are within 5 of the standard errors it predicted: in ``every_run`` (default:
-    on a designed motion); else in the first, as the pipeline's noisy identification is held (on undesigned planar
-    robot 338, run 7 of 8 was 5.6 of them off along a weakly determined direction with nothing said: 1 of 59
-    undesigned robots, the xfail test below). Unless a run said that the data leave a direction undetermined (then ML's estimate
-    is pulled towards zero there, 4 times the CRB on undesigned planar robot 0), ML's RMSE of every parameter is
-    within the band that ``RUNS`` draws allow around the Cramer-Rao bound (chi-square, Bonferroni, 1e-3 in all).
-    Both figures draw, the PNG's (its ranked efficiency beyond 40 parameters) and the page's (valid for Plotly)."""
+    """A Monte Carlo study of the robot's motion (``RUNS`` draws of 1e-4 on every signal, ML and OLS, the log's sample
+    times). Its runs are the first of a longer study of the same seed (run i's noise depends on the seed and i only,
+    bit for bit). ML's errors are within 5 of the standard errors it predicted: in ``every_run`` (default: on a
+    designed motion); else in the first, as the pipeline's noisy identification is held (on undesigned planar robot
+    338, run 7 of 8 was 5.6 of them off along a weakly determined direction with nothing said: 1 of 59 undesigned
+    robots, the xfail test below). Unless a run said that the data leave a direction undetermined (then ML's
+    estimate is pulled towards zero there, 4 times the CRB on undesigned planar robot 0), ML's RMSE of every
+    parameter is within the band that ``RUNS`` draws allow around the Cramer-Rao bound (chi-square, Bonferroni, 1e-3
+    in all). Both figures draw, the PNG's (its ranked efficiency beyond 40 parameters) and the page's (valid for
+    Plotly)."""
     import plotly.graph_objects as go
 
     from spaceid.studies._html_figures import montecarlo_figures

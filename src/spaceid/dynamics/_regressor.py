@@ -692,7 +692,8 @@ class Parameterization:
         kind, data, weights = self._eval
         if kind == "planar":
             f = _planar_functions(self.model, data, q, qd, w0, self._closed_form)
-            return _into(out, np.einsum("...m,mk->...k", f, weights)[..., None, :])  # batch-independent (_planar_functions)
+            # einsum, not BLAS: batch-independent (_planar_functions)
+            return _into(out, np.einsum("...m,mk->...k", f, weights)[..., None, :])
         if not self.model.planar:
             return _regressor(self.model, q, qd, w0, data, energy=False, out=out)  # the independent columns
         return _into(out, _regressor(self.model, q, qd, w0, data, energy=False)[..., 2:3, :])
