@@ -452,14 +452,14 @@ class _Search:
             towards = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False)) if restoring else None
             out_of_reach = towards is not None and _violation(restore) > REACHED
             new = None if out_of_reach else self.program.solve(*_conditions(param, g, theta, e, w, pi))
-            if new is None:  # linearised at theta, the conditions reach no physical model: move towards them first
+            restoring = new is None
+            if restoring:  # linearised at theta, the conditions reach no physical model: move towards them first
                 restore = restore or _Program(g, self.z, radius, elastic=True)
-                if not restoring:
+                if towards is None:
                     towards = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False))
                 new, violation = _damped(param, g, x, towards, e, w, pi, radius, violation)
                 if new is None:
                     raise _Stalled(x, restore)
-            restoring = new is not self.program.solution  # a restoring step's
             self.moved = np.abs(new - x).max()
             x, theta = new, g @ new
             if self.moved < STEP_TOL:
