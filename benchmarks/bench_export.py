@@ -14,6 +14,7 @@ solver's data, which every solve repeats: the programs are built anew at each st
 """
 
 import argparse
+import contextlib
 import statistics
 import time
 import warnings
@@ -31,44 +32,34 @@ MOMENTUM = {"cepheus": (0.0, 0.0, 0.4934), "satellite-7dof": (0.1, -0.2, 0.3), "
 NOISE = 1e-4
 
 
-class Timers:
-    """Time spent in cvxpy's compilation and in Clarabel's solve, with the calls counted, while installed."""
+@contextlib.contextmanager
+def timers():
+    """While open, the seconds spent in cvxpy's compilation (``"compile"``, its calls counted in ``"programs"``) and
+    in Clarabel's solve (``"solve"``), in the dict it gives."""
+    import cvxpy as cp
+    from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
 
-    def __init__(self):
-        import cvxpy as cp
-        from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import CLARABEL
+    totals = {"compile": 0.0, "solve": 0.0, "programs": 0}
+    patched = [(cp.Problem, "get_problem_data", "compile"), (CLARABEL, "solve_via_data", "solve")]
+    originals = [getattr(owner, name) for owner, name, _ in patched]
 
-        self.compile = self.solve = 0.0
-        self.programs = 0
-        self._patched = [(cp.Problem, "get_problem_data"), (CLARABEL, "solve_via_data")]
-        self._originals = [getattr(owner, name) for owner, name in self._patched]
+    def timed(function, key):
+        def wrapper(*args, **kwargs):
+            start = time.perf_counter()
+            try:
+                return function(*args, **kwargs)
+            finally:
+                totals[key] += time.perf_counter() - start
+                totals["programs"] += key == "compile"
 
-    def __enter__(self):
-        def timed(function, add):
-            def wrapper(*args, **kwargs):
-                start = time.perf_counter()
-                try:
-                    return function(*args, **kwargs)
-                finally:
-                    add(time.perf_counter() - start)
+        return wrapper
 
-            return wrapper
-
-        (problem, compile_name), (solver, solve_name) = self._patched
-        compile_data, solve = self._originals
-        setattr(problem, compile_name, timed(compile_data, self._compiled))
-        setattr(solver, solve_name, timed(solve, self._solved))
-        return self
-
-    def _compiled(self, seconds):
-        self.compile += seconds
-        self.programs += 1
-
-    def _solved(self, seconds):
-        self.solve += seconds
-
-    def __exit__(self, *exc):
-        for (owner, name), original in zip(self._patched, self._originals):
+    try:
+        for (owner, name, key), original in zip(patched, originals):
+            setattr(owner, name, timed(original, key))
+        yield totals
+    finally:
+        for (owner, name, _), original in zip(patched, originals):
             setattr(owner, name, original)
 
 
@@ -89,7 +80,7 @@ def estimate(preset: str, samples: int, duration: float):
 
 def export_once(result, prior) -> tuple:
     """``(wall, compile, solve, programs, outcome)`` of one ``export_model``."""
-    with Timers() as timers, warnings.catch_warnings():
+    with timers() as spent, warnings.catch_warnings():
         warnings.simplefilter("ignore")
         start = time.perf_counter()
         try:
@@ -98,7 +89,7 @@ def export_once(result, prior) -> tuple:
         except SpaceidError:
             outcome = "refused"
         wall = time.perf_counter() - start
-    return wall, timers.compile, timers.solve, timers.programs, outcome
+    return wall, spent["compile"], spent["solve"], spent["programs"], outcome
 
 
 def main():

@@ -13,8 +13,8 @@ solved from the momentum at every evaluation (the old solver's route, tightened;
 ``--drift``: the logs drift under a constant torque and viscous friction of the base, identified
 with the parameters (``--drift torque,viscous``) and re-simulated with the identified terms; the
 reference then carries the momentum as a state too (planar presets included). ``--drift coulomb``:
-under Coulomb friction instead (``--drift coulomb``), whose sign the reference flips at the zero
-crossings of the base rate (planar; events of the solver).
+under Coulomb friction instead, whose sign the planar reference flips at the zero crossings of the
+base rate (the solver's events).
 
     python benchmarks/bench_validate.py [--samples 900] [--duration 30] [--repeats 3] [--presets ...]
                                         [--trajectory DESIGN.json] [--drift [coulomb]]

@@ -185,7 +185,8 @@ def _planar_drift(param, pi, motion, times, y0, terms, rtol) -> np.ndarray:
     while True:
         if not s:
             raise SpaceidError(f"simulation failed: at t = {t0:.6g} s {_STICTION}")
-        grid = np.concatenate([[t0], times[times > t0][:_AHEAD]])
+        after = np.searchsorted(times, t0, "right")
+        grid = np.concatenate([[t0], times[after : after + _AHEAD]])
         states, node_t, node_w = _planar_linear_drift(param, pi, motion, grid, y, tau - mu * s, c, rtol)
         probe_t = np.append(np.column_stack([grid[:-1], node_t]).ravel(), grid[-1])  # samples and nodes in order
         at_samples = rate(grid, states[:, 1])  # one evaluation of the joint motion at every sample
@@ -360,11 +361,11 @@ def _integrated_attitude(param, pi, motion, times, momentum, quat0, rtol, where,
     none), viscous friction ``viscous`` [N m s/rad] and Coulomb friction ``coulomb`` [N m] (default 0: the
     momentum constant).
 
-    A block of :data:`BLOCK_SAMPLES` samples at a time (:func:`_in_sample_blocks`): Gauss-Legendre
-    collocation (:func:`._attitude.collocation_steps`) with ``m`` steps between samples, ``m`` doubling from 1 until two successive solutions differ by at most
-    ``rtol`` at every sample of the block (the momentum relative to its largest; the error of the
-    finer, of order 8, is then about ``rtol / 256``), or by no more than round-off explains. The
-    locked inertia is refused where it is not positive definite at a stage time
+    A block of :data:`BLOCK_SAMPLES` samples at a time (:func:`_in_sample_blocks`): Gauss-Legendre collocation
+    (:func:`._attitude.collocation_steps`) with ``m`` steps between samples, ``m`` doubling from 1 until two
+    successive solutions differ by at most ``rtol`` at every sample of the block (the momentum relative to its
+    largest; the error of the finer, of order 8, is then about ``rtol / 256``), or by no more than round-off
+    explains. The locked inertia is refused where it is not positive definite at a stage time
     (:func:`_refuse_indefinite`); the stage times evaluated count against :data:`MAX_EVALUATIONS`."""
     c, b, a = gauss_tableau()
     budget = [MAX_EVALUATIONS[0] + MAX_EVALUATIONS[1] * len(times)]
