@@ -18,6 +18,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -29,8 +30,8 @@ from .._threads import one_blas_thread, side_by_side
 from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import _angle_context
-from ._determined import (EIV_SAID, EIV_WIDENED, UNDETERMINED, WIDENED, eiv_bias, equation_noise, noise_ratios,
-                          undetermined_directions, undetermined_warning, widened)
+from ._determined import (CORRECTED, CORRECTED_SAID, EIV_SAID, EIV_WIDENED, UNDETERMINED, WIDENED, corrected_spread,
+                          eiv_bias, equation_noise, noise_ratios, undetermined_directions, undetermined_warning, widened)
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._differentiated import weighting_sigma
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
@@ -381,6 +382,27 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
         **fit.uncertainty, "covariance": f"{fit.uncertainty['covariance']}; {HELD_WIDENED}"})
 
 
+def _spread_along_directions(fit: _Fit, weak: list, ratios, corrects: bool, nominal) -> _Fit:
+    """``fit`` with its covariance's spread along the directions of parameter space (``ratios``, :func:`~spaceid.
+    estimation._determined.noise_to_signal`'s ``(mu, T)``, or None when not formed; ``weak`` the undetermined ones,
+    :func:`~spaceid.estimation._determined.undetermined`'s): ML's grown with each ratio when it ``corrects`` the
+    attenuation (:func:`~spaceid.estimation._determined.corrected_spread`), and widened along the undetermined to
+    their values' scale, the estimate's and ``nominal``'s (:func:`~spaceid.estimation._determined.widened`); its
+    description saying so."""
+    uncertainty = fit.uncertainty
+    if corrects and ratios is not None:
+        measured = bool(uncertainty.get("covariance_from_residuals"))
+        cov, largest = corrected_spread(fit.cov, *ratios, measured)
+        fit = replace(fit, cov=cov)
+        if largest >= CORRECTED_SAID:
+            how = CORRECTED.format("1/(1 - mu)" if measured else "sqrt(1 + mu)/(1 - mu)", largest)
+            uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {how}"}
+    if weak:  # the standard errors say what the data do not determine
+        fit = replace(fit, cov=widened(fit.cov, *ratios, fit.theta, nominal))
+        uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
+    return replace(fit, uncertainty=uncertainty)
+
+
 HELD_WIDENED = ("widened along the estimate's change had the directions ML held been at the model's own values (the "
                 "others follow them)")
 """How the covariance's description ends when :func:`_held_shift`'s change widened it."""
@@ -465,8 +487,18 @@ def _held_shift(eq, x, sigma, ctx: _FitContext, start, held, T, weak):
     return None if fit.get("fallback") else other - held
 
 
-def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float):
-    """The start of the spatial ``angles`` fit: the ``ml`` :class:`_Fit` on rates differentiated from the same
+@dataclass(frozen=True)
+class _RateStart:
+    """The spatial ``angles`` fit's start (:func:`_rate_start`): ``fit``, the ``ml`` :class:`_Fit` on rates
+    differentiated from the same angles, and ``reported()``, that fit as :func:`identify` reports ML's (its spread
+    along the directions of parameter space, :func:`_spread_along_directions`), formed only when reported."""
+
+    fit: _Fit
+    reported: Callable[[], _Fit]
+
+
+def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float) -> _RateStart | None:
+    """The start of the spatial ``angles`` fit (a :class:`_RateStart`): ML on rates differentiated from the same
     angles (:func:`~spaceid.data.differentiate_log`, their levels estimated from the differentiated log), or None
     when the log cannot give it. The integral form's least squares is biased by the noise on the attitude
     increments: on the satellite-7dof preset it starts tens of standard errors away, where Levenberg-Marquardt
@@ -476,17 +508,28 @@ def _rate_start(param, log: Log, momentum, known, where: str, cond_limit: float)
         eq, _ = _equations(param, diff, momentum, known, where)
         x = eq.signals(diff)
         ctx = _FitContext(eq.phi(x), check_excitation(eq.phi(x), eq.names(), cond_limit, where)[0])
+        sigma = weighting_sigma(param, diff, noise_from_log(diff))
         with warnings.catch_warnings():  # the start's own warnings are not the angles fit's
             warnings.simplefilter("ignore")
-            return _estimate(eq, x, diff, weighting_sigma(param, diff, noise_from_log(diff)), ctx, "ml", True)
+            fit = _estimate(eq, x, diff, sigma, ctx, "ml", True)
     except (SpaceidError, np.linalg.LinAlgError):
         return None
+
+    def reported():
+        whitener = fit.info.get("whitener")
+        weak, ratios = undetermined_directions(
+            eq, x, ctx.phi, sigma, fit.theta, "ml", diff, whitener,
+            equation_noise(eq, x, sigma, fit.theta, "ml", diff, whitener),
+            _whitened_factor(fit.info.get("whitened_factor")), every=True)
+        return _spread_along_directions(fit, weak, ratios, True, _nominal(eq, fit.theta))
+
+    return _RateStart(fit, reported)
 
 
 def _angles_estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimated: bool, start) -> _Fit:
     """The ``angles`` :class:`_Fit`; when its maximum likelihood does not converge (or meets a singular system)
-    and the rate start ``start`` (:func:`_rate_start`) is given, that start instead, ``info["fallback"]`` saying
-    why (:func:`identify` warns)."""
+    and the rate start ``start`` (:func:`_rate_start`) is given, that start as ML reports it instead,
+    ``info["fallback"]`` saying why (:func:`identify` warns)."""
     try:
         fit = _estimate(eq, x, log, sigma, ctx, "angles", estimated)
         if fit.info["converged"] or start is None:
@@ -496,7 +539,8 @@ def _angles_estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimated: bool, 
         if start is None:
             raise
         reason = f"met a singular system ({exc})"
-    return replace(start, info={k: v for k, v in start.info.items() if k != "whitener"} | {
+    start = start.reported()
+    return replace(start, info={k: v for k, v in start.info.items() if k not in ("whitener", "whitened_factor")} | {
         "fallback": f"ml on rates differentiated from the angles: maximum likelihood on the angles {reason}"})
 
 
@@ -582,7 +626,7 @@ class _Prepared:
     sigma : ndarray of shape (n_x,)
         The signals' noise levels that weight the equations
         (:func:`~spaceid.estimation._differentiated.weighting_sigma`).
-    start : _Fit or None
+    start : _RateStart or None
         The spatial ``angles`` fit's start (:func:`_rate_start`), else None.
     """
 
@@ -596,7 +640,7 @@ class _Prepared:
     cond_scaled: float
     ctx: _FitContext
     sigma: np.ndarray
-    start: _Fit | None
+    start: _RateStart | None
 
 
 def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, known, noise, where: str,
@@ -636,7 +680,7 @@ def _prepared(param: Parameterization, log: Log, momentum, *, estimator: str, kn
     start = None
     if angles is not None and not eq.planar:  # the spatial fit starts from ML on differentiated rates
         start = _rate_start(param, log, momentum, known, where, cond_limit)
-        angles = replace(angles, start=None if start is None else start.theta)
+        angles = replace(angles, start=None if start is None else start.fit.theta)
     ctx = _FitContext(phi, factor, angles=angles,
                       **(_instrument_context(log, instruments, where) if estimator == "iv" else {}))
     return _Prepared(eq, anchors, x, phi, noise, estimated, factor, cond_scaled, ctx, sigma, start)
@@ -856,18 +900,22 @@ def identify(
             # for the noise Gram matrix)
             drift_job = jobs.get("drift") or (submit(check, _factor_gram(white_factor), basis()) if converging
                                               else None)
+            corrects = estimator == "ml" and not info.get("fallback")  # ML's spread grows with the noise it removes
             if "gram" in jobs:
                 jobs["directions"] = submit(lambda: undetermined_directions(
                     eq, x, phi, sigma, theta, estimator, log, whitener, jobs["gram"].result()[: eq.p, : eq.p],
-                    white_factor))
+                    white_factor, every=corrects))
             s = _singular_values(factor)
             scale = log_momentum_scale(param, log, regressor=_log_regressor(eq, phi, estimator))  # (while ols waits)
             # the others' drift test here while the directions are found beside (ols's and ml's on a worker: taken last)
             checked = None if drift_job else check(_factor_gram(white_factor), basis())
+            if chunk and corrects:  # streamed: from the noise a chunk at a time and the factor ML brings
+                jobs["directions"] = submit(lambda: undetermined_directions(
+                    eq, x, None, sigma, theta, estimator, log, whitener,
+                    equation_noise(eq, x, sigma, theta, estimator, log, whitener, chunk=chunk), white_factor, True))
             weak, ratios = jobs["directions"].result() if "directions" in jobs else ([], None)
-            if weak:  # the standard errors say what the data do not determine
-                fit = replace(fit, cov=widened(fit.cov, *ratios, theta, nominal))
-                uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
+            fit = _spread_along_directions(replace(fit, uncertainty=uncertainty), weak, ratios, corrects, nominal)
+            uncertainty = fit.uncertainty
             reported, biased = (info.get("fallback") or estimator).split(":")[0], ""
             if reported in LEAST_SQUARES:  # and the bias least squares leaves
                 own = jobs["gram"].result() if reported == estimator and "gram" in jobs else None

@@ -227,9 +227,10 @@ def streamed_covariance(eq, x, sigma, theta, estimator, info, ctx, log, estimate
     :func:`~spaceid.estimation._uncertainty._covariance_terms` for ``M`` and the scored residuals), and
     one for the propagated covariance of differentiated rates. The whiteners stay in ``info["whitener"]``
     for the drift test."""
-    if estimator == "ml":  # its whitener stays for the drift test
+    if estimator == "ml":  # its whitener stays for the drift test, its factor for the directions' ratios
         L, r = info["whitener"], info.pop("residuals")
-        bread = _solve_factor(*info.pop("factor")[::-1])[1]
+        info["whitened_factor"] = info.pop("factor")
+        bread = _solve_factor(*info["whitened_factor"][::-1])[1]
     else:
         r, L, bread = _residual_pass(eq, x, sigma, theta, estimator, info, ctx, chunk)
         if L is not None:  # the drift test whitens by the same factors: not formed again
