@@ -98,8 +98,8 @@ def test_eiv_bias_is_the_mean_error_of_least_squares():
 def test_corrected_spread_is_that_of_least_squares_with_its_attenuation_removed():
     """A regressor with white noise in its columns, one column weak (its noise 0.46 of its Gram matrix): least squares
     with the attenuation removed (``(A^T A - N)^-1 A^T b``, the errors-in-variables correction ML makes) over 600
-    seeds spreads 2.3 times ``G^-1`` along it; :func:`corrected_spread` of ``G^-1`` gives every parameter's spread
-    within 8 %."""
+    seeds spreads 2.35 times ``G^-1`` along it; :func:`corrected_spread` of ``G^-1`` gives every parameter's spread
+    within 8 % (measured: 4 %; ``1 / (1 - mu)`` alone falls 21 % short)."""
     rng = np.random.default_rng(5)
     m, k, sa, sb = 400, 4, 0.15, 0.1
     A0 = rng.standard_normal((m, k)) * [1.0, 2.0, 0.17, 1.0]

@@ -229,9 +229,9 @@ def test_montecarlo_on_random_robots_and_undesigned_motions(seed, planar, tmp_pa
 @pytest.mark.slow  # fast representative: test_montecarlo_on_random_robots_and_undesigned_motions
 def test_every_run_on_an_undesigned_motion_within_its_standard_errors(tmp_path):
     """Undesigned planar robot 338: ML's errors within 5 of its standard errors in every one of 8 draws. Before ML's
-    spread was scaled by ``1 / (1 - mu)`` along each direction, run 7's were 5.6 of them along one direction (the
-    whole estimate shifted along it: 17 of 25 parameters beyond 4) and it said nothing: four of the eight runs report
-    that direction undetermined (mu 0.51 to 0.55) and widen it, run 7's ratio was 0.43. Now 3.3."""
+    spread was scaled by ``sqrt(1 + mu) / (1 - mu)`` along each direction, run 7's were 5.6 of them along one
+    direction (the whole estimate shifted along it: 17 of 25 parameters beyond 4) and it said nothing: four of the
+    eight runs report that direction undetermined (mu 0.51 to 0.55) and widen it, run 7's ratio was 0.43. Now 2.8."""
     _check_montecarlo(_undesigned(338, True, tmp_path))
 
 

@@ -277,9 +277,8 @@ def undetermined_directions(eq, x, phi, sigma, theta, estimator: str, log, white
     return undetermined(mu, T, eq.names()), (mu, T)
 
 
-CORRECTED = ("ML's spread scaled by {} along the directions where the regressor's noise is a "
-             "share mu of its Gram matrix (the errors-in-variables correction's: up to {:.2g} times the standard errors "
-             "before)")
+CORRECTED = ("ML's spread scaled by {} along the directions where the regressor's noise is a share mu of its Gram "
+             "matrix (the errors-in-variables correction's: up to {:.2g} times the standard errors before)")
 """How the covariance's description ends when :func:`corrected_spread` scaled it by at least :data:`CORRECTED_SAID`."""
 CORRECTED_SAID = 1.1
 """Smallest factor of :func:`corrected_spread` that the covariance's description names (``mu`` about 0.06)."""

@@ -31,7 +31,8 @@ from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import _angle_context
 from ._determined import (CORRECTED, CORRECTED_SAID, EIV_SAID, EIV_WIDENED, UNDETERMINED, WIDENED, corrected_spread,
-                          eiv_bias, equation_noise, noise_ratios, undetermined_directions, undetermined_warning, widened)
+                          eiv_bias, equation_noise, noise_ratios, undetermined_directions, undetermined_warning,
+                          widened)
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._differentiated import weighting_sigma
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
