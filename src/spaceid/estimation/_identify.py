@@ -911,10 +911,11 @@ def identify(
             # the others' drift test here while the directions are found beside (ols's and ml's on a worker: taken last)
             checked = None if drift_job else check(_factor_gram(white_factor), basis())
             if chunk and corrects:  # streamed: from the noise a chunk at a time and the factor ML brings
-                jobs["directions"] = submit(lambda: undetermined_directions(
+                weak, ratios = undetermined_directions(
                     eq, x, None, sigma, theta, estimator, log, whitener,
-                    equation_noise(eq, x, sigma, theta, estimator, log, whitener, chunk=chunk), white_factor, True))
-            weak, ratios = jobs["directions"].result() if "directions" in jobs else ([], None)
+                    equation_noise(eq, x, sigma, theta, estimator, log, whitener, chunk=chunk), white_factor, True)
+            else:
+                weak, ratios = jobs["directions"].result() if "directions" in jobs else ([], None)
             fit = _spread_along_directions(replace(fit, uncertainty=uncertainty), weak, ratios, corrects, nominal)
             uncertainty = fit.uncertainty
             reported, biased = (info.get("fallback") or estimator).split(":")[0], ""
