@@ -119,27 +119,26 @@ def test_corrected_spread_is_that_of_least_squares_with_its_attenuation_removed(
 
 
 def test_corrected_spread_scales_each_direction():
-    """In the coordinates ``c = T^-1 theta``, where the first order is diagonal, each variance is scaled by
-    ``(1 + mu) / (1 - mu)^2`` (``1 / (1 - mu)^2`` for a spread measured from the residuals), ``mu`` capped at
-    :data:`UNDETERMINED` (where :func:`widened` takes over); nothing where every ratio is 0. A covariance with a
-    widening already in it, correlated across the coordinates, grows in every direction (Loewner order) by that
-    same variance added."""
+    """In the coordinates ``c = T^-1 theta``, where the first order is diagonal, the covariance is scaled by
+    ``sqrt(1 + mu) / (1 - mu)`` on each side (``1 / (1 - mu)`` for a spread measured from the residuals), ``mu``
+    capped at :data:`UNDETERMINED` (where :func:`widened` takes over); nothing where every ratio is 0. A covariance
+    with a widening in it, correlated across the coordinates, comes out at least itself and at least its scaled self
+    in every direction (Loewner order)."""
     rng = np.random.default_rng(3)
     k = 5
     T = rng.standard_normal((k, k))
     mu = np.array([0.0, 0.05, 0.3, 0.49, 0.9])
     Ti, capped = np.linalg.inv(T), np.minimum(mu, UNDETERMINED)
     diagonal = T @ np.diag(rng.uniform(0.5, 2.0, k)) @ T.T
-    shift = T @ rng.standard_normal(k)
+    widened_too = diagonal + np.outer(*[T @ rng.standard_normal(k)] * 2)
     for measured, f in ((False, np.sqrt(1 + capped) / (1 - capped)), (True, 1 / (1 - capped))):
         out, largest = corrected_spread(diagonal, mu, T, measured)
         np.testing.assert_allclose(Ti @ out @ Ti.T, f[:, None] * (Ti @ diagonal @ Ti.T) * f, rtol=1e-9, atol=1e-12)
         assert largest == f.max() and corrected_spread(diagonal, np.zeros(k), T, measured) == (diagonal, 1.0)
-        widened_too = diagonal + np.outer(shift, shift)
-        grown = corrected_spread(widened_too, mu, T, measured)[0] - widened_too
-        added = corrected_spread(diagonal, mu, T, measured)[0] - diagonal
-        assert np.linalg.eigvalsh(grown).min() > -1e-9 * np.abs(grown).max()
-        np.testing.assert_array_less(np.diag(added) * (1 - 1e-9), np.diag(grown))
+        grown = corrected_spread(widened_too, mu, T, measured)[0]
+        scale = T @ np.diag(f) @ Ti
+        for smaller in (widened_too, scale @ widened_too @ scale.T):
+            assert np.linalg.eigvalsh(grown - smaller).min() > -1e-9 * np.abs(grown).max()
 
 
 def test_widened_only_along_the_undetermined_coordinates():
