@@ -134,7 +134,8 @@ def test_corrected_spread_scales_each_direction():
     for measured, f in ((False, np.sqrt(1 + capped) / (1 - capped)), (True, 1 / (1 - capped))):
         out, largest = corrected_spread(diagonal, mu, T, measured)
         np.testing.assert_allclose(Ti @ out @ Ti.T, f[:, None] * (Ti @ diagonal @ Ti.T) * f, rtol=1e-9, atol=1e-12)
-        assert largest == f.max() and corrected_spread(diagonal, np.zeros(k), T, measured) == (diagonal, 1.0)
+        unchanged, one = corrected_spread(diagonal, np.zeros(k), T, measured)
+        assert largest == f.max() and unchanged is diagonal and one == 1.0
         grown = corrected_spread(widened_too, mu, T, measured)[0]
         scale = T @ np.diag(f) @ Ti
         for smaller in (widened_too, scale @ widened_too @ scale.T):
