@@ -69,7 +69,7 @@ from spaceid.studies import predict, warm_spatial_kernels
 
 kernels = (_kernels._momentum_of_states, _kernels._tangent_columns,
            _attitude.collocation_steps,  # (its stage rate inlined)
-           _kernels._contracted_rows, _kernels._joint_jacobian, _kernels._body_features)
+           _kernels._contracted_rows, _kernels._joint_jacobian, _kernels._body_features, _kernels._subtree_sums)
 assert not any(k.signatures for k in kernels)
 warm_spatial_kernels()
 warmed = [list(k.signatures) for k in kernels]

@@ -244,46 +244,62 @@ def _tangent_columns(parents, revolute, joints, q, qd, w0, dq, dqd, dw0, eps, pr
 
 
 @kernel
-def _body_features(S, U, Z, V, K, omega, features):
+def _body_features(T, WT, K, omega, features):
     """The per-body sums ``features (n_bodies, 45, m)`` of :func:`spaceid.dynamics._momentum_jacobian._chunk_jacobian`
-    from the pose and rate rows ``S, U (n_bodies, 4, 3, m)``, their weighted sums ``Z = W S`` and ``V = W U``, the
+    from :func:`~spaceid.dynamics._kinematics.frame_table`'s block ``T (3, 2, n_bodies, 4, m)`` (axis 1: the pose
+    rows ``S``, the rate rows ``U``), its weighted sums ``WT`` (``Z = W S`` and ``V = W U``, laid out alike), the
     bodies' rotor inertias in their own axes ``K (n_bodies, 3, 3)`` and angular velocities ``omega (3, n_bodies,
     m)``: entries ``3 x + y`` of ``S V^T``, ``S Z^T`` and ``U Z^T`` summed over each body's four rows, of ``I = R K
     R^T`` (``R`` the body's axes, rows 1 to 3 of ``S``), then ``I w``, ``V_0`` and ``Z_0``; samples innermost."""
-    nb, m = S.shape[0], S.shape[3]
+    nb, m = T.shape[2], T.shape[4]
+    ks = np.empty((3, 3, m))  # K R^T of one body: the inertia's inner product formed once, not per entry
     for b in range(nb):
+        for i in range(3):
+            for y in range(3):
+                for n in range(m):
+                    ks[i, y, n] = K[b, i, 0] * T[y, 0, b, 1, n] + K[b, i, 1] * T[y, 0, b, 2, n] \
+                        + K[b, i, 2] * T[y, 0, b, 3, n]
         for x in range(3):
             for y in range(3):
                 k = 3 * x + y
                 for n in range(m):
                     sv = sz = uz = 0.0
                     for f in range(4):
-                        sv += S[b, f, x, n] * V[b, f, y, n]
-                        sz += S[b, f, x, n] * Z[b, f, y, n]
-                        uz += U[b, f, x, n] * Z[b, f, y, n]
+                        sv += T[x, 0, b, f, n] * WT[y, 1, b, f, n]
+                        sz += T[x, 0, b, f, n] * WT[y, 0, b, f, n]
+                        uz += T[x, 1, b, f, n] * WT[y, 0, b, f, n]
                     features[b, k, n], features[b, 9 + k, n], features[b, 18 + k, n] = sv, sz, uz
-                    inertia = 0.0
-                    for i in range(3):
-                        for j in range(3):
-                            inertia += S[b, 1 + i, x, n] * K[b, i, j] * S[b, 1 + j, y, n]
-                    features[b, 27 + k, n] = inertia
+                    features[b, 27 + k, n] = (T[x, 0, b, 1, n] * ks[0, y, n] + T[x, 0, b, 2, n] * ks[1, y, n]
+                                              + T[x, 0, b, 3, n] * ks[2, y, n])  # fmt: skip
         for x in range(3):
             for n in range(m):
                 features[b, 36 + x, n] = (features[b, 27 + 3 * x, n] * omega[0, b, n]
                                           + features[b, 28 + 3 * x, n] * omega[1, b, n]
                                           + features[b, 29 + 3 * x, n] * omega[2, b, n])  # fmt: skip
-                features[b, 39 + x, n], features[b, 42 + x, n] = V[b, 0, x, n], Z[b, 0, x, n]
+                features[b, 39 + x, n], features[b, 42 + x, n] = WT[x, 1, b, 0, n], WT[x, 0, b, 0, n]
 
 
 @kernel
-def _joint_jacobian(features, summed, S, U, omega, local, parents, revolute, jac):
+def _subtree_sums(features, parents, summed):
+    """``summed (n_joints, 45, m)``: each joint's sum of ``features (n_bodies, 45, m)`` over the bodies it moves
+    (joint ``j`` moves body ``j + 1`` and its subtree; ``parents (n_joints,)`` of those bodies, each before its
+    children), accumulated from the leaves: a body's sum is added once, to its parent's."""
+    nj = summed.shape[0]
+    summed[:] = features[1:]
+    for j in range(nj - 1, -1, -1):
+        if parents[j] > 0:
+            summed[parents[j] - 1] += summed[j]
+
+
+@kernel
+def _joint_jacobian(features, summed, T, omega, local, parents, revolute, jac):
     """The momentum's derivatives ``jac (m, 3, 2 n_joints + 3)`` by ``[q, qd, w0]`` from the per-body sums
     ``features (n_bodies, 45, m)`` of :func:`spaceid.dynamics._momentum_jacobian._chunk_jacobian` and their sums
     over each joint's subtree ``summed (n_joints, 45, m)`` (entries ``3 x + y`` of ``S V^T``, ``S Z^T``, ``U Z^T``
-    and ``I``, then ``I w``, ``V_0`` and ``Z_0``), the pose and rate rows ``S, U (n_bodies, 4, 3, m)``, the bodies'
-    angular velocities ``omega (3, n_bodies, m)``, the joint axes in their parents' axes ``local (n_joints, 3)``,
-    the parents and the revolute flags: the formulas of that module's docstring, samples innermost (the inputs
-    hold them last: read in order)."""
+    and ``I``, then ``I w``, ``V_0`` and ``Z_0``), the frame table's block ``T (3, 2, n_bodies, 4, m)`` (pose rows
+    ``S``, rate rows ``U``), the bodies' angular velocities ``omega (3, n_bodies, m)``, the joint axes in their
+    parents' axes ``local (n_joints, 3)``, the parents and the revolute flags: the formulas of that module's
+    docstring, samples innermost (the inputs hold them last: read in order)."""
     nj, m, nb = summed.shape[0], summed.shape[2], features.shape[0]
     for x in range(3):  # the base rate's columns: the trace of sum S Z^T, less sum S Z^T, plus sum I
         for y in range(3):
@@ -297,9 +313,9 @@ def _joint_jacobian(features, summed, S, U, omega, local, parents, revolute, jac
     for j in range(nj):
         p, f, l0, l1, l2 = parents[j], summed[j], local[j, 0], local[j, 1], local[j, 2]
         for n in range(m):
-            a0 = l0 * S[p, 1, 0, n] + l1 * S[p, 2, 0, n] + l2 * S[p, 3, 0, n]
-            a1 = l0 * S[p, 1, 1, n] + l1 * S[p, 2, 1, n] + l2 * S[p, 3, 1, n]
-            a2 = l0 * S[p, 1, 2, n] + l1 * S[p, 2, 2, n] + l2 * S[p, 3, 2, n]
+            a0 = l0 * T[0, 0, p, 1, n] + l1 * T[0, 0, p, 2, n] + l2 * T[0, 0, p, 3, n]
+            a1 = l0 * T[1, 0, p, 1, n] + l1 * T[1, 0, p, 2, n] + l2 * T[1, 0, p, 3, n]
+            a2 = l0 * T[2, 0, p, 1, n] + l1 * T[2, 0, p, 2, n] + l2 * T[2, 0, p, 3, n]
             w0, w1, w2 = omega[0, p, n], omega[1, p, n], omega[2, p, n]
             r0, r1, r2 = w1 * a2 - w2 * a1, w2 * a0 - w0 * a2, w0 * a1 - w1 * a0  # D a = w_parent x a
             v0, v1, v2, z0, z1, z2 = f[39, n], f[40, n], f[41, n], f[42, n], f[43, n], f[44, n]
@@ -310,8 +326,9 @@ def _joint_jacobian(features, summed, S, U, omega, local, parents, revolute, jac
                 jac[n, 0, nj + j], jac[n, 1, nj + j], jac[n, 2, nj + j] = z1 * a2 - z2 * a1, z2 * a0 - z0 * a2, \
                     z0 * a1 - z1 * a0
                 continue
-            o0, o1, o2 = S[j + 1, 0, 0, n], S[j + 1, 0, 1, n], S[j + 1, 0, 2, n]  # the child's origin, its rate
-            u0, u1, u2 = U[j + 1, 0, 0, n], U[j + 1, 0, 1, n], U[j + 1, 0, 2, n]
+            # the child's origin, its rate
+            o0, o1, o2 = T[0, 0, j + 1, 0, n], T[1, 0, j + 1, 0, n], T[2, 0, j + 1, 0, n]
+            u0, u1, u2 = T[0, 1, j + 1, 0, n], T[1, 1, j + 1, 0, n], T[2, 1, j + 1, 0, n]
             zs = f[9, n] + f[13, n] + f[17, n] - (o0 * z0 + o1 * z1 + o2 * z2)
             zt = f[18, n] + f[22, n] + f[26, n] - (u0 * z0 + u1 * z1 + u2 * z2)
             vs = f[0, n] + f[4, n] + f[8, n] - (o0 * v0 + o1 * v1 + o2 * v2)

@@ -15,7 +15,7 @@ a prismatic one. Derivatives in q commute with ``D`` (its coefficients are veloc
 ``Z = W S`` and ``V = W U`` the derivative is ``d_j h = sum_a d_j S_a x V_a + Z_a x d_j U_a``
 plus the rotor terms; the triple products separate into a few per-body sums (``S V^T``,
 ``S Z^T``, ``U Z^T``, ``I_b``, ``I_b w_b`` and the origin rows of ``V`` and ``Z``) that are
-summed over each joint's subtree by the path matrix. One kinematics evaluation per sample gives
+summed over each joint's subtree from the leaves up. One kinematics evaluation per sample gives
 all ``2 n_joints + 3`` columns; ``tests/test_momentum_jacobian.py`` checks them against
 Richardson-extrapolated central differences of the momentum.
 """
@@ -25,8 +25,8 @@ from __future__ import annotations
 import numpy as np
 
 from .._threads import one_blas_thread
-from ._kernels import _body_features, _joint_jacobian
-from ._kinematics import _constants, _flatten_states, _Geometry, _joint_arrays, frame_table
+from ._kernels import _body_features, _joint_jacobian, _subtree_sums
+from ._kinematics import _flatten_states, _Geometry, _joint_arrays, frame_table
 from ._regressor import Parameterization
 
 __all__ = ["momentum_jacobian"]
@@ -60,21 +60,20 @@ def _weights(param: Parameterization, pi):
     return W, K
 
 
-def _chunk_jacobian(model, steps, path, W, K, q, qd, w0):
+def _chunk_jacobian(model, W, K, q, qd, w0):
     """:func:`momentum_jacobian` of ``m`` samples: ``(m, 3, 2 n_joints + 3)``."""
-    nb, nj, m = len(model.bodies), len(steps), len(q)
-    ft = frame_table(model, q, qd, w0, max(m, 1))
-    # rows first, (2, 4 nb, 3 m): one matrix product gives Z = W S and V = W U
-    table = np.ascontiguousarray(ft.table[0].transpose(1, 2, 3, 0, 4)).reshape(2, 4 * nb, 3 * m)
-    S, U = table.reshape(2, nb, 4, 3, m)
-    Z, V = (W @ table).reshape(2, nb, 4, 3, m)
-    features = np.empty((nb, 45, m))  # the per-body sums (S V^T, S Z^T, U Z^T, I, I w, V_0, Z_0), compiled
-    _body_features(S, U, Z, V, K, ft.omega[0], features)
-    summed = (path.T @ features.reshape(nb, -1)).reshape(nj, -1, m)  # over each joint's subtree
-    jac = np.empty((m, 3, 2 * nj + 3))
+    nb, m = len(model.bodies), len(q)
     parents, revolute, joints = _joint_arrays(_Geometry(model))
+    ft = frame_table(model, q, qd, w0, max(m, 1))
+    table = ft.table[0]  # (3, 2, nb, 4, m): the kernels read it as it is laid out, no transposed copy
+    weighted = (W @ table.reshape(3, 2, 4 * nb, m)).reshape(table.shape)  # Z = W S and V = W U
+    features = np.empty((nb, 45, m))  # the per-body sums (S V^T, S Z^T, U Z^T, I, I w, V_0, Z_0), compiled
+    _body_features(table, weighted, K, ft.omega[0], features)
+    summed = np.empty((nb - 1, 45, m))
+    _subtree_sums(features, parents, summed)  # over each joint's subtree
+    jac = np.empty((m, 3, 2 * len(parents) + 3))
     local = np.ascontiguousarray(joints[:, :, 10])  # joint axes in parent axes
-    _joint_jacobian(features, summed, S, U, ft.omega[0], local, parents, revolute, jac)
+    _joint_jacobian(features, summed, table, ft.omega[0], local, parents, revolute, jac)
     return jac
 
 
@@ -104,13 +103,12 @@ def momentum_jacobian(param: Parameterization, q, qd, w0, pi, *, chunk: int = 20
     """
     model = param.model
     lead, (q, qd, w0) = _flatten_states(q, qd, w0)
-    steps, path = _constants(_Geometry(model))
+    nj = model.n_joints
     W, K = _weights(param, np.asarray(pi, float))
-    jac = np.empty((len(q), 3, 2 * len(steps) + 3))
+    jac = np.empty((len(q), 3, 2 * nj + 3))
     with one_blas_thread():  # small products: threads only wait on busy cores
         for s in range(0, len(q), chunk):
-            jac[s : s + chunk] = _chunk_jacobian(model, steps, path, W, K, q[s : s + chunk], qd[s : s + chunk],
-                                                 w0[s : s + chunk])  # fmt: skip
+            jac[s : s + chunk] = _chunk_jacobian(model, W, K, q[s : s + chunk], qd[s : s + chunk], w0[s : s + chunk])
     if model.planar:  # h_z, and w0 along z only (the planar regressor's domain)
-        jac = np.delete(jac[:, 2:3], [2 * len(steps), 2 * len(steps) + 1], -1)
+        jac = np.delete(jac[:, 2:3], [2 * nj, 2 * nj + 1], -1)
     return jac.reshape(lead + jac.shape[1:])
