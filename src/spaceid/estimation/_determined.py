@@ -302,12 +302,13 @@ def corrected_spread(cov: np.ndarray, mu: np.ndarray, directions: np.ndarray, me
     ``measured``: ``cov`` takes the score's spread from the residuals (Newey-West, White), which hold the noise's
     products already: ``(G - N)^-1`` replaces ``G^-1`` on each side only, ``1 / (1 - mu)``.
 
-    The first order's ``G^-1`` is diagonal in these coordinates and is scaled exactly. A covariance that is not (a
-    widening already in it: ML's held directions' shift, rank one across the directions; a gyro bias's attitude
-    update) is scaled, then taken as the larger of the two in every direction (Loewner order): scaling alone shrank
-    a held shift in some parameters (random spatial robot 36's pi6, from 5.9 to 7.6 of its standard errors off),
-    and adding ``factor^2 - 1`` times each coordinate's variance undid the attitude's measurement of a gyro bias (its
-    errors' RMS 0.23 of the standard errors over 40 seeds)."""
+    The first order's ``G^-1`` is diagonal in these coordinates (to :data:`DIAGONAL`) and is scaled exactly. A
+    covariance that is not (a widening already in it: ML's held directions' shift, rank one across the directions;
+    a gyro bias's attitude update; the residuals' own spread) is scaled, then taken as the larger of the two in
+    every direction (Loewner order): scaling alone shrank a held shift in some parameters (random spatial robot
+    36's pi6, from 5.9 to 7.6 of its standard errors off), and adding ``factor^2 - 1`` times each coordinate's
+    variance undid the attitude's measurement of a gyro bias (its errors' RMS 0.23 of the standard errors over 40
+    seeds)."""
     from ._uncertainty import _larger_of
 
     capped = np.minimum(mu, UNDETERMINED)
@@ -316,10 +317,22 @@ def corrected_spread(cov: np.ndarray, mu: np.ndarray, directions: np.ndarray, me
     if largest == 1.0:
         return cov, largest
     with one_blas_thread():
-        scale = np.eye(len(cov)) + (directions * (factor - 1.0)) @ np.linalg.inv(directions)
-        scaled = scale @ cov @ scale.T
-        out = _larger_of(cov, 0.5 * (scaled + scaled.T))[0]
+        inverse = np.linalg.inv(directions)
+        own = inverse @ cov @ inverse.T  # the covariance in the directions' coordinates
+        std = np.sqrt(np.abs(np.diag(own)))
+        if np.all(std > 0) and np.abs(own / np.outer(std, std) - np.eye(len(own))).max() <= DIAGONAL:
+            out = (directions * factor) @ own @ (directions * factor).T  # the first order: scaled exactly
+        else:  # a widening in it: scaled, and the larger of the two
+            scale = np.eye(len(cov)) + (directions * (factor - 1.0)) @ inverse
+            scaled = scale @ cov @ scale.T
+            out = _larger_of(cov, 0.5 * (scaled + scaled.T))[0]
     return 0.5 * (out + out.T), largest
+
+
+DIAGONAL = 1e-9
+"""Largest correlation between two directions' errors at which :func:`corrected_spread` takes a covariance as
+diagonal in the directions' coordinates (ML's first order is, to round-off: 1e-12 on the servicer's 496 parameters)
+and scales it without the Loewner larger-of (0.05 s there)."""
 
 
 UNDETERMINED_FIX = "excite them with a designed motion (spaceid design) or give a prior"
