@@ -344,7 +344,7 @@ def test_standard_errors_cover_an_undesigned_motion(nominal, tmp_path, monkeypat
     assert result.diagnostics.undetermined and "widened along" in result.diagnostics.covariance
     assert (np.abs(result.values - truth.true_values) / result.std).max() < 4
     monkeypatch.setattr("spaceid.estimation._identify.widened", lambda cov, *args: cov)
-    monkeypatch.setattr("spaceid.estimation._identify._held_shift", lambda *args: None)
+    monkeypatch.setattr("spaceid.estimation._identify._held_at_own", lambda *args: None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         first_order = identify(param, noisy, h, noise=noise)
@@ -396,7 +396,7 @@ def test_a_stalled_fit_is_widened_along_what_its_held_values_move(tmp_path, monk
         result = identify(flown.param, noisy, flown.momentum, noise=noise)
         assert "held" in result.diagnostics.estimator_info and "model's own values" in result.diagnostics.covariance
         assert worst(result) < 3
-        monkeypatch.setattr("spaceid.estimation._identify._held_shift", lambda *args: None)
+        monkeypatch.setattr("spaceid.estimation._identify._held_at_own", lambda *args: None)
         assert worst(identify(flown.param, noisy, flown.momentum, noise=noise)) > 10
 
 

@@ -182,18 +182,17 @@ RUNS = 8
 """Noise draws of the property tests' Monte Carlo studies."""
 
 
-def _check_montecarlo(flown: Flown, every_run: bool | None = None):
+def _check_montecarlo(flown: Flown):
     """A Monte Carlo study of the robot's motion (``RUNS`` draws of 1e-4 on every signal, ML and OLS, the log's sample
     times). Its runs are the first of a longer study of the same seed (run i's noise depends on the seed and i only,
-    bit for bit). ML's errors are within 5 of the standard errors it predicted: in ``every_run`` (default: on a
-    designed motion); else in the first, as the pipeline's noisy identification is held. Undesigned spatial robot 36
-    has run 1 of 8 5.72 of them off (5.93 before ML's spread grew with the noise share): ML's fit with a direction
-    held, off along the determined ones (docs/benchmarks.md, the twenty-seventh round); undesigned planar robot 338,
-    5.6 before, is held in every run (:func:`test_every_run_on_an_undesigned_motion_within_its_standard_errors`).
-    Unless a run said that the data leave a direction undetermined (then ML's estimate is pulled towards zero there,
-    4 times the CRB on undesigned planar robot 0), ML's RMSE of every parameter is within the band that ``RUNS``
-    draws allow around the Cramer-Rao bound (chi-square, Bonferroni, 1e-3 in all). Both figures draw, the PNG's (its
-    ranked efficiency beyond 40 parameters) and the page's (valid for Plotly)."""
+    bit for bit). ML's errors are within 5 of the standard errors it predicted in every run, designed motion or not
+    (until the twenty-eighth round the first only on an undesigned one: undesigned spatial robot 36's run 1 was 5.72
+    of them off, :func:`test_every_run_of_a_held_fit_within_its_standard_errors`; over 200 undesigned robots, 8 runs
+    each, the largest is now 3.83). Unless a run said that the data leave a direction undetermined (then ML's
+    estimate is pulled towards zero there, 4 times the CRB on undesigned planar robot 0), ML's RMSE of every
+    parameter is within the band that ``RUNS`` draws allow around the Cramer-Rao bound (chi-square, Bonferroni, 1e-3
+    in all). Both figures draw, the PNG's (its ranked efficiency beyond 40 parameters) and the page's (valid for
+    Plotly)."""
     import plotly.graph_objects as go
 
     from spaceid.studies._html_figures import montecarlo_figures
@@ -208,8 +207,7 @@ def _check_montecarlo(flown: Flown, every_run: bool | None = None):
         assert study.failures == () and study.settings["seed"] == flown.case["seed"]
         for e in study.estimators:
             np.testing.assert_array_equal(shorter.estimates[e], study.estimates[e][:2])
-        held = RUNS if (flown.case["motion"] == "designed" if every_run is None else every_run) else 1
-        z = np.abs(study.estimates["ml"] - study.true)[:held] / study.predicted_std["ml"][:held]
+        z = np.abs(study.estimates["ml"] - study.true) / study.predicted_std["ml"]
         assert z.max() < 5, f"max |z| {z.max():.3g} in run {np.argmax(z.max(1))}"
         if not any("not determined" in w["warning"] for w in study.warnings if w["estimator"] == "ml"):
             k = len(study.names)
@@ -235,7 +233,17 @@ def test_every_run_on_an_undesigned_motion_within_its_standard_errors(tmp_path):
     spread was scaled by ``sqrt(1 + mu) / (1 - mu)`` along each direction, run 7's were 5.6 of them along one
     direction (the whole estimate shifted along it: 17 of 25 parameters beyond 4) and it said nothing: four of the
     eight runs report that direction undetermined (mu 0.51 to 0.55) and widen it, run 7's ratio was 0.43. Now 2.8."""
-    _check_montecarlo(_undesigned(338, True, tmp_path), every_run=True)
+    _check_montecarlo(_undesigned(338, True, tmp_path))
+
+
+@pytest.mark.slow  # fast representative: test_montecarlo_on_random_robots_and_undesigned_motions
+def test_every_run_of_a_held_fit_within_its_standard_errors(tmp_path):
+    """Undesigned spatial robot 36 (15 parameters, one direction undetermined: ML fitted over the others with it held
+    at WLS's value): ML's errors within 5 of its standard errors in every one of 8 draws. Run 1's pi6 was 5.72 of them
+    off: the held fit's weights, taken where the held value is attenuated, gave it a standard error of 0.39, where the
+    fit held at the model's own values gives 1.53 (its own error 3.8; ML over every direction from the truth lands
+    there too, within 2.6 of its standard errors). Reported with at least that fit's covariance: 2.16."""
+    _check_montecarlo(_undesigned(36, False, tmp_path))
 
 
 @FAST
