@@ -102,46 +102,23 @@ class _Geometry:
 
 
 @functools.lru_cache(maxsize=32)
-def _constants(geometry: _Geometry):
-    """Per-joint constants of the recursion and the tree's path matrix.
-
-    Returns
-    -------
-    steps : list of (int, bool, ndarray of shape (11, 3))
-        Per moving body: its parent, whether the joint is revolute, and the transposed 3x11
-        matrix ``[C0, C1, C2, t, a]`` in parent axes, with ``C0 + cos(q) C1 + sin(q) C2`` the
-        joint frame (fixed placement times Rodrigues' rotation), ``t`` the joint offset and
-        ``a`` the joint axis.
-    path : ndarray of shape (n_bodies, n_joints)
-        ``path[j, k] = 1`` when the joint of moving body ``k + 1`` lies on the path to body j.
-    """
-    model = geometry.model
-    steps = []
-    for b in model.bodies[1:]:
+def _joint_arrays(geometry: _Geometry):
+    """Per-joint constants of the compiled recursion: parents ``(n_joints,)``, revolute flags ``(n_joints,)``
+    and the matrices ``[C0, C1, C2, t, a]`` ``(n_joints, 3, 11)`` in parent axes, with ``C0 + cos(q) C1 + sin(q)
+    C2`` the joint frame (fixed placement times Rodrigues' rotation), ``t`` the joint offset and ``a`` the joint
+    axis (joint ``j`` moves body ``j + 1``)."""
+    bodies = geometry.model.bodies[1:]
+    matrices = []
+    for b in bodies:
         k = skew(b.axis)
         if b.joint_type == "revolute":
             c = [b.rotation @ (np.eye(3) + k @ k), -b.rotation @ k @ k, b.rotation @ k]
         else:  # prismatic: no rotation
             c = [b.rotation, np.zeros((3, 3)), np.zeros((3, 3))]
-        columns = np.column_stack([*c, b.translation, b.rotation @ b.axis]).T
-        steps.append((b.parent, b.joint_type == "revolute", columns))
-    path = np.zeros((len(model.bodies), len(steps)))
-    for j in range(1, len(model.bodies)):
-        k = j
-        while k > 0:
-            path[j, k - 1] = 1.0
-            k = model.bodies[k].parent
-    return steps, path
-
-
-@functools.lru_cache(maxsize=32)
-def _joint_arrays(geometry: _Geometry):
-    """The constants of :func:`_constants` as arrays for the compiled recursion: parents
-    ``(n_joints,)``, revolute flags ``(n_joints,)`` and the matrices ``[C0, C1, C2, t, a]``
-    ``(n_joints, 3, 11)``."""
-    steps, _ = _constants(geometry)
-    return (np.array([s[0] for s in steps], dtype=np.int64), np.array([s[1] for s in steps], dtype=bool),
-            np.array([s[2].T for s in steps]).reshape(-1, 3, 11))  # fmt: skip
+        matrices.append(np.column_stack([*c, b.translation, b.rotation @ b.axis]))
+    return (np.array([b.parent for b in bodies], dtype=np.int64),
+            np.array([b.joint_type == "revolute" for b in bodies], dtype=bool),
+            np.array(matrices).reshape(-1, 3, 11))  # fmt: skip
 
 
 def frame_table(model: Model, q, qd, w0, block: int) -> FrameTable:
