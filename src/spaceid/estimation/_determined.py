@@ -319,13 +319,10 @@ def corrected_spread(cov: np.ndarray, mu: np.ndarray, directions: np.ndarray, me
     with one_blas_thread():
         inverse = np.linalg.inv(directions)
         own = inverse @ cov @ inverse.T  # the covariance in the directions' coordinates
+        out = (directions * factor) @ own @ (directions * factor).T  # scaled along each
         std = np.sqrt(np.abs(np.diag(own)))
-        if np.all(std > 0) and np.abs(own / np.outer(std, std) - np.eye(len(own))).max() <= DIAGONAL:
-            out = (directions * factor) @ own @ (directions * factor).T  # the first order: scaled exactly
-        else:  # a widening in it: scaled, and the larger of the two
-            scale = np.eye(len(cov)) + (directions * (factor - 1.0)) @ inverse
-            scaled = scale @ cov @ scale.T
-            out = _larger_of(cov, 0.5 * (scaled + scaled.T))[0]
+        if not (np.all(std > 0) and np.abs(own / np.outer(std, std) - np.eye(len(own))).max() <= DIAGONAL):
+            out = _larger_of(cov, 0.5 * (out + out.T))[0]  # a widening in it: the larger of the two
     return 0.5 * (out + out.T), largest
 
 
