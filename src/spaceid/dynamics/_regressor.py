@@ -59,6 +59,7 @@ __all__ = [
     "full_values",
     "full_values_jacobian",
     "Identifiability",
+    "no_effect_parameters",
     "identifiability",
 ]
 
@@ -1006,6 +1007,37 @@ class Identifiability:
                 "energy_residual": self.energy_residual}
 
 
+def no_effect_parameters(param: Parameterization, *, tol: float | None = None) -> tuple:
+    """The standard parameters that do not enter the momentum at all (:func:`identifiability`'s
+    ``no_effect``, without its energy and row-space tests: the export needs only these).
+
+    Parameters
+    ----------
+    param : Parameterization
+    tol : float, optional
+        Relative tolerance on a regressor column's norm (default: the rank tolerance of ``param``).
+
+    Returns
+    -------
+    tuple of str
+        Their names, in :func:`full_parameter_names`' order.
+    """
+    tol = param.rank_tol if tol is None else tol
+    model = param.model
+    names = full_parameter_names(model)
+    q, qd, w0 = _random_states(model, param.n_states, param.seed + 1)  # fresh states for the tests
+    y = full_regressor(model, q, qd, w0)[:, slice(2, 3) if model.planar else slice(None), :].reshape(-1, len(names))
+    # a standard parameter acts through its own column and through the lumped products with it
+    theta, first, pairs = _layout(model)
+    norms = np.sqrt(np.einsum("ij,ij->j", y, y))  # no squared copy: a first touch of its pages takes 0.3 s here
+    acts = norms[: len(theta)] > tol * norms.max()
+    for c, (a, b) in enumerate(pairs):
+        if norms[len(theta) + c] > tol * norms.max():
+            acts[theta.index(first[a])] = acts[theta.index(first[b])] = True
+            acts[[k == 0 for _, k in theta]] = True  # every mass acts through M = sum of masses
+    return tuple(n for n, a in zip(names, acts) if not a)
+
+
 def identifiability(param: Parameterization, *, tol: float | None = None) -> Identifiability:
     """What the minimal set says about the physical parameters and the dynamics.
 
@@ -1031,22 +1063,13 @@ def identifiability(param: Parameterization, *, tol: float | None = None) -> Ide
     model = param.model
     names = full_parameter_names(model)
     n_theta = len(_layout(model)[0])
-    q, qd, w0 = _random_states(model, param.n_states, param.seed + 1)  # fresh states for the tests
-    y = full_regressor(model, q, qd, w0)[:, slice(2, 3) if model.planar else slice(None), :].reshape(-1, len(names))
+    no_effect = no_effect_parameters(param, tol=tol)
+    q, qd, w0 = _random_states(model, param.n_states, param.seed + 1)
     energy = energy_regressor(model, q, qd, w0)
     with one_blas_thread():  # threaded, on busy cores, this SVD of the servicer's 496 x 1,980 took 35 s (measured)
         rowspace = np.linalg.svd(param.projection, full_matrices=False)[2]  # orthonormal rows, (k, n_full)
         outside = energy - (energy @ rowspace.T) @ rowspace
     energy_residual = float(np.linalg.norm(outside) / np.linalg.norm(energy))
-    # a standard parameter acts through its own column and through the lumped products with it
-    theta, first, pairs = _layout(model)
-    norms = np.linalg.norm(y, axis=0)
-    acts = norms[:n_theta] > tol * norms.max()
-    for c, (a, b) in enumerate(pairs):
-        if norms[n_theta + c] > tol * norms.max():
-            acts[theta.index(first[a])] = acts[theta.index(first[b])] = True
-            acts[[k == 0 for _, k in theta]] = True  # every mass acts through M = sum of masses
-    no_effect = [n for n, a in zip(names, acts) if not a]
     alone = [n for j, n in enumerate(names[:n_theta])
              if n not in no_effect and 1 - rowspace[:, j] @ rowspace[:, j] < tol]
     return Identifiability(
