@@ -229,7 +229,7 @@ def test_automatic_ellipsoid_is_the_smallest_that_holds_a_physical_model(holds, 
     def export_from(result, prior, param, region, where, prior_name, staged):
         tried.append(region)
         if holds is None or region < holds:
-            raise spaceid.SpaceidError("none within it")
+            raise _export._Unmet(lambda: spaceid.SpaceidError("none within it"))
         return SimpleNamespace(region=region)
 
     monkeypatch.setattr(_export, "_export", export_from)

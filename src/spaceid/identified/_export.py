@@ -15,13 +15,14 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from .._distributions import chi2_ppf
 from .._errors import SpaceidError, shown
 from .._threads import one_blas_thread
-from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian, identifiability
+from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian, no_effect_parameters
 from ..dynamics import minimal_parameters
 from ..estimation import Identification
 from ..models import INERTIAL_NAMES, Model, load_model
@@ -349,12 +350,12 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
     with one_blas_thread():  # small dense factorisations: threads only wait on busy cores
         try:
             return _export(result, prior, param, region, where, prior_name)
-        except SpaceidError as exact_failure:
+        except _Unmet as exact_failure:
             if region is not None or not np.any(np.diag(result.cov) > 0):
-                raise
+                raise exact_failure.error() from None
             export = _auto_export(result, prior, param, where, prior_name)  # the estimate is not physical
             if export is None:
-                raise exact_failure from None
+                raise exact_failure.error() from None
             warnings.warn(f"{where}: the estimate is not physically realisable exactly: exported the model "
                           f"closest to the prior within its {export.region:g} confidence ellipsoid", stacklevel=2)
             return export
@@ -368,7 +369,7 @@ def _auto_export(result, prior, param, where, prior_name) -> Export | None:
     def attempt(region):
         try:
             return _export(result, prior, param, region, where, prior_name, staged=False)
-        except SpaceidError:
+        except _Unmet:
             return None
 
     smallest, *between, largest = AUTO_REGIONS
@@ -380,7 +381,8 @@ def _auto_export(result, prior, param, where, prior_name) -> Export | None:
 
 def _export(result, prior, param, region, where, prior_name, staged=True) -> Export:
     """:func:`export_model` once the prior is checked; ``staged``: when the steps from the prior stall, search
-    again in :data:`STAGES` (the automatic ellipsoids are not: a refusal would take three times as long)."""
+    again in :data:`STAGES` (the automatic ellipsoids are not: a refusal would take three times as long). Raises
+    :class:`_Unmet` when no physical model is found."""
     pi = np.asarray(result.values, float)
     g, z = pseudo_whitening(prior, prior_name)
     e, labels, w, radius = _constraint_rows(result, region)
@@ -395,8 +397,8 @@ def _export(result, prior, param, region, where, prior_name, staged=True) -> Exp
                 raise
             x = _staged(search, param.projection @ full_values(prior), pi, start, prior_theta)
     except _Stalled as stall:
-        raise _infeasible(result, param, g, z, e, labels, w, radius, g @ stall.x, where, region,
-                          stall.restore) from None
+        raise _Unmet(partial(_infeasible, result, param, g, z, e, labels, w, radius, g @ stall.x, where, region,
+                             stall.restore)) from None
     if search.moved >= STEP_TOL:
         warnings.warn(f"{where}: the export did not settle in {MAX_STEPS} convex steps (last move "
                       f"{search.moved:.2g})", stacklevel=3)
@@ -408,16 +410,26 @@ def _export(result, prior, param, region, where, prior_name, staged=True) -> Exp
     theta = np.where(hidden & (np.abs(theta - prior_theta) <= 1e-9 * scale), prior_theta, theta)
     a_eq, b_eq, *_ = _conditions(param, g, theta, e, w, pi, project=False)
     if len(a_eq) and not _met(result, param, theta, e, pi, np.abs(a_eq @ theta - b_eq).max()):
-        raise _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region)
+        raise _Unmet(partial(_infeasible, result, param, g, z, e, labels, w, radius, theta, where, region))
     model = with_theta(prior, theta)
     if unphysical_bodies(model):  # never hand on (or write) an unphysical model as a result
-        raise SpaceidError(f"{where}: the export ended on a model whose bodies {', '.join(unphysical_bodies(model))} "
-                           "are not physically consistent: nothing was written; please report this")
+        raise _Unmet(partial(SpaceidError, f"{where}: the export ended on a model whose bodies "
+                             f"{', '.join(unphysical_bodies(model))} are not physically consistent: nothing was "
+                             "written; please report this"))
     values = param.projection @ full_values(model)
     seen = {b.name: tuple(INERTIAL_NAMES[k] for (i, k), h in zip(theta_slots(prior), hidden) if i == n and not h)
             for n, b in enumerate(prior.bodies)}  # fmt: skip
     return Export(model, prior, param, values, region, float(np.sum((w @ (values - pi)) ** 2)),
                   float(radius**2) if region is not None else None, pseudo_divergence(model, prior), steps, seen)
+
+
+class _Unmet(Exception):
+    """No physical model met the conditions; ``error()`` builds the :class:`SpaceidError` that names them (an
+    elastic program's solve: only when it is shown, not for an attempt that the automatic ellipsoids follow)."""
+
+    def __init__(self, error):
+        super().__init__()
+        self.error = error
 
 
 class _Stalled(Exception):
@@ -517,5 +529,5 @@ def _damped(param, g, x, new, e, w, pi, radius, violation) -> tuple:
 
 def _hidden(param: Parameterization) -> np.ndarray:
     """Which standard parameters (``theta``) do not enter the momentum at all, shape (n_theta,)."""
-    hidden = set(identifiability(param).no_effect)
+    hidden = set(no_effect_parameters(param))
     return np.array([name in hidden for name in full_parameter_names(param.model)[: len(theta_slots(param.model))]])
