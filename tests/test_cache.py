@@ -119,10 +119,10 @@ def test_minimal_parameters_of_a_preset_from_the_cache(monkeypatch, tmp_path):
 
 
 def test_warmed_presets_are_read_not_derived(monkeypatch, tmp_path):
-    """``warm_preset_sets`` (the end of ``spaceid demo``) leaves each preset's set in the cache, and those of a
-    payload on each body with declared zeros (cepheus-rw's wheel and two links): a later process (the in-memory
-    cache cleared) reads them, deriving nothing. Two small presets here; the demo warms them all
-    (test_demo.py::test_designed_demo_writes_report)."""
+    """``warm_preset_sets`` (the end of ``spaceid demo``) leaves each preset's set and its parameters without effect
+    on the momentum in the cache, and the sets of a payload on each body with declared zeros (cepheus-rw's wheel and
+    two links): a later process (the in-memory cache cleared) reads them, deriving nothing. Two small presets here;
+    the demo warms them all (test_demo.py::test_designed_demo_writes_report)."""
     from spaceid.identified import payload_map
     from spaceid.studies import warm_preset_sets
 
@@ -136,7 +136,31 @@ def test_warmed_presets_are_read_not_derived(monkeypatch, tmp_path):
         raise AssertionError("derived although warmed")
 
     monkeypatch.setattr(_regressor, "_derive_minimal", no_derivation)
+    monkeypatch.setattr(_regressor, "_no_effect", no_derivation)  # the export's parameters without effect
     for name in ("cepheus-rw", "satellite-7dof"):
-        assert spaceid.minimal_parameters(spaceid.load_model(name)).n_params > 0
+        param = spaceid.minimal_parameters(spaceid.load_model(name))
+        assert param.n_params > 0 and bool(_regressor.no_effect_parameters(param)) == param.model.planar
     assert payload_map("cepheus-rw", "link2").param.n_params > 0
     _regressor._minimal_cached.cache_clear()
+
+
+@pytest.mark.parametrize("planar", [True, False])
+def test_cached_no_effect_parameters_are_the_derived_ones(rng, monkeypatch, tmp_path, planar):
+    """The export's parameters without effect on the momentum: written on the first call, read back (no regressor)
+    equal to :func:`identifiability`'s; another tolerance is another entry. A planar tree has some (its out-of-plane
+    moments), so an empty answer cannot pass for a right one."""
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path))
+    param = spaceid.dynamics.minimal_parameters(random_tree(rng, [0, 1, 1], planar=planar))
+    derived = _regressor._no_effect(param, param.rank_tol)
+    assert bool(derived) == planar and not (tmp_path / "no-effect").exists()
+    assert _regressor.no_effect_parameters(param) == derived
+    assert len(list((tmp_path / "no-effect").glob("*.npz"))) == 1
+
+    def no_regressor(*args):
+        raise AssertionError("formed although cached")
+
+    monkeypatch.setattr(_regressor, "_no_effect", no_regressor)
+    assert _regressor.no_effect_parameters(param) == derived
+    assert spaceid.dynamics.identifiability(param).no_effect == derived
+    with pytest.raises(AssertionError, match="formed although cached"):
+        _regressor.no_effect_parameters(param, tol=1e-6)

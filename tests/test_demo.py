@@ -42,7 +42,10 @@ def test_designed_demo_writes_report(tmp_path, capsys, monkeypatch):
     # the install step: every preset's minimal set is cached, so no first command derives one
     _regressor._minimal_cached.cache_clear()
     monkeypatch.setattr(_regressor, "_derive_minimal", lambda *a: pytest.fail("derived although the demo warmed it"))
-    assert all(_regressor.minimal_parameters(load_model(name)).n_params for name in PRESETS)
+    monkeypatch.setattr(_regressor, "_no_effect", lambda *a: pytest.fail("formed although the demo warmed it"))
+    for name in PRESETS:  # and the parameters without effect on the momentum (the export's)
+        param = _regressor.minimal_parameters(load_model(name))
+        assert param.n_params and _regressor.no_effect_parameters(param) is not None
     _regressor._minimal_cached.cache_clear()
     # and the monitor's default threshold for planar and spatial equations (one row, three)
     assert len(list((tmp_path / "cache" / "cusum-threshold").glob("*.npz"))) == 2

@@ -22,7 +22,7 @@ from ..estimation import Identification, cusum_threshold, identify
 from ..data import write_json, write_log
 from ..models import PRESETS, load_model
 from ..estimation import Noise
-from ..dynamics import minimal_parameters, momentum_jacobian
+from ..dynamics import minimal_parameters, momentum_jacobian, no_effect_parameters
 from ..motion import add_noise, simulate
 from ..motion import FourierTrajectory, load_trajectory, sample_times
 from ._validate import validate
@@ -152,14 +152,17 @@ def warm_preset_sets(presets=PRESETS) -> None:
     cache (:func:`~spaceid.dynamics.minimal_parameters`; read from it when it is there), and those of a payload
     on each of its bodies with declared zeros (a payload frees them: another set; Cepheus's links, 0.4 s each
     in a first ``spaceid payload``), and the monitor's CUSUM threshold at its default false-alarm rate for
-    each preset's equations (:func:`~spaceid.estimation.cusum_threshold`, 0.12 s of a first ``monitor``).
-    ``spaceid demo`` ends with it, so that no first command on a preset derives one (the servicer's set: about
-    3 s of CPU, the others' under 1 s; reading a cached set takes milliseconds)."""
+    each preset's equations (:func:`~spaceid.estimation.cusum_threshold`, 0.12 s of a first ``monitor``) and the
+    parameters without effect on its momentum (:func:`~spaceid.dynamics.no_effect_parameters`, 0.45 s of the
+    servicer's first ``export``). ``spaceid demo`` ends with it, so that no first command on a preset derives one
+    (the servicer's set: about 3 s of CPU, the others' under 1 s; reading a cached set takes milliseconds)."""
     from ..identified import payload_map
 
     for name in presets:
         model = load_model(name)
-        cusum_threshold(FALSE_ALARM_RATE, minimal_parameters(model).rows)
+        param = minimal_parameters(model)
+        cusum_threshold(FALSE_ALARM_RATE, param.rows)
+        no_effect_parameters(param)
         for body in model.bodies:
             if body.known_zero:
                 payload_map(model, body.name)
