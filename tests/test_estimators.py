@@ -168,7 +168,10 @@ def test_ml_never_reports_physically_impossible_parameters_when_wls_has_none(cep
     assert info["converged"] and info["fallback"].startswith("wls: the maximum-likelihood estimate converged to")
     assert any("the estimate reported is wls" in m for m in messages)
     assert not any("physically impossible parameters, negative" in m for m in messages)  # no longer reported
-    assert ml.values == pytest.approx(wls.values, rel=1e-12) and ml.std == pytest.approx(wls.std, rel=1e-9)
+    # WLS's estimate; its standard errors at least WLS's own, widened by the change from OLS's (its weights, taken at
+    # its own estimates, can pull it away: test_random_pipeline's robot 83 at rest, 71 of its standard errors off)
+    assert ml.values == pytest.approx(wls.values, rel=1e-12) and np.all(ml.std >= wls.std * (1 - 1e-9))
+    assert "widened along the change from OLS's estimate" in ml.diagnostics.covariance
     assert ml.diagnostics.chi2_dof > 1e2 and any("contradict the noise model" in m for m in messages)
 
 
