@@ -626,13 +626,14 @@ def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, wher
         return ml
     ols = _estimate(eq, x, log, sigma, ctx, "ols", estimated, chunk)
     shift = wls.theta - ols.theta
-    cov = _larger_of(wls.cov, ols.cov)[0] + np.outer(shift, shift)
+    cov, weak = _larger_of(wls.cov, ols.cov)[0] + np.outer(shift, shift), []
     if ctx.phi is not None:  # and along what the data do not determine, found unweighted (OLS's reported are)
-        cov = widened(cov, *undetermined_directions(eq, x, ctx.phi, sigma, ols.theta, "ols", log)[1], wls.theta,
-                      _nominal(eq, wls.theta))
+        weak, ratios = undetermined_directions(eq, x, ctx.phi, sigma, ols.theta, "ols", log)
+        cov = widened(cov, *ratios, wls.theta, _nominal(eq, wls.theta))
     ml_info = {k: v for k, v in ml.info.items() if k not in ("whitener", "whitened_factor")}  # ML's weights are not WLS's
     info = ml_info | {"fallback": (f"wls: the maximum-likelihood estimate converged to physically impossible "
-                                   f"parameters (objective {ml_info['objective_end']:.4g}); WLS's are not")}
+                                   f"parameters (objective {ml_info['objective_end']:.4g}); WLS's are not"),
+                      "fallback_undetermined": weak}  # reported (and warned of) by identify
     return replace(wls, info=info, cov=cov, uncertainty={
         **wls.uncertainty, "covariance": f"{wls.uncertainty['covariance']}; {FALLBACK_WIDENED}"})
 
@@ -955,6 +956,9 @@ def identify(
                 weak, ratios = jobs["directions"].result() if "directions" in jobs else ([], None)
             fit = _spread_along_directions(replace(fit, uncertainty=uncertainty), weak, ratios, corrects, nominal)
             uncertainty = fit.uncertainty
+            # ML's WLS fallback: found by OLS's equations where WLS's weights hid them (its covariance widened there)
+            weak = weak or info.pop("fallback_undetermined", [])
+            info.pop("fallback_undetermined", None)
             reported, biased = (info.get("fallback") or estimator).split(":")[0], ""
             if reported in LEAST_SQUARES:  # and the bias least squares leaves
                 own = jobs["gram"].result() if reported == estimator and "gram" in jobs else None
