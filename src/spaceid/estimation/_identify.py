@@ -616,8 +616,9 @@ def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, wher
     truth, e.g. rates differentiated from noisy angles, levels estimated), ``info["fallback"]`` saying
     so; else ML's, whose warning then stands.
 
-    WLS's covariance is then at least OLS's (Loewner) and widened by the change between the two estimates: the
-    weights are taken at WLS's own estimates, and where the likelihood has run off they can be degenerate. On a
+    WLS's covariance is then at least OLS's (Loewner), widened by the change between the two estimates and along the
+    directions OLS's equations leave undetermined (``info["fallback_undetermined"]``, which :func:`identify` reports):
+    the weights are taken at WLS's own estimates, and where the likelihood has run off they can be degenerate. On a
     random planar robot released at rest with an anchor (``test_random_pipeline``'s seed 83, 16 parameters) ML
     converged to values 1e4 times the model's, WLS's estimate pulled an inertia from 2.66 to -0.02 with a standard
     error of 0.038 (71 of them off), where OLS's was 1.1 of its own off."""
@@ -957,8 +958,8 @@ def identify(
             fit = _spread_along_directions(replace(fit, uncertainty=uncertainty), weak, ratios, corrects, nominal)
             uncertainty = fit.uncertainty
             # ML's WLS fallback: found by OLS's equations where WLS's weights hid them (its covariance widened there)
-            weak = weak or info.pop("fallback_undetermined", [])
-            info.pop("fallback_undetermined", None)
+            hidden = info.pop("fallback_undetermined", [])
+            weak = weak or hidden
             reported, biased = (info.get("fallback") or estimator).split(":")[0], ""
             if reported in LEAST_SQUARES:  # and the bias least squares leaves
                 own = jobs["gram"].result() if reported == estimator and "gram" in jobs else None
