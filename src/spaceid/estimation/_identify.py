@@ -342,7 +342,7 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
     its covariance, with its residuals ``phi [theta; 1]`` ``(n, rows)`` as a third argument (formed once, for the
     covariance and the drift test), ``ml``'s in memory once it converges, with its whitener, before the factor at
     its weights."""
-    residuals = None
+    residuals, requested = None, estimator
     if estimator == "ols" and on_estimate is not None and not chunk:  # before the inverse Gram matrix (p^3)
         theta = _factor_solution(*ctx.factor[::-1])
         if np.all(np.isfinite(theta)):
@@ -376,6 +376,8 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
     else:
         reported = _reported_covariance(eq, x, ctx.phi, sigma, theta, estimator, info, log, estimated)
     fit = _Fit(theta, info, *reported, held=info.pop("held_ratios", None))
+    if requested == "ml" and estimator == "wls":  # ML's fallback: WLS's weights, at its own estimates
+        return _wls_widened(eq, x, log, sigma, ctx, estimated, chunk, fit)
     own = info.pop("held_own", None)
     if own is None:
         return fit
@@ -605,38 +607,45 @@ def _implausible_estimate(eq, theta, cov_t, where: str, z: float | None = None) 
 
 
 FALLBACK_WIDENED = ("at least OLS's, widened along the change from OLS's estimate and along the directions the data do "
-                    "not determine by OLS's equations (ML's converged to physically impossible parameters, and WLS's "
-                    "weights, taken at its own estimates, can pull it away)")
-"""How the covariance's description ends when :func:`_plausible_fallback` reported WLS's estimate."""
+                    "not determine by OLS's equations (ML fell back on WLS, whose weights, taken at its own estimates, "
+                    "can pull it away)")
+"""How the covariance's description ends when :func:`_wls_widened` widened ML's WLS fallback."""
 
 
-def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, where) -> _Fit:
-    """ML's :class:`_Fit` ``ml`` when its converged estimate is physically impossible: WLS's instead
-    when WLS's is not (with a wrong noise model the likelihood can have a local minimum far from the
-    truth, e.g. rates differentiated from noisy angles, levels estimated), ``info["fallback"]`` saying
-    so; else ML's, whose warning then stands.
+def _wls_widened(eq, x, log, sigma, ctx, estimated, chunk, wls: _Fit) -> _Fit:
+    """``wls``, WLS's :class:`_Fit` reported as ML's fallback, with a covariance at least OLS's (Loewner), widened by
+    the change between the two estimates and along the directions OLS's equations leave undetermined
+    (``info["fallback_undetermined"]``, which :func:`identify` reports and warns of; not streamed).
 
-    WLS's covariance is then at least OLS's (Loewner), widened by the change between the two estimates and along the
-    directions OLS's equations leave undetermined (``info["fallback_undetermined"]``, which :func:`identify` reports):
-    the weights are taken at WLS's own estimates, and where the likelihood has run off they can be degenerate. On a
-    random planar robot released at rest with an anchor (``test_random_pipeline``'s seed 83, 16 parameters) ML
-    converged to values 1e4 times the model's, WLS's estimate pulled an inertia from 2.66 to -0.02 with a standard
-    error of 0.038 (71 of them off), where OLS's was 1.1 of its own off."""
-    wls = _estimate(eq, x, log, sigma, ctx, "wls", estimated, chunk)
-    if _implausible_estimate(eq, wls.theta, wls.cov, where, z=FALLBACK_Z):
-        return ml
+    WLS's weights are taken at its own estimates, and where ML has failed (its likelihood run off, or stalled at
+    zero momentum) they can be degenerate and hide what the data do not determine. Random robots released at
+    rest with an anchor (``test_random_pipeline``'s): on planar robot 83 (16 parameters) ML converged to values
+    1e4 times the model's, and WLS's estimate pulled an inertia from 2.66 to -0.02 with a standard error of 0.038,
+    71 of them off (OLS's 1.1 of its own, a direction found undetermined); on spatial robot 729 (28) ML stalled
+    at the OLS start, and WLS's pi2 was 6.9 of its standard errors off, outside the three directions found
+    undetermined at its weights."""
     ols = _estimate(eq, x, log, sigma, ctx, "ols", estimated, chunk)
     shift = wls.theta - ols.theta
     cov, weak = _larger_of(wls.cov, ols.cov)[0] + np.outer(shift, shift), []
     if ctx.phi is not None:  # and along what the data do not determine, found unweighted (OLS's reported are)
         weak, ratios = undetermined_directions(eq, x, ctx.phi, sigma, ols.theta, "ols", log)
         cov = widened(cov, *ratios, wls.theta, _nominal(eq, wls.theta))
+    return replace(wls, info=wls.info | {"fallback_undetermined": weak}, cov=cov, uncertainty={
+        **wls.uncertainty, "covariance": f"{wls.uncertainty['covariance']}; {FALLBACK_WIDENED}"})
+
+
+def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, where) -> _Fit:
+    """ML's :class:`_Fit` ``ml`` when its converged estimate is physically impossible: WLS's instead
+    when WLS's is not (with a wrong noise model the likelihood can have a local minimum far from the
+    truth, e.g. rates differentiated from noisy angles, levels estimated), ``info["fallback"]`` saying
+    so, its covariance widened as :func:`_wls_widened` says; else ML's, whose warning then stands."""
+    wls = _estimate(eq, x, log, sigma, ctx, "wls", estimated, chunk)
+    if _implausible_estimate(eq, wls.theta, wls.cov, where, z=FALLBACK_Z):
+        return ml
     ml_info = {k: v for k, v in ml.info.items() if k not in ("whitener", "whitened_factor")}  # ML's weights are not WLS's
     info = ml_info | {"fallback": (f"wls: the maximum-likelihood estimate converged to physically impossible "
-                                   f"parameters (objective {ml_info['objective_end']:.4g}); WLS's are not"),
-                      "fallback_undetermined": weak}  # reported (and warned of) by identify
-    return replace(wls, info=info, cov=cov, uncertainty={
-        **wls.uncertainty, "covariance": f"{wls.uncertainty['covariance']}; {FALLBACK_WIDENED}"})
+                                   f"parameters (objective {ml_info['objective_end']:.4g}); WLS's are not")}
+    return _wls_widened(eq, x, log, sigma, ctx, estimated, chunk, replace(wls, info=info))
 
 
 @dataclass(frozen=True)
