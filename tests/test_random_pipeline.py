@@ -261,12 +261,13 @@ def test_pipeline_on_random_robots_and_undesigned_motions(seed, planar, tmp_path
 @FAST
 @given(seed=SEEDS, planar=st.booleans())
 @example(seed=83, planar=True)  # ML converged to impossible values; its fallback, WLS's, was 71 of its errors off
+@example(seed=729, planar=False)  # ML stalled at the start; WLS's pi2 6.85 off, outside its undetermined directions
 def test_random_robots_released_at_rest_with_an_anchor(seed, planar, tmp_path):
     """Zero momentum, the scale from one known parameter: recovered to round-off from the noise-free log; from a noisy
     one (1e-4 on every signal, rates measured) ``ml``'s standard errors hold the error (spatial robot 33485 was 17 of
     them off: ML's fallback at degenerate weights, :func:`test_ml_holds_the_undetermined_at_the_models_own_values`;
-    planar robot 83 71: ML's estimate impossible, WLS's standard errors at its degenerate weights, which the
-    fallback now widens by OLS's),
+    planar robot 83 71 and spatial robot 729 6.85: ML's estimate impossible or stalled, its fallback WLS's with
+    standard errors at WLS's degenerate weights, now widened by OLS's),
     and the drift test raises no alarm beyond its level on the conserved log with either estimator (it fired on 3 of
     24 such robots, p down to 4e-55: the errors-in-variables allowance was not determined). ``ols``'s standard
     errors are not asserted: its first-order bias understates the attenuation at zero momentum (theory/noise, "What
@@ -290,7 +291,7 @@ def test_random_robots_released_at_rest_with_an_anchor(seed, planar, tmp_path):
                 free = ident.std > 0
                 z = np.abs(ident.values - true)[free] / ident.std[free]
                 assert z.max() < 5, f"max |z| {z.max():.3g} over {free.sum()} parameters"
-                if "physically impossible" in str(ident.diagnostics.estimator_info.get("fallback")):  # robot 83
+                if str(ident.diagnostics.estimator_info.get("fallback")).startswith("wls"):  # robots 83 and 729
                     assert "widened along the change from OLS's estimate" in ident.diagnostics.covariance
 
 
