@@ -383,9 +383,14 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
         return fit
     other, other_info = own  # the fit with the held directions at the model's own values: its weights' spread
     own_cov = _reported_covariance(eq, x, ctx.phi, sigma, other, "ml", other_info, log, estimated)[0]
-    shift = other - theta
-    return replace(fit, cov=_larger_of(fit.cov, own_cov)[0] + np.outer(shift, shift), uncertainty={
-        **fit.uncertainty, "covariance": f"{fit.uncertainty['covariance']}; {HELD_WIDENED}"})
+    return _at_least(fit, own_cov, other - theta, HELD_WIDENED)
+
+
+def _at_least(fit: _Fit, other_cov, shift, said: str) -> _Fit:
+    """``fit`` with a covariance at least ``other_cov (p, p)`` (the Loewner larger of the two), widened along the
+    change ``shift (p,)`` to another estimate (``+ shift shift^T``), its description ending with ``said``."""
+    return replace(fit, cov=_larger_of(fit.cov, other_cov)[0] + np.outer(shift, shift), uncertainty={
+        **fit.uncertainty, "covariance": f"{fit.uncertainty['covariance']}; {said}"})
 
 
 def _spread_along_directions(fit: _Fit, weak: list, ratios, corrects: bool, nominal) -> _Fit:
@@ -625,13 +630,11 @@ def _wls_widened(eq, x, log, sigma, ctx, estimated, chunk, wls: _Fit) -> _Fit:
     at the OLS start, and WLS's pi2 was 6.9 of its standard errors off, outside the three directions found
     undetermined at its weights."""
     ols = _estimate(eq, x, log, sigma, ctx, "ols", estimated, chunk)
-    shift = wls.theta - ols.theta
-    cov, weak = _larger_of(wls.cov, ols.cov)[0] + np.outer(shift, shift), []
+    fit, weak = _at_least(wls, ols.cov, wls.theta - ols.theta, FALLBACK_WIDENED), []
     if ctx.phi is not None:  # and along what the data do not determine, found unweighted (OLS's reported are)
         weak, ratios = undetermined_directions(eq, x, ctx.phi, sigma, ols.theta, "ols", log)
-        cov = widened(cov, *ratios, wls.theta, _nominal(eq, wls.theta))
-    return replace(wls, info=wls.info | {"fallback_undetermined": weak}, cov=cov, uncertainty={
-        **wls.uncertainty, "covariance": f"{wls.uncertainty['covariance']}; {FALLBACK_WIDENED}"})
+        fit = replace(fit, cov=widened(fit.cov, *ratios, wls.theta, _nominal(eq, wls.theta)))
+    return replace(fit, info=wls.info | {"fallback_undetermined": weak})
 
 
 def _plausible_fallback(eq, x, log, sigma, ctx, estimated, chunk, ml: _Fit, where) -> _Fit:
