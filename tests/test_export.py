@@ -173,6 +173,29 @@ def test_the_ellipsoid_cone_holds_as_many_entries_as_unknowns(rows, cols):
     assert np.linalg.norm(residual.value) == pytest.approx(dense, rel=1e-12)
 
 
+def test_the_exact_search_is_skipped_when_no_model_reproduces_the_estimate(cepheus, monkeypatch):
+    """Cepheus's 8 minimal parameters are functions of fewer independent combinations of its standard ones: its
+    noise-free estimate is reached from the prior (and exported exactly), a noisy one is missed by far more than the
+    estimate's accuracy, and its export goes to the ellipsoids without the exact search."""
+    from spaceid.identified import _export
+
+    true, prior, ident, exported = cepheus
+    param = minimal_parameters(true)
+    g = _export.pseudo_whitening(prior, "prior")[0]
+    start, scale = full_values(prior)[: g.shape[0]], np.abs(g).max(axis=1)
+    assert exported.region is None
+    assert _export._miss(ident, param, start, scale) <= _export._accuracy(ident)
+    std = 1e-3 * np.abs(ident.values)
+    noisy = Identification(**{**ident.__dict__, "values": ident.values + std * np.random.default_rng(1).standard_normal(
+        len(std)), "std": std, "cov": np.diag(std**2)})
+    assert _export._miss(noisy, param, start, scale) > 1e3 * _export.UNREACHED * _export._accuracy(noisy)
+    attempt, regions = _export._export, []
+    monkeypatch.setattr(_export, "_export", lambda result, prior, param, region, *args, **kwargs: (
+        regions.append(region), attempt(result, prior, param, region, *args, **kwargs))[1])
+    with pytest.warns(UserWarning, match=r"exactly \(no model, physical or not, reproduces it\)"):
+        assert export_model(noisy, prior).region == regions[0] == 0.95
+
+
 def test_infeasible_pi_is_one_line_naming_it(cepheus, monkeypatch):
     """Refused after three attempts (the exact one, searched again in stages, then the smallest and the largest
     automatic ellipsoid), in one line naming the parameter no physical body has."""
@@ -221,7 +244,7 @@ def test_a_search_stalled_from_the_prior_is_run_again_in_stages(tmp_path):
 @pytest.mark.parametrize("holds", [0.95, 0.99, 0.999, None])
 def test_automatic_ellipsoid_is_the_smallest_that_holds_a_physical_model(holds, monkeypatch):
     """Whichever automatic ellipsoid is the first to hold one (None: none does), the export is within the smallest
-    that does, and a refusal tries two: the ellipsoids are nested."""
+    that does, and a refusal tries two (the ellipsoids are nested) and hands on the largest's unmet conditions."""
     from spaceid.identified import _export
 
     tried = []
@@ -229,12 +252,15 @@ def test_automatic_ellipsoid_is_the_smallest_that_holds_a_physical_model(holds, 
     def export_from(result, prior, param, region, where, prior_name, staged):
         tried.append(region)
         if holds is None or region < holds:
-            raise _export._Unmet(lambda: spaceid.SpaceidError("none within it"))
+            raise _export._Unmet(lambda: spaceid.SpaceidError(f"none within {region}"))
         return SimpleNamespace(region=region)
 
     monkeypatch.setattr(_export, "_export", export_from)
     found = _export._auto_export(None, None, None, "r.json", "prior")
-    assert (found and found.region) == holds
+    if holds is None:
+        assert str(found.error()) == "none within 0.999"
+    else:
+        assert found.region == holds
     assert tried == {0.95: [0.95], 0.99: [0.95, 0.999, 0.99], 0.999: [0.95, 0.999, 0.99], None: [0.95, 0.999]}[holds]
 
 
@@ -315,7 +341,14 @@ def test_spatial_export_reproduces_pi_and_momentum(tmp_path):
 
 
 @pytest.mark.slow
-def test_noisy_spatial_export_takes_the_region_by_itself(tmp_path):
+def test_noisy_spatial_export_takes_the_region_by_itself(tmp_path, monkeypatch):
+    """153 noisy combinations of 80 standard parameters: no model, physical or not, reproduces them, and the export
+    goes to the ellipsoids without searching for an exact one."""
+    from spaceid.identified import _export
+
+    attempt, regions = _export._export, []
+    monkeypatch.setattr(_export, "_export", lambda result, prior, param, region, *args, **kwargs: (
+        regions.append(region), attempt(result, prior, param, region, *args, **kwargs))[1])
     true = spaceid.load_model("satellite-7dof")
     param = minimal_parameters(true)
     exact = exact_result(param)
@@ -323,10 +356,10 @@ def test_noisy_spatial_export_takes_the_region_by_itself(tmp_path):
     values = param.true_values + std * np.random.default_rng(2).standard_normal(param.n_params)
     noisy = Identification(**{**exact.__dict__, "values": values, "std": std, "cov": np.diag(std**2)})
     prior = perturbed(true, seed=1)
-    # 153 noisy combinations of 80 standard parameters: no physical model reproduces them exactly
-    with pytest.warns(UserWarning, match="not physically realisable exactly: .* within its 0.95 confidence"):
+    with pytest.warns(UserWarning, match=r"not physically realisable exactly \(no model, physical or not, reproduces "
+                                         r"it\): .* within its 0.95 confidence"):
         res = export_model(noisy, prior)
-    assert res.region == 0.95 and res.mahalanobis <= res.bound
+    assert res.region == 0.95 and res.mahalanobis <= res.bound and regions == [0.95]
     for b in res.model.bodies:
         assert np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() > 0
     given = export_model(noisy, prior, region=0.95)

@@ -95,5 +95,9 @@ def test_export_regressions(seed, planar, noisy, tmp_path):
 # 1e-9), and the export fell back to the 0.95 ellipsoid
 @example(seed=139731, planar=False, noisy=False)
 @example(seed=161, planar=False, noisy=False)
+# planar robots of 9 parameters (8 of 9 directions undetermined by the test's log): the steps met the conditions,
+# then went on and stalled, and the export fell back on the 0.95 ellipsoid, 0.096 and 0.028 off the estimate
+@example(seed=331, planar=True, noisy=False)
+@example(seed=676, planar=True, noisy=False)
 def test_export_without_options_on_larger_robots(seed, planar, noisy, tmp_path):
     _export(seed, planar, noisy, tmp_path, larger=True)
