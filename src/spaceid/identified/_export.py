@@ -66,6 +66,16 @@ of their norm in 3 to 5 steps; the noisy estimates of the three presets that ``b
 SHRINK = 1e-6
 """``region``: the ellipsoid used is this much smaller (relative radius), so the exported
 parameters lie inside the stated one despite the solver's tolerance."""
+DRIFT = 1e-3
+"""An ellipsoid's main step that raises the violation of the conditions (not linearised) by more than this fraction
+of the ellipsoid's radius above the last accepted step's is taken again within a trust region of half its length
+(doubled after each step taken): each step meets the ellipsoid as linearised where it stands, and unchecked, the
+steps of random spatial robots 13652 and 252543 walked out to 160 and 36 times its radius, oscillating."""
+OUTSIDE_SHRINK = 1e-2
+"""``region``: when the search ends outside the ellipsoid (the linearised conditions held, and the model's own
+parameters are outside by their second-order terms), it runs again within one this much smaller (relative
+radius). Random spatial robot 13652 (15 parameters, a noisy estimate): the steps came within 1.002 of the 0.95
+radius, then walked out to 160 times it, oscillating; within 0.99 of the radius the best step lies inside."""
 
 
 def pseudo_divergence(model: Model, reference: Model) -> float:
@@ -177,8 +187,9 @@ class _Program:
         self.g, self.z, self.radius, self.elastic = g, z, radius, elastic
         self.slack = self.excess = self.solution = None
 
-    def solve(self, a_eq, b_eq, a_w, b_w):
-        """The solution ``vec X`` (16 nb,), or None when the program is infeasible (also kept as ``solution``)."""
+    def solve(self, a_eq, b_eq, a_w, b_w, around=None):
+        """The solution ``vec X`` (16 nb,), or None when the program is infeasible (also kept as ``solution``);
+        ``around = (x, delta)``: within ``delta`` of ``vec X = x`` in every entry (a trust region)."""
         import cvxpy as cp
 
         x = [cp.Variable((4, 4), symmetric=True) for _ in range(self.g.shape[1] // 16)]
@@ -186,6 +197,7 @@ class _Program:
         theta = cp.Variable(self.g.shape[0])  # a variable of its own: a matrix @ variable compiles fast
         cons = [b >> MARGIN * np.eye(4) for b in x] + [theta == self.g @ vec]
         cons += [self.z @ vec == 0] if len(self.z) else []
+        cons += [cp.abs(vec - around[0]) <= around[1]] if around is not None else []
         eq = a_eq @ theta - b_eq if len(a_eq) else None
         ball = cp.norm(_ball_residual(a_w, b_w, theta)) if len(a_w) else None
         if self.elastic:
@@ -258,9 +270,10 @@ def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region,
             "local): export within the confidence ellipsoid (`region`, a probability such as 0.95), give a prior "
             "closer to the robot, or check the identification")
     outside = "" if x is None or program.excess.value <= 1e-9 else "the ellipsoid reaches no physical model; "
+    unmet = f"{', '.join(names)} cannot be met" if names else "the steps from the prior stalled; the search is local"
     return SpaceidError(
-        f"{where}: no physical model within the {region:g} confidence ellipsoid ({outside}"
-        f"{', '.join(names) or 'the anchors'} cannot be met): try a larger `region`, or check the identification")
+        f"{where}: no physical model found within the {region:g} confidence ellipsoid ({outside}{unmet}): try a "
+        "larger `region`, give a prior closer to the robot, or check the identification")
 
 
 def _polish(param, theta, e, pi, slots_scale, g):
@@ -306,8 +319,8 @@ def _accuracy(result: Identification) -> float:
 def _miss(result: Identification, param, theta, scale) -> float:
     """How far the estimate lies from every model, physical or not, relative to its norm: ``|P [theta, phi] - pi|``
     where Gauss-Newton steps from ``theta`` (the prior's standard parameters; steps of least change relative to
-    ``scale``) stall. A step is halved until the residual falls; the steps stop when it falls by less than 1e-3 of itself, or
-    is within the estimate's accuracy (:func:`_accuracy`)."""
+    ``scale``) stall. A step is halved until the residual falls; the steps stop when it falls by less than 1e-3 of
+    itself, or is within the estimate's accuracy (:func:`_accuracy`)."""
     pi = np.asarray(result.values, float)
     r = _minimal_at(param, theta) - pi
     for _ in range(MAX_STEPS):
@@ -389,9 +402,10 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
     prior, param = _checked_prior(result, prior, where, prior_name)
     auto = region is None and np.any(np.diag(result.cov) > 0)  # an ellipsoid to fall back on
     with one_blas_thread():  # small dense factorisations: threads only wait on busy cores
-        g = pseudo_whitening(prior, prior_name)[0]
-        miss = _miss(result, param, full_values(prior)[: g.shape[0]], np.abs(g).max(axis=1)) if auto else 0.0
-        unmet = None
+        miss, unmet = 0.0, None
+        if auto:
+            g = pseudo_whitening(prior, prior_name)[0]
+            miss = _miss(result, param, full_values(prior)[: g.shape[0]], np.abs(g).max(axis=1))
         if not miss > UNREACHED * _accuracy(result):  # NaN (no finite condition number): search
             try:
                 return _export(result, prior, param, region, where, prior_name)
@@ -429,33 +443,71 @@ def _auto_export(result, prior, param, where, prior_name) -> Export | _Unmet:
 def _export(result, prior, param, region, where, prior_name, staged=True) -> Export:
     """:func:`export_model` once the prior is checked; ``staged``: when the steps from the prior stall, search
     again in :data:`STAGES` (the automatic ellipsoids are not: a refusal would take three times as long). When the
-    steps of an exact export stall after one of them met the conditions (then polished), that one is exported, with
-    a warning. Raises :class:`_Unmet` when no physical model is found."""
+    steps stall, or end where the checks of :func:`_finished` fail, the main step that met the conditions best is
+    exported if it passes them, with a warning; when an ellipsoid's steps end outside it, the search is run again
+    within a smaller one (:data:`OUTSIDE_SHRINK`). Raises :class:`_Unmet` when no physical model is found."""
     pi = np.asarray(result.values, float)
     g, z = pseudo_whitening(prior, prior_name)
     e, labels, w, radius = _constraint_rows(result, region)
     prior_theta = full_values(prior)[: g.shape[0]]
     start = np.concatenate([np.eye(4).ravel()] * len(prior.bodies))  # vec X of the prior
-    search = _Search(param, g, z, e, w, radius, pi)
-    stalled = None
-    try:
+    finished = partial(_finished, result, prior, param, g, z, e, labels, w, radius, where, region)
+
+    def searched(shrink):
+        search = _Search(param, g, z, e, w, radius, pi, shrink)
         try:
-            x = search.run(pi, start, prior_theta)
-        except _Stalled:  # the steps from the prior stalled
-            if not staged:
-                raise
-            x = _staged(search, param.projection @ full_values(prior), pi, start, prior_theta)
-    except _Stalled as stall:
-        if region is not None or search.best[1] is None:  # (an ellipsoid's steps may have left it: not checked)
-            raise _Unmet(partial(_infeasible, result, param, g, z, e, labels, w, radius, g @ stall.x, where, region,
-                                 stall.restore)) from None
-        stalled, x = stall, search.best[1]  # the step that met the conditions best, if the checks below accept it
-    if stalled is None and search.moved >= STEP_TOL:
+            try:
+                x = search.run(pi, start, prior_theta)
+            except _Stalled:  # the steps from the prior stalled
+                if not staged:
+                    raise
+                x = _staged(search, param.projection @ full_values(prior), pi, start, prior_theta)
+        except _Stalled as stall:
+            if search.best[1] is None:
+                raise _Unmet(partial(_infeasible, result, param, g, z, e, labels, w, radius, g @ stall.x, where,
+                                     region, stall.restore)) from None
+            return _best_step(search, finished, where, "stalled before they settled")
+        return _settled(search, finished, x, where)
+
+    try:
+        return searched(SHRINK)
+    except _Outside:  # an ellipsoid's steps ended outside it: again within a smaller one
+        return searched(OUTSIDE_SHRINK)
+
+
+def _settled(search, finished, x, where: str) -> Export:
+    """``finished`` at the end ``x`` of ``search``'s steps; when its checks fail, at the main step that met the
+    conditions best (:func:`_best_step`), if another."""
+    try:
+        export = finished(x, search.steps)
+    except _Unmet:
+        if search.best[1] is None or search.best[1] is x:
+            raise
+        return _best_step(search, finished, where, "ended outside the conditions")
+    if search.moved >= STEP_TOL:
         warnings.warn(f"{where}: the export did not settle in {MAX_STEPS} convex steps (last move "
-                      f"{search.moved:.2g})", stacklevel=3)
-    steps, theta = search.steps, g @ x
+                      f"{search.moved:.2g})", stacklevel=5)
+    return export
+
+
+def _best_step(search, finished, where: str, how: str) -> Export:
+    """``finished`` at the main step of ``search`` that met the conditions best, with a warning that says ``how`` the
+    steps ended."""
+    export = finished(search.best[1], search.steps)
+    warnings.warn(f"{where}: the convex steps {how}: exported the step that met the conditions best (a physical "
+                  "model closer to the prior may exist)", stacklevel=5)
+    return export
+
+
+def _finished(result, prior, param, g, z, e, labels, w, radius, where, region, x, steps) -> Export:
+    """The :class:`Export` of the search's ``vec X`` ``x`` after ``steps`` convex programs: polished onto the
+    equalities (:func:`_polish`), the parameters without effect on the momentum at the prior's values; raises
+    :class:`_Unmet` when the equalities are not met, the model is not within the ellipsoid (``region``), or it is not
+    physical."""
+    pi = np.asarray(result.values, float)
+    prior_theta = full_values(prior)[: g.shape[0]]
     scale = np.abs(g).max(axis=1)  # of each standard parameter, for a unit change of X
-    theta = _polish(param, theta, e, pi, scale, g)
+    theta = _polish(param, g @ x, e, pi, scale, g)
     hidden = _hidden(param)
     # the parameters the momentum does not see are at the prior up to the solver's noise: exactly there
     theta = np.where(hidden & (np.abs(theta - prior_theta) <= 1e-9 * scale), prior_theta, theta)
@@ -463,19 +515,19 @@ def _export(result, prior, param, region, where, prior_name, staged=True) -> Exp
     if len(a_eq) and not _met(result, param, theta, e, pi, np.abs(a_eq @ theta - b_eq).max()):
         raise _Unmet(partial(_infeasible, result, param, g, z, e, labels, w, radius, theta, where, region))
     model = with_theta(prior, theta)
+    values = param.projection @ full_values(model)
+    distance = float(np.sum((w @ (values - pi)) ** 2))
+    if region is not None and distance > radius**2:  # the steps' linearised ellipsoid held, the ellipsoid not
+        raise _Outside(partial(SpaceidError, f"{where}: the export's steps within the {region:g} confidence ellipsoid "
+                             f"ended outside it (distance^2 {distance:.4g} > {radius**2:.4g}): try a larger `region`"))
     if unphysical_bodies(model):  # never hand on (or write) an unphysical model as a result
         raise _Unmet(partial(SpaceidError, f"{where}: the export ended on a model whose bodies "
                              f"{', '.join(unphysical_bodies(model))} are not physically consistent: nothing was "
                              "written; please report this"))
-    if stalled is not None:
-        warnings.warn(f"{where}: the convex steps stalled before they settled: exported the step that met the "
-                      "conditions best (it reproduces the estimate; a physical model closer to the prior may exist)",
-                      stacklevel=3)
-    values = param.projection @ full_values(model)
     seen = {b.name: tuple(INERTIAL_NAMES[k] for (i, k), h in zip(theta_slots(prior), hidden) if i == n and not h)
             for n, b in enumerate(prior.bodies)}  # fmt: skip
-    return Export(model, prior, param, values, region, float(np.sum((w @ (values - pi)) ** 2)),
-                  float(radius**2) if region is not None else None, pseudo_divergence(model, prior), steps, seen)
+    return Export(model, prior, param, values, region, distance, float(radius**2) if region is not None else None,
+                  pseudo_divergence(model, prior), steps, seen)
 
 
 class _Unmet(Exception):
@@ -485,6 +537,10 @@ class _Unmet(Exception):
     def __init__(self, error):
         super().__init__()
         self.error = error
+
+
+class _Outside(_Unmet):
+    """The model an ellipsoid's search ended on is outside the ellipsoid (its linearisation held, not itself)."""
 
 
 class _Stalled(Exception):
@@ -503,9 +559,9 @@ class _Search:
     is the last one's size; ``best``: ``(violation, vec X)`` of the main steps towards the export's ``target`` that
     violated its conditions least (:func:`_actual_violation`), over every run."""
 
-    def __init__(self, param, g, z, e, w, radius, target):
+    def __init__(self, param, g, z, e, w, radius, target, shrink=SHRINK):
         self.param, self.g, self.z, self.e, self.w, self.radius = param, g, z, e, w, radius
-        self.program = _Program(g, z, radius * (1 - SHRINK))
+        self.program = _Program(g, z, radius * (1 - shrink))
         self.steps, self.moved = 0, 0.0
         self.target, self.best = target, (np.inf, None)
 
@@ -516,11 +572,21 @@ class _Search:
         (:data:`REACHED`): a main program out of reach is infeasible (a third of a refusal's programs were)."""
         param, g, e, w, radius = self.param, self.g, self.e, self.w, self.radius
         theta, restore, violation, restoring = g @ x if theta is None else theta, None, np.inf, False
+        delta, now = np.inf, _actual_violation(param, g, x, e, w, pi, radius) if len(w) else None
         for _ in range(MAX_STEPS):
             self.steps += 1
             towards = restore.solve(*_conditions(param, g, theta, e, w, pi, project=False)) if restoring else None
             out_of_reach = towards is not None and _violation(restore) > REACHED
-            new = None if out_of_reach else self.program.solve(*_conditions(param, g, theta, e, w, pi))
+            around = None if delta == np.inf else (x, delta)
+            new = None if out_of_reach else self.program.solve(*_conditions(param, g, theta, e, w, pi), around)
+            after = None if new is None else _actual_violation(param, g, new, e, w, pi, radius)
+            if now is not None and after is not None:  # an ellipsoid's step: a trust region when it walks out
+                if after > max(now, 0.0) + DRIFT * radius:
+                    delta = 0.5 * np.abs(new - x).max()
+                    if delta < STEP_TOL:
+                        break
+                    continue
+                delta = 2 * delta
             restoring = new is None
             if restoring:  # linearised at theta, the conditions reach no physical model: move towards them first
                 restore = restore or _Program(g, self.z, radius, elastic=True)
@@ -529,8 +595,10 @@ class _Search:
                 new, violation = _damped(param, g, x, towards, e, w, pi, radius, violation)
                 if new is None:
                     raise _Stalled(x, restore)
-            elif np.allclose(pi, self.target, rtol=1e-12, atol=0):  # a main step towards the export's own target
-                self.best = min(self.best, (_actual_violation(param, g, new, e, w, pi, radius), new), key=lambda b: b[0])
+                after = violation
+            elif after < self.best[0] and np.allclose(pi, self.target, rtol=1e-12, atol=0):  # towards the target
+                self.best = (after, new)
+            now = after if now is not None else None
             self.moved = np.abs(new - x).max()
             x, theta = new, g @ new
             if self.moved < STEP_TOL:
