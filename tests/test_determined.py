@@ -189,8 +189,9 @@ def test_values_the_data_do_not_determine_are_not_called_impossible(seed, tmp_pa
 
 def test_ml_over_all_directions_stops_early_where_the_data_leave_some_undetermined(tmp_path, monkeypatch):
     """Over all 66 directions of that motion ML had crept on to its 50th iteration before falling back (the
-    likelihood has no maximum along the 5 the data do not determine); not converged after ``STALL_CHECK``
-    iterations it asks, and stops. The fit over the others starts from the same fallback: the result is the
+    likelihood has no maximum along the 5 the data do not determine); not converged after ``EARLY_CHECK``
+    iterations with its objective still falling by more than ``EARLY_FALL`` an iteration (else after
+    ``STALL_CHECK``) it asks, once, and stops. The fit over the others starts from the same fallback: the result is the
     same, bit for bit, as when it ran on. The ratios that stopped it are those at the fallback (WLS's estimate
     here), from which the fit over the others starts: formed once, not again for that fit."""
     from spaceid.estimation import _estimators as estimate
@@ -216,7 +217,8 @@ def test_ml_over_all_directions_stops_early_where_the_data_leave_some_undetermin
             warnings.simplefilter("ignore")
             results.append(identify(truth, noisy, h, noise=noise))
     (over_all, iterations, why), held, moved = fits[0], fits[1], fits[2]  # moved: the held values at the model's
-    assert over_all and iterations == estimate.STALL_CHECK and re.search("do not determine [1-9][0-9]* of 66", why)
+    assert over_all and iterations == estimate.EARLY_CHECK and re.search("do not determine [1-9][0-9]* of 66", why)
+    assert "had not converged after 5 iterations" in why
     assert len(formed) == 2  # once as it stops (at the fallback, WLS here), once in the run without the check
     assert not held[0] and not moved[0] and fits[3][:2] == (True, 50) and fits[4:6] == [held, moved]
     assert np.array_equal(results[0].values, results[1].values) and np.array_equal(results[0].cov, results[1].cov)

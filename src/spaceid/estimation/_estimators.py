@@ -283,6 +283,13 @@ def _anderson(history):
     return proposals[-1] - gamma @ np.diff(proposals, axis=0)
 
 
+EARLY_CHECK = 5
+EARLY_FALL = 1e-2
+"""A fit whose objective still fell by more than ``EARLY_FALL`` of itself in its ``EARLY_CHECK``-th iteration asks
+then, once, what it would ask after :data:`STALL_CHECK`. Over 2,400 fits over every direction on 300 random robots
+(8 noise draws each, undesigned and designed motions), the 146 that converged after more than 5 iterations fell by
+at most 9.3e-4 in their fifth; 66 fits that did not converge asked 5 iterations earlier, the same fits were held,
+and no robot's largest error moved. The servicer's held 500-sample log (194 of 496 directions held) fell by 3.3 %."""
 STALL_CHECK = 10
 """Iterations after which a maximum-likelihood fit that has not converged asks whether the data leave
 directions undetermined (``stalled`` of :func:`_ml_fit`): along them the likelihood has no maximum, and
@@ -316,7 +323,8 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     update proposed at an accepted estimate moves no parameter by more than ``tol`` of its
     standard error (or 1e-9 relative: the finite differences leave a jitter of ~1e-10) and the
     objective changed by less than ``ftol`` relative: the estimate is then within about ``tol``
-    standard errors of the fixed point. Not converged after :data:`STALL_CHECK` iterations, it stops when
+    standard errors of the fixed point. Not converged after :data:`STALL_CHECK` iterations (:data:`EARLY_CHECK` while
+    its objective still falls by more than :data:`EARLY_FALL` an iteration), it asks once and stops when
     ``stalled(theta)`` (optional) gives a reason at the estimate it would report on failing (below; directions
     the data do not determine, which the iterate itself runs off along), as when it does not converge.
 
@@ -344,17 +352,19 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
     f, start, scaled = now["f"], now["f"], factor(now["L"])
     solve = _gram_solver(scaled, subspace)[0]
     target = theta - solve(now["grad"])  # the fundamental numerical scheme's first update
-    history, small, reason, damping = [], False, None, 1.0
+    history, small, reason, damping, falling = [], False, None, 1.0, 0.0
     for it in range(1, max_iter + 1):
-        if it == STALL_CHECK + 1 and stalled is not None:
+        if stalled is not None and (it == STALL_CHECK + 1 or it == EARLY_CHECK + 1 and falling > EARLY_FALL):
             why = stalled(fallback()[0])
+            stalled = None  # asked once
             if why:
-                reason, it = f"had not converged after {STALL_CHECK} iterations, and {why}", STALL_CHECK
+                reason, it = f"had not converged after {it - 1} iterations, and {why}", it - 1
                 break
         trial = theta + damping * (target - theta)
         new = evaluate(trial, (theta, now["xh"], now["r"], now["L"], now["J"]), True)
         if new["f"] <= f * (1 + ftol):  # accepted
             change, f, theta, now, damping = f - new["f"], new["f"], trial, new, 1.0
+            falling = change / max(f + change, 1e-300)
             if not history:  # the weights of the first accepted estimate: closer to the fixed point's than the start's
                 scaled = factor(now["L"])
                 solve, std = _gram_solver(scaled, subspace)  # std: for the tolerance
