@@ -237,7 +237,7 @@ def _conditions(param, g, theta, e, w, pi, *, project=True):
     ``E A``, a Gauss-Newton step): a spatial system has more minimal parameters than standard
     ones, so the linearised equalities alone are overdetermined and met only at the solution.
     They are at most ``n_theta`` (``len(theta)``) rows."""
-    jac = param.projection @ full_values_jacobian(with_theta(param.model, theta))
+    jac = _minimal_jacobian(param, theta)
     a_eq, b_eq = e @ jac, e @ pi
     scale = np.linalg.norm(a_eq @ g, axis=1)
     scale = np.where(scale > 0, scale, 1.0)
@@ -289,7 +289,7 @@ def _polish(param, theta, e, pi, slots_scale, g):
 
     for _ in range(4 if len(e) else 0):  # no equalities (a region and no anchors): nothing to polish
         r = residual(theta)
-        a = e @ param.projection @ full_values_jacobian(with_theta(param.model, theta)) * slots_scale
+        a = e @ _minimal_jacobian(param, theta) * slots_scale
         row = np.linalg.norm(a, axis=1)
         row = np.where(row > 0, row, 1.0)
         step = np.linalg.lstsq(a / row[:, None], -r / row, rcond=1e-10)[0] * slots_scale
@@ -311,6 +311,11 @@ def _minimal_at(param: Parameterization, theta) -> np.ndarray:
     return param.projection @ full_values(with_theta(param.model, theta))
 
 
+def _minimal_jacobian(param: Parameterization, theta) -> np.ndarray:
+    """The Jacobian of :func:`_minimal_at` at ``theta``, shape (n_params, n_theta)."""
+    return param.projection @ full_values_jacobian(with_theta(param.model, theta))
+
+
 def _accuracy(result: Identification) -> float:
     """The estimate's own accuracy relative to its norm: :data:`ROUNDING` ``eps`` times its condition number."""
     return ROUNDING * np.finfo(float).eps * result.condition_number
@@ -324,7 +329,7 @@ def _miss(result: Identification, param, theta, scale) -> float:
     pi = np.asarray(result.values, float)
     r = _minimal_at(param, theta) - pi
     for _ in range(MAX_STEPS):
-        a = param.projection @ full_values_jacobian(with_theta(param.model, theta)) * scale
+        a = _minimal_jacobian(param, theta) * scale
         step = np.linalg.lstsq(a, -r, rcond=1e-10)[0] * scale
         for fraction in 0.5 ** np.arange(14):
             trial = _minimal_at(param, theta + fraction * step) - pi
