@@ -11,7 +11,8 @@ on a shared machine hits both, and prints their medians and the median of the pe
 call: one evaluation of the iteration (:func:`~spaceid.estimation._estimators._ml_evaluate`: the
 signal Jacobian, the residuals, the
 weights' derivative, the gradient), the signal Jacobian and the weights' derivative alone, and the
-factorisation of the whitened equations (twice per call: the preconditioner and the covariance).
+factorisation of the whitened equations (three times per call: two preconditioners, in single precision where
+that pays and the condition allows, and the covariance's, in double).
 Prints only, never fails on timings.
 
     python benchmarks/bench_ml.py [--samples 10000] [--repeats 3] [--no-parts]
@@ -75,6 +76,8 @@ def parts(param, log, h, noise):
         "  signal Jacobian": lambda: eq.jacobian(xh, theta),
         "  weights' derivative (contracted)": lambda: eq.contracted_dphi(xh, x - xh, np.ones((n, param.rows))),
         "whitened factorisation": lambda: linalg._gram_matrix_factor(linalg._whitened_gram(first["L"], phi)),
+        "  in single precision (preconditioners)": lambda: linalg._gram_matrix_factor(
+            linalg._whitened_gram(first["L"], phi, single=True), limit=linalg.SINGLE_COND),
     }
     return {key: timed(fn)[:2] for key, fn in out.items()}
 

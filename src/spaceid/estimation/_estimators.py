@@ -70,8 +70,9 @@ from .._threads import one_blas_thread
 from ..dynamics import base_rate
 from ._angles import _angles_ml
 from ._equations import _split, equation_residuals
-from ._linalg import (_column_scale, _equation_whitener, _gram_matrix_factor, _inverse_times, _parts, _solve,
-                      _solve_factor, _triangular_factor, _whiten, _whitened, _whitened_gram, lower_inverse)  # fmt: skip
+from ._linalg import (SINGLE_COLUMNS, SINGLE_COND, _column_scale, _equation_whitener, _gram_matrix_factor,
+                      _inverse_times, _parts, _solve, _solve_factor, _triangular_factor, _whiten, _whitened,
+                      _whitened_gram, lower_inverse)  # fmt: skip
 from ._noise import FD_STEP, equation_covariance
 
 if TYPE_CHECKING:
@@ -304,7 +305,11 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
 
     - ``evaluate(theta, previous, gradient)``: :func:`_ml_evaluate` (``previous`` the last accepted
       evaluation: its ``(theta, xh, r, L, J)``);
-    - ``factor(L)``: the factor ``(scale, R)`` of the equations whitened by ``L`` (:func:`_triangular_factor`);
+    - ``factor(L, single=False)``: the factor ``(scale, R)`` of the equations whitened by ``L``
+      (:func:`_triangular_factor`); ``single``: from their Gram matrix formed in single precision, or None when their
+      condition does not allow it (:data:`~spaceid.estimation._linalg.SINGLE_COND`). The preconditioners of
+      :data:`~spaceid.estimation._linalg.SINGLE_COLUMNS` unknowns or more are asked for so (the fixed point is the
+      scheme's whatever the preconditioner); the covariance's factor is formed in double;
     - ``wls()``: the WLS estimate, the fallback.
 
     The first update is that of the fundamental numerical scheme from ``theta``: ``-G^-1 grad``
@@ -349,7 +354,15 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
         return (estimate if f_wls < start else start_theta), f_wls
 
     now = evaluate(theta, None, True)
-    f, start, scaled = now["f"], now["f"], factor(now["L"])
+    single = len(theta) >= SINGLE_COLUMNS  # the preconditioners' Gram matrices in single precision, where that pays
+
+    def preconditioner(L):  # once single precision is refused, so would the second be: the weights move little
+        nonlocal single
+        scaled = factor(L, True) if single else None
+        single = scaled is not None
+        return scaled or factor(L)
+
+    f, start, scaled = now["f"], now["f"], preconditioner(now["L"])
     solve = _gram_solver(scaled, subspace)[0]
     target = theta - solve(now["grad"])  # the fundamental numerical scheme's first update
     history, small, reason, damping, falling = [], False, None, 1.0, 0.0
@@ -366,7 +379,7 @@ def _ml_fit(x, theta, evaluate, factor, wls, max_iter=50, tol=1e-4, ftol=1e-9, h
             change, f, theta, now, damping = f - new["f"], new["f"], trial, new, 1.0
             falling = change / max(f + change, 1e-300)
             if not history:  # the weights of the first accepted estimate: closer to the fixed point's than the start's
-                scaled = factor(now["L"])
+                scaled = preconditioner(now["L"])
                 solve, std = _gram_solver(scaled, subspace)  # std: for the tolerance
             update = -solve(now["grad"])
             small = (np.abs(update) / std).max() < tol or np.abs(update).max() <= 1e-9 * np.abs(theta + update).max()
@@ -412,7 +425,9 @@ def _ml(eq, x, sigma, theta, ctx, **options):
     estimate (:func:`spaceid.estimation._uncertainty._covariance_terms`)."""
     phi = ctx.phi
 
-    def factor(L):  # the preconditioner and the bread: no refined solution needed
+    def factor(L, single=False):  # the preconditioner and the bread: no refined solution needed
+        if single:
+            return _gram_matrix_factor(_whitened_gram(L, phi, True), limit=SINGLE_COND)
         scaled = _gram_matrix_factor(_whitened_gram(L, phi))
         if scaled is None:  # conditioned beyond GRAM_COND: by QR
             A, b = _split(_whitened(L, phi))

@@ -47,8 +47,8 @@ from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ._equations import _split, equation_residuals
 from ._estimators import _instrument_rows, _ml_evaluate, _ml_fit
-from ._linalg import (_accumulate_factor, _equation_whitener, _factor_of_rows, _gram_matrix_factor, _gram_of_rows,
-                      _inverse_times, _sandwich, _solve_factor, _whitened, _whitened_gram)  # fmt: skip
+from ._linalg import (SINGLE_COND, _accumulate_factor, _equation_whitener, _factor_of_rows, _gram_matrix_factor,
+                      _gram_of_rows, _inverse_times, _sandwich, _solve_factor, _whitened, _whitened_gram)  # fmt: skip
 from ._uncertainty import WEIGHTED, _covariance_choice, _covariance_record, _hac, _mapped_scores, _with_propagated
 
 __all__ = ["STREAMED"]
@@ -178,8 +178,11 @@ def _streamed_ml(eq, x, sigma, theta, chunk):
         return _ml_evaluate(eq, x, estimate, sigma, chunk, lambda rows, e, xc: e.phi(xc), previous, gradient,
                             keep_jacobian=False)
 
-    def factor(L):  # the preconditioner and the bread, as in memory: no refined solution needed
-        G = functools.reduce(np.add, (_whitened_gram(L[rows], e.phi(xc)) for rows, e, xc in _chunks(eq, x, chunk)))
+    def factor(L, single=False):  # the preconditioner and the bread, as in memory: no refined solution needed
+        G = functools.reduce(np.add, (_whitened_gram(L[rows], e.phi(xc), single) for rows, e, xc in
+                                      _chunks(eq, x, chunk)))  # fmt: skip
+        if single:
+            return _gram_matrix_factor(G, limit=SINGLE_COND)
         blocks = lambda: (_split(_whitened(L[rows], e.phi(xc))) for rows, e, xc in _chunks(eq, x, chunk))  # noqa: E731
         return _streamed_factor(blocks, eq.p, refined=False, gram=G)
 
