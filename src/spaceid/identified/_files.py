@@ -6,7 +6,6 @@ from __future__ import annotations
 
 from importlib import resources
 from pathlib import Path
-from xml.sax.saxutils import escape
 
 import numpy as np
 
@@ -28,6 +27,8 @@ def _num(x: float) -> str:
 
 def _attr(text: str) -> str:
     """``text`` safe inside a double-quoted XML attribute."""
+    from xml.sax.saxutils import escape  # here: it imports urllib.request, http and ssl (15 ms of every command)
+
     return escape(str(text), {'"': "&quot;"})
 
 
