@@ -12,6 +12,7 @@ import pytest
 from test_simulate_estimate import H, motion
 
 import spaceid
+from spaceid import SpaceidError
 from spaceid.cli import main
 from spaceid.data import write_json
 from spaceid.dynamics import full_values, full_values_jacobian, minimal_parameters
@@ -194,6 +195,36 @@ def test_the_exact_search_is_skipped_when_no_model_reproduces_the_estimate(cephe
         regions.append(region), attempt(result, prior, param, region, *args, **kwargs))[1])
     with pytest.warns(UserWarning, match=r"exactly \(no model, physical or not, reproduces it\)"):
         assert export_model(noisy, prior).region == regions[0] == 0.95
+
+
+def test_combinations_a_widening_left_below_round_off_are_held_exactly_and_named_when_unmet(cepheus):
+    """A noisy estimate (standard errors 1e-3 of its values) whose covariance is widened along one direction the
+    data do not determine to a variance 1e18 times its own: the other seven combinations' variances are lost to its
+    round-off. Held exactly, as if of no variance, they are met by a physical model, which is exported (within an
+    ellipsoid of any size along them). With the first parameter's sign flipped they meet none, and the refusal
+    names that cause in one line, with the remedies; widened by 1e6 only, every variance resolved, the same
+    estimate's refusal is the usual one."""
+    true, prior, ident, _ = cepheus
+    std = 1e-3 * np.abs(ident.values)
+    values = ident.values + std * np.random.default_rng(1).standard_normal(len(std))
+    flipped = values * np.where(np.arange(len(values)) == 0, -1.0, 1.0)
+    direction = np.ones(len(std)) / np.sqrt(len(std))
+    undetermined = ({"noise_to_signal": 4.5, "parameters": ["pi1"]},)
+
+    def widened(pi, widening):
+        cov = np.diag(std**2) + widening * std.min() ** 2 * np.outer(direction, direction)
+        return Identification(**{**ident.__dict__, "values": pi, "std": np.sqrt(np.diag(cov)), "cov": cov,
+                                 "diagnostics": dataclasses.replace(ident.diagnostics, undetermined=undetermined)})
+
+    with pytest.warns(UserWarning, match="not physically realisable exactly"):
+        assert export_model(widened(values, 1e18), prior).region == 0.95
+    with pytest.raises(SpaceidError, match=r"^result: no physical model found: the estimate's covariance, widened "
+                       r"along the 1 directions the data do not determine \(standard errors up to .*\), leaves 7 "
+                       r"combinations .* below its round-off, and held exactly they meet no physical model: identify "
+                       r"with a `prior` .* or on a designed motion"):  # fmt: skip
+        export_model(widened(flipped, 1e18), prior)
+    with pytest.raises(SpaceidError, match=r"^result: no physical model found within the 0.999 confidence ellipsoid"):
+        export_model(widened(flipped, 1e6), prior)
 
 
 def test_infeasible_pi_is_one_line_naming_it(cepheus, monkeypatch):

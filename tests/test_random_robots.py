@@ -6,6 +6,7 @@ import dataclasses
 import warnings
 
 import numpy as np
+import pinocchio as pin
 import pytest
 from hypothesis import example, given
 from hypothesis import strategies as st
@@ -49,14 +50,23 @@ def _noisy_export(seed, planar, tmp_path, **size):
     std = 1e-3 * np.abs(exact.values) + 1e-6 * np.abs(exact.values).max()
     values = exact.values + std * np.random.default_rng(seed).standard_normal(len(std))
     noisy = dataclasses.replace(exact, values=values, std=std, cov=np.diag(std**2))
+    check_noisy_export(noisy, true, perturbed_prior(true, seed + 1), tmp_path)
+
+
+def check_noisy_export(ident, true, prior, folder):
+    """Export of the noisy identification ``ident`` of the robot ``true`` from ``prior`` with no options: a
+    consistent model (it loads in Pinocchio and spaceid, every pseudo-inertia positive definite) that reproduces
+    the estimate, or lies within the region it records (warnings aside: the fall-back to a region is tested
+    with the presets)."""
     with warnings.catch_warnings():
-        warnings.simplefilter("ignore", UserWarning)  # the fall-back to a region is tested with the presets
-        res = export_model(noisy, perturbed_prior(true, seed + 1))
-    write_export(res, tmp_path / "noisy.urdf")
-    for b in spaceid.load_model(tmp_path / "noisy.urdf", planar=planar).bodies:
+        warnings.simplefilter("ignore", UserWarning)
+        res = export_model(ident, prior)
+    write_export(res, folder / "noisy.urdf")
+    pin.buildModelFromUrdf(str(folder / "noisy.urdf"), pin.JointModelFreeFlyer())
+    for b in spaceid.load_model(folder / "noisy.urdf", planar=true.planar).bodies:
         assert np.linalg.eigvalsh(pseudo_inertia(b.inertial)).min() > 0, b.name
     if res.region is None:
-        np.testing.assert_allclose(res.values, values, rtol=0, atol=1e-8 * np.abs(values).max())
+        np.testing.assert_allclose(res.values, ident.values, rtol=0, atol=1e-8 * np.abs(ident.values).max())
     else:
         assert res.mahalanobis <= res.bound
 

@@ -71,6 +71,17 @@ DRIFT = 1e-3
 of the ellipsoid's radius above the last accepted step's is taken again within a trust region of half its length
 (doubled after each step taken): each step meets the ellipsoid as linearised where it stands, and unchecked, the
 steps of random spatial robots 13652 and 252543 walked out to 160 and 36 times its radius, oscillating."""
+RESOLVED = 1e-12
+"""Smallest variance, relative to the largest (of the correlations: each parameter's scaled to one), that an
+ellipsoid resolves from none: a covariance holds its smaller variances to about ``k eps`` of its largest, and a
+combination below this one a hundred times that is not known to 1 %. On an estimate that the data determine
+everywhere, only the anchored parameters fall below (exactly zero); an estimate widened along directions the data
+do not determine to their values' scale can hold variances 1e18 apart (undesigned random spatial robot 3657496:
+1e-9 to 1e9), and its determined combinations fall below: held exactly, as if of no variance (a model within any
+ellipsoid of them), they may meet no physical model, and a refusal then names that cause (:func:`_refusal`)."""
+PROJECTIONS = 5
+"""Most projections that move the end of an ellipsoid's steps into it (:meth:`_Search.inside`), when they end
+outside it by the second-order terms of their conditions."""
 OUTSIDE_SHRINK = 1e-2
 """``region``: when the search ends outside the ellipsoid (the linearised conditions held, and the model's own
 parameters are outside by their second-order terms), it runs again within one this much smaller (relative
@@ -153,17 +164,12 @@ def _constraint_rows(result: Identification, region):
 
     Exact fit: ``E = 1``, no ``W``. Within the ``region`` ellipsoid: ``W`` whitens the residual
     with the covariance; the anchored parameters (zero variance) and the combinations the
-    covariance gives no variance go to ``E``. Returns ``(E, labels of E's rows, W, radius)``.
+    covariance gives no variance (:func:`_spectrum`) go to ``E``. Returns ``(E, labels of E's rows, W, radius)``.
     """
     k = len(result.values)
     if region is None:
         return np.eye(k), list(result.names), np.zeros((0, k)), 0.0
-
-    std = np.sqrt(np.clip(np.diag(result.cov), 0, None))
-    var = np.flatnonzero(std > 0)
-    corr = result.cov[np.ix_(var, var)] / np.outer(std[var], std[var])
-    s, v = np.linalg.eigh(0.5 * (corr + corr.T))
-    null = s <= 1e-12 * s.max() if len(s) else np.zeros(0, bool)
+    std, var, s, v, null = _spectrum(result)
     e = np.zeros((k - len(var) + null.sum(), k))
     e[np.arange(k - len(var)), np.setdiff1d(np.arange(k), var)] = 1.0
     e[k - len(var) :, var] = (v[:, null] / std[var, None]).T
@@ -172,6 +178,33 @@ def _constraint_rows(result: Identification, region):
     w[:, var] = (v[:, ~null] / np.sqrt(s[~null]) / std[var, None]).T
     dof = int((~null).sum())
     return e, labels, w, float(np.sqrt(chi2_ppf(region, dof))) if dof else 0.0
+
+
+def _spectrum(result: Identification) -> tuple:
+    """``(std (k,), var, s, v, null)``: the standard errors, the indices ``var`` of the parameters with variance,
+    the eigenvalues ``s`` and vectors ``v`` of their correlations, and which count as none (:data:`RESOLVED`)."""
+    std = np.sqrt(np.clip(np.diag(result.cov), 0, None))
+    var = np.flatnonzero(std > 0)
+    corr = result.cov[np.ix_(var, var)] / np.outer(std[var], std[var])
+    s, v = np.linalg.eigh(0.5 * (corr + corr.T))
+    return std, var, s, v, s <= RESOLVED * s.max() if len(s) else np.zeros(0, bool)
+
+
+def _refusal(result: Identification, unmet: "_Unmet", where: str, region) -> SpaceidError:
+    """The error of an export that found no physical model (``unmet``'s, searched within ``region``, None for the
+    exact search); within an ellipsoid of an estimate whose covariance, widened along directions the data do not
+    determine, left combinations they do determine below its round-off (:data:`RESOLVED`): held exactly as if of no
+    variance, they met no physical model, and that is the cause to name."""
+    if region is None or not result.diagnostics.undetermined:
+        return unmet.error()
+    std, _, _, _, null = _spectrum(result)
+    if not null.any():
+        return unmet.error()
+    return SpaceidError(f"{where}: no physical model found: the estimate's covariance, widened along the "
+            f"{len(result.diagnostics.undetermined)} directions the data do not determine (standard errors up to "
+            f"{std.max():.3g}), leaves {null.sum()} combinations the data do determine below its round-off, and "
+            "held exactly they meet no physical model: identify with a `prior` (it sets those directions) or on a "
+            "designed motion (spaceid design)")
 
 
 class _Program:
@@ -187,9 +220,10 @@ class _Program:
         self.g, self.z, self.radius, self.elastic = g, z, radius, elastic
         self.slack = self.excess = self.solution = None
 
-    def solve(self, a_eq, b_eq, a_w, b_w, around=None):
+    def solve(self, a_eq, b_eq, a_w, b_w, around=None, nearest=None):
         """The solution ``vec X`` (16 nb,), or None when the program is infeasible (also kept as ``solution``);
-        ``around = (x, delta)``: within ``delta`` of ``vec X = x`` in every entry (a trust region)."""
+        ``around = (x, delta)``: within ``delta`` of ``vec X = x`` in every entry (a trust region); ``nearest``: the
+        point of the conditions nearest to that ``vec X`` instead of the one closest to the prior (a projection)."""
         import cvxpy as cp
 
         x = [cp.Variable((4, 4), symmetric=True) for _ in range(self.g.shape[1] // 16)]
@@ -208,7 +242,8 @@ class _Program:
             objective = (cp.norm1(self.slack) if len(a_eq) else 0) + self.excess
         else:
             cons += ([eq == 0] if len(a_eq) else []) + ([ball <= self.radius] if len(a_w) else [])
-            objective = sum(cp.trace(b) - cp.log_det(b) for b in x)
+            objective = (cp.sum_squares(vec - nearest) if nearest is not None else
+                         sum(cp.trace(b) - cp.log_det(b) for b in x))  # fmt: skip
         self.solution = None
         if solved_tightly(cp.Problem(cp.Minimize(objective), cons)):
             self.solution = np.concatenate([b.value.ravel(order="F") for b in x])
@@ -416,11 +451,11 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
                 return _export(result, prior, param, region, where, prior_name)
             except _Unmet as exact_failure:
                 if not auto:
-                    raise exact_failure.error() from None
+                    raise _refusal(result, exact_failure, where, region) from None
                 unmet = exact_failure
         export = _auto_export(result, prior, param, where, prior_name)  # the estimate is not physical
         if isinstance(export, _Unmet):
-            raise (unmet or export).error() from None
+            raise _refusal(result, unmet or export, where, AUTO_REGIONS[-1]) from None
         why = "" if unmet else " (no model, physical or not, reproduces it)"
         warnings.warn(f"{where}: the estimate is not physically realisable exactly{why}: exported the model "
                       f"closest to the prior within its {export.region:g} confidence ellipsoid", stacklevel=2)
@@ -484,7 +519,7 @@ def _settled(search, finished, x, where: str) -> Export:
     """``finished`` at the end ``x`` of ``search``'s steps; when its checks fail, at the main step that met the
     conditions best (:func:`_best_step`), if another."""
     try:
-        export = finished(x, search.steps)
+        export = _projected(search, finished, x, where)
     except _Unmet:
         if search.best[1] is None or search.best[1] is x:
             raise
@@ -495,10 +530,21 @@ def _settled(search, finished, x, where: str) -> Export:
     return export
 
 
+def _projected(search, finished, x, where: str) -> Export:
+    """``finished`` at ``x`` moved into the ellipsoid (:meth:`_Search.inside`), with a warning when it was."""
+    moved, projections = search.inside(x)
+    export = finished(moved, search.steps)
+    if projections:
+        warnings.warn(f"{where}: the export's steps ended outside the ellipsoid by its conditions' second-order terms: "
+                      f"moved into it by {projections} projection(s) (a physical model closer to the prior may exist)",
+                      stacklevel=6)  # fmt: skip
+    return export
+
+
 def _best_step(search, finished, where: str, how: str) -> Export:
     """``finished`` at the main step of ``search`` that met the conditions best, with a warning that says ``how`` the
     steps ended."""
-    export = finished(search.best[1], search.steps)
+    export = _projected(search, finished, search.best[1], where)
     warnings.warn(f"{where}: the convex steps {how}: exported the step that met the conditions best (a physical "
                   "model closer to the prior may exist)", stacklevel=5)
     return export
@@ -569,6 +615,27 @@ class _Search:
         self.program = _Program(g, z, radius * (1 - shrink))
         self.steps, self.moved = 0, 0.0
         self.target, self.best = target, (np.inf, None)
+
+    def inside(self, x) -> tuple:
+        """``(x, projections)``: ``x`` (``vec X``) moved into an ellipsoid whose conditions it violates (not
+        linearised) by their second-order terms, onto the nearest point of their linearisation where it stands, again
+        from there, up to :data:`PROJECTIONS` times (each a short step, whose own second-order terms are far smaller;
+        the model is then no longer the one closest to the prior), and how many; ``(x, 0)`` when that does not end
+        inside, or there is no ellipsoid."""
+        param, g, e, w, pi, radius = self.param, self.g, self.e, self.w, self.target, self.radius
+
+        def outside(x):  # the ellipsoid's own excess (the equalities are polished after)
+            return len(w) and np.linalg.norm(w @ (_minimal_at(param, g @ x) - pi)) > radius
+
+        moved, projections = x, 0
+        while outside(moved):
+            if projections == PROJECTIONS:
+                return x, 0
+            self.steps, projections = self.steps + 1, projections + 1
+            moved = self.program.solve(*_conditions(param, g, g @ moved, e, w, pi), nearest=moved)
+            if moved is None:
+                return x, 0
+        return moved, projections
 
     def run(self, pi, x, theta=None) -> np.ndarray:
         """The ``vec X`` that meets the conditions at ``pi``, stepping from ``x`` (linearised first at ``theta``,
