@@ -220,8 +220,8 @@ def test_combinations_a_widening_left_below_round_off_are_held_exactly_and_named
         assert export_model(widened(values, 1e18), prior).region == 0.95
     with pytest.raises(SpaceidError, match=r"^result: no physical model found: the estimate's covariance, widened "
                        r"along the 1 directions the data do not determine \(standard errors up to .*\), leaves 7 "
-                       r"combinations .* below its round-off, and held exactly they meet no physical model: identify "
-                       r"with a `prior` .* or on a designed motion"):  # fmt: skip
+                       r"combinations .* below its round-off, and held exactly, as if of no variance, no physical model "
+                       r"was found to meet them: identify with a `prior` .* or on a designed motion"):  # fmt: skip
         export_model(widened(flipped, 1e18), prior)
     with pytest.raises(SpaceidError, match=r"^result: no physical model found within the 0.999 confidence ellipsoid"):
         export_model(widened(flipped, 1e6), prior)

@@ -200,11 +200,12 @@ def _refusal(result: Identification, unmet: "_Unmet", where: str, region) -> Spa
     std, _, _, _, null = _spectrum(result)
     if not null.any():
         return unmet.error()
-    return SpaceidError(f"{where}: no physical model found: the estimate's covariance, widened along the "
-            f"{len(result.diagnostics.undetermined)} directions the data do not determine (standard errors up to "
-            f"{std.max():.3g}), leaves {null.sum()} combinations the data do determine below its round-off, and "
-            "held exactly they meet no physical model: identify with a `prior` (it sets those directions) or on a "
-            "designed motion (spaceid design)")
+    return SpaceidError(
+        f"{where}: no physical model found: the estimate's covariance, widened along the "
+        f"{len(result.diagnostics.undetermined)} directions the data do not determine (standard errors up to "
+        f"{std.max():.3g}), leaves {null.sum()} combinations the data do determine below its round-off, and held "
+        "exactly, as if of no variance, no physical model was found to meet them: identify with a `prior` (it sets "
+        "those directions) or on a designed motion (spaceid design)")
 
 
 class _Program:
