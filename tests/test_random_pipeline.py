@@ -167,10 +167,9 @@ def _check_pipeline(flown: Flown):
         assert np.abs(predicted.base_w - again.base_w).max() <= 1e-6 * np.abs(again.base_w).max()
 
 
-def _check_payload(flown: Flown):
-    """A payload of 2 to 20 % of the robot's mass, 5 to 30 cm across, on a random link, identified
-    from the noise-free log after the capture (the servicer known) to round-off, and from a noisy
-    one within 5 sigma."""
+def _captured(flown: Flown) -> tuple:
+    """``(log, link, mass)``: the noise-free log of ``flown``'s motion with a payload of 2 to 20 % of the robot's
+    mass, 5 to 30 cm across, on a random link (of ``mass`` [kg])."""
     model, h, traj, seed, planar = flown.model, flown.momentum, flown.trajectory, flown.case["seed"], flown.model.planar
     rng = np.random.default_rng(seed)
     link = model.bodies[rng.integers(1, len(model.bodies))].name
@@ -180,14 +179,41 @@ def _check_payload(flown: Flown):
     held = dataclasses.replace(model, bodies=tuple(dataclasses.replace(b, inertial=b.inertial + payload)
                                                    if b.name == link else b for b in model.bodies))
     captured = minimal_parameters(held)
-    log = simulate(captured, captured.true_values, traj, sample_times(traj.duration, 400), h, model=held)
+    return simulate(captured, captured.true_values, traj, sample_times(traj.duration, 400), h, model=held), link, mass
+
+
+def _noisy_payload(flown: Flown, log, link):
+    """The payload on ``link`` identified from ``log`` with 1e-4 noise (the servicer known)."""
+    return identify_payload(flown.model, add_noise(log, angle=NOISE, rate=NOISE, seed=flown.case["seed"]), link,
+                            flown.momentum, noise=Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE))
+
+
+def _check_payload(flown: Flown):
+    """The payload of :func:`_captured`, identified from the noise-free log after the capture (the servicer known)
+    to round-off, and from a noisy one within 5 sigma."""
+    log, link, mass = _captured(flown)
     with stage("payload noise-free", **flown.case):
-        exact = identify_payload(model, log, link, h, noise=Noise())
+        exact = identify_payload(flown.model, log, link, flown.momentum, noise=Noise())
         assert abs(exact.values[0] - mass) <= 1e-6 * mass
     with stage("payload noisy", **flown.case):
-        noisy = identify_payload(model, add_noise(log, angle=NOISE, rate=NOISE, seed=seed), link, h,
-                                 noise=Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE))
+        noisy = _noisy_payload(flown, log, link)
         assert abs(noisy.values[0] - mass) < 5 * noisy.std[0]
+
+
+@pytest.mark.slow  # a random robot's flight and two payload fits (seconds)
+def test_the_payload_fit_never_keeps_a_step_that_raised_its_cost(tmp_path):
+    """Undesigned spatial robot 98697 (one joint; a 1.75 kg payload on its link): the payload fit's first
+    Gauss-Newton step raised its cost, and the fit stopped there and reported it (chi-squared per degree of freedom
+    161, the mass projected to 121 kg with a standard error of 0.47). Halved, the steps go on (10 of them) to 3.3.
+    Its mass is still 4.8 of its standard errors off (8.9 +- 1.5 kg): the payload fit has no equivalent of
+    ``identify``'s undetermined directions; open."""
+    flown = _undesigned(98697, False, tmp_path)
+    log, link, mass = _captured(flown)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        noisy = _noisy_payload(flown, log, link)
+    assert noisy.settings["gauss_newton_steps"] > 2 and noisy.settings["chi2_dof"] < 10
+    assert abs(noisy.values[0] - mass) < 5 * noisy.std[0]
 
 
 def _check_monitor(flown: Flown):
