@@ -589,7 +589,8 @@ def test_ml_asks_whether_it_stalled_once_early_only_while_its_objective_still_fa
         asked.append(len(objective))
         return "a reason"
 
-    theta, info = estimate._ml_fit(np.zeros((3, 1)), np.zeros(p), evaluate, lambda L, single=False: (np.ones(p), np.eye(p + 1)),
-                                   lambda: np.zeros(p), stalled=stalled)
+    factor = lambda L, single=False: (np.ones(p), np.eye(p + 1))  # noqa: E731
+    theta, info = estimate._ml_fit(np.zeros((3, 1)), np.zeros(p), evaluate, factor, lambda: np.zeros(p),
+                                   stalled=stalled)
     assert len(asked) == 1 and info["iterations"] == asked_after and not info["converged"]
     assert f"had not converged after {asked_after} iterations, and a reason" in info["fallback"]

@@ -200,20 +200,50 @@ def _check_payload(flown: Flown):
         assert abs(noisy.values[0] - mass) < 5 * noisy.std[0]
 
 
+@pytest.mark.slow  # two random robots' ML, twice each (seconds)
+@pytest.mark.parametrize("seed, flight, planar, taken", [(2, _flown, True, ["accepted"] * 2),
+                                                         (36, _undesigned, False, ["refused"] * 3)])
+def test_ml_preconditioned_in_single_precision_on_random_robots(seed, flight, planar, taken, monkeypatch, tmp_path):
+    """ML's preconditioners in single precision (``SINGLE_COLUMNS`` patched to one: random robots have fewer
+    unknowns than it) on a designed planar robot, whose equations allow it (both preconditioners in single), and an
+    undesigned spatial one, whose three fits (one direction held, and the fit at the model's own values) refuse it on
+    their conditioning and form their preconditioners in double: the same fixed point (measured: 2.4e-10 standard
+    errors, and bit for bit when refused) and standard errors to 1e-6."""
+    from spaceid.estimation import _estimators as estimate
+
+    flown = flight(seed, planar, tmp_path)
+    noise = Noise(angle=NOISE, rate=NOISE, base_rate=NOISE, attitude=NOISE)
+    measured = add_noise(flown.log, angle=NOISE, rate=NOISE, seed=seed)
+    double = identify(flown.param, measured, flown.momentum, noise=noise)
+    formed, factor = [], estimate._gram_matrix_factor
+
+    def spied(G, refine=None, limit=None):
+        out = factor(G, refine, limit)
+        if limit is not None:
+            formed.append("refused" if out is None else "accepted")
+        return out
+
+    monkeypatch.setattr(estimate, "_gram_matrix_factor", spied)
+    monkeypatch.setattr(estimate, "SINGLE_COLUMNS", 1)
+    single = identify(flown.param, measured, flown.momentum, noise=noise)
+    assert formed == taken
+    assert (np.abs(single.values - double.values) / double.std).max() < 1e-5
+    np.testing.assert_allclose(single.std, double.std, rtol=1e-6)
+
+
 @pytest.mark.slow  # a random robot's flight and two payload fits (seconds)
 def test_the_payload_fit_never_keeps_a_step_that_raised_its_cost(tmp_path):
     """Undesigned spatial robot 98697 (one joint; a 1.75 kg payload on its link): the payload fit's first
     Gauss-Newton step raised its cost, and the fit stopped there and reported it (chi-squared per degree of freedom
     161, the mass projected to 121 kg with a standard error of 0.47). Halved, the steps go on (10 of them) to 3.3.
-    Its mass is still 4.8 of its standard errors off (8.9 +- 1.5 kg): the payload fit has no equivalent of
-    ``identify``'s undetermined directions; open."""
+    Its mass is still 4.8 of its standard errors off (8.9 +- 1.5 kg, true 1.75): the payload fit has no equivalent of
+    ``identify``'s undetermined directions; open, and not asserted here."""
     flown = _undesigned(98697, False, tmp_path)
-    log, link, mass = _captured(flown)
+    log, link, _ = _captured(flown)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         noisy = _noisy_payload(flown, log, link)
     assert noisy.settings["gauss_newton_steps"] > 2 and noisy.settings["chi2_dof"] < 10
-    assert abs(noisy.values[0] - mass) < 5 * noisy.std[0]
 
 
 def _check_monitor(flown: Flown):

@@ -190,12 +190,12 @@ def _spectrum(result: Identification) -> tuple:
     return std, var, s, v, s <= RESOLVED * s.max() if len(s) else np.zeros(0, bool)
 
 
-def _refusal(result: Identification, unmet: "_Unmet", where: str, region) -> SpaceidError:
-    """The error of an export that found no physical model (``unmet``'s, searched within ``region``, None for the
-    exact search); within an ellipsoid of an estimate whose covariance, widened along directions the data do not
-    determine, left combinations they do determine below its round-off (:data:`RESOLVED`): held exactly as if of no
-    variance, they met no physical model, and that is the cause to name."""
-    if region is None or not result.diagnostics.undetermined:
+def _refusal(result: Identification, unmet: "_Unmet", where: str) -> SpaceidError:
+    """The error of an export that found no physical model (``unmet``'s); for an estimate whose covariance, widened
+    along directions the data do not determine, left combinations they do determine below its round-off
+    (:data:`RESOLVED`), which an ellipsoid holds exactly as if of no variance, that cause named instead (an exact
+    search's refusal never gets here with such a covariance: it falls back on the ellipsoids)."""
+    if not result.diagnostics.undetermined:
         return unmet.error()
     std, _, _, _, null = _spectrum(result)
     if not null.any():
@@ -452,11 +452,11 @@ def export_model(result: Identification, prior: Model, *, region: float | None =
                 return _export(result, prior, param, region, where, prior_name)
             except _Unmet as exact_failure:
                 if not auto:
-                    raise _refusal(result, exact_failure, where, region) from None
+                    raise _refusal(result, exact_failure, where) from None
                 unmet = exact_failure
         export = _auto_export(result, prior, param, where, prior_name)  # the estimate is not physical
         if isinstance(export, _Unmet):
-            raise _refusal(result, unmet or export, where, AUTO_REGIONS[-1]) from None
+            raise _refusal(result, unmet or export, where) from None
         why = "" if unmet else " (no model, physical or not, reproduces it)"
         warnings.warn(f"{where}: the estimate is not physically realisable exactly{why}: exported the model "
                       f"closest to the prior within its {export.region:g} confidence ellipsoid", stacklevel=2)

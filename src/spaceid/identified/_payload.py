@@ -555,13 +555,13 @@ def _gauss_newton(pmap, eq, x, y, rhs, sigma, p, where) -> tuple:
         for halving in range(HALVINGS + 1):
             trial = theta + delta / 2**halving
             r_new, a_new = _whitened(pmap, eq, x, y, rhs, sigma, trial)
-            if r_new.ravel() @ r_new.ravel() <= cost * (1 + STEP_TOL):  # (round-off at the optimum: taken, and stops)
-                break
+            if (new_cost := r_new.ravel() @ r_new.ravel()) <= cost * (1 + STEP_TOL):  # (round-off at the optimum:
+                break  # taken, and the fit stops)
         else:  # no progress: at the optimum (e.g. no payload at all)
             break
         small = np.linalg.norm((trial - theta) * scale) <= STEP_TOL * max(np.linalg.norm(trial * scale), 1e-300)
-        progress = r_new.ravel() @ r_new.ravel() < cost * (1 - STEP_TOL)
-        theta, r, a, cost = trial, r_new, a_new, r_new.ravel() @ r_new.ravel()
+        progress = new_cost < cost * (1 - STEP_TOL)
+        theta, r, a, cost = trial, r_new, a_new, new_cost
         if small or not progress:
             break
     else:
