@@ -1,4 +1,7 @@
-"""The on-disk cache of minimal parameter sets: where it lives, and that a cached set is the derived one."""
+"""The on-disk cache of minimal parameter sets and parsed URDF models: where it lives, and that a cached entry is
+the derived one."""
+
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -164,3 +167,60 @@ def test_cached_no_effect_parameters_are_the_derived_ones(rng, monkeypatch, tmp_
     assert spaceid.dynamics.identifiability(param).no_effect == derived
     with pytest.raises(AssertionError, match="formed although cached"):
         _regressor.no_effect_parameters(param, tol=1e-6)
+
+
+def _same_model(a, b):
+    """Two models alike in every field, their bodies' arrays equal bit for bit."""
+    assert (a.name, a.planar, a.wheels, a.source) == (b.name, b.planar, b.wheels, b.source)
+    assert len(a.bodies) == len(b.bodies)
+    for x, y in zip(a.bodies, b.bodies):
+        assert (x.name, x.parent, x.joint, x.joint_type, x.limits, x.known_zero) == (
+            y.name, y.parent, y.joint, y.joint_type, y.limits, y.known_zero)
+        assert list(x.limits) == list(y.limits)  # in the same order
+        for field in ("axis", "rotation", "translation", "inertial"):
+            assert np.array_equal(getattr(x, field), getattr(y, field)), field
+
+
+@pytest.mark.parametrize("source", ["satellite-7dof", "servicer-dual", "servicer-captured", 5, 12])
+def test_a_urdf_model_read_from_the_cache_is_the_parsed_one(monkeypatch, tmp_path, source):
+    """A URDF (a preset's, a random robot's file) is parsed by Pinocchio once and stored; loaded again it is read,
+    not parsed, and is the parsed model in every field, for either planar setting; a random robot's file read under
+    another name takes that name."""
+    from spaceid.models import _model
+    from random_robots import random_robot
+
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path))
+    planar = None
+    if isinstance(source, int):
+        robot = random_robot(source, planar=source % 2 == 0)
+        planar, source = robot.planar, tmp_path / "robot.urdf"
+        source.write_text(robot.urdf)
+    parsed = spaceid.load_model(source, planar=planar)
+    assert len(list((tmp_path / "urdf-model").glob("*.npz"))) == 1
+    monkeypatch.setattr(_model, "_parsed_urdf", lambda *a: pytest.fail("parsed although cached"))
+    _same_model(spaceid.load_model(source, planar=planar), parsed)
+    if planar is not None:
+        other = tmp_path / "other.urdf"
+        other.write_text(source.read_text())
+        again = spaceid.load_model(other, planar=planar)
+        assert (again.name, again.source) == ("other", str(other.resolve()))
+        _same_model(again, replace(parsed, name="other", source=str(other.resolve())))
+
+
+def test_a_urdf_that_warns_or_is_refused_is_never_stored(monkeypatch, tmp_path):
+    """A mimic joint's warning is given at every load (its URDF parsed each time); a refused URDF leaves no entry."""
+    from random_robots import random_robot
+
+    monkeypatch.setenv("SPACEID_CACHE_DIR", str(tmp_path))
+    text = random_robot(3, planar=False).urdf
+    joint = text.index("</joint>")
+    mimic = tmp_path / "mimic.urdf"
+    mimic.write_text(text[:joint] + '<mimic joint="none"/>' + text[joint:])
+    for _ in range(2):
+        with pytest.warns(UserWarning, match="mimics 'none'"):
+            spaceid.load_model(mimic)
+    broken = tmp_path / "broken.urdf"
+    broken.write_text(text.replace('<mass value="', '<mass value="-', 1))
+    with pytest.raises(spaceid.SpaceidError):
+        spaceid.load_model(broken)
+    assert not list(tmp_path.glob("urdf-model/*.npz"))

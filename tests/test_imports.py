@@ -3,6 +3,7 @@ slow subpackages (stats, optimize, integrate, interpolate, spatial), SymPy, Pino
 optional dependencies by the functions that need them, not by a command's import path: the start
 of every command pays for what it imports (scipy.stats alone took 0.6 to 0.8 s)."""
 
+import os
 import subprocess
 import sys
 
@@ -12,11 +13,11 @@ HEAVY = ("matplotlib", "scipy.stats", "scipy.optimize", "scipy.integrate", "scip
          "sympy", "pinocchio", "cvxpy", "dask", "distributed", "rosbags", "mujoco", "rclpy")
 
 
-def _heavy_imports(code):
-    """The modules of ``HEAVY`` that running ``code`` in a fresh interpreter imports (its ``code``
-    asserts its own work)."""
+def _heavy_imports(code, env=None):
+    """The modules of ``HEAVY`` that running ``code`` in a fresh interpreter (its environment ``env``, else this
+    one's) imports (its ``code`` asserts its own work)."""
     probe = code + f"\nimport sys\nprint('loaded:', *(m for m in {HEAVY!r} if m in sys.modules))"
-    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True)
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True, env=env)
     return set(out.stdout.strip().splitlines()[-1].split()[1:])
 
 
@@ -81,6 +82,26 @@ def test_model_and_identify_load_only_what_they_use(tmp_path):
 
 
 @pytest.mark.slow
-def test_a_spatial_model_from_urdf_still_imports_pinocchio():
-    """The probe can fail: a URDF is parsed by Pinocchio."""
-    assert _heavy_imports("import spaceid\nspaceid.load_model('satellite-7dof')") == {"pinocchio"}
+def test_a_urdf_is_parsed_by_pinocchio_once(tmp_path):
+    """A URDF preset is parsed by Pinocchio in the first interpreter that loads it (the probe can fail), and read
+    from the cache without it in the next."""
+    env = os.environ | {"SPACEID_CACHE_DIR": str(tmp_path)}
+    code = "import spaceid\nassert spaceid.load_model('satellite-7dof').n_joints == 7"
+    assert _heavy_imports(code, env) == {"pinocchio"}
+    assert _heavy_imports(code, env) == set()
+
+
+def test_the_studies_load_each_name_from_its_module_on_first_use():
+    """``spaceid.studies`` names each module's ``__all__`` exactly (its table cannot drift from them), and a command
+    that writes the identification's report imports none of the other stages (0.04 s)."""
+    import importlib
+
+    import spaceid.studies as studies
+
+    for module, names in studies._MODULES.items():
+        assert tuple(importlib.import_module(f"spaceid.studies.{module}").__all__) == names, module
+        assert all(getattr(studies, name) is getattr(studies, module).__dict__[name] for name in names)
+    code = "from spaceid.studies import parameter_table, write_html_report\nimport sys\nprint(*sorted(sys.modules))"
+    loaded = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert "spaceid.studies._html_report" in loaded
+    assert not {"spaceid.identified", "spaceid.motion", "spaceid.twin", "spaceid.studies._demo"} & set(loaded)

@@ -18,7 +18,7 @@ import numpy as np
 
 from ._atomic import atomic_path
 
-__all__ = ["cache_dir", "cache_key", "read_cached", "source_digest", "write_cached"]
+__all__ = ["cache_dir", "cache_key", "read_cached", "source_digest", "stored_strings", "stored_text", "write_cached"]
 
 
 def cache_dir() -> Path:
@@ -64,3 +64,14 @@ def write_cached(kind: str, key: str, arrays: dict) -> None:
             np.savez(out, _key=np.array(key), **arrays)
     except OSError:
         pass
+
+
+def stored_text(strings) -> np.ndarray:
+    """Strings as one UTF-8 byte array, NUL-separated (no XML or YAML name holds one): a fixed-width string array
+    would pad every string to the longest (10 MB for the servicer's parameter definitions)."""
+    return np.frombuffer("\0".join(strings).encode(), np.uint8)
+
+
+def stored_strings(text: np.ndarray) -> tuple:
+    """The strings of :func:`stored_text` (none for an empty array)."""
+    return tuple(text.tobytes().decode().split("\0")) if text.size else ()

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 from scipy.linalg import solve_triangular
 
-from .._cache import cache_key, read_cached, source_digest, write_cached
+from .._cache import cache_key, read_cached, source_digest, stored_strings, stored_text, write_cached
 from .._errors import SpaceidError
 from .._threads import one_blas_thread, threads_for
 from ._definitions import column_definitions, planar_definitions
@@ -823,7 +823,8 @@ def _set_key(geometry: _Geometry, tol: float, seed: int) -> str:
 def _to_stored(param: Parameterization) -> dict:
     """The arrays that rebuild ``param`` (:func:`_from_stored`)."""
     kind, data, weights = param._eval
-    out = {"names": _text(param.names), "definitions": _text(param.definitions), "units": _text(param.units),
+    out = {"names": stored_text(param.names), "definitions": stored_text(param.definitions),
+           "units": stored_text(param.units),
            "projection_at": np.array(np.nonzero(param.projection)), "projection_values": param.projection[
                np.nonzero(param.projection)], "projection_shape": np.array(param.projection.shape), "basis": np.array(
                param.basis),  # the projection sparse: 18 MB dense for the servicer, 98 % zeros
@@ -849,20 +850,9 @@ def _from_stored(model: Model, stored: dict) -> Parameterization:
     else:
         evaluation = ("columns", _plan(model, stored["columns"]), None)
     tol, seed, n_states = stored["numbers"]
-    return Parameterization(model, _strings(stored["names"]), _strings(stored["definitions"]),
-                            _strings(stored["units"]), projection, basis, float(tol), int(seed), int(n_states),
+    return Parameterization(model, stored_strings(stored["names"]), stored_strings(stored["definitions"]),
+                            stored_strings(stored["units"]), projection, basis, float(tol), int(seed), int(n_states),
                             evaluation)  # fmt: skip
-
-
-def _text(strings) -> np.ndarray:
-    """Strings as one UTF-8 byte array, a line each: a fixed-width string array would pad every
-    definition to the longest (10 MB for the servicer's)."""
-    return np.frombuffer("\n".join(strings).encode(), np.uint8)
-
-
-def _strings(text: np.ndarray) -> tuple:
-    """The strings of :func:`_text`."""
-    return tuple(text.tobytes().decode().split("\n")) if text.size else ()
 
 
 def _derive_minimal(geometry: _Geometry, tol: float, seed: int) -> Parameterization:
@@ -1028,9 +1018,9 @@ def no_effect_parameters(param: Parameterization, *, tol: float | None = None) -
     key = cache_key(_set_key(_Geometry(param.model), param.rank_tol, param.seed), param.n_states, tol)
     stored = read_cached(_NO_EFFECT_KIND, key)
     if stored is not None and "names" in stored:
-        return _strings(stored["names"])
+        return stored_strings(stored["names"])
     names = _no_effect(param, tol)
-    write_cached(_NO_EFFECT_KIND, key, {"names": _text(names)})
+    write_cached(_NO_EFFECT_KIND, key, {"names": stored_text(names)})
     return names
 
 

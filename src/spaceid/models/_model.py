@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import hashlib
 import math
 import os
 import re
@@ -23,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .._cache import cache_key, read_cached, source_digest, stored_strings, stored_text, write_cached
 from .._errors import SpaceidError, shown
 from .._inputs import MiB, read_input_text
 from .._yaml import parse_yaml
@@ -779,6 +781,65 @@ def _urdf_accelerations(root, where: str) -> dict:
 
 
 def _model_from_urdf(text: str, where: str) -> Model:
+    """The model of the URDF ``text`` (named after ``where``): from the on-disk cache (:mod:`spaceid._cache`) when it
+    holds this text's, else parsed by Pinocchio (:func:`_parsed_urdf`) and stored there. A cached read takes a
+    millisecond where Pinocchio's import alone takes 0.06 s of every command on a URDF model (the servicer's parse:
+    0.01 s more); a URDF that is refused is never stored, nor one that warns (a mimic joint: said at every load)."""
+    if "<mimic" in text:
+        return _parsed_urdf(text, where)
+    key = cache_key(hashlib.sha256(text.encode()).hexdigest(), _parser_version(), source_digest(__file__))
+    stored = read_cached(_URDF_KIND, key)
+    if stored is not None:
+        with contextlib.suppress(KeyError, ValueError, IndexError):  # an entry of another layout: parse again
+            return _validate(_model_from_stored(stored, where))
+    model = _parsed_urdf(text, where)
+    write_cached(_URDF_KIND, key, _model_to_stored(model))
+    return model
+
+
+_URDF_KIND = "urdf-model"
+_LIMIT_KINDS = ("velocity", "effort", "lower", "upper", "acceleration")
+"""A body's limits as :func:`from_pinocchio` and :func:`_parsed_urdf` insert them (a cached model keeps the order)."""
+
+
+def _parser_version() -> str:
+    """The installed Pinocchio's version, read from its metadata (importing it is what the cache saves)."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("pin")
+    except metadata.PackageNotFoundError:  # installed another way: its name as the conda package's
+        return metadata.version("pinocchio")
+
+
+def _model_to_stored(model: Model) -> dict:
+    """The arrays that rebuild a URDF's ``model`` (:func:`_model_from_stored`): its parsed bodies; the name of the
+    robot (the URDF's, for a model read from text alone) and its source are the caller's."""
+    bodies = model.bodies
+    return {"names": stored_text([b.name for b in bodies]), "joints": stored_text([b.joint or "" for b in bodies]),
+            "kinds": stored_text([b.joint_type for b in bodies]), "robot": stored_text([model.name]),
+            "parents": np.array([b.parent for b in bodies]), "axes": np.array([b.axis for b in bodies]),
+            "rotations": np.array([b.rotation for b in bodies]),
+            "translations": np.array([b.translation for b in bodies]),
+            "inertials": np.array([b.inertial for b in bodies]),
+            "limits": np.array([[b.limits.get(k, np.nan) for k in _LIMIT_KINDS] for b in bodies])}  # fmt: skip
+
+
+def _model_from_stored(stored: dict, where: str) -> Model:
+    """The model of :func:`_model_to_stored`'s arrays, read from ``where`` (its name: the file's stem)."""
+    names, joints, kinds = (stored_strings(stored[k]) for k in ("names", "joints", "kinds"))
+    bodies = tuple(
+        Body(name, int(parent), joint or None, kind, axis, rotation, translation, inertial,
+             {k: float(v) for k, v in zip(_LIMIT_KINDS, limits) if not np.isnan(v)})
+        for name, parent, joint, kind, axis, rotation, translation, inertial, limits in zip(
+            names, stored["parents"], joints, kinds, stored["axes"], stored["rotations"], stored["translations"],
+            stored["inertials"], stored["limits"], strict=True))  # fmt: skip
+    return Model(Path(where).stem if where else stored_strings(stored["robot"])[0], bodies, False, (), where)
+
+
+def _parsed_urdf(text: str, where: str) -> Model:
+    """The model of the URDF ``text``, parsed by Pinocchio (its tree checked first: a clear error for what its
+    parser would accept or misread)."""
     import pinocchio as pin
 
     accelerations = _urdf_accelerations(_check_urdf_tree(text, where), where)

@@ -26,7 +26,6 @@ from .._figure_style import (COLOR_ANCHOR, COLOR_LIMIT, COLOR_MEASURED, COLOR_MO
 from ..data import Log
 from ..estimation import Identification
 from ..estimation.internal import draw_parameters, draw_singular_values
-from ..identified.internal import draw_payload
 from ._validate import attitude_error_angle, predicted_label, validation_title
 
 if TYPE_CHECKING:
@@ -634,4 +633,6 @@ def plot_payload(rows, path=None, *, link: str, fig=None, truth_label: str = "tr
     Figure
         The figure drawn. :meth:`spaceid.identified.PayloadEstimate.plot` draws the same.
     """
+    from ..identified.internal import draw_payload
+
     return finish_figure(draw_payload(rows, link, fig, truth_label), path)

@@ -18,9 +18,7 @@ from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
 from ..dynamics import Parameterization, minimal_parameters
 from ..estimation import Identification, load_result
-from ..identified import IdentifiedModel, parameterization_of
 from ..models import Model, load_model
-from ..motion import hermite_motion, simulate
 from ..data import Log, check_time_units, log_fingerprint
 
 __all__ = ["Predictor", "Validation", "attitude_error_angle", "predict", "predictor", "validate",
@@ -78,6 +76,8 @@ def predictor(source, *, planar: bool | None = None, where: str = "result") -> P
     where : str
         Name of the source, for error messages.
     """
+    from ..identified import IdentifiedModel, parameterization_of  # (not at import: reports need only labels)
+
     if isinstance(source, Predictor):
         return source
     if isinstance(source, (str, Path)) and Path(source).suffix.lower() == ".json":
@@ -127,6 +127,8 @@ def predict(result, t, q, qd, *, momentum=None, initial_quat=None, where: str = 
         along the motion (physically impossible ones: refused before integrating, naming the time,
         the direction and the parameters; :func:`spaceid.motion.simulate`).
     """
+    from ..motion import hermite_motion, simulate
+
     source = result if isinstance(result, Predictor) else predictor(result, planar=planar, where=where)
     h = source.momentum if momentum is None else np.asarray(momentum, float)
     if h is None:
