@@ -8,9 +8,10 @@ import pytest
 
 from spaceid import SpaceidError
 from spaceid.cli import main
+from spaceid.identified.internal import draw_payload
 from spaceid.motion import FourierTrajectory
 from spaceid.studies import ServicingScores, capture_protocol, run_experiment
-from spaceid.studies._figures import _draw_capture_monitor, draw_payload
+from spaceid.studies._figures import _draw_capture_monitor
 from spaceid.twin import TwinSettings
 
 HELD_OUT = FourierTrajectory(("left_shoulder", "left_elbow"), 5.0, np.array([[0.2, -0.1, 0.05], [-0.15, 0.1, 0.05]]),
