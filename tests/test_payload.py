@@ -143,6 +143,59 @@ def test_noisy_spread_agrees_with_the_standard_errors(cepheus):
     assert all(r.settings["seed"] == 0 and r.settings["noise"]["angle"] == 1e-4 for r in runs)
 
 
+def _cost_slopes(pmap, log, noise):
+    """The weighted payload fit of ``log`` (the momentum given) and the slope of its cost, the whitened residuals' sum
+    of squares, along each unknown at the estimate, per standard error (central differences of a tenth of one): near
+    zero at a minimum, where a unit of standard error raises the cost by about one."""
+    from spaceid.estimation._noise import signal_sigma
+    from spaceid.identified import _payload
+
+    fit = _payload._fit(pmap, log, np.array([0, 0, 0.05]), None, None, None, (), None, noise, False, "log", 1e10)
+    eq, theta = fit.equations, fit.theta
+    x = eq.signals(log)
+    y = pmap.param.regressor(*eq.unpack(x)[:3])
+    rhs, sigma = _payload._affine_momentum(eq, eq.p), signal_sigma(pmap.param, noise)
+
+    def cost(t):
+        r = _payload._whitened(pmap, eq, x, y, rhs, sigma, t)[0]
+        return r.ravel() @ r.ravel()
+
+    std = np.sqrt(np.diag(fit.cov))
+    return np.array([(cost(theta + 0.1 * s * e) - cost(theta - 0.1 * s * e)) / 0.2 for s, e in zip(std, np.eye(len(std)))])
+
+
+def test_the_weighted_payload_fit_ends_at_a_minimum_of_its_cost(cepheus, monkeypatch):
+    """The weights move with the estimate and the Gauss-Newton steps include their derivative: the fit ends where
+    the cost's slope along each unknown is near zero (measured on 4 noise draws: 8e-4 per standard error; one standard
+    error off a minimum it is about 2). Steps at frozen weights instead (iteratively reweighted least squares: the
+    weights' derivative patched to zero) end where it is not (0.35 to 0.49): off the cost's minimum."""
+    from spaceid.identified import _payload
+
+    pmap, _, _, log = cepheus
+    noise = spaceid.Noise(angle=1e-3, rate=1e-3, base_rate=1e-3, attitude=1e-3)
+    noisy = add_noise(log, angle=1e-3, rate=1e-3, seed=3)
+    assert np.abs(_cost_slopes(pmap, noisy, noise)).max() < 0.05
+    monkeypatch.setattr(_payload, "_weights_derivative", lambda *args: 0.0)
+    assert np.abs(_cost_slopes(pmap, noisy, noise)).max() > 0.2
+
+
+def test_residuals_that_contradict_the_given_noise_are_said_and_set_the_spread(cepheus):
+    """Noise three times the levels given: chi2/dof about 9, which the noise model rejects. The payload fit says so in
+    ``spaceid identify``'s words and takes its spread from the residuals (their scores' sandwich), which agrees with
+    the Fisher information at the right levels (ratios 0.91 to 1.17 on two draws; the given levels' is three times too
+    small); with the right levels nothing is said and the Fisher information stays."""
+    pmap, _, _, log = cepheus
+    noisy = add_noise(log, angle=3e-4, rate=3e-4, seed=1)
+    with pytest.warns(UserWarning, match="contradict the noise model: the noise levels are too small"):
+        understated = identify_payload(pmap, noisy, "link2", [0, 0, 0.05], noise=NOISE)
+    right = identify_payload(pmap, noisy, "link2", [0, 0, 0.05], noise=spaceid.Noise(
+        angle=3e-4, rate=3e-4, base_rate=3e-4, attitude=3e-4))
+    assert 7 < understated.settings["chi2_dof"] < 11 and understated.settings["noise_model_warning"]
+    assert understated.settings["covariance"].startswith("sandwich of the residuals' scores")
+    assert not right.settings["noise_model_warning"] and right.settings["covariance"] == "inverse Fisher information"
+    np.testing.assert_allclose(understated.std / right.std, 1.0, atol=0.25)
+
+
 def test_projection_of_an_inconsistent_optimum():
     # principal moments 1, 1, 3: the triangle rule fails (3 > 1 + 1), although the tensor is positive definite
     theta = inertial_vector(2.0, [0.1, 0.0, 0.0], np.diag([1.0, 1.0, 3.0]))

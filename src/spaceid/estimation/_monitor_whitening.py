@@ -20,7 +20,7 @@ from .._distributions import chi2_cdf, chi2_sf
 from ..data import quat_to_matrix
 from ._linalg import _accumulate_factor, _whiten, lower_inverse
 from ._noise import equation_covariance
-from ._uncertainty import SIGNIFICANCE, _residual_checks
+from ._uncertainty import SIGNIFICANCE, residual_checks
 
 AR_ORDER = 3
 """Order of the autoregressive filter that prewhitens correlated innovations (rates differentiated otherwise)."""
@@ -301,14 +301,14 @@ def prewhitening(res: np.ndarray, p: int, window: int, kalman: tuple | None,
         The sum of the residuals' error variances under the noise model (with differentiated
         rates, their smoothed noise's); the number of residuals when omitted.
     """
-    checks = _residual_checks(res, res.size, None)
+    checks = residual_checks(res, res.size, None)
     expected = (res.size if noise is None else noise) * max(res.size - p, 1) / res.size  # p unknowns fitted
     residual_chi2_dof = float(np.sum(res**2) / expected) if expected > 0 else math.inf
     negligible = residual_chi2_dof < NEGLIGIBLE
     use, chi2_dof, kalman_scale, kalman_p = False, None, 1.0, None
     if kalman is not None:
         nu, chi2_dof, kalman_scale, small, start = kalman
-        kalman_p = _residual_checks(nu[start:], nu[start:].size, None)["ljung_box_p"]
+        kalman_p = residual_checks(nu[start:], nu[start:].size, None)["ljung_box_p"]
         use = kalman_p >= SIGNIFICANCE and not small and not negligible
     correlated = window or checks["ljung_box_p"] < SIGNIFICANCE
     order = AR_ORDER if not use and not negligible and correlated and len(res) > 4 * AR_ORDER else 0

@@ -8,7 +8,7 @@ are trusted, levels estimated from the log fix only the relative weights and the
 overall scale (times ``chi2_dof``). When the residuals contradict the model the covariance
 follows them: the sandwich of the residuals' scores (White), or the Newey-West
 (heteroscedasticity and autocorrelation consistent) estimate when they are correlated; a
-``chi2_dof`` far from 1 also brings a warning that says what it means (:func:`_noise_model_warning`).
+``chi2_dof`` far from 1 also brings a warning that says what it means (:func:`noise_model_warning`).
 Rates from a Savitzky-Golay differentiator are a known linear filter of the angles: their
 covariance is the angle noise propagated through it (:mod:`spaceid.estimation._differentiated`),
 or the Newey-West estimate in the directions where the residuals show more (:func:`_larger_of`).
@@ -215,7 +215,7 @@ def _ljung_box_p(rho, m: int) -> float:
     return float(chi2_sf(q, lags))
 
 
-def _residual_checks(res, dof, chi2):
+def residual_checks(res, dof, chi2):
     """The tests of the residuals ``res (n, rows)`` (whitened when there is a noise model) against
     white noise of the model's levels: the two-sided chi-square p-value of ``chi2_dof`` for ``dof``
     degrees of freedom (None without a noise model), the band of ``chi2_dof`` that passes, and the
@@ -249,7 +249,7 @@ log and measured rates is a poor fit, not a noise-level error (given levels may 
 differentiated from the angles reach it on clean logs, their estimated levels understated)."""
 
 
-def _noise_model_warning(chi2, checks, log: Log, estimated: bool) -> str:
+def noise_model_warning(chi2, checks, log: Log, estimated: bool) -> str:
     """What a ``chi2_dof`` far from 1 means, or ``""``: the test rejects the noise model and the
     standard errors it implies would be off by more than ~40 % (``chi2_dof`` outside [0.5, 2]).
     Levels estimated from the log are not blamed for being too large (on smooth or noise-free
@@ -375,7 +375,7 @@ def _covariance_record(chi2, checks, choice, log, estimated):
     return {"chi2_dof": chi2, "variance_factor": choice["variance_factor"], "covariance_method": choice["method"],
             "covariance": choice["covariance"],
             "covariance_from_residuals": choice["covariance_from_residuals"], "residual_checks": checks,
-            "noise_model_warning": _noise_model_warning(chi2, checks, log, estimated)}  # fmt: skip
+            "noise_model_warning": noise_model_warning(chi2, checks, log, estimated)}  # fmt: skip
 
 
 def _covariance_choice(eq, r, white, estimator, log, estimated):
@@ -385,7 +385,7 @@ def _covariance_choice(eq, r, white, estimator, log, estimated):
     and ``covariance`` (how, in words); see :func:`_reported_covariance`."""
     dof = max(r.size - eq.p, 1)
     chi2 = None if white is None else float(np.sum(white**2) / dof)
-    checks = _residual_checks(r if white is None else white, dof, chi2)
+    checks = residual_checks(r if white is None else white, dof, chi2)
     window = correlation_length(log)
     factor, follows, method = 1.0, True, "newey-west"
     if window:  # a differentiator's errors are positively correlated over about half its window, negatively

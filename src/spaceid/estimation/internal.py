@@ -22,6 +22,9 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
     Every differentiator window recorded in a log's differentiation record.
 ``newey_west_covariance``
     The Bartlett-weighted (Newey-West) sandwich covariance from the residuals.
+``residual_checks``, ``noise_model_warning``, ``SIGNIFICANCE``
+    The tests of whitened residuals against the noise model (chi-square, Ljung-Box), what a rejected one means in
+    words, and the tests' significance level.
 ``differentiated_series``, ``propagated_covariance``
     The raw angle series behind differentiated rates, and the covariance of an estimate with
     their noise carried through the differentiating filters.
@@ -46,7 +49,8 @@ from ._equations import Equations, drift_basis_at
 from ._html import diagnostic_rows
 from ._identify import check_excitation
 from ._plots import draw_parameters, draw_singular_values, per_parameter, relative_errors
-from ._uncertainty import correlation_length, newey_west_covariance, window_spans
+from ._uncertainty import (SIGNIFICANCE, correlation_length, newey_west_covariance, noise_model_warning,
+                           residual_checks, window_spans)
 
 __all__ = [
     "Equations",
@@ -56,6 +60,9 @@ __all__ = [
     "correlation_length",
     "window_spans",
     "newey_west_covariance",
+    "residual_checks",
+    "noise_model_warning",
+    "SIGNIFICANCE",
     "differentiated_series",
     "propagated_covariance",
     "enough_samples_for_knots",
