@@ -15,7 +15,6 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ..data import Log, quat_to_yaw, yaw_to_quat
-from ..identified import IdentifiedModel, identified_model
 
 __all__ = ["TORQUE_METRIC_LABELS", "TORQUE_VALIDATION_TITLE", "torque_metrics", "validate_torques"]
 
@@ -122,6 +121,8 @@ def validate_torques(model, log: Log, *, horizon: float | None = None, momentum=
         The log has no efforts, other joints than the model, or ``horizon`` is not positive; the
         identified ``H*`` is not positive definite at some logged configuration.
     """
+    from ..identified import IdentifiedModel, identified_model  # (not at import: the reports need only labels)
+
     model = model if isinstance(model, IdentifiedModel) else identified_model(model, where=where)
     source = log.meta.get("source", "log")
     if log.tau is None:
