@@ -620,7 +620,7 @@ class Monitor:
         self._segment = Segment(start=float(onset), origin=handed[0], momentum=h, drift=bool(self.drift),
                                 target=self.warmup, thinned=Thinned(self.max_segment), warm=list(handed),
                                 trail=list(handed))
-        self._segment.drop_first(window)
+        self._segment.drop_first(window + (len(handed) - 1 if window else 0))
 
     def _momentum_at(self, row: Sample) -> np.ndarray:
         """The momentum ``(3,)`` [N m s] at the sample ``row`` of the running segment: at its origin
