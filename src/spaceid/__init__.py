@@ -16,9 +16,8 @@ The subpackages hold the rest, stage by stage: :mod:`spaceid.models`, :mod:`spac
 :mod:`spaceid.twin` and :mod:`spaceid.studies`. Names are loaded on first use, so ``import spaceid`` stays fast.
 """
 
-import importlib
-
 from ._errors import SpaceidError
+from ._lazy import lazy_names
 
 __version__ = "0.1.0"
 
@@ -62,14 +61,4 @@ _HOME = {
 __all__ = ["SpaceidError", *_HOME]
 
 
-def __getattr__(name):
-    if name in _HOME:
-        package, attr = _HOME[name] if isinstance(_HOME[name], tuple) else (_HOME[name], name)
-        value = getattr(importlib.import_module(f".{package}", __name__), attr)
-        globals()[name] = value  # later look-ups skip this function
-        return value
-    raise AttributeError(f"module 'spaceid' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_names(__name__, globals(), _HOME)

@@ -378,6 +378,11 @@ def _covariance_record(chi2, checks, choice, log, estimated):
             "noise_model_warning": noise_model_warning(chi2, checks, log, estimated)}  # fmt: skip
 
 
+CONTRADICTED = "sandwich of the residuals' scores (White): chi2_dof = {:.3g} contradicts the noise model (p = {:.2g})"
+"""How a covariance is described when the residuals' chi-square test rejects the noise model (``chi2_dof``, its
+p-value): ``identify``'s and the payload's."""
+
+
 def _covariance_choice(eq, r, white, estimator, log, estimated):
     """``chi2_dof`` (None without a noise model), the residual checks and the covariance chosen
     from the residuals ``r (n, rows)`` and, with a noise model, their whitened form: a dict of
@@ -401,8 +406,7 @@ def _covariance_choice(eq, r, white, estimator, log, estimated):
         if estimator == "ols":
             how = "heteroscedasticity-consistent (White) from the residuals"
         elif checks["chi2_p"] < SIGNIFICANCE:
-            how = (f"sandwich of the residuals' scores (White): chi2_dof = {chi2:.3g} contradicts the noise model "
-                   f"(p = {checks['chi2_p']:.2g})")
+            how = CONTRADICTED.format(chi2, checks["chi2_p"])
         else:
             follows, method = False, "noise-model"
             how = "noise model (levels given)"

@@ -22,9 +22,9 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
     Every differentiator window recorded in a log's differentiation record.
 ``newey_west_covariance``
     The Bartlett-weighted (Newey-West) sandwich covariance from the residuals.
-``residual_checks``, ``noise_model_warning``, ``SIGNIFICANCE``
+``residual_checks``, ``noise_model_warning``, ``SIGNIFICANCE``, ``CONTRADICTED``
     The tests of whitened residuals against the noise model (chi-square, Ljung-Box), what a rejected one means in
-    words, and the tests' significance level.
+    words, the tests' significance level, and how a covariance taken from the residuals then is described.
 ``differentiated_series``, ``propagated_covariance``
     The raw angle series behind differentiated rates, and the covariance of an estimate with
     their noise carried through the differentiating filters.
@@ -49,7 +49,7 @@ from ._equations import Equations, drift_basis_at
 from ._html import diagnostic_rows
 from ._identify import check_excitation
 from ._plots import draw_parameters, draw_singular_values, per_parameter, relative_errors
-from ._uncertainty import (SIGNIFICANCE, correlation_length, newey_west_covariance, noise_model_warning,
+from ._uncertainty import (CONTRADICTED, SIGNIFICANCE, correlation_length, newey_west_covariance, noise_model_warning,
                            residual_checks, window_spans)
 
 __all__ = [
@@ -63,6 +63,7 @@ __all__ = [
     "residual_checks",
     "noise_model_warning",
     "SIGNIFICANCE",
+    "CONTRADICTED",
     "differentiated_series",
     "propagated_covariance",
     "enough_samples_for_knots",

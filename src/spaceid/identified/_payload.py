@@ -39,6 +39,7 @@ from ..dynamics import (
 )
 from ..estimation import Noise, drift_names, equation_covariance, noise_from_log, signal_sigma
 from ..estimation.internal import (
+    CONTRADICTED,
     SIGNIFICANCE,
     Equations,
     check_drift_kinds,
@@ -664,8 +665,7 @@ def _covariance(r, a, weighted: bool, estimated: bool, window: int, differentiat
         cov = propagated_covariance(series, t, [(slice(None), m, jac)], bread, sigma)
         return cov, chi2, how, bread, newey_west, checks
     if weighted and checks["chi2_p"] < SIGNIFICANCE:
-        how = (f"sandwich of the residuals' scores (White): chi2_dof = {chi2:.3g} contradicts the noise model "
-               f"(p = {checks['chi2_p']:.2g})")
+        how = CONTRADICTED.format(chi2, checks["chi2_p"])
         return newey_west_covariance(bread, a, r, 0, p), chi2, how, bread, None, checks
     if weighted:
         return (bread * (chi2 if estimated else 1.0), chi2,

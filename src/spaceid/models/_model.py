@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import difflib
+import functools
 import hashlib
 import math
 import os
@@ -787,11 +788,11 @@ def _model_from_urdf(text: str, where: str) -> Model:
     0.01 s more); a URDF that is refused is never stored, nor one that warns (a mimic joint: said at every load)."""
     if "<mimic" in text:
         return _parsed_urdf(text, where)
-    key = cache_key(hashlib.sha256(text.encode()).hexdigest(), _parser_version(), source_digest(__file__))
+    key = cache_key(hashlib.sha256(text.encode()).hexdigest(), *_converter())
     stored = read_cached(_URDF_KIND, key)
     if stored is not None:
         with contextlib.suppress(KeyError, ValueError, IndexError):  # an entry of another layout: parse again
-            return _validate(_model_from_stored(stored, where))
+            return _validate(_model_from_stored(stored, where))  # (checked again: an entry is a file like any)
     model = _parsed_urdf(text, where)
     write_cached(_URDF_KIND, key, _model_to_stored(model))
     return model
@@ -802,14 +803,17 @@ _LIMIT_KINDS = ("velocity", "effort", "lower", "upper", "acceleration")
 """A body's limits as :func:`from_pinocchio` and :func:`_parsed_urdf` insert them (a cached model keeps the order)."""
 
 
-def _parser_version() -> str:
-    """The installed Pinocchio's version, read from its metadata (importing it is what the cache saves)."""
+@functools.cache
+def _converter() -> tuple:
+    """What a parsed model depends on besides the text, once a process: the installed Pinocchio's version, read from
+    its metadata (importing it is what the cache saves), and the hash of this module's code."""
     from importlib import metadata
 
     try:
-        return metadata.version("pin")
+        version = metadata.version("pin")
     except metadata.PackageNotFoundError:  # installed another way: its name as the conda package's
-        return metadata.version("pinocchio")
+        version = metadata.version("pinocchio")
+    return version, source_digest(__file__)
 
 
 def _model_to_stored(model: Model) -> dict:

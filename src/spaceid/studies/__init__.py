@@ -5,7 +5,7 @@ Each name is imported from its module on first use: a command that writes one re
 the studies it does not run (the identification's report alone, 0.04 s less at every ``identify``).
 """
 
-import importlib
+from .._lazy import lazy_names
 
 _MODULES = {
     "_validate": (
@@ -33,19 +33,8 @@ _MODULES = {
 }  # fmt: skip
 """Each module's public names: its ``__all__`` (tests/test_imports.py checks that they agree)."""
 
-_HOME = {name: module for module, names in _MODULES.items() for name in names}
+_HOME = {name: module for module, names in _MODULES.items() for name in names} | dict.fromkeys(_MODULES)
 
-__all__ = list(_HOME)
+__all__ = [name for names in _MODULES.values() for name in names]
 
-
-def __getattr__(name):
-    if name in _HOME or name in _MODULES:
-        module = importlib.import_module(f".{_HOME.get(name, name)}", __name__)
-        value = module if name in _MODULES else getattr(module, name)
-        globals()[name] = value  # later look-ups skip this function
-        return value
-    raise AttributeError(f"module 'spaceid.studies' has no attribute {name!r}")
-
-
-def __dir__():
-    return sorted(set(globals()) | set(__all__))
+__getattr__, __dir__ = lazy_names(__name__, globals(), _HOME)
