@@ -81,6 +81,17 @@ def test_model_and_identify_load_only_what_they_use(tmp_path):
         assert result.exists()
 
 
+@pytest.mark.slow  # a fresh interpreter: seconds
+def test_a_payload_projected_to_consistency_imports_no_modelling_layer():
+    """The payload's consistency projection states its program to Clarabel itself: cvxpy's import (its atoms import
+    scipy.stats) took a second of every payload that needed the projection."""
+    code = ("import numpy as np\nfrom spaceid.identified import project_consistent\n"
+            "from spaceid.models import inertial_vector\n"
+            "theta = inertial_vector(2.0, [0.1, 0.0, 0.0], np.diag([1.0, 1.0, 3.0]))\n"
+            "assert project_consistent(theta, np.diag([1e-2, *[1e-4] * 3, *[1e-2] * 6]), planar=False)[1] > 0")
+    assert _heavy_imports(code) == set()
+
+
 @pytest.mark.slow
 def test_a_urdf_is_parsed_by_pinocchio_once(tmp_path):
     """A URDF preset is parsed by Pinocchio in the first interpreter that loads it (the probe can fail), and read

@@ -241,7 +241,7 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
 
     Minimises ``(t - theta)^T cov^-1 (t - theta)`` over ``t`` whose pseudo-inertia (spatial; planar:
     ``[[m, mcx, mcy], [mcx, Izz, 0], [mcy, 0, Izz]]``) is positive semidefinite with a margin of
-    ``MARGIN`` times its largest eigenvalue at ``theta`` (cvxpy, Clarabel).
+    ``MARGIN`` times its largest eigenvalue at ``theta`` (Clarabel).
 
     Parameters
     ----------
@@ -264,8 +264,6 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     margin = MARGIN * max(abs(eig).max(), np.finfo(float).tiny)
     if eig[0] >= margin:
         return theta, 0.0
-    import cvxpy as cp  # here: importing it takes a second, and a consistent estimate needs no projection
-
     with one_blas_thread():
         w, v = np.linalg.eigh(np.asarray(cov, float))
     top = max(w.max(), np.finfo(float).tiny)
@@ -273,18 +271,47 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
     # then Clarabel's default tolerances (the tight ones first)
     for floor, options in ((1e-12, CLARABEL_TOLERANCES), (1e-12, {}), (1e-8, CLARABEL_TOLERANCES), (1e-8, {})):
         root = v * np.sqrt(np.maximum(w, floor * top) / top)  # cov / top = root root^T: a scale leaves the nearest
-        z = cp.Variable(len(theta))  # whitened step: t = theta + root z, so the objective is |z|^2 (times top)
-        matrix = lmi + sum((root @ z)[i] * basis[i] for i in range(len(theta)))
-        problem = cp.Problem(cp.Minimize(cp.sum_squares(z)), [0.5 * (matrix + matrix.T) >> margin * np.eye(len(lmi))])
-        try:
-            problem.solve(solver=cp.CLARABEL, **options)
-        except cp.SolverError:
-            continue
-        if problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE):
+        # whitened step z: t = theta + root z, so the objective is |z|^2 (times top), and the LMI is affine in z
+        z, status = _least_step_inside(lmi - margin * np.eye(len(lmi)), np.einsum("ij,ikl->jkl", root, basis), options)
+        if z is not None:
             break
     else:
-        raise SpaceidError(f"payload: the consistency projection failed ({problem.status}): check the log and `link`")
-    return theta + root @ z.value, float(np.linalg.norm(z.value) / np.sqrt(top))
+        raise SpaceidError(f"payload: the consistency projection failed ({status}): check the log and `link`")
+    return theta + root @ z, float(np.linalg.norm(z) / np.sqrt(top))
+
+
+def _least_step_inside(offset, directions, options: dict) -> tuple:
+    """``(z, status)``: the ``z (k,)`` of least norm with ``offset + sum_j z_j directions[j]`` positive semidefinite
+    (``offset (d, d)``, ``directions (k, d, d)``, symmetric), or None when Clarabel found none, and its status in
+    words. Clarabel's own interface (its cone of upper triangles, column by column, the off-diagonal entries scaled by
+    sqrt 2), with ``options`` its settings: through cvxpy the projection took a second more, the import of cvxpy's
+    atoms (SciPy's statistics among them), on every payload that needed it."""
+    import clarabel
+    from scipy import sparse
+
+    d, k = len(offset), len(directions)
+    i, j = np.array([(i, j) for j in range(d) for i in range(j + 1)]).T
+    weight = np.where(i == j, 1.0, np.sqrt(2.0))
+
+    def triangle(m):  # the cone's vectors (..., d (d + 1) / 2) of symmetric matrices (..., d, d)
+        return m[..., i, j] * weight
+
+    settings = clarabel.DefaultSettings()
+    settings.verbose = False
+    for name, value in options.items():
+        setattr(settings, name, value)
+    # min z^T z (Clarabel's 1/2 x^T P x) subject to s = b - A z in the cone: A = -directions, b = offset
+    solver = clarabel.DefaultSolver(sparse.csc_matrix(2.0 * np.eye(k)), np.zeros(k),
+                                    sparse.csc_matrix(-triangle(directions).T), triangle(offset),
+                                    [clarabel.PSDTriangleConeT(d)], settings)  # fmt: skip
+    try:
+        solution = solver.solve()
+    except BaseException as exc:  # Clarabel's Rust core panics on some ill-posed cones (pyo3's PanicException)
+        if type(exc).__name__ != "PanicException":
+            raise
+        return None, "the solver failed"
+    solved = solution.status in (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
+    return (np.array(solution.x, float) if solved else None), str(solution.status)
 
 
 # ---------------------------------------------------------------- the estimate ------------------
