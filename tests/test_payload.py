@@ -1,6 +1,7 @@
 """Payload identification with a known servicer (spaceid.identified._payload) and the design for it."""
 
 import json
+import warnings
 
 import numpy as np
 import pytest
@@ -194,6 +195,60 @@ def test_residuals_that_contradict_the_given_noise_are_said_and_set_the_spread(c
     assert understated.settings["covariance"].startswith("sandwich of the residuals' scores")
     assert not right.settings["noise_model_warning"] and right.settings["covariance"] == "inverse Fisher information"
     np.testing.assert_allclose(understated.std / right.std, 1.0, atol=0.25)
+
+
+def test_directions_the_data_do_not_determine_are_said_and_widened(cepheus):
+    """A slow motion (0.02 rad amplitudes) under 2e-2 of noise: two of the four directions of Cepheus' payload have
+    regressor noise as large as their signal (ratios 0.84 and 0.64). The fit says so in ``identify``'s words and
+    widens its covariance along them; the ratios are those of the columns formed anew at each signal's step (the
+    noise Gram matrix of :func:`noise_gram`, independent of the derivatives the fit takes through the residuals'
+    Jacobian). On the module's motion at 1e-4 it says nothing."""
+    from spaceid.estimation._determined import noise_gram, noise_rows, noise_to_signal, regressor_factor, \
+        signal_levels
+    from spaceid.identified import _payload
+
+    pmap, _, theta, quiet = cepheus
+    log = _log_with_payload(pmap, theta, _motion(pmap.param.model, 20.0, 3, 0.02, 1), 200, np.array([0, 0, 0.05]))
+    level = 2e-2
+    noise = spaceid.Noise(angle=level, rate=level, base_rate=level, attitude=level)
+    noisy = add_noise(log, angle=level, rate=level, seed=0)
+    with pytest.warns(UserWarning, match=r"log: 2 of 4 directions of parameter space are not determined by the data"):
+        est = identify_payload(pmap, noisy, "link2", [0, 0, 0.05], noise=noise)
+    ratios = [d["noise_to_signal"] for d in est.settings["undetermined"]]
+    assert ratios == sorted(ratios, reverse=True) and min(ratios) >= 0.5
+    assert est.settings["covariance"].endswith("to their values' scale (the estimate's)")
+
+    fit = _payload._fit(pmap, noisy, np.array([0, 0, 0.05]), None, None, None, (), None, noise, False, "log", 1e10)
+    eq, x, t = fit.equations, fit.equations.signals(noisy), fit.theta
+    sigma = spaceid.estimation.signal_sigma(pmap.param, noise)
+    rhs = _payload._affine_momentum(eq, eq.p)
+    a = _payload._whitened(pmap, eq, x, pmap.param.regressor(*eq.unpack(x)[:3]), rhs, sigma, t)[1]
+    chol = _payload._whitener(pmap, eq, x, sigma, t)[0]
+    rows, scale = noise_rows(len(x))
+    part = eq.select(rows)
+
+    def columns(signals):  # the whitened columns at the fit's weights, formed anew from the signals
+        q, qd, w, _ = part.unpack(signals)
+        raw = _payload._whitened(pmap, part, signals, pmap.param.regressor(q, qd, w), rhs, None, t)[1]
+        return np.linalg.solve(chol[rows], raw)
+
+    gram = noise_gram(columns, x[rows], signal_levels(pmap.param, noisy, sigma), scale, eq.rate_channels)
+    mu = noise_to_signal(regressor_factor(a.reshape(-1, a.shape[-1])), gram)[0]
+    np.testing.assert_allclose(sorted(mu[mu >= 0.5], reverse=True), ratios, rtol=1e-3)  # (forward differences)
+    assert fit.undetermined == est.settings["undetermined"]
+
+    with pytest.MonkeyPatch.context() as patch:  # unwidened, the same fit's standard errors are smaller
+        patch.setattr(_payload, "_noise_ratios", lambda *args: (np.zeros(0), np.zeros((len(t), 0))))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            unwidened = _payload._fit(pmap, noisy, np.array([0, 0, 0.05]), None, None, None, (), None, noise, False,
+                                      "log", 1e10)  # fmt: skip
+    assert np.all(np.diag(fit.cov) >= np.diag(unwidened.cov)) and np.any(np.diag(fit.cov) > 2 * np.diag(unwidened.cov))
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning at all on the module's motion
+        assert identify_payload(pmap, add_noise(quiet, angle=1e-4, rate=1e-4, seed=0), "link2", [0, 0, 0.05],
+                                noise=NOISE).settings["undetermined"] == []
 
 
 def test_projection_of_an_inconsistent_optimum():

@@ -34,9 +34,11 @@ the regressor's noise along it is at least as large as its signal (``mu / (1 - m
 noise share ``mu``; a direction determined to first order has ``mu`` near 0)."""
 
 
-WIDENED = ("widened along the {} directions the data do not determine to their values' scale (the estimate's and "
-           "the model's own inertias)")
-"""How the covariance's description ends when :func:`widened` widened it."""
+MODEL_SCALE = "the estimate's and the model's own inertias"
+"""The scale :func:`identify <spaceid.estimation.identify>` widens the undetermined directions to (:func:`widened`'s
+``nominal`` the model's parameters); a payload, which has no model, widens them to the estimate's alone."""
+WIDENED = "widened along the {} directions the data do not determine to their values' scale ({})"
+"""How the covariance's description ends when :func:`widened` widened it: the directions' count and the scale."""
 
 NOISE_SAMPLES = 400
 """Samples over which :func:`noise_gram` sums (evenly spread, the sum scaled to the log's): the ratios
@@ -336,8 +338,10 @@ UNDETERMINED_FIX = "excite them with a designed motion (spaceid design) or give 
 """The advice that ends :func:`undetermined_warning` (a fit with a prior says the prior sets them)."""
 
 
-def undetermined_warning(directions: list, p: int, where: str) -> str:
-    """The warning for the :func:`undetermined` ``directions`` of ``p`` unknowns (``""`` when none)."""
+def undetermined_warning(directions: list, p: int, where: str, scale: str = MODEL_SCALE,
+                         fix: str = UNDETERMINED_FIX) -> str:
+    """The warning for the :func:`undetermined` ``directions`` of ``p`` unknowns (``""`` when none): their standard
+    errors widened to the ``scale`` named, and ``fix``, the advice that ends it."""
     if not directions:
         return ""
     lead = list(dict.fromkeys(name for d in directions for name in d["parameters"]))
@@ -345,4 +349,17 @@ def undetermined_warning(directions: list, p: int, where: str) -> str:
     return (f"{where}: {len(directions)} of {p} directions of parameter space are not determined by the data (the "
             f"regressor's noise as large as its signal, worst ratio {directions[0]['noise_to_signal']:.2g}; led by "
             f"{shown}): their estimates are pulled towards zero whatever the noise level, and their standard errors "
-            f"are widened to the scale of their values (the estimate's and the model's own inertias): {UNDETERMINED_FIX}")
+            f"are widened to the scale of their values ({scale}): {fix}")
+
+
+def ratios_of_columns(columns: np.ndarray, derivatives, levels: np.ndarray) -> tuple:
+    """:func:`noise_to_signal` ``(mu, T)`` with ``above`` :data:`UNDETERMINED` (empty when no ratio reaches it) of
+    equations of a shape of their own (the payload's), whose (whitened) columns are ``columns (n, rows, k)``:
+    ``derivatives(rows)`` gives those of the samples ``rows`` (:func:`noise_rows`') with respect to each signal,
+    ``(m, rows, n_x, k)``, whitened alike, and the signals' noise levels are ``levels (n_x,)``
+    (:func:`signal_levels`); the noise Gram matrix is :func:`noise_gram`'s, from the derivatives themselves."""
+    rows, scale = noise_rows(len(columns))
+    D = derivatives(rows)
+    with one_blas_thread():
+        noise = scale * np.einsum("nrck,nrcl->kl", D * levels[:, None], D * levels[:, None])
+        return noise_to_signal(regressor_factor(columns.reshape(-1, columns.shape[-1])), noise, UNDETERMINED)

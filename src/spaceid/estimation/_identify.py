@@ -30,9 +30,9 @@ from .._threads import one_blas_thread, side_by_side
 from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
 from ._angles import _angle_context
-from ._determined import (CORRECTED, CORRECTED_SAID, EIV_SAID, EIV_WIDENED, UNDETERMINED, WIDENED, corrected_spread,
-                          eiv_bias, equation_noise, noise_ratios, undetermined_directions, undetermined_warning,
-                          widened)
+from ._determined import (CORRECTED, CORRECTED_SAID, EIV_SAID, EIV_WIDENED, MODEL_SCALE, UNDETERMINED, WIDENED,
+                          corrected_spread, eiv_bias, equation_noise, noise_ratios, undetermined_directions,
+                          undetermined_warning, widened)
 from ._diagnostics import Diagnostics, DriftTest, ResidualChecks
 from ._differentiated import weighting_sigma
 from ._drift import DRIFT_KINDS, check_drift_kinds, drift_names
@@ -410,7 +410,8 @@ def _spread_along_directions(fit: _Fit, weak: list, ratios, corrects: bool, nomi
             uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {how}"}
     if weak:  # the standard errors say what the data do not determine
         fit = replace(fit, cov=widened(fit.cov, *ratios, fit.theta, nominal))
-        uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {WIDENED.format(len(weak))}"}
+        how = WIDENED.format(len(weak), MODEL_SCALE)
+        uncertainty = {**uncertainty, "covariance": f"{uncertainty['covariance']}; {how}"}
     return replace(fit, uncertainty=uncertainty)
 
 

@@ -25,6 +25,10 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
 ``residual_checks``, ``noise_model_warning``, ``SIGNIFICANCE``, ``CONTRADICTED``
     The tests of whitened residuals against the noise model (chi-square, Ljung-Box), what a rejected one means in
     words, the tests' significance level, and how a covariance taken from the residuals then is described.
+``ratios_of_columns``, ``undetermined``, ``widened``, ``WIDENED``, ``undetermined_warning``, ``signal_levels``
+    The directions of parameter space a log does not determine (the regressor's noise as large as its signal) of
+    equations of another shape, who leads them, the covariance widened along them, how its description and the
+    warning say so; the noise levels they are judged by.
 ``differentiated_series``, ``propagated_covariance``
     The raw angle series behind differentiated rates, and the covariance of an estimate with
     their noise carried through the differentiating filters.
@@ -43,6 +47,7 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
 """
 
 from ._angle_path import automatic_knot_spacing, enough_samples_for_knots
+from ._determined import WIDENED, ratios_of_columns, signal_levels, undetermined, undetermined_warning, widened
 from ._differentiated import differentiated_series, propagated_covariance
 from ._drift import check_drift_kinds
 from ._equations import Equations, drift_basis_at
@@ -64,6 +69,12 @@ __all__ = [
     "noise_model_warning",
     "SIGNIFICANCE",
     "CONTRADICTED",
+    "ratios_of_columns",
+    "undetermined",
+    "widened",
+    "WIDENED",
+    "undetermined_warning",
+    "signal_levels",
     "differentiated_series",
     "propagated_covariance",
     "enough_samples_for_knots",
