@@ -40,7 +40,9 @@ class MonitorEvent:
     lead : float
         How much earlier than the change ``time`` can be [s]: half the differentiator's window
         when the rates were differentiated (a centred window shows a change in the smoothed rates
-        up to that long before it), else 0. The change lies between ``time`` and ``time + lead``.
+        up to that long before it), else 0. The change most often lies between ``time`` and ``time + lead``,
+        and always before ``detected_at + lead``; when the statistic had climbed by chance before the change,
+        ``time`` is that climb's start (docs/theory/monitor.md).
     """
 
     index: int

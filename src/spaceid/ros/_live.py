@@ -305,7 +305,7 @@ class LiveMonitor:
         self._unchecked = False
         from ..identified import payload_after_grasp
 
-        grasp = event.time + event.lead  # the change lies in [time, time + lead]
+        grasp = event.time + event.lead  # the change most often lies in [time, time + lead] (docs/theory/monitor.md)
         if self._recent[0].t[0] >= grasp:  # the history no longer reaches back to the change
             self._payload_event = None
             return None
