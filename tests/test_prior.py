@@ -391,3 +391,33 @@ def test_a_solver_panic_is_a_failed_solve(monkeypatch):
                 solved_tightly(problem)
         else:
             assert solved_tightly(problem) is False
+
+
+def test_a_failed_solve_is_tried_again_with_whole_cones(monkeypatch):
+    """A program on which Clarabel fails (cvxpy's SolverError: insufficient progress, or a panic) is solved once more
+    with its positive semidefinite cones whole (planar random robot 311720's export stopped so at every step, and was
+    refused although the true robot was inside its ellipsoid; the example in ``test_random_robots``); an infeasible
+    program is not tried again."""
+    import cvxpy as cp
+
+    from spaceid.models.internal import solved_tightly
+
+    x = cp.Variable()
+    problem = cp.Problem(cp.Minimize(cp.square(x - 1)))
+    calls, solve = [], problem.solve
+
+    def first_fails(*args, **kwargs):
+        calls.append(kwargs.get("chordal_decomposition_enable", True))
+        if len(calls) == 1:
+            raise cp.SolverError("Solver 'CLARABEL' failed")
+        return solve(*args, **kwargs)
+
+    monkeypatch.setattr(problem, "solve", first_fails)
+    assert solved_tightly(problem) is True and calls == [True, False] and x.value == pytest.approx(1.0)
+
+    infeasible = cp.Problem(cp.Minimize(x), [x >= 1, x <= 0])
+    calls.clear()
+    solve = infeasible.solve
+    monkeypatch.setattr(infeasible, "solve", first_fails)
+    calls.append(True)  # (past the first call: no failure)
+    assert solved_tightly(infeasible) is False and calls == [True, True]

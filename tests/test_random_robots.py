@@ -113,5 +113,9 @@ def test_export_regressions(seed, planar, noisy, tmp_path):
 # radius, then walked out to 160 and 36 times it, and the export reported the last as within it
 @example(seed=13652, planar=False, noisy=True)
 @example(seed=252543, planar=False, noisy=True)
+# a planar robot of 13 bodies and 121 parameters, the true robot inside the ellipsoids: Clarabel stopped on every
+# main program (log-det objective, its 22 cones split into 55 chordal parts) on insufficient progress, and the export
+# was refused; solved again with the cones whole (models._pseudo.WHOLE_CONES), exported
+@example(seed=311720, planar=True, noisy=True)
 def test_export_without_options_on_larger_robots(seed, planar, noisy, tmp_path):
     _export(seed, planar, noisy, tmp_path, larger=True)
