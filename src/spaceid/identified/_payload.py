@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field, replace
+from functools import partial
 
 import numpy as np
 
@@ -572,22 +573,29 @@ def _whitened(pmap, eq, x, y, rhs, sigma, theta):
 
 
 WEIGHT_STEP = 1e-6
-"""Forward-difference step of :func:`_weights_derivative`, relative to an unknown's value or, when larger, to its
-scale (the inverse norm of its whitened column)."""
+"""Forward-difference step of :func:`_forward_differences` in the unknowns, relative to an unknown's value or, when
+larger, to its scale (the inverse norm of its whitened column)."""
+
+
+def _forward_differences(f, at: np.ndarray, theta, scale) -> np.ndarray:
+    """``(..., p)``: forward differences of ``f(theta)`` (an array, ``at`` its value at ``theta``) in each unknown of
+    ``theta (p,)``, of step :data:`WEIGHT_STEP` times ``max(|theta_j|, 1 / scale_j)``."""
+    out = np.empty(at.shape + (len(theta),))
+    for j in range(len(theta)):
+        moved = theta.copy()
+        moved[j] += (step := WEIGHT_STEP * max(abs(theta[j]), 1.0 / scale[j]))
+        out[..., j] = (f(moved) - at) / step
+    return out
 
 
 def _weights_derivative(pmap, eq, x, sigma, theta, r, chol, scale, brought) -> np.ndarray:
     """``(n, rows, p)``: how the whitened residuals ``r (n, rows)`` move with each unknown of ``theta`` through their
     weights alone (the Cholesky factors ``chol`` at ``theta``, the residuals held): forward differences of the
-    whitener, of step :data:`WEIGHT_STEP` times ``max(|theta_j|, 1 / scale_j)``."""
+    whitener (:func:`_forward_differences`)."""
     errors = (chol @ r[..., None])[..., 0]
-    out = np.empty(r.shape + (len(theta),))
-    for j in range(len(theta)):
-        moved = theta.copy()
-        moved[j] += (step := WEIGHT_STEP * max(abs(theta[j]), 1.0 / scale[j]))
-        out[..., j] = (np.linalg.solve(_whitener(pmap, eq, x, sigma, moved, brought)[0], errors[..., None])[..., 0]
-                       - r) / step
-    return out
+    return _forward_differences(
+        lambda moved: np.linalg.solve(_whitener(pmap, eq, x, sigma, moved, brought)[0], errors[..., None])[..., 0],
+        r, theta, scale)
 
 
 HALVINGS = 6
@@ -981,23 +989,20 @@ def _noise_ratios(pmap, eq, x, sigma, theta, a, brought, log) -> tuple:
     """The noise-to-signal ratios and directions ``(mu, T)`` of the fit's unknowns at ``theta``, its whitened
     Jacobian ``a (n, rows, p)`` (:func:`~spaceid.estimation.internal.ratios_of_columns`: empty when none is
     undetermined). The columns' derivatives with respect to the signals are those of the residuals' signal Jacobian
-    with respect to the unknowns (forward differences, :data:`WEIGHT_STEP`), whitened at ``theta``'s weights: one
+    with respect to the unknowns (:func:`_forward_differences`), whitened at ``theta``'s weights: one
     Jacobian an unknown, where forming the columns anew at each signal's step took 0.7 s of the servicer's payload.
     On undesigned random spatial robot 98697 (one joint, a 1.75 kg payload, 1e-4 noise) two directions' ratios were
     0.89 and 0.73, its mass 3.8 +- 3.0 kg; over 20 other random robots (planar and spatial, designed and undesigned
     motions) the largest was 1.1e-3."""
     chol = _whitener(pmap, eq, x, sigma, theta, brought)[0]
     scale = np.linalg.norm(a.reshape(-1, a.shape[-1]), axis=0)
+    scale[scale == 0] = 1.0
 
     def derivatives(rows):
-        part, white = eq.select(rows), np.linalg.inv(chol[rows])
-        at = _signal_jacobian(pmap, part, x[rows], theta, brought)
-        out = np.empty(at.shape + (len(theta),))
-        for j in range(len(theta)):
-            moved = theta.copy()
-            moved[j] += (step := WEIGHT_STEP * max(abs(theta[j]), 1.0 / max(scale[j], 1e-300)))
-            out[..., j] = (_signal_jacobian(pmap, part, x[rows], moved, brought) - at) / step
-        return np.einsum("nrs,nsck->nrck", white, out)
+        part = eq.select(rows)
+        jacobian = partial(_signal_jacobian, pmap, part, x[rows], brought=brought)
+        out = _forward_differences(jacobian, jacobian(theta), theta, scale)
+        return np.einsum("nrs,nsck->nrck", np.linalg.inv(chol[rows]), out)
 
     return ratios_of_columns(a, derivatives, signal_levels(pmap.param, log, sigma))
 
