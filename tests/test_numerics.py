@@ -201,3 +201,31 @@ def test_lower_inverse_of_the_whiteners_is_their_inverse(rows):
     reference = np.linalg.inv(L)  # LAPACK's LU of each, as accurate
     gap = np.abs(inverse - reference).max(axis=(1, 2)) / np.abs(reference).max(axis=(1, 2))
     assert np.all(gap <= 50 * np.finfo(float).eps * cond), (gap / cond).max()
+
+
+def test_an_svd_lapack_does_not_converge_on_is_taken_by_qr_iteration(monkeypatch):
+    """Where NumPy's SVD (LAPACK's divide and conquer) raises "did not converge" on a finite matrix (an export's
+    conditions on spatial random robot 1307800870, an ``@example`` in ``test_random_robots``), ``spaceid._svd.svd``
+    decomposes it by QR iteration: the same factors (of single and stacked matrices, with and without the vectors); a
+    matrix with a NaN still raises NumPy's error."""
+    from spaceid import _svd
+
+    rng = np.random.default_rng(3)
+    stacked = rng.standard_normal((3, 7, 5)) * np.logspace(0, -40, 5)  # singular values over 40 decades
+    expected = [np.linalg.svd(stacked, full_matrices=False), np.linalg.svd(stacked[0]),
+                np.linalg.svd(stacked, compute_uv=False)]  # fmt: skip
+
+    def diverges(*args, **kwargs):
+        raise np.linalg.LinAlgError("SVD did not converge")
+
+    monkeypatch.setattr(_svd.np.linalg, "svd", diverges)
+    got = [_svd.svd(stacked, full_matrices=False), _svd.svd(stacked[0]), _svd.svd(stacked, compute_uv=False)]
+    for (u, s, vt), (u_, s_, vt_) in zip(got[:2], expected[:2]):
+        assert u.shape == u_.shape and vt.shape == vt_.shape
+        np.testing.assert_allclose(s, s_, rtol=1e-12, atol=1e-15 * s_.max())
+        k = s.shape[-1]
+        np.testing.assert_allclose(u[..., :k] * s[..., None, :] @ vt[..., :k, :], stacked[0] if s.ndim == 1 else
+                                   stacked, atol=1e-13)  # fmt: skip
+    np.testing.assert_allclose(got[2], expected[2], rtol=1e-12, atol=1e-15)
+    with pytest.raises(np.linalg.LinAlgError):
+        _svd.svd(np.array([[np.nan, 1.0], [0.0, 1.0]]))

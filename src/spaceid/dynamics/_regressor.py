@@ -43,6 +43,7 @@ from scipy.linalg import solve_triangular
 
 from .._cache import cache_key, read_cached, source_digest, stored_strings, stored_text, write_cached
 from .._errors import SpaceidError
+from .._svd import svd
 from .._threads import one_blas_thread, threads_for
 from ._definitions import column_definitions, planar_definitions
 from ._kernels import _columns_of_states, _contracted_rows, _momentum_of_states, _tangent_columns
@@ -1073,7 +1074,7 @@ def identifiability(param: Parameterization, *, tol: float | None = None) -> Ide
     q, qd, w0 = _random_states(model, param.n_states, param.seed + 1)
     energy = energy_regressor(model, q, qd, w0)
     with one_blas_thread():  # threaded, on busy cores, this SVD of the servicer's 496 x 1,980 took 35 s (measured)
-        rowspace = np.linalg.svd(param.projection, full_matrices=False)[2]  # orthonormal rows, (k, n_full)
+        rowspace = svd(param.projection, full_matrices=False)[2]  # orthonormal rows, (k, n_full)
         outside = energy - (energy @ rowspace.T) @ rowspace
     energy_residual = float(np.linalg.norm(outside) / np.linalg.norm(energy))
     alone = [n for j, n in enumerate(names[:n_theta])

@@ -66,6 +66,7 @@ import numpy as np
 from scipy.linalg import solve_triangular
 
 from .._constants import ESTIMATORS
+from .._svd import svd
 from .._threads import one_blas_thread
 from ..dynamics import base_rate
 from ._angles import _angles_ml
@@ -145,7 +146,7 @@ def _tls(eq, x, sigma, theta, ctx):
     # minimise |As y - b|^2 / (|y|^2 + d_b^2): (As^T As - lam I) y = As^T b, lam the root of the
     # secular equation sum c_i^2 / (mu_i - lam) + lam d_b^2 - |b|^2 = 0 below the smallest mu
     with one_blas_thread():  # threaded, on busy cores, the SVD of 600 x 496 took 2.3 s (measured)
-        U, sv, Vt = np.linalg.svd(As, full_matrices=False)  # not the Gram matrix: keeps cond(A), not its square
+        U, sv, Vt = svd(As, full_matrices=False)  # not the Gram matrix: keeps cond(A), not its square
     mu, c = sv**2, sv * (U.T @ b)
     secular = lambda lam: np.sum(c**2 / (mu - lam)) + lam * noise[-1] ** 2 - b @ b  # noqa: E731
     lam = 0.0

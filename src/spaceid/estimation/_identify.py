@@ -26,6 +26,7 @@ from scipy.linalg import lapack
 from scipy.special import ndtri
 
 from .._errors import SpaceidError, shown
+from .._svd import svd
 from .._threads import one_blas_thread, side_by_side
 from ..data import Log, differentiate_log, log_fingerprint
 from ..dynamics import Parameterization, full_parameter_names
@@ -77,7 +78,7 @@ def _unexcited(r: np.ndarray, names, tol: float) -> list:
     regressor, from its triangular factor ``r (p, p)`` (same right singular vectors): the
     directions with singular values below ``tol`` of the largest."""
     with one_blas_thread():
-        _, s, vt = np.linalg.svd(r)
+        _, s, vt = svd(r)
     null = vt[s < tol * s[0]]
     weight = np.abs(null).max(axis=0) if len(null) else np.zeros(len(names))
     return [n for n, w in zip(names, weight) if w > 0.3]
@@ -102,7 +103,7 @@ def excitation_condition(phi) -> float:
     A, b = _split(phi)
     scale = _column_scale(A)
     with one_blas_thread():
-        sv = np.linalg.svd(_triangular_factor(A, b, scale)[:-1, :-1], compute_uv=False)
+        sv = svd(_triangular_factor(A, b, scale)[:-1, :-1], compute_uv=False)
     return float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
 
 
@@ -117,7 +118,7 @@ def _check_factor(factor, names, cond_limit: float, where: str) -> tuple:
     :func:`check_excitation` returns them; raises when the condition number reaches ``cond_limit``."""
     scale, R = factor
     with one_blas_thread():
-        sv = np.linalg.svd(R[:-1, :-1], compute_uv=False)  # those of A / scale, to eps * sv[0]
+        sv = svd(R[:-1, :-1], compute_uv=False)  # those of A / scale, to eps * sv[0]
     cond_scaled = float(sv[0] / sv[-1]) if sv[-1] > 0 else np.inf
     if not cond_scaled < cond_limit:
         bad = _unexcited(R[:-1, :-1], names, max(1e-8, 1 / cond_limit))
@@ -328,7 +329,7 @@ def _singular_values(factor) -> np.ndarray:
     from the factor ``(scale, R)`` of the scaled equations: those of ``R[:p, :p] diag(scale)``."""
     scale, R = factor
     with one_blas_thread():
-        return np.linalg.svd(R[:-1, :-1] * scale, compute_uv=False)
+        return svd(R[:-1, :-1] * scale, compute_uv=False)
 
 
 def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimated: bool, chunk=None,

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from .._errors import SpaceidError, shown
+from .._svd import svd
 from .._threads import one_blas_thread
 from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian
 from ..models import Model, load_model
@@ -266,7 +267,7 @@ def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, fr
     n_s = n_ff / np.outer(scale, scale) + 1e-12 * np.eye(n_free)
     noise_root = np.linalg.cholesky(0.5 * (n_s + n_s.T)).T * scale  # N = M^T M
     q, t = np.linalg.qr(np.vstack([root, noise_root]))
-    u, c, wt = np.linalg.svd(q[:n_free])
+    u, c, wt = svd(q[:n_free])
     s = np.linalg.norm(q[n_free:] @ wt.T, axis=0)
     edge = (1 + np.sqrt(max(p, 1) / max(len(white), 1))) ** 2
     keep = c**2 > (1 + 2 * (edge - 1)) * s**2
@@ -416,7 +417,7 @@ def _rows(L, a, rd, s) -> tuple:
     ld, aw = L @ a, a * s
     if not ld.size:
         return np.zeros(0), ld[:0], rd[:0]
-    u, sv, vt = np.linalg.svd(ld * s, full_matrices=False)
+    u, sv, vt = svd(ld * s, full_matrices=False)
     round_off = aw.shape[1] * np.finfo(float).eps * np.linalg.norm(L, 2) * np.linalg.norm(aw, 2)
     keep = sv > max(round_off, np.finfo(float).tiny)
     return sv[keep], vt[keep] / s, (u[:, keep].T @ rd) / sv[keep]
@@ -439,7 +440,7 @@ def _floored(data: DataTerm, floor) -> DataTerm:
     ``A v`` zero to round-off, would be as large as the prior's)."""
     if not data.L.size:
         return data
-    u, sv, _ = np.linalg.svd(data.L * floor, full_matrices=False)
+    u, sv, _ = svd(data.L * floor, full_matrices=False)
     rotate = u.T / np.sqrt(1 + sv**2)[:, None]
     return replace(data, L=rotate @ data.L, r=rotate @ data.r)
 
@@ -598,7 +599,7 @@ def _posterior(param, data, D, theta, idx, s) -> tuple:
         from scipy.linalg import null_space
 
         basis = null_space(jac[idx] * s, rcond=1e-12)
-    _, sv, vt = np.linalg.svd(rows @ basis, full_matrices=False)  # sv > 0: the prior's rows have full rank
+    _, sv, vt = svd(rows @ basis, full_matrices=False)  # sv > 0: the prior's rows have full rank
     root = s[:, None] * (basis @ (vt.T / sv))  # cov_theta = root root^T
     cov = (jac @ root) @ (jac @ root).T
     return 0.5 * (cov + cov.T), jac
@@ -631,7 +632,7 @@ def attribution(data_root, prior_root, names, top: int = 3) -> tuple:
     n = prior_root.shape[1]
     upper = np.linalg.qr(prior_root, mode="r")  # prior_info = R^T R
     white = solve_triangular(upper, data_root.T, trans="T").T if data_root.size else np.zeros((0, n))
-    _, sv, vt = np.linalg.svd(np.vstack([white, np.zeros((max(0, n - len(white)), n))]))  # n values at least
+    _, sv, vt = svd(np.vstack([white, np.zeros((max(0, n - len(white)), n))]))  # n values at least
     lam, vec = sv[:n] ** 2, vt.T
     out = []
     for i in np.argsort(-lam, kind="stable"):
@@ -777,7 +778,7 @@ def _equations_with_prior(param, log, eq, model, prior_std, standard, noise, est
     pi, cov, record = map_estimate(param, model, data, prior_std=prior_std, known_standard=standard, where=where)
     theta = np.concatenate([pi[eq.free], nuisance(pi[eq.free])])
     h = eq.full(theta)[1]
-    s = np.linalg.svd(A, compute_uv=False)
+    s = svd(A, compute_uv=False)
     diagnostics = Diagnostics(covariance_method="prior", covariance=(
         "posterior of the CAD prior and the momentum equations weighted by the noise model at the prior "
         f"({reason})"), estimator_info={"data_term": "equations"})

@@ -23,6 +23,7 @@ import numpy as np
 from scipy.linalg import qr
 
 from .._errors import SpaceidError
+from .._svd import svd
 from .._threads import one_blas_thread
 from ..data import Log, quat_to_matrix
 from ..dynamics import body_states, com_regressor, com_terms
@@ -104,7 +105,7 @@ def identify_com(model, log: Log, *, seed: int = 0):
     a = np.concatenate([np.broadcast_to(np.eye(d), (n, d, d)), -w], -1).reshape(n * d, -1)
     b = log.base_position[:, rows].reshape(-1)
     with one_blas_thread():
-        u, s, vt = np.linalg.svd(a, full_matrices=False)
+        u, s, vt = svd(a, full_matrices=False)
     if s[-1] <= 1e-10 * s[0] or n * d <= a.shape[1]:
         raise SpaceidError(f"{where}: the motion does not excite the {len(cols)} CM terms (condition "
                            f"{s[0] / max(s[-1], 1e-300):.3g}, {n} samples): log a motion that turns the base and "

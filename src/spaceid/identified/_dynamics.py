@@ -29,6 +29,7 @@ from scipy.linalg import qr
 
 from .._deprecation import deprecated_alias
 from .._errors import SpaceidError
+from .._svd import svd
 from .._threads import one_blas_thread
 from ..data import quat_to_matrix
 from ..dynamics import Parameterization, base_rate, body_states, energy_regressor, full_values, identifiability, skew
@@ -531,7 +532,7 @@ def _fixed_by_pi(param: Parameterization, n_configurations: int = 8) -> dict:
 
     def fixed(rows, grads):
         with one_blas_thread():
-            _, s, vt = np.linalg.svd(rows, full_matrices=False)
+            _, s, vt = svd(rows, full_matrices=False)
         basis = vt[s > 1e-9 * s[0]]
         outside = grads - (grads @ basis.T) @ basis
         return bool(np.linalg.norm(outside) <= _FIXED_TOL * np.linalg.norm(grads))

@@ -21,6 +21,7 @@ import numpy as np
 
 from .._distributions import chi2_ppf
 from .._errors import SpaceidError, shown
+from .._svd import svd
 from .._threads import one_blas_thread
 from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian, no_effect_parameters
 from ..dynamics import minimal_parameters
@@ -279,7 +280,7 @@ def _conditions(param, g, theta, e, w, pi, *, project=True):
     scale = np.where(scale > 0, scale, 1.0)
     a_eq, b_eq = a_eq / scale[:, None], b_eq / scale
     if project and len(a_eq):
-        u, s, _ = np.linalg.svd(a_eq @ g, full_matrices=False)
+        u, s, _ = svd(a_eq @ g, full_matrices=False)
         u = u[:, s > 1e-9 * s[0]]
         a_eq, b_eq = u.T @ a_eq, u.T @ b_eq
     return a_eq, b_eq, w @ jac, w @ pi

@@ -28,6 +28,7 @@ import scipy.linalg
 from scipy.special import logsumexp, softmax
 
 from .._errors import SpaceidError
+from .._svd import svd
 from ..estimation import equation_covariance, signal_jacobian, signal_sigma
 
 __all__ = ["Criterion", "CRITERIA", "whitened_regressor"]
@@ -41,7 +42,7 @@ def _log_sigma_and_derivatives(Y, dY):
 
     Returns ``log_s (k,)`` (descending) and ``dlog_s (p, k)``, from ``d s_i = u_i^T dY v_i``.
     """
-    U, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    U, s, Vt = svd(Y, full_matrices=False)
     ds = np.sum((dY @ Vt.T) * U, axis=-2)
     return np.log(s), ds / s
 
@@ -53,7 +54,7 @@ def _cond_pieces(Y, dY=None):
     condition number, smooth in epigraph form even where s_1 = s_2 or s_k-1 = s_k.
     """
     if dY is None:
-        log_s = np.log(np.linalg.svd(Y, compute_uv=False))
+        log_s = np.log(svd(Y, compute_uv=False))
         return (log_s[..., :2, None] - log_s[..., None, -2:]).reshape(*Y.shape[:-2], -1)
     log_s, dlog_s = _log_sigma_and_derivatives(Y, dY)
     pieces = (log_s[:2, None] - log_s[None, -2:]).ravel()
@@ -64,7 +65,7 @@ def _cond_pieces(Y, dY=None):
 def _cond_adjoint(Y):
     """The pieces of :func:`_cond_pieces` and their gradients ``W (n_pieces, n_rows, k)`` with
     respect to ``Y``: ``d piece = <W, dY>``, from ``d log s_i = u_i^T dY v_i / s_i``."""
-    U, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    U, s, Vt = svd(Y, full_matrices=False)
     top, bottom = np.arange(min(2, len(s))), np.arange(max(len(s) - 2, 0), len(s))
     ends = np.concatenate([top, bottom])
     G = U[:, ends].T[:, :, None] * (Vt[ends] / s[ends, None])[:, None, :]  # d log s_i / dY
@@ -78,7 +79,7 @@ def _cond_adjoint(Y):
 def _dopt_adjoint(Y):
     """``-log det(Y^T Y)`` (one piece) and its gradient ``W (1, n_rows, k)`` w.r.t. ``Y``:
     ``d log det(Y^T Y) = 2 <Y^+T, dY>``, ``Y^+T = U diag(1/s) V^T``."""
-    U, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    U, s, Vt = svd(Y, full_matrices=False)
     return np.array([-2 * np.log(s).sum()]), (-2 * (U / s) @ Vt)[None]
 
 
@@ -102,7 +103,7 @@ def _cond_smooth(Y, p):
     """
     if p == 2:
         return _trace_gap(Y, gradient=True)
-    U, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    U, s, Vt = svd(Y, full_matrices=False)
     if not s[-1] > 0:
         return np.inf, np.zeros_like(Y)
     ls = np.log(s)
@@ -115,7 +116,7 @@ def _cond_smooth_value(Y, p):
     if p == 2:
         Ys = np.reshape(Y, (-1, *np.shape(Y)[-2:]))
         return np.array([_trace_gap(y) for y in Ys]).reshape(np.shape(Y)[:-2])
-    s = np.linalg.svd(Y, compute_uv=False)
+    s = svd(Y, compute_uv=False)
     with np.errstate(divide="ignore"):
         return np.where(s[..., -1] > 0, _power_mean_gap(np.log(s), p), np.inf)
 
@@ -160,7 +161,7 @@ def _dopt_pieces(Y, dY=None):
     """``-log det(Y^T Y)``, one piece: D-optimality for ``Y`` the whitened, pi-scaled
     regressor (:class:`whitened_regressor`), whose ``Y^T Y`` is the Fisher information."""
     if dY is None:
-        return -2 * np.log(np.linalg.svd(Y, compute_uv=False)).sum(-1, keepdims=True)
+        return -2 * np.log(svd(Y, compute_uv=False)).sum(-1, keepdims=True)
     log_s, dlog_s = _log_sigma_and_derivatives(Y, dY)
     return np.array([-2 * log_s.sum()]), -2 * dlog_s.sum(-1)[None, :]
 
@@ -184,7 +185,7 @@ def _crb_pieces(Y, dY=None):
     ``tr = sum s_i^-2``, so ``d log tr = -2 sum s_i^-2 d log s_i / tr``.
     """
     if dY is None:
-        s = np.linalg.svd(Y, compute_uv=False)
+        s = svd(Y, compute_uv=False)
         return np.log(np.sum(s**-2.0, -1, keepdims=True))
     log_s, dlog_s = _log_sigma_and_derivatives(Y, dY)
     w = np.exp(-2 * log_s)
@@ -195,7 +196,7 @@ def _crb_adjoint(Y):
     """The piece of :func:`_crb_pieces` and its gradient ``W (1, n_rows, k)`` w.r.t. ``Y``:
     ``d tr(G^-1) = -tr(G^-1 dG G^-1) = <-2 Y G^-2, dY>`` for ``G = Y^T Y``, and
     ``Y G^-2 = U diag(s^-3) V^T``; divided by the trace for the log."""
-    U, s, Vt = np.linalg.svd(Y, full_matrices=False)
+    U, s, Vt = svd(Y, full_matrices=False)
     tr = np.sum(s**-2.0)
     return np.array([np.log(tr)]), (-2 / tr * (U * s**-3.0) @ Vt)[None]
 

@@ -31,6 +31,7 @@ from functools import cached_property
 import numpy as np
 
 from .._errors import SpaceidError
+from .._svd import svd
 from ._criteria import CRITERIA
 from ._trajectory import BOUNDARY_FIELDS, boundary_quintic, fourier_basis, sample_times
 
@@ -466,7 +467,7 @@ def _check_rank(problem, Z0):
     (an SVD each: the servicer's eight took 0.3 s, where the first settles the check on any motion that can be
     designed)."""
     for Y in problem.stacked_regressor(Z0):
-        s = np.linalg.svd(Y, compute_uv=False)
+        s = svd(Y, compute_uv=False)
         if s[-1] > s[0] * max(Y.shape) * np.finfo(float).eps:  # numerical rank k
             return
     raise SpaceidError(
