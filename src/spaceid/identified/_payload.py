@@ -61,7 +61,7 @@ from ..estimation.internal import (
 )
 from ..models import INERTIAL_NAMES, Model, link_frame, load_model
 from ..models.internal import add_to_body, symbol_suffix
-from ..models.internal import CLARABEL_TOLERANCES, MARGIN, inertial_from_pseudo, pseudo_inertia
+from ..models.internal import CLARABEL_TOLERANCES, MARGIN, inertial_from_pseudo, pseudo_inertia, solver_panicked
 
 __all__ = ["GraspMotion", "PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent",
            "nominal_payload", "payload_units"]
@@ -313,8 +313,8 @@ def _least_step_inside(offset, directions, options: dict) -> tuple:
                                     [clarabel.PSDTriangleConeT(d)], settings)  # fmt: skip
     try:
         solution = solver.solve()
-    except BaseException as exc:  # Clarabel's Rust core panics on some ill-posed cones (pyo3's PanicException)
-        if type(exc).__name__ != "PanicException":
+    except BaseException as exc:
+        if not solver_panicked(exc):
             raise
         return None, "the solver failed"
     solved = solution.status in (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
@@ -992,7 +992,7 @@ def _noise_ratios(pmap, eq, x, sigma, theta, a, brought, log) -> tuple:
     with respect to the unknowns (:func:`_forward_differences`), whitened at ``theta``'s weights: one
     Jacobian an unknown, where forming the columns anew at each signal's step took 0.7 s of the servicer's payload.
     On undesigned random spatial robot 98697 (one joint, a 1.75 kg payload, 1e-4 noise) two directions' ratios were
-    0.89 and 0.73, its mass 3.8 +- 3.0 kg; over 20 other random robots (planar and spatial, designed and undesigned
+    0.89 and 0.73, its mass 3.9 +- 3.0 kg; over 20 other random robots (planar and spatial, designed and undesigned
     motions) the largest was 1.1e-3."""
     chol = _whitener(pmap, eq, x, sigma, theta, brought)[0]
     scale = np.linalg.norm(a.reshape(-1, a.shape[-1]), axis=0)

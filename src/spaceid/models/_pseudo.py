@@ -31,6 +31,12 @@ progress at every step, and the export was refused although the true robot lay i
 same program solved to Clarabel's tolerances (and to SCS's optimum, 44.1139)."""
 
 
+def solver_panicked(exc: BaseException) -> bool:
+    """Whether ``exc`` is a panic of Clarabel's Rust core (pyo3's ``PanicException``, a ``BaseException``), which it
+    raises on some ill-posed cones: a failed solve, where any other ``BaseException`` (an interrupt) propagates."""
+    return type(exc).__name__ == "PanicException"
+
+
 def solved_tightly(problem) -> bool:
     """Solve the cvxpy ``problem`` with Clarabel at :data:`CLARABEL_TOLERANCES`; whether it reached an
     optimum. A solver failure is tried once more with the cones whole (:data:`WHOLE_CONES`), then False (an
@@ -49,8 +55,8 @@ def solved_tightly(problem) -> bool:
                               **settings)  # fmt: skip
         except cp.SolverError:
             continue
-        except BaseException as exc:  # Clarabel's Rust core panics on some ill-posed cones (pyo3's PanicException)
-            if type(exc).__name__ != "PanicException":
+        except BaseException as exc:
+            if not solver_panicked(exc):
                 raise
             continue
         return problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)

@@ -22,15 +22,15 @@ a name below is a change to an interface between subpackages, to be made with it
 ``pseudo_whitening``, ``whitened_physical``
     The maps of the whitened pseudo-inertias ``X_b`` (a reference at the identity) to ``theta`` and to
     the declared zeros; whether a ``theta`` is physical in them.
-``MARGIN``, ``SPREAD``, ``CLARABEL_TOLERANCES``, ``solved_tightly``
+``MARGIN``, ``SPREAD``, ``CLARABEL_TOLERANCES``, ``solved_tightly``, ``solver_panicked``
     The physical margin of a program's solution, the spread of a degenerate reference body, the
-    solver's tolerances, and a program solved at them.
+    solver's tolerances, a program solved at them, and whether an exception is the solver's panic.
 """
 
 from ._model import add_to_body, inertia_matrix, symbol_suffix, zero_rotations
 from ._pseudo import (CLARABEL_TOLERANCES, MARGIN, SPREAD, inertial_from_pseudo, pseudo_inertia, pseudo_whitening,
-                      reference_pseudo, solved_tightly, theta_slots, whitened_physical, with_theta)
+                      reference_pseudo, solved_tightly, solver_panicked, theta_slots, whitened_physical, with_theta)
 
 __all__ = ["inertia_matrix", "symbol_suffix", "zero_rotations", "add_to_body", "pseudo_inertia", "inertial_from_pseudo",
            "reference_pseudo", "theta_slots", "with_theta", "pseudo_whitening", "whitened_physical", "MARGIN",
-           "SPREAD", "CLARABEL_TOLERANCES", "solved_tightly"]
+           "SPREAD", "CLARABEL_TOLERANCES", "solved_tightly", "solver_panicked"]
