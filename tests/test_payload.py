@@ -326,6 +326,29 @@ def test_a_noisy_point_mass_is_projected_to_a_consistent_estimate(cepheus):
     assert projected  # Izz std ~2e-5 against 1e-7: about half the runs come out negative
 
 
+def test_an_estimate_beyond_the_noises_reach_of_any_payload_is_said_and_widened(cepheus):
+    """A payload held by the link before the one named: no rigid payload on ``link2`` fits the data
+    (chi2/dof 2,100), and the unconstrained estimate lies 13 standard errors from any physical one,
+    where the noise reaches 4.3 (chi-square of 4 at the significance). The projection's step is then
+    error, not noise: a warning says so and the step is added to the covariance, so the standard
+    errors cover it. On the right link nothing is said (the live node's first payload fits on too
+    few samples after the grasp did the same: ``tests/test_ros.py``)."""
+    pmap, traj, theta, right_log = cepheus
+    wrong_log = _log_with_payload(payload_map("cepheus", "link1"), theta, traj, 200, np.array([0, 0, 0.05]))
+    with pytest.warns(UserWarning, match=r"lay 1\d\.\d standard errors from any physical payload, where the noise "
+                                         r"reaches 4\.3: the data contradict a rigid payload on `link`"):
+        wrong = identify_payload(pmap, add_noise(wrong_log, angle=1e-4, rate=1e-4, seed=0), "link2", [0, 0, 0.05],
+                                 noise=NOISE)
+    consistency = wrong.settings["consistency"]
+    assert consistency["contradicted"] and consistency["mahalanobis_distance"] > consistency["noise_reach"]
+    step = np.array([wrong.values[k] - consistency["unconstrained"][name] for k, name in enumerate(wrong.names)])
+    assert np.all(wrong.std >= 0.99 * np.abs(step)) and np.any(np.abs(step) > 10 * NOISE.angle)
+    assert wrong.settings["covariance"].endswith("the estimate lying beyond the noise's reach of any")
+    right = identify_payload(pmap, add_noise(right_log, angle=1e-4, rate=1e-4, seed=0), "link2", [0, 0, 0.05],
+                             noise=NOISE)
+    assert not right.settings["consistency"]["contradicted"] and "step" not in right.settings["covariance"]
+
+
 @pytest.mark.slow
 def test_spatial_noisy_spread_agrees_with_the_standard_errors(satellite):
     pmap, traj = satellite

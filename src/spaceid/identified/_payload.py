@@ -14,8 +14,9 @@ momentum, a function of ``theta`` given its velocity and rate (:class:`GraspMoti
 
 Planar motion sees only the mass, the in-plane CoM and the moment about the CoM's vertical axis.
 An estimate that is not physically consistent (pseudo-inertia not positive definite) is projected
-to the nearest consistent one in the metric of its covariance (a convex program, cvxpy and
-Clarabel).
+to the nearest consistent one in the metric of its covariance (a convex program, Clarabel); one
+beyond the noise's reach of any (the data contradict a payload) has the step added to its
+covariance.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from functools import partial
 
 import numpy as np
 
+from .._distributions import chi2_isf
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ..data import Log, log_fingerprint, quat_to_matrix, read_json
@@ -337,7 +339,9 @@ class PayloadEstimate:
     values, std : ndarray of shape (n,)
         Their (consistent) estimates and standard errors [kg, m, kg m^2].
     cov : ndarray of shape (n, n)
-        Their covariance (of the unconstrained estimate, to first order).
+        Their covariance (of the unconstrained estimate, to first order; with the consistency
+        projection's step added where that estimate lay beyond the noise's reach of any physical
+        payload).
     standard : ndarray of shape (10,)
         The estimate's standard parameters about the link origin (planar: zeros where unseen).
     not_identifiable : tuple of str
@@ -819,8 +823,13 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     n = pmap.n
     standard, cov_std = theta[:n], cov_all[:n, :n]
     consistent, moved = project_consistent(standard, cov_std, pmap.planar)
+    reach = _noise_reach(n)
+    beyond = moved > reach
     jac = _physical_jacobian(consistent, pmap.planar)
     cov = jac @ cov_std @ jac.T
+    if beyond:  # no noise carries a real payload's estimate that far: the step is error, its size too
+        step = _physical(consistent, pmap.planar) - _physical(standard, pmap.planar)
+        cov = cov + np.outer(step, step)
     std_all = np.sqrt(np.maximum(np.diag(cov_all), 0))
     nw = fit.newey_west
     if fit.noise_model_warning:
@@ -828,6 +837,12 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     if fit.undetermined:
         warnings.warn(undetermined_warning(fit.undetermined, len(theta), where, ESTIMATE_SCALE, UNDETERMINED_FIX),
                       stacklevel=2)
+    if beyond:
+        warnings.warn(f"{where}: the estimate lay {moved:.3g} standard errors from any physical payload, where the noise "
+                      f"reaches {reach:.3g}: the data contradict a rigid payload on `link` (too few samples "
+                      "after the grasp, samples from before it, or another link), and its standard errors are widened "
+                      "by the step to the nearest physical one: take samples further after the grasp",
+                      stacklevel=2)  # fmt: skip
     correlation = _largest_correlation(cov_all, n, eq.n_h) if momentum is None else None
     if correlation is not None and correlation > COLLINEAR:
         warnings.warn(f"{where}: the momentum estimated with the payload correlates with it at {correlation:.3f}: the "
@@ -843,7 +858,8 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         "body": pmap.param.model.bodies[pmap.body].name,
         "estimator": fit.estimator,
         "noise": noise.to_dict(),
-        "covariance": fit.covariance,
+        "covariance": fit.covariance + ("; with the step to the nearest physical payload added, the estimate lying "
+                                        "beyond the noise's reach of any" if beyond else ""),
         "newey_west_std": None if nw is None else np.sqrt(np.maximum(np.diag(jac @ nw[:n, :n] @ jac.T), 0)).tolist(),
         "chi2_dof": fit.chi2_dof,
         "noise_model_warning": fit.noise_model_warning,
@@ -851,7 +867,8 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         "residual_rms": fit.residual_rms,
         "gauss_newton_steps": fit.steps,
         "condition_number_scaled": fit.cond,
-        "consistency": {"projected": moved > 0, "mahalanobis_distance": moved,
+        "consistency": {"projected": moved > 0, "mahalanobis_distance": moved, "noise_reach": reach,
+                        "contradicted": bool(beyond),
                         "unconstrained": dict(zip(physical, _physical(standard, pmap.planar).tolist()))},
         "momentum_estimated": momentum is None,
         "momentum_std": std_all[n : n + eq.n_h].tolist() if momentum_cov is None else
@@ -870,6 +887,13 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     return PayloadEstimate(pmap.link, physical, _physical(consistent, pmap.planar),
                            np.sqrt(np.maximum(np.diag(cov), 0)), cov, pmap.standard(consistent),
                            NOT_PLANAR if pmap.planar else (), eq.full(theta[n:])[1], terms, settings)
+
+
+def _noise_reach(n: int) -> float:
+    """The Mahalanobis distance that noise carries an estimate of ``n`` parameters from the truth
+    with probability :data:`~spaceid.estimation.internal.SIGNIFICANCE` (the square root of the
+    chi-square quantile): a real payload's estimate lies no farther from the physical set."""
+    return float(np.sqrt(chi2_isf(SIGNIFICANCE, n)))
 
 
 def _largest_correlation(cov, n: int, n_h: int) -> float:

@@ -305,7 +305,9 @@ class LiveMonitor:
         self._unchecked = False
         from ..identified import payload_after_grasp
 
-        grasp = event.time + event.lead  # the change most often lies in [time, time + lead] (docs/theory/monitor.md)
+        # after the change for certain: its `time` can be early, where the statistic climbed by chance
+        # before it (docs/theory/monitor.md), and samples from before the grasp would bias the fit
+        grasp = event.detected_at + event.lead
         if self._recent[0].t[0] >= grasp:  # the history no longer reaches back to the change
             self._payload_event = None
             return None
