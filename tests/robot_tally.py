@@ -32,9 +32,13 @@ def scale() -> float | None:
     return None if text is None else float(text)
 
 
-def robots(examples: int, **options) -> settings:
+def robots(examples: int, fast: int | None = None, **options) -> settings:
     """Hypothesis settings for a property test over ``examples`` random robots (scaled by
-    ``SPACEID_ROBOTS``), without a deadline or health checks (an example takes seconds)."""
+    ``SPACEID_ROBOTS``), without a deadline or health checks (an example takes seconds); ``fast``
+    of them in the fast subset (``-m "not slow"``: :func:`conftest.examples`), when given."""
+    from conftest import examples as fast_or_full
+
+    examples = examples if fast is None else fast_or_full(examples, fast)
     options = {"deadline": None, "suppress_health_check": list(HealthCheck), **options}
     factor = scale()
     if factor is None:

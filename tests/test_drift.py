@@ -168,7 +168,7 @@ def test_coulomb_stiction_is_an_error(cepheus):
         simulate(cepheus, cepheus.true_values, motion, TIMES, H, drift={"coulomb": 1.0})
 
 
-@robots(4)
+@robots(4, fast=1)
 @given(seed=st.integers(0, 2**31 - 1), planar=st.booleans(), viscous=st.sampled_from([1e-4, 0.5, -0.05]),
        torque=st.floats(-0.01, 0.01), coulomb=st.sampled_from([0.0, 0.003]))
 def test_smooth_drift_against_an_ode_solver_on_random_robots(seed, planar, viscous, torque, coulomb, tmp_path):

@@ -287,7 +287,7 @@ def test_least_squares_without_levels_judges_a_noisy_gyro_by_the_logs_own(estima
     assert np.abs(z).max() < 4.5
 
 
-@robots(2)
+@robots(2, fast=1)
 @given(seed=st.integers(0, 2**31 - 1), planar=st.booleans(), estimator=st.sampled_from(["ols", "wls"]))
 def test_least_squares_standard_errors_hold_a_noisy_gyros_bias_on_any_random_robot(seed, planar, estimator, tmp_path):
     """A servicer's sensors (encoders differentiated, a MEMS-class gyro of 1e-3 rad/s white noise kept, a star

@@ -279,8 +279,10 @@ def test_the_prior_sets_what_an_undesigned_motion_leaves_undetermined(tmp_path):
     assert np.linalg.norm(result.values - truth) < 0.7 * np.linalg.norm(minimal_parameters(cad).true_values - truth)
 
 
-@pytest.mark.parametrize("seed, planar, arms, joints", [(1, False, 2, 2), (2, False, 2, 2), (3, False, 2, 2),
-                                                        (392, False, 2, 2), (8352, True, 2, 2), (105, True, 3, 4)])
+@pytest.mark.parametrize("seed, planar, arms, joints", [  # fast: one spatial and one planar robot
+    (1, False, 2, 2), *[pytest.param(*case, marks=pytest.mark.slow) for case in [(2, False, 2, 2), (3, False, 2, 2),
+                                                                               (392, False, 2, 2), (105, True, 3, 4)]],
+    (8352, True, 2, 2)])
 def test_noise_free_data_with_a_prior_give_the_truth(seed, planar, arms, joints, tmp_path):
     """Noise-free data of a random robot on a random motion and a CAD prior 20 % / 1 cm off: the truth
     along the directions the log determines, the prior's values along the rest, standard errors that
