@@ -826,10 +826,9 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     reach = _noise_reach(n)
     beyond = moved > reach
     jac = _physical_jacobian(consistent, pmap.planar)
-    cov = jac @ cov_std @ jac.T
-    if beyond:  # no noise carries a real payload's estimate that far: the step is error, its size too
-        step = _physical(consistent, pmap.planar) - _physical(standard, pmap.planar)
-        cov = cov + np.outer(step, step)
+    # no noise carries a real payload's estimate beyond its reach: the step is then error, its size too
+    step = _physical(consistent, pmap.planar) - _physical(standard, pmap.planar) if beyond else np.zeros(len(jac))
+    cov = jac @ cov_std @ jac.T + np.outer(step, step)
     std_all = np.sqrt(np.maximum(np.diag(cov_all), 0))
     nw = fit.newey_west
     if fit.noise_model_warning:
@@ -841,7 +840,8 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         warnings.warn(f"{where}: the estimate lay {moved:.3g} standard errors from any physical payload, where the noise "
                       f"reaches {reach:.3g}: the data contradict a rigid payload on `link` (too few samples "
                       "after the grasp, samples from before it, or another link), and its standard errors are widened "
-                      "by the step to the nearest physical one: take samples further after the grasp",
+                      "by the step to the nearest physical one: check the grasp instant and `link`, or take more "
+                      "samples after the grasp",
                       stacklevel=2)  # fmt: skip
     correlation = _largest_correlation(cov_all, n, eq.n_h) if momentum is None else None
     if correlation is not None and correlation > COLLINEAR:
@@ -860,7 +860,8 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         "noise": noise.to_dict(),
         "covariance": fit.covariance + ("; with the step to the nearest physical payload added, the estimate lying "
                                         "beyond the noise's reach of any" if beyond else ""),
-        "newey_west_std": None if nw is None else np.sqrt(np.maximum(np.diag(jac @ nw[:n, :n] @ jac.T), 0)).tolist(),
+        "newey_west_std": None if nw is None else
+                          np.sqrt(np.maximum(np.diag(jac @ nw[:n, :n] @ jac.T) + step**2, 0)).tolist(),
         "chi2_dof": fit.chi2_dof,
         "noise_model_warning": fit.noise_model_warning,
         "undetermined": fit.undetermined,
