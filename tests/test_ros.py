@@ -530,6 +530,41 @@ def test_a_messages_arrival_is_its_reception_by_the_middleware(monkeypatch):
     assert node._arrival({"received_timestamp": 5_100_000_000}) == 100.0  # clocks a hair apart: never in the future
 
 
+def test_a_payload_the_data_contradict_is_not_the_first_published():
+    """Before a warm-up of samples after the alarm, the node publishes the first payload whose mass
+    stands out of its standard error; one the data contradict (a payload held by another link than
+    ``link``: 0.11 +- 0.016 kg, 6.8 standard errors from zero, its estimate 13 standard errors from
+    any physical payload) waits for more samples, as its window is suspect, and is published at a
+    warm-up of them, whatever it is; one on the right link at once."""
+    import warnings
+
+    import numpy as np
+    from test_payload import CEPHEUS_PAYLOAD, NOISE, _log_with_payload, _motion, _planar_theta
+
+    from spaceid.estimation._monitor_records import Alarm
+    from spaceid.identified import identify_payload, payload_map
+    from spaceid.motion import add_noise
+
+    pmap = payload_map("cepheus", "link2")
+    traj, theta = _motion(pmap.param.model, 20.0, 3, 0.3, 1), _planar_theta(*CEPHEUS_PAYLOAD)
+    fits = {}
+    for held_by in ("link1", "link2"):
+        log = _log_with_payload(payload_map("cepheus", held_by), theta, traj, 200, np.array([0, 0, 0.05]))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fits[held_by] = identify_payload(pmap, add_noise(log, angle=1e-4, rate=1e-4, seed=0), "link2",
+                                             [0, 0, 0.05], noise=NOISE)
+    wrong = fits["link1"]
+    assert wrong.settings["consistency"]["contradicted"] and abs(wrong.mass) > 3 * wrong.std[0]
+    event = Alarm(index=0, time=4.0, detected_at=4.1, delay=5, statistic=20.0, threshold=9.0, lead=0.1)
+    published, live = {}, _live(link="link2")
+    for held_by, after in [("link1", 30), ("link1", 100), ("link2", 30)]:
+        live._payload_event, live._payload_first = event, None  # each as the first after the alarm
+        published[held_by, after] = live.payload_message((event, 4.2, after, fits[held_by]))
+    assert published["link1", 30] is None
+    assert published["link1", 100].data["mass"] == wrong.mass and published["link2", 30].data["n_samples"] == 30
+
+
 def test_the_payloads_identification_runs_beside_the_parts():
     """The node runs the payload's identification on a worker thread and publishes it when it is
     ready: the call that starts it returns while it runs, so the parts that arrive meanwhile are

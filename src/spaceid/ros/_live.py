@@ -284,7 +284,8 @@ class LiveMonitor:
         """The payload after the last alarm, when due (None otherwise, or without ``link``):
         identified from the samples after it each quarter warm-up of them (``warmup / 4``) and
         published from the first whose mass stands out of its standard error (more than
-        ``Z_CHANGED`` of them), at the latest at a warm-up of them (then whatever it is, or the
+        ``Z_CHANGED`` of them) and that the data do not contradict (its ``consistency``), at the
+        latest at a warm-up of them (then whatever it is, or the
         error that refused them); then each time they double (while the history holds them).
         :meth:`payload_fit` and :meth:`payload_message`, run here one after the other."""
         fit = self.payload_fit()
@@ -341,8 +342,9 @@ class LiveMonitor:
                 LiveOutput("payload", {"event": event.index, "time": grasp, "error": str(res)})
         data = {"event": event.index, "time": grasp, "time_origin_ns": self._origin, "n_samples": after,
                 "names": list(res.names), "values": res.values, "std": res.std} | res.to_dict()
-        if first and after < warmup and not abs(data["mass"]) > Z_CHANGED * data["std"]["mass"]:
-            return None
+        standing_out = abs(data["mass"]) > Z_CHANGED * data["std"]["mass"]
+        if first and after < warmup and (not standing_out or res.settings["consistency"]["contradicted"]):
+            return None  # (a fit the data contradict waits for more samples too: its window is suspect)
         if current:
             self._payload_first, self._payload_due = after, 2 * after
         return LiveOutput("payload", json_values(data))
