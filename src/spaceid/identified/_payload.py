@@ -826,8 +826,9 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
     reach = _noise_reach(n)
     beyond = moved > reach
     jac = _physical_jacobian(consistent, pmap.planar)
+    values, unconstrained = _physical(consistent, pmap.planar), _physical(standard, pmap.planar)
     # no noise carries a real payload's estimate beyond its reach: the step is then error, its size too
-    step = _physical(consistent, pmap.planar) - _physical(standard, pmap.planar) if beyond else np.zeros(len(jac))
+    step = values - unconstrained if beyond else np.zeros(len(values))
     cov = jac @ cov_std @ jac.T + np.outer(step, step)
     std_all = np.sqrt(np.maximum(np.diag(cov_all), 0))
     nw = fit.newey_west
@@ -870,7 +871,7 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         "condition_number_scaled": fit.cond,
         "consistency": {"projected": moved > 0, "mahalanobis_distance": moved, "noise_reach": reach,
                         "contradicted": bool(beyond),
-                        "unconstrained": dict(zip(physical, _physical(standard, pmap.planar).tolist()))},
+                        "unconstrained": dict(zip(physical, unconstrained.tolist()))},
         "momentum_estimated": momentum is None,
         "momentum_std": std_all[n : n + eq.n_h].tolist() if momentum_cov is None else
                         np.sqrt(np.diag(momentum_cov)[eq.axes]).tolist(),
@@ -885,7 +886,7 @@ def identify_payload(model, log: Log, link: str, momentum, *, grasp_motion: Gras
         "log": dict(log.meta),
         "log_fingerprint": log_fingerprint(log),
     }
-    return PayloadEstimate(pmap.link, physical, _physical(consistent, pmap.planar),
+    return PayloadEstimate(pmap.link, physical, values,
                            np.sqrt(np.maximum(np.diag(cov), 0)), cov, pmap.standard(consistent),
                            NOT_PLANAR if pmap.planar else (), eq.full(theta[n:])[1], terms, settings)
 
