@@ -414,6 +414,44 @@ def test_differentiated_rates_spread_agrees_with_the_propagated_errors(cepheus):
     assert np.all((rms > 0.7) & (rms < 1.3)) and np.abs(z).max() < 4, rms
 
 
+def test_a_noise_free_logs_differentiated_rates_take_the_given_levels(cepheus):
+    """The differentiator estimates each series' raw angle level from the angles' scatter about its fits: about none on
+    a noise-free log, whose differentiated rates then err by the filters' truncation errors, which no noise level
+    describes. Given levels (1e-4) bound the raw ones in the covariance as in the weights: the noise-free log's rates
+    differentiated by cubics over 11 and 21 samples give estimates within 2 standard errors, which are those of a log
+    with that noise (within a factor 2). From the levels the differentiator found alone they were 5,190 and 73,187
+    standard errors off (the live engine's cubics on random robot 60775: 9)."""
+    from spaceid.data import differentiate_log
+
+    pmap, _, theta, log = cepheus
+    truth = np.array([CEPHEUS_PAYLOAD[0], *CEPHEUS_PAYLOAD[1], CEPHEUS_PAYLOAD[2]])
+    for window in (11, 21):
+        clean = identify_payload(pmap, differentiate_log(log, window=window, order=3), "link2", [0, 0, 0.05],
+                                 noise=NOISE)  # fmt: skip
+        noisy = identify_payload(pmap, differentiate_log(add_noise(log, angle=1e-4, seed=0), window=window, order=3),
+                                 "link2", [0, 0, 0.05], noise=NOISE)  # fmt: skip
+        assert np.abs((clean.values - truth) / clean.std).max() < 2, (clean.values - truth) / clean.std
+        assert np.all((clean.std > noisy.std / 2) & (clean.std < 2 * noisy.std)), (clean.std, noisy.std)
+
+
+def test_a_noise_free_spatial_logs_differentiated_attitude_takes_the_given_levels(satellite):
+    """A spatial base's differentiated attitude leaves the payload's covariance to the Newey-West estimate from the
+    residuals, which on a noise-free log are the filters' truncation errors: given levels (1e-4) bound it by the
+    inverse Fisher information at them. The noise-free log (600 samples over 15 s) differentiated by cubics over 11
+    and 21 samples: within 2 standard errors (from the residuals alone, 5.05 and 3.91 off)."""
+    from spaceid.data import differentiate_log
+
+    pmap, traj = satellite
+    h = np.array([0.5, -1.0, 2.0])
+    log = _log_with_payload(pmap, inertial_vector(*SAT_PAYLOAD), traj, 600, h)
+    mass, com, inertia = SAT_PAYLOAD
+    truth = np.array([mass, *com, *inertia[np.triu_indices(3)][[0, 1, 3, 2, 4, 5]]])
+    for window in (11, 21):
+        est = identify_payload(pmap, differentiate_log(log, window=window, order=3), "arm_ee", h, noise=NOISE)
+        assert "inverse Fisher information at the levels given" in est.settings["covariance"]
+        assert np.abs((est.values - truth) / est.std).max() < 2, (est.values - truth) / est.std
+
+
 def test_links_from_a_urdf_file_and_unknown_links(satellite, tmp_path):
     from importlib import resources
 

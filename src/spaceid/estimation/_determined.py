@@ -311,7 +311,7 @@ def corrected_spread(cov: np.ndarray, mu: np.ndarray, directions: np.ndarray, me
     36's pi6, from 5.9 to 7.6 of its standard errors off), and adding ``factor^2 - 1`` times each coordinate's
     variance undid the attitude's measurement of a gyro bias (its errors' RMS 0.23 of the standard errors over 40
     seeds)."""
-    from ._uncertainty import _larger_of
+    from ._uncertainty import larger_of
 
     capped = np.minimum(mu, UNDETERMINED)
     factor = (1.0 if measured else np.sqrt(1.0 + capped)) / (1.0 - capped)
@@ -324,7 +324,7 @@ def corrected_spread(cov: np.ndarray, mu: np.ndarray, directions: np.ndarray, me
         out = (directions * factor) @ own @ (directions * factor).T  # scaled along each
         std = np.sqrt(np.abs(np.diag(own)))
         if not (np.all(std > 0) and np.abs(own / np.outer(std, std) - np.eye(len(own))).max() <= DIAGONAL):
-            out = _larger_of(cov, 0.5 * (out + out.T))[0]  # a widening in it: the larger of the two
+            out = larger_of(cov, 0.5 * (out + out.T))[0]  # a widening in it: the larger of the two
     return 0.5 * (out + out.T), largest
 
 

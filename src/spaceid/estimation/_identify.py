@@ -47,7 +47,7 @@ from ._residuals import candidate_basis, drift_columns, drift_test
 from ._result import Identification
 from ._scales import log_momentum_scale
 from ._stream import check_chunk, streamed_covariance, streamed_estimate, streamed_ols_factor, weighted_factor
-from ._uncertainty import _larger_of, _reported_covariance
+from ._uncertainty import _reported_covariance, larger_of
 
 __all__ = ["identify"]
 
@@ -390,7 +390,7 @@ def _estimate(eq, x, log: Log, sigma, ctx: _FitContext, estimator: str, estimate
 def _at_least(fit: _Fit, other_cov, shift, said: str) -> _Fit:
     """``fit`` with a covariance at least ``other_cov (p, p)`` (the Loewner larger of the two), widened along the
     change ``shift (p,)`` to another estimate (``+ shift shift^T``), its description ending with ``said``."""
-    return replace(fit, cov=_larger_of(fit.cov, other_cov)[0] + np.outer(shift, shift), uncertainty={
+    return replace(fit, cov=larger_of(fit.cov, other_cov)[0] + np.outer(shift, shift), uncertainty={
         **fit.uncertainty, "covariance": f"{fit.uncertainty['covariance']}; {said}"})
 
 

@@ -278,12 +278,12 @@ def data_from_equations(white, noise_gram, n_free: int, reason: str, anchors, fr
     x_inv_n = -(wt @ solve_triangular(t, n_fb, trans="T"))
     rhs = (x_inv_g - x_inv_n)[keep] / gain
     if score_covariance is not None and np.any(keep):
-        from ._uncertainty import _larger_of
+        from ._uncertainty import larger_of
 
         # the rows' errors at the truth are bread (the score), bread = diag(1 / gain) (W^T T^-T)[keep]; white
         # noise of negligible size makes their covariance the identity, the sandwich its larger
         bread = (wt @ solve_triangular(t, np.eye(n_free), trans="T"))[keep] / gain[:, None]
-        C = _larger_of(np.eye(len(gain)), score_covariance(bread))[0]
+        C = larger_of(np.eye(len(gain)), score_covariance(bread))[0]
         U = np.linalg.inv(np.linalg.cholesky(0.5 * (C + C.T)))
         L, rhs = U @ L, U @ rhs
     return DataTerm(L, rhs, np.asarray(free, int), "equations", reason, anchors=dict(anchors))

@@ -31,7 +31,7 @@ from ._drift import drift_basis, drift_names
 from ._linalg import _equation_whitener, _solve_factor, lower_inverse
 from ._stream import _chunks, _streamed_factor
 from .._threads import one_blas_thread
-from ._uncertainty import _hac, _larger_of, correlation_length
+from ._uncertainty import _hac, correlation_length, larger_of
 
 DRIFT_ALPHA = 1e-3
 """Significance level of the drift test: the probability that it warns on a log without drift."""
@@ -382,7 +382,7 @@ def drift_test(eq, x, phi, sigma, theta, estimator, log, whitener=None, chunk=No
     if series is not None:  # the differentiators' own correlation, where it is larger than the residuals show
         scored = ((sl, M.whole() if L is None else np.swapaxes(lower_inverse(L), -1, -2) @ M.whole(), e.jacobian(xc, theta))
                   for (sl, e, xc, L), (_, M, *_) in zip(parts(), chunks()))  # fmt: skip
-        cdd = _larger_of(propagated_covariance(series, log.t, scored, ginv[p:], sigma), cdd)[0]
+        cdd = larger_of(propagated_covariance(series, log.t, scored, ginv[p:], sigma), cdd)[0]
     if callable(noise):
         noise = noise()
     if testing_drift and noise is None:  # (another candidate's columns: the drift test decided before)

@@ -11,7 +11,7 @@ follows them: the sandwich of the residuals' scores (White), or the Newey-West
 ``chi2_dof`` far from 1 also brings a warning that says what it means (:func:`noise_model_warning`).
 Rates from a Savitzky-Golay differentiator are a known linear filter of the angles: their
 covariance is the angle noise propagated through it (:mod:`spaceid.estimation._differentiated`),
-or the Newey-West estimate in the directions where the residuals show more (:func:`_larger_of`).
+or the Newey-West estimate in the directions where the residuals show more (:func:`larger_of`).
 
 References
 ----------
@@ -316,20 +316,20 @@ def _reported_covariance(eq, x, phi, sigma, theta, estimator, info, log, estimat
 
 def _with_propagated(cov_t, choice, log, estimator, bread, sigma, chunks):
     """The Newey-West ``cov_t (p, p)``, or for rates differentiated by Savitzky-Golay the larger
-    (:func:`_larger_of`) of it and the angle noise propagated through the filters, ``choice["covariance"]``
+    (:func:`larger_of`) of it and the angle noise propagated through the filters, ``choice["covariance"]``
     then saying so. ``chunks()`` gives ``(rows, M_c, L_c, J_c)`` in time order (the whole log, or a
     stream: :func:`~spaceid.estimation._differentiated.propagated_covariance`), not called otherwise."""
     series = differentiated_series(log, attitude=True)
     if series is None:
         return cov_t
     scores = ((sl, _inverse_times(L, M) if estimator in WEIGHTED else M, J) for sl, M, L, J in chunks())  # M^T e
-    cov_t, larger = _larger_of(propagated_covariance(series, log.t, scores, bread, sigma), cov_t)
+    cov_t, larger = larger_of(propagated_covariance(series, log.t, scores, bread, sigma), cov_t)
     choice["covariance"] = _propagated_how(series, larger, len(cov_t), choice["bandwidth"])
     choice["method"] = "propagated"
     return cov_t
 
 
-def _larger_of(base, other) -> tuple:
+def larger_of(base, other) -> tuple:
     """The covariance ``(p, p)`` that is ``base`` in every direction of parameter space where
     ``other`` is not larger, and ``other`` where it is, and how many of the ``p`` directions that is.
 
@@ -353,7 +353,7 @@ def _larger_of(base, other) -> tuple:
 
 
 def _propagated_how(series, larger: int, p: int, bandwidth: int) -> str:
-    """``diagnostics.covariance`` for the covariance of :func:`_larger_of` with the propagated one."""
+    """``diagnostics.covariance`` for the covariance of :func:`larger_of` with the propagated one."""
     how = (f"the angle noise of {len(series)} differentiated series propagated through their Savitzky-Golay "
            "filters (its correlation over the windows)")
     if larger:

@@ -20,8 +20,9 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
     Samples over which the errors of differentiated rates are correlated (0: not differentiated).
 ``window_spans``
     Every differentiator window recorded in a log's differentiation record.
-``newey_west_covariance``
-    The Bartlett-weighted (Newey-West) sandwich covariance from the residuals.
+``newey_west_covariance``, ``larger_of``
+    The Bartlett-weighted (Newey-West) sandwich covariance from the residuals; the larger of two covariances in
+    every direction of parameter space.
 ``residual_checks``, ``noise_model_warning``, ``SIGNIFICANCE``, ``CONTRADICTED``
     The tests of whitened residuals against the noise model (chi-square, Ljung-Box), what a rejected one means in
     words, the tests' significance level, and how a covariance taken from the residuals then is described.
@@ -54,8 +55,8 @@ from ._equations import Equations, drift_basis_at
 from ._html import diagnostic_rows
 from ._identify import check_excitation
 from ._plots import draw_parameters, draw_singular_values, per_parameter, relative_errors
-from ._uncertainty import (CONTRADICTED, SIGNIFICANCE, correlation_length, newey_west_covariance, noise_model_warning,
-                           residual_checks, window_spans)
+from ._uncertainty import (CONTRADICTED, SIGNIFICANCE, correlation_length, larger_of, newey_west_covariance,
+                           noise_model_warning, residual_checks, window_spans)
 
 __all__ = [
     "Equations",
@@ -65,6 +66,7 @@ __all__ = [
     "correlation_length",
     "window_spans",
     "newey_west_covariance",
+    "larger_of",
     "residual_checks",
     "noise_model_warning",
     "SIGNIFICANCE",
