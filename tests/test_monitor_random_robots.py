@@ -75,13 +75,14 @@ def _robot(seed: int, planar: bool, folder, **size) -> Robot:
     return Robot(model, minimal_parameters(model), h, motion, rng)
 
 
-def _with_payload(model, rng):
-    """``model`` with ``MASS`` at a random point within 0.1 m of a random link's origin."""
+def _with_payload(model, rng) -> tuple:
+    """``(captured, link)``: ``model`` with ``MASS`` at a random point within 0.1 m of the origin of a random link,
+    ``link``."""
     body = model.bodies[rng.integers(1, len(model.bodies))].name
     point = rng.uniform(-0.1, 0.1, 3) * (np.r_[1.0, 1.0, 0.0] if model.planar else 1.0)
     return dataclasses.replace(model, bodies=tuple(
         dataclasses.replace(b, inertial=b.inertial + inertial_vector(MASS, point, np.zeros((3, 3))))
-        if b.name == body else b for b in model.bodies))  # fmt: skip
+        if b.name == body else b for b in model.bodies)), body  # fmt: skip
 
 
 def _simulate(robot: Robot, t, grasp=None, captured=None):
@@ -134,11 +135,14 @@ def _monitored(robot: Robot, log, noise, **options):
 class GraspRun:
     """A changeless log's monitoring (``quiet``) and the same log's with a grasp at ``grasp`` [s]
     (``record``); ``grasp`` and ``record`` None when the last warm-up left no time for a grasp, or
-    the grasp is not observable within ``WITHIN`` (module docstring)."""
+    the grasp is not observable within ``WITHIN`` (module docstring). ``clean``: the noise-free log, with the grasp
+    when there is one; ``link``: the link that grasps."""
 
     quiet: object
     grasp: float | None = None
     record: object = None
+    clean: Log | None = None
+    link: str | None = None
 
     @property
     def found(self) -> list:
@@ -172,7 +176,8 @@ def robot_grasp_run(robot: Robot, seed, noisy, differentiated, estimated, fracti
     """:func:`grasp_run` for ``robot`` in its motion, over ``duration`` [s], the noise drawn from ``seed``."""
     t = np.arange(int(duration * RATE)) / RATE
     noise = _noise(noisy, differentiated, estimated)
-    steady = _measured(_simulate(robot, t), noisy, differentiated, seed)
+    still = _simulate(robot, t)
+    steady = _measured(still, noisy, differentiated, seed)
     quiet = _monitored(robot, steady, noise)
     # after the last warm-up (a false alarm, allowed once, starts a segment: a grasp in its warm-up cannot show)
     warm_up = quiet.segments[-1].warm_up  # None: the motion never determined the parameters
@@ -180,18 +185,18 @@ def robot_grasp_run(robot: Robot, seed, noisy, differentiated, estimated, fracti
     if start is not None and noise is None:  # levels estimated from the first samples: a grasp among them enters them
         start = max(start, NOISE_SAMPLES / RATE)
     if start is None or start + 0.5 >= duration - 2.0:  # no time for a grasp after it
-        return GraspRun(quiet)
+        return GraspRun(quiet, clean=still)
     grasp = float(np.round((start + 0.5 + fraction * (duration - 2.5 - start)) * RATE) / RATE)
-    captured = _with_payload(robot.model, robot.rng)
-    log = _measured(_simulate(robot, t, grasp, captured), noisy, differentiated, seed)
+    captured, link = _with_payload(robot.model, robot.rng)
+    clean = _simulate(robot, t, grasp, captured)
+    log = _measured(clean, noisy, differentiated, seed)
     if noisy:  # the grasp's momentum error in the model before it, against the noise's in the changeless log
-        clean = _simulate(robot, t, grasp, captured)
         moved = _momentum_error(robot.model, clean.select((clean.t >= grasp) & (clean.t < grasp + WITHIN)),
                                 robot.momentum)  # fmt: skip
         spread = np.mean(_momentum_error(robot.model, steady, robot.momentum) ** 2, axis=0)
         if np.sum(moved**2 / spread) < OBSERVABLE:
-            return GraspRun(quiet)
-    return GraspRun(quiet, grasp, _monitored(robot, log, noise))
+            return GraspRun(quiet, clean=still)
+    return GraspRun(quiet, grasp, _monitored(robot, log, noise), clean, link)
 
 
 def check_grasp(run: GraspRun):
@@ -331,7 +336,7 @@ def test_the_grasp_of_issue_26(noisy, tmp_path):
 
     robot = Robot(model, minimal_parameters(model), np.array([0.0, 0.0, 0.3]), motion, rng)
     t = np.arange(1000) / RATE
-    log = _measured(_simulate(robot, t, 9.3, _with_payload(model, rng)), noisy, False, 0)
+    log = _measured(_simulate(robot, t, 9.3, _with_payload(model, rng)[0]), noisy, False, 0)
     (event,) = _monitored(robot, log, None).events
     assert abs(event.time - 9.3) <= WITHIN and event.detected_at - 9.3 <= WITHIN, event
 
@@ -345,7 +350,7 @@ def test_a_noise_free_log_with_differentiated_rates_keeps_the_filter_definite(tm
     monitor stopped with a linear-algebra error. Its negative directions are zero now."""
     robot = _robot(7, True, tmp_path, max_arms=2, max_joints=3)
     t = np.arange(1000) / RATE
-    log = _measured(_simulate(robot, t, 12.5, _with_payload(robot.model, robot.rng)), False, True, 7)
+    log = _measured(_simulate(robot, t, 12.5, _with_payload(robot.model, robot.rng)[0]), False, True, 7)
     (event,) = _monitored(robot, log, _noise(False, True, False)).events
     assert event.time <= 12.5 <= event.time + event.lead + 2 / RATE and event.detected_at - 12.5 <= WITHIN
 
@@ -377,3 +382,100 @@ def test_the_warm_up_screen_decides_as_the_monitors_estimate(tmp_path, monkeypat
     assert screened.segments[0].warm_up["n_samples"] == 750
     assert screened.to_dict() == alone.to_dict()
     assert with_screen.count("ml") < fits.count("ml"), (with_screen, fits)
+
+
+LIVE_Z = 4.5
+"""Most standard errors a payload the live engine publishes may lie from ``MASS`` (a 7e-6 two-sided tail)."""
+
+
+def live_monitoring(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, batch: int, seed: int, folder) -> tuple:
+    """``run``'s log with its grasp as a bag of joint states (angles and rates) and base poses (no base rate: the
+    reader differentiates the attitude), 1e-4 rad and rad/s of noise or none, the joint rates measured or
+    ``differentiated`` by the reader over ``WINDOW`` samples (the levels given are 1e-4 whether the noise was added
+    or not: the live engine's cubic differentiators, :data:`~spaceid.ros.LIVE_ORDER`, leave truncation errors of up
+    to 6e-5 rad/s on a noise-free log of these motions, 3e-3 in its first and last half window, which
+    :func:`_noise`'s 1e-7 would call changes); its messages fed to
+    :class:`~spaceid.ros.LiveMonitor` ``batch`` at a time, each arriving at its own stamp (no processing time),
+    the payload on ``run.link`` asked for after each batch. Returns ``(outputs, record, expected, span, live)``:
+    what it published, its record, the record of the bag read in parts (:func:`~spaceid.data.bag_chunks`, the same
+    block, context and differentiators) and monitored, the longest span of stamps in a batch [s], and the engine."""
+    from test_ros import _bag_messages, _stamp_s
+
+    from spaceid.data import bag_chunks, write_bag
+    from spaceid.ros import LIVE_BLOCK, LIVE_CONTEXT, LIVE_ORDER, LiveMonitor, recording_of_log
+
+    robot_log = add_noise(run.clean, angle=LEVEL, rate=LEVEL, seed=seed) if noisy else run.clean
+    bag = folder / "live.mcap"
+    write_bag(bag, recording_of_log(robot_log), format="mcap")
+    noise = Noise(angle=LEVEL, rate=LEVEL, base_rate=LEVEL, attitude=LEVEL)  # the sensors' rating, noise or none
+    reading = {"window": WINDOW, "joint_rates": "differentiate" if differentiated else "velocity"}
+    model, param = robot.model, robot.param
+    now, outputs, span = [0.0], [], 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        live = LiveMonitor(param, robot.momentum, link=run.link, reading=reading, noise=noise, clock=lambda: now[0])
+        messages = [(topic, msg, _stamp_s(msg)) for topic, msg in _bag_messages(bag)]
+        for k in range(0, len(messages), batch):
+            part = messages[k : k + batch]
+            now[0], span = part[-1][2], max(span, part[-1][2] - part[0][2])
+            outputs += live.add_batch(part)
+            outputs += [p for p in [live.payload()] if p is not None]
+        rest, record = live.finish()
+        chunks = bag_chunks(bag, joints=model.joints, planar=model.planar, wheels=model.wheels, block=LIVE_BLOCK,
+                            context=LIVE_CONTEXT, window=WINDOW, order=LIVE_ORDER,
+                            joint_rates=reading["joint_rates"])  # fmt: skip
+        expected = monitor(param, chunks, robot.momentum, noise=noise)
+    return outputs + rest, record, expected, span, live
+
+
+def check_live(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, batch: int, seed: int, folder):
+    """The live engine on ``run``'s log (:func:`live_monitoring`) is the bag reader and the monitor: the same
+    alarms at the same samples, statistics to round-off, as many samples tested. Each alarm is published once, as
+    its part raises it (stage "detected", at most a block, a joint message and a batch of data after the message
+    that completed its sample, or its warm-up's last sample when its segment's warm-up was lengthened past it),
+    before its event (stage "compared"). After an alarm that found the grasp (:attr:`GraspRun.found`; its rates
+    differentiated, up to half a window before it), every payload published is fitted from samples after the grasp,
+    the first from at least a quarter warm-up of them, each mass within ``LIVE_Z`` of its standard errors of
+    ``MASS``; and one is published once a warm-up of samples after it came (the log's tail, which the reader may
+    leave unaligned, aside)."""
+    from spaceid.ros import LIVE_BLOCK
+
+    outputs, record, expected, span, live = live_monitoring(robot, run, noisy, differentiated, batch, seed, folder)
+    assert [(e.time, e.detected_at) for e in record.events] == [(e.time, e.detected_at) for e in expected.events]
+    assert np.allclose([e.statistic for e in record.events], [e.statistic for e in expected.events], rtol=1e-8)
+    assert record.n_tested == expected.n_tested
+    events = [o.data for o in outputs if o.kind == "event"]
+    detected = [e for e in events if e["stage"] == "detected"]
+    compared = [e for e in events if e["stage"] == "compared"]
+    assert [e["time"] for e in detected] == [e["time"] for e in compared] == [e.time for e in record.events]
+    assert all(events.index(a) < events.index(c) for a, c in zip(detected, compared))
+    # an alarm among the samples a warm-up was lengthened by is raised once the warm-up determines the parameters
+    warm_up_end = {s.end: s.warm_up["end"] for s in record.segments if s.warm_up is not None}
+    for a in detected:
+        waited = max(0.0, warm_up_end.get(a["time"], 0.0) - a["detected_at"])
+        assert 0 <= a["latency_s"] <= waited + LIVE_BLOCK + 1 / RATE + span + 1e-6, (a, waited, span)
+    if run.grasp is None:
+        return
+    for event in dataclasses.replace(run, record=record).found:
+        payloads = [o.data for o in outputs if o.kind == "payload" and o.data["event"] == event.index]
+        masses = [p for p in payloads if "mass" in p]
+        assert all(p["time"] >= run.grasp - 1e-9 for p in payloads), (run.grasp, payloads)
+        assert not masses or masses[0]["n_samples"] >= live.monitor.warmup // 4
+        assert all(abs(p["mass"] - MASS) <= LIVE_Z * p["std"]["mass"] for p in masses), masses
+        after = np.sum(run.clean.t > event.detected_at + event.lead)
+        assert payloads or after < live.monitor.warmup + WINDOW, (after, live.monitor.warmup)
+
+
+@pytest.mark.slow  # a random robot's grasp run, then its bag fed to the live engine and read by the bag reader
+@robots(6, phases=PHASES)
+@given(**CASES, batch=st.integers(1, 60))
+def test_the_live_engine_on_a_random_robot(seed, planar, noisy, differentiated, estimated, fraction, batch, tmp_path):
+    """The live node's engine (:class:`~spaceid.ros.LiveMonitor`, without ROS) on random robots grasping a payload:
+    :func:`check_live` (the Cepheus twin's bag: ``tests/test_ros.py``). ``estimated`` only places the grasp (the
+    changeless log's monitoring, :func:`grasp_run`): the live engine is given the noise levels."""
+    case = {"seed": seed, "planar": planar, "motion": "harmonic", "noisy": noisy, "differentiated": differentiated,
+            "batch": batch}
+    robot = _robot(seed, planar, tmp_path, max_arms=2, max_joints=2)
+    run = robot_grasp_run(robot, seed, noisy, differentiated, estimated, fraction, 12.0)
+    with stage("live monitor", **case):
+        check_live(robot, run, noisy, differentiated, batch, seed, tmp_path)
