@@ -249,11 +249,16 @@ log and measured rates is a poor fit, not a noise-level error (given levels may 
 differentiated from the angles reach it on clean logs, their estimated levels understated)."""
 
 
-def noise_model_warning(chi2, checks, log: Log, estimated: bool) -> str:
+FOLLOWED = "the standard errors follow the residuals instead"
+"""How :func:`noise_model_warning` ends by default: what the covariance then is (:data:`CONTRADICTED`)."""
+
+
+def noise_model_warning(chi2, checks, log: Log, estimated: bool, standard_errors: str = FOLLOWED) -> str:
     """What a ``chi2_dof`` far from 1 means, or ``""``: the test rejects the noise model and the
     standard errors it implies would be off by more than ~40 % (``chi2_dof`` outside [0.5, 2]).
     Levels estimated from the log are not blamed for being too large (on smooth or noise-free
-    logs the sixth-order differences hold some of the motion: the residuals set the scale)."""
+    logs the sixth-order differences hold some of the motion: the residuals set the scale).
+    ``standard_errors``: what the caller's standard errors then are, the warning's last words."""
     if chi2 is None or checks["chi2_p"] >= SIGNIFICANCE or 0.5 <= chi2 <= 2 or (estimated and chi2 < 1):
         return ""
     lo, hi = checks["chi2_band"]
@@ -270,7 +275,7 @@ def noise_model_warning(chi2, checks, log: Log, estimated: bool) -> str:
                      "(swapped or mislabelled columns, units: see the log's warnings), a wrong momentum or model; else "
                      + cause)
     return (f"chi2_dof = {chi2:.3g}, outside [{lo:.3g}, {hi:.3g}] at significance {SIGNIFICANCE:g}: the residuals "
-            f"contradict the noise model: {cause}; the standard errors follow the residuals instead")
+            f"contradict the noise model: {cause}; {standard_errors}")
 
 
 def _own_covariance(cov_t, chi2, rms, estimated) -> tuple:

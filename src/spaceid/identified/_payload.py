@@ -724,6 +724,12 @@ def _covariance(r, a, weighted: bool, estimated: bool, window: int, differentiat
     return newey_west_covariance(bread, a, r, 0, p), None, "sandwich of the per-sample residuals", bread, None, None
 
 
+PROPAGATED = ("the standard errors carry the angle noise through the differentiator's filters, not the residuals, "
+              "and miss its truncation errors where its window is long for the motion or the log is noise-free "
+              "(shorten the window, or let it be chosen)")
+"""How the noise model's warning ends for Savitzky-Golay rates (:func:`_covariance`: not the residuals' spread)."""
+
+
 def _given_floor(series, noise: Noise) -> list:
     """The differentiated ``series`` (:func:`~spaceid.estimation.internal.differentiated_series`) with each raw angle
     level at least the given one (the joints' ``noise.angle``, a planar base's ``noise.attitude``), as the weights
@@ -1014,10 +1020,11 @@ def _fit(pmap, log, momentum, momentum_cov, motion, brought, drift, history, noi
         if weak:  # the data hold nothing along them: their values' scale, the estimate's (the payload has no model)
             cov = widened(cov, *ratios, theta, np.zeros_like(theta))
             how += f"; {WIDENED.format(len(weak), ESTIMATE_SCALE)}"
+    ending = {} if differentiated is None else {"standard_errors": PROPAGATED}  # the warning's: not the residuals
     return _PayloadFit(
         equations=eq, theta=theta, cov=cov, newey_west=newey_west, chi2_dof=chi2, steps=steps, cond=cond,
         residual_rms=float(np.sqrt(np.mean(_whitened(pmap, eq, x, y, rhs, None, theta)[0] ** 2))),
-        noise_model_warning=noise_model_warning(chi2, checks, log, estimated) if checks else "",
+        noise_model_warning=noise_model_warning(chi2, checks, log, estimated, **ending) if checks else "",
         estimator="wls (Gauss-Newton, errors-in-variables weights)" if sigma is not None else "ols (Gauss-Newton)",
         covariance=how, configuration_share=share, undetermined=weak,
     )  # fmt: skip
