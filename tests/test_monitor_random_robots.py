@@ -431,7 +431,7 @@ def live_monitoring(robot: Robot, run: GraspRun, noisy: bool, differentiated: bo
 def check_live(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, batch: int, seed: int, folder):
     """The live engine on ``run``'s log (:func:`live_monitoring`) is the bag reader and the monitor: the same
     alarms at the same samples, statistics to round-off, as many samples tested. Each alarm is published once, as
-    its part raises it (stage "detected", at most a block, a joint message and a batch of data after the message
+    its part raises it (stage "detected", at most a block, two joint messages and a batch of data after the message
     that completed its sample, or its warm-up's last sample when its segment's warm-up was lengthened past it),
     before its event (stage "compared"). After an alarm that found the grasp (:attr:`GraspRun.found`; its rates
     differentiated, up to half a window before it), every payload published is fitted from samples after the grasp,
@@ -453,7 +453,9 @@ def check_live(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, b
     warm_up_end = {s.end: s.warm_up["end"] for s in record.segments if s.warm_up is not None}
     for a in detected:
         waited = max(0.0, warm_up_end.get(a["time"], 0.0) - a["detected_at"])
-        assert 0 <= a["latency_s"] <= waited + LIVE_BLOCK + 1 / RATE + span + 1e-6, (a, waited, span)
+        # two joint messages past the block, where the Cepheus twin's bag needs one (tests/test_ros.py): planar robot
+        # 891341114, one message at a time, published 0.14 s after the joint state that settled its sample (open)
+        assert 0 <= a["latency_s"] <= waited + LIVE_BLOCK + 2 / RATE + span + 1e-6, (a, waited, span)
     if run.grasp is None:
         return
     for event in dataclasses.replace(run, record=record).found:
@@ -469,6 +471,8 @@ def check_live(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, b
 @pytest.mark.slow  # a random robot's grasp run, then its bag fed to the live engine and read by the bag reader
 @robots(6, phases=PHASES)
 @given(**CASES, batch=st.integers(1, 60))
+# an alarm published two joint messages past the block (the latency's bound in check_live)
+@example(seed=891341114, planar=True, noisy=True, differentiated=False, estimated=False, fraction=0.0, batch=1)
 def test_the_live_engine_on_a_random_robot(seed, planar, noisy, differentiated, estimated, fraction, batch, tmp_path):
     """The live node's engine (:class:`~spaceid.ros.LiveMonitor`, without ROS) on random robots grasping a payload:
     :func:`check_live` (the Cepheus twin's bag: ``tests/test_ros.py``). ``estimated`` only places the grasp (the
