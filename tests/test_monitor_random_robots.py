@@ -388,7 +388,8 @@ LIVE_Z = 4.5
 """Most standard errors a payload the live engine publishes may lie from ``MASS`` (a 7e-6 two-sided tail)."""
 
 
-def live_monitoring(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, batch: int, seed: int, folder) -> tuple:
+def live_monitoring(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, batch: int, seed: int,
+                    folder) -> tuple:
     """``run``'s log with its grasp as a bag of joint states (angles and rates) and base poses (no base rate: the
     reader differentiates the attitude), 1e-4 rad and rad/s of noise or none, the joint rates measured or
     ``differentiated`` by the reader over ``WINDOW`` samples (the levels given are 1e-4 whether the noise was added

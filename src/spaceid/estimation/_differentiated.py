@@ -69,6 +69,19 @@ def differentiated_series(log: Log, attitude: bool = False) -> list | None:
     return series or None
 
 
+def at_given_levels(series, noise) -> list:
+    """The differentiated ``series`` (:func:`differentiated_series`, without a spatial attitude's) with each raw
+    angle level at least the one given in ``noise`` (:class:`~spaceid.estimation.Noise`: a joint's ``angle``, a
+    planar base's ``attitude``), as the weights take it (:func:`differentiated_sigma`). The differentiator estimates
+    the level from the angles' own scatter about its fits: about none on a noise-free log, whose differentiated
+    rates then err by the filters' truncation errors, smooth over the motion (cubics over 11 samples at 50 Hz: up to
+    6e-5 rad/s), which no noise level describes: random planar robot 60775 in the live engine, the levels given as
+    1e-4 and the true mass 0.9 kg, published a payload of 0.9020 +- 0.0002 kg (9 standard errors off, 57 samples)
+    with the level found; with the one given, 0.9009 +- 0.065 kg (112 samples, the first whose mass stands out)."""
+    return [({**record, "noise": max(record["noise"], noise.attitude if value is None else noise.angle)}, value, rate)
+            for record, value, rate in series]
+
+
 def _joint_series(joints, names) -> list | None:
     """:func:`differentiated_series`' joint entries ``(record, value, rate)`` of the differentiation record
     ``joints`` (None or empty: none) for a log of joints ``names``, or None when they cannot be propagated."""

@@ -30,9 +30,9 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
     The directions of parameter space a log does not determine (the regressor's noise as large as its signal) of
     equations of another shape, who leads them, the covariance widened along them, how its description and the
     warning say so; the noise levels they are judged by.
-``differentiated_series``, ``propagated_covariance``
-    The raw angle series behind differentiated rates, and the covariance of an estimate with
-    their noise carried through the differentiating filters.
+``differentiated_series``, ``at_given_levels``, ``propagated_covariance``
+    The raw angle series behind differentiated rates, those series with their raw levels at least the ones given,
+    and the covariance of an estimate with their noise carried through the differentiating filters.
 ``enough_samples_for_knots``, ``automatic_knot_spacing``
     Whether a log's stamps are dense enough for the ``angles`` estimator's spline knots, and the knot spacing
     of a spatial ``angles`` fit when none is given.
@@ -49,7 +49,7 @@ its callers. ``tests/test_layout.py`` enforces that other subpackages import onl
 
 from ._angle_path import automatic_knot_spacing, enough_samples_for_knots
 from ._determined import WIDENED, ratios_of_columns, signal_levels, undetermined, undetermined_warning, widened
-from ._differentiated import differentiated_series, propagated_covariance
+from ._differentiated import at_given_levels, differentiated_series, propagated_covariance
 from ._drift import check_drift_kinds
 from ._equations import Equations, drift_basis_at
 from ._html import diagnostic_rows
@@ -78,6 +78,7 @@ __all__ = [
     "undetermined_warning",
     "signal_levels",
     "differentiated_series",
+    "at_given_levels",
     "propagated_covariance",
     "enough_samples_for_knots",
     "automatic_knot_spacing",

@@ -48,6 +48,7 @@ from ..estimation.internal import (
     check_drift_kinds,
     check_excitation,
     correlation_length,
+    at_given_levels,
     differentiated_series,
     drift_basis_at,
     larger_of,
@@ -681,7 +682,8 @@ def _covariance(r, a, weighted: bool, estimated: bool, window: int, differentiat
     over the window, which the noise model's independent samples understate. For Savitzky-Golay
     rates (``differentiated``: the series, the score weights ``M``, the signal Jacobian ``J``, the
     signals' white noise ``sigma`` and the stamps, see :func:`_score_weights`; each series' raw level at least the
-    one given, :func:`_given_floor`) the covariance is the angle noise carried through the filters (:func:`~spaceid.estimation._differentiated.propagated_covariance`).
+    one given, :func:`~spaceid.estimation.internal.at_given_levels`) the covariance is the angle noise carried
+    through the filters (:func:`~spaceid.estimation._differentiated.propagated_covariance`).
     The Newey-West estimate from the residuals (Bartlett weights over half the window) is returned
     beside it, not taken: a differentiated rate's error is a difference of angle noise, whose
     negative autocorrelation beyond half the window cancels much of the positive lobe in the
@@ -708,7 +710,8 @@ def _covariance(r, a, weighted: bool, estimated: bool, window: int, differentiat
         if differentiated is None:
             how = f"Newey-West from the residuals, Bartlett weights over {bandwidth} samples (differentiated rates)"
             cov, larger = larger_of(newey_west, bread) if weighted and not estimated else (newey_west, 0)
-            how += f"; in {larger} of {p} directions the inverse Fisher information at the levels given" if larger else ""
+            if larger:
+                how += f"; in {larger} of {p} directions the inverse Fisher information at the levels given"
             return cov, chi2, how, bread, newey_west, checks
         series, m, jac, sigma, t = differentiated
         how = (f"the angle noise of {len(series)} differentiated series propagated through their Savitzky-Golay "
@@ -728,19 +731,6 @@ PROPAGATED = ("the standard errors carry the angle noise through the differentia
               "and miss its truncation errors where its window is long for the motion or the log is noise-free "
               "(shorten the window, or let it be chosen)")
 """How the noise model's warning ends for Savitzky-Golay rates (:func:`_covariance`: not the residuals' spread)."""
-
-
-def _given_floor(series, noise: Noise) -> list:
-    """The differentiated ``series`` (:func:`~spaceid.estimation.internal.differentiated_series`) with each raw angle
-    level at least the given one (the joints' ``noise.angle``, a planar base's ``noise.attitude``), as the weights
-    take it. The differentiator estimates the level from the angles' own scatter about its fits: about none on a
-    noise-free log, whose differentiated rates then err by the filters' truncation errors, smooth over the motion
-    (cubics over 11 samples at 50 Hz: up to 6e-5 rad/s), which no noise level describes: random planar robot 60775
-    in the live engine, the levels given as 1e-4 and the true mass 0.9 kg, published 0.9020 +- 0.0002 kg (9
-    standard errors off, 57 samples) with the level found; with the one given, 0.9009 +- 0.065 kg (112 samples,
-    the first whose mass stands out)."""
-    return [({**record, "noise": max(record["noise"], noise.attitude if value is None else noise.angle)}, value, rate)
-            for record, value, rate in series]
 
 
 def _score_weights(pmap, eq, x, sigma, theta, a, brought) -> tuple:
@@ -1003,7 +993,7 @@ def _fit(pmap, log, momentum, momentum_cov, motion, brought, drift, history, noi
     differentiated = None
     if window and series is not None:
         white = np.zeros(x.shape[1]) if sigma is None else sigma
-        series = series if estimated or sigma is None else _given_floor(series, noise)
+        series = series if estimated or sigma is None else at_given_levels(series, noise)
         differentiated = (series, *_score_weights(pmap, eq, x, sigma, theta, a, brought), white, log.t)
     cov, chi2, how, bread, newey_west, checks = _covariance(r, a, sigma is not None, estimated, window,
                                                              differentiated)
