@@ -9,6 +9,7 @@ from types import SimpleNamespace
 import numpy as np
 import pinocchio as pin
 import pytest
+from conftest import random_tree
 from test_simulate_estimate import H, motion
 
 import spaceid
@@ -160,18 +161,82 @@ def test_the_ellipsoid_cone_holds_as_many_entries_as_unknowns(rows, cols):
     """The ellipsoid's residual ``A_w theta - b_w`` reduced to ``n_theta + 1`` entries of the same norm where the
     minimal parameters outnumber the standard ones (the servicer: 171 against 496; its solves 0.4 -> 0.03 s), as
     it is otherwise."""
-    import cvxpy as cp
-
-    from spaceid.identified._export import _ball_residual
+    from spaceid.identified._export import _ball_rows
 
     rng = np.random.default_rng(rows)
-    a_w, b_w = rng.standard_normal((rows, cols)), rng.standard_normal(rows)
-    theta = cp.Variable(cols)
-    theta.value = rng.standard_normal(cols)
-    residual = _ball_residual(a_w, b_w, theta)
-    assert residual.shape == ((cols + 1,) if rows > cols else (rows,))
-    dense = np.linalg.norm(a_w @ theta.value - b_w)
-    assert np.linalg.norm(residual.value) == pytest.approx(dense, rel=1e-12)
+    a_w, b_w, theta = rng.standard_normal((rows, cols)), rng.standard_normal(rows), rng.standard_normal(cols)
+    m, c = _ball_rows(a_w, b_w)
+    assert m.shape == ((cols + 1, cols) if rows > cols else (rows, cols))
+    assert np.linalg.norm(m @ theta - c) == pytest.approx(np.linalg.norm(a_w @ theta - b_w), rel=1e-12)
+
+
+def _cvxpy_program(program, a_eq, b_eq, a_w, b_w, around=None, nearest=None):
+    """The export's convex step stated in cvxpy as it was before it was stated to Clarabel directly: ``(vec X,
+    slack, excess)`` of cvxpy's solution by Clarabel at the export's tolerances."""
+    import cvxpy as cp
+
+    from spaceid.models.internal import CLARABEL_TOLERANCES, MARGIN
+
+    x = [cp.Variable((4, 4), symmetric=True) for _ in range(program.g.shape[1] // 16)]
+    vec = cp.hstack([cp.vec(b, order="F") for b in x])
+    theta = program.g @ vec
+    cons = [b >> MARGIN * np.eye(4) for b in x] + ([program.z @ vec == 0] if len(program.z) else [])
+    cons += [cp.abs(vec - around[0]) <= around[1]] if around is not None else []
+    ball = cp.norm(a_w @ theta - b_w)
+    if program.elastic:
+        slack, excess = cp.Variable(len(a_eq)), cp.Variable(nonneg=True)
+        cons += [a_eq @ theta - b_eq == slack, ball <= program.radius + excess]
+        objective = cp.norm1(slack) + excess
+    else:
+        slack = excess = None
+        cons += [a_eq @ theta == b_eq, ball <= program.radius]
+        objective = (cp.sum_squares(vec - nearest) if nearest is not None else
+                     sum(cp.trace(b) - cp.log_det(b) for b in x))  # fmt: skip
+    cp.Problem(cp.Minimize(objective), cons).solve(solver=cp.CLARABEL, **CLARABEL_TOLERANCES)
+    return np.concatenate([b.value.ravel(order="F") for b in x]), slack, excess
+
+
+@pytest.mark.parametrize("kind", ["log-det", "trust region", "nearest", "elastic"])
+def test_the_convex_step_solves_the_program_cvxpy_states(kind):
+    """The export's convex step states its program to Clarabel directly (its log-det objective by exponential and
+    semidefinite cones): on random trees of 2 to 5 bodies, planar and spatial, from priors 30 % off their robots,
+    with conditions linearised at the truth and an ellipsoid around it, each kind of program lands where the same
+    program stated in cvxpy lands, to the solver's tolerance. A wrong cone vector (the off-diagonal entries' sqrt 2,
+    the triangle's order, ``D``'s side) moves it."""
+    from spaceid.identified import _export
+    from spaceid.models.internal import theta_slots
+
+    rng, compared = np.random.default_rng(["log-det", "trust region", "nearest", "elastic"].index(kind)), 0
+    for trial in range(6):
+        parents = [int(rng.integers(0, i + 1)) for i in range(int(rng.integers(1, 5)))]
+        true = random_tree(rng, parents, planar=trial % 2 == 0)
+        prior = true.with_inertials(np.array([b.inertial for b in true.bodies]) * rng.uniform(0.7, 1.3,
+                                                                                               (len(true.bodies), 1)))
+        param = minimal_parameters(true)
+        g, z = _export.pseudo_whitening(prior, "prior")
+        theta = np.array([true.bodies[b].inertial[k] for b, k in theta_slots(true)])
+        pi = param.true_values
+        e = np.eye(len(pi))[: max(1, len(pi) // 2)]
+        w = np.eye(len(pi))[len(e):] / (0.05 * np.maximum(np.abs(pi[len(e):]), 1e-3))[:, None]
+        program = _export._Program(g, z, 3.0, elastic=kind == "elastic")
+        conditions = _export._conditions(param, g, theta, e, w, pi + 0.05 * (kind == "elastic"))
+        start = np.linalg.lstsq(g, theta, rcond=None)[0]
+        options = {"around": (start, 0.3)} if kind == "trust region" else {"nearest": start} if kind == "nearest" else {}
+        ours = program.solve(*conditions, **options)
+        theirs, slack, excess = _cvxpy_program(program, *conditions, **options)
+        if ours is None:
+            assert theirs is None or not np.all(np.isfinite(theirs))
+            continue
+        if kind == "elastic":  # its optimum, not its solution, is unique: the same violation, met by its own
+            theta_ours = g @ ours
+            assert _export._violation(program) == pytest.approx(np.abs(slack.value).sum() + excess.value, abs=1e-7)
+            assert np.abs(conditions[0] @ theta_ours - conditions[1] - program.slack).max() <= 1e-7
+            assert np.linalg.norm(conditions[2] @ theta_ours - conditions[3]) <= 3.0 + program.excess + 1e-7
+        else:
+            assert np.abs(ours - theirs).max() <= 1e-5 * max(1.0, np.abs(theirs).max())
+        assert min(np.linalg.eigvalsh(x.reshape(4, 4, order="F"))[0] for x in np.split(ours, len(ours) // 16)) > 0
+        compared += 1
+    assert compared >= 4
 
 
 def test_the_exact_search_is_skipped_when_no_model_reproduces_the_estimate(cepheus, monkeypatch):

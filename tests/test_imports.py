@@ -92,6 +92,25 @@ def test_a_payload_projected_to_consistency_imports_no_modelling_layer():
     assert _heavy_imports(code) == set()
 
 
+@pytest.mark.slow  # fresh interpreters identifying and exporting: seconds
+def test_an_export_and_a_prior_import_no_modelling_layer(tmp_path):
+    """The export's convex steps and the CAD prior's are stated to Clarabel directly: cvxpy's import (1.2 to 1.4 s,
+    SciPy's statistics module most of it) and its compilation of every program were most of the servicer's export
+    (2.8 to 3.5 s on its first run)."""
+    from spaceid.cli import main
+
+    log, result = tmp_path / "log.csv", tmp_path / "ml.json"
+    assert main(["simulate", "cepheus", "--trajectory", "paper-table2", "--momentum", "0.4934", "--samples", "80",
+                 "--noise-angle", "1e-4", "--noise-rate", "1e-4", "-o", str(log)]) == 0
+    assert main(["identify", "cepheus", str(log), "--momentum", "0.4934", "-o", str(result)]) == 0
+    export = (f"from spaceid.cli import main\nassert main(['export', {str(result)!r}, '--prior', 'cepheus', '-o', "
+              f"{str(tmp_path / 'robot.urdf')!r}]) == 0")
+    prior = (f"from spaceid.cli import main\nassert main(['identify', 'cepheus', {str(log)!r}, '--momentum', "
+             f"'0.4934', '--prior', 'cepheus', '-o', {str(tmp_path / 'map.json')!r}]) == 0")
+    for code in (export, prior):
+        assert not {"cvxpy", "scipy.stats"} & _heavy_imports(code)
+
+
 @pytest.mark.slow
 def test_a_urdf_is_parsed_by_pinocchio_once(tmp_path):
     """A URDF preset is parsed by Pinocchio in the first interpreter that loads it (the probe can fail), and read

@@ -3,6 +3,7 @@ known truth, on presets and random robots."""
 
 import json
 import warnings
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -306,7 +307,7 @@ def test_a_map_that_does_not_solve_names_the_cause(cepheus, monkeypatch):
     import spaceid.estimation._prior as prior_module
 
     param, log, h = flown(cepheus, 6.0, 5.0, 8)
-    monkeypatch.setattr(prior_module, "solved_tightly", lambda problem: False)
+    monkeypatch.setattr(prior_module, "solved_tightly", lambda P, q, rows: None)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         with pytest.raises(SpaceidError) as caught:
@@ -374,52 +375,62 @@ def test_a_column_no_noisy_signal_enters_is_information_not_a_failure():
                                rtol=1e-6)
 
 
+def _least_squares(x0: float, infeasible: bool = False) -> tuple:
+    """``min (x - x0)^2`` subject to ``x <= 10`` (and ``x >= 1``, ``x <= 0`` when ``infeasible``), in
+    :func:`~spaceid.models.internal.solved_tightly`'s form: ``(P, q, rows)``."""
+    from spaceid.models.internal import cone
+
+    a, b = ([[1.0], [-1.0], [1.0]], [10.0, -1.0, 0.0]) if infeasible else ([[1.0]], [10.0])
+    return 2.0 * np.eye(1), np.array([-2.0 * x0]), [(np.array(a), np.array(b), cone("nonnegative", len(b)))]
+
+
+def _failing_solver(monkeypatch, fails):
+    """Clarabel's solver made to fail on its first solves: ``fails`` a list of what each raises or returns instead
+    (an exception, or a status name), then the real solver; the settings' ``chordal_decomposition_enable`` of each
+    call is recorded in the list returned."""
+    import clarabel
+
+    real, calls = clarabel.DefaultSolver, []
+
+    class Failing:
+        def __init__(self, *args):
+            self.args, self.solver = args, real(*args)
+            calls.append(args[-1].chordal_decomposition_enable)
+
+        def solve(self):
+            if len(calls) > len(fails):
+                return self.solver.solve()
+            failure = fails[len(calls) - 1]
+            if isinstance(failure, BaseException):
+                raise failure
+            return SimpleNamespace(status=failure, x=None)
+
+    monkeypatch.setattr(clarabel, "DefaultSolver", Failing)
+    return calls
+
+
 def test_a_solver_panic_is_a_failed_solve(monkeypatch):
     """Clarabel's Rust core can panic (pyo3's PanicException, a BaseException): a failed solve, not a
     traceback; an interrupt still propagates."""
-    import cvxpy as cp
-
     from spaceid.models.internal import solved_tightly
 
     PanicException = type("PanicException", (BaseException,), {})
-    x = cp.Variable()
-    problem = cp.Problem(cp.Minimize(cp.square(x - 1)))
-    for error, caught in ((PanicException("Eigval error"), False), (KeyboardInterrupt(), True)):
-        def solve(*args, error=error, **kwargs):
-            raise error
-        monkeypatch.setattr(problem, "solve", solve)
-        if caught:
-            with pytest.raises(KeyboardInterrupt):
-                solved_tightly(problem)
-        else:
-            assert solved_tightly(problem) is False
+    _failing_solver(monkeypatch, [PanicException("Eigval error"), PanicException("Eigval error")])
+    assert solved_tightly(*_least_squares(1.0)) is None
+    _failing_solver(monkeypatch, [KeyboardInterrupt()])
+    with pytest.raises(KeyboardInterrupt):
+        solved_tightly(*_least_squares(1.0))
 
 
 def test_a_failed_solve_is_tried_again_with_whole_cones(monkeypatch):
-    """A program on which Clarabel fails (cvxpy's SolverError: insufficient progress, or a panic) is solved once more
+    """A program on which Clarabel fails (insufficient progress, a numerical error, or a panic) is solved once more
     with its positive semidefinite cones whole (planar random robot 311720's export stopped so at every step, and was
     refused although the true robot was inside its ellipsoid; the example in ``test_random_robots``); an infeasible
     program is not tried again."""
-    import cvxpy as cp
-
     from spaceid.models.internal import solved_tightly
 
-    x = cp.Variable()
-    problem = cp.Problem(cp.Minimize(cp.square(x - 1)))
-    calls, solve = [], problem.solve
-
-    def first_fails(*args, **kwargs):
-        calls.append(kwargs.get("chordal_decomposition_enable", True))
-        if len(calls) == 1:
-            raise cp.SolverError("Solver 'CLARABEL' failed")
-        return solve(*args, **kwargs)
-
-    monkeypatch.setattr(problem, "solve", first_fails)
-    assert solved_tightly(problem) is True and calls == [True, False] and x.value == pytest.approx(1.0)
-
-    infeasible = cp.Problem(cp.Minimize(x), [x >= 1, x <= 0])
-    calls.clear()
-    solve = infeasible.solve
-    monkeypatch.setattr(infeasible, "solve", first_fails)
-    calls.append(True)  # (past the first call: no failure)
-    assert solved_tightly(infeasible) is False and calls == [True, True]
+    for failure in ("InsufficientProgress", "NumericalError", type("PanicException", (BaseException,), {})()):
+        calls = _failing_solver(monkeypatch, [failure])
+        assert solved_tightly(*_least_squares(1.0)) == pytest.approx([1.0]) and calls == [True, False]
+    calls = _failing_solver(monkeypatch, [])
+    assert solved_tightly(*_least_squares(1.0, infeasible=True)) is None and calls == [True]

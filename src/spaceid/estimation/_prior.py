@@ -10,7 +10,7 @@ momentum equations at the prior, whose information is singular where the data sa
 MAP minimises ``|L pi_f(theta) - r|^2 + |(theta - theta_0) / s|^2`` over ``theta`` with every
 body's pseudo-inertia positive definite and the anchored minimal parameters met; ``pi`` is
 homogeneous of degree one in ``theta``, so at ``theta_k`` it is ``A(theta_k) theta`` exactly and
-each step is a convex program (cvxpy, Clarabel) repeated until ``theta`` settles (Gauss-Newton,
+each step is a convex program (Clarabel's) repeated until ``theta`` settles (Gauss-Newton,
 halved when a step does not lower the objective).
 """
 
@@ -27,8 +27,8 @@ from .._svd import svd
 from .._threads import one_blas_thread
 from ..dynamics import Parameterization, full_parameter_names, full_values, full_values_jacobian
 from ..models import Model, load_model
-from ..models.internal import (MARGIN, pseudo_inertia, pseudo_whitening, solved_tightly, theta_slots,
-                               with_theta)  # fmt: skip
+from ..models.internal import (Unknowns, cone, duplication, physical_rows, pseudo_inertia, pseudo_whitening,
+                               solved_tightly, theta_slots, with_theta)
 from ._determined import UNDETERMINED_FIX
 
 __all__ = ["PRIOR_STD", "PriorRecord", "prior_deviations"]
@@ -352,34 +352,32 @@ class _MapProgram:
     """One convex step: ``min |Ld theta - rd|^2 + |D theta - d|^2`` over ``theta = G vec X``,
     ``X_b - MARGIN 1`` PSD, declared zeros, ``C theta = c`` (the anchors, linearised), the data's
     rows (:func:`_rows`) more than ``CAPPED**2`` times as informative as the prior met exactly
-    (``E theta = e``); cvxpy parameters, so each count of exact rows is compiled once."""
+    (``E theta = e``). Stated to Clarabel directly (:mod:`spaceid.models._conic`), the residuals of both terms
+    unknowns of their own (``r``, tied to ``theta`` by equalities: the objective ``|r|^2``, not ``theta``'s Gram
+    matrix, whose condition would be the data's squared)."""
 
-    def __init__(self, g, z, n_data, D, d, n_anchor, s):
-        self.g, self.z, self.D, self.d, self.n_anchor, self.s = g, z, D, d, n_anchor, s
-        self.n_data = min(n_data, g.shape[0])
-        self.programs = {}
+    def __init__(self, g, z, D, d, s):
+        self.g, self.z, self.D, self.d, self.s = g, z, D, d, s
+        self.dup = duplication(g.shape[1] // 16)
+        self.gd = g @ self.dup  # theta = gd x
 
-    def _program(self, n_exact: int):
-        """The program with ``n_exact`` exact rows: ``(problem, theta, parameters)``."""
-        import cvxpy as cp
-
-        if n_exact in self.programs:
-            return self.programs[n_exact]
-        g, n = self.g, self.g.shape[0]
-        x = [cp.Variable((4, 4), symmetric=True) for _ in range(g.shape[1] // 16)]
-        vec = cp.hstack([cp.vec(xb, order="F") for xb in x])
-        theta = cp.Variable(n)
-        par = {"ld": cp.Parameter((self.n_data, n)), "rd": cp.Parameter(self.n_data),
-               "c": cp.Parameter((self.n_anchor, n)), "cv": cp.Parameter(self.n_anchor),
-               "e": cp.Parameter((n_exact, n)), "ev": cp.Parameter(n_exact)}  # fmt: skip
-        cons = [xb >> MARGIN * np.eye(4) for xb in x] + [theta == g @ vec]
-        cons += [self.z @ vec == 0] if len(self.z) else []
-        cons += [par["c"] @ theta == par["cv"]] if self.n_anchor else []
-        cons += [par["e"] @ theta == par["ev"]] if n_exact else []
-        objective = cp.sum_squares(self.D @ theta - self.d)
-        objective += cp.sum_squares(par["ld"] @ theta - par["rd"]) if self.n_data else 0
-        self.programs[n_exact] = cp.Problem(cp.Minimize(objective), cons), theta, par
-        return self.programs[n_exact]
+    def _theta(self, c, cv, n_exact: int, sv, rows, rhs, exact):
+        """``theta`` of the program with the data's ``n_exact`` strongest rows met exactly (the others weighted,
+        at most ``CAPPED``), or None when it is not solved."""
+        weight = np.minimum(sv, CAPPED) * (~exact if n_exact else 1)
+        soft, soft_rhs = weight[:, None] * rows, weight * rhs
+        fit = np.vstack([self.D, soft]) @ self.gd
+        u = Unknowns(x=len(self.dup.T), r=len(fit))
+        stated = physical_rows(u, self.z)
+        stated.append((u.rows(len(fit), x=fit, r=-np.eye(len(fit))), np.concatenate([self.d, soft_rhs]),
+                       cone("zero", len(fit))))  # r = fit x - [d; rd]
+        for a_eq, b_eq in ((c, cv), (rows[exact], rhs[exact])) if n_exact else ((c, cv),):
+            if len(a_eq):
+                stated.append((u.rows(len(a_eq), x=a_eq @ self.gd), b_eq, cone("zero", len(a_eq))))
+        P = np.zeros((u.n, u.n))
+        P[u.at["r"] :, u.at["r"] :] = 2.0 * np.eye(len(fit))
+        x = solved_tightly(P, np.zeros(u.n), stated)
+        return None if x is None else self.gd @ u.of(x, "x")
 
     def solve(self, L, a, rd, c, cv):
         """``theta`` of the step (None when the solver fails): the data's strongest rows met exactly,
@@ -387,17 +385,9 @@ class _MapProgram:
         sv, rows, rhs = _rows(L, a, rd, self.s)
         exact = sv > CAPPED
         for n_exact in (int(exact.sum()), 0) if exact.any() else (0,):
-            weight = np.minimum(sv, CAPPED) * (~exact if n_exact else 1)
-            soft = np.zeros((self.n_data, rows.shape[1]))
-            soft[: len(sv)] = weight[:, None] * rows
-            values = {"ld": soft, "rd": np.r_[weight * rhs, np.zeros(self.n_data - len(sv))], "c": c, "cv": cv,
-                      "e": rows[exact] if n_exact else rows[:0], "ev": rhs[exact] if n_exact else rhs[:0]}
-            problem, theta, par = self._program(n_exact)
-            for key, p in par.items():
-                if p.size:
-                    p.value = values[key]
-            if solved_tightly(problem):
-                return np.asarray(theta.value, float)
+            theta = self._theta(c, cv, n_exact, sv, rows, rhs, exact)
+            if theta is not None:
+                return theta
         return None
 
 
@@ -491,7 +481,7 @@ def _map_estimate(param, prior, data, *, prior_std, known_standard, where) -> tu
     prior_cov = prior_jac @ np.linalg.pinv(D.T @ D) @ prior_jac.T
     prior_pi_std = np.sqrt(np.clip(np.diag(prior_cov), 0, None))
     data = _floored(data, FLOOR * prior_pi_std[data.free])
-    program = _MapProgram(g, z, len(data.L), D, d, len(idx), s)
+    program = _MapProgram(g, z, D, d, s)
     theta, steps = _convex_steps(param, program, data, D, d, theta0.copy(), idx, cv, s, where)
     strongest = np.linalg.norm((data.L @ prior_jac[data.free]) * s, 2) if data.L.size else 0.0
     if strongest**2 > TEMPERED[-1]:  # also through tempered stages; the lower objective is kept

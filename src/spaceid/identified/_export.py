@@ -7,7 +7,7 @@ ellipsoid), with every body's pseudo-inertia ``J = [[Sigma, h], [h^T, m]]`` posi
 one closest to a prior model in the log-det divergence of pseudo-inertias is taken
 (docs/theory/export.md). The lumped products ``phi`` make the constraint nonlinear; being
 homogeneous of degree one in ``theta``, its linearisation at ``theta_k`` is ``A(theta_k) theta``
-(``A`` its Jacobian), so each step is a convex program (cvxpy, Clarabel) and the steps repeat
+(``A`` its Jacobian), so each step is a convex program (Clarabel's) and the steps repeat
 until ``theta`` stops moving.
 """
 
@@ -27,8 +27,9 @@ from ..dynamics import Parameterization, full_parameter_names, full_values, full
 from ..dynamics import minimal_parameters
 from ..estimation import Identification
 from ..models import INERTIAL_NAMES, Model, load_model
-from ..models.internal import (MARGIN, inertial_from_pseudo, pseudo_inertia, solved_tightly,
-                               pseudo_whitening, reference_pseudo, theta_slots, whitened_physical, with_theta)
+from ..models.internal import (Unknowns, cone, duplication, inertial_from_pseudo, physical_rows, pseudo_inertia,
+                               pseudo_whitening, reference_pseudo, solved_tightly, theta_slots, triangle,
+                               whitened_physical, with_theta)
 
 __all__ = ["Export", "export_model", "inertial_from_pseudo", "pseudo_divergence", "pseudo_inertia", "unphysical_bodies"]
 
@@ -214,56 +215,100 @@ class _Program:
     zeros, ``A_eq theta = b_eq`` and ``|A_w theta - b_w| <= radius`` (``theta = G vec X``).
     ``elastic`` instead minimises the violation of the conditions (to name what is infeasible).
 
-    Each solve builds the program with its matrices as constants. Compiled once with them as cvxpy
-    parameters, cvxpy formed a map from every entry of the matrices to the solver's data: on the
-    dual-arm servicer (496 rows) 5 to 15 s and 5 GB a program, where a solve built anew takes 0.5 s."""
+    Stated to Clarabel directly (:mod:`spaceid.models._conic`; cvxpy's compilation of each program took most of a
+    solve, 0.5 of the servicer's 0.6 s). The unknowns: each ``X_b``'s upper triangle ``x`` (``vec X = E x``) and
+    ``theta``, tied to it by equalities (substituted, the servicer's solves took 1.6 times as long and some failed
+    numerically); for the log-det objective, :func:`_log_det_rows`' ``d`` and ``t``; for the elastic program, the
+    equalities' violations ``slack = s+ - s-`` and the ellipsoid's ``excess``."""
 
     def __init__(self, g, z, radius, *, elastic=False):
         self.g, self.z, self.radius, self.elastic = g, z, radius, elastic
         self.slack = self.excess = self.solution = None
+        self.nb = g.shape[1] // 16
+        self.dup = duplication(self.nb)
+        self.gd = g @ self.dup  # theta = gd x
 
     def solve(self, a_eq, b_eq, a_w, b_w, around=None, nearest=None):
         """The solution ``vec X`` (16 nb,), or None when the program is infeasible (also kept as ``solution``);
         ``around = (x, delta)``: within ``delta`` of ``vec X = x`` in every entry (a trust region); ``nearest``: the
         point of the conditions nearest to that ``vec X`` instead of the one closest to the prior (a projection)."""
-        import cvxpy as cp
-
-        x = [cp.Variable((4, 4), symmetric=True) for _ in range(self.g.shape[1] // 16)]
-        vec = cp.hstack([cp.vec(b, order="F") for b in x])
-        theta = cp.Variable(self.g.shape[0])  # a variable of its own: a matrix @ variable compiles fast
-        cons = [b >> MARGIN * np.eye(4) for b in x] + [theta == self.g @ vec]
-        cons += [self.z @ vec == 0] if len(self.z) else []
-        cons += [cp.abs(vec - around[0]) <= around[1]] if around is not None else []
-        eq = a_eq @ theta - b_eq if len(a_eq) else None
-        ball = cp.norm(_ball_residual(a_w, b_w, theta)) if len(a_w) else None
-        if self.elastic:
-            self.slack = cp.Variable(len(a_eq)) if len(a_eq) else None
-            self.excess = cp.Variable(nonneg=True)
-            cons += [eq == self.slack] if len(a_eq) else []
-            cons += [ball <= self.radius + self.excess] if len(a_w) else []
-            objective = (cp.norm1(self.slack) if len(a_eq) else 0) + self.excess
-        else:
-            cons += ([eq == 0] if len(a_eq) else []) + ([ball <= self.radius] if len(a_w) else [])
-            objective = (cp.sum_squares(vec - nearest) if nearest is not None else
-                         sum(cp.trace(b) - cp.log_det(b) for b in x))  # fmt: skip
-        self.solution = None
-        if solved_tightly(cp.Problem(cp.Minimize(objective), cons)):
-            self.solution = np.concatenate([b.value.ravel(order="F") for b in x])
+        nb, dup, m_eq = self.nb, self.dup, len(a_eq)
+        u = Unknowns(x=10 * nb, theta=len(self.gd), **({"plus": m_eq, "minus": m_eq, "excess": 1} if self.elastic else
+                                   {} if nearest is not None else {"d": 10 * nb, "t": 4 * nb}))  # fmt: skip
+        stated = physical_rows(u, self.z)
+        stated.append((u.rows(len(self.gd), x=self.gd, theta=-np.eye(len(self.gd))), np.zeros(len(self.gd)),
+                       cone("zero", len(self.gd))))
+        if around is not None:
+            stated.append((u.rows(2 * len(dup), x=np.vstack([dup, -dup])),
+                           np.concatenate([around[1] + around[0], around[1] - around[0]]),
+                           cone("nonnegative", 2 * len(dup))))
+        if m_eq:
+            violations = {"plus": -np.eye(m_eq), "minus": np.eye(m_eq)} if self.elastic else {}
+            stated.append((u.rows(m_eq, theta=a_eq, **violations), b_eq, cone("zero", m_eq)))
+        if len(a_w):
+            m_ball, c_ball = _ball_rows(a_w, b_w)
+            ball = np.vstack([u.rows(1, **({"excess": -1.0} if self.elastic else {})),
+                              u.rows(len(m_ball), theta=-m_ball)])
+            stated.append((ball, np.concatenate([[self.radius], -c_ball]), cone("soc", len(m_ball) + 1)))
+        P, q = None, np.zeros(u.n)
+        if self.elastic:  # |slack|_1 + excess, each part non-negative
+            tail = np.zeros((u.n - u.at["plus"], u.n))
+            tail[:, u.at["plus"] :] = -np.eye(len(tail))
+            stated.append((tail, np.zeros(len(tail)), cone("nonnegative", len(tail))))
+            q[u.at["plus"] :] = 1.0
+        elif nearest is not None:  # |E x - nearest|^2, its constant left out
+            P = np.zeros((u.n, u.n))
+            P[: 10 * nb, : 10 * nb], q[: 10 * nb] = 2.0 * dup.T @ dup, -2.0 * dup.T @ nearest
+        else:  # tr X_b - sum t
+            i, j, _ = triangle(4)
+            stated += _log_det_rows(u)
+            q[: 10 * nb], q[u.at["t"] :] = np.tile(i == j, nb), -1.0
+        x = solved_tightly(P, q, stated)
+        self.solution = None if x is None else dup @ u.of(x, "x")
+        if x is not None and self.elastic:
+            self.slack = u.of(x, "plus") - u.of(x, "minus") if m_eq else None
+            self.excess = float(u.of(x, "excess")[0])
         return self.solution
 
 
-def _ball_residual(a_w, b_w, theta):
-    """``A_w theta - b_w`` as an expression of the same norm: with more rows than unknowns (a spatial robot's
-    minimal parameters outnumber the standard ones), ``[R theta - Q^T b_w; |b_w - Q Q^T b_w|]`` from the
+def _log_det_rows(u) -> list:
+    """The cones that make ``sum t`` at most ``sum_b log det X_b``: ``[[diag Z_b, Z_b], [Z_b^T, X_b]]`` PSD with
+    ``Z_b`` upper triangular (its ten entries, :func:`~spaceid.models._conic.triangle`'s order, the unknowns ``d``),
+    whose diagonal's product is then at most ``det X_b`` and can reach it, and ``t <= log diag Z_b`` (exponential
+    cones ``(t, 1, Z_kk)``; cvxpy's statement of ``log_det``, whose pattern Clarabel's chordal decomposition of the
+    cone follows), on the :class:`~spaceid.models._conic.Unknowns` ``u`` (``x``, ``d``: ``10 nb`` each, ``t``:
+    ``4 nb``)."""
+    i, j, w = triangle(8)
+    upper = list(zip(*triangle(4)[:2]))
+    one_x, one_d = np.zeros((36, 10)), np.zeros((36, 10))
+    for k, (r, c) in enumerate(zip(i, j)):
+        if r >= 4:  # the lower right block: X
+            one_x[k, upper.index((r - 4, c - 4))] = -w[k]
+        elif c >= 4 and r <= c - 4:  # the upper right block: Z
+            one_d[k, upper.index((r, c - 4))] = -w[k]
+        elif r == c:  # the upper left block: diag Z
+            one_d[k, upper.index((r, r))] = -w[k]
+    out, nb = [], u.sizes["x"] // 10
+    for b in range(nb):
+        at_b = np.eye(nb)[b : b + 1]
+        out.append((u.rows(36, x=np.kron(at_b, one_x), d=np.kron(at_b, one_d)), np.zeros(36), cone("psd", 8)))
+        for k in range(4):
+            t, d = np.zeros((3, 4 * nb)), np.zeros((3, 10 * nb))
+            t[0, 4 * b + k], d[2, 10 * b + upper.index((k, k))] = -1.0, -1.0
+            out.append((u.rows(3, t=t, d=d), np.array([0.0, 1.0, 0.0]), cone("exp")))
+    return out
+
+
+def _ball_rows(a_w, b_w) -> tuple:
+    """``(M, c)`` with ``|M theta - c| = |A_w theta - b_w|``: with more rows than unknowns (a spatial robot's
+    minimal parameters outnumber the standard ones), ``M = [R; 0]``, ``c = [Q^T b_w; -|b_w - Q Q^T b_w|]`` from the
     economy QR ``A_w = Q R``, exact up to rounding: the ellipsoid's cone holds ``n_theta + 1`` entries, not one a
     minimal parameter (the servicer's programs: 170 + 1 against 496, each solve ~0.4 s with the dense one)."""
-    import cvxpy as cp
-
     if len(a_w) <= a_w.shape[1]:
-        return a_w @ theta - b_w
+        return a_w, b_w
     q, r = np.linalg.qr(a_w)
     qb = q.T @ b_w
-    return cp.hstack([r @ theta - qb, np.atleast_1d(np.linalg.norm(b_w - q @ qb))])
+    return np.vstack([r, np.zeros((1, r.shape[1]))]), np.concatenate([qb, [-np.linalg.norm(b_w - q @ qb)]])
 
 
 def _conditions(param, g, theta, e, w, pi, *, project=True):
@@ -296,7 +341,7 @@ def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region,
     x = program.solution
     names = []
     if x is not None and program.slack is not None:
-        slack = np.abs(program.slack.value)
+        slack = np.abs(program.slack)
         worst = [i for i in np.argsort(-slack) if slack[i] > 1e-6 * max(1.0, slack.max())]
         names = [f"{labels[i]} = {result.values[i]:.6g}" if labels[i] in result.names else labels[i] for i in worst[:3]]
         names += [f"{len(worst) - 3} more"] if len(worst) > 3 else []
@@ -306,7 +351,7 @@ def _infeasible(result, param, g, z, e, labels, w, radius, theta, where, region,
             f"inertias and triangle inequalities found near it reproduce {', '.join(names) or 'them'}; the search is "
             "local): export within the confidence ellipsoid (`region`, a probability such as 0.95), give a prior "
             "closer to the robot, or check the identification")
-    outside = "" if x is None or program.excess.value <= 1e-9 else "the ellipsoid reaches no physical model; "
+    outside = "" if x is None or program.excess <= 1e-9 else "the ellipsoid reaches no physical model; "
     unmet = f"{', '.join(names)} cannot be met" if names else "the steps from the prior stalled; the search is local"
     return SpaceidError(
         f"{where}: no physical model found within the {region:g} confidence ellipsoid ({outside}{unmet}): try a "
@@ -682,8 +727,8 @@ class _Search:
 
 def _violation(program: _Program) -> float:
     """The optimum of an elastic ``program``'s last solve: the summed violation of the conditions."""
-    slack = 0.0 if program.slack is None else np.abs(program.slack.value).sum()
-    return float(slack + program.excess.value)
+    slack = 0.0 if program.slack is None else np.abs(program.slack).sum()
+    return float(slack + program.excess)
 
 
 def _staged(search, own, pi, start, theta) -> np.ndarray:

@@ -65,7 +65,8 @@ from ..estimation.internal import (
 )
 from ..models import INERTIAL_NAMES, Model, link_frame, load_model
 from ..models.internal import add_to_body, symbol_suffix
-from ..models.internal import CLARABEL_TOLERANCES, MARGIN, inertial_from_pseudo, pseudo_inertia, solver_panicked
+from ..models.internal import (CLARABEL_TOLERANCES, MARGIN, cone, conic_solution, inertial_from_pseudo, pseudo_inertia,
+                               triangle)
 
 __all__ = ["GraspMotion", "PayloadMap", "PayloadEstimate", "payload_map", "identify_payload", "project_consistent",
            "nominal_payload", "payload_units"]
@@ -294,35 +295,14 @@ def project_consistent(theta, cov, planar: bool) -> tuple:
 def _least_step_inside(offset, directions, options: dict) -> tuple:
     """``(z, status)``: the ``z (k,)`` of least norm with ``offset + sum_j z_j directions[j]`` positive semidefinite
     (``offset (d, d)``, ``directions (k, d, d)``, symmetric), or None when Clarabel found none, and its status in
-    words. Clarabel's own interface (its cone of upper triangles, column by column, the off-diagonal entries scaled by
-    sqrt 2), with ``options`` its settings: through cvxpy the projection took a second more, the import of cvxpy's
-    atoms (SciPy's statistics among them), on every payload that needed it."""
-    import clarabel
-    from scipy import sparse
-
+    words; ``options`` its settings (:func:`~spaceid.models._conic.conic_solution`: through cvxpy the projection
+    took a second more, the import of cvxpy's atoms, SciPy's statistics among them, on every payload that needed
+    it)."""
     d, k = len(offset), len(directions)
-    i, j = np.array([(i, j) for j in range(d) for i in range(j + 1)]).T
-    weight = np.where(i == j, 1.0, np.sqrt(2.0))
-
-    def triangle(m):  # the cone's vectors (..., d (d + 1) / 2) of symmetric matrices (..., d, d)
-        return m[..., i, j] * weight
-
-    settings = clarabel.DefaultSettings()
-    settings.verbose = False
-    for name, value in options.items():
-        setattr(settings, name, value)
+    i, j, weight = triangle(d)
     # min z^T z (Clarabel's 1/2 x^T P x) subject to s = b - A z in the cone: A = -directions, b = offset
-    solver = clarabel.DefaultSolver(sparse.csc_matrix(2.0 * np.eye(k)), np.zeros(k),
-                                    sparse.csc_matrix(-triangle(directions).T), triangle(offset),
-                                    [clarabel.PSDTriangleConeT(d)], settings)  # fmt: skip
-    try:
-        solution = solver.solve()
-    except BaseException as exc:
-        if not solver_panicked(exc):
-            raise
-        return None, "the solver failed"
-    solved = solution.status in (clarabel.SolverStatus.Solved, clarabel.SolverStatus.AlmostSolved)
-    return (np.array(solution.x, float) if solved else None), str(solution.status)
+    return conic_solution(2.0 * np.eye(k), np.zeros(k), [(-(directions[:, i, j] * weight).T, offset[i, j] * weight,
+                                                          cone("psd", d))], options)  # fmt: skip
 
 
 # ---------------------------------------------------------------- the estimate ------------------

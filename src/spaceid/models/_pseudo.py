@@ -18,51 +18,6 @@ plate, a rod) is measured against a copy with ``SPREAD tr(Sigma)`` of isotropic 
 MARGIN = 1e-6
 """Every pseudo-inertia of a program's solution satisfies ``J - MARGIN J_ref`` positive semidefinite:
 strictly physical, by a margin relative to the reference's own mass distribution (free of units)."""
-CLARABEL_TOLERANCES = {"tol_gap_abs": 1e-13, "tol_gap_rel": 1e-13, "tol_feas": 1e-12, "tol_ktratio": 1e-10}
-"""Clarabel's tolerances for these programs: its defaults (1e-8) leave ~5e-5 of noise in the
-whitened solution (a log-det objective is flat to second order), enough to keep the steps from settling."""
-
-
-WHOLE_CONES = {"chordal_decomposition_enable": False}
-"""Clarabel's settings for a second attempt at a program whose first failed: its positive semidefinite cones whole,
-not split into their chordal parts. On planar random robot 311720 (13 bodies, 121 parameters, the estimate at 1e-3
-of noise) the export's program with its log-det objective, its 22 cones split into 55, stopped on insufficient
-progress at every step, and the export was refused although the true robot lay inside the ellipsoid; whole, the
-same program solved to Clarabel's tolerances (and to SCS's optimum, 44.1139)."""
-
-
-def solver_panicked(exc: BaseException) -> bool:
-    """Whether ``exc`` is a panic of Clarabel's Rust core (pyo3's ``PanicException``, a ``BaseException``), which it
-    raises on some ill-posed cones: a failed solve, where any other ``BaseException`` (an interrupt) propagates."""
-    return type(exc).__name__ == "PanicException"
-
-
-def solved_tightly(problem) -> bool:
-    """Solve the cvxpy ``problem`` with Clarabel at :data:`CLARABEL_TOLERANCES`; whether it reached an
-    optimum. A solver failure is tried once more with the cones whole (:data:`WHOLE_CONES`), then False (an
-    infeasible program is not: that is its answer). Its "may be inaccurate" warnings are silenced: the callers'
-    steps repeat and their polish follows. A program without parameters skips cvxpy's analysis of how they
-    would enter (DPP: 8 % of an export's programs, which are built anew at each step)."""
-    import warnings
-
-    import cvxpy as cp
-
-    for settings in ({}, WHOLE_CONES):
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", UserWarning)
-                problem.solve(solver=cp.CLARABEL, ignore_dpp=not problem.parameters(), **CLARABEL_TOLERANCES,
-                              **settings)  # fmt: skip
-        except cp.SolverError:
-            continue
-        except BaseException as exc:
-            if not solver_panicked(exc):
-                raise
-            continue
-        return problem.status in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE)
-    return False
-
-
 def pseudo_inertia(inertial) -> np.ndarray:
     """Pseudo-inertia (second moments of mass) of a body, shape (4, 4).
 

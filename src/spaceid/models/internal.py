@@ -22,15 +22,23 @@ a name below is a change to an interface between subpackages, to be made with it
 ``pseudo_whitening``, ``whitened_physical``
     The maps of the whitened pseudo-inertias ``X_b`` (a reference at the identity) to ``theta`` and to
     the declared zeros; whether a ``theta`` is physical in them.
-``MARGIN``, ``SPREAD``, ``CLARABEL_TOLERANCES``, ``solved_tightly``, ``solver_panicked``
+``MARGIN``, ``SPREAD``, ``CLARABEL_TOLERANCES``
     The physical margin of a program's solution, the spread of a degenerate reference body, the
-    solver's tolerances, a program solved at them, and whether an exception is the solver's panic.
+    solver's tolerances.
+``triangle``, ``cone``, ``conic_solution``, ``solved_tightly``, ``Unknowns``, ``duplication``, ``physical_rows``
+    Convex programs stated to Clarabel in its own form: the entries of a symmetric matrix in its
+    semidefinite cone, a cone, a program's solution at given settings, and at the tolerances (once
+    more with the cones whole when the solver fails); a program's unknowns in named blocks, ``vec X``
+    from the upper triangles of the whitened pseudo-inertias, and the rows that keep them physical.
 """
 
 from ._model import add_to_body, inertia_matrix, symbol_suffix, zero_rotations
-from ._pseudo import (CLARABEL_TOLERANCES, MARGIN, SPREAD, inertial_from_pseudo, pseudo_inertia, pseudo_whitening,
-                      reference_pseudo, solved_tightly, solver_panicked, theta_slots, whitened_physical, with_theta)
+from ._conic import (CLARABEL_TOLERANCES, Unknowns, cone, conic_solution, duplication, physical_rows, solved_tightly,
+                     triangle)
+from ._pseudo import (MARGIN, SPREAD, inertial_from_pseudo, pseudo_inertia, pseudo_whitening, reference_pseudo,
+                      theta_slots, whitened_physical, with_theta)
 
 __all__ = ["inertia_matrix", "symbol_suffix", "zero_rotations", "add_to_body", "pseudo_inertia", "inertial_from_pseudo",
            "reference_pseudo", "theta_slots", "with_theta", "pseudo_whitening", "whitened_physical", "MARGIN",
-           "SPREAD", "CLARABEL_TOLERANCES", "solved_tightly", "solver_panicked"]
+           "SPREAD", "CLARABEL_TOLERANCES", "triangle", "cone", "conic_solution", "solved_tightly",
+           "Unknowns", "duplication", "physical_rows"]
