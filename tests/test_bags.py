@@ -291,6 +291,87 @@ def test_spatial_attitude_and_body_rate(tmp_path):
         to_log(rec, joints=("j1",), planar=True)
 
 
+def _tumbling(t):
+    """Attitude Rz(a) Rx(b) (n, 4) and body rate (n, 3) [rad/s] of a tumbling base at ``t`` (n,)."""
+    a, b = 0.8 * np.sin(0.9 * t), 0.4 * np.sin(1.3 * t + 0.2)
+    da, db = 0.72 * np.cos(0.9 * t), 0.52 * np.cos(1.3 * t + 0.2)
+    ca, sa, cb, sb = np.cos(a / 2), np.sin(a / 2), np.cos(b / 2), np.sin(b / 2)
+    return np.column_stack([ca * cb, ca * sb, sa * sb, sa * cb]), np.column_stack([db, da * np.sin(b), da * np.cos(b)])
+
+
+def test_a_gyro_on_the_pose_topic_is_the_base_rate(tmp_path):
+    """Odometry on the pose topic (a star tracker's attitude and a gyro's rate, 1e-4 rad/s of noise, at 100 Hz):
+    with ``base_rate`` gyro the base rate is the twist's, linearly interpolated onto the 50 Hz joint stamps (exact at
+    the poses' own stamps), the attitude the published one (the rate its slope), and no record of the base's
+    differentiation (the estimators model the rate as measured; with the joint rates measured too, nothing is
+    correlated: :func:`~spaceid.estimation._uncertainty.correlation_length` 0). Without it, the attitude is
+    differentiated as for a PoseStamped, the twist unused."""
+    from spaceid.estimation._uncertainty import correlation_length
+
+    tm = np.arange(0, 400) * 10_000_000 / 1e9
+    tj = np.arange(0, 200) * 20_000_000 / 1e9
+    quat, w = _tumbling(tm)
+    gyro = w + 1e-4 * np.random.default_rng(2).standard_normal(w.shape)
+    js = JointStates(tj, ("j1",), np.sin(tj)[:, None], np.cos(tj)[:, None])
+    write_bag(tmp_path / "g.mcap", Recording(js, Poses(tm, np.zeros((tm.size, 3)), quat, "world", rate=gyro)))
+    rec = read_recording(tmp_path / "g.mcap")
+    np.testing.assert_array_equal(rec.base.rate, gyro)
+    log = to_log(rec, joints=("j1",), planar=False, base_rate="gyro", joint_rates="velocity")
+    np.testing.assert_array_equal(log.base_w, gyro[::2])  # the joint stamps are every other pose's
+    true_quat, true_w = _tumbling(log.t)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", log.base_quat, true_quat)), 1, rtol=0, atol=1e-12)
+    assert log.meta["base_rate"] == "gyro" and "base" not in log.meta["differentiation"]
+    assert correlation_length(log) == 0
+    between = to_log(rec, joints=("j1",), planar=False, base_rate="gyro", rate=73.0)  # off the pose stamps
+    assert np.abs(between.base_w - _tumbling(between.t)[1]).max() < 5e-4  # the gyro's noise and the chords'
+    attitude = to_log(rec, joints=("j1",), planar=False)
+    assert attitude.meta["base_rate"] == "attitude" and "base" in attitude.meta["differentiation"]
+    assert np.abs(attitude.base_w - true_w).max() < 1e-6  # the noise-free attitude differentiated, twist unused
+
+
+def test_an_imus_orientation_and_angular_velocity_are_read_by_their_fields():
+    """A ``sensor_msgs/Imu`` on the pose topic (as rosbags or rclpy gives it): its orientation at the origin and its
+    angular velocity (base axes), as an Odometry's pose and twist."""
+    from rosbags.typesys import Stores, get_typestore
+
+    from spaceid.data._bag_read import _pose_entry
+
+    T = get_typestore(Stores.ROS2_HUMBLE).types
+    vector = T["geometry_msgs/msg/Vector3"]
+    header = T["std_msgs/msg/Header"](stamp=T["builtin_interfaces/msg/Time"](sec=3, nanosec=5), frame_id="imu")
+    imu = T["sensor_msgs/msg/Imu"](header=header, orientation=T["geometry_msgs/msg/Quaternion"](0.0, 0.6, 0.0, 0.8),
+                                   orientation_covariance=np.zeros(9), angular_velocity=vector(0.1, -0.2, 0.3),
+                                   angular_velocity_covariance=np.zeros(9), linear_acceleration=vector(0.0, 0.0, 9.8),
+                                   linear_acceleration_covariance=np.zeros(9))  # fmt: skip
+    entry = _pose_entry(imu)
+    assert entry == (3 * NS + 5, (0.0, 0.0, 0.0), (0.8, 0.0, 0.6, 0.0), "imu", (0.1, -0.2, 0.3))
+
+
+def test_a_gyro_asked_of_poses_without_one_is_named(tmp_path, recording, capsys):
+    """``base_rate`` gyro where the pose messages are PoseStamped, a base rate that is not one of the two, a mapping's
+    and a CSV's: one line naming the option and the fix (exit 2 on the command line)."""
+    write_bag(tmp_path / "run.mcap", recording)
+    rec = read_recording(tmp_path / "run.mcap")
+    with pytest.raises(SpaceidError, match=r"`base_rate` gyro: the pose messages carry no angular velocity "
+                                           r"\(geometry_msgs/PoseStamped\): publish nav_msgs/Odometry"):
+        to_log(rec, joints=rec.joints.names, planar=True, base_rate="gyro")
+    with pytest.raises(SpaceidError, match=r"base_rate='imu': choose one of attitude, gyro"):
+        to_log(rec, joints=rec.joints.names, planar=True, base_rate="imu")
+    (tmp_path / "m.yaml").write_text("base_rate: gyro\n")
+    assert read_mapping(tmp_path / "m.yaml") == {"base_rate": "gyro"}
+    (tmp_path / "m.yaml").write_text("base_rate: fast\n")
+    with pytest.raises(SpaceidError, match=r"'base_rate' is 'fast': expected attitude or gyro"):
+        read_mapping(tmp_path / "m.yaml")
+    for log in (tmp_path / "run.mcap", tmp_path / "log.csv"):
+        (tmp_path / "log.csv").write_text("t\n0\n")
+        code = main(["identify", "cepheus-rw", str(log), "--momentum", "0.05", "--base-rate", "gyro", "-o",
+                     str(tmp_path / "result.json")])
+        lines = capsys.readouterr().err.strip().splitlines()
+        assert code == 2 and len(lines) == 1 and lines[0].startswith("error: "), lines
+        assert ("--base-rate gyro: the pose messages carry no" if log.suffix == ".mcap" else
+                "base_rate apply to ROS bags") in lines[0], lines
+
+
 @pytest.mark.slow
 def test_identification_from_a_bag_through_the_cli(tmp_path, recording, rw):
     """The bag with its own joint names and topics, a mapping file, `spaceid identify`."""

@@ -178,7 +178,6 @@ def test_no_library_string_names_a_command_line_option():
 # Python arguments that library messages name but no command sets, each with why the command line
 # never shows them (it checks the value first, or never passes the argument).
 NO_OPTION = {
-    "base_rate": "servicer_log's base-rate source: spaceid experiment reads the gyros",
     "identify_options": "run_spatial_experiment's keywords for identify: spaceid experiment passes none",
     "angle": "add_noise's angle noise: simulate checks --noise-angle before it adds noise",
     "boundary": "optimize_excitation's boundary values: the design command keeps the default",

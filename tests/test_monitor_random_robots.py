@@ -389,9 +389,10 @@ LIVE_Z = 4.5
 
 
 def live_monitoring(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, batch: int, seed: int,
-                    folder) -> tuple:
-    """``run``'s log with its grasp as a bag of joint states (angles and rates) and base poses (no base rate: the
-    reader differentiates the attitude), 1e-4 rad and rad/s of noise or none, the joint rates measured or
+                    folder, gyro: bool = False) -> tuple:
+    """``run``'s log with its grasp as a bag of joint states (angles and rates) and base poses (without a base rate:
+    the reader differentiates the attitude; with a ``gyro``, Odometry whose twist is the log's base rate, which the
+    reader takes), 1e-4 rad and rad/s of noise or none, the joint rates measured or
     ``differentiated`` by the reader over ``WINDOW`` samples (the levels given are 1e-4 whether the noise was added
     or not: the live engine's cubic differentiators, :data:`~spaceid.ros.LIVE_ORDER`, leave truncation errors of up
     to 6e-5 rad/s on a noise-free log of these motions, 3e-3 in its first and last half window, which
@@ -407,9 +408,10 @@ def live_monitoring(robot: Robot, run: GraspRun, noisy: bool, differentiated: bo
 
     robot_log = add_noise(run.clean, angle=LEVEL, rate=LEVEL, seed=seed) if noisy else run.clean
     bag = folder / "live.mcap"
-    write_bag(bag, recording_of_log(robot_log), format="mcap")
+    write_bag(bag, recording_of_log(robot_log, gyro=gyro), format="mcap")
     noise = Noise(angle=LEVEL, rate=LEVEL, base_rate=LEVEL, attitude=LEVEL)  # the sensors' rating, noise or none
-    reading = {"window": WINDOW, "joint_rates": "differentiate" if differentiated else "velocity"}
+    reading = {"window": WINDOW, "joint_rates": "differentiate" if differentiated else "velocity",
+               "base_rate": "gyro" if gyro else "attitude"}
     model, param = robot.model, robot.param
     now, outputs, span = [0.0], [], 0.0
     with warnings.catch_warnings():
@@ -424,12 +426,13 @@ def live_monitoring(robot: Robot, run: GraspRun, noisy: bool, differentiated: bo
         rest, record = live.finish()
         chunks = bag_chunks(bag, joints=model.joints, planar=model.planar, wheels=model.wheels, block=LIVE_BLOCK,
                             context=LIVE_CONTEXT, window=WINDOW, order=LIVE_ORDER,
-                            joint_rates=reading["joint_rates"])  # fmt: skip
+                            joint_rates=reading["joint_rates"], base_rate=reading["base_rate"])  # fmt: skip
         expected = monitor(param, chunks, robot.momentum, noise=noise)
     return outputs + rest, record, expected, span, live
 
 
-def check_live(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, batch: int, seed: int, folder):
+def check_live(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, batch: int, seed: int, folder,
+               gyro: bool = False):
     """The live engine on ``run``'s log (:func:`live_monitoring`) is the bag reader and the monitor: the same
     alarms at the same samples, statistics to round-off, as many samples tested. Each alarm is published once, as
     its part raises it (stage "detected", at most a block, two joint messages and a batch of data after the message
@@ -441,7 +444,11 @@ def check_live(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, b
     leave unaligned, aside)."""
     from spaceid.ros import LIVE_BLOCK
 
-    outputs, record, expected, span, live = live_monitoring(robot, run, noisy, differentiated, batch, seed, folder)
+    outputs, record, expected, span, live = live_monitoring(robot, run, noisy, differentiated, batch, seed, folder,
+                                                            gyro)
+    if gyro:  # the gyro's rate, not the attitude's derivative: measured, as the monitor then models it
+        assert live.aligner.base_rate == "gyro" and live._recent
+        assert all(p.meta["base_rate"] == "gyro" and "base" not in p.meta["differentiation"] for p in live._recent)
     assert [(e.time, e.detected_at) for e in record.events] == [(e.time, e.detected_at) for e in expected.events]
     assert np.allclose([e.statistic for e in record.events], [e.statistic for e in expected.events], rtol=1e-8)
     assert record.n_tested == expected.n_tested
@@ -471,16 +478,19 @@ def check_live(robot: Robot, run: GraspRun, noisy: bool, differentiated: bool, b
 
 @pytest.mark.slow  # a random robot's grasp run, then its bag fed to the live engine and read by the bag reader
 @robots(6, phases=PHASES)
-@given(**CASES, batch=st.integers(1, 60))
+@given(**CASES, batch=st.integers(1, 60), gyro=st.booleans())
 # an alarm published two joint messages past the block (the latency's bound in check_live)
-@example(seed=891341114, planar=True, noisy=True, differentiated=False, estimated=False, fraction=0.0, batch=1)
-def test_the_live_engine_on_a_random_robot(seed, planar, noisy, differentiated, estimated, fraction, batch, tmp_path):
-    """The live node's engine (:class:`~spaceid.ros.LiveMonitor`, without ROS) on random robots grasping a payload:
-    :func:`check_live` (the Cepheus twin's bag: ``tests/test_ros.py``). ``estimated`` only places the grasp (the
-    changeless log's monitoring, :func:`grasp_run`): the live engine is given the noise levels."""
+@example(seed=891341114, planar=True, noisy=True, differentiated=False, estimated=False, fraction=0.0, batch=1,
+         gyro=False)
+def test_the_live_engine_on_a_random_robot(seed, planar, noisy, differentiated, estimated, fraction, batch, gyro,
+                                           tmp_path):
+    """The live node's engine (:class:`~spaceid.ros.LiveMonitor`, without ROS) on random robots grasping a payload,
+    the base rate differentiated from the attitude or a ``gyro``'s (the pose topic's Odometry): :func:`check_live`
+    (the Cepheus twin's bag: ``tests/test_ros.py``). ``estimated`` only places the grasp (the changeless log's
+    monitoring, :func:`grasp_run`): the live engine is given the noise levels."""
     case = {"seed": seed, "planar": planar, "motion": "harmonic", "noisy": noisy, "differentiated": differentiated,
-            "batch": batch}
+            "batch": batch, "gyro": gyro}
     robot = _robot(seed, planar, tmp_path, max_arms=2, max_joints=2)
     run = robot_grasp_run(robot, seed, noisy, differentiated, estimated, fraction, 12.0)
     with stage("live monitor", **case):
-        check_live(robot, run, noisy, differentiated, batch, seed, tmp_path)
+        check_live(robot, run, noisy, differentiated, batch, seed, tmp_path, gyro)

@@ -517,6 +517,37 @@ def test_a_silent_pose_topic_is_named(monkeypatch, twin_bag):
             live.add(topic, msg)
 
 
+def test_play_publishes_a_gyros_rate_as_odometry_that_the_reader_takes_back(tmp_path):
+    """``ros play`` of poses with a measured rate (a bag's Odometry) publishes rclpy Odometry messages whose twist is
+    that rate, and the aligner's reader takes the attitude and the rate back from them as from the bag; the node
+    refuses a gyro's rate asked of a PoseStamped topic (one line naming the options)."""
+    import numpy as np
+
+    pytest.importorskip("nav_msgs.msg")
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import JointState
+
+    from spaceid import SpaceidError, load_model, minimal_parameters
+    from spaceid.data import JointStates, Poses, Recording
+    from spaceid.data._bag_read import _pose_entry
+    from spaceid.ros import LiveMonitor, run_monitor
+    from spaceid.ros._node import _messages
+
+    t = np.arange(5) * 0.02
+    quat = np.array([[np.cos(a), 0.0, 0.0, np.sin(a)] for a in 0.1 * t])
+    rate = np.column_stack([0.01 * t, -0.02 + 0 * t, 0.2 + 0 * t])
+    rec = Recording(JointStates(t, ("j",), np.zeros((5, 1))), Poses(t, np.zeros((5, 3)), quat, "world", rate=rate))
+    poses = [m for _, is_joint, m in _messages(rec, 0, JointState, Odometry) if not is_joint]
+    assert all(isinstance(m, Odometry) and m.child_frame_id == "base" for m in poses)
+    entries = [_pose_entry(m) for m in poses]
+    np.testing.assert_array_equal([e.rate for e in entries], rate)
+    np.testing.assert_array_equal([e.quat for e in entries], quat)
+    live = LiveMonitor(minimal_parameters(load_model("cepheus")), [0.0, 0.0, 0.4934], reading={"base_rate": "gyro"})
+    with pytest.raises(SpaceidError, match=r"`pose_type` pose: .* carries no angular velocity, and the base rate is "
+                                           r"to be the gyro's"):
+        run_monitor(live, pose_type="pose")
+
+
 def test_a_messages_arrival_is_its_reception_by_the_middleware(monkeypatch):
     """The node times a message from the middleware's reception (``received_timestamp``, system
     clock) on the monotonic clock, not from when it was taken: a message taken 0.3 s after it was

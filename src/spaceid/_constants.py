@@ -25,6 +25,10 @@ DESIGN_CRITERIA = ("cond", "logdet", "dopt", "crb")
 JOINT_RATES = ("auto", "velocity", "differentiate")
 """Joint-rate sources of a bag log (:func:`spaceid.data.to_log`)."""
 
+BASE_RATES = ("attitude", "gyro")
+"""Base-rate sources of a bag log (:func:`spaceid.data.to_log`'s ``base_rate``): the attitude differentiated, or
+the angular velocity its pose messages measured (an Odometry's twist, an IMU's: the gyro's)."""
+
 JOINT_RATE_POLICY = "differentiate"
 """Default joint-rate source of a bag log (:func:`spaceid.data.to_log`): the encoder angles,
 differentiated. The velocity field of a JointState is often a one-tick encoder difference (on the

@@ -28,8 +28,9 @@ import numpy as np
 from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-from ._constants import (BAG_FORMATS, CHANGE_RATIO, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC, DESIGN_CRITERIA,
-                         ESTIMATORS, EXPORT_FORMATS, FALSE_ALARM_RATE, JOINT_RATES, KNOT_SPACING, WARMUP)
+from ._constants import (BAG_FORMATS, BASE_RATES, CHANGE_RATIO, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC,
+                         DESIGN_CRITERIA, ESTIMATORS, EXPORT_FORMATS, FALSE_ALARM_RATE, JOINT_RATES, KNOT_SPACING,
+                         WARMUP)
 from ._errors import SpaceidError, one_line, shown_name
 
 # No markup, no emoji codes: file, joint and topic names like 'a[/b].csv' print as they are
@@ -412,12 +413,13 @@ RATE_SOURCES = ("measured", *JOINT_RATES[::-1])
 """``--joint-rates``: the log's own rates (a CSV's rate columns, a bag's published velocities; also
 spelled ``velocity``, the bag reader's word), the angles differentiated, or ``auto``: the log's own
 where it has them all (a bag: per joint, where every message has one), else differentiated."""
-BAG_ONLY = {"joint_topic": "--joint-topic", "pose_topic": "--pose-topic", "mapping": "--mapping"}
+BAG_ONLY = {"joint_topic": "--joint-topic", "pose_topic": "--pose-topic", "mapping": "--mapping",
+            "base_rate": "--base-rate"}
 
 
 def log_options(f):
     """Options of how a LOG is read, handed to the command as one ``reading`` argument (a dict,
-    see :func:`_measured_log`): a bag's ``--joint-topic``, ``--pose-topic``, ``--mapping``, and
+    see :func:`_measured_log`): a bag's ``--joint-topic``, ``--pose-topic``, ``--mapping``, ``--base-rate``, and
     for a CSV and a bag alike where the rates come from and how they are differentiated,
     ``--joint-rates``, ``--window``, ``--quantum`` (``--differentiate``: the deprecated spelling
     of ``--joint-rates differentiate``)."""
@@ -430,10 +432,13 @@ def log_options(f):
     return _options(
         click.option("--joint-topic", help="Bag logs (.bag, .mcap, ROS 2 bag folder): sensor_msgs/JointState topic "
                      f"[default: {DEFAULT_JOINT_TOPIC}]."),
-        click.option("--pose-topic", help="Bag logs: geometry_msgs/PoseStamped topic of the base "
-                     f"[default: {DEFAULT_POSE_TOPIC}]."),
+        click.option("--pose-topic", help="Bag logs: the base's attitude topic, geometry_msgs/PoseStamped, "
+                     f"nav_msgs/Odometry or sensor_msgs/Imu [default: {DEFAULT_POSE_TOPIC}]."),
         click.option("--mapping", type=click.Path(path_type=Path), help="Bag logs: YAML file with joint_topic, "
-                     "pose_topic, joints {bag name: model name}, rate, pose_latency, max_gap, max_tilt."),
+                     "pose_topic, joints {bag name: model name}, rate, pose_latency, max_gap, max_tilt, base_rate."),
+        click.option("--base-rate", type=click.Choice(BASE_RATES), help="Bag logs: the base rate from the attitude "
+                     "differentiated, or the gyro's: the angular velocity the pose topic's Odometry (twist) or Imu "
+                     "messages carry, in base axes [default: attitude]."),
         click.option("--joint-rates", type=click.Choice(RATE_SOURCES), help="Where the rates come from, CSV and bag "
                      "logs alike: measured (a CSV's rate columns, base_w* included; a bag's published joint "
                      "velocities; 'velocity' is the same), differentiate (the angles, and the base attitude where a "
@@ -470,7 +475,7 @@ def _warnings_to_stderr():
 
 
 def _print_joint_rates(log) -> None:
-    """One line naming where a bag log's joint rates came from (nothing for a CSV log)."""
+    """One line naming where a bag log's joint rates and base rate came from (nothing for a CSV log)."""
     from .data import JOINT_RATE_POLICY
 
     policy = log.meta.get("joint_rate_policy")
@@ -478,8 +483,11 @@ def _print_joint_rates(log) -> None:
         return
     other = "velocity" if policy == "differentiate" else "differentiate"
     sources = ", ".join(f"{joint} {source}" for joint, source in log.meta["joint_rates"].items())
+    base = log.meta.get("base_rate", "attitude")
     out.print(f"joint rates: '{policy}'{' (default)' if policy == JOINT_RATE_POLICY else ''}: {sources}; "
-              f"--joint-rates {other} for the other", highlight=False)
+              f"--joint-rates {other} for the other; base rate: {base}"
+              + (" (default: differentiated; --base-rate gyro for an odometry's or IMU's)" if base == "attitude"
+                 else " (the pose messages' angular velocity)"), highlight=False)
 
 
 @contextlib.contextmanager
@@ -1780,7 +1788,10 @@ SUBSCRIBERS = click.option("--subscribers", type=click.IntRange(min=0), default=
 @ROS_POSE_TOPIC
 @click.option("--pose-type", type=click.Choice(["pose", "odometry", "imu"]), default="pose", show_default=True,
               help="Message of the attitude topic: geometry_msgs/PoseStamped, nav_msgs/Odometry or sensor_msgs/Imu "
-                   "(its orientation; the base rate is the attitude differentiated).")
+                   "(its orientation, and with --base-rate gyro its angular velocity).")
+@click.option("--base-rate", type=click.Choice(BASE_RATES), help="The base rate from the attitude differentiated, or "
+              "the gyro's: the angular velocity of the odometry (twist) or IMU messages, in base axes [default: the "
+              "mapping's base_rate, else attitude].")
 @click.option("--link", help="The link that grasps: after each change the payload it holds is identified and "
               "published on /spaceid/payload.")
 @click.option("--known", multiple=True, metavar="NAME=VALUE", help="A known parameter, as for 'spaceid monitor'.")
@@ -1806,8 +1817,8 @@ SUBSCRIBERS = click.option("--subscribers", type=click.IntRange(min=0), default=
 @output("EVENTS.json to write: after each event and at Ctrl-C.")
 @click.option("--result", type=_OutputPath(), metavar="PATH", help="RESULT.json written at Ctrl-C: the last "
               "segment's identification [default: result.json beside -o].")
-def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, pose_type, link, known, noise, drift,
-                false_alarm_rate, warmup, estimator, block, joint_rates, window, order, output, result):
+def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, pose_type, base_rate, link, known, noise,
+                drift, false_alarm_rate, warmup, estimator, block, joint_rates, window, order, output, result):
     """Subscribe to the robot's joint states and base attitude, align them by their header stamps
     (as a bag is read, with its mapping file), identify recursively and detect changes as the
     messages arrive: publish the estimate with its standard errors on /spaceid/estimate, one
@@ -1821,7 +1832,7 @@ def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, p
     param = _param(model_src, planar)
     live = LiveMonitor(param, _momentum(momentum, param.model.planar), mapping=mapping, joint_topic=joint_topic,
                        pose_topic=pose_topic, link=link, block=block,
-                       reading={"joint_rates": joint_rates, "window": window, "order": order},
+                       reading={"joint_rates": joint_rates, "window": window, "order": order, "base_rate": base_rate},
                        where="ros2", known=parse_known(known), noise=noise,
                        drift=_drift(drift, param.model.planar, values=False), false_alarm_rate=false_alarm_rate,
                        warmup=warmup, estimator=estimator)  # fmt: skip
@@ -1867,8 +1878,8 @@ def ros_monitor(model_src, planar, momentum, mapping, joint_topic, pose_topic, p
 @SUBSCRIBERS
 def ros_play(log_path, model_src, joint_topic, pose_topic, rate_factor, subscribers):
     """Publish a recorded bag's joint states and base poses (or the angles, rates and attitude of
-    a CSV log of MODEL) as sensor_msgs/JointState and geometry_msgs/PoseStamped, paced by their
-    stamps."""
+    a CSV log of MODEL) as sensor_msgs/JointState and geometry_msgs/PoseStamped (nav_msgs/Odometry
+    with the gyro's rate when the bag's pose topic carries one), paced by their stamps."""
     from .data import is_bag, read_log, read_recording
     from .ros import recording_of_log, require_rclpy
 

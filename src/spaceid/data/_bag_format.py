@@ -54,6 +54,11 @@ __all__ = ["DEFAULT_JOINT_TOPIC", "DEFAULT_POSE_TOPIC", "FORMATS"]
 
 JOINT_STATE = "sensor_msgs/msg/JointState"
 POSE_STAMPED = "geometry_msgs/msg/PoseStamped"
+ODOMETRY = "nav_msgs/msg/Odometry"
+IMU = "sensor_msgs/msg/Imu"
+POSE_TYPES = (POSE_STAMPED, ODOMETRY, IMU)
+"""The messages a base attitude topic may carry: a pose, an odometry (its pose and its twist's angular velocity, the
+gyro's) or an IMU's (its orientation and angular velocity)."""
 _BAG_SUFFIXES = (".bag", ".mcap", ".db3")
 _NS = 1_000_000_000
 
@@ -105,7 +110,9 @@ def _check_recording(recording, where, *, writing):
         if (value is not None or field == "position") and np.shape(value) != (n, k):
             raise SpaceidError(f"{label}.joints.{field}: expected shape ({n}, {k}), got {np.shape(value)}")
     m = base.t.size
-    for field, width in (("position", 3), ("quat", 4)):
+    for field, width in (("position", 3), ("quat", 4), ("rate", 3)):
+        if getattr(base, field, None) is None and field == "rate":  # no gyro
+            continue
         value = np.asarray(getattr(base, field), dtype=float)
         if value.shape != (m, width):
             raise SpaceidError(f"{label}.base.{field}: expected shape ({m}, {width}), got {value.shape}")

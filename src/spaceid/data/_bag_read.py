@@ -13,14 +13,16 @@ import difflib
 import math
 import struct
 from pathlib import Path
+from types import SimpleNamespace
 from typing import NamedTuple
 
 import numpy as np
 
+from .._constants import BASE_RATES
 from .._errors import SpaceidError, shown
 from .._yaml import parse_yaml
 from ._bag_format import (
-    _BAG_SUFFIXES, _NS, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC, JOINT_STATE, POSE_STAMPED, _check_origin_ns,
+    _BAG_SUFFIXES, _NS, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC, JOINT_STATE, POSE_TYPES, _check_origin_ns,
     _rosbags_errors, _text,
 )
 from ._recording import JointStates, Poses, Recording
@@ -37,6 +39,7 @@ MAPPING_KEYS = {
     "pose_latency": "a latency [s]",
     "max_gap": "a time [s] > 0",
     "max_tilt": "an angle [rad] > 0",
+    "base_rate": "attitude or gyro",
 }
 _SUFFIX_HINT = "give a .bag file (ROS 1), a ROS 2 bag folder (with metadata.yaml) or a .mcap file"
 
@@ -95,7 +98,7 @@ def _recording(path, joint_msgs, pose_msgs, joint_publishers, joint_topic, pose_
     where = str(path)
     kind = "ros1" if path.suffix.lower() == ".bag" else _ros2_format(path)
     joint_ns, names, position, velocity, effort = _merge_joint_states(joint_msgs, f"{where}: {joint_topic}")
-    pose_ns, pose_position, quat, frame = _poses(pose_msgs, f"{where}: {pose_topic}")
+    pose_ns, pose_position, quat, frame, rate = _poses(pose_msgs, f"{where}: {pose_topic}")
     if time_origin_ns is None:
         time_origin_ns = int(min(joint_ns[0], pose_ns[0]) // _NS * _NS)
     else:
@@ -116,7 +119,7 @@ def _recording(path, joint_msgs, pose_msgs, joint_publishers, joint_topic, pose_
     return Recording(
         joints=JointStates(t=(joint_ns - origin) / 1e9, names=names, position=position, velocity=velocity,
                            effort=effort),
-        base=Poses(t=(pose_ns - origin) / 1e9, position=pose_position, quat=quat, frame=frame),
+        base=Poses(t=(pose_ns - origin) / 1e9, position=pose_position, quat=quat, frame=frame, rate=rate),
         meta=meta,
     )
 
@@ -142,7 +145,7 @@ def _bag_messages(path, joint_topic, pose_topic):
             topic: _topic_connections(reader, where, topic, msgtype, option)
             for topic, msgtype, option in (
                 (joint_topic, JOINT_STATE, "`joint_topic`"),
-                (pose_topic, POSE_STAMPED, "`pose_topic`"),
+                (pose_topic, POSE_TYPES, "`pose_topic`"),
             )
         }
 
@@ -212,16 +215,18 @@ def _damaged():
 
 
 def _topic_connections(reader, where, topic, msgtype, option):
-    """The connections of ``topic``, checked to exist, carry ``msgtype`` and hold messages."""
+    """The connections of ``topic``, checked to exist, carry ``msgtype`` (a type, or a tuple of the types it may
+    carry) and hold messages."""
     topics = reader.topics
     if topic not in topics:
         present = ", ".join(f"{name} ({info.msgtype})" for name, info in sorted(topics.items())) or "none"
         raise SpaceidError(f"{where}: no topic '{topic}' in the bag (topics: {present}): set {option} to one of them")
     info = topics[topic]
-    if info.msgtype != msgtype:
+    if info.msgtype not in ((msgtype,) if isinstance(msgtype, str) else msgtype):
         types = info.msgtype or ", ".join(sorted({c.msgtype for c in info.connections}))
+        expected = msgtype if isinstance(msgtype, str) else " or ".join(msgtype)
         raise SpaceidError(
-            f"{where}: topic '{topic}' carries {types}, expected {msgtype}: set {option} to the topic with {msgtype}"
+            f"{where}: topic '{topic}' carries {types}, expected {expected}: set {option} to the topic with {expected}"
         )
     if not info.msgcount:
         raise SpaceidError(
@@ -242,12 +247,13 @@ class _JointEntry(NamedTuple):
 
 
 class _PoseEntry(NamedTuple):
-    """A ``geometry_msgs/PoseStamped`` message's fields (:func:`_pose_entry`)."""
+    """A base attitude message's fields (:func:`_pose_entry`)."""
 
     stamp: int
     position: tuple
     quat: tuple
     frame: str
+    rate: tuple | None = None
 
 
 def _stamp(msg):
@@ -284,11 +290,22 @@ def _joint_entry(msg, label, k) -> _JointEntry:
 
 
 def _pose_entry(msg) -> _PoseEntry:
-    """The fields of the PoseStamped ``msg``: stamp [ns], position, scalar-first quaternion, frame."""
+    """The fields of the base attitude ``msg`` (:data:`~spaceid.data._bag_format.POSE_TYPES`, told apart by their
+    fields, as rosbags deserialises them or rclpy receives them): stamp [ns], position, scalar-first quaternion,
+    frame and measured angular velocity [rad/s, base axes] (an Odometry's twist, child frame; an IMU's, at the
+    origin; a PoseStamped's: None)."""
     if isinstance(msg, _PoseEntry):
         return msg
-    p, q = msg.pose.position, msg.pose.orientation
-    return _PoseEntry(_stamp(msg), (p.x, p.y, p.z), (q.w, q.x, q.y, q.z), msg.header.frame_id)  # ROS (x, y, z, w)
+    rate = None
+    if hasattr(msg, "twist"):  # nav_msgs/Odometry
+        pose, rate = msg.pose.pose, msg.twist.twist.angular
+        p, q = pose.position, pose.orientation
+    elif hasattr(msg, "angular_velocity"):  # sensor_msgs/Imu
+        p, q, rate = SimpleNamespace(x=0.0, y=0.0, z=0.0), msg.orientation, msg.angular_velocity
+    else:
+        p, q = msg.pose.position, msg.pose.orientation
+    return _PoseEntry(_stamp(msg), (p.x, p.y, p.z), (q.w, q.x, q.y, q.z), msg.header.frame_id,  # ROS (x, y, z, w)
+                      None if rate is None else (rate.x, rate.y, rate.z))
 
 
 def _converted(msgs: list, joints: bool, label: str) -> list:
@@ -371,11 +388,13 @@ def _optional_array(msg, field, n, at):
 
 
 def _poses(msgs, label):
-    """Stamps (m,) [ns], positions (m, 3), scalar-first quaternions (m, 4), frame from PoseStamped."""
+    """Stamps (m,) [ns], positions (m, 3), scalar-first quaternions (m, 4), frame and measured angular velocities
+    (m, 3) [rad/s] (None when the messages carry none) of base attitude messages."""
     entries = [_pose_entry(m) for m in msgs]
     stamps = np.array([e.stamp for e in entries], dtype=np.int64)
     position = np.array([e.position for e in entries], dtype=float).reshape(-1, 3)
     quat = np.array([e.quat for e in entries], dtype=float).reshape(-1, 4)
+    rate = None if any(e.rate is None for e in entries) else np.array([e.rate for e in entries], float).reshape(-1, 3)
     frames = [e.frame for e in entries]
     changed = next((k for k, f in enumerate(frames) if f != frames[0]), None)
     if changed is not None:
@@ -383,9 +402,9 @@ def _poses(msgs, label):
             f"{label}: frame_id changes from '{frames[0]}' to '{frames[changed]}' at message {changed}: "
             "record the base pose in one frame"
         )
-    _check_pose_values(stamps, position, quat, label)
+    _check_pose_values(stamps, position if rate is None else np.hstack([position, rate]), quat, label)
     _check_stamps(stamps, range(len(stamps)), label)
-    return stamps, position, quat, frames[0]
+    return stamps, position, quat, frames[0], rate
 
 
 def _check_pose_values(stamps, position, quat, label):
@@ -450,6 +469,7 @@ def read_mapping(path) -> dict:
         pose_latency: 0.0 # optional [s], see to_log
         max_gap: 0.1      # optional [s]
         max_tilt: 0.1     # optional [rad], planar models
+        base_rate: gyro   # optional: the pose topic's measured angular velocity (Odometry, Imu), see to_log
 
     Every key is optional; ``joints`` maps names in the bag to model joint names.
 
@@ -477,6 +497,8 @@ def read_mapping(path) -> dict:
             raise SpaceidError(f"{path}: unknown key {shown(key)}: {hint}the keys are {', '.join(MAPPING_KEYS)}")
         if key.endswith("topic"):
             ok = isinstance(value, str) and value.strip() != ""
+        elif key == "base_rate":
+            ok = value in BASE_RATES
         elif key == "joints":
             ok = isinstance(value, dict) and all(isinstance(a, str) and isinstance(b, str) for a, b in value.items())
         else:

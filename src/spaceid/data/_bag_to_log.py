@@ -13,11 +13,11 @@ import math
 
 import numpy as np
 
-from .._constants import JOINT_RATE_POLICY, JOINT_RATES
+from .._constants import BASE_RATES, JOINT_RATE_POLICY, JOINT_RATES
 from .._errors import SpaceidError
 from ._bag_format import _check_recording
 from ._recording import Recording
-from ._signals import differentiate, differentiate_quaternion
+from ._signals import _sign_continuous, differentiate, differentiate_quaternion
 from .._memory import require_memory
 from ._tables import _check_angles, _check_rates, _Table
 from ._timeseries import Log, quat_to_yaw, yaw_to_quat
@@ -45,6 +45,7 @@ def to_log(
     max_gap=MAX_GAP,
     max_tilt=MAX_TILT,
     joint_rates=JOINT_RATE_POLICY,
+    base_rate="attitude",
     method="auto",
     window=None,
     order=None,
@@ -67,7 +68,10 @@ def to_log(
        slopes ``q (x) [0, w] / 2``, renormalised), the rate by a cubic spline. Both are
        O(h^4) in the pose step h: slerp and linear rates, O(h^2), erred by ~1e-5 rad/s on
        Cepheus-like motion at 100 Hz, against ~1e-9 for these. Planar mode keeps the yaw (a
-       pure-yaw quaternion) and rejects tilts above ``max_tilt``.
+       pure-yaw quaternion) and rejects tilts above ``max_tilt``. With ``base_rate="gyro"`` the
+       rate is the one the pose messages measured (an Odometry's twist, an IMU's angular velocity:
+       the gyro's, base axes), linearly interpolated (a spline would amplify its noise), and the
+       attitude is interpolated with it as slope, unsmoothed.
     5. Joints: the positions are smoothed and differentiated with
        :func:`~spaceid.data.differentiate` on that joint's stamps (the default,
        :data:`JOINT_RATE_POLICY`), or the rates are the JointState velocities when every message
@@ -102,6 +106,9 @@ def to_log(
         Joint rates never from the messages' velocities ("differentiate", the default
         :data:`JOINT_RATE_POLICY`), when every sample has one ("auto"), or always ("velocity":
         an error if some are missing).
+    base_rate : {"attitude", "gyro"}
+        The base rate differentiated from the attitude (the default) or the one the pose messages
+        measured (``recording.base.rate``: an error when they carry none, PoseStamped).
     method, window, order, smoothing
         Differentiator settings, as in :func:`spaceid.data.differentiate` (automatic by
         default), for the attitude and the differentiated joints.
@@ -117,8 +124,8 @@ def to_log(
         of the selected joints carries efforts (linear interpolation), else None. ``meta``: the recording's
         meta plus ``time_base``, ``pose_latency``, ``streams`` (rates, dropped frames, largest
         gaps, pose frame and tilt), ``joint_rate_policy`` (the ``joint_rates`` given),
-        ``joint_rates`` (per joint ``"velocity"`` or ``"differentiated"``), ``interpolation`` and
-        ``differentiation`` (``base``, ``joints``).
+        ``joint_rates`` (per joint ``"velocity"`` or ``"differentiated"``), ``base_rate`` (as given),
+        ``interpolation`` and ``differentiation`` (``base``, unless the rate was measured; ``joints``).
 
     Raises
     ------
@@ -132,7 +139,7 @@ def to_log(
     where = meta.get("source", "recording")
     jtopic, ptopic = meta.get("joint_topic", "joint states"), meta.get("pose_topic", "base poses")
     joints, wheels = tuple(joints), tuple(wheels)
-    _check_options(where, rate, pose_latency, max_gap, max_tilt, joint_rates)
+    _check_options(where, rate, pose_latency, max_gap, max_tilt, joint_rates, base_rate)
     _check_recording(recording, where, writing=False)
     js, base = recording.joints, recording.base
     columns = _joint_columns(js.names, joints, where, jtopic)
@@ -145,7 +152,9 @@ def to_log(
     t, time_base = _time_base(js.t, valid, start, end, rate, joints, where, jtopic)
 
     options = dict(method=method, window=window, order=order, smoothing=smoothing)
-    base_quat, base_w, info_base, tilt = _base(t_pose, base.quat, t, planar, max_tilt, f"{where}: {ptopic}", options)
+    measured = _measured_base_rate(base, base_rate, f"{where}: {ptopic}")
+    base_quat, base_w, info_base, tilt = _base(t_pose, base.quat, t, planar, max_tilt, f"{where}: {ptopic}", options,
+                                               measured)
     if planar:
         streams["pose"]["max_tilt_rad"] = tilt
     q, qd, sources, infos, streams["joints"] = _joints(
@@ -164,9 +173,10 @@ def to_log(
         streams=streams,
         joint_rate_policy=joint_rates,
         joint_rates=sources,
+        base_rate=base_rate,
         interpolation="cubic Hermite for angles and attitude (rates as slopes), cubic spline for rates; "
         "base on the pose stamps, joints on theirs (none when the time base is the joint stamps)",
-        differentiation={"base": info_base, "joints": infos or None},
+        differentiation={**({} if measured is not None else {"base": info_base}), "joints": infos or None},
     )
     return Log(t=t, joints=joints, q=q, qd=qd, base_quat=base_quat, base_w=base_w, planar=bool(planar), meta=meta,
                **_position_and_efforts(js, columns, valid, t_pose, base.position, t, planar))
@@ -243,21 +253,38 @@ def _time_base(t_joints, valid, start, end, rate, joints, where, topic):
     return t, time_base
 
 
-def _base(t_pose, quat, t, planar, max_tilt, label, options):
-    """Base attitude (n, 4) and body rate (n, 3) [rad/s] at ``t``, the differentiator record, and
-    the largest tilt [rad] (planar; else None), from the poses' quaternions (m, 4) at ``t_pose``.
+def _measured_base_rate(base, base_rate, label):
+    """The measured base rate ``(m, 3)`` [rad/s] of the poses ``base`` when ``base_rate`` is ``"gyro"``, else None."""
+    if base_rate != "gyro":
+        return None
+    if base.rate is None:
+        raise SpaceidError(f"{label}: `base_rate` gyro: the pose messages carry no angular velocity "
+                           "(geometry_msgs/PoseStamped): publish nav_msgs/Odometry or sensor_msgs/Imu there, or take "
+                           "the base rate from the attitude (`base_rate` attitude)")
+    return np.asarray(base.rate, float)
+
+
+def _base(t_pose, quat, t, planar, max_tilt, label, options, measured=None):
+    """Base attitude (n, 4) and body rate (n, 3) [rad/s] at ``t``, the differentiator record (None when
+    ``measured``), and the largest tilt [rad] (planar; else None), from the poses' quaternions (m, 4) at ``t_pose``
+    and their ``measured`` rates (m, 3) if given.
 
     The attitude is differentiated on the pose stamps, then interpolated by cubic Hermite with the
-    rate as slope (planar: the unwrapped yaw), the rate by a cubic spline.
+    rate as slope (planar: the unwrapped yaw), the rate by a cubic spline; or, ``measured``, the attitude as
+    published interpolated with the measured rate as slope, the rate linearly.
     """
     from scipy.interpolate import CubicHermiteSpline, CubicSpline
     quat = quat / np.linalg.norm(quat, axis=1, keepdims=True)
     tilt = None
     if planar:
         quat, tilt = _pure_yaw(t_pose, quat, max_tilt, label)
-    with _prefix(label):
-        smooth, w_body, info = differentiate_quaternion(t_pose, quat, **options)
-    w = CubicSpline(t_pose, w_body, axis=0)(t)
+    if measured is None:
+        with _prefix(label):
+            smooth, w_body, info = differentiate_quaternion(t_pose, quat, **options)
+        w = CubicSpline(t_pose, w_body, axis=0)(t)
+    else:
+        (smooth, _), w_body, info = _sign_continuous(quat), measured, None
+        w = np.column_stack([np.interp(t, t_pose, w_body[:, k]) for k in range(3)])
     if planar:
         w[:, :2] = 0.0
         yaw = CubicHermiteSpline(t_pose, np.unwrap(quat_to_yaw(smooth)), w_body[:, 2])(t)
@@ -400,7 +427,7 @@ def _prefix(text):
         raise SpaceidError(f"{text}: {err}") from None
 
 
-def _check_options(where, rate, pose_latency, max_gap, max_tilt, joint_rates):
+def _check_options(where, rate, pose_latency, max_gap, max_tilt, joint_rates, base_rate):
     def number(value):
         real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
         return real and math.isfinite(value)
@@ -415,3 +442,5 @@ def _check_options(where, rate, pose_latency, max_gap, max_tilt, joint_rates):
         raise SpaceidError(f"{where}: max_tilt={max_tilt!r}: expected an angle [rad] > 0")
     if joint_rates not in JOINT_RATES:
         raise SpaceidError(f"{where}: joint_rates={joint_rates!r}: choose one of {', '.join(JOINT_RATES)}")
+    if base_rate not in BASE_RATES:
+        raise SpaceidError(f"{where}: base_rate={base_rate!r}: choose one of {', '.join(BASE_RATES)}")

@@ -17,7 +17,7 @@ import numpy as np
 
 from .._errors import SpaceidError
 from ._bag_format import (
-    _NS, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC, FORMATS, JOINT_STATE, POSE_STAMPED, _check_origin_ns,
+    _NS, DEFAULT_JOINT_TOPIC, DEFAULT_POSE_TOPIC, FORMATS, JOINT_STATE, ODOMETRY, POSE_STAMPED, _check_origin_ns,
     _check_recording, _rosbags_errors, _text,
 )
 from ._recording import Recording
@@ -52,13 +52,15 @@ def write_bag(
     recording : Recording
         Joint states ``t`` (n,), ``position`` (n, n_joints) [rad or m], optional ``velocity``
         and ``effort`` (n, n_joints); base poses ``t`` (m,), ``position`` (m, 3) [m], ``quat``
-        (m, 4) scalar first. A NaN position leaves that joint out of the message at that stamp
+        (m, 4) scalar first, and ``rate`` (m, 3) [rad/s, base axes] when measured (a gyro's: the
+        poses are then ``nav_msgs/Odometry`` messages, the rate their twist's angular velocity, the
+        child frame ``base``). A NaN position leaves that joint out of the message at that stamp
         (as for joints published separately); a row of NaN velocities (efforts) is written as
         an empty ``velocity`` (``effort``) array.
     format : {"ros1", "ros2", "mcap"}, optional
         Default: ``"ros1"`` for ``.bag``, ``"mcap"`` for ``.mcap``; a folder needs it given.
     joint_topic, pose_topic : str
-        Topics of the ``sensor_msgs/JointState`` and ``geometry_msgs/PoseStamped`` messages.
+        Topics of the ``sensor_msgs/JointState`` and ``geometry_msgs/PoseStamped`` (or Odometry) messages.
     joint_groups : sequence of sequences of str, optional
         Publish the joints in separate messages, one per group, with the same header stamp
         (e.g. ``[["left_shoulder", "left_elbow"], ["reaction_wheel_joint"]]`` for arm and
@@ -96,7 +98,7 @@ def write_bag(
     with _staging(path) as stage:
         bag = stage / ("bag" if single_file else path.name)
         try:
-            _write_messages(bag, kind, store, messages, joint_topic, pose_topic, len(groups))
+            _write_messages(bag, kind, store, messages, joint_topic, pose_topic, len(groups), _pose_type(base))
         except OSError as err:
             raise _write_error(path, err) from None
         except _rosbags_errors() as err:
@@ -113,7 +115,7 @@ def _serialized_messages(store, ros, recording, groups, joint_times, pose_times)
     ``joint_times`` and ``pose_times`` are (header stamps, log times) [ns], int64 arrays of shape
     (n,) and (m,). Returns tuples (log time [ns], topic order, connection key, bytes), sorted:
     one JointState per joint group and stamp (connection key ``("joint", group)``), one
-    PoseStamped per pose (``("pose", 0)``).
+    PoseStamped (Odometry, with a measured rate) per pose (``("pose", 0)``).
     """
     serialize = store.serialize_ros1 if ros == 1 else store.serialize_cdr
     joints, base = recording.joints, recording.base
@@ -125,7 +127,7 @@ def _serialized_messages(store, ros, recording, groups, joint_times, pose_times)
                 messages.append((int(logged), 0, ("joint", g), serialize(msg, JOINT_STATE)))
     for r, (stamp, logged) in enumerate(zip(*pose_times)):
         msg = _pose_message(store, ros, base, r, int(stamp))
-        messages.append((int(logged), 1, ("pose", 0), serialize(msg, POSE_STAMPED)))
+        messages.append((int(logged), 1, ("pose", 0), serialize(msg, _pose_type(base))))
     messages.sort(key=lambda m: m[:3])
     return messages
 
@@ -187,6 +189,11 @@ def _joint_message(store, ros, joints, row, columns, stamp_ns):
     )
 
 
+def _pose_type(base) -> str:
+    """The message type of the poses ``base``: Odometry when they hold a measured rate, else PoseStamped."""
+    return POSE_STAMPED if base.rate is None else ODOMETRY
+
+
 def _pose_message(store, ros, base, row, stamp_ns):
     types = store.types
     w, x, y, z = (float(v) for v in base.quat[row])
@@ -194,11 +201,19 @@ def _pose_message(store, ros, base, row, stamp_ns):
         position=types["geometry_msgs/msg/Point"](*(float(v) for v in base.position[row])),
         orientation=types["geometry_msgs/msg/Quaternion"](x=x, y=y, z=z, w=w),  # ROS: x, y, z, w
     )
-    return types[POSE_STAMPED](header=_header(store, ros, stamp_ns, base.frame, row), pose=pose)
+    header = _header(store, ros, stamp_ns, base.frame, row)
+    if base.rate is None:
+        return types[POSE_STAMPED](header=header, pose=pose)
+    vector = types["geometry_msgs/msg/Vector3"]
+    twist = types["geometry_msgs/msg/Twist"](linear=vector(0.0, 0.0, 0.0), angular=vector(*(float(v) for v in
+                                                                                           base.rate[row])))
+    return types[ODOMETRY](header=header, child_frame_id="base",
+                           pose=types["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+                           twist=types["geometry_msgs/msg/TwistWithCovariance"](twist=twist, covariance=np.zeros(36)))
 
 
-def _write_messages(bag, kind, store, messages, joint_topic, pose_topic, n_groups):
-    """Write sorted ``messages`` into a new bag at ``bag`` with rosbags' writers."""
+def _write_messages(bag, kind, store, messages, joint_topic, pose_topic, n_groups, pose_type):
+    """Write sorted ``messages`` into a new bag at ``bag`` with rosbags' writers (the poses of ``pose_type``)."""
     if kind == "ros1":
         from rosbags.rosbag1 import Writer
 
@@ -209,7 +224,7 @@ def _write_messages(bag, kind, store, messages, joint_topic, pose_topic, n_group
         plugin = StoragePlugin.SQLITE3 if kind == "ros2" else StoragePlugin.MCAP
         writer = Writer(bag, version=8, storage_plugin=plugin)
     with writer:
-        connections = {("pose", 0): writer.add_connection(pose_topic, POSE_STAMPED, typestore=store)}
+        connections = {("pose", 0): writer.add_connection(pose_topic, pose_type, typestore=store)}
         for g in range(n_groups if kind == "ros1" else 1):
             extra = {"callerid": f"/joint_state_publisher_{g}"} if kind == "ros1" else {}
             connections["joint", g] = writer.add_connection(joint_topic, JOINT_STATE, typestore=store, **extra)

@@ -73,7 +73,7 @@ def _bag_settings(mapping, joint_topic, pose_topic, options) -> tuple:
     topics = {"joint_topic": joint_topic or settings.get("joint_topic", DEFAULT_JOINT_TOPIC),
               "pose_topic": pose_topic or settings.get("pose_topic", DEFAULT_POSE_TOPIC),
               "rename": settings.get("joints")}  # fmt: skip
-    keywords = {k: settings[k] for k in ("rate", "pose_latency", "max_gap", "max_tilt") if k in settings}
+    keywords = {k: settings[k] for k in ("rate", "pose_latency", "max_gap", "max_tilt", "base_rate") if k in settings}
     return topics, keywords | {k: v for k, v in options.items() if v is not None}
 
 
@@ -193,6 +193,11 @@ class MessageAligner:
         self._checked = {t: 0 for t in self._held}  # messages held whose steps were checked for a gap
 
     @property
+    def base_rate(self) -> str:
+        """Where the parts' base rate comes from (:func:`to_log`'s ``base_rate``: the options', else the mapping's)."""
+        return self._keywords.get("base_rate", "attitude")
+
+    @property
     def held(self) -> int:
         return sum(len(msgs) for msgs in self._held.values())
 
@@ -294,6 +299,7 @@ def _settled(log: Log) -> float:
     """How long [s] before its last stamp the samples of ``log`` stop depending on messages to
     come: half the widest differentiator window it records, plus one sample step."""
     record = log.meta["differentiation"]
-    spans = [w for info in (record["base"], *(record["joints"] or {}).values()) for w in (info.get("window_s") or [])]
+    infos = ([record["base"]] if "base" in record else []) + list((record["joints"] or {}).values())  # base: measured
+    spans = [w for info in infos for w in (info.get("window_s") or [])]
     step = float(np.median(np.diff(log.t))) if log.n_samples > 1 else 0.0
     return max(spans, default=0.0) / 2 + step

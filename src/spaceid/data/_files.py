@@ -101,7 +101,8 @@ def read_log(path, *, joints, planar, require_rates=True, wheels=(), bag_options
     """
     if bags.is_bag(path):
         return bags.read_bag_log(path, joints=joints, planar=planar, wheels=wheels, **(bag_options or {}))
-    given = [k for k in ("joint_topic", "pose_topic", "mapping", "window") if (bag_options or {}).get(k) is not None]
+    given = [k for k in ("joint_topic", "pose_topic", "mapping", "base_rate", "window")
+             if (bag_options or {}).get(k) is not None]
     if given and not Path(path).is_dir():  # a folder gets the message of what it lacks to be a bag
         raise SpaceidError(
             f"{path}: {', '.join(given)} apply to ROS bags, but this is a CSV log: drop them or give a bag "

@@ -56,12 +56,16 @@ class Poses:
         renormalised).
     frame : str
         ``header.frame_id``.
+    rate : ndarray of shape (m, 3) or None
+        The base's measured angular velocity [rad/s] in its own axes, a gyro's (an Odometry's twist, an IMU's
+        ``angular_velocity``), or None (PoseStamped: none measured).
     """
 
     t: np.ndarray
     position: np.ndarray
     quat: np.ndarray
     frame: str = "world"
+    rate: np.ndarray | None = None
 
 
 @dataclass(frozen=True)

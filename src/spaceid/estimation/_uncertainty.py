@@ -185,7 +185,7 @@ def correlation_length(log: Log) -> int:
     """Samples over which the errors of differentiated rates are correlated: the longest
     differentiator window recorded in ``log.meta`` (0 when nothing was differentiated)."""
     info = log.meta.get("differentiation")
-    if not info or log.n_samples < 2:
+    if not info or not any(info.values()) or log.n_samples < 2:  # (a bag's record of no series: every rate measured)
         return 0
     spans = list(window_spans(info))
     step = float(np.median(np.diff(log.t)))

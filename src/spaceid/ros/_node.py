@@ -15,7 +15,7 @@ import numpy as np
 from .._errors import SpaceidError
 from .._threads import one_blas_thread
 from ._live import LiveMonitor, _stamp as _stamp_ns
-from ._rclpy import as_pose, pose_class, qos, ros_context, string_message
+from ._rclpy import pose_class, qos, ros_context, string_message
 
 __all__ = ["EVENTS_TOPIC", "ESTIMATE_TOPIC", "PAYLOAD_TOPIC", "run_monitor", "play_recording"]
 
@@ -53,6 +53,10 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
     from std_msgs.msg import String
 
     cls = pose_class(pose_type)
+    if pose_type == "pose" and live.aligner.base_rate == "gyro":
+        raise SpaceidError(f"`pose_type` pose: a geometry_msgs/PoseStamped on '{live.aligner.pose_topic}' carries no "
+                           "angular velocity, and the base rate is to be the gyro's (base_rate gyro): subscribe to "
+                           "the odometry or IMU topic (`pose_type` odometry or imu), or take the rate from the attitude")
     show = on_output or (lambda out: None)
     with ros_context() as context:
         from rclpy.executors import SingleThreadedExecutor
@@ -63,11 +67,9 @@ def run_monitor(live: LiveMonitor, *, pose_type: str = "pose", node_name: str = 
                 for kind, topic in (("estimate", ESTIMATE_TOPIC), ("event", EVENTS_TOPIC), ("payload", PAYLOAD_TOPIC))}
         inbox = []
         jt, pt = live.aligner.joint_topic, live.aligner.pose_topic
-        subs = [(node.create_subscription(JointState, jt, lambda m, info: inbox.append((jt, m, _arrival(info))),
-                                          qos()), jt, None),
-                (node.create_subscription(cls, pt, lambda m, info: inbox.append((pt, as_pose(m, pose_type),
-                                                                                 _arrival(info))), qos()),
-                 pt, pose_type)]  # fmt: skip
+        # the messages as they come: the aligner reads a pose, an odometry or an IMU message by its fields
+        subs = [(node.create_subscription(kind, topic, lambda m, info, topic=topic: inbox.append(
+            (topic, m, _arrival(info))), qos()), topic) for kind, topic in ((JointState, jt), (cls, pt))]
         executor = SingleThreadedExecutor(context=context)
         executor.add_node(node)
 
@@ -122,20 +124,19 @@ class _Worker:
 
 
 def _take_all(subscriptions) -> list:
-    """Every message the ``subscriptions`` ``(subscription, topic, pose_type or None)`` hold, as
+    """Every message the ``subscriptions`` ``(subscription, topic)`` hold, as
     ``(topic, message, arrival [s])``: taken from each at once (rclpy's take, as its executor takes
     them), without the executor's round per message (a wait set built and waited on, 0.3 to 0.5 ms
     of processor time each: at ten times real time, 1,500 messages a second, as much as the
     monitor's own work)."""
     taken = []
-    for sub, topic, pose_type in subscriptions:
+    for sub, topic in subscriptions:
         while True:
             with sub.handle:
                 got = sub.handle.take_message(sub.msg_type, sub.raw)
             if got is None:
                 break
-            msg = got[0] if pose_type is None else as_pose(got[0], pose_type)
-            taken.append((topic, msg, _arrival(got[1])))
+            taken.append((topic, got[0], _arrival(got[1])))
     return taken
 
 
@@ -172,7 +173,8 @@ def _null(value):
 def play_recording(recording, *, joint_topic: str, pose_topic: str, rate_factor: float = 1.0,
                    subscribers: int = 1, wait: float = 30.0, node_name: str = "spaceid_play", progress=None) -> int:
     """Publish a recording's joint states (``sensor_msgs/JointState``) and base poses
-    (``geometry_msgs/PoseStamped``) on the loopback or the network, in stamp order, paced by their
+    (``geometry_msgs/PoseStamped``; ``nav_msgs/Odometry`` when they hold a measured rate, a gyro's, as its
+    twist's angular velocity) on the loopback or the network, in stamp order, paced by their
     stamps divided by ``rate_factor`` (math.inf: as fast as the middleware takes them).
 
     Parameters
@@ -199,18 +201,18 @@ def play_recording(recording, *, joint_topic: str, pose_topic: str, rate_factor:
     """
     if not (rate_factor > 0):
         raise SpaceidError(f"`rate_factor`: {rate_factor!r}: give a speed-up > 0 (1: real time)")
-    from geometry_msgs.msg import PoseStamped
     from sensor_msgs.msg import JointState
 
+    PoseType = pose_class("pose" if recording.base.rate is None else "odometry")
     origin = int(recording.meta.get("time_origin_ns", 0) or 0)
     with ros_context() as context:
         from rclpy.node import Node
 
         node = Node(node_name, context=context)
         jpub = node.create_publisher(JointState, joint_topic, qos())
-        ppub = node.create_publisher(PoseStamped, pose_topic, qos())
+        ppub = node.create_publisher(PoseType, pose_topic, qos())
         _wait_for_subscribers(node, context, (jpub, ppub), subscribers, wait)
-        messages = _messages(recording, origin, JointState, PoseStamped)
+        messages = _messages(recording, origin, JointState, PoseType)
         start, t0, last_report, sent = time.monotonic(), None, time.monotonic(), 0
         try:
             for t, is_joint, msg in messages:
@@ -255,14 +257,14 @@ def _duration(seconds):
     return Duration(seconds=seconds)
 
 
-def _messages(recording, origin, JointState, PoseStamped):
+def _messages(recording, origin, JointState, PoseType):
     """The recording's messages as ``(t, is_joint, message)`` in stamp order (joints first at equal stamps)."""
     js, base = recording.joints, recording.base
     rows = [(float(t), True, i) for i, t in enumerate(js.t)] + [(float(t), False, i) for i, t in enumerate(base.t)]
     rows.sort(key=lambda r: (r[0], not r[1]))
     for t, is_joint, i in rows:
         yield t, is_joint, (_joint_message(JointState, js, i, origin) if is_joint
-                            else _pose_message(PoseStamped, base, i, origin))  # fmt: skip
+                            else _pose_message(PoseType, base, i, origin))  # fmt: skip
 
 
 def _stamp(header, t, origin):
@@ -283,12 +285,18 @@ def _joint_message(JointState, js, i, origin):
     return msg
 
 
-def _pose_message(PoseStamped, base, i, origin):
-    msg = PoseStamped()
+def _pose_message(PoseType, base, i, origin):
+    """A PoseStamped of pose ``i``, or an Odometry (``PoseType``) with its measured rate."""
+    msg = PoseType()
     _stamp(msg.header, base.t[i], origin)
     msg.header.frame_id = base.frame
+    pose = msg.pose if base.rate is None else msg.pose.pose
     p, q = base.position[i], base.quat[i]
-    msg.pose.position.x, msg.pose.position.y, msg.pose.position.z = (float(v) for v in p)
-    o = msg.pose.orientation
+    pose.position.x, pose.position.y, pose.position.z = (float(v) for v in p)
+    o = pose.orientation
     o.w, o.x, o.y, o.z = (float(v) for v in q)  # spaceid [w, x, y, z] -> ROS fields
+    if base.rate is not None:
+        msg.child_frame_id = "base"
+        w = msg.twist.twist.angular
+        w.x, w.y, w.z = (float(v) for v in base.rate[i])
     return msg

@@ -4,7 +4,6 @@ the quality of service and the message types of the topics spaceid reads and wri
 from __future__ import annotations
 
 import contextlib
-import types
 import warnings
 
 from .._errors import SpaceidError
@@ -74,19 +73,6 @@ def pose_class(pose_type: str):
     else:
         from sensor_msgs.msg import Imu as cls
     return cls
-
-
-def as_pose(msg, pose_type: str):
-    """A base attitude message as the PoseStamped fields the aligner reads (``header``,
-    ``pose.position``, ``pose.orientation``): an Odometry's pose, an IMU's orientation at the
-    origin (its gyro is not read: the base rate is the attitude differentiated, as for a bag)."""
-    if pose_type == "pose":
-        return msg
-    if pose_type == "odometry":
-        return types.SimpleNamespace(header=msg.header, pose=msg.pose.pose)
-    origin = types.SimpleNamespace(x=0.0, y=0.0, z=0.0)
-    return types.SimpleNamespace(header=msg.header, pose=types.SimpleNamespace(position=origin,
-                                                                               orientation=msg.orientation))
 
 
 def string_message(text: str):

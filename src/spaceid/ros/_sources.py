@@ -10,15 +10,15 @@ import numpy as np
 __all__ = ["recording_of_log", "twin_recording"]
 
 
-def recording_of_log(log):
+def recording_of_log(log, gyro: bool = False):
     """A :class:`~spaceid.data.Recording` of a :class:`~spaceid.data.Log`: its angles and rates
     as joint states, its attitude (and base position, zero when not logged) as poses, both on
-    the log's stamps."""
+    the log's stamps; ``gyro``: its base rate as the poses' measured rate (written as Odometry)."""
     from ..data import JointStates, Poses, Recording
 
     position = log.base_position if log.base_position is not None else np.zeros((log.n_samples, 3))
     return Recording(JointStates(t=log.t, names=tuple(log.joints), position=log.q, velocity=log.qd, effort=log.tau),
-                     Poses(t=log.t, position=position, quat=log.base_quat),
+                     Poses(t=log.t, position=position, quat=log.base_quat, rate=log.base_w if gyro else None),
                      meta={"source": log.meta.get("source", "log"),
                            "time_origin_ns": int(log.meta.get("time_origin_ns", 0) or 0)})  # fmt: skip
 
