@@ -312,7 +312,9 @@ def _check_montecarlo(flown: Flown):
     parameter is within the band that ``RUNS`` draws allow around the Cramer-Rao bound (chi-square, Bonferroni, 1e-5
     in all: a property run draws some 200 robots, and at 1e-3 a robot one run in five failed by chance; seed 3203's
     designed planar robot 1656091195 had 2.19 times the bound in its first 8 runs, above 2.09, and 0.85 to 1.14 over
-    60, ML's standard errors the same). Both figures draw, the PNG's (its ranked efficiency beyond 40 parameters) and
+    60, ML's standard errors the same), nor where a run's ML fell back to WLS (designed spatial robot 9152, seed 3602:
+    runs 5 and 7 reported WLS, biased by up to 3.4 of its standard errors, which it widens, and the RMSE of one
+    parameter came to 2.64 times the bound over 8 runs, above 2.48; 1.50 over 60, within 1.51). Both figures draw, the PNG's (its ranked efficiency beyond 40 parameters) and
     the page's (valid for Plotly)."""
     import plotly.graph_objects as go
 
@@ -330,7 +332,10 @@ def _check_montecarlo(flown: Flown):
             np.testing.assert_array_equal(shorter.estimates[e], study.estimates[e][:2])
         z = np.abs(study.estimates["ml"] - study.true) / study.predicted_std["ml"]
         assert z.max() < 5, f"max |z| {z.max():.3g} in run {np.argmax(z.max(1))}"
-        if not any("not determined" in w["warning"] for w in study.warnings if w["estimator"] == "ml"):
+        # the bound is an efficient estimator's: not where ML said the data leave a direction undetermined, nor where
+        # it fell back to WLS, whose errors-in-variables bias its standard errors are widened by (z above)
+        ml_warned = [w["warning"] for w in study.warnings if w["estimator"] == "ml"]
+        if not any("not determined" in w or "maximum likelihood failed" in w for w in ml_warned):
             k = len(study.names)
             low, high = np.sqrt(chi2.ppf([0.25e-5 / k, 1 - 0.25e-5 / k], RUNS) / RUNS)
             ratio = study.stats["ml"]["rmse_crb"]
@@ -481,6 +486,7 @@ def test_pipeline_and_payload_on_more_random_robots_and_undesigned_motions(seed,
 @SLOW
 @given(seed=SEEDS, planar=st.booleans())
 @example(seed=430, planar=False)  # the payload's consistency projection: Clarabel failed at both tolerances
+@example(seed=9152, planar=False)  # ML fell back to WLS in 2 of 8 Monte Carlo runs (_check_montecarlo)
 def test_pipeline_and_payload_on_more_random_robots(seed, planar, tmp_path):
     flown = _flown(seed, planar, tmp_path)
     _check_pipeline(flown)
