@@ -163,6 +163,57 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
     assert json.loads((tmp_path / "result.json").read_text())["parameters"]
 
 
+@pytest.mark.slow  # two processes over DDS: a minute
+def test_a_gyros_bag_played_and_monitored_over_dds(tmp_path, twin_bag):
+    """The twin's bag with its base rate as a gyro's (Odometry poses), published by ``ros play`` and monitored by
+    ``ros monitor --pose-type odometry --base-rate gyro`` over DDS: the rates arrive in the twists, and the monitor
+    finds what the bag reader (``base_rate`` gyro) and the monitor find offline: the same alarms at the same
+    samples, the grasp's within 0.5 s of it."""
+    rclpy = pytest.importorskip("rclpy")
+    pytest.importorskip("nav_msgs.msg")
+    import numpy as np
+
+    from spaceid import load_model
+    from spaceid.data import read_bag_log, write_bag
+    from spaceid.ros import recording_of_log
+
+    bag, grasp, *_ = twin_bag
+    m = load_model("cepheus-rw")
+    log = read_bag_log(bag, joints=m.joints, planar=True, wheels=m.wheels, window=25)  # its rate as a gyro's
+    write_bag(tmp_path / "gyro.mcap", recording_of_log(log, gyro=True), format="mcap")
+    expected = _batch_monitor(tmp_path / "gyro.mcap", base_rate="gyro")
+    env = _environment()
+    listener = _Listener(rclpy, env)
+    monitor = player = None
+    try:
+        monitor = _start([*MONITOR, "--pose-type", "odometry", "--base-rate", "gyro", "-o", "events.json"], env,
+                         tmp_path)  # fmt: skip
+        player = _start(["ros", "play", "gyro.mcap", "--rate-factor", RATE_FACTOR], env, tmp_path)
+        assert listener.wait(lambda: player.poll() is not None, TIMEOUT, [monitor]), "the player did not finish"
+        assert player.returncode == 0, _output(player, tmp_path, "ros")
+        end = float(log.t[-1]) - 0.5  # the estimate reaches the bag's end: every message taken
+
+        def caught_up():
+            return any(e["time"] >= end for e in listener.got["estimate"] if e.get("time") is not None)
+
+        assert listener.wait(caught_up, TIMEOUT, [monitor]), listener.got["estimate"][-1:]
+        monitor.send_signal(signal.SIGINT)
+        assert listener.wait(lambda: monitor.poll() is not None, TIMEOUT), "the monitor did not stop on SIGINT"
+        assert monitor.returncode == 0, _output(monitor, tmp_path, "monitor")
+    finally:
+        for p in (monitor, player):
+            if p is not None and p.poll() is None:
+                p.kill()
+                p.wait(timeout=60)
+        listener.close()
+    written = json.loads((tmp_path / "events.json").read_text())
+    got = [(e["time"], e["detected_at"]) for e in written["events"]]
+    assert got == [(e.time, e.detected_at) for e in expected.events] and got, (got, expected.events)
+    origin = log.meta["time_origin_ns"] / 1e9
+    assert any(abs(t + origin - grasp) <= 0.5 for t, _ in got), (got, grasp)
+    assert np.isclose(written["events"][0]["statistic"], expected.events[0].statistic, rtol=1e-8)
+
+
 @pytest.fixture(scope="module")
 def twin_bag(tmp_path_factory):
     """The end-to-end test's twin run (grasp 4 s into 12 s) as an MCAP bag, the grasp time and the
@@ -224,8 +275,9 @@ def one_by_one(twin_bag):
     return outputs + [(parts, o) for o in rest], record
 
 
-def _batch_monitor(bag):
-    """``spaceid.estimation.monitor`` on the bag's chunks as the live node aligns them (its record)."""
+def _batch_monitor(bag, **reading):
+    """``spaceid.estimation.monitor`` on the bag's chunks as the live node aligns them (its record); ``reading``: the
+    bag reader's further options."""
     import numpy as np
 
     from spaceid import load_model, minimal_parameters
@@ -235,7 +287,7 @@ def _batch_monitor(bag):
 
     m = load_model("cepheus-rw")
     chunks = bag_chunks(bag, joints=m.joints, planar=True, wheels=m.wheels, block=LIVE_BLOCK, context=LIVE_CONTEXT,
-                        window=25, order=LIVE_ORDER)
+                        window=25, order=LIVE_ORDER, **reading)
     return monitor(minimal_parameters(m), chunks, np.zeros(3), known={"Iczz_wheel": float(ROTOR)}, warmup=100,
                    noise=Noise(angle=1e-3, rate=1e-2, base_rate=1e-2, attitude=1e-3))
 
