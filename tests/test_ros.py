@@ -95,6 +95,22 @@ def _output(process, cwd, name) -> str:
     return (cwd / f"{name}.out").read_text()
 
 
+def _interrupt(monitor, listener, cwd):
+    """Ctrl-C to the ``monitor`` process (it writes EVENTS.json and RESULT.json), waited for: it ends with code 0."""
+    monitor.send_signal(signal.SIGINT)
+    assert listener.wait(lambda: monitor.poll() is not None, TIMEOUT), "the monitor did not stop on SIGINT"
+    assert monitor.returncode == 0, _output(monitor, cwd, "monitor")
+
+
+def _stop(listener, *processes):
+    """Kill the ``processes`` (None: not started) still running after a failed wait, then close the ``listener``."""
+    for p in processes:
+        if p is not None and p.poll() is None:
+            p.kill()
+            p.wait(timeout=60)
+    listener.close()
+
+
 RATE_FACTOR = "0.5"
 """The twin publishes at half real time (25 joint samples/s): the monitor keeps up on a loaded 2-core machine."""
 
@@ -143,17 +159,10 @@ def test_twin_monitor_and_subscriber_over_dds(tmp_path):
         assert listener.wait(undetermined, TIMEOUT, [monitor]), listener.got["events"]
         assert undetermined()[0]["warm_up"]["undetermined"]
         assert len(listener.got["estimate"]) >= 20  # after each part (0.1 s of data; merged when the node falls behind)
-        monitor.send_signal(signal.SIGINT)
-        assert listener.wait(lambda: monitor.poll() is not None, TIMEOUT), "the monitor did not stop on SIGINT"
-        out = _output(monitor, tmp_path, "monitor")
-        assert monitor.returncode == 0, out
+        _interrupt(monitor, listener, tmp_path)
         listener.wait(lambda: False, 1.0)  # what the interrupt completed
     finally:
-        for p in (monitor, twin):
-            if p is not None and p.poll() is None:
-                p.kill()
-                p.wait(timeout=60)
-        listener.close()
+        _stop(listener, monitor, twin)
     written = json.loads((tmp_path / "events.json").read_text())
     compared = [e["index"] for e in listener.got["events"] if e["stage"] == "compared"]
     assert [e["index"] for e in written["events"]] == compared == [e["index"] for e in listener.got["events"]
@@ -197,15 +206,9 @@ def test_a_gyros_bag_played_and_monitored_over_dds(tmp_path, twin_bag):
             return any(e["time"] >= end for e in listener.got["estimate"] if e.get("time") is not None)
 
         assert listener.wait(caught_up, TIMEOUT, [monitor]), listener.got["estimate"][-1:]
-        monitor.send_signal(signal.SIGINT)
-        assert listener.wait(lambda: monitor.poll() is not None, TIMEOUT), "the monitor did not stop on SIGINT"
-        assert monitor.returncode == 0, _output(monitor, tmp_path, "monitor")
+        _interrupt(monitor, listener, tmp_path)
     finally:
-        for p in (monitor, player):
-            if p is not None and p.poll() is None:
-                p.kill()
-                p.wait(timeout=60)
-        listener.close()
+        _stop(listener, monitor, player)
     written = json.loads((tmp_path / "events.json").read_text())
     got = [(e["time"], e["detected_at"]) for e in written["events"]]
     assert got == [(e.time, e.detected_at) for e in expected.events] and got, (got, expected.events)

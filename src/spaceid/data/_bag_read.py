@@ -61,7 +61,8 @@ def read_recording(
         ``.bag`` (ROS 1), a ROS 2 bag folder with ``metadata.yaml`` (sqlite3 or MCAP storage),
         or a ``.mcap`` / ``.db3`` file. It is only read.
     joint_topic, pose_topic : str
-        Topics of the ``sensor_msgs/JointState`` and ``geometry_msgs/PoseStamped`` messages.
+        Topics of the ``sensor_msgs/JointState`` and the base attitude's ``geometry_msgs/PoseStamped``,
+        ``nav_msgs/Odometry`` or ``sensor_msgs/Imu`` messages.
     rename : mapping of str to str, optional
         Joint names in the bag to model joint names, e.g. ``{"shoulder": "left_shoulder"}``;
         joints not listed keep their names.
@@ -75,7 +76,8 @@ def read_recording(
         ``joints``: ``t`` (n,) [s], ``names`` (renamed), ``position`` (n, n_joints),
         ``velocity`` and ``effort`` (n, n_joints) or None when no message carries them.
         ``base``: ``t`` (m,) [s], ``position`` (m, 3) [m], ``quat`` (m, 4) ``[w, x, y, z]`` as
-        published (not renormalised), ``frame``. ``meta``: ``source``, ``format``, topics,
+        published (not renormalised), ``frame``, ``rate`` (m, 3) [rad/s] the Odometry's or Imu's angular
+        velocity (None for PoseStamped). ``meta``: ``source``, ``format``, topics,
         ``rename``, ``time_origin_ns``, message and publisher counts.
 
     Raises
@@ -93,7 +95,7 @@ def read_recording(
 
 
 def _recording(path, joint_msgs, pose_msgs, joint_publishers, joint_topic, pose_topic, rename, time_origin_ns):
-    """The :class:`Recording` of a bag's deserialised JointState and PoseStamped messages (all of
+    """The :class:`Recording` of a bag's deserialised JointState and base attitude messages (all of
     them, or a block of a bag read in parts), as :func:`read_recording` returns it."""
     where = str(path)
     kind = "ros1" if path.suffix.lower() == ".bag" else _ros2_format(path)
@@ -125,7 +127,7 @@ def _recording(path, joint_msgs, pose_msgs, joint_publishers, joint_topic, pose_
 
 
 def _read_messages(path, joint_topic, pose_topic):
-    """The deserialised JointState and PoseStamped messages of a bag, in bag order, and the
+    """The deserialised JointState and base attitude messages of a bag, in bag order, and the
     number of publishers (connections) of the joint topic."""
     joint_msgs, pose_msgs = [], []
     with _bag_messages(path, joint_topic, pose_topic) as (messages, publishers):

@@ -43,7 +43,8 @@ class JointStates:
 
 @dataclass(frozen=True)
 class Poses:
-    """``geometry_msgs/PoseStamped`` messages of one topic (motion capture of the base).
+    """Base attitude messages of one topic: ``geometry_msgs/PoseStamped`` (motion capture), ``nav_msgs/Odometry`` or
+    ``sensor_msgs/Imu`` (a spacecraft's attitude and gyro).
 
     Attributes
     ----------

@@ -33,9 +33,11 @@ ORDER = ("ZeroConeT", "NonnegativeConeT", "SecondOrderConeT", "PSDTriangleConeT"
 """The order of the cones in a program given to Clarabel (cvxpy's)."""
 SOLVED = ("Solved", "AlmostSolved")
 """Clarabel's statuses of a solution (cvxpy's optimal and optimal but inaccurate)."""
-FAILED = ("NumericalError", "InsufficientProgress", "Unsolved")
-"""Clarabel's statuses of a failed solve (cvxpy's solver error), which :func:`solved_tightly` tries once more with
-the cones whole; an infeasible program or an iteration limit is an answer."""
+PANICKED = "the solver failed"
+"""The status :func:`conic_solution` gives when Clarabel's core panicked."""
+FAILED = ("NumericalError", "InsufficientProgress", "Unsolved", PANICKED)
+"""Clarabel's statuses of a failed solve (cvxpy's solver error) and a panic, which :func:`solved_tightly` tries once
+more with the cones whole; an infeasible program or an iteration limit is an answer."""
 
 
 def triangle(d: int) -> tuple:
@@ -78,7 +80,7 @@ def conic_solution(P, q, rows: list, options: dict) -> tuple:
     except BaseException as exc:
         if not solver_panicked(exc):
             raise
-        return None, "the solver failed"
+        return None, PANICKED
     status = str(solution.status)
     return (np.array(solution.x, float) if status in SOLVED else None), status
 
@@ -89,7 +91,7 @@ def solved_tightly(P, q, rows: list) -> np.ndarray | None:
     or None."""
     for settings in ({}, WHOLE_CONES):
         x, status = conic_solution(P, q, rows, CLARABEL_TOLERANCES | settings)
-        if x is not None or status not in (*FAILED, "the solver failed"):
+        if x is not None or status not in FAILED:
             return x
     return None
 
